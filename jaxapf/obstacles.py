@@ -1,0 +1,128 @@
+r"""Scenario data and obstacle geometry (SPEC 2).
+
+An obstacle field holds a fixed maximum number ``M`` of obstacles; unused slots have
+``valid = False`` and contribute exactly nothing (zero potential, zero force, +inf clearance).
+
+Clearance (surface distance) of the UAV sphere to an obstacle is
+
+.. math::  d = \lVert P (p - p_o) \rVert - \rho - r_{uav},
+
+where ``P`` drops z for a vertical cylinder of infinite height and is the identity for a sphere.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+from jax import Array
+
+__all__ = [
+    "Obstacles",
+    "Scenario",
+    "project",
+    "safe_norm",
+    "obstacles_at",
+    "clearance",
+    "segment_clearance",
+]
+
+#: Offset added inside square roots so that norms stay differentiable at zero.
+_TINY = 1e-12
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Obstacles:
+    """A padded set of ``M`` obstacles (leading axis ``M``; extra leading axes for batches).
+
+    Attributes:
+      position: (M, 3) centre at t = 0 [m].
+      velocity: (M, 3) constant velocity [m/s].
+      radius: (M,) radius ρ [m].
+      cylinder: (M,) True for a vertical cylinder of infinite height, False for a sphere.
+      valid: (M,) True for a real obstacle, False for a padded slot.
+    """
+
+    position: Array
+    velocity: Array
+    radius: Array
+    cylinder: Array
+    valid: Array
+
+    @property
+    def size(self) -> int:
+        return self.radius.shape[-1]
+
+    @classmethod
+    def empty(cls, size: int, dtype=jnp.float32) -> "Obstacles":
+        """``size`` padded (invalid) slots, parked far away."""
+        return cls(
+            position=jnp.full((size, 3), 1e6, dtype),
+            velocity=jnp.zeros((size, 3), dtype),
+            radius=jnp.zeros((size,), dtype),
+            cylinder=jnp.zeros((size,), bool),
+            valid=jnp.zeros((size,), bool),
+        )
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Scenario:
+    """One obstacle field with a start and a goal (all leaves arrays, batchable).
+
+    Attributes:
+      start: (3,) initial position; the UAV starts at rest.
+      goal: (3,) goal position.
+      obstacles: the padded obstacle set.
+    """
+
+    start: Array
+    goal: Array
+    obstacles: Obstacles
+
+
+def project(r: Array, cylinder: Array) -> Array:
+    """``P r``: drop the z component of ``r`` (..., 3) where ``cylinder`` is True."""
+    keep_z = jnp.where(cylinder, 0.0, 1.0).astype(r.dtype)
+    return r * jnp.stack([jnp.ones_like(keep_z), jnp.ones_like(keep_z), keep_z], axis=-1)
+
+
+def safe_norm(r: Array, axis: int = -1) -> Array:
+    """Euclidean norm whose gradient is finite (zero) at ``r = 0``."""
+    sq = jnp.sum(r * r, axis=axis)
+    return jnp.sqrt(jnp.maximum(sq, _TINY))
+
+
+def obstacles_at(obstacles: Obstacles, t: Array | float) -> Array:
+    """Obstacle centres (M, 3) at time ``t`` under constant velocity."""
+    return obstacles.position + obstacles.velocity * t
+
+
+def clearance(p: Array, obstacles: Obstacles, t: Array | float, r_uav: float) -> Array:
+    """Clearance (M,) of the UAV at ``p`` to each obstacle at time ``t``; +inf for padded slots."""
+    rel = project(p - obstacles_at(obstacles, t), obstacles.cylinder)
+    d = safe_norm(rel) - obstacles.radius - r_uav
+    return jnp.where(obstacles.valid, d, jnp.inf)
+
+
+def segment_clearance(
+    p0: Array, p1: Array, obstacles: Obstacles, t0: Array | float, t1: Array | float, r_uav: float
+) -> Array:
+    r"""Smallest clearance (M,) over the step from ``(p0, t0)`` to ``(p1, t1)``.
+
+    Both UAV and obstacles move linearly between the two samples, so the relative position is
+    :math:`r(s) = r_0 + s (r_1 - r_0)`, :math:`s \in [0, 1]`; the closest approach is at
+    :math:`s^* = \mathrm{clip}(-r_0\cdot\delta / \lVert\delta\rVert^2, 0, 1)` with
+    :math:`\delta = r_1 - r_0` (after the cylinder projection ``P``). This catches a fast crossing
+    that tunnels through an obstacle between two samples.
+    """
+    r0 = project(p0 - obstacles_at(obstacles, t0), obstacles.cylinder)
+    r1 = project(p1 - obstacles_at(obstacles, t1), obstacles.cylinder)
+    delta = r1 - r0
+    dd = jnp.sum(delta * delta, axis=-1)
+    s = jnp.clip(-jnp.sum(r0 * delta, axis=-1) / jnp.maximum(dd, _TINY), 0.0, 1.0)
+    closest = r0 + s[..., None] * delta
+    d = safe_norm(closest) - obstacles.radius - r_uav
+    return jnp.where(obstacles.valid, d, jnp.inf)
