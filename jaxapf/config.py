@@ -12,7 +12,7 @@ Every constructor validates its values *before* anything is traced and raises
 from __future__ import annotations
 
 import dataclasses
-import math
+import os
 import warnings
 from typing import Any, Literal
 
@@ -27,6 +27,8 @@ __all__ = [
     "Gains",
     "MPCConfig",
     "SimConfig",
+    "gains_from_mapping",
+    "load_gains",
 ]
 
 METHODS = ("basic", "direction", "direction_velocity")
@@ -112,10 +114,9 @@ def _axis_weight(where: str, value: Any) -> tuple[float, float, float]:
     return tuple(float(a) for a in arr)
 
 
-def _is_concrete(x: Any) -> bool:
-    return not isinstance(x, jax.core.Tracer) and isinstance(
-        x, (int, float, np.ndarray, np.generic, jax.Array)
-    )
+def _is_placeholder(x: Any) -> bool:
+    """A leaf JAX itself puts into a pytree (tracer, shape struct, ``None``/sentinel): not user input."""
+    return x is None or type(x) is object or isinstance(x, (jax.core.Tracer, jax.ShapeDtypeStruct))
 
 
 # --------------------------------------------------------------------------------------------
@@ -159,7 +160,7 @@ class Gains:
         # Pytree unflattening (vmap, grad) passes tracers or placeholders: only validate
         # values a user handed in.
         values = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
-        if all(_is_concrete(v) for v in values.values()):
+        if not any(_is_placeholder(v) for v in values.values()):
             validate_gains(values)
 
     @classmethod
@@ -293,3 +294,35 @@ class SimConfig:
 
     def replace(self, **changes: Any) -> "SimConfig":
         return dataclasses.replace(self, **changes)
+
+
+def gains_from_mapping(mapping: dict[str, Any], where: str = "gains", base: Gains | None = None) -> Gains:
+    """:class:`Gains` from a mapping of gain names to numbers, on top of ``base`` (defaults).
+
+    Unknown keys raise :class:`ConfigError` naming the key and listing the allowed ones.
+    """
+    unknown = sorted(set(mapping) - set(Gains.names()))
+    if unknown:
+        raise ConfigError(f"{where}.{unknown[0]} is not a gain; allowed: {', '.join(Gains.names())}")
+    for name, value in mapping.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where}.{name} = {value!r} must be a number")
+    return dataclasses.replace(base or Gains(), **{k: float(v) for k, v in mapping.items()})
+
+
+def load_gains(path: str | os.PathLike, base: Gains | None = None) -> Gains:
+    """Gains from a TOML file: either a ``[gains]`` table or gain keys at the top level
+    (the fragment written by ``jaxapf tune``)."""
+    import tomllib
+
+    try:
+        with open(path, "rb") as fh:
+            data = tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(f"gains file {str(path)!r} does not exist") from None
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"gains file {str(path)!r} is not valid TOML: {err}") from None
+    table = data.get("gains", data)
+    if not isinstance(table, dict):
+        raise ConfigError(f"gains file {str(path)!r}: [gains] must be a table")
+    return gains_from_mapping(table, where=f"{path}:gains", base=base)

@@ -1,0 +1,109 @@
+"""Configuration validation: every bad value is rejected before tracing, naming field and range."""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from jaxapf.config import BoundWarning, ConfigError, Gains, MPCConfig, SimConfig, gains_from_mapping, load_gains
+
+
+@pytest.mark.parametrize(
+    "kwargs,message",
+    [
+        (dict(gamma=-0.1), r"gains\.gamma = -0\.1 is out of range; allowed: a finite number >= 0"),
+        (dict(k=-1.0), r"gains\.k = -1\.0 .*>= 0"),
+        (dict(k_rep=0.0), r"gains\.k_rep = 0\.0 .*> 0"),
+        (dict(d_s=0.0), r"gains\.d_s = 0\.0 .*> 0"),
+        (dict(d_s=-2.0), r"gains\.d_s = -2\.0"),
+        (dict(k_att=math.nan), r"gains\.k_att = nan"),
+        (dict(eta=math.inf), r"gains\.eta = inf"),
+        (dict(gamma=np.array([0.5, -1.0])), r"gains\.gamma = -1\.0"),
+        (dict(gamma="high"), r"gains\.gamma = 'high' is not numeric"),
+    ],
+)
+def test_bad_gains(kwargs, message):
+    with pytest.raises(ConfigError, match=message):
+        Gains(**kwargs)
+
+
+def test_k_above_one_warns_but_is_allowed():
+    with pytest.warns(BoundWarning, match="k > 1"):
+        Gains(k=1.5)
+
+
+@pytest.mark.parametrize(
+    "kwargs,message",
+    [
+        (dict(horizon=0), r"mpc\.horizon = 0 is out of range; allowed: an integer >= 1"),
+        (dict(horizon=2.5), r"mpc\.horizon = 2\.5 must be an integer"),
+        (dict(iters=0), r"mpc\.iters = 0"),
+        (dict(q_pos=-1.0), r"mpc\.q_pos = -1\.0 .*>= 0"),
+        (dict(q_vel=(1.0, 2.0)), r"mpc\.q_vel must be a number or 3 numbers"),
+        (dict(r=0.0), r"mpc\.r = 0\.0 .*> 0"),
+        (dict(f_pos=math.nan), r"mpc\.f_pos = nan"),
+        (dict(v_penalty=-1.0), r"mpc\.v_penalty = -1\.0"),
+    ],
+)
+def test_bad_mpc(kwargs, message):
+    with pytest.raises(ConfigError, match=message):
+        MPCConfig(**kwargs)
+
+
+@pytest.mark.parametrize(
+    "kwargs,message",
+    [
+        (dict(a_max=0.0), r"sim\.a_max = 0\.0 is out of range; allowed: a finite number > 0"),
+        (dict(a_max=-3.0), r"sim\.a_max = -3\.0"),
+        (dict(v_max=math.nan), r"sim\.v_max = nan"),
+        (dict(dt=0.0), r"sim\.dt = 0\.0"),
+        (dict(t_max=0.01), r"sim\.t_max = 0\.01 must be at least one step"),
+        (dict(r_uav=-0.1), r"sim\.r_uav = -0\.1 .*>= 0"),
+        (dict(d_min=0.0), r"sim\.d_min = 0\.0"),
+        (dict(method="vortex"), r"sim\.method = 'vortex' is not allowed; choose one of basic, direction, "
+                                r"direction_velocity"),
+        (dict(convention="reversed"), r"sim\.convention = 'reversed' is not allowed; choose one of intent, literal"),
+        (dict(att_cap=-1.0), r"sim\.att_cap = -1\.0"),
+        (dict(reference_velocity="yes"), r"sim\.reference_velocity = 'yes' must be true or false"),
+    ],
+)
+def test_bad_sim(kwargs, message):
+    with pytest.raises(ConfigError, match=message):
+        SimConfig(**kwargs)
+
+
+def test_static_configs_are_hashable_and_equal_by_value():
+    assert hash(SimConfig()) == hash(SimConfig())
+    assert MPCConfig(q_pos=2.0) == MPCConfig(q_pos=(2.0, 2.0, 2.0))
+    assert SimConfig(t_max=30.0, dt=0.1).steps == 300
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.floats(allow_nan=True, allow_infinity=True))
+def test_any_float_is_accepted_iff_in_range(x):
+    ok = math.isfinite(x) and x > 0
+    if ok:
+        assert Gains(d_s=x).d_s == x
+    else:
+        with pytest.raises(ConfigError, match="gains.d_s"):
+            Gains(d_s=x)
+
+
+def test_gains_file(tmp_path):
+    path = tmp_path / "g.toml"
+    path.write_text("[gains]\ngamma = 2.0\nk = 0.25\n")
+    assert load_gains(path) == Gains(gamma=2.0, k=0.25)
+    path.write_text("gamma = 3\n")  # top-level keys, the fragment `jaxapf tune` writes
+    assert load_gains(path).gamma == 3.0
+    path.write_text("[gains]\ngama = 2.0\n")
+    with pytest.raises(ConfigError, match=r"gains\.gama is not a gain; allowed: gamma, k, k_rep"):
+        load_gains(path)
+    path.write_text("[gains]\nd_s = -1\n")
+    with pytest.raises(ConfigError, match=r"gains\.d_s = -1\.0"):
+        load_gains(path)
+    with pytest.raises(ConfigError, match="does not exist"):
+        load_gains(tmp_path / "missing.toml")
+    with pytest.raises(ConfigError, match=r"x\.gamma = 'a' must be a number"):
+        gains_from_mapping({"gamma": "a"}, where="x")
