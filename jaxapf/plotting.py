@@ -1,0 +1,676 @@
+"""The paper's figures (section 4) for ``jaxapf simulate``, drawn from plain numpy arrays.
+
+Every figure is a :class:`matplotlib.figure.Figure` built without ``pyplot``: nothing here selects,
+switches or depends on a GUI backend, so the module is safe to import next to an interactive
+session, and :func:`plot_all` renders through the Agg canvas that ``Figure.savefig`` attaches.
+
+=========================  ==========================================================  =========
+file                       content                                                     paper
+=========================  ==========================================================  =========
+``trajectories.png``       top view (x–y), one panel per run                           Fig. 1
+``snapshots.png``          per run, the path at 0.25, 0.5, 0.75, 1 of the time to goal Fig. 2
+``obstacle_distance.png``  clearance to the nearby obstacles over time, per run        Fig. 3
+``goal_distance.png``      distance to goal over time, all runs on one axes            Fig. 4
+``trajectory_3d.png``      3-D view of each run from two angles                        Fig. 5
+=========================  ==========================================================  =========
+
+Colours are fixed per run label (:func:`run_colors`): the paper's method
+(``direction_velocity``) is blue, ``basic`` orange, ``direction`` purple; obstacles are red and
+the goal green in every figure.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import pathlib
+import textwrap
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+from matplotlib import colormaps
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Circle, FancyArrowPatch, Patch
+from matplotlib.ticker import MaxNLocator
+
+__all__ = [
+    "Run",
+    "Field",
+    "FIGURES",
+    "run_colors",
+    "outcome",
+    "plot_trajectories",
+    "plot_snapshots",
+    "plot_obstacle_distance",
+    "plot_goal_distance",
+    "plot_trajectory_3d",
+    "plot_all",
+]
+
+#: Fixed colours for the methods of :data:`jaxapf.config.METHODS`; other labels get the next free
+#: colour of ``_SPARE_COLORS`` in the order the runs are given.
+METHOD_COLORS: dict[str, str] = {
+    "basic": "tab:orange",
+    "direction": "tab:purple",
+    "direction_velocity": "tab:blue",
+}
+_SPARE_COLORS = ("tab:cyan", "tab:brown", "tab:pink", "tab:olive", "tab:gray", "black")
+_OBSTACLE_COLOR = "tab:red"
+_GOAL_COLOR = "tab:green"
+_SNAPSHOT_FRACTIONS = (0.25, 0.5, 0.75, 1.0)
+
+
+# --------------------------------------------------------------------------------------------
+# input contract
+# --------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Run:
+    """One episode of one method, cut at its end (goal reached, collision or ``t_max``).
+
+    Attributes:
+      label: method name, e.g. ``"basic"``; picks the colour (:func:`run_colors`).
+      time: (n,) sample times [s].
+      position: (n, 3) UAV position [m].
+      velocity: (n, 3) UAV velocity [m/s].
+      clearance: (n, M) surface clearance to each valid obstacle [m] (``M`` may be 0).
+      goal_distance: (n,) distance to the goal [m].
+      metrics: the episode's metrics (SPEC 6); read here: ``success``, ``collision``, ``stalled``,
+        ``time_to_goal`` (NaN if not reached), ``final_distance``. Missing keys are derived from
+        the arrays where possible.
+    """
+
+    label: str
+    time: np.ndarray
+    position: np.ndarray
+    velocity: np.ndarray
+    clearance: np.ndarray
+    goal_distance: np.ndarray
+    metrics: Mapping[str, float] = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        time = np.asarray(self.time, dtype=np.float64).reshape(-1)
+        n = time.shape[0]
+        if n == 0:
+            raise ValueError(f"run {self.label!r} has no samples")
+        position = np.asarray(self.position, dtype=np.float64)
+        velocity = np.asarray(self.velocity, dtype=np.float64)
+        for name, arr in (("position", position), ("velocity", velocity)):
+            if arr.shape != (n, 3):
+                raise ValueError(f"run {self.label!r}: {name} has shape {arr.shape}; expected ({n}, 3)")
+        clearance = np.asarray(self.clearance, dtype=np.float64)
+        if clearance.size == 0:
+            clearance = clearance.reshape(n, 0)
+        if clearance.ndim != 2 or clearance.shape[0] != n:
+            raise ValueError(f"run {self.label!r}: clearance has shape {clearance.shape}; expected ({n}, M)")
+        goal_distance = np.asarray(self.goal_distance, dtype=np.float64).reshape(-1)
+        if goal_distance.shape != (n,):
+            raise ValueError(f"run {self.label!r}: goal_distance has shape {goal_distance.shape}; expected ({n},)")
+        for name, arr in (("time", time), ("position", position), ("velocity", velocity),
+                          ("clearance", clearance), ("goal_distance", goal_distance)):
+            object.__setattr__(self, name, arr)
+        object.__setattr__(self, "metrics", dict(self.metrics))
+
+    @property
+    def t_end(self) -> float:
+        return float(self.time[-1])
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Field:
+    """The static description of one obstacle field (valid obstacles only).
+
+    Attributes:
+      start, goal: (3,) [m].
+      obstacle_position: (M, 3) centres at t = 0 [m]; obstacle_velocity: (M, 3) [m/s];
+      obstacle_radius: (M,) [m]; obstacle_cylinder: (M,) True for a vertical cylinder.
+      r_uav, r_goal, d_safe: UAV radius, goal tolerance, safety clearance [m].
+      title: shown as the figures' super-title, e.g. ``"paper_static (seed 0)"``.
+    """
+
+    start: np.ndarray
+    goal: np.ndarray
+    obstacle_position: np.ndarray
+    obstacle_velocity: np.ndarray
+    obstacle_radius: np.ndarray
+    obstacle_cylinder: np.ndarray
+    r_uav: float
+    r_goal: float
+    d_safe: float
+    title: str = ""
+
+    def __post_init__(self) -> None:
+        radius = np.asarray(self.obstacle_radius, dtype=np.float64).reshape(-1)
+        m = radius.shape[0]
+        position = np.asarray(self.obstacle_position, dtype=np.float64).reshape(m, 3)
+        velocity = np.asarray(self.obstacle_velocity, dtype=np.float64).reshape(m, 3)
+        cylinder = np.asarray(self.obstacle_cylinder, dtype=bool).reshape(-1)
+        if cylinder.shape != (m,):
+            raise ValueError(f"obstacle_cylinder has shape {cylinder.shape}; expected ({m},)")
+        for name, value in (("start", self.start), ("goal", self.goal)):
+            arr = np.asarray(value, dtype=np.float64)
+            if arr.shape != (3,):
+                raise ValueError(f"{name} has shape {arr.shape}; expected (3,)")
+            object.__setattr__(self, name, arr)
+        for name, arr in (("obstacle_position", position), ("obstacle_velocity", velocity),
+                          ("obstacle_radius", radius), ("obstacle_cylinder", cylinder)):
+            object.__setattr__(self, name, arr)
+        for name in ("r_uav", "r_goal", "d_safe"):
+            object.__setattr__(self, name, float(getattr(self, name)))
+
+    @property
+    def n_obstacles(self) -> int:
+        return int(self.obstacle_radius.shape[0])
+
+    def obstacles_at(self, t: float) -> np.ndarray:
+        """Obstacle centres (M, 3) at time ``t`` (constant velocity)."""
+        return self.obstacle_position + self.obstacle_velocity * float(t)
+
+    @property
+    def moving(self) -> np.ndarray:
+        """(M,) True where an obstacle has a non-zero velocity."""
+        return np.linalg.norm(self.obstacle_velocity, axis=1) > 1e-9
+
+
+# --------------------------------------------------------------------------------------------
+# run summaries
+# --------------------------------------------------------------------------------------------
+
+
+def run_colors(runs: Sequence[Run]) -> dict[str, str]:
+    """Colour per run label: fixed for the known methods, the next spare colour otherwise."""
+    colors: dict[str, str] = {}
+    spare = list(_SPARE_COLORS)
+    for run in runs:
+        if run.label in colors:
+            continue
+        if run.label in METHOD_COLORS:
+            colors[run.label] = METHOD_COLORS[run.label]
+        else:
+            colors[run.label] = spare.pop(0) if spare else "black"
+    return colors
+
+
+def _flag(metrics: Mapping[str, float], key: str) -> bool | None:
+    value = metrics.get(key)
+    if value is None:
+        return None
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        return None
+    return bool(value) if math.isfinite(value) else None
+
+
+def _time_to_goal(run: Run, field: Field) -> float:
+    """Time the goal was reached [s], NaN if it was not (metrics first, the arrays otherwise)."""
+    value = run.metrics.get("time_to_goal")
+    if value is not None:
+        value = float(value)
+        return value if math.isfinite(value) else math.nan
+    if _collision_index(run) is not None:
+        return math.nan
+    inside = np.flatnonzero(run.goal_distance <= field.r_goal)
+    return float(run.time[inside[0]]) if inside.size else math.nan
+
+
+def _collision_index(run: Run) -> int | None:
+    """First sample with negative clearance; the last sample when only the metrics say collision."""
+    if run.clearance.shape[1]:
+        hit = np.flatnonzero(np.any(run.clearance < 0.0, axis=1))
+        if hit.size:
+            return int(hit[0])
+    if _flag(run.metrics, "collision"):
+        return len(run.time) - 1
+    return None
+
+
+def outcome(run: Run, field: Field) -> str:
+    """A short outcome text: ``"reached in 42.1 s"``, ``"collision at 12.3 s"``, ``"stalled, 3.2 m from goal"``."""
+    t_goal = _time_to_goal(run, field)
+    final = run.metrics.get("final_distance")
+    final = float(final) if final is not None and math.isfinite(float(final)) else float(run.goal_distance[-1])
+    hit = _collision_index(run)
+    if hit is not None:
+        return f"collision at {run.time[hit]:.1f} s"
+    if math.isfinite(t_goal):
+        return f"reached in {t_goal:.1f} s"
+    if _flag(run.metrics, "stalled"):
+        return f"stalled, {final:.1f} m from goal"
+    return f"not reached, {final:.1f} m from goal at {run.t_end:.1f} s"
+
+
+# --------------------------------------------------------------------------------------------
+# drawing helpers
+# --------------------------------------------------------------------------------------------
+
+
+def _xy_bounds(runs: Sequence[Run], field: Field, times: Sequence[float]) -> tuple[tuple[float, float], tuple[float, float]]:
+    """Square-ish x–y limits holding start, goal, every path and the obstacles at ``times``."""
+    lo = np.minimum(field.start[:2], field.goal[:2]) - field.r_goal
+    hi = np.maximum(field.start[:2], field.goal[:2]) + field.r_goal
+    for run in runs:
+        lo = np.minimum(lo, run.position[:, :2].min(axis=0))
+        hi = np.maximum(hi, run.position[:, :2].max(axis=0))
+    if field.n_obstacles:
+        r = field.obstacle_radius[:, None]
+        for t in (0.0, *times):
+            c = field.obstacles_at(t)[:, :2]
+            lo = np.minimum(lo, (c - r).min(axis=0))
+            hi = np.maximum(hi, (c + r).max(axis=0))
+    span = max(float(np.max(hi - lo)), 1.0)
+    # widen the narrower side to at least 60 % of the wider one: equal-aspect panels stay legible
+    short = np.maximum(0.6 * span - (hi - lo), 0.0)
+    lo, hi = lo - 0.5 * short, hi + 0.5 * short
+    pad = 0.05 * span + 0.5
+    return (lo[0] - pad, hi[0] + pad), (lo[1] - pad, hi[1] + pad)
+
+
+def _aspect(xlim: tuple[float, float], ylim: tuple[float, float]) -> float:
+    """Height / width of an equal-aspect x–y panel, kept within [0.6, 1.6] for the figure size."""
+    return float(np.clip((ylim[1] - ylim[0]) / (xlim[1] - xlim[0]), 0.6, 1.6))
+
+
+def _suptitle(fig, text: str, **kwargs) -> None:
+    """Figure title, wrapped to the figure's width."""
+    inches = fig.figure.get_figwidth() * (fig.bbox.width / fig.figure.bbox.width)
+    width = max(int(inches * 10.5 * 12.0 / float(kwargs.get("fontsize", 12.0))), 30)
+    fig.suptitle(textwrap.fill(text, width), **kwargs)
+
+
+def _time_axis(ax, runs: Sequence[Run]) -> None:
+    """Time axis in seconds; a sensible window when every run has a single sample."""
+    t0 = min(float(r.time[0]) for r in runs)
+    t1 = max(r.t_end for r in runs)
+    if t1 <= t0:
+        ax.set_xlim(t0, t0 + 1.0)
+    ax.set_xlabel("time [s]")
+
+
+def _draw_obstacles_xy(ax, field: Field, t: float, *, dashed: bool = False, numbers: bool = False) -> None:
+    """Obstacle cross-sections at time ``t``: cylinders filled, spheres hatched.
+
+    ``dashed``: outlines of the *moving* obstacles only (where they are at ``t``).
+    ``numbers``: write the obstacle number (1-based, as "Obs j" of the clearance plot) inside.
+    """
+    centres = field.obstacles_at(t)
+    for j in (np.flatnonzero(field.moving) if dashed else range(field.n_obstacles)):
+        cx, cy = centres[j, :2]
+        rho = field.obstacle_radius[j]
+        if dashed:
+            patch = Circle((cx, cy), rho, fill=False, edgecolor=_OBSTACLE_COLOR, linestyle="--",
+                           linewidth=1.0, alpha=0.8, zorder=2)
+        else:
+            patch = Circle((cx, cy), rho, facecolor=_OBSTACLE_COLOR, edgecolor=_OBSTACLE_COLOR,
+                           alpha=0.35 if field.obstacle_cylinder[j] else 0.2,
+                           hatch=None if field.obstacle_cylinder[j] else "////", linewidth=1.0, zorder=2)
+        ax.add_patch(patch)
+        if numbers:
+            ax.text(cx, cy, str(j + 1), ha="center", va="center", fontsize=7, color="darkred", zorder=3)
+
+
+def _draw_velocity_arrows(ax, field: Field, t_end: float) -> None:
+    """Arrow from each moving obstacle's t = 0 centre along its velocity (length |v| t_end, at least 1.5 ρ)."""
+    for j in np.flatnonzero(field.moving):
+        p0 = field.obstacle_position[j, :2]
+        v = field.obstacle_velocity[j, :2]
+        speed = float(np.linalg.norm(v))
+        if speed < 1e-9:  # moves only vertically: nothing to show from above
+            continue
+        length = max(speed * t_end, 1.5 * float(field.obstacle_radius[j]), 0.5)
+        p1 = p0 + v / speed * length
+        ax.add_patch(FancyArrowPatch(tuple(p0), tuple(p1), arrowstyle="-|>", mutation_scale=10,
+                                     color="darkred", linewidth=1.0, zorder=3))
+
+
+def _draw_start_goal_xy(ax, field: Field) -> None:
+    ax.add_patch(Circle(tuple(field.goal[:2]), field.r_goal, fill=False, edgecolor=_GOAL_COLOR,
+                        linewidth=1.2, zorder=4))
+    ax.plot(*field.goal[:2], "o", color=_GOAL_COLOR, markersize=7, zorder=5)
+    ax.plot(*field.start[:2], "s", color="black", markersize=6, zorder=5)
+
+
+def _legend_handles(runs: Sequence[Run], field: Field, colors: Mapping[str, str], *, moving_ghost: bool,
+                    uav: bool = False, track: bool = False) -> list:
+    """Proxy artists for a legend: one path per run, then start, goal, obstacle kinds, collision."""
+    handles = [Line2D([], [], color=colors[r.label], linewidth=2, label=f"{r.label} path") for r in runs]
+    if uav:
+        handles += [Line2D([], [], marker="o", linestyle="", color=colors[r.label], markeredgecolor="black",
+                           label=f"{r.label} UAV") for r in runs]
+    handles.append(Line2D([], [], marker="s", linestyle="", color="black", label="start"))
+    handles.append(Line2D([], [], marker="o", linestyle="", color=_GOAL_COLOR, label="goal (r_goal circle)"))
+    if np.any(field.obstacle_cylinder):
+        handles.append(Patch(facecolor=_OBSTACLE_COLOR, alpha=0.35, label="cylinder obstacle"))
+    if np.any(~field.obstacle_cylinder):
+        handles.append(Patch(facecolor=_OBSTACLE_COLOR, alpha=0.2, hatch="////", label="sphere obstacle"))
+    if np.any(field.moving):
+        if moving_ghost:
+            handles.append(Patch(fill=False, edgecolor=_OBSTACLE_COLOR, linestyle="--",
+                                 label="moving obstacle at run end"))
+            handles.append(Line2D([], [], color="darkred", marker=">", label="obstacle velocity"))
+        if track:
+            handles.append(Line2D([], [], color="darkred", linestyle=":", label="moving obstacle track"))
+    if any(_collision_index(r) is not None for r in runs):
+        handles.append(Line2D([], [], marker="X", linestyle="", color="red", markeredgecolor="black",
+                              markersize=9, label="collision"))
+    return handles
+
+
+def _index_at(run: Run, t: float) -> int:
+    """Last sample index with ``time <= t`` (0 if none)."""
+    return int(np.clip(np.searchsorted(run.time, t + 1e-9, side="right") - 1, 0, len(run.time) - 1))
+
+
+def _label_xy(ax) -> None:
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_aspect("equal", adjustable="box")
+    ax.grid(True, linewidth=0.4, alpha=0.5)
+
+
+def _no_runs_guard(runs: Sequence[Run]) -> None:
+    if not runs:
+        raise ValueError("nothing to plot: no runs given")
+
+
+# --------------------------------------------------------------------------------------------
+# figures
+# --------------------------------------------------------------------------------------------
+
+
+def plot_trajectories(runs: Sequence[Run], field: Field) -> Figure:
+    """Top view (x–y), one panel per run (paper Fig. 1: basic APF stalls, weighted APF goes round).
+
+    Obstacles are drawn at t = 0 and numbered as in :func:`plot_obstacle_distance`; a moving
+    obstacle also gets a dashed outline where it is at the run's final time and a velocity arrow.
+    """
+    _no_runs_guard(runs)
+    colors = run_colors(runs)
+    n = len(runs)
+    xlim, ylim = _xy_bounds(runs, field, [r.t_end for r in runs])
+    fig = Figure(figsize=(5.2 * n + 0.4, 4.9 * _aspect(xlim, ylim) + 1.6), layout="constrained")
+    axes = fig.subplots(1, n, sharex=True, sharey=True, squeeze=False)[0]
+    for ax, run in zip(axes, runs):
+        color = colors[run.label]
+        _draw_obstacles_xy(ax, field, 0.0, numbers=True)
+        if np.any(field.moving):
+            _draw_obstacles_xy(ax, field, run.t_end, dashed=True)
+            _draw_velocity_arrows(ax, field, run.t_end)
+        _draw_start_goal_xy(ax, field)
+        ax.plot(run.position[:, 0], run.position[:, 1], "-", color=color, linewidth=2, zorder=4,
+                marker="o" if len(run.time) == 1 else None, label=f"{run.label} path")
+        hit = _collision_index(run)
+        if hit is not None:
+            ax.plot(*run.position[hit, :2], "X", color="red", markeredgecolor="black", markersize=12, zorder=6)
+        ax.set_xlim(*xlim)
+        ax.set_ylim(*ylim)
+        ax.set_title(f"{run.label} — {outcome(run, field)}")
+        _label_xy(ax)
+    handles = _legend_handles(runs, field, colors, moving_ghost=True)
+    fig.legend(handles=handles, loc="outside lower center", ncol=min(len(handles), 5), fontsize=8)
+    _suptitle(fig, _title("Trajectories (top view, obstacles at t = 0)", field))
+    return fig
+
+
+def _title(what: str, field: Field) -> str:
+    return f"{what} — {field.title}" if field.title else what
+
+
+def _snapshot_horizon(run: Run, field: Field) -> tuple[float, bool]:
+    t_goal = _time_to_goal(run, field)
+    return (t_goal, True) if math.isfinite(t_goal) else (run.t_end, False)
+
+
+def plot_snapshots(runs: Sequence[Run], field: Field, fractions: Sequence[float] = _SNAPSHOT_FRACTIONS) -> Figure:
+    """Per run, a row of panels at ``fractions`` of the time to goal T (paper Fig. 2).
+
+    When the goal was not reached T is the run's final time, and the row's title says so.
+    Each panel shows the path so far, the UAV and the obstacles where they are at that instant.
+    """
+    _no_runs_guard(runs)
+    colors = run_colors(runs)
+    n, k = len(runs), len(fractions)
+    xlim, ylim = _xy_bounds(runs, field, [f * _snapshot_horizon(r, field)[0] for r in runs for f in fractions])
+    fig = Figure(figsize=(3.3 * k + 2.2, (3.0 * _aspect(xlim, ylim) + 0.9) * n + 0.4), layout="constrained")
+    rows = fig.subfigures(n, 1, squeeze=False)[:, 0]
+    first = None
+    for sub, run in zip(rows, runs):
+        color = colors[run.label]
+        horizon, reached = _snapshot_horizon(run, field)
+        hit = _collision_index(run)
+        if reached:
+            basis = f"T = time to goal = {horizon:.1f} s"
+        else:
+            basis = f"goal not reached ({outcome(run, field)}): T = final time = {horizon:.1f} s"
+        axes = sub.subplots(1, k, squeeze=False)[0]
+        for ax, frac in zip(axes, fractions):
+            if first is None:
+                first = ax
+            else:
+                ax.sharex(first)
+                ax.sharey(first)
+            i = _index_at(run, frac * horizon)
+            t = float(run.time[i])
+            _draw_obstacles_xy(ax, field, t)
+            _draw_start_goal_xy(ax, field)
+            ax.plot(run.position[: i + 1, 0], run.position[: i + 1, 1], "-", color=color, linewidth=1.8, zorder=4)
+            ax.plot(*run.position[i, :2], "o", color=color, markeredgecolor="black", markersize=7, zorder=6)
+            if hit is not None and hit <= i:
+                ax.plot(*run.position[hit, :2], "X", color="red", markeredgecolor="black", markersize=11, zorder=7)
+            ax.set_xlim(*xlim)
+            ax.set_ylim(*ylim)
+            ax.set_title(f"t = {t:.1f} s ({frac:g} T)", fontsize=9)
+            _label_xy(ax)
+            if ax is not axes[0]:
+                ax.tick_params(labelleft=False)
+        handles = _legend_handles([run], field, colors, moving_ghost=False, uav=True)
+        sub.legend(handles=handles, loc="outside right center", fontsize=7)
+        _suptitle(sub, f"{run.label}: {basis}", fontsize=10, fontweight="bold")
+    _suptitle(fig, _title("Snapshots at fractions of T (obstacles where they are at that time)", field))
+    return fig
+
+
+def _obstacles_to_show(run: Run, field: Field, near: float, max_lines: int) -> tuple[np.ndarray, str]:
+    """Indices of the obstacles to draw and a phrase saying which they are."""
+    m = run.clearance.shape[1]
+    if m == 0:
+        return np.zeros(0, int), "no obstacles"
+    closest = np.array([np.min(c[np.isfinite(c)]) if np.any(np.isfinite(c)) else np.inf
+                        for c in run.clearance.T])
+    order = np.argsort(closest, kind="stable")
+    within = order[closest[order] <= near]
+    if within.size == 0:
+        chosen = order[: min(3, m)]
+        phrase = f"none within {near:.3g} m; closest {chosen.size} of {m} shown"
+    elif within.size > max_lines:
+        chosen = within[:max_lines]
+        if within.size == m:
+            phrase = f"closest {max_lines} of {m} shown"
+        else:
+            phrase = f"closest {max_lines} of the {within.size} within {near:.3g} m shown, {m} in all"
+    elif within.size == m:
+        chosen = within
+        phrase = f"all {m} shown"
+    else:
+        chosen = within
+        phrase = f"{within.size} of {m} within {near:.3g} m shown"
+    return np.sort(chosen), phrase
+
+
+def plot_obstacle_distance(runs: Sequence[Run], field: Field, near: float | None = None,
+                           max_lines: int = 8) -> Figure:
+    """Clearance to each nearby obstacle over time, one panel per run (paper Fig. 3).
+
+    Only obstacles whose clearance comes within ``near`` (default ``2 d_safe + 3`` m) are drawn,
+    at most ``max_lines`` (the closest); the title says which. The clearance axis stops at
+    ``4 near`` so that the close approaches stay readable. "Obs j" numbers the valid obstacles
+    from 1, as in the top view; the colour of an obstacle is the same in every panel.
+    """
+    _no_runs_guard(runs)
+    near = 2.0 * field.d_safe + 3.0 if near is None else float(near)
+    n = len(runs)
+    fig = Figure(figsize=(5.6 * n + 0.4, 4.4), layout="constrained")
+    axes = fig.subplots(1, n, sharex=True, sharey=True, squeeze=False)[0]
+    # obstacle colours: a palette apart from the run colours and the red collision line
+    palette = list(colormaps["Dark2"].colors)
+    for ax, run in zip(axes, runs):
+        chosen, phrase = _obstacles_to_show(run, field, near, max_lines)
+        for j in chosen:
+            ax.plot(run.time, run.clearance[:, j], marker="." if len(run.time) == 1 else None,
+                    color=palette[j % len(palette)], linestyle=("-", "--", "-.")[(j // len(palette)) % 3],
+                    linewidth=1.4, label=f"Obs {j + 1}")
+        ax.axhline(0.0, color="red", linewidth=1.2, label="collision (0 m)")
+        ax.axhline(field.d_safe, color="black", linestyle=":", linewidth=1.2, label=f"d_safe = {field.d_safe:g} m")
+        if chosen.size == 0:
+            ax.text(0.5, 0.5, "no obstacles", transform=ax.transAxes, ha="center", va="center", color="gray")
+        ax.set_title(f"{run.label} — clearance ({phrase})", fontsize=10)
+        _time_axis(ax, runs)
+        ax.set_ylabel("clearance [m]")
+        ax.grid(True, linewidth=0.4, alpha=0.5)
+        ax.legend(loc="best", fontsize=7, ncol=2 if chosen.size > 4 else 1, framealpha=0.8)
+    # far-away stretches squash the near approaches that matter: clip the axis at 4 x near
+    bottom, top = axes[0].get_ylim()
+    if top > 4.0 * near:
+        axes[0].set_ylim(bottom, 4.0 * near)
+    _suptitle(fig, _title("Distance to obstacles over time (surface clearance)", field))
+    return fig
+
+
+def plot_goal_distance(runs: Sequence[Run], field: Field) -> Figure:
+    """Distance to the goal over time, all runs on one axes (paper Fig. 4)."""
+    _no_runs_guard(runs)
+    colors = run_colors(runs)
+    fig = Figure(figsize=(7.5, 4.6), layout="constrained")
+    ax = fig.add_subplot()
+    for run in runs:
+        color = colors[run.label]
+        ax.plot(run.time, run.goal_distance, "-", color=color, linewidth=1.8,
+                marker="." if len(run.time) == 1 else None, label=f"{run.label} ({outcome(run, field)})")
+        t_goal = _time_to_goal(run, field)
+        if math.isfinite(t_goal):
+            ax.plot(t_goal, run.goal_distance[_index_at(run, t_goal)], "o", color=color, markeredgecolor="black",
+                    zorder=5)
+        hit = _collision_index(run)
+        if hit is not None:
+            ax.plot(run.time[hit], run.goal_distance[hit], "X", color="red", markeredgecolor="black",
+                    markersize=10, zorder=5)
+    ax.axhline(field.r_goal, color=_GOAL_COLOR, linestyle="--", linewidth=1.2, label=f"r_goal = {field.r_goal:g} m")
+    if any(_collision_index(r) is not None for r in runs):
+        ax.plot([], [], "X", color="red", markeredgecolor="black", linestyle="", label="collision")
+    ax.set_ylim(bottom=0.0)
+    ax.set_title(_title("Distance to goal over time", field))
+    _time_axis(ax, runs)
+    ax.set_ylabel("distance to goal [m]")
+    ax.grid(True, linewidth=0.4, alpha=0.5)
+    ax.legend(loc="best", fontsize=8)
+    return fig
+
+
+def _z_span(runs: Sequence[Run], field: Field, margin: float = 3.0) -> tuple[float, float]:
+    zs = [field.start[2], field.goal[2]] + [float(z) for r in runs for z in (r.position[:, 2].min(), r.position[:, 2].max())]
+    return min(zs) - margin, max(zs) + margin
+
+
+def _draw_obstacles_3d(ax, field: Field, t: float, z_lo: float, z_hi: float) -> None:
+    centres = field.obstacles_at(t)
+    theta = np.linspace(0.0, 2.0 * np.pi, 25)
+    for j in range(field.n_obstacles):
+        c, rho = centres[j], field.obstacle_radius[j]
+        if field.obstacle_cylinder[j]:
+            th, z = np.meshgrid(theta, np.array([z_lo, z_hi]))
+            ax.plot_surface(c[0] + rho * np.cos(th), c[1] + rho * np.sin(th), z, color=_OBSTACLE_COLOR,
+                            alpha=0.35, linewidth=0, shade=True)
+            for zz in (z_lo, z_hi):
+                ax.plot(c[0] + rho * np.cos(theta), c[1] + rho * np.sin(theta), np.full_like(theta, zz),
+                        color="darkred", linewidth=0.6)
+        else:
+            u, v = np.meshgrid(theta, np.linspace(0.0, np.pi, 13))
+            ax.plot_surface(c[0] + rho * np.cos(u) * np.sin(v), c[1] + rho * np.sin(u) * np.sin(v),
+                            c[2] + rho * np.cos(v), color=_OBSTACLE_COLOR, alpha=0.35, linewidth=0, shade=True)
+
+
+def plot_trajectory_3d(runs: Sequence[Run], field: Field,
+                       views: Sequence[tuple[float, float]] = ((25.0, -60.0), (60.0, -125.0))) -> Figure:
+    """3-D view of each run from two angles (paper Fig. 5, "View 2"/"View 3"); one row per run.
+
+    All axes have the same scale; the z range is the flight altitude ± 3 m, widened to at least
+    0.35 of the horizontal extent. Cylinders are vertical surfaces spanning that range, spheres are
+    spheres, both where they are at the run's final time; the centre track of a moving obstacle
+    is a dotted line (at mid height for a cylinder). The goal is a green ring of radius ``r_goal``.
+    """
+    _no_runs_guard(runs)
+    colors = run_colors(runs)
+    n, k = len(runs), len(views)
+    fig = Figure(figsize=(5.4 * k + 0.4, 4.3 * n + 1.0), layout="constrained")
+    (x0, x1), (y0, y1) = _xy_bounds(runs, field, [r.t_end for r in runs])
+    span = max(x1 - x0, y1 - y0)
+    z_lo, z_hi = _z_span(runs, field)
+    z_mid = 0.5 * (z_lo + z_hi)
+    half = 0.5 * max(z_hi - z_lo, 0.35 * span)  # equal scale on all axes: spheres stay round
+    z_lo, z_hi = z_mid - half, z_mid + half
+    theta = np.linspace(0.0, 2.0 * np.pi, 49)
+    for r_i, run in enumerate(runs):
+        color = colors[run.label]
+        hit = _collision_index(run)
+        for v_i, (elev, azim) in enumerate(views):
+            ax = fig.add_subplot(n, k, r_i * k + v_i + 1, projection="3d")
+            _draw_obstacles_3d(ax, field, run.t_end, z_lo, z_hi)
+            for j in np.flatnonzero(field.moving):
+                a, b = field.obstacles_at(0.0)[j], field.obstacles_at(run.t_end)[j]
+                za, zb = (z_mid, z_mid) if field.obstacle_cylinder[j] else (a[2], b[2])
+                ax.plot([a[0], b[0]], [a[1], b[1]], [za, zb], ":", color="darkred", linewidth=1.0)
+            g = field.goal
+            ax.plot(g[0] + field.r_goal * np.cos(theta), g[1] + field.r_goal * np.sin(theta),
+                    np.full_like(theta, g[2]), "-", color=_GOAL_COLOR, linewidth=2.0)
+            ax.plot([g[0]], [g[1]], [g[2]], "o", color=_GOAL_COLOR, markersize=5)
+            ax.plot([field.start[0]], [field.start[1]], [field.start[2]], "s", color="black", markersize=5)
+            p = run.position
+            ax.plot(p[:, 0], p[:, 1], p[:, 2], "-", color=color, linewidth=2.2,
+                    marker="o" if len(p) == 1 else None, zorder=10)
+            if hit is not None:
+                ax.plot([p[hit, 0]], [p[hit, 1]], [p[hit, 2]], "X", color="red", markeredgecolor="black",
+                        markersize=10, zorder=11)
+            ax.set_xlim(x0, x1)
+            ax.set_ylim(y0, y1)
+            ax.set_zlim(z_lo, z_hi)
+            ax.set_box_aspect((x1 - x0, y1 - y0, z_hi - z_lo), zoom=0.92)
+            ax.xaxis.set_major_locator(MaxNLocator(5))
+            ax.yaxis.set_major_locator(MaxNLocator(5))
+            ax.zaxis.set_major_locator(MaxNLocator(3))
+            ax.view_init(elev=elev, azim=azim)
+            ax.set_xlabel("x [m]")
+            ax.set_ylabel("y [m]")
+            ax.set_zlabel("z [m]")
+            ax.set_title(f"{run.label} — view {v_i + 1} (elev {elev:g}°, azim {azim:g}°)\n{outcome(run, field)}",
+                         fontsize=9)
+    handles = _legend_handles(runs, field, colors, moving_ghost=False, track=True)
+    fig.legend(handles=handles, loc="outside lower center", ncol=min(len(handles), 5), fontsize=8)
+    _suptitle(fig, _title("3-D trajectories (obstacles where they are at the run's final time)", field))
+    return fig
+
+
+#: File name -> figure function, in the order :func:`plot_all` writes them.
+FIGURES: dict[str, Callable[[Sequence[Run], Field], Figure]] = {
+    "trajectories.png": plot_trajectories,
+    "snapshots.png": plot_snapshots,
+    "obstacle_distance.png": plot_obstacle_distance,
+    "goal_distance.png": plot_goal_distance,
+    "trajectory_3d.png": plot_trajectory_3d,
+}
+
+
+def plot_all(runs: Sequence[Run], field: Field, out_dir: pathlib.Path | str, dpi: int = 130) -> list[pathlib.Path]:
+    """Write every figure of :data:`FIGURES` as PNG into ``out_dir`` (created); returns the paths."""
+    _no_runs_guard(runs)
+    out_dir = pathlib.Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for name, make in FIGURES.items():
+        fig = make(runs, field)
+        path = out_dir / name
+        fig.savefig(path, dpi=dpi, format="png")
+        fig.clear()  # a pyplot-free Figure is freed with its last reference; clear() drops artists now
+        paths.append(path)
+    return paths

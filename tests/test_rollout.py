@@ -1,0 +1,100 @@
+"""The closed loop: exact plant, box, masks, determinism, gain grids in one compiled call."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxapf.config import Gains, MPCConfig, SimConfig
+from jaxapf.dynamics import step
+from jaxapf.metrics import episode_metrics
+from jaxapf.obstacles import Obstacles, Scenario
+from jaxapf.rollout import evaluate, rollout
+
+SIM = SimConfig(t_max=8.0)
+MPC = MPCConfig(horizon=8, iters=15)
+_rollout = jax.jit(rollout, static_argnames=("sim", "mpc"))
+
+
+def _scenario(extra_padding: int = 0, decoy: bool = False) -> Scenario:
+    """Two real obstacles (a cylinder and a moving sphere) plus padded slots; with ``decoy`` a padded
+    slot sits right on the path, so the mask is what keeps it out."""
+    pos = [[4.0, 0.3, 2.0], [6.0, -3.0, 2.0]]
+    vel = [[0.0, 0.0, 0.0], [0.0, 0.8, 0.0]]
+    rad, cyl, valid = [0.8, 0.6], [True, False], [True, True]
+    for i in range(extra_padding):
+        pos.append([2.0, 0.0, 2.0] if decoy and i == 0 else [1e6, 1e6, 1e6])
+        vel.append([0.0, 0.0, 0.0])
+        rad.append(0.5 if decoy and i == 0 else 0.0)
+        cyl.append(False)
+        valid.append(False)
+    obs = Obstacles(position=jnp.array(pos), velocity=jnp.array(vel), radius=jnp.array(rad),
+                    cylinder=jnp.array(cyl), valid=jnp.array(valid))
+    return Scenario(start=jnp.array([0.0, 0.0, 2.0]), goal=jnp.array([8.0, 0.5, 2.0]), obstacles=obs)
+
+
+@pytest.fixture(scope="module")
+def traj():
+    return _rollout(_scenario(), Gains(), SIM, MPC)
+
+
+def test_plant_integrates_the_applied_control_exactly(traj):
+    x = jnp.concatenate([traj.position, traj.velocity], axis=1)
+    stepped = jax.vmap(step, in_axes=(0, 0, None))(x[:-1], traj.control, SIM.dt)
+    np.testing.assert_allclose(stepped, x[1:], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(traj.time, np.arange(SIM.steps + 1) * SIM.dt, atol=1e-6)
+    np.testing.assert_array_equal(traj.position[0], [0.0, 0.0, 2.0])
+    np.testing.assert_array_equal(traj.velocity[0], 0.0)
+
+
+def test_acceleration_box_holds(traj):
+    assert float(jnp.abs(traj.control).max()) <= SIM.a_max * (1 + 1e-6)
+    assert float(jnp.abs(traj.control).max()) > 0.5 * SIM.a_max  # the box is actually reached
+
+
+def test_moves_toward_the_goal(traj):
+    goal = np.array([8.0, 0.5, 2.0])
+    d = np.linalg.norm(np.asarray(traj.position) - goal, axis=1)
+    assert d[-1] < 0.5 * d[0]
+
+
+def test_same_inputs_same_numbers(traj):
+    again = _rollout(_scenario(), Gains(), SIM, MPC)
+    for a, b in zip(jax.tree_util.tree_leaves(traj), jax.tree_util.tree_leaves(again)):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_padded_slots_change_nothing_in_the_closed_loop(traj):
+    padded = _rollout(_scenario(extra_padding=3, decoy=True), Gains(), SIM, MPC)
+    np.testing.assert_array_equal(padded.position, traj.position)
+    np.testing.assert_array_equal(padded.control, traj.control)
+
+
+def test_gain_grid_is_one_compiled_call_matching_single_runs():
+    scenarios = jax.tree_util.tree_map(lambda *x: jnp.stack(x), _scenario(), _scenario())
+    scenarios = Scenario(start=scenarios.start.at[1, 1].set(-1.0), goal=scenarios.goal,
+                         obstacles=scenarios.obstacles)
+    grid = Gains(gamma=np.array([0.0, 1.0, 2.0]), k=np.array([0.0, 0.5, 1.0]), k_rep=np.full(3, 10.0),
+                 d_s=np.array([3.0, 4.0, 5.0]), k_att=np.ones(3), eta=np.full(3, 0.5))
+    metrics = evaluate(scenarios, grid, SIM, MPC)
+    assert metrics["min_clearance"].shape == (3, 2)
+    size = evaluate._cache_size()
+    other = jax.tree_util.tree_map(lambda g: g * 0.9, grid)
+    evaluate(scenarios, other, SIM, MPC)
+    assert evaluate._cache_size() == size, "changing gain values must not recompile"
+    # entry (g, f) is the single episode with those gains on that field
+    for g, f in [(0, 0), (2, 1)]:
+        one = jax.tree_util.tree_map(lambda x: x[g], grid)
+        field = jax.tree_util.tree_map(lambda x: x[f], scenarios)
+        single = episode_metrics(_rollout(field, one, SIM, MPC), field, SIM)
+        np.testing.assert_allclose(metrics["path_length"][g, f], single["path_length"], rtol=1e-5)
+        assert bool(metrics["success"][g, f]) == bool(single["success"])
+
+
+def test_float64_rollout():
+    with jax.enable_x64(True):
+        sc = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float64) if x.dtype == jnp.float32 else x,
+                                    _scenario())
+        out = rollout(sc, Gains(), SimConfig(t_max=1.0), MPCConfig(horizon=4, iters=5))
+        assert out.position.dtype == jnp.float64
+        assert np.all(np.isfinite(np.asarray(out.position)))
