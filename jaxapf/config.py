@@ -114,9 +114,13 @@ def _axis_weight(where: str, value: Any) -> tuple[float, float, float]:
     return tuple(float(a) for a in arr)
 
 
-def _is_placeholder(x: Any) -> bool:
-    """A leaf JAX itself puts into a pytree (tracer, shape struct, ``None``/sentinel): not user input."""
-    return x is None or type(x) is object or isinstance(x, (jax.core.Tracer, jax.ShapeDtypeStruct))
+def _is_user_value(x: Any) -> bool:
+    """A leaf a user handed in (number, string, sequence, numpy or concrete JAX array), as opposed
+    to what JAX itself puts into a pytree when it rebuilds one (tracers, ``ArgInfo`` or shape
+    structs under ``.lower``, ``None``/sentinels): only user values are validated."""
+    if isinstance(x, jax.core.Tracer):
+        return False
+    return isinstance(x, (int, float, str, list, tuple, np.ndarray, np.generic, jax.Array))
 
 
 # --------------------------------------------------------------------------------------------
@@ -160,7 +164,7 @@ class Gains:
         # Pytree unflattening (vmap, grad) passes tracers or placeholders: only validate
         # values a user handed in.
         values = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
-        if not any(_is_placeholder(v) for v in values.values()):
+        if all(_is_user_value(v) for v in values.values()):
             validate_gains(values)
 
     @classmethod

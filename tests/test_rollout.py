@@ -98,3 +98,17 @@ def test_float64_rollout():
         out = rollout(sc, Gains(), SimConfig(t_max=1.0), MPCConfig(horizon=4, iters=5))
         assert out.position.dtype == jnp.float64
         assert np.all(np.isfinite(np.asarray(out.position)))
+
+
+def test_episode_numbers_do_not_depend_on_the_batch():
+    """Field f gives bit-identical metrics whether run in a batch of 5 or of 3 (chunk 2, padded)."""
+    fields = [_scenario(), _scenario(), _scenario(), _scenario(), _scenario()]
+    fields = [Scenario(start=s.start.at[1].set(0.4 * i), goal=s.goal, obstacles=s.obstacles)
+              for i, s in enumerate(fields)]
+    stack = lambda xs: jax.tree_util.tree_map(lambda *x: jnp.stack(x), *xs)  # noqa: E731
+    grid = jax.tree_util.tree_map(lambda x: jnp.asarray([x, 0.5 * x]), Gains())
+    short = SimConfig(t_max=2.0)
+    five = evaluate(stack(fields), grid, short, MPC, chunk=2)
+    three = evaluate(stack(fields[2:]), grid, short, MPC, chunk=2)
+    for name in five:
+        np.testing.assert_array_equal(np.asarray(five[name])[:, 2:], three[name])
