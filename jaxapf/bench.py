@@ -1,0 +1,266 @@
+r"""Engine benchmark: the batched JAX evaluator against the numpy + OSQP researcher baseline.
+
+:func:`run_benchmark` measures, in one process and on the same fields,
+
+* the **engine** (:func:`jaxapf.rollout.evaluate`, one compiled call over all fields): trace +
+  lowering time, XLA compile time (``jit(...).lower(...).compile()``, so no run is mixed in), the
+  first run of the compiled executable (includes any one-off transfer/allocation) and a steady
+  run (the second call, ``block_until_ready``); throughput = fields × steps / steady run time;
+* the **baseline** (:func:`jaxapf.baseline.baseline_rollout`: a Python loop over steps, numpy
+  potentials, OSQP to tolerance 1e-7 with polishing) on the first ``baseline_fields`` of those
+  fields, one after the other: seconds per field and scenario-steps per second;
+* the **speed-up** = engine scenario-steps/s ÷ baseline scenario-steps/s, both from this run.
+
+Wall-clock times are what is reported; the process CPU time of the timed sections is recorded too
+(``run_cpu_s``, ``cpu_s``), so a run on a shared machine can be recognised (CPU time well below
+wall time × cores the run could use means other processes took the cores).
+
+The two sides do the same closed loop (``tests/test_baseline.py`` checks that they agree in float64);
+the engine runs a fixed number of FISTA iterations (``iters``) in the default dtype, the baseline
+solves every QP to tolerance, which is what a researcher without the engine would do.
+
+Everything is returned in a JSON-serialisable dict (``jaxapf bench --json``);
+:func:`format_benchmark` renders it as a small table.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import time
+from importlib import metadata
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .config import Gains, MPCConfig, SimConfig
+
+__all__ = ["run_benchmark", "format_benchmark"]
+
+
+def _version(dist: str) -> str:
+    try:
+        return metadata.version(dist)
+    except metadata.PackageNotFoundError:
+        return "not installed"
+
+
+def _environment() -> dict[str, Any]:
+    device = jax.devices()[0]
+    return {
+        "platform": device.platform,
+        "device_kind": device.device_kind,
+        "device_count": jax.device_count(),
+        "cpu_count": os.cpu_count(),
+        "jax": jax.__version__,
+        "jaxlib": _version("jaxlib"),
+        "numpy": np.__version__,
+        "osqp": _version("osqp"),
+        "python": platform.python_version(),
+        "machine": platform.platform(),
+        "dtype": str(jnp.dtype(jnp.result_type(float))),
+        "x64": bool(jax.config.jax_enable_x64),
+    }
+
+
+def _block(tree: Any) -> Any:
+    return jax.block_until_ready(tree)
+
+
+def _summary(metrics: dict[str, Any]) -> dict[str, float]:
+    """A few means of the engine's metrics, as a sanity check that the episodes did something."""
+    out = {}
+    for name in ("success", "collision", "stalled"):
+        if name in metrics:
+            out[f"{name}_rate"] = float(np.mean(np.asarray(metrics[name], np.float64)))
+    return out
+
+
+def run_benchmark(
+    fields: int = 1024,
+    obstacles: int = 16,
+    horizon: int = 20,
+    iters: int = 30,
+    steps: int = 300,
+    baseline_fields: int = 3,
+    family: str = "clutter",
+    seed: int = 0,
+    method: str = "direction_velocity",
+    *,
+    gains: Gains | None = None,
+    scenarios: Any = None,
+) -> dict[str, Any]:
+    """Time the batched engine and the numpy + OSQP baseline on the same fields.
+
+    Args:
+      fields: number of obstacle fields F in the engine's batch.
+      obstacles: obstacle slots per field (``family_params(family, max_obstacles=obstacles)``).
+      horizon, iters: MPC horizon N and FISTA iterations (``MPCConfig``).
+      steps: control steps per episode (``SimConfig(t_max=steps * 0.1)``, dt = 0.1 s).
+      baseline_fields: how many of the fields the baseline runs (0 skips the baseline).
+      family, seed: scenario family and seed (``make_scenarios(seed, params, fields)``).
+      method: planner (``SimConfig.method``).
+      gains: one gain setting (default ``Gains()``); the engine runs it as a batch of G = 1.
+      scenarios: a prebuilt batch of fields (leading axis F) to use instead of ``family``/``seed``;
+        ``fields`` and ``obstacles`` are then read from it.
+
+    Returns:
+      A JSON-serialisable dict: ``config``, ``environment``, ``engine``, ``baseline`` (None when
+      skipped), ``speedup`` (None when skipped).
+    """
+    from .rollout import evaluate
+
+    if fields < 1:
+        raise ValueError(f"fields = {fields!r} must be >= 1")
+    if baseline_fields < 0:
+        raise ValueError(f"baseline_fields = {baseline_fields!r} must be >= 0")
+    sim = SimConfig(method=method, t_max=steps * 0.1)
+    mpc = MPCConfig(horizon=horizon, iters=iters)
+    gains = Gains() if gains is None else gains
+
+    t0 = time.perf_counter()
+    if scenarios is None:
+        from .scenarios import family_params, make_scenarios
+
+        params = family_params(family, max_obstacles=obstacles)
+        scenarios = make_scenarios(seed, params, fields)
+        source = family
+    else:
+        source = "custom"
+    scenarios = _block(jax.tree_util.tree_map(jnp.asarray, scenarios))
+    fields = int(scenarios.start.shape[0])
+    obstacles = int(scenarios.obstacles.radius.shape[-1])
+    t_scenarios = time.perf_counter() - t0
+
+    dtype = scenarios.start.dtype
+    gains_batch = jax.tree_util.tree_map(lambda g: jnp.asarray(g, dtype)[None], gains)
+
+    # engine: trace + lower, compile, first run, steady run
+    # Lower a thin wrapper that rebuilds Gains from a dict of arrays inside the trace: `.lower()`
+    # would otherwise rebuild a Gains from its jax.stages.ArgInfo leaves (args_info), which
+    # Gains' input validation rejects as non-numeric.
+    def engine_fn(scenarios, gain_leaves, sim, mpc):
+        return evaluate(scenarios, Gains(**gain_leaves), sim, mpc)
+
+    gains_batch = {name: getattr(gains_batch, name) for name in Gains.names()}
+    t0 = time.perf_counter()
+    lowered = jax.jit(engine_fn, static_argnames=("sim", "mpc")).lower(scenarios, gains_batch, sim=sim, mpc=mpc)
+    t_lower = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    compiled = lowered.compile()
+    t_compile = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    _block(compiled(scenarios, gains_batch))
+    t_first = time.perf_counter() - t0
+    t0, c0 = time.perf_counter(), time.process_time()
+    metrics = _block(compiled(scenarios, gains_batch))
+    t_run, c_run = time.perf_counter() - t0, time.process_time() - c0
+    scenario_steps = fields * sim.steps
+    engine = {
+        "scenario_build_s": t_scenarios,
+        "lower_s": t_lower,
+        "compile_s": t_compile,
+        "first_run_s": t_first,
+        "run_s": t_run,
+        "run_cpu_s": c_run,
+        "steps_per_s": scenario_steps / t_run,
+        "per_field_ms": 1e3 * t_run / fields,
+        **_summary(jax.device_get(metrics)),
+    }
+
+    baseline = None
+    speedup = None
+    n_base = min(baseline_fields, fields)
+    if n_base > 0:
+        from .baseline import baseline_rollout, require_osqp
+
+        require_osqp()
+        host = jax.device_get(scenarios)
+        per_field = []
+        c0 = time.process_time()
+        for i in range(n_base):
+            one = jax.tree_util.tree_map(lambda x: np.asarray(x[i]), host)
+            t0 = time.perf_counter()
+            baseline_rollout(one, gains, sim, mpc)
+            per_field.append(time.perf_counter() - t0)
+        cpu = time.process_time() - c0
+        total = float(np.sum(per_field))
+        baseline = {
+            "fields": n_base,
+            "total_s": total,
+            "cpu_s": cpu,
+            "per_field_s": total / n_base,
+            "per_field_all_s": [float(x) for x in per_field],
+            "steps_per_s": n_base * sim.steps / total,
+            "all_fields_estimate_s": total / n_base * fields,
+        }
+        speedup = engine["steps_per_s"] / baseline["steps_per_s"]
+
+    return {
+        "config": {
+            "fields": fields,
+            "obstacles": obstacles,
+            "horizon": horizon,
+            "iters": iters,
+            "steps": sim.steps,
+            "dt": sim.dt,
+            "baseline_fields": n_base,
+            "family": source,
+            "seed": seed,
+            "method": method,
+            "gain_settings": 1,
+        },
+        "environment": {**_environment(), "dtype": str(jnp.dtype(dtype))},
+        "engine": engine,
+        "baseline": baseline,
+        "speedup": speedup,
+    }
+
+
+def _seconds(s: float) -> str:
+    if s < 1e-3:
+        return f"{s * 1e6:.0f} µs"
+    if s < 1:
+        return f"{s * 1e3:.1f} ms"
+    if s < 120:
+        return f"{s:.2f} s"
+    if s < 7200:
+        return f"{s / 60:.1f} min"
+    return f"{s / 3600:.1f} h"
+
+
+def format_benchmark(result: dict[str, Any]) -> str:
+    """A compact human-readable table of :func:`run_benchmark`'s result."""
+    cfg, env, eng, base = result["config"], result["environment"], result["engine"], result["baseline"]
+    lines = [
+        f"jaxapf bench: {cfg['family']} fields, method {cfg['method']}",
+        f"  {cfg['fields']} fields x {cfg['steps']} steps (dt {cfg['dt']:g} s), {cfg['obstacles']} obstacle slots, "
+        f"MPC horizon {cfg['horizon']}, {cfg['iters']} FISTA iterations",
+        f"  device {env['platform']} ({env['device_kind']}) x{env['device_count']}, {env['cpu_count']} CPUs, "
+        f"jax {env['jax']} / jaxlib {env['jaxlib']}, {env['dtype']}",
+        "",
+        f"  {'':34s}{'time':>12s}{'scenario-steps/s':>20s}",
+        f"  {'engine trace + lower':34s}{_seconds(eng['lower_s']):>12s}",
+        f"  {'engine compile':34s}{_seconds(eng['compile_s']):>12s}",
+        f"  {'engine first run':34s}{_seconds(eng['first_run_s']):>12s}",
+        f"  {'engine steady run, ' + str(cfg['fields']) + ' fields':34s}{_seconds(eng['run_s']):>12s}"
+        f"{eng['steps_per_s']:>20,.0f}",
+        f"  {'engine per field':34s}{_seconds(eng['per_field_ms'] / 1e3):>12s}",
+    ]
+    if base is not None:
+        lines += [
+            f"  {'baseline (numpy + OSQP) per field':34s}{_seconds(base['per_field_s']):>12s}"
+            f"{base['steps_per_s']:>20,.0f}",
+            f"  {'  (measured on ' + str(base['fields']) + ' fields)':34s}",
+            f"  {'baseline, all fields (estimate)':34s}{_seconds(base['all_fields_estimate_s']):>12s}",
+            "",
+            f"  speed-up (engine / baseline steps/s): {result['speedup']:,.1f}x",
+        ]
+    else:
+        lines += ["", "  baseline skipped (baseline_fields = 0)"]
+    rates = [f"{k[:-5]} {eng[k]:.1%}" for k in ("success_rate", "collision_rate", "stalled_rate") if k in eng]
+    if rates:
+        lines.append("  engine episodes: " + ", ".join(rates))
+    return "\n".join(lines)

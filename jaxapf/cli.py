@@ -1,0 +1,132 @@
+"""The ``jaxapf`` command line: ``simulate`` and ``bench``.
+
+Configuration errors are reported as one line naming the field and its allowed range, with exit
+status 2; nothing reaches the user as a traceback from inside JAX.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import sys
+import time
+from typing import Sequence
+
+from .config import METHODS, CONVENTIONS, ConfigError, Gains, MPCConfig, SimConfig, gains_from_mapping, load_gains
+
+__all__ = ["main", "build_parser"]
+
+_GAIN_FLAGS = {"gamma": "γ", "k": "k", "k_rep": "k_rep", "d_s": "d_s [m]", "k_att": "k_att", "eta": "η"}
+
+
+def _methods(text: str) -> list[str]:
+    methods = [m.strip() for m in text.split(",") if m.strip()]
+    for m in methods:
+        if m not in METHODS:
+            raise argparse.ArgumentTypeError(f"unknown method {m!r}; choose from {', '.join(METHODS)}")
+    if not methods:
+        raise argparse.ArgumentTypeError("give at least one method")
+    return methods
+
+
+def _add_planner_flags(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("planner gains (defaults: jaxapf.config.Gains)")
+    g.add_argument("--gains", type=pathlib.Path, metavar="FILE",
+                   help="TOML file with gain values ([gains] table or top-level keys)")
+    for name, label in _GAIN_FLAGS.items():
+        g.add_argument(f"--{name.replace('_', '-')}", dest=name, type=float, metavar="X",
+                       help=f"gain {label}")
+    s = p.add_argument_group("simulation and MPC")
+    s.add_argument("--convention", choices=CONVENTIONS, default="intent")
+    s.add_argument("--dt", type=float, default=0.1, help="control step [s] (default 0.1)")
+    s.add_argument("--t-max", type=float, help="episode length [s] (default: the family's)")
+    s.add_argument("--horizon", type=int, default=MPCConfig.horizon, help="MPC horizon N")
+    s.add_argument("--iters", type=int, default=MPCConfig.iters, help="FISTA iterations per step")
+    s.add_argument("--x64", action="store_true", help="run in float64")
+
+
+def _gains(args: argparse.Namespace) -> Gains:
+    base = load_gains(args.gains) if args.gains else Gains()
+    given = {n: getattr(args, n) for n in _GAIN_FLAGS if getattr(args, n) is not None}
+    return gains_from_mapping(given, where="--", base=base) if given else base
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="jaxapf", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    sim = sub.add_parser("simulate", help="one field, several methods side by side, figures and trajectories")
+    sim.add_argument("--family", default="paper_static",
+                     help="scenario family (paper_static, paper_dynamic, trap, clutter, crossing, head_on, "
+                          "overtake, dynamic); default paper_static")
+    sim.add_argument("--seed", type=int, default=0)
+    sim.add_argument("--field", type=int, default=0, help="field index within the seed")
+    sim.add_argument("--methods", type=_methods, default=["basic", "direction_velocity"],
+                     help="comma-separated methods (default basic,direction_velocity)")
+    sim.add_argument("--out", type=pathlib.Path, default=pathlib.Path("out/simulate"),
+                     help="output folder (default out/simulate)")
+    _add_planner_flags(sim)
+
+    bench = sub.add_parser("bench", help="engine throughput vs a numpy+OSQP loop")
+    bench.add_argument("--fields", type=int, default=1024)
+    bench.add_argument("--obstacles", type=int, default=16)
+    bench.add_argument("--horizon", type=int, default=20)
+    bench.add_argument("--iters", type=int, default=30)
+    bench.add_argument("--steps", type=int, default=300)
+    bench.add_argument("--baseline-fields", type=int, default=3,
+                       help="fields run by the numpy+OSQP loop (0: skip the baseline)")
+    bench.add_argument("--family", default="clutter")
+    bench.add_argument("--json", action="store_true", help="print one JSON object")
+    return parser
+
+
+def _simulate(args: argparse.Namespace) -> int:
+    if args.x64:
+        import jax
+
+        jax.config.update("jax_enable_x64", True)
+    from .scenarios import family_params
+    from .simulate import format_metrics_table, simulate_runs, write_outputs
+
+    gains = _gains(args)
+    t_max = args.t_max if args.t_max is not None else family_params(args.family).t_max
+    sim = SimConfig(method=args.methods[0], convention=args.convention, dt=args.dt, t_max=t_max)
+    mpc = MPCConfig(horizon=args.horizon, iters=args.iters)
+    start = time.perf_counter()
+    field, runs, table = simulate_runs(args.family, args.seed, args.field, args.methods, gains, sim, mpc)
+    config = {"command": "simulate", "family": args.family, "seed": args.seed, "field_index": args.field,
+              "methods": args.methods, "gains": {n: float(getattr(gains, n)) for n in Gains.names()},
+              "sim": vars(sim) | {"method": None}, "mpc": vars(mpc)}
+    paths = write_outputs(args.out, field, runs, table, config)
+    print(f"{field.title}: {sim.steps} steps of {sim.dt:g} s, {len(runs)} methods "
+          f"in {time.perf_counter() - start:.1f} s")
+    print(format_metrics_table(runs))
+    print(f"wrote {len(paths)} files to {args.out}/:", ", ".join(p.name for p in paths))
+    return 0
+
+
+def _bench(args: argparse.Namespace) -> int:
+    from .bench import format_benchmark, run_benchmark
+
+    result = run_benchmark(fields=args.fields, obstacles=args.obstacles, horizon=args.horizon,
+                           iters=args.iters, steps=args.steps, baseline_fields=args.baseline_fields,
+                           family=args.family)
+    print(json.dumps(result, indent=2) if args.json else format_benchmark(result))
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return {"simulate": _simulate, "bench": _bench}[args.command](args)
+    except ConfigError as err:
+        print(f"jaxapf {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    except ImportError as err:
+        print(f"jaxapf {args.command}: error: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,122 @@
+"""``jaxapf simulate``: one field, several methods side by side, trajectories + the paper's figures.
+
+Each method is one jit-compiled :func:`~jaxapf.rollout.rollout` on the same field (same key), so the
+runs differ only by the planner. The output folder receives
+
+- ``trajectories.parquet``: one row per (method, sample) with time, position, velocity, applied
+  control (NaN on the last sample), distance to goal and clearance to every valid obstacle;
+- ``metrics.csv``: one row per method with every metric of SPEC 6;
+- ``run.json``: the configuration, the field and the package versions, so the run can be traced;
+- the figures of :func:`jaxapf.plotting.plot_all` (PNG).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+from functools import partial
+from typing import Sequence
+
+import jax
+import numpy as np
+import pandas as pd
+
+from .config import Gains, MPCConfig, SimConfig
+from .metrics import METRICS, clearance_history, episode_end, episode_metrics
+from .obstacles import Scenario
+from .plotting import Field, Run, plot_all
+from .rollout import rollout
+from .scenarios import family_params, make_scenarios
+from .versions import versions
+
+__all__ = ["simulate_runs", "write_outputs", "format_metrics_table"]
+
+
+@partial(jax.jit, static_argnames=("sim", "mpc"))
+def _episode(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig):
+    traj = rollout(scenario, gains, sim, mpc)
+    return (traj, episode_metrics(traj, scenario, sim), clearance_history(traj, scenario, sim),
+            episode_end(traj, scenario, sim)["end_index"])
+
+
+def _field(scenario: Scenario, sim: SimConfig, title: str) -> Field:
+    obs = jax.tree_util.tree_map(np.asarray, scenario.obstacles)
+    keep = obs.valid
+    return Field(
+        start=np.asarray(scenario.start), goal=np.asarray(scenario.goal),
+        obstacle_position=obs.position[keep], obstacle_velocity=obs.velocity[keep],
+        obstacle_radius=obs.radius[keep], obstacle_cylinder=obs.cylinder[keep],
+        r_uav=sim.r_uav, r_goal=sim.r_goal, d_safe=sim.d_safe, title=title,
+    )
+
+
+def simulate_runs(
+    family: str,
+    seed: int,
+    field_index: int,
+    methods: Sequence[str],
+    gains: Gains,
+    sim: SimConfig,
+    mpc: MPCConfig,
+    scenario_overrides: dict | None = None,
+) -> tuple[Field, list[Run], pd.DataFrame]:
+    """Run ``methods`` on field ``field_index`` of ``family`` (seed ``seed``).
+
+    Returns the field, one :class:`~jaxapf.plotting.Run` per method (cut at the episode end)
+    and the long trajectory table.
+    """
+    params = family_params(family, **(scenario_overrides or {}))
+    batch = make_scenarios(seed, params, np.array([field_index]))
+    scenario = jax.tree_util.tree_map(lambda x: x[0], batch)
+    valid = np.asarray(scenario.obstacles.valid)
+    runs, tables = [], []
+    for method in methods:
+        msim = sim.replace(method=method)
+        traj, metrics, clear, end = jax.device_get(_episode(scenario, gains, msim, mpc))
+        n = int(end) + 1
+        goal_distance = np.linalg.norm(traj.position - np.asarray(scenario.goal), axis=1)
+        metrics = {k: float(v) if np.ndim(v) == 0 else v for k, v in metrics.items()}
+        run = Run(label=method, time=traj.time[:n], position=traj.position[:n], velocity=traj.velocity[:n],
+                  clearance=clear[:n][:, valid], goal_distance=goal_distance[:n], metrics=metrics)
+        runs.append(run)
+        control = np.concatenate([traj.control, np.full((1, 3), np.nan, traj.control.dtype)])[:n]
+        table = {"method": method, "step": np.arange(n), "time": run.time}
+        for i, axis in enumerate("xyz"):
+            table[f"p{axis}"] = run.position[:, i]
+            table[f"v{axis}"] = run.velocity[:, i]
+            table[f"a{axis}"] = control[:, i]
+        table["goal_distance"] = run.goal_distance
+        for j, col in enumerate(run.clearance.T):
+            table[f"clearance_{j}"] = col
+        tables.append(pd.DataFrame(table))
+    title = f"{family} (seed {seed}, field {field_index})"
+    return _field(scenario, sim, title), runs, pd.concat(tables, ignore_index=True)
+
+
+def format_metrics_table(runs: Sequence[Run]) -> str:
+    """A short fixed-width table: one row per run, the headline metrics as columns."""
+    cols = ["success", "collision", "stalled", "time_to_goal", "min_clearance", "path_ratio",
+            "final_distance", "control_effort", "time_near", "min_ttc", "score"]
+    frame = pd.DataFrame([{c: r.metrics[c] for c in cols} for r in runs], index=[r.label for r in runs])
+    for c in ("success", "collision", "stalled"):
+        frame[c] = frame[c].astype(bool)
+    return frame.to_string(float_format=lambda x: f"{x:.3g}")
+
+
+def write_outputs(out: pathlib.Path, field: Field, runs: Sequence[Run], table: pd.DataFrame,
+                  config: dict) -> list[pathlib.Path]:
+    """Write trajectories, metrics, run record and figures to ``out``; returns the paths."""
+    out.mkdir(parents=True, exist_ok=True)
+    paths = [out / "trajectories.parquet", out / "metrics.csv", out / "run.json"]
+    table.to_parquet(paths[0], index=False)
+    pd.DataFrame([{"method": r.label, **{m: r.metrics[m] for m in METRICS}} for r in runs]).to_csv(
+        paths[1], index=False)
+    record = {
+        **config,
+        "field": {k: np.asarray(v).tolist() if isinstance(v, np.ndarray) else v
+                  for k, v in dataclasses.asdict(field).items()},
+        "versions": versions(),
+    }
+    paths[2].write_text(json.dumps(record, indent=2, default=str))
+    return paths + plot_all(list(runs), field, out)
