@@ -25,8 +25,6 @@ Everything is returned in a JSON-serialisable dict (``jaxapf bench --json``);
 
 from __future__ import annotations
 
-import os
-import platform
 import time
 from importlib import metadata
 from typing import Any
@@ -35,34 +33,19 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .config import Gains, MPCConfig, SimConfig
+from .config import Gains, MPCConfig, SimConfig, check_int
 
 __all__ = ["run_benchmark", "format_benchmark"]
 
 
-def _version(dist: str) -> str:
+def _environment(dtype: Any) -> dict[str, Any]:
+    from .versions import versions
+
     try:
-        return metadata.version(dist)
+        osqp = metadata.version("osqp")
     except metadata.PackageNotFoundError:
-        return "not installed"
-
-
-def _environment() -> dict[str, Any]:
-    device = jax.devices()[0]
-    return {
-        "platform": device.platform,
-        "device_kind": device.device_kind,
-        "device_count": jax.device_count(),
-        "cpu_count": os.cpu_count(),
-        "jax": jax.__version__,
-        "jaxlib": _version("jaxlib"),
-        "numpy": np.__version__,
-        "osqp": _version("osqp"),
-        "python": platform.python_version(),
-        "machine": platform.platform(),
-        "dtype": str(jnp.dtype(jnp.result_type(float))),
-        "x64": bool(jax.config.jax_enable_x64),
-    }
+        osqp = "not installed"
+    return {**versions(), "osqp": osqp, "dtype": str(jnp.dtype(dtype))}
 
 
 def _block(tree: Any) -> Any:
@@ -88,6 +71,7 @@ def run_benchmark(
     family: str = "clutter",
     seed: int = 0,
     method: str = "direction_velocity",
+    chunk: int | None = None,
     *,
     gains: Gains | None = None,
     scenarios: Any = None,
@@ -102,6 +86,8 @@ def run_benchmark(
       baseline_fields: how many of the fields the baseline runs (0 skips the baseline).
       family, seed: scenario family and seed (``make_scenarios(seed, params, fields)``).
       method: planner (``SimConfig.method``).
+      chunk: episodes per vmapped chunk of :func:`~jaxapf.rollout.evaluate` (default:
+        :func:`~jaxapf.rollout.default_chunk` for the backend).
       gains: one gain setting (default ``Gains()``); the engine runs it as a batch of G = 1.
       scenarios: a prebuilt batch of fields (leading axis F) to use instead of ``family``/``seed``;
         ``fields`` and ``obstacles`` are then read from it.
@@ -110,15 +96,17 @@ def run_benchmark(
       A JSON-serialisable dict: ``config``, ``environment``, ``engine``, ``baseline`` (None when
       skipped), ``speedup`` (None when skipped).
     """
-    from .rollout import evaluate
+    from .rollout import default_chunk, evaluate
 
-    if fields < 1:
-        raise ValueError(f"fields = {fields!r} must be >= 1")
-    if baseline_fields < 0:
-        raise ValueError(f"baseline_fields = {baseline_fields!r} must be >= 0")
+    fields = check_int("bench.fields", fields, 1)
+    steps = check_int("bench.steps", steps, 1)
+    baseline_fields = check_int("bench.baseline_fields", baseline_fields, 0)
+    if chunk is not None:
+        chunk = check_int("bench.chunk", chunk, 1)
     sim = SimConfig(method=method, t_max=steps * 0.1)
     mpc = MPCConfig(horizon=horizon, iters=iters)
     gains = Gains() if gains is None else gains
+    chunk = default_chunk() if chunk is None else chunk
 
     t0 = time.perf_counter()
     if scenarios is None:
@@ -138,15 +126,8 @@ def run_benchmark(
     gains_batch = jax.tree_util.tree_map(lambda g: jnp.asarray(g, dtype)[None], gains)
 
     # engine: trace + lower, compile, first run, steady run
-    # Lower a thin wrapper that rebuilds Gains from a dict of arrays inside the trace: `.lower()`
-    # would otherwise rebuild a Gains from its jax.stages.ArgInfo leaves (args_info), which
-    # Gains' input validation rejects as non-numeric.
-    def engine_fn(scenarios, gain_leaves, sim, mpc):
-        return evaluate(scenarios, Gains(**gain_leaves), sim, mpc)
-
-    gains_batch = {name: getattr(gains_batch, name) for name in Gains.names()}
     t0 = time.perf_counter()
-    lowered = jax.jit(engine_fn, static_argnames=("sim", "mpc")).lower(scenarios, gains_batch, sim=sim, mpc=mpc)
+    lowered = evaluate.lower(scenarios, gains_batch, sim=sim, mpc=mpc, chunk=chunk)
     t_lower = time.perf_counter() - t0
     t0 = time.perf_counter()
     compiled = lowered.compile()
@@ -211,8 +192,9 @@ def run_benchmark(
             "seed": seed,
             "method": method,
             "gain_settings": 1,
+            "chunk": chunk,
         },
-        "environment": {**_environment(), "dtype": str(jnp.dtype(dtype))},
+        "environment": _environment(dtype),
         "engine": engine,
         "baseline": baseline,
         "speedup": speedup,
@@ -237,8 +219,8 @@ def format_benchmark(result: dict[str, Any]) -> str:
     lines = [
         f"jaxapf bench: {cfg['family']} fields, method {cfg['method']}",
         f"  {cfg['fields']} fields x {cfg['steps']} steps (dt {cfg['dt']:g} s), {cfg['obstacles']} obstacle slots, "
-        f"MPC horizon {cfg['horizon']}, {cfg['iters']} FISTA iterations",
-        f"  device {env['platform']} ({env['device_kind']}) x{env['device_count']}, {env['cpu_count']} CPUs, "
+        f"MPC horizon {cfg['horizon']}, {cfg['iters']} FISTA iterations, vmap chunk {cfg['chunk']}",
+        f"  device {env['device']} x{env['device_count']}, {env['cpu_count']} CPUs, "
         f"jax {env['jax']} / jaxlib {env['jaxlib']}, {env['dtype']}",
         "",
         f"  {'':34s}{'time':>12s}{'scenario-steps/s':>20s}",

@@ -77,6 +77,7 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--baseline-fields", type=int, default=3,
                        help="fields run by the numpy+OSQP loop (0: skip the baseline)")
     bench.add_argument("--family", default="clutter")
+    bench.add_argument("--chunk", type=int, help="episodes per vmapped chunk (default: 32 on CPU, 4096 on accelerators)")
     bench.add_argument("--json", action="store_true", help="print one JSON object")
     return parser
 
@@ -111,7 +112,7 @@ def _bench(args: argparse.Namespace) -> int:
 
     result = run_benchmark(fields=args.fields, obstacles=args.obstacles, horizon=args.horizon,
                            iters=args.iters, steps=args.steps, baseline_fields=args.baseline_fields,
-                           family=args.family)
+                           family=args.family, chunk=args.chunk)
     print(json.dumps(result, indent=2) if args.json else format_benchmark(result))
     return 0
 
