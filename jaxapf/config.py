@@ -311,7 +311,12 @@ def gains_from_mapping(mapping: dict[str, Any], where: str = "gains", base: Gain
     for name, value in mapping.items():
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{where}.{name} = {value!r} must be a number")
-    return dataclasses.replace(base or Gains(), **{k: float(v) for k, v in mapping.items()})
+    base = base or Gains()
+    values = {n: getattr(base, n) for n in Gains.names()} | {k: float(v) for k, v in mapping.items()}
+    validate_gains(values, prefix=where)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", BoundWarning)  # already warned above, under `where`
+        return Gains(**values)
 
 
 def load_gains(path: str | os.PathLike, base: Gains | None = None) -> Gains:

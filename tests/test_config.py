@@ -101,8 +101,12 @@ def test_gains_file(tmp_path):
     with pytest.raises(ConfigError, match=r"gains\.gama is not a gain; allowed: gamma, k, k_rep"):
         load_gains(path)
     path.write_text("[gains]\nd_s = -1\n")
-    with pytest.raises(ConfigError, match=r"gains\.d_s = -1\.0"):
-        load_gains(path)
+    with pytest.raises(ConfigError, match=r"g\.toml:gains\.d_s = -1\.0 is out of range"):
+        load_gains(path)  # the message names the file the bad value came from
+    path.write_text("[gains]\nk = 1.5\n")
+    with pytest.warns(BoundWarning, match=r"g\.toml:gains\.k > 1") as record:
+        assert load_gains(path).k == 1.5
+    assert len(record) == 1
     with pytest.raises(ConfigError, match="does not exist"):
         load_gains(tmp_path / "missing.toml")
     with pytest.raises(ConfigError, match=r"x\.gamma = 'a' must be a number"):
