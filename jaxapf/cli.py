@@ -1,4 +1,4 @@
-"""The ``jaxapf`` command line: ``simulate`` and ``bench``.
+"""The ``jaxapf`` command line: ``simulate``, ``bench`` and ``sweep``.
 
 Configuration errors are reported as one line naming the field and its allowed range, with exit
 status 2; nothing reaches the user as a traceback from inside JAX.
@@ -79,7 +79,35 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--family", default="clutter")
     bench.add_argument("--chunk", type=int, help="episodes per vmapped chunk (default: 32 on CPU, 4096 on accelerators)")
     bench.add_argument("--json", action="store_true", help="print one JSON object")
+    bench.add_argument("--sweep", nargs="?", const="", type=str, metavar="SPEC",
+                       help="instead: end-to-end sweep throughput vs bare evaluate, and the speed-up on 2 CPU "
+                            "devices (SPEC: a sweep spec TOML; default a built-in 2,048-episode study)")
+
+    _add_sweep_parser(sub)
     return parser
+
+
+def _add_sweep_parser(sub: argparse._SubParsersAction) -> None:
+    sw = sub.add_parser("sweep", help="run a study stated in a TOML spec into a Parquet dataset (see docs/sweep.md)")
+    sw.add_argument("spec", type=pathlib.Path, help="sweep spec TOML, e.g. sweeps/compare-small.toml")
+    sw.add_argument("--out", type=pathlib.Path, help="output dataset directory (default runs/NAME.parquet)")
+    sw.add_argument("--dry-run", action="store_true",
+                    help="print settings, episodes, compiled variants, chunks, time and memory estimates; run nothing")
+    sw.add_argument("--gains", type=pathlib.Path, metavar="FILE",
+                    help="TOML of gains (e.g. a tuning result) overriding the spec's [gains]")
+    sw.add_argument("--overwrite", action="store_true", help="replace the parts of a different (or the same) sweep in --out")
+    sw.add_argument("--memory-budget", default="256M", metavar="SIZE",
+                    help="working-set budget of one chunk, e.g. 256M, 2G (default 256M)")
+    sw.add_argument("--chunk-fields", type=int, metavar="N", help="fields per chunk (default: from the memory budget)")
+    sw.add_argument("--devices", type=int, metavar="N",
+                    help="on CPU, split the host into N JAX devices (default: one per core this process may use)")
+    sw.add_argument("--cache-dir", type=pathlib.Path, metavar="DIR",
+                    help="persistent XLA compilation cache (default ~/.cache/jaxapf/xla)")
+    sw.add_argument("--no-cache", action="store_true", help="no persistent compilation cache")
+    sw.add_argument("--distributed", action="store_true",
+                    help="jax.distributed.initialize(); each process runs and writes its own chunks")
+    sw.add_argument("--quiet", action="store_true", help="no progress bar")
+    sw.add_argument("--x64", action="store_true", help="run in float64")
 
 
 def _simulate(args: argparse.Namespace) -> int:
@@ -108,7 +136,14 @@ def _simulate(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from .bench import format_benchmark, run_benchmark
+    from .bench import format_benchmark, format_sweep_benchmark, run_benchmark, run_sweep_benchmark
+
+    if args.sweep is not None:
+        from .sweep_spec import read_toml
+
+        result = run_sweep_benchmark(read_toml(args.sweep) if args.sweep else None)
+        print(json.dumps(result, indent=2) if args.json else format_sweep_benchmark(result))
+        return 0
 
     result = run_benchmark(fields=args.fields, obstacles=args.obstacles, horizon=args.horizon,
                            iters=args.iters, steps=args.steps, baseline_fields=args.baseline_fields,
@@ -117,10 +152,35 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _sweep(args: argparse.Namespace) -> int:
+    import os
+    import warnings
+
+    from .sweep import configure_jax, default_cache_dir, dry_run, parse_size, run_sweep
+    from .sweep_spec import load_spec
+
+    budget = parse_size(args.memory_budget)
+    configure_jax(x64=args.x64, cache_dir=None if args.no_cache else args.cache_dir or default_cache_dir(),
+                  cpu_devices=args.devices or len(os.sched_getaffinity(0)), distributed=args.distributed)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        spec = load_spec(args.spec, args.gains)
+    for w in caught:
+        print(f"jaxapf sweep: warning: {w.message}", file=sys.stderr)
+    out = args.out or pathlib.Path("runs") / f"{spec.name}.parquet"
+    if args.dry_run:
+        print(dry_run(spec, out, overwrite=args.overwrite, memory_budget=budget, chunk_fields=args.chunk_fields))
+        return 0
+    result = run_sweep(spec, out, memory_budget=budget, chunk_fields=args.chunk_fields, overwrite=args.overwrite,
+                       quiet=args.quiet)
+    print(result.summary(spec.name))
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        return {"simulate": _simulate, "bench": _bench}[args.command](args)
+        return {"simulate": _simulate, "bench": _bench, "sweep": _sweep}[args.command](args)
     except ConfigError as err:
         print(f"jaxapf {args.command}: error: {err}", file=sys.stderr)
         return 2

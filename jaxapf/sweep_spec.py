@@ -1,0 +1,478 @@
+r"""Sweep specifications: a study stated as a TOML file, validated completely before anything runs.
+
+A spec names scenario families and a number of fields, fixed settings, and the settings to vary
+(a cartesian ``[grid]`` and/or ``[random]`` gain samples). :func:`load_spec` parses and checks it;
+:meth:`SweepSpec.settings` expands it into the list of settings every field is run with.
+
+Keys ("setting keys") live in one flat namespace:
+
+- **gains** (:class:`~jaxapf.config.Gains`: ``gamma``, ``k``, ``k_rep``, ``d_s``, ``k_att``,
+  ``eta``) are traced: any number of gain settings share one compiled program;
+- **static settings** (every field of :class:`~jaxapf.config.SimConfig` and
+  :class:`~jaxapf.config.MPCConfig`: ``method``, ``convention``, ``dt``, ``t_max``, ``horizon``,
+  ``iters``, ...) are compiled in: each distinct combination is a *variant* with its own program.
+
+Expansion order (the ``setting`` index of the output): the grid product with the keys in the
+order the spec writes them, the last key varying fastest; with ``[random]``, every grid point is
+crossed with the same ``n`` samples (samples innermost), so grid points are paired on gains too.
+Without ``[grid]`` there is one grid point (the fixed values); without ``[random]``, one sample.
+
+Random samples: sample ``j`` of gain ``x`` (the ``i``-th ``[random]`` key) is
+``u = (b + 0.5) / 2^32`` with ``b = jax.random.bits(jax.random.key(random.seed), (n, d), uint32)[j, i]``
+(threefry, the same in float32 and float64 runs), mapped to ``lo + u (hi - lo)`` for a uniform
+range and ``exp(ln lo + u (ln hi - ln lo))`` for a log range.
+
+Every error is a :class:`~jaxapf.config.ConfigError` naming the key (``grid.gamma[2] = -1.0 is out
+of range; allowed: a finite number >= 0``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import itertools
+import json
+import os
+import re
+import tomllib
+import warnings
+from typing import Any, Iterable, Mapping
+
+import numpy as np
+
+from .config import BoundWarning, ConfigError, Gains, MPCConfig, SimConfig, check_int, load_gains
+from .scenarios import FAMILIES, family_params
+
+__all__ = [
+    "GAIN_KEYS",
+    "STATIC_KEYS",
+    "SIM_KEYS",
+    "MPC_KEYS",
+    "RandomRange",
+    "Setting",
+    "SweepSpec",
+    "load_spec",
+    "parse_spec",
+    "read_toml",
+]
+
+GAIN_KEYS: tuple[str, ...] = Gains.names()
+SIM_KEYS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(SimConfig))
+MPC_KEYS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(MPCConfig))
+#: Settings compiled into the program (one variant per distinct combination).
+STATIC_KEYS: tuple[str, ...] = SIM_KEYS + MPC_KEYS
+#: MPC weights that take a number (same on x, y, z) or 3 numbers.
+AXIS_WEIGHT_KEYS: frozenset[str] = frozenset({"q_pos", "q_vel", "f_pos", "f_vel", "r"})
+#: Largest seed: ``jax.random.key`` keeps 32 bits in float32 runs.
+MAX_SEED = 2**32 - 1
+
+_TOP_KEYS = ("name", "scenario", "sim", "gains", "grid", "random")
+_SCENARIO_KEYS = ("families", "fields", "seed", "params")
+_RANDOM_KEYS = ("n", "seed")
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+
+
+# --------------------------------------------------------------------------------------------
+# one value
+# --------------------------------------------------------------------------------------------
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _kind(key: str) -> str:
+    """What a setting key takes: ``number``, ``integer``, ``text``, ``boolean`` or ``weight``."""
+    if key in GAIN_KEYS:
+        return "number"
+    if key in AXIS_WEIGHT_KEYS:
+        return "weight"
+    owner = SimConfig if key in SIM_KEYS else MPCConfig
+    default = next(f.default for f in dataclasses.fields(owner) if f.name == key)
+    if isinstance(default, bool):
+        return "boolean"
+    if isinstance(default, int):
+        return "integer"
+    if isinstance(default, str):
+        return "text"
+    return "number"  # floats, and att_cap (default None: off)
+
+
+_KIND_TEXT = {
+    "number": "a number",
+    "integer": "an integer",
+    "text": "a string",
+    "boolean": "true or false",
+    "weight": "a number or a list of 3 numbers (x, y, z)",
+}
+
+
+def _type_ok(kind: str, value: Any) -> bool:
+    if kind == "number":
+        return _is_number(value)
+    if kind == "integer":
+        return isinstance(value, int) and not isinstance(value, bool)
+    if kind == "text":
+        return isinstance(value, str)
+    if kind == "boolean":
+        return isinstance(value, bool)
+    return _is_number(value) or (isinstance(value, list) and len(value) == 3 and all(map(_is_number, value)))
+
+
+def _relocated(err: ConfigError, old: str, where: str) -> ConfigError:
+    """``err`` with its location ``old`` (how the config classes name a field) replaced by ``where``
+    (where the value sits in the spec)."""
+    message = str(err)
+    if message.startswith(old):
+        return ConfigError(where + message[len(old):])
+    return ConfigError(f"{where}: {message}")
+
+
+def check_value(where: str, key: str, value: Any) -> Any:
+    """Type- and range-check one value of setting ``key`` found at ``where`` in the spec; returns it
+    normalised (gains and other numbers as float, weights as float or a 3-tuple of floats)."""
+    kind = _kind(key)
+    if not _type_ok(kind, value):
+        raise ConfigError(f"{where} = {value!r} must be {_KIND_TEXT[kind]}")
+    if kind == "number":
+        value = float(value)
+    elif kind == "weight":
+        value = tuple(float(v) for v in value) if isinstance(value, list) else float(value)
+    owner, prefix = ((Gains, "gains") if key in GAIN_KEYS
+                     else (SimConfig, "sim") if key in SIM_KEYS else (MPCConfig, "mpc"))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", BoundWarning)
+        try:
+            owner(**{key: value})
+        except ConfigError as err:
+            raise _relocated(err, f"{prefix}.{key}", where) from None
+    for w in caught:  # re-issued naming the spec's key (k > 1)
+        message = str(w.message).removeprefix(f"{prefix}.{key}")
+        warnings.warn(f"{where} = {value!r}{message}", BoundWarning, stacklevel=2)
+    return value
+
+
+# --------------------------------------------------------------------------------------------
+# the spec
+# --------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class RandomRange:
+    """Range of one sampled gain: uniform on ``[low, high]``, or log-uniform with ``log``."""
+
+    low: float
+    high: float
+    log: bool = False
+
+    def sample(self, u: np.ndarray) -> np.ndarray:
+        """Map uniforms ``u`` in (0, 1) to the range (float64)."""
+        if self.log:
+            a, b = np.log(self.low), np.log(self.high)
+            return np.exp(a + u * (b - a))
+        return self.low + u * (self.high - self.low)
+
+
+@dataclasses.dataclass(frozen=True)
+class Setting:
+    """One entry of the expanded spec: every setting key the spec fixes or varies.
+
+    Attributes:
+      index: position in :meth:`SweepSpec.settings` (the ``setting`` column).
+      gains: the full gain setting (defaults of :class:`Gains` for keys the spec does not name).
+      static: the static settings the spec names (fixed ``[sim]`` values and static grid axes),
+        in :data:`STATIC_KEYS` order; everything else keeps its :class:`SimConfig` /
+        :class:`MPCConfig` default, except ``t_max``, whose default is the family's.
+    """
+
+    index: int
+    gains: Mapping[str, float]
+    static: tuple[tuple[str, Any], ...]
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepSpec:
+    """A validated sweep specification (see the module docstring and docs/sweep.md).
+
+    Attributes:
+      name: the study's name (letters, digits, ``_ . -``).
+      families: scenario families (SPEC 5), in the spec's order.
+      fields: randomized fields per family.
+      seed: scenario seed; field ``i`` has key ``fold_in(key(seed), i)``.
+      params: per-family parameter overrides (validated by :func:`family_params`), normalised.
+      sim: fixed static settings (``[sim]``).
+      gains: fixed gains (``[gains]``, then ``--gains FILE`` on top).
+      grid: ``(key, values)`` axes in the spec's order.
+      random_n: number of random gain samples (0: no ``[random]``).
+      random_seed: seed of the gain samples.
+      random: ``(gain, range)`` in the spec's order.
+    """
+
+    name: str
+    families: tuple[str, ...]
+    fields: int
+    seed: int
+    params: Mapping[str, Mapping[str, Any]]
+    sim: Mapping[str, Any]
+    gains: Mapping[str, float]
+    grid: tuple[tuple[str, tuple[Any, ...]], ...] = ()
+    random_n: int = 0
+    random_seed: int = 0
+    random: tuple[tuple[str, RandomRange], ...] = ()
+
+    # ---- canonical form -----------------------------------------------------------------
+
+    def to_json(self) -> dict[str, Any]:
+        """The spec as a JSON object (stored in every output part; order-preserving lists for the
+        grid and random axes, so the hash sees their order)."""
+        return {
+            "name": self.name,
+            "scenario": {"families": list(self.families), "fields": self.fields, "seed": self.seed,
+                         "params": {f: dict(p) for f, p in self.params.items()}},
+            "sim": dict(self.sim),
+            "gains": dict(self.gains),
+            "grid": [[key, list(values)] for key, values in self.grid],
+            "random": None if not self.random_n else {
+                "n": self.random_n, "seed": self.random_seed,
+                "ranges": [[key, {"range": [r.low, r.high], "log": r.log}] for key, r in self.random],
+            },
+        }
+
+    @property
+    def hash(self) -> str:
+        """sha256 of the canonical JSON (sorted object keys, no spaces)."""
+        text = json.dumps(self.to_json(), sort_keys=True, separators=(",", ":"))
+        return hashlib.sha256(text.encode()).hexdigest()
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> "SweepSpec":
+        """Inverse of :meth:`to_json` (re-validates)."""
+        table: dict[str, Any] = {"name": data["name"], "scenario": dict(data["scenario"]), "sim": data["sim"],
+                                 "gains": data["gains"]}
+        if data["grid"]:
+            table["grid"] = {key: values for key, values in data["grid"]}
+        if data["random"]:
+            table["random"] = {"n": data["random"]["n"], "seed": data["random"]["seed"],
+                               **{key: r for key, r in data["random"]["ranges"]}}
+        return parse_spec(table)
+
+    # ---- expansion ----------------------------------------------------------------------
+
+    def random_samples(self) -> list[dict[str, float]]:
+        """The ``n`` random gain samples (one dict per sample; ``[{}]`` without ``[random]``)."""
+        if not self.random_n:
+            return [{}]
+        import jax
+        import jax.numpy as jnp
+
+        bits = np.asarray(jax.random.bits(jax.random.key(self.random_seed), (self.random_n, len(self.random)),
+                                          jnp.uint32), dtype=np.float64)
+        u = (bits + 0.5) / 2.0**32
+        columns = {key: r.sample(u[:, i]) for i, (key, r) in enumerate(self.random)}
+        return [{key: float(col[j]) for key, col in columns.items()} for j in range(self.random_n)]
+
+    def settings(self) -> list[Setting]:
+        """Every setting, in ``setting`` order (grid product, last key fastest; samples innermost)."""
+        samples = self.random_samples()
+        keys = [key for key, _ in self.grid]
+        out = []
+        for point in itertools.product(*(values for _, values in self.grid)):
+            varied = dict(zip(keys, point))
+            for sample in samples:
+                values = {**self.sim, **self.gains, **varied, **sample}
+                gains = {k: float(values.get(k, getattr(Gains, k))) for k in GAIN_KEYS}
+                static = tuple((k, values[k]) for k in STATIC_KEYS if k in values)
+                out.append(Setting(index=len(out), gains=gains, static=static))
+        return out
+
+    @property
+    def static_keys(self) -> tuple[str, ...]:
+        """Static settings the spec names (``[sim]`` and grid), in :data:`STATIC_KEYS` order."""
+        named = set(self.sim) | {key for key, _ in self.grid}
+        return tuple(k for k in STATIC_KEYS if k in named)
+
+    def family_params(self, family: str):
+        """The validated :class:`~jaxapf.scenarios.FamilyParams` of ``family`` with the spec's overrides."""
+        return family_params(family, **self.params.get(family, {}))
+
+    def configs(self, static: Iterable[tuple[str, Any]], family: str) -> tuple[SimConfig, MPCConfig]:
+        """:class:`SimConfig` and :class:`MPCConfig` of one setting's static part on ``family``
+        (``t_max``: the spec's if named, else the family's)."""
+        values = dict(static)
+        sim = {k: v for k, v in values.items() if k in SIM_KEYS}
+        sim.setdefault("t_max", self.family_params(family).t_max)
+        mpc = {k: v for k, v in values.items() if k in MPC_KEYS}
+        return SimConfig(**sim), MPCConfig(**mpc)
+
+
+# --------------------------------------------------------------------------------------------
+# parsing
+# --------------------------------------------------------------------------------------------
+
+
+def _table(where: str, value: Any, allowed: Iterable[str] | None = None) -> dict[str, Any]:
+    """``value`` checked to be a table (``where``: its dotted location, ``""`` for the top level)
+    whose keys are all ``allowed``."""
+    if not isinstance(value, dict):
+        raise ConfigError(f"{where or 'the spec'} must be a table, got {value!r}")
+    if allowed is not None:
+        allowed = tuple(allowed)
+        for key in value:
+            if key not in allowed:
+                raise ConfigError(f"{where + '.' if where else ''}{key} is not a known key; allowed: {', '.join(allowed)}")
+    return value
+
+
+def _seed(where: str, value: Any) -> int:
+    return check_int(where, value, 0, MAX_SEED)
+
+
+def _scenario(table: dict[str, Any]) -> tuple[tuple[str, ...], int, int, dict[str, dict[str, Any]]]:
+    scenario = _table("scenario", table, _SCENARIO_KEYS)
+    for key in ("families", "fields"):
+        if key not in scenario:
+            raise ConfigError(f"scenario.{key} is missing")
+    families = scenario["families"]
+    if not isinstance(families, list) or not families:
+        raise ConfigError(f"scenario.families = {families!r} must be a non-empty list of family names; "
+                          f"allowed: {', '.join(FAMILIES)}")
+    for i, family in enumerate(families):
+        if family not in FAMILIES:
+            raise ConfigError(f"scenario.families[{i}] = {family!r} is not a family; allowed: {', '.join(FAMILIES)}")
+    if len(set(families)) != len(families):
+        raise ConfigError(f"scenario.families = {families!r} lists a family twice")
+    fields = check_int("scenario.fields", scenario["fields"], 1)
+    seed = _seed("scenario.seed", scenario.get("seed", 0))
+    params = {}
+    for family, overrides in _table("scenario.params", scenario.get("params", {})).items():
+        if family not in families:
+            raise ConfigError(f"scenario.params.{family} is not one of scenario.families ({', '.join(families)})")
+        overrides = _table(f"scenario.params.{family}", overrides)
+        try:
+            resolved = family_params(family, **overrides)
+        except ConfigError as err:
+            raise _relocated(err, f"scenario.{family}", f"scenario.params.{family}") from None
+        params[family] = {k: list(v) if isinstance(v, tuple) else v
+                          for k, v in ((k, getattr(resolved, k)) for k in overrides)}
+    return tuple(families), fields, seed, params
+
+
+def _fixed(where: str, table: Any, keys: tuple[str, ...]) -> dict[str, Any]:
+    table = _table(where, table, keys)
+    return {key: check_value(f"{where}.{key}", key, value) for key, value in table.items()}
+
+
+def _grid(table: Any, fixed: Mapping[str, str]) -> tuple[tuple[str, tuple[Any, ...]], ...]:
+    table = _table("grid", table, GAIN_KEYS + STATIC_KEYS)
+    if not table:
+        raise ConfigError("grid is empty; give at least one key with a list of values, or remove [grid]")
+    axes = []
+    for key, values in table.items():
+        if key in fixed:
+            raise ConfigError(f"grid.{key} is also set in [{fixed[key]}]; set it in one place")
+        if not isinstance(values, list):
+            raise ConfigError(f"grid.{key} = {values!r} must be a list of values")
+        if not values:
+            raise ConfigError(f"grid.{key} is empty; give at least one value")
+        checked = tuple(check_value(f"grid.{key}[{i}]", key, v) for i, v in enumerate(values))
+        seen = set()
+        for i, v in enumerate(checked):
+            text = json.dumps(v)
+            if text in seen:
+                raise ConfigError(f"grid.{key}[{i}] = {values[i]!r} repeats an earlier value")
+            seen.add(text)
+        axes.append((key, checked))
+    return tuple(axes)
+
+
+def _range(where: str, key: str, value: Any) -> RandomRange:
+    log = False
+    if isinstance(value, dict):
+        table = _table(where, value, ("range", "log"))
+        if "range" not in table:
+            raise ConfigError(f"{where}.range is missing; write {{range = [lo, hi]}} or {{range = [lo, hi], log = true}}")
+        log = table.get("log", False)
+        if not isinstance(log, bool):
+            raise ConfigError(f"{where}.log = {log!r} must be true or false")
+        where, value = f"{where}.range", table["range"]
+    if not isinstance(value, list) or len(value) != 2:
+        raise ConfigError(f"{where} = {value!r} must be a range [lo, hi] or a table {{range = [lo, hi], log = true}}")
+    low, high = (check_value(f"{where}[{i}]", key, v) for i, v in enumerate(value))
+    if low > high:
+        raise ConfigError(f"{where} = {value!r} is not a range; allowed: [lo, hi] with lo <= hi")
+    if log and low <= 0:
+        raise ConfigError(f"{where}[0] = {low!r} is out of range; allowed: > 0 for a log range")
+    return RandomRange(low, high, log)
+
+
+def _random(table: Any, fixed: Mapping[str, str], grid: Iterable[str]) -> tuple[int, int, tuple]:
+    table = _table("random", table)
+    if "n" not in table:
+        raise ConfigError("random.n is missing; give the number of samples")
+    n = check_int("random.n", table["n"], 1)
+    seed = _seed("random.seed", table.get("seed", 0))
+    grid = set(grid)
+    ranges = []
+    for key, value in table.items():
+        if key in _RANDOM_KEYS:
+            continue
+        if key not in GAIN_KEYS:
+            raise ConfigError(f"random.{key} is not a gain; only gains can be sampled (allowed: "
+                              f"{', '.join(_RANDOM_KEYS + GAIN_KEYS)})")
+        if key in fixed or key in grid:
+            raise ConfigError(f"random.{key} is also set in [{fixed.get(key, 'grid')}]; set it in one place")
+        ranges.append((key, _range(f"random.{key}", key, value)))
+    if not ranges:
+        raise ConfigError(f"random has no gain to sample; add e.g. gamma = [0.0, 3.0] (gains: {', '.join(GAIN_KEYS)})")
+    return n, seed, tuple(ranges)
+
+
+def parse_spec(data: Mapping[str, Any], gains_file: str | os.PathLike | None = None) -> SweepSpec:
+    """Validate a spec given as a mapping (parsed TOML) and return it as a :class:`SweepSpec`.
+
+    ``gains_file`` (``--gains FILE``, read by :func:`~jaxapf.config.load_gains`) overrides the
+    spec's ``[gains]``: the file's values on top of the spec's, every gain then fixed, except the
+    gains the grid or ``[random]`` vary. Every check runs here, including the :class:`SimConfig` /
+    :class:`MPCConfig` of every variant on every family.
+    """
+    data = _table("", dict(data), _TOP_KEYS)
+    name = data.get("name")
+    if not isinstance(name, str) or not _NAME.match(name):
+        raise ConfigError(f"name = {name!r} must be a string of letters, digits, '_', '.', '-' "
+                          "(it names the default output runs/NAME.parquet)")
+    if "scenario" not in data:
+        raise ConfigError("scenario is missing; add [scenario] with families and fields")
+    families, fields, seed, params = _scenario(data["scenario"])
+    sim = _fixed("sim", data.get("sim", {}), STATIC_KEYS)
+    gains = _fixed("gains", data.get("gains", {}), GAIN_KEYS)
+    fixed = {**{k: "sim" for k in sim}, **{k: "gains" for k in gains}}
+    grid = _grid(data["grid"], fixed) if "grid" in data else ()
+    random_n, random_seed, ranges = _random(data["random"], fixed, (k for k, _ in grid)) if "random" in data else (0, 0, ())
+    if gains_file is not None:
+        merged = load_gains(gains_file, base=Gains(**gains))
+        varied = {k for k, _ in grid} | {k for k, _ in ranges}
+        gains = {k: float(getattr(merged, k)) for k in GAIN_KEYS if k not in varied}
+    spec = SweepSpec(name=name, families=families, fields=fields, seed=seed, params=params, sim=sim, gains=gains,
+                     grid=grid, random_n=random_n, random_seed=random_seed, random=ranges)
+    for static in {s.static for s in spec.settings()}:
+        for family in families:
+            spec.configs(static, family)
+    return spec
+
+
+def read_toml(path: str | os.PathLike) -> dict[str, Any]:
+    """The table of a TOML spec file, unvalidated (:class:`ConfigError` if it cannot be read)."""
+    try:
+        with open(path, "rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(f"spec file {str(path)!r} does not exist") from None
+    except IsADirectoryError:
+        raise ConfigError(f"spec file {str(path)!r} is a directory") from None
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"spec file {str(path)!r} is not valid TOML: {err}") from None
+
+
+def load_spec(path: str | os.PathLike, gains_file: str | os.PathLike | None = None) -> SweepSpec:
+    """Read and validate a TOML spec file (see :func:`parse_spec`)."""
+    return parse_spec(read_toml(path), gains_file)

@@ -1,0 +1,340 @@
+"""``jaxapf sweep``: spec validation, chunking determinism, resume, refusal, sharding, Parquet layout."""
+
+import copy
+import json
+import os
+import pathlib
+import shutil
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from jaxapf.cli import main
+from jaxapf.config import ConfigError, Gains, MPCConfig, SimConfig
+from jaxapf.metrics import METRICS
+from jaxapf.sweep import Chunk, episode_config, plan_sweep, read_sweep, run_sweep
+from jaxapf.sweep_spec import SweepSpec, load_spec, parse_spec
+
+# Tiny but complete: two families sharing one obstacle-slot count (so one program per method),
+# two static variants (methods) × two gains; 20 steps, N = 3, I = 3.
+TINY = {
+    "name": "tiny",
+    "scenario": {"families": ["trap", "crossing"], "fields": 6, "seed": 1,
+                 "params": {"trap": {"distance": [4.0, 6.0]}, "crossing": {"max_obstacles": 5}}},
+    "sim": {"t_max": 2.0, "horizon": 3, "iters": 3},
+    "gains": {"k_rep": 5.0},
+    "grid": {"method": ["basic", "direction_velocity"], "gamma": [0.0, 1.0]},
+}
+ROWS = 4 * 2 * 6
+
+
+def _spec(**changes) -> SweepSpec:
+    data = copy.deepcopy(TINY)
+    for dotted, value in changes.items():
+        *path, key = dotted.split(".")
+        table = data
+        for p in path:
+            table = table.setdefault(p, {})
+        table[key] = value
+    return parse_spec(data)
+
+
+def _toml(path: pathlib.Path, data: dict) -> pathlib.Path:
+    def value(v):
+        return json.dumps(v)  # numbers, strings, lists: JSON and TOML agree
+
+    lines = [f"name = {value(data['name'])}"]
+    for table in ("scenario", "sim", "gains", "grid", "random"):
+        if table in data:
+            flat = {k: v for k, v in data[table].items() if not isinstance(v, dict)}
+            lines += [f"[{table}]"] + [f"{k} = {value(v)}" for k, v in flat.items()]
+            for sub, inner in data[table].items():
+                if isinstance(inner, dict):
+                    for fam, params in inner.items():
+                        lines += [f"[{table}.{sub}.{fam}]"] + [f"{k} = {value(v)}" for k, v in params.items()]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """The tiny sweep in one go (default chunking): rows and metadata."""
+    out = tmp_path_factory.mktemp("ref") / "tiny.parquet"
+    result = run_sweep(_spec(), out, quiet=True)
+    assert result.episodes == ROWS and result.skipped == 0
+    df, meta = read_sweep(out)
+    return out, df, meta
+
+
+# --------------------------------------------------------------------------------------------
+# spec validation: every bad key gets its message, before anything runs
+# --------------------------------------------------------------------------------------------
+
+BAD = {
+    "top-level key": ({"nmae": "x"}, "nmae is not a known key; allowed: name, scenario"),
+    "name": ({"name": "a b"}, "name = 'a b' must be a string"),
+    "scenario key": ({"scenario.feilds": 3}, "scenario.feilds is not a known key"),
+    "family": ({"scenario.families": ["trap", "forest"]}, "scenario.families[1] = 'forest' is not a family"),
+    "no family": ({"scenario.families": []}, "scenario.families = [] must be a non-empty list"),
+    "fields type": ({"scenario.fields": "6"}, "scenario.fields = '6' must be an integer"),
+    "fields range": ({"scenario.fields": 0}, "scenario.fields = 0 is out of range"),
+    "seed": ({"scenario.seed": -1}, "scenario.seed = -1 is out of range"),
+    "family param": ({"scenario.params.trap.obstacles": 8}, "scenario.params.trap.obstacles is not a parameter of trap"),
+    "family param range": ({"scenario.params.trap.offset": -1.0},
+                           "scenario.params.trap.offset = -1.0 is out of range"),
+    "params of unlisted family": ({"scenario.params.clutter.density": 2.0},
+                                  "scenario.params.clutter is not one of scenario.families"),
+    "sim key": ({"sim.horizn": 3}, "sim.horizn is not a known key"),
+    "sim type": ({"sim.dt": "0.1"}, "sim.dt = '0.1' must be a number"),
+    "sim int": ({"sim.iters": 3.0}, "sim.iters = 3.0 must be an integer"),
+    "sim range": ({"sim.v_max": -2.0}, "sim.v_max = -2.0 is out of range; allowed: a finite number > 0"),
+    "sim bool": ({"sim.reference_velocity": 1}, "sim.reference_velocity = 1 must be true or false"),
+    "gains key": ({"gains.gama": 1.0}, "gains.gama is not a known key"),
+    "gains type": ({"gains.k_rep": True}, "gains.k_rep = True must be a number"),
+    "gains range": ({"gains.d_s": 0.0}, "gains.d_s = 0.0 is out of range; allowed: a finite number > 0"),
+    "grid key": ({"grid.gama": [1.0]}, "grid.gama is not a known key"),
+    "grid empty": ({"grid.gamma": []}, "grid.gamma is empty"),
+    "grid not a list": ({"grid.gamma": 1.0}, "grid.gamma = 1.0 must be a list"),
+    "grid range": ({"grid.gamma": [0.0, 1.0, -1]}, "grid.gamma[2] = -1.0 is out of range; allowed: a finite number >= 0"),
+    "grid method": ({"grid.method": ["basic", "magic"]}, "grid.method[1] = 'magic' is not allowed; choose one of"),
+    "grid a_max": ({"grid.a_max": [1.0, 0.0]}, "grid.a_max[1] = 0.0 is out of range; allowed: a finite number > 0"),
+    "grid vs sim": ({"grid.horizon": [3, 5]}, "grid.horizon is also set in [sim]"),
+    "sim int range": ({"sim.iters": 0}, "sim.iters = 0 is out of range; allowed: an integer >= 1"),
+    "grid weight": ({"grid.q_pos": [[1.0, 2.0]]}, "grid.q_pos[0] = [1.0, 2.0] must be a number or a list of 3"),
+    "grid repeat": ({"grid.gamma": [1.0, 1]}, "grid.gamma[1] = 1 repeats an earlier value"),
+    "grid vs gains": ({"gains.gamma": 1.0}, "grid.gamma is also set in [gains]"),
+    "cross-field": ({"grid.dt": [0.1, 5.0]}, "sim.t_max = 2.0 must be at least one step (sim.dt = 5.0)"),
+    "random n": ({"random.gamma": [0.0, 1.0]}, "random.n is missing"),
+    "random key": ({"random.n": 4, "random.horizon": [3, 5]}, "random.horizon is not a gain"),
+    "random vs grid": ({"random.n": 4, "random.gamma": [0.0, 1.0]}, "random.gamma is also set in [grid]"),
+    "random range": ({"random.n": 4, "random.k": [2.0, 1.0]}, "random.k = [2.0, 1.0] is not a range"),
+    "random log": ({"random.n": 4, "random.k": {"range": [0.0, 1.0], "log": True}},
+                   "random.k.range[0] = 0.0 is out of range; allowed: > 0 for a log range"),
+    "random table": ({"random.n": 4, "random.k": {"rng": [0.0, 1.0]}}, "random.k.rng is not a known key"),
+    "random empty": ({"random.n": 4}, "random has no gain to sample"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_bad_spec_names_the_key(case):
+    changes, message = BAD[case]
+    with pytest.raises(ConfigError) as info:
+        _spec(**changes)
+    assert message in str(info.value)
+
+
+def test_bad_toml_and_missing_file(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("name = \n")
+    with pytest.raises(ConfigError, match="is not valid TOML"):
+        load_spec(bad)
+    with pytest.raises(ConfigError, match="does not exist"):
+        load_spec(tmp_path / "nope.toml")
+
+
+def test_cli_reports_a_bad_spec_in_one_line_with_status_2(tmp_path, capsys):
+    data = copy.deepcopy(TINY)
+    data["grid"]["gamma"] = [0.0, -1.0]
+    rc = main(["sweep", str(_toml(tmp_path / "bad.toml", data)), "--no-cache", "--devices", "1", "--dry-run"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1
+    assert err[0].startswith("jaxapf sweep: error: grid.gamma[1] = -1.0 is out of range")
+
+
+def test_expansion_order_random_samples_and_gains_file(tmp_path):
+    spec = _spec(**{"random.n": 3, "random.k": {"range": [0.1, 10.0], "log": True}, "random.seed": 5})
+    settings = spec.settings()
+    assert len(settings) == 2 * 2 * 3
+    # grid product in spec order (method outer, gamma inner), samples innermost and shared by grid points
+    assert [dict(s.static)["method"] for s in settings[:6]] == ["basic"] * 6
+    assert [s.gains["gamma"] for s in settings[:6]] == [0.0] * 3 + [1.0] * 3
+    ks = [s.gains["k"] for s in settings[:3]]
+    assert [s.gains["k"] for s in settings[3:6]] == ks and all(0.1 <= k <= 10.0 for k in ks)
+    assert spec.random_samples() == _spec(**{"random.n": 3, "random.k": {"range": [0.1, 10.0], "log": True},
+                                           "random.seed": 5}).random_samples()
+    # --gains FILE: its values on top of [gains], the swept gamma untouched
+    gains_file = tmp_path / "tuned.toml"
+    gains_file.write_text("gamma = 9.0\nd_s = 3.5\n")
+    tuned = parse_spec(copy.deepcopy(TINY), gains_file)
+    assert tuned.gains == {"k": 0.5, "k_rep": 5.0, "d_s": 3.5, "k_att": 1.0, "eta": 0.5}
+    assert {s.gains["gamma"] for s in tuned.settings()} == {0.0, 1.0}
+    assert tuned.hash != _spec().hash
+
+
+# --------------------------------------------------------------------------------------------
+# output layout
+# --------------------------------------------------------------------------------------------
+
+
+def test_parquet_schema_and_metadata(reference):
+    out, df, meta = reference
+    parts = sorted(p.name for p in out.iterdir())
+    assert parts and all(Chunk.from_name(p) is not None for p in parts)
+    schema = pq.read_schema(out / parts[0])
+    gains = ["gamma", "k", "k_rep", "d_s", "k_att", "eta"]
+    assert schema.names == ["setting", "method", "convention", *gains, "t_max", "horizon", "iters",
+                            "family", "field", "seed", *METRICS]
+    types = dict(zip(schema.names, schema.types))
+    assert types["setting"] == pa.int32() and types["field"] == pa.int64() and types["seed"] == pa.int64()
+    assert all(types[c] == pa.string() for c in ("method", "convention", "family"))
+    assert all(types[g] == pa.float64() for g in gains) and types["t_max"] == pa.float64()
+    assert types["horizon"] == pa.int64() and types["iters"] == pa.int64()
+    assert all(types[m] == pa.bool_() for m in ("success", "collision", "stalled")) and types["steps"] == pa.int32()
+    assert types["min_clearance"] == pa.float32()
+    assert {"format", "spec", "spec_hash", "versions", "prng", "dtype"} <= set(meta)
+    assert meta["format"] == "jaxapf.sweep/1" and meta["dtype"] == "float32"
+    assert meta["spec_hash"] == _spec().hash and SweepSpec.from_json(meta["spec"]) == _spec()
+    assert meta["prng"]["field_key"] == "fold_in(key(seed), field)"
+    assert meta["complete"] and meta["rows_expected"] == ROWS == len(df)
+    # one row per (setting, family, field), same fields for every setting (common random numbers)
+    assert not df.duplicated(["setting", "family", "field"]).any()
+    assert sorted(df["setting"].unique()) == [0, 1, 2, 3]
+    assert (df.groupby(["setting", "family"]).size() == 6).all()
+    assert list(df.loc[df.setting == 2, "method"].unique()) == ["direction_velocity"]
+
+
+def test_episode_config_resimulates_a_row(reference):
+    from jaxapf.simulate import simulate_runs
+
+    _, df, meta = reference
+    row = df[(df.setting == 3) & (df.family == "trap")].iloc[2]
+    cfg = episode_config(meta, row.to_dict())
+    assert (cfg.family, cfg.field, cfg.seed) == ("trap", int(row["field"]), 1)
+    assert cfg.gains == Gains(gamma=1.0, k_rep=5.0) and cfg.overrides == {"distance": [4.0, 6.0]}
+    assert cfg.sim == SimConfig(method="direction_velocity", t_max=2.0)
+    assert cfg.mpc == MPCConfig(horizon=3, iters=3)
+    _, runs, _ = simulate_runs(cfg.family, cfg.seed, cfg.field, [cfg.sim.method], cfg.gains, cfg.sim, cfg.mpc,
+                               cfg.overrides)
+    for m in ("success", "collision", "steps"):
+        assert runs[0].metrics[m] == row[m]
+    np.testing.assert_allclose(runs[0].metrics["path_length"], row["path_length"], rtol=1e-4)
+
+
+def test_read_sweep_refuses_what_is_not_a_sweep(tmp_path):
+    with pytest.raises(ConfigError, match="no such file"):
+        read_sweep(tmp_path / "nope")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ConfigError, match="holds no Parquet part file"):
+        read_sweep(tmp_path / "empty")
+    pd.DataFrame({"a": [1]}).to_parquet(tmp_path / "plain.parquet")
+    with pytest.raises(ConfigError, match="is not the output of jaxapf sweep"):
+        read_sweep(tmp_path / "plain.parquet")
+
+
+# --------------------------------------------------------------------------------------------
+# determinism, resume, refusal
+# --------------------------------------------------------------------------------------------
+
+
+def test_chunk_size_does_not_change_a_number(reference, tmp_path):
+    _, ref, _ = reference
+    out = tmp_path / "small-chunks.parquet"
+    run_sweep(_spec(), out, chunk_fields=2, quiet=True)
+    assert len(list(out.iterdir())) == 2 * 2 * 3  # variants × families × ceil(6 / 2)
+    df, _ = read_sweep(out)
+    pd.testing.assert_frame_equal(df, ref)
+
+
+class _Crash(Exception):
+    pass
+
+
+def test_resume_after_a_crash_loses_and_doubles_nothing(reference, tmp_path):
+    _, ref, _ = reference
+    out = tmp_path / "crash.parquet"
+    written = []
+
+    def crash_after_three(chunk):
+        written.append(chunk)
+        if len(written) == 3:
+            raise _Crash
+
+    with pytest.raises(_Crash):
+        run_sweep(_spec(), out, chunk_fields=2, quiet=True, after_part=crash_after_three)
+    assert sorted(p.name for p in out.iterdir()) == sorted(c.name for c in written)
+    (out / ".part-v000-trap-f00000002-00000004.parquet.tmp-99999").write_bytes(b"half a file")  # a killed write
+    # resume with another chunk size: the remaining fields are re-cut, finished parts kept
+    result = run_sweep(_spec(), out, chunk_fields=4, quiet=True)
+    assert result.skipped == 3 * 2 * 2 and result.episodes == ROWS - result.skipped
+    assert not any(p.name.startswith(".") for p in out.iterdir())
+    df, meta = read_sweep(out)
+    assert meta["complete"]
+    pd.testing.assert_frame_equal(df, ref)
+    # a finished sweep rerun does nothing
+    assert run_sweep(_spec(), out, quiet=True).episodes == 0
+
+
+def test_changed_spec_is_refused_unless_overwrite(reference, tmp_path):
+    out = tmp_path / "copy.parquet"
+    shutil.copytree(reference[0], out)
+    changed = _spec(**{"scenario.seed": 2})
+    with pytest.raises(ConfigError, match="holds a different sweep .*spec_hash.*--overwrite"):
+        run_sweep(changed, out, quiet=True)
+    run_sweep(changed, out, overwrite=True, quiet=True)
+    df, meta = read_sweep(out)
+    assert meta["spec_hash"] == changed.hash and len(df) == ROWS and set(df["seed"]) == {2}
+    assert not np.array_equal(df["path_length"], reference[1]["path_length"])
+    (out / "notes.txt").write_text("mine")
+    with pytest.raises(ConfigError, match="holds files that are not sweep parts"):
+        run_sweep(changed, out, overwrite=True, quiet=True)
+
+
+def test_dry_run_prints_the_plan(reference, tmp_path, capsys):
+    spec_path = _toml(tmp_path / "tiny.toml", TINY)
+    rc = main(["sweep", str(spec_path), "--dry-run", "--no-cache", "--devices", "1", "--out", str(tmp_path / "none.parquet"),
+               "--chunk-fields", "4"])
+    text = capsys.readouterr().out
+    assert rc == 0 and not (tmp_path / "none.parquet").exists()
+    for line in ("settings:          4, in 2 static variant(s)", f"episodes:          {ROWS}",
+                 "compiled variants: 2 distinct (SimConfig, MPCConfig)", "chunks:            8 to run",
+                 "time estimate:", "cost model", "memory estimate:"):
+        assert line in text, line
+    # against a finished output: nothing left to run
+    rc = main(["sweep", str(spec_path), "--dry-run", "--no-cache", "--devices", "1", "--out", str(reference[0])])
+    assert rc == 0 and f"({ROWS} already in the output, 0 to run)" in capsys.readouterr().out
+
+
+def test_plan_fills_whole_vmapped_batches_on_every_device():
+    plan = plan_sweep(_spec(), chunk_fields=2, devices=4, width=32)
+    block = plan.blocks[(0, "trap")]
+    assert block.fields == 2 and block.padded == 4 * block.per_device
+    assert block.per_device * block.settings % 32 == 0  # whole vmapped batches on every device
+    assert [(c.start, c.stop) for c in plan.chunks if (c.variant, c.family) == (1, "crossing")] == [(0, 2), (2, 4), (4, 6)]
+
+
+# --------------------------------------------------------------------------------------------
+# devices
+# --------------------------------------------------------------------------------------------
+
+_SHARDED = textwrap.dedent("""
+    import json, sys
+    from jaxapf.sweep import run_sweep
+    from jaxapf.sweep_spec import parse_spec
+    import jax
+    assert jax.local_device_count() == 4, jax.devices()
+    run_sweep(parse_spec(json.loads(sys.argv[1])), sys.argv[2], quiet=True, chunk_fields=5)
+""")
+
+
+def test_four_devices_give_the_rows_of_one(tmp_path):
+    data = copy.deepcopy(TINY)
+    data["grid"] = {"gamma": [0.0, 1.0]}  # one static variant: one program per device
+    data["scenario"]["fields"] = 11
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=4", "JAX_PLATFORMS": "cpu"}
+    sharded = tmp_path / "four.parquet"
+    proc = subprocess.Popen([sys.executable, "-c", _SHARDED, json.dumps(data), str(sharded)], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    single = tmp_path / "one.parquet"
+    run_sweep(parse_spec(data), single, quiet=True)
+    log, _ = proc.communicate(timeout=240)
+    assert proc.returncode == 0, log
+    a, meta_a = read_sweep(single)
+    b, meta_b = read_sweep(sharded)
+    assert meta_b["versions"]["device_count"] == "4" and meta_a["versions"]["device_count"] == "1"
+    pd.testing.assert_frame_equal(a, b)
