@@ -1,4 +1,4 @@
-"""The ``jaxapf`` command line: ``simulate``, ``bench`` and ``sweep``.
+"""The ``jaxapf`` command line: ``simulate``, ``bench``, ``sweep`` and ``report``.
 
 Configuration errors are reported as one line naming the field and its allowed range, with exit
 status 2; nothing reaches the user as a traceback from inside JAX.
@@ -83,6 +83,25 @@ def build_parser() -> argparse.ArgumentParser:
                        help="instead: end-to-end sweep throughput vs bare evaluate, and the speed-up on 2 CPU "
                             "devices (SPEC: a sweep spec TOML; default a built-in 2,048-episode study)")
 
+    rep = sub.add_parser("report", help="statistics, figures and tables (HTML, Markdown, CSV, LaTeX) from a "
+                                        "sweep's episodes (see docs/report.md)")
+    rep.add_argument("sweep", type=pathlib.Path, help="the sweep's output, runs/NAME.parquet")
+    rep.add_argument("--out", type=pathlib.Path, help="output folder (default reports/NAME/)")
+    rep.add_argument("--baseline", default="method=basic", metavar="COLUMN=VALUE[,...]",
+                     help="baseline setting(s) every other setting is compared with (default method=basic; "
+                          "e.g. setting=3 or method=direction,convention=intent)")
+    rep.add_argument("--where", action="append", default=[], metavar="COLUMN=VALUE[,VALUE]",
+                     help="keep only these rows, e.g. family=trap or method=direction_velocity (repeatable; "
+                          "values of one flag are OR-ed, flags AND-ed)")
+    rep.add_argument("--heatmap", default="gamma,k", metavar="X,Y",
+                     help="the two swept gains of the heatmaps (default gamma,k; 'none' to skip)")
+    rep.add_argument("--gallery", type=int, default=3, metavar="N",
+                     help="worst episodes re-simulated and drawn (default 3; 0 to skip)")
+    rep.add_argument("--resamples", type=int, default=2000, help="bootstrap resamples (default 2000)")
+    rep.add_argument("--confidence", type=float, default=0.95, help="interval level (default 0.95)")
+    rep.add_argument("--seed", type=int, default=0, help="bootstrap seed (default 0)")
+    rep.add_argument("--profile-metric", default="score",
+                     help="metric of the performance profile, higher is better (default score)")
     _add_sweep_parser(sub)
     return parser
 
@@ -152,6 +171,27 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _report(args: argparse.Namespace) -> int:
+    from .report import ReportOptions, build_report
+
+    heatmap = None if args.heatmap.strip().lower() in ("", "none") else tuple(
+        c.strip() for c in args.heatmap.split(","))
+    options = ReportOptions(baseline=args.baseline, where=tuple(args.where), heatmap=heatmap,
+                            gallery=args.gallery, resamples=args.resamples, confidence=args.confidence,
+                            seed=args.seed, profile_metric=args.profile_metric)
+    name = args.sweep.name.removesuffix(".parquet") or "report"
+    out = args.out if args.out is not None else pathlib.Path("reports") / name
+    start = time.perf_counter()
+    result = build_report(args.sweep, out, options)
+    print(f"report of {args.sweep}: {len(result.summary)} setting × family rows, "
+          f"{len(result.comparisons)} paired comparisons in {time.perf_counter() - start:.1f} s")
+    for note in result.notes:
+        print(f"note: {note}")
+    print(f"wrote {out}/report.html, report.md, summary.csv, comparisons.csv, table.tex and "
+          f"{sum(1 for p in result.paths if p.parent.name == 'figures')} figure files")
+    return 0
+
+
 def _sweep(args: argparse.Namespace) -> int:
     import os
     import warnings
@@ -180,7 +220,7 @@ def _sweep(args: argparse.Namespace) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        return {"simulate": _simulate, "bench": _bench, "sweep": _sweep}[args.command](args)
+        return {"simulate": _simulate, "bench": _bench, "report": _report, "sweep": _sweep}[args.command](args)
     except ConfigError as err:
         print(f"jaxapf {args.command}: error: {err}", file=sys.stderr)
         return 2

@@ -1,0 +1,279 @@
+"""Figures of ``jaxapf report``, drawn from the report's tables (pandas) without ``pyplot``.
+
+Every function returns a :class:`matplotlib.figure.Figure` (rendered through the Agg canvas that
+``Figure.savefig`` attaches), so nothing here selects or depends on a GUI backend. The numbers come
+from :mod:`jaxapf.report` (summary and comparison tables) or from the episode rows directly.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+from matplotlib import colormaps
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+
+from . import stats
+
+__all__ = [
+    "setting_colors",
+    "plot_heatmaps",
+    "plot_ecdf",
+    "plot_rates",
+    "plot_continuous",
+    "plot_differences",
+    "plot_performance_profile",
+]
+
+ALL = "all"
+_METHOD_STYLE = {"basic": ":", "direction": "--", "direction_velocity": "-"}
+_GROUP_MARKERS = ("o", "s", "^", "D", "v", "P", "X", "<", ">", "h")
+
+
+def setting_colors(settings: Sequence[int]) -> dict[int, tuple]:
+    """A colour per setting index: tab10 up to 10 settings, tab20 up to 20, viridis beyond."""
+    settings = list(settings)
+    n = len(settings)
+    if n <= 10:
+        cmap = colormaps["tab10"]
+        return {s: cmap(i) for i, s in enumerate(settings)}
+    if n <= 20:
+        cmap = colormaps["tab20"]
+        return {s: cmap(i) for i, s in enumerate(settings)}
+    cmap = colormaps["viridis"]
+    return {s: cmap(i / (n - 1)) for i, s in enumerate(settings)}
+
+
+def _group_colors(groups: Sequence[str]) -> dict[str, object]:
+    cmap = colormaps["tab10"]
+    out, i = {}, 0
+    for g in groups:
+        if g == ALL:
+            out[g] = "black"
+        else:
+            out[g] = cmap(i % 10)
+            i += 1
+    return out
+
+
+def _legend_below(fig: Figure, handles, ncol: int | None = None) -> None:
+    if handles:
+        fig.legend(handles=handles, loc="outside lower center", ncol=ncol or min(len(handles), 4), fontsize=7)
+
+
+# --------------------------------------------------------------------------------------------
+# heatmaps
+# --------------------------------------------------------------------------------------------
+
+
+def plot_heatmaps(cells: pd.DataFrame, x: str, y: str, value: str, title: str) -> Figure:
+    """Grid of heatmaps of a rate over two gains: one column per family group, one row per panel.
+
+    Args:
+      cells: one row per cell with columns ``row`` (family group), ``panel`` (text naming the
+        values of the other swept columns), ``x``, ``y`` values, ``value`` (rate in [0, 1]) and ``n``.
+      x, y: the two gain columns (axes).
+      value: the column of ``cells`` with the rate.
+    """
+    groups = list(dict.fromkeys(cells["row"]))
+    panels = list(dict.fromkeys(cells["panel"]))
+    xs = np.sort(cells[x].unique())
+    ys = np.sort(cells[y].unique())
+    fig = Figure(figsize=(1.4 + (0.55 * len(xs) + 1.1) * len(groups), 1.3 + (0.45 * len(ys) + 1.0) * len(panels)),
+                 layout="constrained")
+    axes = fig.subplots(len(panels), len(groups), squeeze=False)
+    image = None
+    for i, panel in enumerate(panels):
+        for j, group in enumerate(groups):
+            ax = axes[i][j]
+            sub = cells[(cells["row"] == group) & (cells["panel"] == panel)]
+            grid = np.full((len(ys), len(xs)), np.nan)
+            for _, c in sub.iterrows():
+                grid[np.searchsorted(ys, c[y]), np.searchsorted(xs, c[x])] = c[value]
+            image = ax.imshow(grid, origin="lower", cmap="viridis", vmin=0.0, vmax=1.0, aspect="auto")
+            for (a, b), v in np.ndenumerate(grid):
+                if math.isfinite(v):
+                    ax.text(b, a, f"{100 * v:.0f}", ha="center", va="center", fontsize=7,
+                            color="white" if v < 0.6 else "black")
+            ax.set_xticks(range(len(xs)), [f"{v:g}" for v in xs], fontsize=7)
+            ax.set_yticks(range(len(ys)), [f"{v:g}" for v in ys], fontsize=7)
+            ax.set_xlabel(x)
+            ax.set_ylabel(y)
+            ax.set_title(group if len(panels) == 1 else f"{group} · {panel}", fontsize=8)
+    if image is not None:
+        fig.colorbar(image, ax=axes, shrink=0.8, label=f"{value} (cells in %)")
+    fig.suptitle(title, fontsize=9)
+    return fig
+
+
+# --------------------------------------------------------------------------------------------
+# distributions
+# --------------------------------------------------------------------------------------------
+
+
+def plot_ecdf(values: Mapping[str, Mapping[int, np.ndarray]], labels: Mapping[int, str],
+              methods: Mapping[int, str], metric: str, unit: str = "", vline: float | None = 0.0) -> Figure:
+    """ECDF of ``metric`` per setting; one panel per family group (``values[group][setting]``)."""
+    groups = list(values)
+    settings = list(labels)
+    colors = setting_colors(settings)
+    fig = Figure(figsize=(4.2 * len(groups) + 0.4, 4.2), layout="constrained")
+    axes = fig.subplots(1, len(groups), squeeze=False)[0]
+    for ax, group in zip(axes, groups):
+        for s in settings:
+            x, f = stats.ecdf(values[group].get(s, np.empty(0)))
+            x = x[np.isfinite(x)]
+            if x.size == 0:
+                continue
+            f = f[: x.size]
+            ax.step(np.concatenate([[x[0]], x]), np.concatenate([[0.0], f]), where="post",
+                    color=colors[s], linestyle=_METHOD_STYLE.get(methods[s], "-"), linewidth=1.2)
+        if vline is not None:
+            ax.axvline(vline, color="red", linewidth=0.8, alpha=0.6)
+        ax.set_title(group)
+        ax.set_xlabel(f"{metric} [{unit}]" if unit else metric)
+        ax.set_ylabel("fraction of episodes ≤ x")
+        ax.set_ylim(0, 1.02)
+        ax.grid(True, linewidth=0.4, alpha=0.5)
+    handles = [Line2D([], [], color=colors[s], linestyle=_METHOD_STYLE.get(methods[s], "-"), label=labels[s])
+               for s in settings]
+    _legend_below(fig, handles, ncol=min(len(handles), 3))
+    fig.suptitle(f"Empirical CDF of {metric} per setting"
+                 + (" (red line: collision)" if vline == 0.0 and metric == "min_clearance" else ""), fontsize=10)
+    return fig
+
+
+def plot_performance_profile(taus: np.ndarray, curves: Mapping[str, Mapping[int, tuple]],
+                             labels: Mapping[int, str], methods: Mapping[int, str], metric: str,
+                             bands: bool) -> Figure:
+    """Fraction of episodes with ``metric > τ`` against τ; ``curves[group][setting] = (frac, lo, hi)``."""
+    groups = list(curves)
+    settings = list(labels)
+    colors = setting_colors(settings)
+    fig = Figure(figsize=(4.2 * len(groups) + 0.4, 4.2), layout="constrained")
+    axes = fig.subplots(1, len(groups), squeeze=False)[0]
+    for ax, group in zip(axes, groups):
+        for s in settings:
+            if s not in curves[group]:
+                continue
+            frac, lo, hi = curves[group][s]
+            ax.plot(taus, frac, color=colors[s], linestyle=_METHOD_STYLE.get(methods[s], "-"), linewidth=1.2,
+                    drawstyle="steps-post")
+            if bands:
+                ax.fill_between(taus, lo, hi, color=colors[s], alpha=0.15, linewidth=0, step="post")
+        ax.set_title(group)
+        ax.set_xlabel(f"threshold τ on {metric}")
+        ax.set_ylabel(f"fraction of episodes with {metric} > τ")
+        ax.set_ylim(-0.02, 1.02)
+        ax.grid(True, linewidth=0.4, alpha=0.5)
+    handles = [Line2D([], [], color=colors[s], linestyle=_METHOD_STYLE.get(methods[s], "-"), label=labels[s])
+               for s in settings]
+    _legend_below(fig, handles, ncol=min(len(handles), 3))
+    fig.suptitle(f"Performance profile of {metric}" + (" (bands: pointwise Wilson CI)" if bands else ""),
+                 fontsize=10)
+    return fig
+
+
+# --------------------------------------------------------------------------------------------
+# point charts with whiskers
+# --------------------------------------------------------------------------------------------
+
+
+def _point_panels(summary: pd.DataFrame, columns: Sequence[tuple[str, str, str, str]], labels: Mapping[int, str],
+                  title: str, percent: bool) -> Figure:
+    """One panel per (estimate, lower, upper, axis label); settings on y, family groups offset."""
+    settings = list(labels)
+    groups = list(dict.fromkeys(summary["family"]))
+    gcolors = _group_colors(groups)
+    height = 1.6 + 0.32 * len(settings) * max(1.0, len(groups) / 3)
+    fig = Figure(figsize=(3.6 * len(columns) + 2.6, min(height, 40.0)), layout="constrained")
+    axes = fig.subplots(1, len(columns), sharey=True, squeeze=False)[0]
+    offsets = np.linspace(-0.3, 0.3, len(groups)) if len(groups) > 1 else np.zeros(1)
+    scale = 100.0 if percent else 1.0
+    for ax, (est, lo, hi, name) in zip(axes, columns):
+        for off, group, marker in zip(offsets, groups, _GROUP_MARKERS * 10):
+            sub = summary[summary["family"] == group].set_index("setting")
+            ys, xs, err_lo, err_hi = [], [], [], []
+            for i, s in enumerate(settings):
+                if s not in sub.index or not math.isfinite(float(sub.at[s, est])):
+                    continue
+                v = float(sub.at[s, est]) * scale
+                a, b = float(sub.at[s, lo]) * scale, float(sub.at[s, hi]) * scale
+                ys.append(i + off)
+                xs.append(v)
+                err_lo.append(max(v - a, 0.0) if math.isfinite(a) else 0.0)
+                err_hi.append(max(b - v, 0.0) if math.isfinite(b) else 0.0)
+            ax.errorbar(xs, ys, xerr=[err_lo, err_hi], fmt=marker, color=gcolors[group], markersize=4,
+                        elinewidth=1, capsize=2, label=group)
+        ax.set_xlabel(name)
+        ax.grid(True, axis="x", linewidth=0.4, alpha=0.5)
+    axes[0].set_yticks(range(len(settings)), [labels[s] for s in settings], fontsize=7)
+    axes[0].invert_yaxis()
+    handles = [Line2D([], [], marker=m, color=gcolors[g], linestyle="", label=g)
+               for g, m in zip(groups, _GROUP_MARKERS * 10)]
+    _legend_below(fig, handles, ncol=min(len(handles), 6))
+    fig.suptitle(title, fontsize=10)
+    return fig
+
+
+def plot_rates(summary: pd.DataFrame, labels: Mapping[int, str], rates: Sequence[str], confidence: float) -> Figure:
+    """Rates per setting (%) with Wilson score intervals, one panel per rate."""
+    cols = [(f"{r}_rate", f"{r}_lo", f"{r}_hi", f"{r} rate [%]") for r in rates]
+    return _point_panels(summary, cols, labels, f"Rates with {100 * confidence:g} % Wilson score intervals",
+                         percent=True)
+
+
+def plot_continuous(summary: pd.DataFrame, labels: Mapping[int, str], metrics: Sequence[str],
+                    units: Mapping[str, str], confidence: float) -> Figure:
+    """IQM per setting with stratified-bootstrap CIs, one panel per continuous metric."""
+    cols = [(f"{m}_iqm", f"{m}_iqm_lo", f"{m}_iqm_hi", f"IQM {m}" + (f" [{units[m]}]" if units.get(m) else ""))
+            for m in metrics]
+    return _point_panels(summary, cols, labels,
+                         f"Interquartile means with {100 * confidence:g} % stratified bootstrap CIs", percent=False)
+
+
+def plot_differences(comparisons: pd.DataFrame, labels: Mapping[int, str], metrics: Sequence[str],
+                     alpha: float) -> Figure:
+    """Forest plot: paired difference (setting − baseline) with its CI, one panel per metric.
+
+    Filled markers: Holm-adjusted p <= ``alpha``; open markers: not significant.
+    """
+    settings = [s for s in labels if s in set(comparisons["setting"])]
+    ncols = min(len(metrics), 4)
+    nrows = math.ceil(len(metrics) / ncols)
+    fig = Figure(figsize=(3.2 * ncols + 2.6, (1.0 + 0.3 * max(len(settings), 1)) * nrows + 0.6), layout="constrained")
+    grid = fig.subplots(nrows, ncols, sharey=True, squeeze=False)
+    axes = list(grid.reshape(-1))
+    for ax in axes[len(metrics):]:
+        ax.set_visible(False)
+    for ax, metric in zip(axes, metrics):
+        sub = comparisons[comparisons["metric"] == metric].set_index("setting")
+        for i, s in enumerate(settings):
+            if s not in sub.index:
+                continue
+            r = sub.loc[s]
+            d, lo, hi = float(r["delta"]), float(r["delta_lo"]), float(r["delta_hi"])
+            if not math.isfinite(d):
+                continue
+            better = (d > 0) == bool(r["higher_is_better"]) and d != 0
+            color = "tab:green" if better else ("tab:red" if d != 0 else "gray")
+            sig = math.isfinite(float(r["p_holm"])) and float(r["p_holm"]) <= alpha
+            ax.errorbar([d], [i], xerr=[[max(d - lo, 0.0)], [max(hi - d, 0.0)]] if math.isfinite(lo) else None,
+                        fmt="o", color=color, markerfacecolor=color if sig else "white", capsize=2)
+        ax.axvline(0.0, color="black", linewidth=0.8)
+        if len(sub):
+            arrow = "↑ better" if bool(sub["higher_is_better"].iloc[0]) else "↓ better"
+            kind = "rate" if sub["test"].iloc[0] == "mcnemar" else "IQM"
+            ax.set_xlabel(f"Δ {kind} {metric} ({arrow})", fontsize=8)
+        else:
+            ax.set_xlabel(f"Δ {metric} (no pairs)", fontsize=8)
+        ax.grid(True, axis="x", linewidth=0.4, alpha=0.5)
+    for row in grid:
+        row[0].set_yticks(range(len(settings)), [labels[s] for s in settings], fontsize=7)
+    grid[0][0].invert_yaxis()
+    fig.suptitle(f"Paired differences vs baseline (green: better, red: worse; filled: Holm p ≤ {alpha:g})",
+                 fontsize=10)
+    return fig

@@ -1,0 +1,431 @@
+r"""Statistics of ``jaxapf report``: pure functions over numpy arrays (no pandas, no JAX).
+
+Every function takes plain arrays and returns plain numbers or arrays; randomness (bootstrap) comes
+only from a ``numpy.random.Generator`` seeded with the ``seed`` argument, so every interval is
+reproducible on its own. Definitions (and why these and not others) are in ``docs/report.md``.
+
+=====================================  ================================================================
+function                               what
+=====================================  ================================================================
+:func:`wilson_interval`                Wilson score interval of a binomial proportion
+:func:`iqm`                            interquartile mean (25 % trimmed mean, as rliable)
+:func:`bootstrap_ci`                   percentile bootstrap CI of a statistic, stratified resampling
+:func:`paired_bootstrap_ci`            CI of ``stat(x) - stat(y)`` resampling *pairs* (stratified)
+:func:`mcnemar_exact`                  exact McNemar test (binomial test on the discordant pairs)
+:func:`wilcoxon_paired`                Wilcoxon signed-rank test on paired differences
+:func:`probability_of_improvement_paired`  ``P(x_i > y_i) + ½ P(x_i = y_i)`` over the pairs
+:func:`holm`                           Holm step-down adjusted p-values
+:func:`performance_profile`            fraction of values above each threshold τ
+:func:`ecdf`                           empirical CDF
+=====================================  ================================================================
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Callable
+
+import numpy as np
+from scipy import stats as _st
+
+__all__ = [
+    "DEFAULT_RESAMPLES",
+    "wilson_interval",
+    "iqm",
+    "median",
+    "mean",
+    "bootstrap_ci",
+    "paired_bootstrap_ci",
+    "McNemarResult",
+    "mcnemar_exact",
+    "WilcoxonResult",
+    "wilcoxon_paired",
+    "pair_scores",
+    "probability_of_improvement_paired",
+    "holm",
+    "performance_profile",
+    "ecdf",
+]
+
+#: Bootstrap resamples used by the report unless told otherwise (``--resamples``).
+DEFAULT_RESAMPLES = 2000
+
+#: Upper bound on the number of elements of one resampled block (resamples × sample size), so that
+#: large samples are bootstrapped in chunks of resamples instead of one huge index matrix.
+_BLOCK = 4_000_000
+
+Statistic = Callable[..., np.ndarray]
+
+
+def _z(confidence: float) -> float:
+    if not 0.0 < confidence < 1.0:
+        raise ValueError(f"confidence = {confidence!r} must lie strictly between 0 and 1")
+    return float(_st.norm.ppf(0.5 + confidence / 2.0))
+
+
+# --------------------------------------------------------------------------------------------
+# proportions
+# --------------------------------------------------------------------------------------------
+
+
+def wilson_interval(successes, n, confidence: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
+    r"""Wilson score interval of a binomial proportion ``p̂ = successes / n``.
+
+    .. math::
+        \frac{\hat p + z^2/2n}{1 + z^2/n} \pm \frac{z}{1 + z^2/n}
+        \sqrt{\frac{\hat p(1-\hat p)}{n} + \frac{z^2}{4n^2}},\qquad z = \Phi^{-1}(1 - \alpha/2).
+
+    Unlike the Wald interval it never leaves [0, 1] and does not collapse to a point at
+    ``p̂ ∈ {0, 1}``. Vectorised over ``successes`` and ``n``; ``n == 0`` gives ``(nan, nan)``.
+    Returns ``(lower, upper)`` (0-d arrays for scalar input), clipped to [0, 1].
+    """
+    k = np.asarray(successes, dtype=np.float64)
+    n = np.asarray(n, dtype=np.float64)
+    if np.any(k < 0) or np.any(k > n):
+        raise ValueError("wilson_interval needs 0 <= successes <= n")
+    z = _z(confidence)
+    z2 = z * z
+    safe_n = np.where(n > 0, n, 1.0)
+    p = k / safe_n
+    denom = 1.0 + z2 / safe_n
+    centre = (p + z2 / (2.0 * safe_n)) / denom
+    half = z / denom * np.sqrt(np.maximum(p * (1.0 - p) / safe_n + z2 / (4.0 * safe_n * safe_n), 0.0))
+    lo = np.where(n > 0, np.clip(centre - half, 0.0, 1.0), np.nan)
+    hi = np.where(n > 0, np.clip(centre + half, 0.0, 1.0), np.nan)
+    # p̂ = 0 / 1 give exactly 0 / 1 in exact arithmetic; remove rounding noise.
+    lo = np.where((n > 0) & (k == 0), 0.0, lo)
+    hi = np.where((n > 0) & (k == n), 1.0, hi)
+    return lo, hi
+
+
+# --------------------------------------------------------------------------------------------
+# location statistics
+# --------------------------------------------------------------------------------------------
+
+
+def iqm(x, axis: int = -1) -> np.ndarray:
+    """Interquartile mean: the mean of the middle half, ``scipy.stats.trim_mean(x, 0.25)``.
+
+    ``floor(n/4)`` values are cut at each end (so for ``n`` not a multiple of 4 slightly more than
+    half is averaged), exactly as rliable's ``IQM``. NaN for an empty sample.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    if x.shape[axis] == 0:
+        return np.full(np.delete(x.shape, axis if axis >= 0 else x.ndim + axis), np.nan)[()]
+    return np.asarray(_st.trim_mean(x, 0.25, axis=axis))[()]
+
+
+def median(x, axis: int = -1) -> np.ndarray:
+    """Median (``numpy.median``); NaN for an empty sample (without a warning)."""
+    x = np.asarray(x, dtype=np.float64)
+    if x.shape[axis] == 0:
+        return np.full(np.delete(x.shape, axis if axis >= 0 else x.ndim + axis), np.nan)[()]
+    return np.asarray(np.median(x, axis=axis))[()]
+
+
+def mean(x, axis: int = -1) -> np.ndarray:
+    """Mean; NaN for an empty sample (without a warning)."""
+    x = np.asarray(x, dtype=np.float64)
+    if x.shape[axis] == 0:
+        return np.full(np.delete(x.shape, axis if axis >= 0 else x.ndim + axis), np.nan)[()]
+    return np.asarray(np.mean(x, axis=axis))[()]
+
+
+# --------------------------------------------------------------------------------------------
+# bootstrap
+# --------------------------------------------------------------------------------------------
+
+
+def _strata_index(n: int, strata) -> list[np.ndarray]:
+    """Row indices of every stratum (one stratum of everything when ``strata`` is None)."""
+    if strata is None:
+        return [np.arange(n)]
+    strata = np.asarray(strata)
+    if strata.shape != (n,):
+        raise ValueError(f"strata has shape {strata.shape}; expected ({n},)")
+    _, codes = np.unique(strata, return_inverse=True)
+    return [np.flatnonzero(codes == c) for c in range(codes.max() + 1)] if n else []
+
+
+def _resample_index(rng: np.random.Generator, groups: list[np.ndarray], count: int) -> np.ndarray:
+    """(count, n) indices: each row draws ``len(g)`` rows with replacement inside every stratum ``g``."""
+    parts = [g[rng.integers(0, len(g), size=(count, len(g)))] for g in groups if len(g)]
+    return np.concatenate(parts, axis=1)
+
+
+def _percentile(values: np.ndarray, confidence: float) -> tuple[float, float]:
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        return math.nan, math.nan
+    alpha = 1.0 - confidence
+    lo, hi = np.quantile(values, [alpha / 2.0, 1.0 - alpha / 2.0])
+    return float(lo), float(hi)
+
+
+def _bootstrap(arrays: tuple[np.ndarray, ...], replicate: Callable[..., np.ndarray], strata, n_resamples: int,
+               seed: int) -> np.ndarray:
+    n = arrays[0].shape[0]
+    groups = _strata_index(n, strata)
+    rng = np.random.default_rng(seed)
+    chunk = max(1, min(n_resamples, _BLOCK // max(n, 1)))
+    out = []
+    done = 0
+    while done < n_resamples:
+        count = min(chunk, n_resamples - done)
+        idx = _resample_index(rng, groups, count)
+        out.append(np.asarray(replicate(*(a[idx] for a in arrays)), dtype=np.float64).reshape(count))
+        done += count
+    return np.concatenate(out)
+
+
+#: A sample with at most this many distinct values (0/1 outcomes, per-pair scores 0/½/1) has the
+#: bootstrap distribution of its mean drawn from multinomial counts: same distribution, O(resamples).
+_FEW_VALUES = 16
+
+
+def _mean_few_values(x: np.ndarray, strata, n_resamples: int, seed: int) -> np.ndarray | None:
+    """Bootstrap replicates of ``mean(x)`` via multinomial counts per stratum, or None if ``x`` has
+    many distinct values. Resampling ``n_s`` rows with replacement from a stratum whose values
+    occur with frequencies ``f`` gives counts ``~ Multinomial(n_s, f)``, so this is the same
+    distribution as the row resampling of :func:`_bootstrap`."""
+    values, codes = np.unique(x, return_inverse=True)
+    if values.size > _FEW_VALUES:
+        return None
+    rng = np.random.default_rng(seed)
+    total = np.zeros(n_resamples)
+    for g in _strata_index(x.size, strata):
+        if g.size == 0:
+            continue
+        freq = np.bincount(codes[g], minlength=values.size) / g.size
+        counts = rng.multinomial(g.size, freq, size=n_resamples)
+        total += counts @ values
+    return total / x.size
+
+
+def bootstrap_ci(x, statistic: Statistic = np.mean, *, strata=None, n_resamples: int = DEFAULT_RESAMPLES,
+                 confidence: float = 0.95, seed: int = 0) -> tuple[float, float]:
+    """Percentile bootstrap confidence interval of ``statistic(x)``.
+
+    Stratified: every resample draws, with replacement, as many rows from each stratum (e.g.
+    scenario family) as the stratum has, so the mix of strata is the same in every resample and
+    only the within-stratum variability enters the interval (rliable's stratified bootstrap).
+    The mean of a sample with few distinct values (0/1 outcomes, per-pair scores) is resampled
+    through multinomial counts per stratum: the same bootstrap distribution, at O(resamples) cost.
+
+    Args:
+      x: (n,) sample (must not contain NaN; filter first).
+      statistic: reduces along ``axis=-1`` (``np.mean``, ``np.median``, :func:`iqm`, ...).
+      strata: optional (n,) labels.
+      n_resamples, confidence, seed: as named; ``numpy.random.default_rng(seed)`` drives it.
+
+    Returns ``(lower, upper)``; ``(nan, nan)`` for an empty sample.
+    """
+    x = np.asarray(x, dtype=np.float64).reshape(-1)
+    if x.size == 0:
+        return math.nan, math.nan
+    reps = _mean_few_values(x, strata, n_resamples, seed) if statistic in (np.mean, mean) else None
+    if reps is None:
+        reps = _bootstrap((x,), lambda xb: statistic(xb, axis=-1), strata, n_resamples, seed)
+    return _percentile(reps, confidence)
+
+
+def paired_bootstrap_ci(x, y, statistic: Statistic = np.mean, *, strata=None,
+                        n_resamples: int = DEFAULT_RESAMPLES, confidence: float = 0.95,
+                        seed: int = 0) -> tuple[float, float, float]:
+    """Estimate and percentile CI of ``statistic(x) - statistic(y)`` for *paired* samples.
+
+    Every resample draws pairs ``(x_i, y_i)`` (the same index for both), stratified as in
+    :func:`bootstrap_ci`, so the positive correlation that common random numbers induce between
+    ``x`` and ``y`` narrows the interval as it should. For ``statistic = np.mean`` the estimate is
+    the mean paired difference (for 0/1 data: the difference in rates).
+
+    Returns ``(estimate, lower, upper)``; NaNs for no pairs.
+    """
+    x = np.asarray(x, dtype=np.float64).reshape(-1)
+    y = np.asarray(y, dtype=np.float64).reshape(-1)
+    if x.shape != y.shape:
+        raise ValueError(f"paired samples differ in size: {x.shape} vs {y.shape}")
+    if x.size == 0:
+        return math.nan, math.nan, math.nan
+    estimate = float(statistic(x, axis=-1) - statistic(y, axis=-1))
+    if statistic in (np.mean, mean):  # mean(x*) - mean(y*) = mean((x - y)*): one sample of differences
+        return (estimate, *bootstrap_ci(x - y, mean, strata=strata, n_resamples=n_resamples,
+                                        confidence=confidence, seed=seed))
+    reps = _bootstrap((x, y), lambda xb, yb: statistic(xb, axis=-1) - statistic(yb, axis=-1),
+                      strata, n_resamples, seed)
+    return (estimate, *_percentile(reps, confidence))
+
+
+# --------------------------------------------------------------------------------------------
+# paired tests
+# --------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class McNemarResult:
+    """``b`` = pairs with x true and y false, ``c`` = x false and y true, two-sided exact ``pvalue``."""
+
+    b: int
+    c: int
+    pvalue: float
+
+
+def mcnemar_exact(x, y) -> McNemarResult:
+    """Exact McNemar test of paired binary outcomes.
+
+    Under H0 (same marginal rate) each discordant pair is equally likely to be ``(1, 0)`` or
+    ``(0, 1)``, so ``b ~ Binomial(b + c, ½)``; the p-value is
+    ``scipy.stats.binomtest(b, b + c, 0.5)`` (two-sided). No discordant pair: p = 1.
+    """
+    x = np.asarray(x, dtype=bool).reshape(-1)
+    y = np.asarray(y, dtype=bool).reshape(-1)
+    if x.shape != y.shape:
+        raise ValueError(f"paired samples differ in size: {x.shape} vs {y.shape}")
+    b = int(np.sum(x & ~y))
+    c = int(np.sum(~x & y))
+    p = 1.0 if b + c == 0 else float(_st.binomtest(b, b + c, 0.5).pvalue)
+    return McNemarResult(b, c, min(p, 1.0))
+
+
+@dataclasses.dataclass(frozen=True)
+class WilcoxonResult:
+    """Signed-rank ``statistic`` (scipy's), ``pvalue`` (two-sided), ``n`` pairs, ``n_nonzero`` non-tied pairs."""
+
+    statistic: float
+    pvalue: float
+    n: int
+    n_nonzero: int
+
+
+#: Up to this many non-zero differences the signed-rank p-value is exact (:func:`_signed_rank_exact`).
+EXACT_WILCOXON_MAX = 100
+
+
+def _signed_rank_exact(d: np.ndarray) -> tuple[float, float]:
+    """Exact two-sided signed-rank test of the non-zero differences ``d``, ties included.
+
+    Conditional on the (mid)ranks ``r_i`` of ``|d_i|``, under H0 each sign is + or − with
+    probability ½ independently, so ``T+ = Σ r_i [d_i > 0]`` has the distribution of a sum of
+    independent ``r_i · Bernoulli(½)``. Midranks are multiples of ½, so ``2 T+`` is an integer and
+    the distribution is a convolution over integers (O(n³) at worst). This is the permutation
+    test that ``scipy.stats.wilcoxon`` runs for ties, without enumerating 2^n sign patterns.
+    Returns ``(min(T+, T-), p)``, p = ``min(1, 2 min(P(T+ <= t), P(T+ >= t)))``.
+    """
+    ranks = _st.rankdata(np.abs(d))
+    twice = np.rint(2.0 * ranks).astype(np.int64)
+    total = int(twice.sum())
+    dist = np.zeros(total + 1)
+    dist[0] = 1.0
+    for r in twice:
+        shifted = np.zeros_like(dist)
+        shifted[r:] = dist[: total + 1 - r]
+        dist = 0.5 * (dist + shifted)
+    t_plus = int(twice[d > 0].sum())
+    lower = float(dist[: t_plus + 1].sum())
+    upper = float(dist[t_plus:].sum())
+    p = min(1.0, 2.0 * min(lower, upper))
+    stat = min(t_plus, total - t_plus) / 2.0
+    return float(stat), float(p)
+
+
+def wilcoxon_paired(x, y) -> WilcoxonResult:
+    """Wilcoxon signed-rank test of ``x_i - y_i`` (two-sided).
+
+    Zero differences are dropped (Wilcoxon's original treatment, scipy's ``zero_method="wilcox"``;
+    with common random numbers many pairs can be exactly equal, e.g. when a gain does not change
+    the trajectory). Up to :data:`EXACT_WILCOXON_MAX` non-zero differences the p-value is exact,
+    ties handled by midranks (:func:`_signed_rank_exact`); beyond, ``scipy.stats.wilcoxon`` with
+    the normal approximation (tie-corrected). The statistic is ``min(T+, T-)``, as scipy's.
+    Every difference zero: statistic 0, p = 1. No pairs: NaNs.
+    """
+    x = np.asarray(x, dtype=np.float64).reshape(-1)
+    y = np.asarray(y, dtype=np.float64).reshape(-1)
+    if x.shape != y.shape:
+        raise ValueError(f"paired samples differ in size: {x.shape} vs {y.shape}")
+    d = x - y
+    if np.any(~np.isfinite(d)):
+        raise ValueError("wilcoxon_paired needs finite values; filter the pairs first")
+    nonzero = int(np.count_nonzero(d))
+    if d.size == 0:
+        return WilcoxonResult(math.nan, math.nan, 0, 0)
+    if nonzero == 0:
+        return WilcoxonResult(0.0, 1.0, int(d.size), 0)
+    if nonzero <= EXACT_WILCOXON_MAX:
+        stat, p = _signed_rank_exact(d[d != 0])
+        return WilcoxonResult(stat, p, int(d.size), nonzero)
+    res = _st.wilcoxon(d, zero_method="wilcox", alternative="two-sided", method="approx")
+    return WilcoxonResult(float(res.statistic), float(min(res.pvalue, 1.0)), int(d.size), nonzero)
+
+
+def pair_scores(x, y, higher_is_better: bool = True) -> np.ndarray:
+    """Per-pair improvement score: 1 if ``x_i`` beats ``y_i``, ½ if equal, 0 otherwise."""
+    x = np.asarray(x, dtype=np.float64).reshape(-1)
+    y = np.asarray(y, dtype=np.float64).reshape(-1)
+    if x.shape != y.shape:
+        raise ValueError(f"paired samples differ in size: {x.shape} vs {y.shape}")
+    better = x > y if higher_is_better else x < y
+    return better.astype(np.float64) + 0.5 * (x == y)
+
+
+def probability_of_improvement_paired(x, y, higher_is_better: bool = True) -> float:
+    """``P(x_i > y_i) + ½ P(x_i = y_i)`` over the *pairs* ``i`` (``<`` when lower is better).
+
+    rliable's probability of improvement compares every ``x`` with every ``y`` (Mann–Whitney); with
+    common random numbers the natural question is "on the same field, how often is x better",
+    so only matching pairs are compared. ½ = no difference. NaN for no pairs.
+    """
+    scores = pair_scores(x, y, higher_is_better)
+    return float(np.mean(scores)) if scores.size else math.nan
+
+
+# --------------------------------------------------------------------------------------------
+# multiplicity
+# --------------------------------------------------------------------------------------------
+
+
+def holm(pvalues) -> np.ndarray:
+    r"""Holm step-down adjusted p-values (family-wise error control, any dependence).
+
+    With the ``m`` finite p-values sorted ascending, ``p̃_(i) = max_{j <= i} min(1, (m - j + 1) p_(j))``
+    (1-based). Rejecting ``p̃ <= α`` controls the probability of any false rejection at α. NaN
+    entries stay NaN and do not count in ``m``.
+    """
+    p = np.asarray(pvalues, dtype=np.float64)
+    out = np.full(p.shape, np.nan)
+    flat = p.reshape(-1)
+    ok = np.flatnonzero(np.isfinite(flat))
+    if ok.size == 0:
+        return out
+    if np.any((flat[ok] < 0) | (flat[ok] > 1)):
+        raise ValueError("p-values must lie in [0, 1]")
+    m = ok.size
+    order = ok[np.argsort(flat[ok], kind="stable")]
+    scaled = np.minimum(1.0, (m - np.arange(m)) * flat[order])
+    adjusted = np.maximum.accumulate(scaled)
+    result = out.reshape(-1)
+    result[order] = adjusted
+    return result.reshape(p.shape)
+
+
+# --------------------------------------------------------------------------------------------
+# distributions
+# --------------------------------------------------------------------------------------------
+
+
+def performance_profile(x, taus) -> np.ndarray:
+    """Fraction of ``x`` strictly above each threshold ``τ`` (rliable's score distribution).
+
+    Non-increasing in ``τ``; NaN everywhere for an empty sample.
+    """
+    x = np.sort(np.asarray(x, dtype=np.float64).reshape(-1))
+    taus = np.asarray(taus, dtype=np.float64)
+    if x.size == 0:
+        return np.full(taus.shape, np.nan)
+    return 1.0 - np.searchsorted(x, taus, side="right") / x.size
+
+
+def ecdf(x) -> tuple[np.ndarray, np.ndarray]:
+    """Empirical CDF: sorted values and ``F(x_(i)) = i / n`` (i = 1..n); draw as a post-step."""
+    x = np.sort(np.asarray(x, dtype=np.float64).reshape(-1))
+    return x, np.arange(1, x.size + 1) / max(x.size, 1)

@@ -1,0 +1,304 @@
+"""``jaxapf report`` end to end on small synthetic sweeps (Parquet written here with pyarrow)."""
+
+from __future__ import annotations
+
+import json
+import math
+import pathlib
+import re
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+from scipy import stats as sst
+
+from jaxapf import stats
+from jaxapf.cli import main
+from jaxapf.report import (
+    CONTINUOUS,
+    RATES,
+    ReportError,
+    ReportOptions,
+    _heatmap_figures,
+    _select,
+    build_report,
+    load_sweep,
+)
+
+RESAMPLES = 200
+META = {"format": "jaxapf.sweep/1", "spec": {"name": "synthetic-test"}, "spec_hash": "f" * 64,
+        "versions": {"jaxapf": "0.1.0", "jax": "0.0.test", "numpy": np.__version__},
+        "prng": {"impl": "threefry2x32", "field_key": "fold_in(key(seed), field)"}, "dtype": "float32"}
+
+
+def _settings() -> list[tuple[str, float, float]]:
+    """basic × γ × k (basic ignores γ, k: four equivalent baselines) then direction_velocity × γ × k."""
+    return [(m, g, k) for m in ("basic", "direction_velocity") for g in (0.5, 1.0) for k in (0.5, 1.0)]
+
+
+def make_rows(families=("trap", "clutter"), fields: int = 12, seed: int = 7,
+              settings: list | None = None) -> pd.DataFrame:
+    """Episode rows in the documented column order; the same fields for every setting (CRN)."""
+    rng = np.random.default_rng(seed)
+    settings = settings or _settings()
+    rows = []
+    for fam in families:
+        for f in range(fields):
+            difficulty = rng.uniform()
+            noise = rng.normal(size=5)
+            for s, (method, gamma, k) in enumerate(settings):
+                skill = 0.0 if method == "basic" else 0.25 + 0.1 * gamma - 0.05 * k
+                u = difficulty - skill
+                success = bool(u < 0.5)
+                collision = bool(not success and u > 0.8)
+                shift = np.zeros(5) if method == "basic" else np.array([0.3, -1.0, -0.05, -1.0, -0.2])
+                e = noise + shift
+                rows.append(dict(
+                    setting=s, method=method, convention="intent", gamma=gamma, k=k, k_rep=10.0, d_s=4.0,
+                    k_att=1.0, eta=0.5, dt=0.1, t_max=60.0, horizon=20, iters=30, family=fam, field=f, seed=0,
+                    success=success, collision=collision,
+                    min_clearance=(-0.1 - 0.1 * abs(e[0])) if collision else 0.5 + 0.2 * abs(e[0]),
+                    time_to_goal=20.0 + 2.0 * e[1] if success else math.nan,
+                    path_length=25.0 + abs(e[2]), path_ratio=1.05 + 0.1 * abs(e[2]),
+                    stalled=bool(not success and not collision),
+                    final_distance=0.4 if success else 3.0 + abs(e[3]),
+                    control_effort=5.0 + abs(e[3]), jerk_rms=2.0 + abs(e[4]), max_velocity_excess=0.0,
+                    time_near=1.0, min_ttc=3.0, score=0.4 if success else 0.0, steps=200))
+    df = pd.DataFrame(rows)
+    df["setting"] = df["setting"].astype("int32")
+    df["steps"] = df["steps"].astype("int32")
+    return df
+
+
+def write_sweep(path: pathlib.Path, df: pd.DataFrame, meta: dict | None = META, parts: int = 2) -> pathlib.Path:
+    """A Parquet dataset directory of ``parts`` part files with the ``jaxapf`` schema metadata."""
+    path.mkdir(parents=True, exist_ok=True)
+    for i, idx in enumerate(np.array_split(np.arange(len(df)), parts)):
+        table = pa.Table.from_pandas(df.iloc[idx], preserve_index=False)
+        if meta is not None:
+            table = table.replace_schema_metadata({**(table.schema.metadata or {}),
+                                                   b"jaxapf": json.dumps(meta).encode()})
+        pq.write_table(table, path / f"part-{i:05d}.parquet")
+    return path
+
+
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory) -> tuple[pathlib.Path, pd.DataFrame]:
+    df = make_rows()
+    return write_sweep(tmp_path_factory.mktemp("runs") / "synthetic.parquet", df), df
+
+
+@pytest.fixture(scope="module")
+def report(sweep, tmp_path_factory) -> pathlib.Path:
+    path, _ = sweep
+    out = tmp_path_factory.mktemp("reports") / "synthetic"
+    rc = main(["report", str(path), "--out", str(out), "--resamples", str(RESAMPLES), "--gallery", "0"])
+    assert rc == 0
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# outputs
+# --------------------------------------------------------------------------------------------
+
+
+def test_outputs_exist_and_html_is_self_contained(report):
+    for name in ("report.html", "report.md", "summary.csv", "comparisons.csv", "table.tex"):
+        assert (report / name).stat().st_size > 0, name
+    figures = {p.name for p in (report / "figures").iterdir()}
+    for stem in ("ecdf_min_clearance", "rates", "continuous", "differences", "profile_score",
+                 "heatmap_success_direction_velocity", "heatmap_collision_direction_velocity"):
+        assert {f"{stem}.png", f"{stem}.svg"} <= figures, stem
+    text = (report / "report.html").read_text(encoding="utf-8")
+    assert "http://" not in text and "https://" not in text
+    assert not re.search(r"<(script|link|iframe|object|embed)\b", text, re.I)
+    assert not re.search(r"url\(", text)
+    sources = re.findall(r"""(?:src|href)\s*=\s*["']([^"']*)""", text)
+    assert sources and all(s.startswith("data:image/png;base64,") for s in sources)
+    md = (report / "report.md").read_text(encoding="utf-8")
+    linked = re.findall(r"\]\((figures/[^)]+)\)", md)
+    assert linked and all((report / f).is_file() for f in linked)
+
+
+def test_header_states_spec_versions_and_statistics(report, sweep):
+    _, df = sweep
+    md = (report / "report.md").read_text(encoding="utf-8")
+    assert "# jaxapf report — synthetic-test" in md
+    assert "spec_hash " + "f" * 64 in md
+    assert "| jax | 0.0.test |" in md
+    assert f"{RESAMPLES} resamples, seed 0" in md
+    assert "Holm correction over all 96 tests" in md  # 4 settings × 3 groups × 8 metrics
+    assert "successful episodes only" in md
+    # key findings come from the rows: the settings with the highest pooled success rate
+    rate = df.groupby("setting")["success"].agg(["sum", "count"])
+    best = rate[rate["sum"] == rate["sum"].max()]
+    lo, hi = stats.wilson_interval(int(best["sum"].iloc[0]), int(best["count"].iloc[0]))
+    names = ", ".join(f"#{s} direction_velocity γ={g:g} k={k:g}" for s, (_, g, k) in enumerate(_settings())
+                      if s in best.index)
+    assert (f"- Highest success rate (all): {names}: {100 * best['sum'].iloc[0] / best['count'].iloc[0]:.1f} % "
+            f"[{100 * lo:.1f}, {100 * hi:.1f}].") in md
+
+
+def test_summary_matches_direct_pandas_computation(report, sweep):
+    _, df = sweep
+    summary = pd.read_csv(report / "summary.csv")
+    assert set(summary["family"]) == {"trap", "clutter", "all"}
+    for (setting, family), g in list(df.groupby(["setting", "family"])) + [
+            ((s, "all"), g) for s, g in df.groupby("setting")]:
+        row = summary[(summary["setting"] == setting) & (summary["family"] == family)]
+        assert len(row) == 1
+        row = row.iloc[0]
+        assert row["n"] == len(g)
+        for r in RATES:
+            k = int(g[r].sum())
+            assert row[f"{r}_k"] == k
+            assert row[f"{r}_rate"] == pytest.approx(g[r].mean())
+            lo, hi = stats.wilson_interval(k, len(g))
+            assert (row[f"{r}_lo"], row[f"{r}_hi"]) == pytest.approx((float(lo), float(hi)))
+        for m in CONTINUOUS:
+            v = g[m].dropna()
+            assert row[f"{m}_n"] == len(v)
+            assert row[f"{m}_median"] == pytest.approx(v.median())
+            assert row[f"{m}_iqm"] == pytest.approx(sst.trim_mean(v, 0.25))
+            assert row[f"{m}_median_lo"] <= row[f"{m}_median"] <= row[f"{m}_median_hi"]
+        assert row["time_to_goal_n"] == g["success"].sum()
+
+
+def test_comparisons_pair_fields_and_match_direct_computation(report, sweep):
+    _, df = sweep
+    comp = pd.read_csv(report / "comparisons.csv")
+    # direction_velocity settings 4..7 are each paired with basic #0 (basic ignores γ and k)
+    assert sorted(set(comp["setting"])) == [4, 5, 6, 7]
+    assert set(comp["baseline"]) == {0}
+    # 4 settings × (2 families + all) × (3 rates + 5 continuous) = 96 rows; Holm over their 96 p's
+    assert len(comp) == 96
+    assert np.all(comp["p_holm"] >= comp["p"] - 1e-12)
+    np.testing.assert_allclose(comp["p_holm"], stats.holm(comp["p"].to_numpy()))
+    pairs = df[df.setting == 6].merge(df[df.setting == 0], on=["family", "field", "seed"])
+    for metric in ("success", "collision"):
+        row = comp[(comp.setting == 6) & (comp.family == "all") & (comp.metric == metric)].iloc[0]
+        x, y = pairs[f"{metric}_x"].to_numpy(bool), pairs[f"{metric}_y"].to_numpy(bool)
+        b, c = int(np.sum(x & ~y)), int(np.sum(~x & y))
+        assert row["discordant"] == f"b={b}, c={c}"
+        assert row["p"] == pytest.approx(sst.binomtest(b, b + c, 0.5).pvalue if b + c else 1.0)
+        assert row["delta"] == pytest.approx(x.mean() - y.mean())
+        wins = np.sum(x > y) if metric == "success" else np.sum(x < y)
+        assert row["poi"] == pytest.approx((wins + 0.5 * np.sum(x == y)) / len(x))
+    row = comp[(comp.setting == 6) & (comp.family == "trap") & (comp.metric == "time_to_goal")].iloc[0]
+    trap = pairs[(pairs.family == "trap") & pairs.success_x & pairs.success_y]
+    assert row["n_pairs"] == len(trap)  # pairs where both succeeded
+    assert row["p"] == pytest.approx(stats.wilcoxon_paired(trap.time_to_goal_x, trap.time_to_goal_y).pvalue)
+
+
+def test_latex_table_is_booktabs_and_escaped(report):
+    tex = (report / "table.tex").read_text(encoding="utf-8")
+    for cmd in (r"\toprule", r"\midrule", r"\bottomrule", r"\begin{tabular}", r"\caption{"):
+        assert cmd in tex
+    assert r"direction\_velocity" in tex and r"\#4" in tex
+    body = re.sub(r"\$[^$]*\$", "", tex)  # outside math mode no bare _ or %
+    assert not re.search(r"(?<!\\)_", body)
+    assert not re.search(r"(?<!\\)%", "\n".join(line for line in body.splitlines() if not line.startswith("%")))
+
+
+# --------------------------------------------------------------------------------------------
+# selection rules (no figures: fast)
+# --------------------------------------------------------------------------------------------
+
+
+def test_where_filters_and_baseline_kept(sweep):
+    path, _ = sweep
+    df, _ = load_sweep(path)
+    sel = _select(df, ReportOptions(where=("method=direction_velocity", "family=trap")))
+    assert sel.settings == [0, 4, 5, 6, 7]  # the baseline stays, reported for the comparison
+    assert set(sel.data["family"]) == {"trap"}
+    assert any("exclude them" in n for n in sel.notes)
+    sel = _select(df, ReportOptions(baseline="setting=5", where=("gamma=0.5,1",)))
+    assert sel.pairs == {s: 5 for s in range(8) if s != 5}
+
+
+def test_heatmap_skipped_with_fewer_than_two_swept_gains(sweep, tmp_path):
+    path, _ = sweep
+    df, _ = load_sweep(path)
+    sel = _select(df, ReportOptions(where=("gamma=0.5",)))
+    figures, notes = _heatmap_figures(sel, ReportOptions(), tmp_path)
+    assert figures == [] and "fewer than 2 swept gains" in notes[0]
+
+
+# --------------------------------------------------------------------------------------------
+# bad input: one line on stderr, exit status 2
+# --------------------------------------------------------------------------------------------
+
+
+def _bad_inputs(tmp: pathlib.Path, good: pathlib.Path) -> dict[str, tuple[list[str], str]]:
+    plain = tmp / "plain.parquet"
+    pd.DataFrame({"a": [1, 2]}).to_parquet(plain)
+    junk = tmp / "junk.parquet"
+    junk.write_text("not parquet")
+    missing = write_sweep(tmp / "missing.parquet", make_rows(fields=2).drop(columns=["collision"]))
+    empty_dir = tmp / "empty.parquet"
+    empty_dir.mkdir()
+    return {
+        "no such file": ([str(tmp / "nope.parquet")], "no such file"),
+        "not a sweep": ([str(plain)], "is not the output of jaxapf sweep"),
+        "not parquet": ([str(junk)], "not a readable sweep output"),
+        "empty dir": ([str(empty_dir)], "no Parquet part file"),
+        "missing column": ([str(missing)], "lacks the column(s) collision"),
+        "baseline": ([str(good), "--baseline", "method=direction"], "baseline method=direction is not in the data"),
+        "baseline column": ([str(good), "--baseline", "colour=red"], "no setting column 'colour'"),
+        "where empty": ([str(good), "--where", "family=forest"], "--where family=forest selects no rows"),
+        "where number": ([str(good), "--where", "gamma=7"], "--where gamma=7 selects no rows"),
+        "where column": ([str(good), "--where", "colour=red"], "no column 'colour'"),
+        "where syntax": ([str(good), "--where", "trap"], "must look like COLUMN=VALUE"),
+        "heatmap column": ([str(good), "--heatmap", "gamma,colour"], "no setting column 'colour'"),
+        "resamples": ([str(good), "--resamples", "5"], "--resamples"),
+    }
+
+
+def test_bad_input_gives_one_line_and_status_2(sweep, tmp_path, capsys):
+    good, _ = sweep
+    for name, (args, message) in _bad_inputs(tmp_path, good).items():
+        rc = main(["report", "--out", str(tmp_path / "out"), "--gallery", "0", "--resamples", "100", *args])
+        err = capsys.readouterr().err
+        assert rc == 2, name
+        lines = err.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("jaxapf report: error: "), (name, err)
+        assert message in lines[0], (name, lines[0])
+        assert "Traceback" not in err
+
+
+def test_report_error_is_a_config_error():
+    from jaxapf.config import ConfigError
+
+    assert issubclass(ReportError, ConfigError)
+
+
+# --------------------------------------------------------------------------------------------
+# gallery: one tiny episode re-simulated
+# --------------------------------------------------------------------------------------------
+
+
+def test_gallery_resimulates_a_failed_episode(tmp_path):
+    # a spec whose settings match the rows (basic, direction_velocity with the default gains), so
+    # the real jaxapf.sweep.episode_config rebuilds each row; one tiny episode is re-simulated
+    from jaxapf.sweep_spec import parse_spec
+
+    spec = parse_spec({"name": "tiny", "scenario": {"families": ["trap"], "fields": 3, "seed": 0,
+                                                    "params": {"trap": {"distance": [4.0, 5.0]}}},
+                       "sim": {"t_max": 1.0, "horizon": 3, "iters": 3},
+                       "grid": {"method": ["basic", "direction_velocity"]}})
+    meta = {**META, "spec": spec.to_json(), "spec_hash": spec.hash}
+    df = make_rows(families=("trap",), fields=3, settings=[("basic", 1.0, 0.5), ("direction_velocity", 1.0, 0.5)])
+    path = write_sweep(tmp_path / "tiny.parquet", df, meta=meta, parts=1)
+    result = build_report(path, tmp_path / "out", ReportOptions(gallery=1, resamples=100, heatmap=None))
+    assert not any("could not re-simulate" in n for n in result.notes), result.notes
+    assert (tmp_path / "out" / "figures" / "gallery_1.png").is_file()
+    assert (tmp_path / "out" / "figures" / "gallery_1.svg").is_file()
+    md = (tmp_path / "out" / "report.md").read_text(encoding="utf-8")
+    fails = df[~df.success]
+    collisions = fails[fails.collision].sort_values("min_clearance")
+    first_failure = (collisions if len(collisions) else
+                     fails[fails.stalled].sort_values("final_distance", ascending=False)).iloc[0]
+    assert "figures/gallery_1.png" in md and "re-simulated min clearance" in md
+    assert f"{first_failure['family']} field {first_failure['field']}" in md

@@ -1,0 +1,221 @@
+"""Statistics of ``jaxapf report`` against hand computations, scipy and simulated coverage."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy import stats as sst
+
+from jaxapf import stats
+
+Z95 = 1.959963984540054  # Φ⁻¹(0.975)
+
+
+# --------------------------------------------------------------------------------------------
+# Wilson
+# --------------------------------------------------------------------------------------------
+
+
+def test_wilson_hand_computed():
+    # z = 1.959964, z² = 3.841459, n = 10: z²/n = 0.3841459, 1 + z²/n = 1.3841459.
+    # 8/10: p̂ = 0.8; centre = (0.8 + z²/(2n)) / 1.3841459 = (0.8 + 0.1920729) / 1.3841459 = 0.7167401;
+    #   half = (z / 1.3841459) · sqrt(0.8·0.2/10 + z²/(4n²)) = 1.4160232 · sqrt(0.016 + 0.0096036)
+    #        = 1.4160232 · 0.1600113 = 0.2265777  ->  [0.4901624, 0.9433178].
+    lo, hi = stats.wilson_interval(8, 10)
+    assert lo == pytest.approx(0.4901624, abs=1e-6)
+    assert hi == pytest.approx(0.9433178, abs=1e-6)
+    # 0/10: centre = half = (z²/(2n)) / (1 + z²/n) = 0.1920729 / 1.3841459 = 0.1387664
+    #   -> [0, 2 · 0.1387664] = [0, 0.2775328] (the upper bound is (z²/n) / (1 + z²/n)).
+    lo, hi = stats.wilson_interval(0, 10)
+    assert lo == 0.0
+    assert hi == pytest.approx(0.2775328, abs=1e-6)
+    # 10/10 mirrors 0/10: [1 - 0.2775328, 1] = [0.7224672, 1].
+    lo, hi = stats.wilson_interval(10, 10)
+    assert lo == pytest.approx(0.7224672, abs=1e-6)
+    assert hi == 1.0
+
+
+def test_wilson_vectorised_and_degenerate():
+    lo, hi = stats.wilson_interval(np.array([0, 8, 10]), np.array([0, 10, 10]))
+    assert math.isnan(lo[0]) and math.isnan(hi[0])
+    assert lo[1] == pytest.approx(0.4901624, abs=1e-6)
+    assert hi[2] == 1.0
+    with pytest.raises(ValueError):
+        stats.wilson_interval(11, 10)
+    with pytest.raises(ValueError):
+        stats.wilson_interval(1, 10, confidence=1.0)
+
+
+@settings(max_examples=200, deadline=None)
+@given(n=st.integers(1, 2000), frac=st.floats(0, 1), conf=st.sampled_from([0.8, 0.9, 0.95, 0.99]))
+def test_wilson_contains_estimate_and_stays_in_unit_interval(n, frac, conf):
+    k = int(round(frac * n))
+    lo, hi = stats.wilson_interval(k, n, conf)
+    p = k / n
+    assert 0.0 <= lo <= p <= hi <= 1.0
+    lo99, hi99 = stats.wilson_interval(k, n, 0.995)
+    assert lo99 <= lo + 1e-12 and hi <= hi99 + 1e-12  # higher confidence, wider interval
+
+
+# --------------------------------------------------------------------------------------------
+# McNemar, Wilcoxon, probability of improvement
+# --------------------------------------------------------------------------------------------
+
+
+def test_mcnemar_hand_computed():
+    # 12 pairs: 3 both succeed, 1 only x, 7 only y, 1 neither -> b = 1, c = 7.
+    x = np.array([1, 1, 1, 1] + [0] * 7 + [0], bool)
+    y = np.array([1, 1, 1, 0] + [1] * 7 + [0], bool)
+    res = stats.mcnemar_exact(x, y)
+    assert (res.b, res.c) == (1, 7)
+    # b ~ Bin(8, ½): P(b <= 1) = (C(8,0) + C(8,1)) / 2⁸ = 9/256; two-sided p = 2 · 9/256 = 18/256.
+    assert res.pvalue == pytest.approx(18 / 256, rel=1e-12)
+    assert stats.mcnemar_exact(y, x).pvalue == pytest.approx(res.pvalue)
+    # no discordant pair: nothing to test, p = 1
+    assert stats.mcnemar_exact(x, x).pvalue == 1.0
+
+
+def test_wilcoxon_matches_scipy_exact_without_ties():
+    rng = np.random.default_rng(3)
+    for n in (6, 11, 20):
+        x, y = rng.normal(size=n) + 0.4, rng.normal(size=n)
+        ours = stats.wilcoxon_paired(x, y)
+        ref = sst.wilcoxon(x - y, method="exact")
+        assert ours.statistic == pytest.approx(ref.statistic)
+        assert ours.pvalue == pytest.approx(ref.pvalue, rel=1e-9)
+
+
+def test_wilcoxon_exact_with_ties_and_zeros():
+    # ties among |d| and zero differences: compare with the full enumeration of the 2^n signs
+    d = np.array([1.0, -1.0, 2.0, 2.0, 3.0, 0.0, 3.0, 4.0, -2.0, 0.0])
+    ours = stats.wilcoxon_paired(d, np.zeros_like(d))
+    nz = d[d != 0]
+    ranks = sst.rankdata(np.abs(nz))
+    t_obs = ranks[nz > 0].sum()
+    signs = (np.arange(2 ** nz.size)[:, None] >> np.arange(nz.size)) & 1
+    t_all = signs @ ranks
+    p = min(1.0, 2 * min(np.mean(t_all <= t_obs + 1e-9), np.mean(t_all >= t_obs - 1e-9)))
+    assert ours.pvalue == pytest.approx(p, rel=1e-12)
+    assert ours.n == 10 and ours.n_nonzero == 8
+    assert stats.wilcoxon_paired([1.0, 2.0], [1.0, 2.0]).pvalue == 1.0
+    assert math.isnan(stats.wilcoxon_paired([], []).pvalue)
+
+
+def test_probability_of_improvement_counts_pairs():
+    x = np.array([1.0, 2.0, 3.0, 4.0, 5.0])
+    y = np.array([0.0, 2.0, 4.0, 4.0, 1.0])
+    # pairs: win, tie, loss, tie, win -> (2 + ½·2) / 5 = 0.6; lower-is-better: (1 + ½·2) / 5 = 0.4
+    assert stats.probability_of_improvement_paired(x, y) == pytest.approx(0.6)
+    assert stats.probability_of_improvement_paired(x, y, higher_is_better=False) == pytest.approx(0.4)
+    # pairing matters: x is worse than y on every pair (0), although an all-pairs (rliable)
+    # comparison would give (1 win + ½·2 ties) / 9 = 2/9.
+    assert stats.probability_of_improvement_paired([1.0, 2.0, 3.0], [2.0, 3.0, 4.0]) == 0.0
+    # collisions (lower is better): x collides on 1 of 4 fields, y on 3, on the same fields once
+    xc, yc = np.array([1, 0, 0, 0]), np.array([1, 1, 1, 0])
+    assert stats.probability_of_improvement_paired(xc, yc, higher_is_better=False) == pytest.approx((2 + 0.5 * 2) / 4)
+
+
+# --------------------------------------------------------------------------------------------
+# Holm
+# --------------------------------------------------------------------------------------------
+
+
+def test_holm_known_example():
+    # sorted: 0.005·4 = 0.02, 0.01·3 = 0.03, 0.03·2 = 0.06, 0.04·1 = 0.04 -> max-accumulate 0.06
+    p = [0.01, 0.04, 0.03, 0.005, math.nan]
+    adj = stats.holm(p)
+    np.testing.assert_allclose(adj[:4], [0.03, 0.06, 0.06, 0.02])
+    assert math.isnan(adj[4])
+    assert stats.holm([0.5, 0.9]).tolist() == [1.0, 1.0]
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.floats(0, 1), min_size=1, max_size=40))
+def test_holm_properties(p):
+    p = np.array(p)
+    adj = stats.holm(p)
+    assert np.all(adj >= p - 1e-15) and np.all(adj <= 1.0)
+    order = np.argsort(p, kind="stable")
+    assert np.all(np.diff(adj[order]) >= -1e-15)  # monotone in the raw p-value
+    assert adj[order[0]] == pytest.approx(min(1.0, p.size * p[order[0]]))
+
+
+# --------------------------------------------------------------------------------------------
+# IQM, bootstrap
+# --------------------------------------------------------------------------------------------
+
+
+def test_iqm_known_arrays():
+    assert stats.iqm(np.arange(1, 9)) == pytest.approx(4.5)  # mean(3, 4, 5, 6)
+    assert stats.iqm([0, 1, 2, 3, 4, 5, 6, 100]) == pytest.approx(3.5)  # mean(2, 3, 4, 5): outlier gone
+    assert stats.iqm([100, 1, 4, 3, 2]) == pytest.approx(3.0)  # n = 5: floor(5/4) = 1 cut per end
+    assert math.isnan(stats.iqm([]))
+    np.testing.assert_allclose(stats.iqm(np.array([[1, 2, 3, 4], [5, 6, 7, 80]]), axis=-1), [2.5, 6.5])
+
+
+def test_bootstrap_coverage_of_normal_mean():
+    # 1000 samples of n = 40 from N(1, 2²). The percentile interval of the mean is
+    # x̄ ± 1.96·σ̂/√n with the plug-in σ̂ (divisor n), whose exact coverage for normal data is
+    # P(|t_39| <= 1.96·sqrt(40/39)) ≈ 0.94; the bootstrap's own noise takes off a little more.
+    # Binomial sd of the observed coverage over 1000 reps: 0.8 %.
+    rng = np.random.default_rng(1)
+    covered = 0
+    reps = 1000
+    for i in range(reps):
+        x = rng.normal(1.0, 2.0, size=40)
+        lo, hi = stats.bootstrap_ci(x, np.mean, n_resamples=400, seed=i)
+        covered += lo <= 1.0 <= hi
+    assert 0.91 <= covered / reps <= 0.965
+
+
+def test_bootstrap_is_stratified_and_reproducible():
+    # constant within each stratum: a stratified resample always has the same mix, so the mean
+    # never moves; unstratified resampling does move it
+    x = np.array([0.0] * 10 + [1.0] * 30)
+    strata = np.array(["a"] * 10 + ["b"] * 30)
+    lo, hi = stats.bootstrap_ci(x, np.mean, strata=strata, n_resamples=300)
+    assert lo == pytest.approx(0.75) and hi == pytest.approx(0.75)
+    lo_u, hi_u = stats.bootstrap_ci(x, np.mean, n_resamples=300)
+    assert lo_u < 0.7 and hi_u > 0.8
+    assert stats.bootstrap_ci(x, np.mean, n_resamples=300, seed=5) == stats.bootstrap_ci(x, np.mean, n_resamples=300, seed=5)
+    assert all(math.isnan(v) for v in stats.bootstrap_ci([], np.mean))
+
+
+def test_bootstrap_of_binary_mean_fast_path_matches_row_resampling():
+    # the multinomial shortcut for few distinct values and plain row resampling estimate the same
+    # percentiles (up to one lattice step 1/n of the resampled mean)
+    rng = np.random.default_rng(4)
+    x = (rng.uniform(size=50) < 0.3).astype(float)
+    strata = np.repeat([0, 1], 25)
+    fast = stats.bootstrap_ci(x, np.mean, strata=strata, n_resamples=4000, seed=1)
+    slow = stats.bootstrap_ci(x, lambda a, axis: np.mean(a, axis=axis), strata=strata, n_resamples=4000, seed=1)
+    assert fast == pytest.approx(slow, abs=1 / 50 + 1e-9)
+
+
+def test_paired_bootstrap_uses_pairs():
+    rng = np.random.default_rng(2)
+    base = rng.normal(0, 5, size=60)  # large field-to-field variation shared by both methods
+    x, y = base + 1.0 + rng.normal(0, 0.1, 60), base + rng.normal(0, 0.1, 60)
+    est, lo, hi = stats.paired_bootstrap_ci(x, y, np.mean, n_resamples=500)
+    assert est == pytest.approx(np.mean(x - y))
+    assert lo < 1.0 < hi and hi - lo < 0.2  # unpaired, the interval would be ~ 2·1.96·5·sqrt(2/60) wide
+    est, lo, hi = stats.paired_bootstrap_ci(base + 2.0, base, stats.iqm, n_resamples=200)
+    assert est == pytest.approx(2.0) and lo == pytest.approx(2.0) and hi == pytest.approx(2.0)
+
+
+# --------------------------------------------------------------------------------------------
+# distributions
+# --------------------------------------------------------------------------------------------
+
+
+def test_performance_profile_and_ecdf():
+    x = [0.1, 0.2, 0.2, 0.4]
+    np.testing.assert_allclose(stats.performance_profile(x, [0.0, 0.1, 0.2, 0.3, 0.4]), [1.0, 0.75, 0.25, 0.25, 0.0])
+    xs, f = stats.ecdf([3.0, 1.0, 2.0])
+    np.testing.assert_allclose(xs, [1, 2, 3])
+    np.testing.assert_allclose(f, [1 / 3, 2 / 3, 1])
+    assert np.all(np.isnan(stats.performance_profile([], [0.0, 1.0])))
