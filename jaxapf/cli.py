@@ -1,4 +1,4 @@
-"""The ``jaxapf`` command line: ``simulate``, ``bench``, ``sweep`` and ``report``.
+"""The ``jaxapf`` command line: ``simulate``, ``bench``, ``tune``, ``sweep`` and ``report``.
 
 Configuration errors are reported as one line naming the field and its allowed range, with exit
 status 2; nothing reaches the user as a traceback from inside JAX.
@@ -82,6 +82,13 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--sweep", nargs="?", const="", type=str, metavar="SPEC",
                        help="instead: end-to-end sweep throughput vs bare evaluate, and the speed-up on 2 CPU "
                             "devices (SPEC: a sweep spec TOML; default a built-in 2,048-episode study)")
+
+    tune = sub.add_parser("tune", help="learn the planner gains by gradient descent through the closed loop "
+                                       "and test them against defaults, grid and random search")
+    tune.add_argument("spec", type=pathlib.Path, help="tune spec TOML (see docs/tune.md)")
+    tune.add_argument("--out", type=pathlib.Path,
+                      help="output folder (default runs/tune-NAME); a checkpoint there is resumed")
+    tune.add_argument("--quiet", action="store_true", help="no progress bar or messages")
 
     rep = sub.add_parser("report", help="statistics, figures and tables (HTML, Markdown, CSV, LaTeX) from a "
                                         "sweep's episodes (see docs/report.md)")
@@ -171,6 +178,18 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _tune(args: argparse.Namespace) -> int:
+    from .tune import run_tune
+    from .tune_train import TuneError
+
+    try:
+        run_tune(args.spec, args.out, quiet=args.quiet)
+    except TuneError as err:
+        print(f"jaxapf tune: error: {err}", file=sys.stderr)
+        return 1
+    return 0
+
+
 def _report(args: argparse.Namespace) -> int:
     from .report import ReportOptions, build_report
 
@@ -220,7 +239,7 @@ def _sweep(args: argparse.Namespace) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        return {"simulate": _simulate, "bench": _bench, "report": _report, "sweep": _sweep}[args.command](args)
+        return {"simulate": _simulate, "bench": _bench, "tune": _tune, "report": _report, "sweep": _sweep}[args.command](args)
     except ConfigError as err:
         print(f"jaxapf {args.command}: error: {err}", file=sys.stderr)
         return 2

@@ -38,8 +38,16 @@ from .trajectory import Trajectory
 __all__ = ["rollout", "rollout_metrics", "evaluate", "default_chunk", "CPU_CHUNK", "ACCELERATOR_CHUNK"]
 
 
-def rollout(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig) -> Trajectory:
-    """Simulate one episode from rest at ``scenario.start``; returns its :class:`Trajectory`."""
+def rollout(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, *, remat: bool = False
+            ) -> Trajectory:
+    """Simulate one episode from rest at ``scenario.start``; returns its :class:`Trajectory`.
+
+    With ``remat`` the control step is wrapped in :func:`jax.checkpoint`: reverse-mode
+    differentiation then stores only the scan carry ``(x, warm start)`` of each step and recomputes
+    the step's APF reference and FISTA iterations on the way back, so the memory of a gradient
+    grows with ``T·(6 + 3N)`` numbers instead of ``T·(residuals of one step)``. The forward values
+    are the same either way (``jaxapf tune`` measures the trade-off, see docs/tune.md).
+    """
     dtype = scenario.start.dtype
     gains = jax.tree_util.tree_map(lambda g: jnp.asarray(g, dtype), gains)
     prob = axis_problem(mpc, sim.dt, dtype)
@@ -57,7 +65,8 @@ def rollout(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig) ->
 
     warm0 = jnp.zeros((3, mpc.horizon), dtype)
     ks = jnp.arange(sim.steps, dtype=dtype)
-    _, (states, controls) = jax.lax.scan(control_step, (x0, warm0), ks)
+    body = jax.checkpoint(control_step, prevent_cse=False) if remat else control_step
+    _, (states, controls) = jax.lax.scan(body, (x0, warm0), ks)
     states = jnp.concatenate([x0[None], states], axis=0)
     return Trajectory(
         time=jnp.arange(sim.steps + 1, dtype=dtype) * sim.dt,

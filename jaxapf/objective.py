@@ -1,0 +1,202 @@
+r"""The smooth training objective of ``jaxapf tune`` and the reparametrisation of the gains.
+
+Surrogate loss
+--------------
+For one episode of ``T`` steps (samples ``p_i`` at ``t_i = iΔt``, controls ``a_i``, start ``s``,
+goal ``g``, ``L = max(|g - s|, r_goal)``) the loss is
+
+.. math::
+   J = w_c\,C + w_p\,P + w_e\,E,
+
+   C = \Delta t \sum_{i=1}^{T} \tau\,\mathrm{softplus}\!\Big(\frac{d_{safe} - \tilde c_i}{\tau}\Big),
+   \qquad \tilde c_i = -\tau \log \sum_{o\ \mathrm{valid}} e^{-c_{i,o}/\tau},
+
+   P = \frac{\Delta t}{L} \sum_{i=1}^{T} \lVert p_i - g\rVert, \qquad
+   E = \Delta t \sum_{i=0}^{T-1} \lVert a_i\rVert^2 .
+
+``c_{i,o}`` is the sample clearance of :func:`jaxapf.metrics.clearance_history`, ``\tilde c_i`` its
+smooth minimum over the valid obstacles (``\tilde c_i \le \min_o c_{i,o}``, at most ``τ log M``
+below it; padded slots contribute exactly nothing), and ``τ·softplus(x/τ)`` is a smooth hinge
+``max(x, 0)`` (at most ``τ log 2`` above it). So ``C`` [m·s] integrates how far the UAV is inside
+the safety margin ``d_safe``, ``P`` [s] is the time-integrated distance to the goal in units of the
+run length (≈ the time the flight takes; a stall costs the whole rest of the episode), and ``E``
+[m²/s³] is the control effort ``∫|a|² dt`` of SPEC 6. Sums are right-endpoint Riemann sums: the
+state at ``t_0`` is fixed and carries no gradient. There is no episode-end mask (it would not be
+differentiable): after the goal the UAV hovers there (``P`` stops growing), after a collision the
+penetration keeps being penalised.
+
+Reparametrisation
+-----------------
+The optimiser works on unconstrained reals ``θ``; gains are always in range by construction:
+
+.. math::
+   \gamma = \mathrm{softplus}(\theta_\gamma) \ge 0, \qquad
+   k = k_{max}\,\sigma(\theta_k) \in [0, k_{max}] \ (\text{softplus if } k_{max} = \infty), \qquad
+   x = x_{min} + \mathrm{softplus}(\theta_x) \ \text{for } x \in \{k_{rep}, d_s, k_{att}, \eta\}
+
+with ``x_min`` = :data:`POSITIVE_FLOOR` (those gains must be > 0 even where ``softplus``
+underflows to 0). ``k_max = 1`` (default) keeps the paper's bound ``ω >= 1`` (SPEC 3).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Mapping
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from .config import ConfigError, Gains, SimConfig, check_range
+from .metrics import clearance_history
+from .obstacles import Scenario, safe_norm
+from .trajectory import Trajectory
+
+__all__ = [
+    "TERMS",
+    "POSITIVE_FLOOR",
+    "Objective",
+    "smooth_min",
+    "surrogate_terms",
+    "surrogate_loss",
+    "Reparam",
+]
+
+#: Names of the surrogate terms, in the order of the loss.
+TERMS: tuple[str, ...] = ("soft_collision", "progress", "effort")
+
+#: Lower bound added to softplus for the gains that must be strictly positive.
+POSITIVE_FLOOR: Mapping[str, float] = {"k_rep": 1e-3, "d_s": 1e-3, "k_att": 1e-3, "eta": 1e-3}
+
+
+@dataclasses.dataclass(frozen=True)
+class Objective:
+    r"""Weights and smoothing of the surrogate loss (static: hashable, compiled in).
+
+    Attributes:
+      w_collision: weight ``w_c >= 0`` of the soft collision term ``C`` [m·s].
+      w_progress: weight ``w_p >= 0`` of the progress term ``P`` [s].
+      w_effort: weight ``w_e >= 0`` of the control effort ``E`` [m²/s³].
+      tau: smoothing length ``τ > 0`` [m] of both the soft minimum and the soft hinge.
+      d_safe: safety margin ``d_safe >= 0`` [m] on the clearance (default 0.3 m: the UAV radius;
+        a larger margin also penalises hovering at a goal placed near an obstacle, as in the
+        ``trap`` kind ``gnron``).
+    """
+
+    w_collision: float = 10.0
+    w_progress: float = 1.0
+    w_effort: float = 0.01
+    tau: float = 0.1
+    d_safe: float = 0.3
+
+    def __post_init__(self) -> None:
+        for name in ("w_collision", "w_progress", "w_effort", "d_safe"):
+            object.__setattr__(self, name, float(check_range(f"objective.{name}", getattr(self, name), 0.0)))
+        object.__setattr__(self, "tau", float(check_range("objective.tau", self.tau, 0.0, lo_open=True)))
+
+    def weights(self) -> tuple[float, ...]:
+        """The weights in the order of :data:`TERMS`."""
+        return (self.w_collision, self.w_progress, self.w_effort)
+
+
+def smooth_min(x: Array, valid: Array, tau: float) -> Array:
+    r"""``-τ log Σ_{valid} exp(-x/τ)`` over the last axis: a smooth lower bound of the minimum over
+    the ``valid`` entries, within ``τ log(#valid)`` of it; +inf if none is valid. Invalid entries
+    contribute exactly nothing (whatever their value)."""
+    x = jnp.where(valid, x, 0.0)
+    return -tau * jax.nn.logsumexp(-x / tau, axis=-1, b=valid.astype(x.dtype))
+
+
+def surrogate_terms(traj: Trajectory, scenario: Scenario, sim: SimConfig, objective: Objective) -> dict[str, Array]:
+    """The terms ``C``, ``P``, ``E`` of the module docstring for one episode (scalars, keyed by
+    :data:`TERMS`: ``soft_collision``, ``progress``, ``effort``)."""
+    dt, tau = sim.dt, objective.tau
+    clear = clearance_history(traj, scenario, sim)[1:]  # (T, M), +inf on padded slots
+    soft = smooth_min(clear, scenario.obstacles.valid, tau)
+    hinge = tau * jax.nn.softplus((objective.d_safe - soft) / tau)
+    length = jnp.maximum(jnp.linalg.norm(scenario.goal - scenario.start), sim.r_goal)
+    distance = safe_norm(traj.position[1:] - scenario.goal)
+    return {
+        "soft_collision": dt * jnp.sum(hinge),
+        "progress": dt * jnp.sum(distance) / length,
+        "effort": dt * jnp.sum(traj.control * traj.control),
+    }
+
+
+def surrogate_loss(terms: Mapping[str, Array], objective: Objective) -> Array:
+    """``J = w_c C + w_p P + w_e E`` from :func:`surrogate_terms` (any common batch shape)."""
+    return sum(w * terms[name] for name, w in zip(TERMS, objective.weights()))
+
+
+# --------------------------------------------------------------------------------------------
+# reparametrisation
+# --------------------------------------------------------------------------------------------
+
+
+def _softplus_inverse(y: float) -> float:
+    """``θ`` with ``softplus(θ) = y > 0``: ``y + log(-expm1(-y))`` (stable for large and small y)."""
+    return y + math.log(-math.expm1(-y))
+
+
+@dataclasses.dataclass(frozen=True)
+class Reparam:
+    r"""Map between unconstrained parameters ``θ`` (a dict ``{gain name: scalar}`` over
+    ``names``) and :class:`Gains` (module docstring). Gains not in ``names`` stay at ``base``.
+
+    Attributes:
+      names: the tuned gains, a subset of :meth:`Gains.names` in that order.
+      base: the gains the untuned entries keep (and the tuned ones start from).
+      k_max: upper bound of ``k`` (``math.inf``: ``k = softplus(θ_k)``, unbounded).
+    """
+
+    names: tuple[str, ...]
+    base: Gains
+    k_max: float = 1.0
+
+    def __post_init__(self) -> None:
+        unknown = [n for n in self.names if n not in Gains.names()]
+        if unknown:
+            raise ConfigError(f"tune.params: {unknown[0]!r} is not a gain; allowed: {', '.join(Gains.names())}")
+        if not self.names or len(set(self.names)) != len(self.names):
+            raise ConfigError(f"tune.params = {list(self.names)!r} must list one or more distinct gains")
+        object.__setattr__(self, "names", tuple(n for n in Gains.names() if n in self.names))
+        if self.k_max != math.inf:
+            object.__setattr__(self, "k_max", float(check_range("tune.k_max", self.k_max, 0.0, lo_open=True)))
+
+    def _positive(self, name: str, theta: Array) -> Array:
+        return POSITIVE_FLOOR.get(name, 0.0) + jax.nn.softplus(theta)
+
+    def gains(self, theta: Mapping[str, Array]) -> Gains:
+        """The gains of ``θ`` (differentiable; always inside their allowed ranges)."""
+        values = {}
+        for name in self.names:
+            if name == "k" and self.k_max != math.inf:
+                values[name] = self.k_max * jax.nn.sigmoid(theta[name])
+            else:
+                values[name] = self._positive(name, theta[name])
+        return self.base.replace(**values)
+
+    def theta(self, gains: Gains, dtype=None) -> dict[str, Array]:
+        """The ``θ`` of ``gains`` (the inverse of :meth:`gains` on the tuned entries).
+
+        Raises :class:`ConfigError` if a tuned gain lies outside the open image of its map (e.g.
+        ``k`` not strictly inside ``(0, k_max)``, ``γ = 0``), where no finite ``θ`` reaches it.
+        """
+        dtype = dtype or jnp.result_type(float)
+        theta = {}
+        for name in self.names:
+            value = float(np.asarray(getattr(gains, name)))
+            if name == "k" and self.k_max != math.inf:
+                if not 0.0 < value < self.k_max:
+                    raise ConfigError(f"init.k = {value!r} must lie strictly inside (0, tune.k_max = {self.k_max:g}) "
+                                      "to be tuned (k = k_max·sigmoid(θ))")
+                theta[name] = math.log(value / (self.k_max - value))
+            else:
+                floor = POSITIVE_FLOOR.get(name, 0.0)
+                if not value > floor:
+                    raise ConfigError(f"init.{name} = {value!r} must be > {floor:g} to be tuned "
+                                      f"({name} = {floor:g} + softplus(θ))")
+                theta[name] = _softplus_inverse(value - floor)
+        return {n: jnp.asarray(v, dtype) for n, v in theta.items()}

@@ -1,0 +1,144 @@
+"""``jaxapf tune SPEC.toml --out DIR``: learn the planner gains, then prove them on held-out fields.
+
+Steps (each in its own module): validate the spec (:mod:`jaxapf.tune_spec`); train or resume
+(:mod:`jaxapf.tune_train`); give a grid and a random search the same episode budget and test all
+settings on held-out fields with paired statistics (:mod:`jaxapf.tune_proof`). ``DIR`` receives
+
+- ``gains.toml``: the tuned gains as a ``[gains]`` table (``jaxapf simulate --gains``,
+  ``jaxapf sweep --gains``, :func:`jaxapf.config.load_gains`);
+- ``summary.json``: resolved spec, spec file text, versions, the four gain settings, training
+  outcome, episode budgets and wall-clock times, the test table;
+- ``history.csv``: one row per step (training batch loss, terms, gradient norm, learning rate) and
+  the validation scores where validated (step 0 = the start gains);
+- ``test_results.csv`` (the table), ``test_episodes.parquet`` (one row per test episode);
+- ``training.png`` (training curves), ``test.png`` (test rates with 95 % intervals);
+- ``checkpoint.npz``: the training state; rerunning the command resumes from it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import pathlib
+import sys
+import time
+from typing import Any
+
+import pandas as pd
+
+from .tune_proof import (SETTINGS, candidates, comparison_table, plot_test, plot_training, random_settings,
+                         select_best, test_episodes, tuning_budget)
+from .tune_spec import TuneSpec, load_tune_spec
+from .tune_train import HISTORY_COLUMNS, TrainState, Tuner, gains_dict
+from .versions import versions
+
+__all__ = ["run_tune", "run_tune_spec", "write_gains_toml", "format_table"]
+
+
+def _json_safe(x: Any) -> Any:
+    """NaN/inf floats as ``null`` (strict JSON); containers converted recursively."""
+    if isinstance(x, dict):
+        return {k: _json_safe(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_json_safe(v) for v in x]
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
+
+
+def write_gains_toml(path: pathlib.Path, gains: dict[str, float], comment: str) -> None:
+    """A ``[gains]`` TOML fragment (floats written with ``repr``: exact round trip)."""
+    lines = [f"# {line}" for line in comment.splitlines()] + ["[gains]"]
+    lines += [f"{name} = {value!r}" for name, value in gains.items()]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def format_table(table: pd.DataFrame) -> str:
+    """The test table as aligned text: rates with 95 % intervals, McNemar p vs default (Holm)."""
+    out = [f"{'family':<10} {'setting':<8} {'n':>5}  {'success [95% CI]':<22} {'p_holm':>7}  "
+           f"{'collision [95% CI]':<22} {'p_holm':>7}  {'loss':>7}"]
+    for r in table.itertuples():
+        rate = lambda o: f"{getattr(r, o):.3f} [{getattr(r, o + '_lo'):.3f}, {getattr(r, o + '_hi'):.3f}]"  # noqa: E731
+        p = lambda o: "" if r.setting == "default" else f"{getattr(r, o + '_p_holm'):.3g}"  # noqa: E731
+        out.append(f"{r.family:<10} {r.setting:<8} {r.n:>5}  {rate('success'):<22} {p('success'):>7}  "
+                   f"{rate('collision'):<22} {p('collision'):>7}  {r.loss:>7.3f}")
+    return "\n".join(out)
+
+
+def _say(quiet: bool, message: str) -> None:
+    if not quiet:
+        print(message, file=sys.stderr, flush=True)
+
+
+def _training_summary(spec: TuneSpec, state: TrainState) -> dict[str, Any]:
+    return {"steps_run": state.step, "stopped_early": state.stopped, "best_step": state.best_step,
+            "best_val_loss": state.best_val_loss, "validations": state.validations,
+            "seconds": state.train_seconds, "remat": spec.train.remat}
+
+
+def run_tune(spec_path: str | pathlib.Path, out: str | pathlib.Path | None = None, *,
+             quiet: bool = False) -> dict[str, Any]:
+    """Run the whole command on the spec file at ``spec_path`` (module docstring); returns the
+    summary written to ``summary.json``. ``out`` defaults to ``runs/tune-NAME``.
+
+    Raises :class:`~jaxapf.config.ConfigError` for a bad spec and
+    :class:`~jaxapf.tune_train.TuneError` when training or a baseline cannot go on.
+    """
+    spec, text = load_tune_spec(spec_path)
+    return run_tune_spec(spec, text, out if out is not None else pathlib.Path("runs") / f"tune-{spec.name}",
+                         quiet=quiet)
+
+
+def run_tune_spec(spec: TuneSpec, text: str, out: str | pathlib.Path, *, quiet: bool = False) -> dict[str, Any]:
+    """:func:`run_tune` on a validated spec; ``text`` is recorded as the spec file."""
+    out = pathlib.Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    tuner = Tuner(spec)
+
+    state = tuner.train(out, quiet=quiet)
+    history = pd.DataFrame(state.history, columns=list(HISTORY_COLUMNS))
+    history.to_csv(out / "history.csv", index=False)
+    plot_training(history, spec.train.clip, out / "training.png")
+    tuned = spec.reparam.gains(state.best_theta)
+    write_gains_toml(out / "gains.toml", gains_dict(tuned),
+                     f"jaxapf tune {spec.name}: gains of the best validation loss "
+                     f"({state.best_val_loss:.6g}, step {state.best_step} of {state.step})")
+    _say(quiet, f"trained {state.step} steps in {state.train_seconds:.1f} s; best validation loss "
+                f"{state.best_val_loss:.4g} at step {state.best_step}")
+
+    budget = tuning_budget(spec, state)
+    grid = select_best(tuner, spec.baselines.grid_settings(spec.init), budget["episodes"], "grid")
+    _say(quiet, f"grid search: {grid['settings']} settings x {grid['fields_per_setting']} fields "
+                f"in {grid['seconds']:.1f} s")
+    rand = select_best(tuner, random_settings(spec), budget["episodes"], "random")
+    _say(quiet, f"random search: {rand['settings']} settings x {rand['fields_per_setting']} fields "
+                f"in {rand['seconds']:.1f} s")
+
+    settings = candidates(tuned, grid["gains"], rand["gains"])
+    start = time.perf_counter()
+    episodes = test_episodes(tuner, settings)
+    test_seconds = time.perf_counter() - start
+    episodes.to_parquet(out / "test_episodes.parquet", index=False)
+    table = comparison_table(episodes, spec.test.families)
+    table.to_csv(out / "test_results.csv", index=False)
+    plot_test(table, f"{spec.name}: held-out test fields (seed {spec.test.seed})", out / "test.png")
+
+    summary = {
+        "name": spec.name,
+        "spec": spec.as_dict(),
+        "spec_file": text,
+        "versions": versions(),
+        "gains": {label: gains_dict(g) for label, g in settings.items()},
+        "training": _training_summary(spec, state),
+        "budgets": {"tuning": budget | {"seconds": state.train_seconds},
+                    **{name: {k: v for k, v in sel.items() if k != "gains"}
+                       for name, sel in (("grid", grid), ("random", rand))},
+                    "test": {"episodes": len(episodes), "seconds": test_seconds}},
+        "settings": list(SETTINGS),
+        "test": table.to_dict(orient="records"),
+    }
+    (out / "summary.json").write_text(json.dumps(_json_safe(summary), indent=2) + "\n")
+    _say(quiet, format_table(table))
+    _say(quiet, f"wrote {out}/: gains.toml, summary.json, history.csv, test_results.csv, "
+                "test_episodes.parquet, training.png, test.png, checkpoint.npz")
+    return summary

@@ -1,0 +1,393 @@
+"""The ``jaxapf tune`` spec file: TOML, validated into a :class:`TuneSpec`.
+
+Every key is checked before anything is traced; an unknown key or a bad value raises
+:class:`~jaxapf.config.ConfigError` naming it (``train.learning_rate = -1.0 is out of range; ...``).
+The keys, their defaults and ranges are listed in ``docs/tune.md``; :data:`SECTIONS` is the
+authoritative list.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import inspect
+import itertools
+import json
+import math
+import os
+import tomllib
+import warnings
+from typing import Any, Mapping
+
+import jax.numpy as jnp
+import optax
+
+from .config import (BoundWarning, ConfigError, Gains, MPCConfig, SimConfig, check_choice, check_int, check_range,
+                     gains_from_mapping, validate_gains)
+from .objective import Objective, Reparam
+from .scenarios import FAMILIES, FamilyParams, family_params
+
+__all__ = [
+    "SCHEDULES",
+    "TEST_FAMILIES",
+    "SECTIONS",
+    "TrainSpec",
+    "FieldSetSpec",
+    "BaselineSpec",
+    "TuneSpec",
+    "load_tune_spec",
+    "parse_tune_spec",
+    "make_schedule",
+    "make_optimizer",
+    "check_optimizer",
+    "split_count",
+]
+
+#: Default test families: every randomized family (the paper's two fixed scenarios need their own t_max).
+TEST_FAMILIES: tuple[str, ...] = ("trap", "crossing", "head_on", "overtake", "clutter", "dynamic")
+#: Learning-rate schedules: constant, cosine decay to 0 over ``steps``, linear warm-up then cosine.
+SCHEDULES: tuple[str, ...] = ("constant", "cosine", "warmup_cosine")
+
+_SIM_KEYS = tuple(f.name for f in dataclasses.fields(SimConfig))
+_MPC_KEYS = tuple(f.name for f in dataclasses.fields(MPCConfig))
+
+#: Allowed keys of every section (``scenario`` holds one sub-table per family).
+SECTIONS: Mapping[str, tuple[str, ...]] = {
+    "": ("name", "train", "validation", "test", "objective", "init", "tune", "sim", "scenario", "baselines"),
+    "train": ("families", "fields_per_step", "steps", "seed", "optimizer", "learning_rate", "schedule",
+              "warmup_steps", "clip", "episode_clip", "patience", "validate_every", "remat"),
+    "validation": ("fields", "seed"),
+    "test": ("families", "fields", "seed"),
+    "objective": tuple(f.name for f in dataclasses.fields(Objective)),
+    "init": Gains.names(),
+    "tune": ("params", "k_max"),
+    "sim": _SIM_KEYS + _MPC_KEYS,
+    "baselines": ("grid", "random_n", "random_range", "random_seed"),
+}
+
+
+def split_count(n: int, parts: int) -> tuple[int, ...]:
+    """``n`` items over ``parts`` groups as evenly as possible, the first groups taking the remainder."""
+    return tuple(n // parts + (i < n % parts) for i in range(parts))
+
+
+def make_schedule(name: str, learning_rate: float, steps: int, warmup_steps: int) -> optax.Schedule:
+    """``constant``; ``cosine`` decay from ``learning_rate`` to 0 over ``steps``; ``warmup_cosine``:
+    linear from 0 over ``warmup_steps``, then cosine decay to 0 at ``steps``."""
+    if name == "constant":
+        return optax.constant_schedule(learning_rate)
+    if name == "cosine":
+        return optax.cosine_decay_schedule(learning_rate, max(steps, 1))
+    return optax.warmup_cosine_decay_schedule(0.0, learning_rate, warmup_steps, max(steps, warmup_steps + 1))
+
+
+def make_optimizer(name: str, schedule: optax.Schedule, clip: float) -> optax.GradientTransformation:
+    """``clip_by_global_norm(clip)`` followed by the optax optimiser ``name`` on ``schedule``
+    (``name`` checked by :func:`check_optimizer`)."""
+    return optax.chain(optax.clip_by_global_norm(clip), getattr(optax, name)(learning_rate=schedule))
+
+
+def check_optimizer(name: str) -> str:
+    """``name`` if it is an optax function taking ``learning_rate`` whose
+    ``update(grads, state, params)`` needs nothing else (so not ``lbfgs``), tried on a
+    one-parameter problem; :class:`ConfigError` naming ``train.optimizer`` otherwise."""
+    factory = getattr(optax, name, None) if isinstance(name, str) else None
+    hint = "an optax optimiser taking learning_rate, e.g. adam, adamw, sgd, rmsprop, lion, adabelief"
+    if factory is None or name.startswith("_") or not callable(factory):
+        raise ConfigError(f"train.optimizer = {name!r} is not {hint}")
+    try:
+        if "learning_rate" not in inspect.signature(factory).parameters:
+            raise TypeError
+        opt = make_optimizer(name, 0.1, 1.0)
+        probe = {"x": jnp.zeros(())}
+        opt.update(probe, opt.init(probe), probe)
+    except (TypeError, ValueError):
+        raise ConfigError(f"train.optimizer = {name!r} is not {hint}") from None
+    return name
+
+
+# --------------------------------------------------------------------------------------------
+# sections
+# --------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainSpec:
+    """``[train]``: training fields, optimiser and stopping (ranges in docs/tune.md)."""
+
+    families: tuple[str, ...] = ("crossing", "trap")
+    fields_per_step: int = 16
+    steps: int = 200
+    seed: int = 0
+    optimizer: str = "adam"
+    learning_rate: float = 0.05
+    schedule: str = "cosine"
+    warmup_steps: int = 0
+    clip: float = 1.0
+    episode_clip: float = 1.0
+    patience: int = 5
+    validate_every: int = 10
+    remat: bool = True
+
+
+@dataclasses.dataclass(frozen=True)
+class FieldSetSpec:
+    """``[validation]`` / ``[test]``: a fixed set of fields. ``fields`` is the total over the training
+    families for validation, and per family for the test."""
+
+    families: tuple[str, ...]
+    fields: int
+    seed: int
+
+
+@dataclasses.dataclass(frozen=True)
+class BaselineSpec:
+    """``[baselines]``: the grid (product of per-gain value lists) and random search (``random_n``
+    settings, each tuned gain log-uniform in ``[x0/random_range, x0·random_range]`` around its
+    start value ``x0``; ``k`` uniform in ``[0, k_max]`` when bounded)."""
+
+    grid: tuple[tuple[str, tuple[float, ...]], ...] = (("gamma", (0.5, 1.0, 2.0, 4.0)), ("k", (0.0, 0.5, 1.0)))
+    random_n: int = 32
+    random_range: float = 4.0
+    random_seed: int = 0
+
+    def grid_settings(self, base: Gains) -> list[Gains]:
+        """Every grid point (product in the order of the spec), on top of ``base``."""
+        names = [n for n, _ in self.grid]
+        return [gains_from_mapping(dict(zip(names, values)), "baselines.grid", base)
+                for values in itertools.product(*(v for _, v in self.grid))]
+
+
+@dataclasses.dataclass(frozen=True)
+class TuneSpec:
+    """A validated tune spec (frozen and hashable: the compiled training step takes it as a static
+    argument). ``scenario`` holds ``(family, parameters)`` for every family used (defaults plus the
+    ``[scenario.FAMILY]`` overrides), shared by training, validation and test."""
+
+    name: str
+    train: TrainSpec
+    validation: FieldSetSpec
+    test: FieldSetSpec
+    objective: Objective
+    init: Gains
+    reparam: Reparam
+    sim: SimConfig
+    mpc: MPCConfig
+    scenario: tuple[tuple[str, FamilyParams], ...]
+    baselines: BaselineSpec
+
+    def family(self, name: str) -> FamilyParams:
+        """The scenario parameters of family ``name``."""
+        return dict(self.scenario)[name]
+
+    def as_dict(self) -> dict[str, Any]:
+        """The resolved spec (every default filled in) as plain JSON types."""
+        def plain(x: Any) -> Any:
+            if dataclasses.is_dataclass(x):
+                return {f.name: plain(getattr(x, f.name)) for f in dataclasses.fields(x)}
+            if isinstance(x, (list, tuple)):
+                return [plain(v) for v in x]
+            if isinstance(x, float) and not math.isfinite(x):
+                return str(x)
+            return x
+
+        out = plain(self)
+        out["baselines"]["grid"] = {n: list(v) for n, v in self.baselines.grid}
+        out["scenario"] = {f: plain(p) | {"family": f} for f, p in self.scenario}
+        return out
+
+    def digest(self) -> str:
+        """sha256 of the canonical JSON of :meth:`as_dict` (a checkpoint belongs to one spec)."""
+        return hashlib.sha256(json.dumps(self.as_dict(), sort_keys=True).encode()).hexdigest()
+
+    def schedule(self) -> optax.Schedule:
+        """The learning rate as a function of the step."""
+        t = self.train
+        return make_schedule(t.schedule, t.learning_rate, t.steps, t.warmup_steps)
+
+    def optimizer(self) -> optax.GradientTransformation:
+        """Gradient clipping then the optimiser of ``[train]`` on :meth:`schedule`."""
+        return make_optimizer(self.train.optimizer, self.schedule(), self.train.clip)
+
+
+# --------------------------------------------------------------------------------------------
+# parsing
+# --------------------------------------------------------------------------------------------
+
+
+def _table(data: Any, where: str) -> dict[str, Any]:
+    if not isinstance(data, dict):
+        raise ConfigError(f"{where or 'spec'} must be a table")
+    allowed = SECTIONS[where]
+    unknown = sorted(set(data) - set(allowed))
+    if unknown:
+        name = f"{where}.{unknown[0]}" if where else unknown[0]
+        raise ConfigError(f"{name} is not a key of {'[' + where + ']' if where else 'the spec'}; "
+                          f"allowed: {', '.join(allowed)}")
+    return data
+
+
+def _float(where: str, value: Any, lo: float | None = None, *, lo_open: bool = False) -> float:
+    if isinstance(value, bool):
+        raise ConfigError(f"{where} = {value!r} must be a number")
+    return float(check_range(where, value, lo, lo_open=lo_open))
+
+
+def _bool(where: str, value: Any) -> bool:
+    if not isinstance(value, bool):
+        raise ConfigError(f"{where} = {value!r} must be true or false")
+    return value
+
+
+def _episode_clip(value: Any) -> float:
+    """``train.episode_clip``: a number > 0 or ``inf`` (no per-episode clipping)."""
+    if isinstance(value, float) and value == math.inf:
+        return value
+    return _float("train.episode_clip", value, 0.0, lo_open=True)
+
+
+def _families(where: str, value: Any) -> tuple[str, ...]:
+    names = list(value) if isinstance(value, (list, tuple)) else [value]
+    for name in names:
+        check_choice(where, name, FAMILIES)
+    if not names or len(set(names)) != len(names):
+        raise ConfigError(f"{where} = {value!r} must list one or more distinct families of {', '.join(FAMILIES)}")
+    return tuple(names)
+
+
+def _train(data: dict[str, Any]) -> TrainSpec:
+    d = _table(data, "train")
+    default = TrainSpec()
+    get = lambda key: d.get(key, getattr(default, key))  # noqa: E731
+    spec = TrainSpec(
+        families=_families("train.families", get("families")),
+        fields_per_step=check_int("train.fields_per_step", get("fields_per_step"), 1),
+        steps=check_int("train.steps", get("steps"), 0),
+        seed=check_int("train.seed", get("seed"), 0),
+        optimizer=check_optimizer(get("optimizer")),
+        learning_rate=_float("train.learning_rate", get("learning_rate"), 0.0, lo_open=True),
+        schedule=check_choice("train.schedule", get("schedule"), SCHEDULES),
+        warmup_steps=check_int("train.warmup_steps", get("warmup_steps"), 0),
+        clip=_float("train.clip", get("clip"), 0.0, lo_open=True),
+        episode_clip=_episode_clip(get("episode_clip")),
+        patience=check_int("train.patience", get("patience"), 1),
+        validate_every=check_int("train.validate_every", get("validate_every"), 1),
+        remat=_bool("train.remat", get("remat")),
+    )
+    if spec.fields_per_step < len(spec.families):
+        raise ConfigError(f"train.fields_per_step = {spec.fields_per_step} must be at least the number of "
+                          f"train.families ({len(spec.families)}): every family is in every step")
+    if spec.schedule == "warmup_cosine" and not 0 < spec.warmup_steps < max(spec.steps, 1):
+        raise ConfigError(f"train.warmup_steps = {spec.warmup_steps} must lie in 1..steps-1 for warmup_cosine")
+    return spec
+
+
+def _field_set(data: dict[str, Any], where: str, families: tuple[str, ...] | None, default_fields: int,
+               default_seed: int) -> FieldSetSpec:
+    d = _table(data, where)
+    fams = families if families is not None else _families(f"{where}.families", d.get("families", list(TEST_FAMILIES)))
+    fields = check_int(f"{where}.fields", d.get("fields", default_fields), 1)
+    if families is not None and fields < len(families):
+        raise ConfigError(f"{where}.fields = {fields} must be at least the number of train.families ({len(families)})")
+    return FieldSetSpec(fams, fields, check_int(f"{where}.seed", d.get("seed", default_seed), 0))
+
+
+def _gains(table: Mapping[str, Any], where: str, base: Gains | None = None) -> Gains:
+    """Gains from ``{name: number}`` on top of ``base``; errors name ``where.name``."""
+    unknown = sorted(set(table) - set(Gains.names()))
+    if unknown:
+        raise ConfigError(f"{where}.{unknown[0]} is not a gain; allowed: {', '.join(Gains.names())}")
+    values = {k: _float(f"{where}.{k}", v) for k, v in table.items()}
+    with warnings.catch_warnings():  # the BoundWarning comes once, from the Gains built below
+        warnings.simplefilter("ignore", BoundWarning)
+        validate_gains(dataclasses.asdict(base or Gains()) | values, prefix=where)
+    return gains_from_mapping(values, where, base)
+
+
+def _tune(data: dict[str, Any], init: Gains) -> Reparam:
+    d = _table(data, "tune")
+    params = d.get("params", list(Gains.names()))
+    if not isinstance(params, list) or not all(isinstance(p, str) for p in params):
+        raise ConfigError(f"tune.params = {params!r} must be a list of gain names")
+    k_max = d.get("k_max", 1.0)
+    if isinstance(k_max, bool) or not isinstance(k_max, (int, float)):
+        raise ConfigError(f"tune.k_max = {k_max!r} must be a number > 0 or inf")
+    reparam = Reparam(tuple(params), init, float(k_max))
+    reparam.theta(init)  # the start must be reachable
+    return reparam
+
+
+def _sim(data: dict[str, Any]) -> tuple[SimConfig, MPCConfig]:
+    d = _table(data, "sim")
+    return (SimConfig(**{k: v for k, v in d.items() if k in _SIM_KEYS}),
+            MPCConfig(**{k: v for k, v in d.items() if k in _MPC_KEYS}))
+
+
+def _scenario(data: dict[str, Any], families: set[str]) -> tuple[tuple[str, FamilyParams], ...]:
+    if not isinstance(data, dict):
+        raise ConfigError("scenario must be a table of [scenario.FAMILY] tables")
+    for name, table in data.items():
+        check_choice("scenario", name, FAMILIES)
+        if not isinstance(table, dict):
+            raise ConfigError(f"scenario.{name} must be a table of {name}'s parameters")
+    return tuple((f, family_params(f, **data.get(f, {}))) for f in sorted(families | set(data)))
+
+
+def _baselines(data: dict[str, Any], reparam: Reparam) -> BaselineSpec:
+    d = _table(data, "baselines")
+    default = BaselineSpec()
+    grid_raw = d.get("grid", {n: list(v) for n, v in default.grid})
+    if not isinstance(grid_raw, dict) or not grid_raw:
+        raise ConfigError("baselines.grid must be a non-empty table {gain = [values, ...]}")
+    grid = []
+    for name, values in grid_raw.items():
+        if not isinstance(values, list) or not values:
+            raise ConfigError(f"baselines.grid.{name} = {values!r} must be a non-empty list of numbers")
+        grid.append((name, tuple(getattr(_gains({name: v}, "baselines.grid", reparam.base), name) for v in values)))
+    spec = BaselineSpec(
+        grid=tuple(grid),
+        random_n=check_int("baselines.random_n", d.get("random_n", default.random_n), 1),
+        random_range=_float("baselines.random_range", d.get("random_range", default.random_range), 1.0),
+        random_seed=check_int("baselines.random_seed", d.get("random_seed", default.random_seed), 0),
+    )
+    return spec
+
+
+def parse_tune_spec(data: Mapping[str, Any]) -> TuneSpec:
+    """A :class:`TuneSpec` from a parsed TOML mapping (see docs/tune.md for every key)."""
+    data = _table(dict(data), "")
+    name = data.get("name", "tune")
+    if not isinstance(name, str) or not name:
+        raise ConfigError(f"name = {name!r} must be a non-empty string")
+    train = _train(data.get("train", {}))
+    validation = _field_set(data.get("validation", {}), "validation", train.families, 64, train.seed + 1)
+    test = _field_set(data.get("test", {}), "test", None, 256, train.seed + 2)
+    seeds = {"train.seed": train.seed, "validation.seed": validation.seed, "test.seed": test.seed}
+    if len(set(seeds.values())) != 3:
+        raise ConfigError(f"train.seed, validation.seed and test.seed must differ (got {seeds}): "
+                          "validation and test fields are never trained on")
+    objective_kw = _table(data.get("objective", {}), "objective")
+    objective = Objective(**{k: _float(f"objective.{k}", v) for k, v in objective_kw.items()})
+    init = _gains(_table(data.get("init", {}), "init"), "init")
+    reparam = _tune(data.get("tune", {}), init)
+    sim, mpc = _sim(data.get("sim", {}))
+    return TuneSpec(
+        name=name, train=train, validation=validation, test=test, objective=objective, init=init,
+        reparam=reparam, sim=sim, mpc=mpc,
+        scenario=_scenario(data.get("scenario", {}), set(train.families) | set(test.families)),
+        baselines=_baselines(data.get("baselines", {}), reparam),
+    )
+
+
+def load_tune_spec(path: str | os.PathLike) -> tuple[TuneSpec, str]:
+    """The validated spec of the TOML file at ``path`` and the file's text."""
+    try:
+        with open(path, "rb") as fh:
+            raw = fh.read()
+    except FileNotFoundError:
+        raise ConfigError(f"spec file {str(path)!r} does not exist") from None
+    try:
+        data = tomllib.loads(raw.decode())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        raise ConfigError(f"spec file {str(path)!r} is not valid TOML: {err}") from None
+    return parse_tune_spec(data), raw.decode()

@@ -1,0 +1,241 @@
+"""``jaxapf tune``: exact gradients, reparametrisation ranges, training, determinism, resume, spec checks."""
+
+import dataclasses
+import json
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from jaxapf import tune_train
+from jaxapf.cli import main
+from jaxapf.config import ConfigError, Gains, load_gains
+from jaxapf.objective import Reparam, smooth_min
+from jaxapf.obstacles import Obstacles, Scenario
+from jaxapf.tune_spec import parse_tune_spec
+from jaxapf.tune_train import CHECKPOINT, TrainState, Tuner, episode_loss
+
+#: A tuning problem small enough to train in a second (two families, 6 steps of 2 fields).
+MICRO = {
+    "name": "micro",
+    "train": {"families": ["crossing", "trap"], "fields_per_step": 2, "steps": 6, "validate_every": 2,
+              "learning_rate": 0.1, "patience": 10},
+    "validation": {"fields": 2, "seed": 1},
+    "test": {"families": ["crossing"], "fields": 2, "seed": 2},
+    "sim": {"t_max": 3.0, "horizon": 3, "iters": 4},
+    "scenario": {"crossing": {"distance": [4.0, 5.0]}, "trap": {"distance": [4.0, 5.0]}},
+    "baselines": {"grid": {"gamma": [0.5, 2.0]}, "random_n": 2},
+}
+MICRO_TOML = """name = "micro"
+[train]
+families = ["crossing", "trap"]
+fields_per_step = 2
+steps = 6
+validate_every = 2
+learning_rate = 0.1
+patience = 10
+[validation]
+fields = 2
+seed = 1
+[test]
+families = ["crossing"]
+fields = 2
+seed = 2
+[sim]
+t_max = 3.0
+horizon = 3
+iters = 4
+[scenario.crossing]
+distance = [4.0, 5.0]
+[scenario.trap]
+distance = [4.0, 5.0]
+[baselines]
+grid = { gamma = [0.5, 2.0] }
+random_n = 2
+"""
+
+
+def _two_obstacles(dtype) -> Scenario:
+    """A static cylinder 0.22 m from the start (inside the 0.6 m margin) and a moving sphere; the
+    goal is near, so with a small η the flow is not saturated and the gains matter."""
+    obs = Obstacles(position=jnp.array([[1.0, 0.2, 2.0], [2.0, -1.0, 2.0]], dtype),
+                    velocity=jnp.array([[0.0, 0.0, 0.0], [0.0, 1.0, 0.0]], dtype),
+                    radius=jnp.array([0.5, 0.4], dtype), cylinder=jnp.array([True, False]),
+                    valid=jnp.array([True, True]))
+    return Scenario(start=jnp.array([0.0, 0.0, 2.0], dtype), goal=jnp.array([2.5, 1.0, 2.0], dtype), obstacles=obs)
+
+
+def test_gradient_matches_central_differences_in_float64():
+    """Reverse mode through the scan over time (rematerialised, as in training), the APF reference
+    flow and the unrolled FISTA against central differences of the same float64 loss."""
+    spec = parse_tune_spec({"sim": {"t_max": 1.0, "horizon": 3, "iters": 3}, "objective": {"d_safe": 0.6},
+                            "init": {"eta": 0.2, "k_rep": 1.0}})
+    assert spec.train.remat
+    with jax.enable_x64(True):
+        scenario = _two_obstacles(jnp.float64)
+        theta = spec.reparam.theta(spec.init, jnp.float64)
+        value_and_grad = jax.jit(jax.value_and_grad(lambda th: episode_loss(th, scenario, spec), has_aux=True))
+        (_, terms), grad = value_and_grad(theta)
+        assert all(float(v) > 0 for v in terms.values())  # every term (collision included) is active
+        loss = lambda th: float(value_and_grad(th)[0][0])  # noqa: E731
+        h = 1e-6
+        for name in theta:
+            fd = (loss(theta | {name: theta[name] + h}) - loss(theta | {name: theta[name] - h})) / (2 * h)
+            np.testing.assert_allclose(float(grad[name]), fd, rtol=1e-5, atol=1e-8, err_msg=name)
+        assert max(abs(float(g)) for g in grad.values()) > 1e-2
+
+
+@pytest.mark.filterwarnings("ignore::jaxapf.config.BoundWarning")  # k_max > 1 is allowed, and warned about
+@settings(max_examples=60, deadline=None)
+@given(theta=st.lists(st.floats(allow_nan=False, allow_infinity=False, width=32), min_size=6, max_size=6),
+       k_max=st.floats(0.01, 10.0))
+def test_reparametrisation_keeps_every_gain_in_range(theta, k_max):
+    reparam = Reparam(Gains.names(), Gains(), k_max)
+    # concrete values: Gains validates them itself too (ConfigError if out of range)
+    gains = reparam.gains({n: jnp.float32(t) for n, t in zip(Gains.names(), theta)})
+    values = {n: float(getattr(gains, n)) for n in Gains.names()}
+    assert all(math.isfinite(v) for v in values.values())
+    assert values["gamma"] >= 0.0
+    assert 0.0 <= values["k"] <= k_max * (1 + 1e-6)
+    assert all(values[n] > 0.0 for n in ("k_rep", "d_s", "k_att", "eta"))
+
+
+def test_reparametrisation_inverts_and_rejects_unreachable_starts():
+    reparam = Reparam(("gamma", "k", "d_s"), Gains(gamma=2.0, k=0.25, d_s=3.0), 1.0)
+    gains = reparam.gains(reparam.theta(reparam.base, jnp.float32))
+    np.testing.assert_allclose([gains.gamma, gains.k, gains.d_s], [2.0, 0.25, 3.0], rtol=1e-6)
+    assert gains.k_rep == Gains().k_rep  # untuned gains stay
+    with pytest.raises(ConfigError, match=r"init\.k = 1\.0 must lie strictly inside"):
+        Reparam(("k",), Gains(k=1.0), 1.0).theta(Gains(k=1.0))
+    with pytest.raises(ConfigError, match=r"init\.gamma = 0\.0 must be > 0"):
+        Reparam(("gamma",), Gains(gamma=0.0)).theta(Gains(gamma=0.0))
+
+
+def test_smooth_min_ignores_padded_slots_exactly():
+    x = jnp.array([0.7, 0.2, 123.0])
+    valid = jnp.array([True, True, False])
+    assert float(smooth_min(x, valid, 0.1)) == float(smooth_min(x[:2], valid[:2], 0.1))
+    assert float(smooth_min(x, valid, 0.1)) <= 0.2
+    assert float(smooth_min(x, valid, 1e-3)) == pytest.approx(0.2, abs=1e-6)
+
+
+# --------------------------------------------------------------------------------------------
+# training, determinism, resume, the command
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def command_run(tmp_path_factory):
+    """The whole command on MICRO, as a user runs it."""
+    root = tmp_path_factory.mktemp("tune")
+    (root / "micro.toml").write_text(MICRO_TOML)
+    assert main(["tune", str(root / "micro.toml"), "--out", str(root / "out"), "--quiet"]) == 0
+    return root / "out"
+
+
+def _same_state(a: TrainState, b: TrainState) -> None:
+    for name in a.theta:
+        assert np.array_equal(a.theta[name], b.theta[name]) and np.array_equal(a.best_theta[name], b.best_theta[name])
+    for x, y in zip(jax.tree_util.tree_leaves(a.opt_state), jax.tree_util.tree_leaves(b.opt_state)):
+        assert np.array_equal(x, y)
+    assert json.dumps(a.history) == json.dumps(b.history)
+    assert (a.step, a.best_step, a.best_val_loss) == (b.step, b.best_step, b.best_val_loss)
+
+
+def test_training_lowers_the_loss_and_is_bit_deterministic(command_run, tmp_path):
+    spec = parse_tune_spec(MICRO)
+    state = Tuner(spec).train(tmp_path, quiet=True)
+    assert state.step == 6 and state.validations == 4
+    assert state.history[-1]["val_loss"] < state.history[0]["val_loss"]
+    assert state.best_val_loss < state.history[0]["val_loss"]
+    first_training = [r["loss"] for r in state.history[1:3]]
+    last_training = [r["loss"] for r in state.history[-2:]]
+    assert np.mean(last_training) < np.mean(first_training)
+    reference = TrainState.load(command_run / CHECKPOINT, spec.digest(), Tuner(spec).initial_state())
+    _same_state(state, reference)
+
+
+def test_resume_after_a_kill_gives_the_uninterrupted_result(command_run, tmp_path, monkeypatch):
+    spec = parse_tune_spec(MICRO)
+    step = tune_train._train_step
+    calls = []
+
+    def killed_at_step_5(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 5:  # the last checkpoint was written after step 4
+            raise KeyboardInterrupt
+        return step(*args, **kwargs)
+
+    monkeypatch.setattr(tune_train, "_train_step", killed_at_step_5)
+    with pytest.raises(KeyboardInterrupt):
+        Tuner(spec).train(tmp_path, quiet=True)
+    monkeypatch.setattr(tune_train, "_train_step", step)
+    assert TrainState.load(tmp_path / CHECKPOINT, spec.digest(), Tuner(spec).initial_state()).step == 4
+    resumed = Tuner(spec).train(tmp_path, quiet=True)
+    reference = TrainState.load(command_run / CHECKPOINT, spec.digest(), Tuner(spec).initial_state())
+    _same_state(resumed, reference)
+
+
+def test_command_writes_loadable_gains_and_a_summary(command_run):
+    summary = json.loads((command_run / "summary.json").read_text())
+    tuned = load_gains(command_run / "gains.toml")
+    assert {n: getattr(tuned, n) for n in Gains.names()} == summary["gains"]["tuned"]
+    assert summary["gains"]["default"] == dataclasses.asdict(Gains())
+    budget = summary["budgets"]
+    assert budget["tuning"]["episodes"] == 6 * 2 + 4 * 2
+    assert budget["grid"]["episodes"] == budget["random"]["episodes"] == 20  # 2 settings x 10 fields
+    rows = {(r["family"], r["setting"]) for r in summary["test"]}
+    assert rows == {(f, s) for f in ("crossing", "all") for s in ("tuned", "default", "grid", "random")}
+    for name in ("history.csv", "training.png", "test.png", "test_results.csv", "test_episodes.parquet"):
+        assert (command_run / name).stat().st_size > 0
+
+
+def test_a_checkpoint_of_another_spec_is_refused(command_run):
+    other = parse_tune_spec(MICRO | {"name": "other"})
+    with pytest.raises(tune_train.TuneError, match="different spec"):
+        Tuner(other).train(command_run, quiet=True)
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"trian": {}}, r"trian is not a key of the spec"),
+        ({"train": {"learning_rat": 0.1}}, r"train\.learning_rat is not a key of \[train\]"),
+        ({"train": {"learning_rate": -1.0}}, r"train\.learning_rate = -1\.0 is out of range"),
+        ({"train": {"optimizer": "adamm"}}, r"train\.optimizer = 'adamm' is not an optax optimiser"),
+        ({"train": {"optimizer": "lbfgs"}}, r"train\.optimizer = 'lbfgs'"),
+        ({"train": {"schedule": "linear"}}, r"train\.schedule = 'linear' is not allowed"),
+        ({"train": {"families": ["crossing", "maze"]}}, r"train\.families = 'maze' is not allowed"),
+        ({"train": {"fields_per_step": 1}}, r"train\.fields_per_step = 1 must be at least the number"),
+        ({"train": {"remat": 1}}, r"train\.remat = 1 must be true or false"),
+        ({"validation": {"seed": 0}}, r"train\.seed, validation\.seed and test\.seed must differ"),
+        ({"objective": {"tau": 0.0}}, r"objective\.tau = 0\.0 is out of range"),
+        ({"objective": {"w_colision": 1.0}}, r"objective\.w_colision is not a key"),
+        ({"tune": {"params": ["gamma", "kappa"]}}, r"tune\.params: 'kappa' is not a gain"),
+        ({"tune": {"k_max": 0.4}}, r"init\.k = 0\.5 must lie strictly inside \(0, tune\.k_max = 0\.4\)"),
+        ({"init": {"d_s": -1.0}}, r"init\.d_s = -1\.0 is out of range"),
+        ({"sim": {"horizn": 3}}, r"sim\.horizn is not a key of \[sim\]"),
+        ({"sim": {"dt": 0.0}}, r"sim\.dt = 0\.0 is out of range"),
+        ({"scenario": {"trap": {"radius": [2.0, 1.0]}}}, r"scenario\.trap\.radius .* is not an interval"),
+        ({"baselines": {"grid": {"gama": [1.0]}}}, r"baselines\.grid\.gama is not a gain"),
+        ({"baselines": {"grid": {"k": [-1.0]}}}, r"baselines\.grid\.k = -1\.0 is out of range"),
+    ],
+)
+def test_spec_errors_name_the_key(change, message):
+    data = {section: dict(value) if isinstance(value, dict) else value for section, value in MICRO.items()}
+    for section, value in change.items():
+        data[section] = data.get(section, {}) | value if isinstance(value, dict) else value
+    with pytest.raises(ConfigError, match=message):
+        parse_tune_spec(data)
+
+
+def test_cli_reports_a_bad_spec_in_one_line(tmp_path, capsys):
+    path = tmp_path / "bad.toml"
+    path.write_text("[train]\nsteps = -3\n")
+    assert main(["tune", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.strip() == "jaxapf tune: error: train.steps = -3 is out of range; allowed: an integer >= 0"
