@@ -1,0 +1,199 @@
+"""Shared machinery of the studies in ``analysis/``: run a sweep spec of ``sweeps/`` (resuming
+whatever is already on disk), write its report, and phrase findings with the report's own numbers.
+
+Every study script is ``sweep -> report -> README.md``: the sweep goes to ``runs/`` (git-ignored,
+resumable), the report and the conclusion to ``analysis/results/<study>/`` (committed). The
+sentences of a conclusion are built here from ``summary`` and ``comparisons`` of
+:func:`jaxapf.report.build_report`, never typed by hand, so rerunning a study rewrites them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import os
+import pathlib
+import shutil
+import sys
+from typing import Any, Mapping
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "analysis" / "results"
+
+
+def parser(doc: str) -> argparse.ArgumentParser:
+    """The command line every study shares."""
+    p = argparse.ArgumentParser(description=doc.splitlines()[0], epilog="\n".join(doc.splitlines()[1:]),
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--fields", type=int, help="fields per family instead of the spec's (smaller: faster, "
+                                               "wider intervals); the sweep then goes to runs/NAME-fN.parquet")
+    p.add_argument("--resamples", type=int, default=2000, help="bootstrap resamples of the report (default 2000)")
+    p.add_argument("--out", type=pathlib.Path, help="results folder (default analysis/results/<study>)")
+    return p
+
+
+def setup_jax() -> None:
+    """One JAX device per usable core and the persistent compilation cache, as ``jaxapf sweep`` does.
+    Must run before anything touches JAX's backend."""
+    from jaxapf.sweep import configure_jax, default_cache_dir
+
+    configure_jax(cache_dir=default_cache_dir(), cpu_devices=len(os.sched_getaffinity(0)))
+
+
+def run_spec(name: str, fields: int | None = None) -> pathlib.Path:
+    """Run ``sweeps/<name>.toml`` (optionally with another field count) into ``runs/``; finished
+    chunks already there are kept, so a rerun only computes what is missing. Returns the dataset."""
+    from jaxapf.sweep import run_sweep
+    from jaxapf.sweep_spec import load_spec
+
+    spec = load_spec(ROOT / "sweeps" / f"{name}.toml")
+    suffix = ""
+    if fields is not None:
+        spec = dataclasses.replace(spec, fields=fields)
+        suffix = f"-f{fields}"
+    out = ROOT / "runs" / f"{spec.name}{suffix}.parquet"
+    result = run_sweep(spec, out, quiet=not sys.stderr.isatty())
+    print(result.summary(spec.name))
+    return out
+
+
+def report(parquet: pathlib.Path, out: pathlib.Path, *, resamples: int, **options: Any):
+    """:func:`jaxapf.report.build_report` into ``out/report``, keeping what a reader of the repository
+    needs (``report.md`` with its PNG figures, ``summary.csv``, ``comparisons.csv``, ``table.tex``);
+    the self-contained HTML and the SVGs are dropped here (``jaxapf report`` writes them)."""
+    from jaxapf.report import ReportOptions, build_report
+
+    target = out / "report"
+    if target.exists():
+        shutil.rmtree(target)
+    result = build_report(parquet, target, ReportOptions(resamples=resamples, **options))
+    (target / "report.html").unlink(missing_ok=True)
+    for svg in (target / "figures").glob("*.svg"):
+        svg.unlink()
+    return result
+
+
+# --------------------------------------------------------------------------------------------
+# numbers of the report, as text
+# --------------------------------------------------------------------------------------------
+
+
+def _select(frame, where: Mapping[str, Any]):
+    mask = None
+    for column, value in where.items():
+        m = frame[column].astype(str) == str(value)
+        mask = m if mask is None else mask & m
+    rows = frame[mask]
+    if len(rows) != 1:
+        raise LookupError(f"{len(rows)} rows match {dict(where)}")
+    return rows.iloc[0]
+
+
+@dataclasses.dataclass(frozen=True)
+class Delta:
+    """One paired comparison of the report: setting minus baseline, with its test."""
+
+    metric: str
+    delta: float
+    lo: float
+    hi: float
+    p_holm: float
+    significant: bool
+    higher_is_better: bool
+    value: float
+    baseline_value: float
+    n_pairs: int
+
+    @property
+    def better(self) -> bool:
+        """Significantly better than the baseline."""
+        return self.significant and (self.delta > 0) == self.higher_is_better
+
+    @property
+    def worse(self) -> bool:
+        """Significantly worse than the baseline."""
+        return self.significant and self.delta != 0 and (self.delta > 0) != self.higher_is_better
+
+    @property
+    def verdict(self) -> str:
+        return "better" if self.better else "worse" if self.worse else "no significant difference"
+
+    def text(self) -> str:
+        """``+5.9 pp [+4.8, +6.9] (worse, Holm p < 0.001)`` for rates, IQM differences otherwise."""
+        scale, unit = (100.0, " pp") if self.metric in RATE_METRICS else (1.0, "")
+        p = "< 0.001" if self.p_holm < 0.001 else f"= {self.p_holm:.3f}"
+        return (f"{scale * self.delta:+.3g}{unit} [{scale * self.lo:+.3g}, {scale * self.hi:+.3g}] "
+                f"({self.verdict}, Holm p {p})")
+
+
+RATE_METRICS = ("success", "collision", "stalled")
+
+
+class Numbers:
+    """Lookups in a report's ``summary`` (per setting × family) and ``comparisons`` tables.
+
+    Settings are named by their column values, e.g. ``{"method": "direction_velocity"}``.
+    """
+
+    def __init__(self, result) -> None:
+        self.summary = result.summary
+        self.comparisons = result.comparisons
+
+    def row(self, setting: Mapping[str, Any], family: str):
+        return _select(self.summary, {**setting, "family": family})
+
+    def rate(self, setting: Mapping[str, Any], family: str, metric: str) -> str:
+        """``30.7 % [26.8, 34.8]`` (Wilson)."""
+        r = self.row(setting, family)
+        return f"{100 * r[f'{metric}_rate']:.1f} % [{100 * r[f'{metric}_lo']:.1f}, {100 * r[f'{metric}_hi']:.1f}]"
+
+    def rate_value(self, setting: Mapping[str, Any], family: str, metric: str) -> float:
+        return float(self.row(setting, family)[f"{metric}_rate"])
+
+    def iqm(self, setting: Mapping[str, Any], family: str, metric: str) -> str:
+        """``0.917 [0.896, 0.948]`` (IQM, bootstrap)."""
+        r = self.row(setting, family)
+        return f"{r[f'{metric}_iqm']:.3g} [{r[f'{metric}_iqm_lo']:.3g}, {r[f'{metric}_iqm_hi']:.3g}]"
+
+    def delta(self, setting: Mapping[str, Any], family: str, metric: str) -> Delta:
+        sid = int(_select(self.summary, {**setting, "family": family})["setting"])
+        c = self.comparisons
+        rows = c[(c["setting"] == sid) & (c["family"] == family) & (c["metric"] == metric)]
+        if len(rows) != 1:
+            raise LookupError(f"no comparison of {dict(setting)} on {family}, {metric}")
+        r = rows.iloc[0]
+        return Delta(metric, float(r["delta"]), float(r["delta_lo"]), float(r["delta_hi"]), float(r["p_holm"]),
+                     bool(r["significant"]), bool(r["higher_is_better"]), float(r["value"]),
+                     float(r["baseline_value"]), int(r["n_pairs"]))
+
+
+def families(result) -> list[str]:
+    """Families of the report, without the pooled ``all`` row."""
+    return [f for f in dict.fromkeys(result.summary["family"]) if f != "all"]
+
+
+def write_readme(out: pathlib.Path, title: str, command: str, parquet: pathlib.Path, sections: list[str],
+                 figures: list[tuple[str, str]]) -> pathlib.Path:
+    """``out/README.md``: the question's title, how it was produced, the findings and the figures
+    (paths relative to ``out``)."""
+    import jax
+
+    from jaxapf.versions import versions
+
+    v = versions()
+    lines = [f"# {title}", "",
+             f"Produced by `{command}` on {datetime.date.today().isoformat()} "
+             f"(jaxapf {v.get('jaxapf')}, jax {jax.__version__}, {jax.devices()[0].platform} × {jax.device_count()}); "
+             f"episodes: `{parquet.relative_to(ROOT)}` (git-ignored, rebuilt by the command). "
+             "Every number below is read from the report in `report/` (`summary.csv`, `comparisons.csv`); "
+             "the full tables and their definitions are in [`report/report.md`](report/report.md).", ""]
+    for section in sections:
+        lines += [section.rstrip(), ""]
+    if figures:
+        lines += ["## Figures", ""]
+        for path, caption in figures:
+            lines += [f"![{caption}]({path})", "", f"*{caption}*", ""]
+    path = out / "README.md"
+    path.write_text("\n".join(lines))
+    return path
