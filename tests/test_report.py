@@ -302,3 +302,31 @@ def test_gallery_resimulates_a_failed_episode(tmp_path):
                      fails[fails.stalled].sort_values("final_distance", ascending=False)).iloc[0]
     assert "figures/gallery_1.png" in md and "re-simulated min clearance" in md
     assert f"{first_failure['family']} field {first_failure['field']}" in md
+
+
+def test_sweep_to_report_end_to_end(tmp_path):
+    # a real `jaxapf sweep` on a tiny spec, then `jaxapf report` on its output: the report's counts
+    # are the Parquet's, every field is paired, and the gallery's re-simulation reproduces its row
+    spec = tmp_path / "e2e.toml"
+    spec.write_text('name = "e2e"\n[scenario]\nfamilies = ["trap"]\nfields = 4\nseed = 3\n'
+                    '[scenario.params.trap]\ndistance = [4.0, 5.0]\n'
+                    '[sim]\nt_max = 3.0\nhorizon = 3\niters = 3\n'
+                    '[grid]\nmethod = ["basic", "direction_velocity"]\n')
+    runs = tmp_path / "e2e.parquet"
+    assert main(["sweep", str(spec), "--out", str(runs), "--no-cache", "--devices", "1", "--quiet"]) == 0
+    out = tmp_path / "report"
+    assert main(["report", str(runs), "--out", str(out), "--resamples", "100", "--gallery", "1",
+                 "--heatmap", "none"]) == 0
+    rows = pd.concat([pd.read_parquet(p) for p in sorted(runs.glob("part-*.parquet"))])
+    summary = pd.read_csv(out / "summary.csv")
+    for method, group in rows.groupby("method"):
+        got = summary[(summary["method"] == method) & (summary["family"] == "trap")].iloc[0]
+        assert got["n"] == len(group) == 4
+        for rate in ("success", "collision", "stalled"):
+            assert got[f"{rate}_k"] == int(group[rate].sum())
+    comparisons = pd.read_csv(out / "comparisons.csv")
+    assert set(comparisons["label"]) == {"#1 direction_velocity"}
+    assert (comparisons.loc[comparisons["test"] == "mcnemar", "n_pairs"] == 4).all()
+    md = (out / "report.md").read_text(encoding="utf-8")
+    assert "re-simulation matches the recorded outcome" in md
+    assert (out / "report.html").read_text(encoding="utf-8").count("data:image/png;base64,") >= 5
