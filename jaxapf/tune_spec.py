@@ -162,7 +162,7 @@ class BaselineSpec:
 class TuneSpec:
     """A validated tune spec (frozen and hashable: the compiled training step takes it as a static
     argument). ``scenario`` holds ``(family, parameters)`` for every family used (defaults plus the
-    ``[scenario.FAMILY]`` overrides), shared by training, validation and test."""
+    ``[scenario.params.FAMILY]`` overrides), shared by training, validation and test."""
 
     name: str
     train: TrainSpec
@@ -324,13 +324,26 @@ def _sim(data: dict[str, Any]) -> tuple[SimConfig, MPCConfig]:
 
 
 def _scenario(data: dict[str, Any], families: set[str]) -> tuple[tuple[str, FamilyParams], ...]:
+    """``[scenario.params.FAMILY]`` tables, as in a sweep spec (docs/sweep.md)."""
     if not isinstance(data, dict):
-        raise ConfigError("scenario must be a table of [scenario.FAMILY] tables")
-    for name, table in data.items():
-        check_choice("scenario", name, FAMILIES)
+        raise ConfigError("scenario must be a table holding [scenario.params.FAMILY] tables")
+    extra = sorted(set(data) - {"params"})
+    if extra:
+        raise ConfigError(f"scenario.{extra[0]} is not allowed; family parameters go in "
+                          f"[scenario.params.{extra[0]}], as in a sweep spec")
+    params = data.get("params", {})
+    if not isinstance(params, dict):
+        raise ConfigError("scenario.params must be a table of [scenario.params.FAMILY] tables")
+    for name, table in params.items():
+        check_choice("scenario.params", name, FAMILIES)
         if not isinstance(table, dict):
-            raise ConfigError(f"scenario.{name} must be a table of {name}'s parameters")
-    return tuple((f, family_params(f, **data.get(f, {}))) for f in sorted(families | set(data)))
+            raise ConfigError(f"scenario.params.{name} must be a table of {name}'s parameters")
+    try:
+        return tuple((f, family_params(f, **params.get(f, {}))) for f in sorted(families | set(params)))
+    except ConfigError as err:
+        text = str(err)
+        raise ConfigError("scenario.params." + text.removeprefix("scenario.") if text.startswith("scenario.")
+                          else text) from None
 
 
 def _baselines(data: dict[str, Any], reparam: Reparam) -> BaselineSpec:

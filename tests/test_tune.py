@@ -27,7 +27,7 @@ MICRO = {
     "validation": {"fields": 2, "seed": 1},
     "test": {"families": ["crossing"], "fields": 2, "seed": 2},
     "sim": {"t_max": 3.0, "horizon": 3, "iters": 4},
-    "scenario": {"crossing": {"distance": [4.0, 5.0]}, "trap": {"distance": [4.0, 5.0]}},
+    "scenario": {"params": {"crossing": {"distance": [4.0, 5.0]}, "trap": {"distance": [4.0, 5.0]}}},
     "baselines": {"grid": {"gamma": [0.5, 2.0]}, "random_n": 2},
 }
 MICRO_TOML = """name = "micro"
@@ -49,9 +49,9 @@ seed = 2
 t_max = 3.0
 horizon = 3
 iters = 4
-[scenario.crossing]
+[scenario.params.crossing]
 distance = [4.0, 5.0]
-[scenario.trap]
+[scenario.params.trap]
 distance = [4.0, 5.0]
 [baselines]
 grid = { gamma = [0.5, 2.0] }
@@ -220,7 +220,8 @@ def test_a_checkpoint_of_another_spec_is_refused(command_run):
         ({"init": {"d_s": -1.0}}, r"init\.d_s = -1\.0 is out of range"),
         ({"sim": {"horizn": 3}}, r"sim\.horizn is not a key of \[sim\]"),
         ({"sim": {"dt": 0.0}}, r"sim\.dt = 0\.0 is out of range"),
-        ({"scenario": {"trap": {"radius": [2.0, 1.0]}}}, r"scenario\.trap\.radius .* is not an interval"),
+        ({"scenario": {"params": {"trap": {"radius": [2.0, 1.0]}}}}, r"scenario\.params\.trap\.radius .* is not an interval"),
+        ({"scenario": {"trap": {"distance": [4.0, 5.0]}}}, r"scenario\.trap is not allowed; .*\[scenario\.params\.trap\]"),
         ({"baselines": {"grid": {"gama": [1.0]}}}, r"baselines\.grid\.gama is not a gain"),
         ({"baselines": {"grid": {"k": [-1.0]}}}, r"baselines\.grid\.k = -1\.0 is out of range"),
     ],
