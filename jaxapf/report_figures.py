@@ -114,14 +114,19 @@ def plot_heatmaps(cells: pd.DataFrame, x: str, y: str, value: str, title: str) -
 # --------------------------------------------------------------------------------------------
 
 
+def _group_panels(n: int) -> tuple[Figure, np.ndarray]:
+    """A row of ``n`` panels, one per family group."""
+    fig = Figure(figsize=(4.2 * n + 0.4, 4.2), layout="constrained")
+    return fig, fig.subplots(1, n, squeeze=False)[0]
+
+
 def plot_ecdf(values: Mapping[str, Mapping[int, np.ndarray]], labels: Mapping[int, str],
               methods: Mapping[int, str], metric: str, unit: str = "", vline: float | None = 0.0) -> Figure:
     """ECDF of ``metric`` per setting; one panel per family group (``values[group][setting]``)."""
     groups = list(values)
     settings = list(labels)
     colors = setting_colors(settings)
-    fig = Figure(figsize=(4.2 * len(groups) + 0.4, 4.2), layout="constrained")
-    axes = fig.subplots(1, len(groups), squeeze=False)[0]
+    fig, axes = _group_panels(len(groups))
     for ax, group in zip(axes, groups):
         for s in settings:
             x, f = stats.ecdf(values[group].get(s, np.empty(0)))
@@ -153,8 +158,7 @@ def plot_performance_profile(taus: np.ndarray, curves: Mapping[str, Mapping[int,
     groups = list(curves)
     settings = list(labels)
     colors = setting_colors(settings)
-    fig = Figure(figsize=(4.2 * len(groups) + 0.4, 4.2), layout="constrained")
-    axes = fig.subplots(1, len(groups), squeeze=False)[0]
+    fig, axes = _group_panels(len(groups))
     for ax, group in zip(axes, groups):
         for s in settings:
             if s not in curves[group]:
