@@ -18,7 +18,8 @@ STUDY = "gain_sensitivity"
 REFERENCE = {"gamma": 0.0, "k": 0.0}
 
 
-def findings(n: study.Numbers, families: list[str]) -> str:
+def findings(n: study.Numbers) -> str:
+    families = n.families()
     s = n.summary
     gammas = sorted(s["gamma"].unique())
     ks = sorted(s["k"].unique())
@@ -93,21 +94,14 @@ def findings(n: study.Numbers, families: list[str]) -> str:
     return "\n".join(lines)
 
 
+def heatmaps(out) -> list[tuple[str, str]]:
+    names = sorted(p.name for p in (out / "report" / "figures").glob("heatmap*.png"))
+    return [(f"report/figures/{h}", f"{h.removesuffix('.png').replace('_', ' ')} over γ × k per family") for h in names]
+
+
 def main() -> None:
-    args = study.parser(__doc__).parse_args()
-    study.setup_jax()
-    out = args.out or study.RESULTS / STUDY
-    out.mkdir(parents=True, exist_ok=True)
-    parquet = study.run_spec("gamma-k", args.fields)
-    result = study.report(parquet, out, resamples=args.resamples, baseline="gamma=0,k=0", heatmap=("gamma", "k"),
-                          gallery=2)
-    heatmaps = sorted(p.name for p in (out / "report" / "figures").glob("heatmap*.png"))
-    command = "python analysis/gain_sensitivity.py" + (f" --fields {args.fields}" if args.fields else "")
-    study.write_readme(out, "Study 5 — sensitivity to γ × k, including k > 1", command, parquet,
-                       [findings(study.Numbers(result), study.families(result))],
-                       [(f"report/figures/{h}", f"{h.removesuffix('.png').replace('_', ' ')} over γ × k per family")
-                        for h in heatmaps])
-    print(f"wrote {out}/README.md")
+    study.run_study(__doc__, name=STUDY, spec="gamma-k", title="Study 5 — sensitivity to γ × k, including k > 1",
+                    findings=findings, figures=heatmaps, baseline="gamma=0,k=0", heatmap=("gamma", "k"), gallery=2)
 
 
 if __name__ == "__main__":

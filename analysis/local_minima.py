@@ -63,20 +63,12 @@ def findings(n: study.Numbers) -> str:
 
 
 def main() -> None:
-    args = study.parser(__doc__).parse_args()
-    study.setup_jax()
-    out = args.out or study.RESULTS / STUDY
-    out.mkdir(parents=True, exist_ok=True)
-    parquet = study.run_spec("paper-comparison", args.fields)
-    result = study.report(parquet, out, resamples=args.resamples, where=("family=" + ",".join(FAMILIES),),
-                          heatmap=None, gallery=3)
-    command = "python analysis/local_minima.py" + (f" --fields {args.fields}" if args.fields else "")
-    study.write_readme(out, "Study 2 — does the weighted APF resolve local minima?", command, parquet,
-                       [findings(study.Numbers(result))],
-                       [("report/figures/rates.png", "Success, collision and stall rates with Wilson intervals"),
-                        ("report/figures/differences.png", "Paired differences to basic (filled: Holm-significant)"),
-                        ("report/figures/gallery_1.png", "The worst episode, re-simulated from its seed")])
-    print(f"wrote {out}/README.md")
+    study.run_study(__doc__, name=STUDY, spec="paper-comparison",
+                    title="Study 2 — does the weighted APF resolve local minima?", findings=findings,
+                    figures=[("report/figures/rates.png", "Success, collision and stall rates with Wilson intervals"),
+                             ("report/figures/differences.png", "Paired differences to basic (filled: Holm-significant)"),
+                             ("report/figures/gallery_1.png", "The worst episode, re-simulated from its seed")],
+                    where=("family=" + ",".join(FAMILIES),), heatmap=None, gallery=3)
 
 
 if __name__ == "__main__":

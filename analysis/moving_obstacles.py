@@ -63,21 +63,16 @@ def findings(n: study.Numbers) -> str:
 
 
 def main() -> None:
-    args = study.parser(__doc__).parse_args()
-    study.setup_jax()
-    out = args.out or study.RESULTS / STUDY
-    out.mkdir(parents=True, exist_ok=True)
-    parquet = study.run_spec("paper-comparison", args.fields)
-    result = study.report(parquet, out, resamples=args.resamples, where=("family=" + ",".join(FAMILIES),),
-                          baseline="method=direction", heatmap=None, gallery=3)
-    command = "python analysis/moving_obstacles.py" + (f" --fields {args.fields}" if args.fields else "")
-    study.write_readme(out, "Study 3 — does the velocity term improve safety against moving obstacles?",
-                       command, parquet, [findings(study.Numbers(result))],
-                       [("report/figures/rates.png", "Success, collision and stall rates with Wilson intervals"),
-                        ("report/figures/ecdf_min_clearance.png", "Minimum clearance, ECDF per method (left of 0: collision)"),
-                        ("report/figures/differences.png", "Paired differences to `direction` (filled: Holm-significant)"),
-                        ("report/figures/gallery_1.png", "The worst episode, re-simulated from its seed")])
-    print(f"wrote {out}/README.md")
+    study.run_study(__doc__, name=STUDY, spec="paper-comparison",
+                    title="Study 3 — does the velocity term improve safety against moving obstacles?",
+                    findings=findings,
+                    figures=[("report/figures/rates.png", "Success, collision and stall rates with Wilson intervals"),
+                             ("report/figures/ecdf_min_clearance.png",
+                              "Minimum clearance, ECDF per method (left of 0: collision)"),
+                             ("report/figures/differences.png",
+                              "Paired differences to `direction` (filled: Holm-significant)"),
+                             ("report/figures/gallery_1.png", "The worst episode, re-simulated from its seed")],
+                    where=("family=" + ",".join(FAMILIES),), baseline="method=direction", heatmap=None, gallery=3)
 
 
 if __name__ == "__main__":

@@ -95,26 +95,22 @@ def statistics_text(n: study.Numbers) -> str:
     return "\n".join(lines)
 
 
-def main() -> None:
-    args = study.parser(__doc__).parse_args()
-    study.setup_jax()
-    out = args.out or study.RESULTS / STUDY
-    out.mkdir(parents=True, exist_ok=True)
+def single_runs(out) -> list[str]:
     metrics = draw_paper_runs(out)
     (out / "single_runs.json").write_text(json.dumps(metrics, indent=1, default=float))
-    parquet = study.run_spec("paper-comparison", args.fields)
-    result = study.report(parquet, out, resamples=args.resamples, where=("family=paper_static,paper_dynamic",),
-                          heatmap=None, gallery=2)
-    n = study.Numbers(result)
-    command = "python analysis/paper_figures.py" + (f" --fields {args.fields}" if args.fields else "")
-    study.write_readme(out, "Study 1 — the paper's figures and its two scenarios, with statistics", command,
-                       parquet, [single_runs_text(metrics), statistics_text(n)],
-                       [("paper_static/trajectories.png", "Scenario 1 (paper_static, field 0): top view"),
-                        ("paper_dynamic/trajectories.png", "Scenario 2 (paper_dynamic, field 0): top view"),
-                        ("paper_dynamic/obstacle_distance.png", "Scenario 2: distance to the obstacles"),
-                        ("report/figures/rates.png", "Success, collision and stall rates, 512 jittered fields"),
-                        ("report/figures/ecdf_min_clearance.png", "Minimum clearance, ECDF per method")])
-    print(f"wrote {out}/README.md")
+    return [single_runs_text(metrics)]
+
+
+def main() -> None:
+    study.run_study(__doc__, name=STUDY, spec="paper-comparison",
+                    title="Study 1 — the paper's figures and its two scenarios, with statistics",
+                    findings=statistics_text, before=single_runs,
+                    figures=[("paper_static/trajectories.png", "Scenario 1 (paper_static, field 0): top view"),
+                             ("paper_dynamic/trajectories.png", "Scenario 2 (paper_dynamic, field 0): top view"),
+                             ("paper_dynamic/obstacle_distance.png", "Scenario 2: distance to the obstacles"),
+                             ("report/figures/rates.png", "Success, collision and stall rates, 512 jittered fields"),
+                             ("report/figures/ecdf_min_clearance.png", "Minimum clearance, ECDF per method")],
+                    where=("family=paper_static,paper_dynamic",), heatmap=None, gallery=2)
 
 
 if __name__ == "__main__":

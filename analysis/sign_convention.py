@@ -17,7 +17,8 @@ STUDY = "sign_convention"
 METHODS = ("direction", "direction_velocity")
 
 
-def findings(n: study.Numbers, families: list[str]) -> str:
+def findings(n: study.Numbers) -> str:
+    families = n.families()
     lines = ["## `literal` − `intent`, paired per method and family", "",
              "| family | method | success intent → literal | collision intent → literal | Δ success | Δ collision | Δ min clearance (IQM) |",
              "|---|---|---|---|---|---|---|"]
@@ -61,19 +62,13 @@ def findings(n: study.Numbers, families: list[str]) -> str:
 
 
 def main() -> None:
-    args = study.parser(__doc__).parse_args()
-    study.setup_jax()
-    out = args.out or study.RESULTS / STUDY
-    out.mkdir(parents=True, exist_ok=True)
-    parquet = study.run_spec("convention", args.fields)
-    result = study.report(parquet, out, resamples=args.resamples, baseline="convention=intent", heatmap=None,
-                          gallery=2)
-    command = "python analysis/sign_convention.py" + (f" --fields {args.fields}" if args.fields else "")
-    study.write_readme(out, "Study 4 — sign convention: the paper's prose (intent) vs its formulas (literal)",
-                       command, parquet, [findings(study.Numbers(result), study.families(result))],
-                       [("report/figures/rates.png", "Success, collision and stall rates with Wilson intervals"),
-                        ("report/figures/differences.png", "Paired differences literal − intent (filled: Holm-significant)")])
-    print(f"wrote {out}/README.md")
+    study.run_study(__doc__, name=STUDY, spec="convention",
+                    title="Study 4 — sign convention: the paper's prose (intent) vs its formulas (literal)",
+                    findings=findings,
+                    figures=[("report/figures/rates.png", "Success, collision and stall rates with Wilson intervals"),
+                             ("report/figures/differences.png",
+                              "Paired differences literal − intent (filled: Holm-significant)")],
+                    baseline="convention=intent", heatmap=None, gallery=2)
 
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ import os
 import pathlib
 import shutil
 import sys
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "analysis" / "results"
@@ -72,6 +72,25 @@ def report(parquet: pathlib.Path, out: pathlib.Path, *, resamples: int, **option
     for svg in (target / "figures").glob("*.svg"):
         svg.unlink()
     return result
+
+
+def run_study(doc: str, *, name: str, spec: str, title: str, findings: Callable[["Numbers"], str],
+              figures: Callable[[pathlib.Path], list[tuple[str, str]]] | list[tuple[str, str]],
+              before: Callable[[pathlib.Path], list[str]] | None = None, **report_options: Any) -> None:
+    """What every study's ``main`` is: parse the shared flags, run ``sweeps/<spec>.toml``, write its
+    report with ``report_options``, and ``README.md`` with ``before(out)``'s sections (work that does
+    not come from the sweep, e.g. single runs), then ``findings(Numbers)`` and the figures."""
+    args = parser(doc).parse_args()
+    setup_jax()
+    out = args.out or RESULTS / name
+    out.mkdir(parents=True, exist_ok=True)
+    sections = before(out) if before is not None else []
+    parquet = run_spec(spec, args.fields)
+    result = report(parquet, out, resamples=args.resamples, **report_options)
+    sections.append(findings(Numbers(result)))
+    command = f"python analysis/{name}.py" + (f" --fields {args.fields}" if args.fields else "")
+    write_readme(out, title, command, parquet, sections, figures(out) if callable(figures) else figures)
+    print(f"wrote {out}/README.md")
 
 
 # --------------------------------------------------------------------------------------------
@@ -140,6 +159,10 @@ class Numbers:
         self.summary = result.summary
         self.comparisons = result.comparisons
 
+    def families(self) -> list[str]:
+        """Families of the report, without the pooled ``all`` row."""
+        return [f for f in dict.fromkeys(self.summary["family"]) if f != "all"]
+
     def row(self, setting: Mapping[str, Any], family: str):
         return _select(self.summary, {**setting, "family": family})
 
@@ -166,11 +189,6 @@ class Numbers:
         return Delta(metric, float(r["delta"]), float(r["delta_lo"]), float(r["delta_hi"]), float(r["p_holm"]),
                      bool(r["significant"]), bool(r["higher_is_better"]), float(r["value"]),
                      float(r["baseline_value"]), int(r["n_pairs"]))
-
-
-def families(result) -> list[str]:
-    """Families of the report, without the pooled ``all`` row."""
-    return [f for f in dict.fromkeys(result.summary["family"]) if f != "all"]
 
 
 def write_readme(out: pathlib.Path, title: str, command: str, parquet: pathlib.Path, sections: list[str],
