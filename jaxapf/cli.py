@@ -13,7 +13,7 @@ import sys
 import time
 from typing import Sequence
 
-from .config import METHODS, CONVENTIONS, ConfigError, Gains, MPCConfig, SimConfig, gains_from_mapping, load_gains
+from .config import METHODS, CONVENTIONS, ConfigError, Gains, MPCConfig, SimConfig, check_int, gains_from_mapping, load_gains
 
 __all__ = ["main", "build_parser"]
 
@@ -131,7 +131,11 @@ def _add_sweep_parser(sub: argparse._SubParsersAction) -> None:
                     help="persistent XLA compilation cache (default ~/.cache/jaxapf/xla)")
     sw.add_argument("--no-cache", action="store_true", help="no persistent compilation cache")
     sw.add_argument("--distributed", action="store_true",
-                    help="jax.distributed.initialize(); each process runs and writes its own chunks")
+                    help="jax.distributed.initialize(); each process runs and writes its own chunks "
+                         "(the cluster is detected on Slurm, Open MPI and TPU pods; elsewhere give the next three)")
+    sw.add_argument("--coordinator", metavar="HOST:PORT", help="with --distributed: address of process 0")
+    sw.add_argument("--num-processes", type=int, metavar="N", help="with --distributed: number of processes")
+    sw.add_argument("--process-id", type=int, metavar="I", help="with --distributed: this process, 0 … N-1")
     sw.add_argument("--quiet", action="store_true", help="no progress bar")
     sw.add_argument("--x64", action="store_true", help="run in float64")
 
@@ -219,8 +223,17 @@ def _sweep(args: argparse.Namespace) -> int:
     from .sweep_spec import load_spec
 
     budget = parse_size(args.memory_budget)
+    cluster = {k: v for k, v in (("coordinator_address", args.coordinator), ("num_processes", args.num_processes),
+                                 ("process_id", args.process_id)) if v is not None}
+    if cluster and not args.distributed:
+        raise ConfigError("--coordinator, --num-processes and --process-id need --distributed")
+    if args.num_processes is not None:
+        check_int("--num-processes", args.num_processes, 1)
+        if args.process_id is not None and not 0 <= args.process_id < args.num_processes:
+            raise ConfigError(f"--process-id = {args.process_id} is out of range; allowed: 0 … {args.num_processes - 1}")
     configure_jax(x64=args.x64, cache_dir=None if args.no_cache else args.cache_dir or default_cache_dir(),
-                  cpu_devices=args.devices or len(os.sched_getaffinity(0)), distributed=args.distributed)
+                  cpu_devices=args.devices or len(os.sched_getaffinity(0)), distributed=args.distributed,
+                  cluster=cluster)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         spec = load_spec(args.spec, args.gains)

@@ -125,7 +125,8 @@ def default_cache_dir() -> pathlib.Path:
 
 
 def configure_jax(*, x64: bool = False, cache_dir: str | os.PathLike | None = None,
-                  cpu_devices: int | None = None, distributed: bool = False) -> None:
+                  cpu_devices: int | None = None, distributed: bool = False,
+                  cluster: Mapping[str, Any] | None = None) -> None:
     """Process-wide JAX settings for a sweep; call before anything runs on a device.
 
     Args:
@@ -134,11 +135,12 @@ def configure_jax(*, x64: bool = False, cache_dir: str | os.PathLike | None = No
         more than 0.1 s to compile are stored there and loaded by later runs. ``None``: no cache.
       cpu_devices: split the host CPU into this many JAX devices (``jax_num_cpu_devices``), one
         per core being the useful setting; ignored when ``XLA_FLAGS`` already forces a count.
-      distributed: ``jax.distributed.initialize()`` (multi-process runs; the cluster is read from
-        the environment).
+      distributed: ``jax.distributed.initialize(**cluster)`` (multi-process runs). Without
+        ``cluster`` JAX detects the cluster (Slurm, Open MPI, TPU pods); elsewhere pass
+        ``coordinator_address``, ``num_processes`` and ``process_id``.
     """
     if distributed:
-        jax.distributed.initialize()
+        jax.distributed.initialize(**(cluster or {}))
     if x64:
         jax.config.update("jax_enable_x64", True)
     if cache_dir is not None:
