@@ -33,7 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .config import Gains, MPCConfig, SimConfig, check_int
+from .config import ConfigError, Gains, MPCConfig, SimConfig, check_int
 
 __all__ = ["run_benchmark", "format_benchmark", "run_sweep_benchmark", "format_sweep_benchmark", "time_sweep"]
 
@@ -58,6 +58,8 @@ def _summary(metrics: dict[str, Any]) -> dict[str, float]:
     for name in ("success", "collision", "stalled"):
         if name in metrics:
             out[f"{name}_rate"] = float(np.mean(np.asarray(metrics[name], np.float64)))
+    if "final_distance" in metrics:
+        out["final_distance_mean"] = float(np.mean(np.asarray(metrics["final_distance"], np.float64)))
     return out
 
 
@@ -73,6 +75,7 @@ def run_benchmark(
     method: str = "direction_velocity",
     chunk: int | None = None,
     *,
+    devices: int = 1,
     gains: Gains | None = None,
     scenarios: Any = None,
 ) -> dict[str, Any]:
@@ -88,6 +91,9 @@ def run_benchmark(
       method: planner (``SimConfig.method``).
       chunk: episodes per vmapped chunk of :func:`~jaxapf.rollout.evaluate` (default:
         :func:`~jaxapf.rollout.default_chunk` for the backend).
+      devices: local devices the fields are split over (:class:`~jaxapf.devices.DeviceBatch`, as
+        ``jaxapf sweep`` does); ``fields`` must be a multiple. With more than one, compilation is
+        not timed apart: ``first_run_s`` includes it.
       gains: one gain setting (default ``Gains()``); the engine runs it as a batch of G = 1.
       scenarios: a prebuilt batch of fields (leading axis F) to use instead of ``family``/``seed``;
         ``fields`` and ``obstacles`` are then read from it.
@@ -103,6 +109,7 @@ def run_benchmark(
     baseline_fields = check_int("bench.baseline_fields", baseline_fields, 0)
     if chunk is not None:
         chunk = check_int("bench.chunk", chunk, 1)
+    devices = check_int("bench.devices", devices, 1, jax.local_device_count())
     sim = SimConfig(method=method, t_max=steps * 0.1)
     mpc = MPCConfig(horizon=horizon, iters=iters)
     gains = Gains() if gains is None else gains
@@ -121,23 +128,37 @@ def run_benchmark(
     fields = int(scenarios.start.shape[0])
     obstacles = int(scenarios.obstacles.radius.shape[-1])
     t_scenarios = time.perf_counter() - t0
+    if fields % devices:
+        raise ConfigError(f"bench.fields = {fields} is not a multiple of bench.devices = {devices}")
 
     dtype = scenarios.start.dtype
     gains_batch = jax.tree_util.tree_map(lambda g: jnp.asarray(g, dtype)[None], gains)
 
     # engine: trace + lower, compile, first run, steady run
+    if devices == 1:
+        t0 = time.perf_counter()
+        lowered = evaluate.lower(scenarios, gains_batch, sim=sim, mpc=mpc, chunk=chunk)
+        t_lower = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        run = lowered.compile()
+        t_compile = time.perf_counter() - t0
+    else:
+        from .devices import DeviceBatch
+
+        batch = DeviceBatch(jax.local_devices()[:devices])
+        per_device = batch.put_gains(gains_batch)
+        t_lower = t_compile = None
+
+        def run(s, _):
+            return batch.evaluate(s, per_device, sim, mpc, chunk)
     t0 = time.perf_counter()
-    lowered = evaluate.lower(scenarios, gains_batch, sim=sim, mpc=mpc, chunk=chunk)
-    t_lower = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    compiled = lowered.compile()
-    t_compile = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    _block(compiled(scenarios, gains_batch))
+    _block(run(scenarios, gains_batch))
     t_first = time.perf_counter() - t0
     t0, c0 = time.perf_counter(), time.process_time()
-    metrics = _block(compiled(scenarios, gains_batch))
+    metrics = _block(run(scenarios, gains_batch))
     t_run, c_run = time.perf_counter() - t0, time.process_time() - c0
+    if devices > 1:
+        batch.close()
     scenario_steps = fields * sim.steps
     engine = {
         "scenario_build_s": t_scenarios,
@@ -193,6 +214,7 @@ def run_benchmark(
             "method": method,
             "gain_settings": 1,
             "chunk": chunk,
+            "devices": devices,
         },
         "environment": _environment(dtype),
         "engine": engine,
@@ -219,14 +241,16 @@ def format_benchmark(result: dict[str, Any]) -> str:
     lines = [
         f"jaxapf bench: {cfg['family']} fields, method {cfg['method']}",
         f"  {cfg['fields']} fields x {cfg['steps']} steps (dt {cfg['dt']:g} s), {cfg['obstacles']} obstacle slots, "
-        f"MPC horizon {cfg['horizon']}, {cfg['iters']} FISTA iterations, vmap chunk {cfg['chunk']}",
+        f"MPC horizon {cfg['horizon']}, {cfg['iters']} FISTA iterations, vmap chunk {cfg['chunk']}, "
+        f"{cfg['devices']} device(s)",
         f"  device {env['device']} x{env['device_count']}, {env['cpu_count']} CPUs, "
         f"jax {env['jax']} / jaxlib {env['jaxlib']}, {env['dtype']}",
         "",
         f"  {'':34s}{'time':>12s}{'scenario-steps/s':>20s}",
-        f"  {'engine trace + lower':34s}{_seconds(eng['lower_s']):>12s}",
-        f"  {'engine compile':34s}{_seconds(eng['compile_s']):>12s}",
-        f"  {'engine first run':34s}{_seconds(eng['first_run_s']):>12s}",
+        *([f"  {'engine trace + lower':34s}{_seconds(eng['lower_s']):>12s}",
+           f"  {'engine compile':34s}{_seconds(eng['compile_s']):>12s}",
+           f"  {'engine first run':34s}{_seconds(eng['first_run_s']):>12s}"] if eng["compile_s"] is not None else
+          [f"  {'engine first run (with compile)':34s}{_seconds(eng['first_run_s']):>12s}"]),
         f"  {'engine steady run, ' + str(cfg['fields']) + ' fields':34s}{_seconds(eng['run_s']):>12s}"
         f"{eng['steps_per_s']:>20,.0f}",
         f"  {'engine per field':34s}{_seconds(eng['per_field_ms'] / 1e3):>12s}",

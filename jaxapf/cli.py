@@ -78,6 +78,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="fields run by the numpy+OSQP loop (0: skip the baseline)")
     bench.add_argument("--family", default="clutter")
     bench.add_argument("--chunk", type=int, help="episodes per vmapped chunk (default: 32 on CPU, 4096 on accelerators)")
+    bench.add_argument("--devices", type=int, default=1,
+                       help="split the fields over N devices (on CPU the host is split into N devices, as "
+                            "`jaxapf sweep` does; default 1)")
     bench.add_argument("--json", action="store_true", help="print one JSON object")
     bench.add_argument("--sweep", nargs="?", const="", type=str, metavar="SPEC",
                        help="instead: end-to-end sweep throughput vs bare evaluate, and the speed-up on 2 CPU "
@@ -175,9 +178,14 @@ def _bench(args: argparse.Namespace) -> int:
         print(json.dumps(result, indent=2) if args.json else format_sweep_benchmark(result))
         return 0
 
+    if args.devices != 1:
+        from .sweep import configure_jax
+
+        check_int("bench.devices", args.devices, 1)
+        configure_jax(cpu_devices=args.devices)
     result = run_benchmark(fields=args.fields, obstacles=args.obstacles, horizon=args.horizon,
                            iters=args.iters, steps=args.steps, baseline_fields=args.baseline_fields,
-                           family=args.family, chunk=args.chunk)
+                           family=args.family, chunk=args.chunk, devices=args.devices)
     print(json.dumps(result, indent=2) if args.json else format_benchmark(result))
     return 0
 

@@ -23,14 +23,11 @@ therefore do not depend on the chunk size, the device count or which chunks were
 
 Devices
 -------
-The fields of a chunk are laid out over the local devices with a ``jax.make_mesh`` mesh and a
-``NamedSharding`` (``P("batch")``); each device then runs the *single-device* ``evaluate`` program
-on its shard (dispatched asynchronously from a thread per device, so devices run concurrently),
-and the per-device results are assembled into one global array. Not ``shard_map``: XLA:CPU's
-SPMD-partitioned executables round differently from the single-device one (measured: identical
-optimised HLO, last-bit differences in a few percent of episodes, see docs/sweep.md), and the
-sweep promises the same numbers on any number of devices. With ``jax.distributed`` each process
-runs every ``process_count``-th chunk on its own devices and writes only those parts.
+The fields of a chunk are laid out over the local devices by :class:`jaxapf.devices.DeviceBatch`
+(``jax.make_mesh`` + ``NamedSharding``; each device runs the single-device ``evaluate`` program
+on its shard, concurrently; why not ``shard_map`` is said there), so the sweep gives the same
+numbers on any number of devices. With ``jax.distributed`` each process runs every
+``process_count``-th chunk on its own devices and writes only those parts.
 
 Memory
 ------
@@ -55,7 +52,6 @@ import re
 import sys
 import time
 import warnings
-from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import jax
@@ -64,6 +60,7 @@ import numpy as np
 
 from .config import BoundWarning, ConfigError, Gains, MPCConfig, SimConfig, check_int
 from .metrics import METRICS
+from .devices import DeviceBatch
 from .sweep_spec import GAIN_KEYS, STATIC_KEYS, Setting, SweepSpec
 
 __all__ = [
@@ -583,32 +580,23 @@ def prepare_output(out: pathlib.Path, meta: Mapping[str, Any], *, overwrite: boo
 
 
 class _Devices:
-    """Runs ``evaluate`` on the fields of a chunk laid out over the local devices (module docstring)."""
+    """Runs the chunks of a plan on the local devices (:class:`~jaxapf.devices.DeviceBatch`)."""
 
     def __init__(self, plan: Plan):
-        from jax.sharding import NamedSharding, PartitionSpec
-
-        self.devices = jax.local_devices()[: plan.devices]
-        mesh = jax.make_mesh((len(self.devices),), ("batch",), devices=self.devices,
-                             axis_types=(jax.sharding.AxisType.Auto,))
-        self.fields = NamedSharding(mesh, PartitionSpec("batch"))
-        self.metrics = NamedSharding(mesh, PartitionSpec(None, "batch"))
+        self.batch = DeviceBatch(jax.local_devices()[: plan.devices])
         self.plan = plan
-        self.pool = ThreadPoolExecutor(len(self.devices), thread_name_prefix="jaxapf-device")
         self._gains: dict[int, list[Gains]] = {}
 
     def close(self) -> None:
-        self.pool.shutdown()
+        self.batch.close()
 
     def _variant_gains(self, variant: Variant) -> list[Gains]:
         if variant.index not in self._gains:
-            host = variant.gains(self.plan.dtype)
-            self._gains[variant.index] = [jax.device_put(host, d) for d in self.devices]
+            self._gains[variant.index] = self.batch.put_gains(variant.gains(self.plan.dtype))
         return self._gains[variant.index]
 
     def dispatch(self, chunk: Chunk) -> dict[str, jax.Array]:
         """Start the chunk (asynchronously); returns global (G, padded) metric arrays."""
-        from .rollout import evaluate
         from .scenarios import make_scenarios
 
         plan = self.plan
@@ -616,18 +604,8 @@ class _Devices:
         indices = np.full(block.padded, chunk.start, np.int64)
         indices[: chunk.stop - chunk.start] = np.arange(chunk.start, chunk.stop)
         fields = make_scenarios(plan.spec.seed, plan.spec.family_params(chunk.family), jnp.asarray(indices))
-        fields = jax.device_put(fields, self.fields)
-        shards = [jax.tree_util.tree_map(lambda x, i=i: _shard(x, i), fields) for i in range(len(self.devices))]
-        gains = self._variant_gains(plan.variants[chunk.variant])
-        futures = [self.pool.submit(evaluate, s, g, block.sim, block.mpc, plan.width) for s, g in zip(shards, gains)]
-        outs = [f.result() for f in futures]
-        return {m: jax.make_array_from_single_device_arrays((block.settings, block.padded), self.metrics,
-                                                            [o[m] for o in outs]) for m in METRICS}
-
-
-def _shard(x: jax.Array, i: int) -> jax.Array:
-    """The ``i``-th block of ``x``'s leading axis, on its device."""
-    return sorted(x.addressable_shards, key=lambda s: s.index[0].start or 0)[i].data
+        return self.batch.evaluate(fields, self._variant_gains(plan.variants[chunk.variant]), block.sim, block.mpc,
+                                   plan.width)
 
 
 @dataclasses.dataclass(frozen=True)

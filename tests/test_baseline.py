@@ -177,3 +177,35 @@ def test_run_benchmark_small_custom_batch():
     import json
 
     json.dumps(result)
+
+
+def test_bench_devices_are_checked_before_running():
+    from jaxapf.bench import run_benchmark
+    from jaxapf.config import ConfigError
+
+    with pytest.raises(ConfigError, match=r"bench\.devices = 0 is out of range"):
+        run_benchmark(fields=2, steps=2, baseline_fields=0, devices=0)
+    with pytest.raises(ConfigError, match=r"bench\.devices = 9 is out of range"):
+        run_benchmark(fields=18, steps=2, baseline_fields=0, devices=9)  # more than this process has
+
+
+def test_bench_on_two_devices_gives_the_metrics_of_one(tmp_path):
+    # `jaxapf bench --devices 2` (host split into 2 CPU devices) and --devices 1 on the same fields
+    import json
+    import os
+    import subprocess
+    import sys
+
+    script = ("import json, sys\nfrom jaxapf.sweep import configure_jax\nconfigure_jax(cpu_devices=2)\n"
+              "from jaxapf.bench import run_benchmark\nimport jax\n"
+              "r = {d: run_benchmark(fields=4, steps=20, horizon=4, iters=4, obstacles=4, baseline_fields=0, "
+              "devices=d, family='crossing') for d in (1, 2)}\n"
+              "print(json.dumps({d: x['engine'] for d, x in r.items()}))\n")
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"} | {"JAX_PLATFORMS": "cpu"}
+    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=240)
+    assert out.returncode == 0, out.stderr
+    engines = json.loads(out.stdout.strip().splitlines()[-1])
+    assert engines["1"]["compile_s"] is not None and engines["2"]["compile_s"] is None
+    assert engines["1"]["final_distance_mean"] > 0
+    for key in ("success_rate", "collision_rate", "stalled_rate", "final_distance_mean"):
+        assert engines["1"][key] == engines["2"][key]  # bit-identical episodes
