@@ -381,7 +381,8 @@ def _fmt_bytes(n: float) -> str:
 
 
 def _fmt_seconds(s: float) -> str:
-    return f"{s:.0f} s" if s < 120 else f"{s / 60:.1f} min" if s < 7200 else f"{s / 3600:.1f} h"
+    return (f"{s:.1f} s" if s < 10 else f"{s:.0f} s" if s < 120 else f"{s / 60:.1f} min" if s < 7200
+            else f"{s / 3600:.1f} h")
 
 
 def describe_plan(plan: Plan) -> str:
