@@ -267,6 +267,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ImportError as err:
         print(f"jaxapf {args.command}: error: {err}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # the reader went away (`jaxapf ... | head`): stop quietly, as Python's docs advise
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -16,7 +16,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from jaxapf.cli import main
-from jaxapf.config import ConfigError, Gains, MPCConfig, SimConfig
+from jaxapf.config import BoundWarning, ConfigError, Gains, MPCConfig, SimConfig
 from jaxapf.metrics import METRICS
 from jaxapf.sweep import Chunk, episode_config, plan_sweep, read_sweep, run_sweep
 from jaxapf.sweep_spec import SweepSpec, load_spec, parse_spec
@@ -113,7 +113,7 @@ BAD = {
     "random n": ({"random.gamma": [0.0, 1.0]}, "random.n is missing"),
     "random key": ({"random.n": 4, "random.horizon": [3, 5]}, "random.horizon is not a gain"),
     "random vs grid": ({"random.n": 4, "random.gamma": [0.0, 1.0]}, "random.gamma is also set in [grid]"),
-    "random range": ({"random.n": 4, "random.k": [2.0, 1.0]}, "random.k = [2.0, 1.0] is not a range"),
+    "random range": ({"random.n": 4, "random.k": [0.8, 0.2]}, "random.k = [0.8, 0.2] is not a range"),
     "random log": ({"random.n": 4, "random.k": {"range": [0.0, 1.0], "log": True}},
                    "random.k.range[0] = 0.0 is out of range; allowed: > 0 for a log range"),
     "random table": ({"random.n": 4, "random.k": {"rng": [0.0, 1.0]}}, "random.k.rng is not a known key"),
@@ -148,7 +148,9 @@ def test_cli_reports_a_bad_spec_in_one_line_with_status_2(tmp_path, capsys):
 
 
 def test_expansion_order_random_samples_and_gains_file(tmp_path):
-    spec = _spec(**{"random.n": 3, "random.k": {"range": [0.1, 10.0], "log": True}, "random.seed": 5})
+    random_k = {"random.n": 3, "random.k": {"range": [0.1, 10.0], "log": True}, "random.seed": 5}
+    with pytest.warns(BoundWarning, match=r"random\.k\.range\[1\] = 10\.0 > 1: the paper's bound"):
+        spec = _spec(**random_k)
     settings = spec.settings()
     assert len(settings) == 2 * 2 * 3
     # grid product in spec order (method outer, gamma inner), samples innermost and shared by grid points
@@ -156,8 +158,8 @@ def test_expansion_order_random_samples_and_gains_file(tmp_path):
     assert [s.gains["gamma"] for s in settings[:6]] == [0.0] * 3 + [1.0] * 3
     ks = [s.gains["k"] for s in settings[:3]]
     assert [s.gains["k"] for s in settings[3:6]] == ks and all(0.1 <= k <= 10.0 for k in ks)
-    assert spec.random_samples() == _spec(**{"random.n": 3, "random.k": {"range": [0.1, 10.0], "log": True},
-                                           "random.seed": 5}).random_samples()
+    with pytest.warns(BoundWarning):
+        assert spec.random_samples() == _spec(**random_k).random_samples()
     # --gains FILE: its values on top of [gains], the swept gamma untouched
     gains_file = tmp_path / "tuned.toml"
     gains_file.write_text("gamma = 9.0\nd_s = 3.5\n")
