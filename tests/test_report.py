@@ -330,3 +330,42 @@ def test_sweep_to_report_end_to_end(tmp_path):
     md = (out / "report.md").read_text(encoding="utf-8")
     assert "re-simulation matches the recorded outcome" in md
     assert (out / "report.html").read_text(encoding="utf-8").count("data:image/png;base64,") >= 5
+
+
+def _study():
+    import importlib
+    import sys
+
+    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "analysis"))
+    return importlib.import_module("study")
+
+
+def test_study_delta_verdicts_and_text():
+    study = _study()
+    fewer_collisions = study.Delta("collision", -0.05, -0.08, -0.02, 0.001, True, False, 0.10, 0.15, 512)
+    assert fewer_collisions.better and not fewer_collisions.worse
+    assert fewer_collisions.text() == "-5 pp [-8, -2] (better, Holm p = 0.001)"
+    less_success = study.Delta("success", -0.05, -0.08, -0.02, 0.0001, True, True, 0.4, 0.45, 512)
+    assert less_success.worse and less_success.text().endswith("(worse, Holm p < 0.001)")
+    not_significant = study.Delta("min_clearance", 0.2, 0.1, 0.3, 0.2, False, True, 1.0, 0.8, 512)
+    assert not not_significant.better and not not_significant.worse
+    assert not_significant.text() == "+0.2 [+0.1, +0.3] (no significant difference, Holm p = 0.200)"
+
+
+def test_study_numbers_read_the_report(report):
+    study = _study()
+    tables = type("Result", (), {"summary": pd.read_csv(report / "summary.csv"),
+                                 "comparisons": pd.read_csv(report / "comparisons.csv")})
+    n = study.Numbers(tables)
+    assert sorted(n.families()) == ["clutter", "trap"]
+    setting = {"method": "direction_velocity", "gamma": 1.0, "k": 0.5}
+    row = tables.summary[(tables.summary["method"] == "direction_velocity") & (tables.summary["gamma"] == 1.0)
+                         & (tables.summary["k"] == 0.5) & (tables.summary["family"] == "trap")].iloc[0]
+    assert n.rate(setting, "trap", "success") == (f"{100 * row['success_rate']:.1f} % [{100 * row['success_lo']:.1f}, "
+                                                  f"{100 * row['success_hi']:.1f}]")
+    d = n.delta(setting, "trap", "success")
+    c = tables.comparisons
+    want = c[(c["setting"] == row["setting"]) & (c["family"] == "trap") & (c["metric"] == "success")].iloc[0]
+    assert (d.delta, d.p_holm, d.n_pairs) == (want["delta"], want["p_holm"], 12)
+    with pytest.raises(LookupError, match="0 rows match"):
+        n.row({"method": "nonexistent"}, "trap")
