@@ -151,14 +151,16 @@ def run_benchmark(
 
         def run(s, _):
             return batch.evaluate(s, per_device, sim, mpc, chunk)
-    t0 = time.perf_counter()
-    _block(run(scenarios, gains_batch))
-    t_first = time.perf_counter() - t0
-    t0, c0 = time.perf_counter(), time.process_time()
-    metrics = _block(run(scenarios, gains_batch))
-    t_run, c_run = time.perf_counter() - t0, time.process_time() - c0
-    if devices > 1:
-        batch.close()
+    try:
+        t0 = time.perf_counter()
+        _block(run(scenarios, gains_batch))
+        t_first = time.perf_counter() - t0
+        t0, c0 = time.perf_counter(), time.process_time()
+        metrics = _block(run(scenarios, gains_batch))
+        t_run, c_run = time.perf_counter() - t0, time.process_time() - c0
+    finally:
+        if devices > 1:
+            batch.close()
     scenario_steps = fields * sim.steps
     engine = {
         "scenario_build_s": t_scenarios,

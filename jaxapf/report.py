@@ -524,12 +524,14 @@ def _pct(v: float) -> str:
     return "–" if not math.isfinite(float(v)) else f"{100 * float(v):.1f}"
 
 
-def _with_ci(est: float, lo: float, hi: float, fmt: Callable[[float], str] = _num) -> str:
+def _with_ci(est: float, lo: float, hi: float, fmt: Callable[[float], str] = _num, *, missing: str = "–",
+             space: str = " ") -> str:
+    """``est [lo, hi]``; ``missing`` for a non-finite estimate, ``est`` alone for a non-finite interval."""
     if not math.isfinite(float(est)):
-        return "–"
+        return missing
     if not (math.isfinite(float(lo)) and math.isfinite(float(hi))):
         return fmt(est)
-    return f"{fmt(est)} [{fmt(lo)}, {fmt(hi)}]"
+    return f"{fmt(est)}{space}[{fmt(lo)}, {fmt(hi)}]"
 
 
 def _p(v: float) -> str:
@@ -662,11 +664,7 @@ def _tex_label(s: int, table: pd.DataFrame, swept: Sequence[str]) -> str:
 
 
 def _tex_ci(est: float, lo: float, hi: float, fmt: Callable[[float], str]) -> str:
-    if not math.isfinite(float(est)):
-        return "--"
-    if not (math.isfinite(float(lo)) and math.isfinite(float(hi))):
-        return fmt(est)
-    return f"{fmt(est)} \\,[{fmt(lo)}, {fmt(hi)}]"
+    return _with_ci(est, lo, hi, fmt, missing="--", space=" \\,")
 
 
 def _tex_num(v: float) -> str:
