@@ -25,6 +25,7 @@ from functools import partial
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import Array
 
 from .config import Gains, MPCConfig, SimConfig
@@ -35,7 +36,8 @@ from .obstacles import Scenario
 from .reference import apf_reference
 from .trajectory import Trajectory
 
-__all__ = ["rollout", "rollout_metrics", "evaluate", "default_chunk", "CPU_CHUNK", "ACCELERATOR_CHUNK"]
+__all__ = ["rollout", "rollout_metrics", "evaluate", "episode_index", "default_chunk", "CPU_CHUNK",
+           "ACCELERATOR_CHUNK"]
 
 
 def rollout(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, *, remat: bool = False
@@ -93,6 +95,15 @@ def default_chunk() -> int:
     return CPU_CHUNK if jax.default_backend() == "cpu" else ACCELERATOR_CHUNK
 
 
+def episode_index(total: int, chunk: int) -> np.ndarray:
+    """Episodes ``0 … total-1`` of a (setting, field) grid (episode ``e = g·F + f``: setting
+    ``e // F``, field ``e % F``), padded with episode 0 to a whole number of ``chunk``-wide batches;
+    callers drop the padding."""
+    index = np.zeros(-(-total // chunk) * chunk, np.int64)
+    index[:total] = np.arange(total)
+    return index
+
+
 @partial(jax.jit, static_argnames=("sim", "mpc", "chunk"))
 def evaluate(
     scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, chunk: int | None = None
@@ -113,9 +124,8 @@ def evaluate(
     n_fields = scenarios.start.shape[0]
     total = n_gains * n_fields
     chunk = min(default_chunk() if chunk is None else chunk, total)
-    padded = -(-total // chunk) * chunk
-    # episode e = g * F + f; padding repeats episode 0 and is dropped below
-    index = jnp.concatenate([jnp.arange(total), jnp.zeros(padded - total, int)])
+    index = episode_index(total, chunk)
+    padded = index.shape[0]
     flat = (
         jax.tree_util.tree_map(lambda x: x[index % n_fields], scenarios),
         jax.tree_util.tree_map(lambda x: jnp.asarray(x)[index // n_fields], gains),

@@ -44,7 +44,7 @@ from .config import Gains, MPCConfig, SimConfig
 from .metrics import episode_metrics
 from .objective import TERMS, Objective, surrogate_loss, surrogate_terms
 from .obstacles import Obstacles, Scenario
-from .rollout import default_chunk, rollout
+from .rollout import default_chunk, episode_index, rollout
 from .scenarios import FamilyParams, make_scenarios
 from .tune_spec import TuneSpec, split_count
 
@@ -301,8 +301,7 @@ class Tuner:
         gains = stack_gains(settings)
         n_gains, n_fields = len(settings), scenarios.start.shape[0]
         total, chunk = n_gains * n_fields, default_chunk()
-        index = np.zeros(-(-total // chunk) * chunk, int)
-        index[:total] = np.arange(total)
+        index = episode_index(total, chunk)
         parts = []
         for e in index.reshape(-1, chunk):
             parts.append(jax.device_get(_report_chunk(_take(scenarios, e % n_fields), _take(gains, e // n_fields),
