@@ -41,7 +41,7 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 
 from .config import BoundWarning, ConfigError, Gains, MPCConfig, SimConfig, check_int, load_gains
-from .scenarios import FAMILIES, family_params
+from .scenarios import FAMILIES, FamilyParams, family_params
 
 __all__ = [
     "GAIN_KEYS",
@@ -323,6 +323,16 @@ def _table(where: str, value: Any, allowed: Iterable[str] | None = None) -> dict
     return value
 
 
+def spec_family_params(family: str, overrides: Any) -> FamilyParams:
+    """A spec's ``[scenario.params.FAMILY]`` table applied to the family's defaults; a bad value is
+    reported at ``scenario.params.FAMILY.KEY`` (shared by sweep and tune specs)."""
+    overrides = _table(f"scenario.params.{family}", overrides)
+    try:
+        return family_params(family, **overrides)
+    except ConfigError as err:
+        raise _relocated(err, f"scenario.{family}", f"scenario.params.{family}") from None
+
+
 def _seed(where: str, value: Any) -> int:
     return check_int(where, value, 0, MAX_SEED)
 
@@ -347,11 +357,7 @@ def _scenario(table: dict[str, Any]) -> tuple[tuple[str, ...], int, int, dict[st
     for family, overrides in _table("scenario.params", scenario.get("params", {})).items():
         if family not in families:
             raise ConfigError(f"scenario.params.{family} is not one of scenario.families ({', '.join(families)})")
-        overrides = _table(f"scenario.params.{family}", overrides)
-        try:
-            resolved = family_params(family, **overrides)
-        except ConfigError as err:
-            raise _relocated(err, f"scenario.{family}", f"scenario.params.{family}") from None
+        resolved = spec_family_params(family, overrides)
         params[family] = {k: list(v) if isinstance(v, tuple) else v
                           for k, v in ((k, getattr(resolved, k)) for k in overrides)}
     return tuple(families), fields, seed, params

@@ -25,7 +25,8 @@ import optax
 from .config import (BoundWarning, ConfigError, Gains, MPCConfig, SimConfig, check_choice, check_int, check_range,
                      gains_from_mapping, validate_gains)
 from .objective import Objective, Reparam
-from .scenarios import FAMILIES, FamilyParams, family_params
+from .scenarios import FAMILIES, FamilyParams
+from .sweep_spec import spec_family_params
 
 __all__ = [
     "SCHEDULES",
@@ -334,16 +335,9 @@ def _scenario(data: dict[str, Any], families: set[str]) -> tuple[tuple[str, Fami
     params = data.get("params", {})
     if not isinstance(params, dict):
         raise ConfigError("scenario.params must be a table of [scenario.params.FAMILY] tables")
-    for name, table in params.items():
+    for name in params:
         check_choice("scenario.params", name, FAMILIES)
-        if not isinstance(table, dict):
-            raise ConfigError(f"scenario.params.{name} must be a table of {name}'s parameters")
-    try:
-        return tuple((f, family_params(f, **params.get(f, {}))) for f in sorted(families | set(params)))
-    except ConfigError as err:
-        text = str(err)
-        raise ConfigError("scenario.params." + text.removeprefix("scenario.") if text.startswith("scenario.")
-                          else text) from None
+    return tuple((f, spec_family_params(f, params.get(f, {}))) for f in sorted(families | set(params)))
 
 
 def _baselines(data: dict[str, Any], reparam: Reparam) -> BaselineSpec:
