@@ -58,7 +58,7 @@ __all__ = [
     "require_osqp",
 ]
 
-_TINY = 1e-12  # floor inside every square root (safe_norm), as in jaxapf.obstacles
+_TINY = 1e-12  # floor inside every square root (safe_norm), as jaxapf.obstacles.TINY
 
 
 def require_osqp():

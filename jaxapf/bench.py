@@ -35,7 +35,8 @@ import numpy as np
 
 from .config import ConfigError, Gains, MPCConfig, SimConfig, check_int
 
-__all__ = ["run_benchmark", "format_benchmark", "run_sweep_benchmark", "format_sweep_benchmark", "time_sweep"]
+__all__ = ["run_benchmark", "format_benchmark", "run_sweep_benchmark", "format_sweep_benchmark", "time_sweep",
+           "fit_step_cost", "format_step_cost"]
 
 
 def _environment(dtype: Any) -> dict[str, Any]:
@@ -271,6 +272,50 @@ def format_benchmark(result: dict[str, Any]) -> str:
     rates = [f"{k[:-5]} {eng[k]:.1%}" for k in ("success_rate", "collision_rate", "stalled_rate") if k in eng]
     if rates:
         lines.append("  engine episodes: " + ", ".join(rates))
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------------------------
+# jaxapf bench --fit-cost: the sweep's per-step cost model
+# --------------------------------------------------------------------------------------------
+
+#: Configurations of :func:`fit_step_cost`: horizons N × FISTA iterations I × obstacle slots M.
+COST_GRID = {"horizon": (10, 20, 40), "iters": (10, 30, 60), "obstacles": (4, 16)}
+
+
+def fit_step_cost(fields: int = 1024, steps: int = 50) -> dict[str, Any]:
+    """Fit ``jaxapf.sweep.STEP_COST_US``: wall µs per episode step on this process's first device,
+    ``c0 + c_qp·N·I + c_obs·N·M + c_n·N``, by least squares over :data:`COST_GRID` (each point one
+    steady :func:`run_benchmark` of ``fields`` clutter fields × ``steps`` steps).
+    """
+    import itertools
+
+    rows = []
+    for n, i, m in itertools.product(*COST_GRID.values()):
+        eng = run_benchmark(fields=fields, obstacles=m, horizon=n, iters=i, steps=steps, baseline_fields=0)["engine"]
+        rows.append({"horizon": n, "iters": i, "obstacles": m, "step_us": 1e6 * eng["run_s"] / (fields * steps)})
+    design = np.array([[1.0, r["horizon"] * r["iters"], r["horizon"] * r["obstacles"], r["horizon"]] for r in rows])
+    measured = np.array([r["step_us"] for r in rows])
+    coef = np.linalg.lstsq(design, measured, rcond=None)[0]
+    ratio = design @ coef / measured
+    return {"environment": _environment(jnp.result_type(float)), "fields": fields, "steps": steps,
+            "coefficients": [float(c) for c in coef], "rows": rows,
+            "fit_over_measured": {"min": float(ratio.min()), "max": float(ratio.max())}}
+
+
+def format_step_cost(result: dict[str, Any]) -> str:
+    """The fitted coefficients and each point, measured vs fitted."""
+    coef = result["coefficients"]
+    env = result["environment"]
+    lines = [f"jaxapf bench --fit-cost: {result['fields']} clutter fields x {result['steps']} steps per point, "
+             f"device {env['device']}, {env['cpu_count']} CPUs, jax {env['jax']}",
+             f"  {'N':>4s}{'I':>5s}{'M':>5s}{'measured us':>14s}{'fit us':>10s}"]
+    for r in result["rows"]:
+        fit = coef[0] + coef[1] * r["horizon"] * r["iters"] + coef[2] * r["horizon"] * r["obstacles"] + coef[3] * r["horizon"]
+        lines.append(f"  {r['horizon']:>4d}{r['iters']:>5d}{r['obstacles']:>5d}{r['step_us']:>14.2f}{fit:>10.2f}")
+    span = result["fit_over_measured"]
+    lines += ["", f"  STEP_COST_US = ({', '.join(f'{c:.4g}' for c in coef)})   "
+                  f"(fit / measured: {span['min']:.2f} .. {span['max']:.2f})"]
     return "\n".join(lines)
 
 

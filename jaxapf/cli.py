@@ -77,7 +77,7 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--baseline-fields", type=int, default=3,
                        help="fields run by the numpy+OSQP loop (0: skip the baseline)")
     bench.add_argument("--family", default="clutter")
-    bench.add_argument("--chunk", type=int, help="episodes per vmapped chunk (default: 32 on CPU, 4096 on accelerators)")
+    bench.add_argument("--chunk", type=int, help="episodes per vmapped chunk (default: 1024 on CPU, 4096 on accelerators)")
     bench.add_argument("--devices", type=int, default=1,
                        help="split the fields over N devices (on CPU the host is split into N devices, as "
                             "`jaxapf sweep` does; default 1)")
@@ -85,6 +85,8 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--sweep", nargs="?", const="", type=str, metavar="SPEC",
                        help="instead: end-to-end sweep throughput vs bare evaluate, and the speed-up on 2 CPU "
                             "devices (SPEC: a sweep spec TOML; default a built-in 2,048-episode study)")
+    bench.add_argument("--fit-cost", action="store_true",
+                       help="instead: fit the per-step cost model behind `jaxapf sweep --dry-run` on this machine")
 
     tune = sub.add_parser("tune", help="learn the planner gains by gradient descent through the closed loop "
                                        "and test them against defaults, grid and random search")
@@ -129,7 +131,8 @@ def _add_sweep_parser(sub: argparse._SubParsersAction) -> None:
                     help="working-set budget of one chunk, e.g. 256M, 2G (default 256M)")
     sw.add_argument("--chunk-fields", type=int, metavar="N", help="fields per chunk (default: from the memory budget)")
     sw.add_argument("--devices", type=int, metavar="N",
-                    help="on CPU, split the host into N JAX devices (default: one per core this process may use)")
+                    help="on CPU, split the host into N JAX devices (default 1: XLA already spreads the "
+                         "engine's wide kernels over the cores)")
     sw.add_argument("--cache-dir", type=pathlib.Path, metavar="DIR",
                     help="persistent XLA compilation cache (default ~/.cache/jaxapf/xla)")
     sw.add_argument("--no-cache", action="store_true", help="no persistent compilation cache")
@@ -169,8 +172,13 @@ def _simulate(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from .bench import format_benchmark, format_sweep_benchmark, run_benchmark, run_sweep_benchmark
+    from .bench import (fit_step_cost, format_benchmark, format_step_cost, format_sweep_benchmark, run_benchmark,
+                        run_sweep_benchmark)
 
+    if args.fit_cost:
+        result = fit_step_cost()
+        print(json.dumps(result, indent=2) if args.json else format_step_cost(result))
+        return 0
     if args.sweep is not None:
         from .sweep_spec import read_toml
 
@@ -224,7 +232,6 @@ def _report(args: argparse.Namespace) -> int:
 
 
 def _sweep(args: argparse.Namespace) -> int:
-    import os
     import warnings
 
     from .sweep import configure_jax, default_cache_dir, dry_run, parse_size, run_sweep
@@ -240,7 +247,7 @@ def _sweep(args: argparse.Namespace) -> int:
         if args.process_id is not None and not 0 <= args.process_id < args.num_processes:
             raise ConfigError(f"--process-id = {args.process_id} is out of range; allowed: 0 … {args.num_processes - 1}")
     configure_jax(x64=args.x64, cache_dir=None if args.no_cache else args.cache_dir or default_cache_dir(),
-                  cpu_devices=args.devices or len(os.sched_getaffinity(0)), distributed=args.distributed,
+                  cpu_devices=args.devices or 1, distributed=args.distributed,
                   cluster=cluster)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

@@ -44,6 +44,7 @@ __all__ = [
     "condensed_hessian",
     "condensed_linear",
     "condensed_qp",
+    "fista",
     "solve_box_qp",
     "AxisProblem",
     "axis_problem",
@@ -131,6 +132,30 @@ def _momentum(iters: int) -> np.ndarray:
     return np.asarray(out)
 
 
+def fista(grad: Callable[[Array], Array], init: Array, lower: Array | float, upper: Array | float, *,
+          step: Array, iters: int) -> Array:
+    r"""FISTA with constant step: minimise a smooth convex ``f`` (gradient ``grad``) over a box.
+
+    .. math:: U_{j+1} = \Pi_{box}(Y_j - \text{step}\,\nabla f(Y_j)), \quad
+              Y_{j+1} = U_{j+1} + \tfrac{t_j - 1}{t_{j+1}} (U_{j+1} - U_j)
+
+    for a fixed ``iters`` (a ``lax.scan``, so it vmaps and reverse-differentiates; the projection's
+    derivative is that of ``clip``). ``init`` is projected onto the box first; ``step`` must be at
+    most ``1/L`` for the Lipschitz constant ``L`` of ``grad`` (it may be an array broadcasting
+    against ``init``, e.g. one step per row).
+    """
+    u0 = jnp.clip(init, lower, upper)
+
+    def body(carry, beta):
+        u, y = carry
+        u_next = jnp.clip(y - step * grad(y), lower, upper)
+        return (u_next, u_next + beta * (u_next - u)), None
+
+    betas = jnp.asarray(_momentum(iters), init.dtype)
+    (u, _), _ = jax.lax.scan(body, (u0, u0), betas)
+    return u
+
+
 def solve_box_qp(
     h: Array,
     e: Array,
@@ -140,66 +165,55 @@ def solve_box_qp(
     iters: int,
     init: Array | None = None,
     lipschitz: Array | None = None,
-    penalty_grad: Callable[[Array], Array] | None = None,
 ) -> Array:
-    r"""Minimise ``½ Uᵀ H U + Eᵀ U (+ a smooth convex penalty)`` s.t. ``lower <= U <= upper``.
-
-    FISTA with constant step ``1/L``:
-
-    .. math:: U_{j+1} = \Pi_{box}(Y_j - \nabla f(Y_j)/L), \quad
-              Y_{j+1} = U_{j+1} + \tfrac{t_j - 1}{t_{j+1}} (U_{j+1} - U_j)
-
-    for a fixed ``iters`` (a ``lax.scan``, so it vmaps and reverse-differentiates; the projection's
-    derivative is that of ``clip``).
+    r"""Minimise ``½ Uᵀ H U + Eᵀ U`` s.t. ``lower <= U <= upper`` by :func:`fista` (paper eq. 12).
 
     Args:
       h: (n, n) symmetric positive (semi)definite.
       e: (n,) linear term.
       lower, upper: box bounds, broadcastable to (n,).
       iters: fixed number of iterations.
-      init: warm start (n,), projected onto the box first; zero by default.
-      lipschitz: ``L``; default ``λ_max(H)`` (then ``penalty_grad`` must not be given).
-      penalty_grad: gradient of an extra smooth convex term; ``lipschitz`` must cover it.
+      init: warm start (n,); zero by default.
+      lipschitz: ``L``; default ``λ_max(H)``.
     """
-    if penalty_grad is not None and lipschitz is None:
-        raise ValueError("solve_box_qp: penalty_grad needs an explicit lipschitz bound")
     if lipschitz is None:
         lipschitz = jnp.linalg.eigvalsh(h)[-1]
-    u0 = jnp.zeros_like(e) if init is None else init
-    u0 = jnp.clip(u0, lower, upper)
-    step = 1.0 / lipschitz
-
-    def body(carry, beta):
-        u, y = carry
-        grad = h @ y + e
-        if penalty_grad is not None:
-            grad = grad + penalty_grad(y)
-        u_next = jnp.clip(y - step * grad, lower, upper)
-        return (u_next, u_next + beta * (u_next - u)), None
-
-    betas = jnp.asarray(_momentum(iters), e.dtype)
-    (u, _), _ = jax.lax.scan(body, (u0, u0), betas)
-    return u
+    init = jnp.zeros_like(e) if init is None else init
+    return fista(lambda y: h @ y + e, init, lower, upper, step=1.0 / lipschitz, iters=iters)
 
 
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class AxisProblem:
-    """The state-independent part of the per-axis MPC QPs (built once per episode).
+    r"""The state-independent part of the per-axis MPC QPs (built once per episode).
+
+    Per axis ``j`` the smooth objective is
+    :math:`f_j(u) = \tfrac12 u^\top H_j u + e_j^\top u + \tfrac12\rho\sum_i \max(|v_i| - v_{max}, 0)^2`
+    with predicted velocities :math:`v = v_{free} + C_v u`, whose gradient is
+
+    .. math:: \nabla f_j(u) = \hat H_j u + \hat e_j - \rho C_v^\top \mathrm{clip}(v, \pm v_{max}),
+              \quad \hat H_j = H_j + \rho C_v^\top C_v, \quad \hat e_j = e_j + \rho C_v^\top v_{free}
+
+    so one product with the stacked ``[Ĥ_j; C_v]`` and one with ``C_vᵀ`` make a FISTA step.
 
     Attributes:
       m: (2(N+1), 2) prediction of the free response of one axis.
       c: (2(N+1), N) forced response of one axis.
       q_aug: (3, 2(N+1)) diagonal of ``Q_aug`` per axis.
-      h: (3, N, N) Hessian per axis.
-      lipschitz: (3,) ``λ_max(H) + ρ λ_max(C_vᵀ C_v)`` per axis (velocity penalty included).
+      h: (3, N, N) Hessian ``H_j`` per axis.
+      kernel: ``[Ĥ_j; C_v]`` stacked, (A, 2N, N): A = 1 when the three axes have the same weights
+        (one matrix product serves all three), else A = 3.
+      lipschitz: (3,) ``λ_max(H_j) + ρ λ_max(C_vᵀ C_v)`` per axis.
+      v_penalty: ρ.
     """
 
     m: Array
     c: Array
     q_aug: Array
     h: Array
+    kernel: Array
     lipschitz: Array
+    v_penalty: Array
 
 
 def axis_problem(mpc: MPCConfig, dt: float, dtype) -> AxisProblem:
@@ -207,6 +221,7 @@ def axis_problem(mpc: MPCConfig, dt: float, dtype) -> AxisProblem:
     n = mpc.horizon
     a, b = discrete_matrices(dt, 1, dtype)
     big_m, c = prediction_matrices(a, b, n)
+    weights = ("q_pos", "q_vel", "f_pos", "f_vel", "r")
     w = lambda name: jnp.asarray(getattr(mpc, name), dtype)  # noqa: E731  (3,) per axis
     q_aug = jax.vmap(augmented_weights, in_axes=(0, 0, None))(
         jnp.stack([w("q_pos"), w("q_vel")], -1), jnp.stack([w("f_pos"), w("f_vel")], -1), n
@@ -214,9 +229,14 @@ def axis_problem(mpc: MPCConfig, dt: float, dtype) -> AxisProblem:
     r_aug = jnp.repeat(w("r")[:, None], n, axis=1)
     h = jax.vmap(condensed_hessian, in_axes=(None, 0, 0))(c, q_aug, r_aug)
     c_vel = c[3::2]  # predicted velocities v(k+1..k+N)
-    pen = mpc.v_penalty * jnp.linalg.eigvalsh(c_vel.T @ c_vel)[-1]
+    rho = jnp.asarray(mpc.v_penalty, dtype)
+    shared = all(len(set(getattr(mpc, name))) == 1 for name in weights)  # static: from the config
+    distinct = h[:1] if shared else h
+    kernel = jnp.concatenate(
+        [distinct + rho * (c_vel.T @ c_vel), jnp.broadcast_to(c_vel, distinct.shape)], axis=1)
+    pen = rho * jnp.linalg.eigvalsh(c_vel.T @ c_vel)[-1]
     lipschitz = jnp.linalg.eigvalsh(h)[:, -1] + pen
-    return AxisProblem(m=big_m, c=c, q_aug=q_aug, h=h, lipschitz=lipschitz)
+    return AxisProblem(m=big_m, c=c, q_aug=q_aug, h=h, kernel=kernel, lipschitz=lipschitz, v_penalty=rho)
 
 
 def solve_axes(
@@ -227,32 +247,32 @@ def solve_axes(
     *,
     a_max: float,
     v_max: float,
-    v_penalty: float,
     iters: int,
 ) -> Array:
-    """Solve the three per-axis MPC QPs; returns the input sequences (3, N).
+    """Solve the three per-axis MPC QPs together by :func:`fista`; returns the inputs (3, N).
 
     Args:
       x0: (6,) current state ``[p, v]``.
       x_ref: (N+1, 6) reference for ``x(k..k+N)``.
       warm: (3, N) warm start (previous solution shifted, see :func:`shift_warm_start`).
     """
+    n = warm.shape[-1]
     x0_axes = jnp.stack([x0[:3], x0[3:]], axis=-1)  # (3, 2): (p_j, v_j)
     ref_axes = jnp.stack([x_ref[:, :3], x_ref[:, 3:]], axis=-1).transpose(1, 0, 2)  # (3, N+1, 2)
     c_vel, m_vel = prob.c[3::2], prob.m[3::2]
+    e = jax.vmap(condensed_linear, in_axes=(None, None, 0, 0, 0))(prob.m, prob.c, prob.q_aug, x0_axes, ref_axes)
+    v_free = x0_axes @ m_vel.T  # (3, N)
+    e_hat = e + prob.v_penalty * (v_free @ c_vel)
+    if prob.kernel.shape[0] == 1:
+        stacked = lambda y: y @ prob.kernel[0].T  # noqa: E731  one product for the three axes
+    else:
+        stacked = lambda y: jnp.einsum("amn,an->am", prob.kernel, y)  # noqa: E731
 
-    def one_axis(q_aug, h, lipschitz, x0_j, ref_j, warm_j):
-        e = condensed_linear(prob.m, prob.c, q_aug, x0_j, ref_j)
-        v_free = m_vel @ x0_j
+    def grad(y):
+        hy, cy = jnp.split(stacked(y), [n], axis=-1)
+        return hy + e_hat - prob.v_penalty * (jnp.clip(v_free + cy, -v_max, v_max) @ c_vel)
 
-        def penalty_grad(u):
-            v = v_free + c_vel @ u
-            return v_penalty * (c_vel.T @ (v - jnp.clip(v, -v_max, v_max)))
-
-        return solve_box_qp(h, e, -a_max, a_max, iters=iters, init=warm_j,
-                            lipschitz=lipschitz, penalty_grad=penalty_grad)
-
-    return jax.vmap(one_axis)(prob.q_aug, prob.h, prob.lipschitz, x0_axes, ref_axes, warm)
+    return fista(grad, warm, -a_max, a_max, step=1.0 / prob.lipschitz[:, None], iters=iters)
 
 
 def shift_warm_start(u: Array) -> Array:

@@ -42,7 +42,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from .config import CONVENTIONS, METHODS, check_choice
-from .obstacles import Obstacles, obstacles_at, project, safe_norm
+from .obstacles import TINY, ObstacleColumns, Obstacles, safe_norm
 
 __all__ = [
     "attractive_potential",
@@ -108,6 +108,38 @@ def velocity_weight(c: Array, k: Array) -> Array:
     return 2.0 + k * jnp.tanh(c)
 
 
+def _dot(a: Any, b: Any) -> Array:
+    """Dot product of two component-first vectors (their leading axis of size 3 is x, y, z; any
+    trailing axes broadcast). Written out so that XLA fuses it with its neighbours."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _norm(a: Any) -> Array:
+    """Component-first :func:`~jaxapf.obstacles.safe_norm`."""
+    return jnp.sqrt(jnp.maximum(_dot(a, a), TINY))
+
+
+def _line_of_sight(p: Array, p_o: Array, cylinder: Array | bool) -> tuple[Array, Array, Array]:
+    """``s = P(p_o - p)`` component by component (``P`` drops z for a cylinder)."""
+    return p_o[0] - p[0], p_o[1] - p[1], jnp.where(cylinder, 0.0, p_o[2] - p[2])
+
+
+def _weight(v: Array, v_o: Array, sight: Any, *, gamma: Array, k: Array, method: str, convention: str,
+            eps_v: float) -> Array:
+    """ω of the obstacle(s) seen along ``sight`` (component-first); see :func:`weight`."""
+    if method == "basic":
+        return jnp.ones((), jnp.result_type(v))
+    if convention == "literal":
+        sight = tuple(-c for c in sight)  # r_e = p - p_o, the paper's printed definition
+    dist = _norm(sight)
+    speed = jnp.sqrt(_dot(v, v) + eps_v**2)
+    w = direction_weight(_dot(v, sight) / (dist * speed), gamma)
+    if method == "direction":
+        return w
+    closing = tuple(a - b for a, b in zip(v, v_o))
+    return w * velocity_weight(_dot(closing, sight) / dist, k)
+
+
 def weight(
     p: Array,
     v: Array,
@@ -121,18 +153,13 @@ def weight(
     cylinder: Array | bool = False,
     eps_v: float = EPS_V,
 ) -> Array:
-    """The weight ω of one obstacle for ``method`` under ``convention`` (see module docstring)."""
-    if method == "basic":
-        return jnp.ones((), jnp.result_type(p))
-    sight = project(p_o - p, jnp.asarray(cylinder))
-    if convention == "literal":
-        sight = -sight  # r_e = p - p_o, the paper's printed definition
-    unit = sight / safe_norm(sight)
-    speed = jnp.sqrt(jnp.sum(v * v) + eps_v**2)
-    w = direction_weight(jnp.dot(v, unit) / speed, gamma)
-    if method == "direction":
-        return w
-    return w * velocity_weight(jnp.dot(v - v_o, unit), k)
+    """The weight ω of one obstacle for ``method`` under ``convention`` (see module docstring).
+
+    ``p``, ``v``, ``p_o``, ``v_o`` are (3,) vectors; ``p_o``, ``v_o`` may also be component-first
+    ``(3, M)`` arrays of M obstacles (``cylinder`` (M,)), giving ω of each, shape (M,).
+    """
+    return _weight(v, v_o, _line_of_sight(p, p_o, cylinder), gamma=gamma, k=k, method=method,
+                   convention=convention, eps_v=eps_v)
 
 
 def weight_bounds(gamma: Array, k: Array, method: str) -> tuple[Array, Array]:
@@ -172,17 +199,17 @@ def weighted_repulsive_potential(
 
     Args:
       p, v: UAV position and velocity (3,).
-      p_o, v_o: obstacle centre and velocity (3,).
+      p_o, v_o: obstacle centre and velocity (3,), or component-first ``(3, M)`` for M obstacles
+        at once (then ``radius``, ``cylinder`` are (M,) and the result is (M,)).
       radius: obstacle radius plus UAV radius; the clearance is ``d = |P(p - p_o)| - radius``.
       cylinder: vertical cylinder (distance ignores z) instead of a sphere.
       d_min: floor on ``d`` before the division.
       eps_v: regulariser of ``|v|`` in cos θ.
     """
     _check_static(method, convention)
-    cylinder = jnp.asarray(cylinder)
-    d = safe_norm(project(p - p_o, cylinder)) - radius
-    w = weight(p, v, p_o, v_o, gamma=gamma, k=k, method=method, convention=convention,
-               cylinder=cylinder, eps_v=eps_v)
+    sight = _line_of_sight(p, p_o, cylinder)
+    d = _norm(sight) - radius
+    w = _weight(v, v_o, sight, gamma=gamma, k=k, method=method, convention=convention, eps_v=eps_v)
     return w * repulsive_potential(d, k_rep, d_s, d_min)
 
 
@@ -197,7 +224,7 @@ def total_potential(
     v: Array,
     t: Array | float,
     goal: Array,
-    obstacles: Obstacles,
+    obstacles: Obstacles | ObstacleColumns,
     gains: Any,
     *,
     method: str,
@@ -207,26 +234,23 @@ def total_potential(
     eps_v: float = EPS_V,
     att_cap: float | None = None,
 ) -> Array:
-    """U_att + Σ_o U*_rep over the valid obstacles, with obstacles at their time-``t`` positions.
+    """U_att + Σ_o U*_rep over the valid obstacles, with obstacles at their time-``t`` positions
+    (``p_o + v_o t``; ``obstacles`` in either layout).
 
     Padded slots contribute exactly zero (their term is masked with ``where``, whose gradient
     is exactly zero too).
     """
-    centres = obstacles_at(obstacles, t)
-
-    def one(p_o, v_o, rho, cyl):
-        return weighted_repulsive_potential(
-            p, v, p_o, v_o, k_rep=gains.k_rep, d_s=gains.d_s, gamma=gains.gamma, k=gains.k,
-            method=method, convention=convention, radius=rho + r_uav, cylinder=cyl,
-            d_min=d_min, eps_v=eps_v,
-        )
-
-    u_rep = jax.vmap(one)(centres, obstacles.velocity, obstacles.radius, obstacles.cylinder)
-    u_rep = jnp.where(obstacles.valid, u_rep, 0.0)
+    cols = obstacles if isinstance(obstacles, ObstacleColumns) else obstacles.columns()
+    u_rep = weighted_repulsive_potential(
+        p, v, cols.position + cols.velocity * t, cols.velocity, k_rep=gains.k_rep, d_s=gains.d_s,
+        gamma=gains.gamma, k=gains.k, method=method, convention=convention,
+        radius=cols.radius + r_uav, cylinder=cols.cylinder, d_min=d_min, eps_v=eps_v,
+    )
+    u_rep = jnp.where(cols.valid, u_rep, 0.0)
     return attractive_potential(p, goal, gains.k_att, att_cap) + jnp.sum(u_rep)
 
 
-def total_force(p: Array, v: Array, t: Array | float, goal: Array, obstacles: Obstacles,
+def total_force(p: Array, v: Array, t: Array | float, goal: Array, obstacles: Obstacles | ObstacleColumns,
                 gains: Any, **kwargs: Any) -> Array:
-    """-∇_p of :func:`total_potential` (3,)."""
+    """-∇_p of :func:`total_potential` (3,), by :func:`jax.grad`."""
     return -jax.grad(total_potential)(p, v, t, goal, obstacles, gains, **kwargs)

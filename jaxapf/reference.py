@@ -34,6 +34,7 @@ def apf_reference(
     x: Array, t: Array, goal: Array, obstacles: Obstacles, gains: Gains, sim: SimConfig, horizon: int
 ) -> Array:
     """MPC reference states (horizon+1, 6) for ``x(k..k+N)`` from the APF gradient flow."""
+    obstacles = obstacles.columns()
 
     def flow(carry, i):
         p, v = carry

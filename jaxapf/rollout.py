@@ -37,7 +37,7 @@ from .reference import apf_reference
 from .trajectory import Trajectory
 
 __all__ = ["rollout", "rollout_metrics", "evaluate", "episode_index", "default_chunk", "CPU_CHUNK",
-           "ACCELERATOR_CHUNK"]
+           "ACCELERATOR_CHUNK", "XLA_OPTIONS"]
 
 
 def rollout(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, *, remat: bool = False
@@ -59,8 +59,7 @@ def rollout(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, *,
         x, warm = carry
         t = k * sim.dt
         x_ref = apf_reference(x, t, scenario.goal, scenario.obstacles, gains, sim, mpc.horizon)
-        u = solve_axes(prob, x, x_ref, warm, a_max=sim.a_max, v_max=sim.v_max,
-                       v_penalty=mpc.v_penalty, iters=mpc.iters)
+        u = solve_axes(prob, x, x_ref, warm, a_max=sim.a_max, v_max=sim.v_max, iters=mpc.iters)
         a = u[:, 0]
         x_next = step(x, a, sim.dt)
         return (x_next, shift_warm_start(u)), (x_next, a)
@@ -83,11 +82,18 @@ def rollout_metrics(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCCo
     return episode_metrics(rollout(scenario, gains, sim, mpc), scenario, sim)
 
 
-#: Episodes vmapped together per chunk on CPU: small chunks keep the working set in cache
-#: (``jaxapf bench`` measures the engine at this setting).
-CPU_CHUNK = 32
+#: Episodes vmapped together per chunk on CPU: wide enough that every step's kernels run over
+#: long contiguous rows (``jaxapf bench --chunk`` measures other widths).
+CPU_CHUNK = 1024
 #: Episodes per chunk on accelerators, where wide batches pay.
 ACCELERATOR_CHUNK = 4096
+
+
+#: XLA options of every compiled closed loop. jaxlib 0.10 hands reductions and small matrix
+#: products on CPU to YNNPACK kernels, which run the APF's sums over obstacles and xyz several
+#: times slower than XLA's own fused loops (``jaxapf bench``: the engine takes about twice as long);
+#: the empty list switches YNNPACK fusions off. Other backends ignore the option.
+XLA_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}
 
 
 def default_chunk() -> int:
@@ -104,7 +110,7 @@ def episode_index(total: int, chunk: int) -> np.ndarray:
     return index
 
 
-@partial(jax.jit, static_argnames=("sim", "mpc", "chunk"))
+@partial(jax.jit, static_argnames=("sim", "mpc", "chunk"), compiler_options=XLA_OPTIONS)
 def evaluate(
     scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, chunk: int | None = None
 ) -> dict[str, Array]:

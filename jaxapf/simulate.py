@@ -26,14 +26,14 @@ from .config import Gains, MPCConfig, SimConfig
 from .metrics import METRICS, clearance_history, episode_end, episode_metrics
 from .obstacles import Scenario
 from .plotting import Field, Run, plot_all
-from .rollout import rollout
+from .rollout import XLA_OPTIONS, rollout
 from .scenarios import family_params, make_scenarios
 from .versions import versions
 
 __all__ = ["simulate_runs", "write_outputs", "format_metrics_table"]
 
 
-@partial(jax.jit, static_argnames=("sim", "mpc"))
+@partial(jax.jit, static_argnames=("sim", "mpc"), compiler_options=XLA_OPTIONS)
 def _episode(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig):
     traj = rollout(scenario, gains, sim, mpc)
     return (traj, episode_metrics(traj, scenario, sim), clearance_history(traj, scenario, sim),

@@ -15,11 +15,15 @@ Numbers
 Common random numbers: field ``i`` of a family is ``make_scenarios(seed, params, [i])`` for every
 setting. The vmap width of ``evaluate`` (``vmap_width``: :func:`~jaxapf.rollout.default_chunk`, or
 the smallest power of two >= settings × fields of the largest variant if that is less) depends on
-the spec and the backend only, not on the chunking or the devices. Every device call holds whole
-vmapped batches: a chunk's fields are padded (repeating its first field; the extra rows are
-dropped) to ``devices × per_device`` fields with ``per_device · G`` a multiple of the width, and
-every chunk of a (variant, family) has the same shape (one compile). An episode's numbers
-therefore do not depend on the chunk size, the device count or which chunks were resumed.
+the spec and the backend only, not on the chunking or the devices. Every device call holds at
+least one whole vmapped batch: a chunk's fields are padded (repeating its first field; the extra
+rows are dropped) to ``devices × per_device`` fields with ``per_device · G >= width``, and
+``evaluate`` pads the last batch of a device's ``per_device · G`` episodes; every chunk of a
+(variant, family) has the same shape (one compile). Every episode is therefore computed by the
+same kernels at the same width, and its numbers do not depend on the chunk size, the device
+count or which chunks were resumed. A wide width pays on CPU too (XLA spreads one device's wide
+kernels over the cores), so the default is one CPU device; with ``--devices N`` a (variant,
+family) of fewer than ``N × width`` episodes is padded up to that.
 
 Devices
 -------
@@ -216,7 +220,7 @@ class Chunk:
 @dataclasses.dataclass(frozen=True)
 class Block:
     """Shapes of the chunks of one (variant, family): ``fields`` per chunk, padded to ``padded =
-    devices · per_device`` fields with ``per_device · settings`` a multiple of the vmap width;
+    devices · per_device`` fields with ``per_device · settings`` at least the vmap width;
     ``bytes``: the memory estimate of one chunk."""
 
     sim: SimConfig
@@ -255,8 +259,8 @@ def _block(sim: SimConfig, mpc: MPCConfig, obstacles: int, settings: int, fields
            width: int, itemsize: int, budget: int, chunk_fields: int | None) -> Block:
     """Chunk shapes of one (variant, family).
 
-    Each device gets a multiple of ``unit = width / gcd(width, G)`` fields, so that its ``G·unit``
-    episodes fill whole vmapped batches (no padding inside ``evaluate``). Without ``chunk_fields``,
+    Each device gets at least ``ceil(width / G)`` fields, so that its episodes fill at least one
+    whole vmapped batch (``evaluate`` pads the last one). Without ``chunk_fields``,
     the fields are split into the fewest chunks that fit the memory budget and the
     :data:`CALLS_PER_PART` cap, balanced, and each chunk is filled up to its padded size.
     """
@@ -271,8 +275,7 @@ def _block(sim: SimConfig, mpc: MPCConfig, obstacles: int, settings: int, fields
         block = math.ceil(fields / math.ceil(fields / largest))
     else:
         block = min(chunk_fields, fields)
-    unit = width // math.gcd(width, settings)
-    per_device = -(-math.ceil(block / devices) // unit) * unit
+    per_device = max(math.ceil(block / devices), math.ceil(width / settings))
     padded = per_device * devices
     if chunk_fields is None:
         block = min(padded, fields)

@@ -44,7 +44,7 @@ from .config import Gains, MPCConfig, SimConfig
 from .metrics import episode_metrics
 from .objective import TERMS, Objective, surrogate_loss, surrogate_terms
 from .obstacles import Obstacles, Scenario
-from .rollout import default_chunk, episode_index, rollout
+from .rollout import XLA_OPTIONS, default_chunk, episode_index, rollout
 from .scenarios import FamilyParams, make_scenarios
 from .tune_spec import TuneSpec, split_count
 
@@ -238,7 +238,7 @@ def batch_gradient(theta: dict[str, Array], batch: Scenario, spec: TuneSpec
     return direction, logs
 
 
-@partial(jax.jit, static_argnames="spec")
+@partial(jax.jit, static_argnames="spec", compiler_options=XLA_OPTIONS)
 def _train_step(theta: dict[str, Array], opt_state: Any, batch: Scenario, spec: TuneSpec):
     """One optimiser step (clipping by global norm, then the optimiser of the spec)."""
     direction, logs = batch_gradient(theta, batch, spec)
@@ -246,7 +246,7 @@ def _train_step(theta: dict[str, Array], opt_state: Any, batch: Scenario, spec: 
     return optax.apply_updates(theta, updates), opt_state, logs
 
 
-@partial(jax.jit, static_argnames=("sim", "mpc", "objective"))
+@partial(jax.jit, static_argnames=("sim", "mpc", "objective"), compiler_options=XLA_OPTIONS)
 def _report_chunk(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, objective: Objective):
     """:func:`episode_report` of paired (field, gains) episodes (leading axis: the chunk)."""
     return jax.vmap(partial(episode_report, sim=sim, mpc=mpc, objective=objective))(scenarios, gains)

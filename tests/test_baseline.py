@@ -111,7 +111,7 @@ def test_osqp_slack_qp_matches_fista_with_active_box_and_velocity_penalty():
     with jax.enable_x64(True):
         prob = axis_problem(mpc, sim.dt, jnp.float64)
         solve = jax.jit(lambda x, r, w: solve_axes(prob, x, r, w, a_max=sim.a_max, v_max=sim.v_max,
-                                                   v_penalty=mpc.v_penalty, iters=5_000))
+                                                   iters=5_000))
         u_fista = solve(jnp.asarray(x0), jnp.asarray(x_ref), jnp.zeros((3, mpc.horizon), jnp.float64))
         u_fista = np.asarray(u_fista).T
     np.testing.assert_allclose(u_osqp, u_fista, atol=1e-6)

@@ -1,5 +1,6 @@
 """Condensed MPC (SPEC 4): prediction matrices, cost identity, FISTA vs independent solvers."""
 
+import dataclasses
 from functools import partial
 
 import jax
@@ -122,9 +123,27 @@ def test_per_axis_solver_matches_general_solver():
         # the per-axis Hessians are the diagonal blocks of the interleaved 3N Hessian
         for ax in range(3):
             np.testing.assert_allclose(prob.h[ax], h[ax::3, ax::3], rtol=1e-12)
-        per_axis = solve_axes(prob, x0, x_ref, jnp.zeros((3, N)), a_max=1.0, v_max=1.0, v_penalty=0.0,
+        per_axis = solve_axes(prob, x0, x_ref, jnp.zeros((3, N)), a_max=1.0, v_max=1.0,
                               iters=3000)
         np.testing.assert_allclose(per_axis, general, atol=1e-8)
+
+
+def test_shared_axis_kernel_equals_per_axis_kernels():
+    """Equal weights on the three axes give one stacked kernel (A = 1) whose solution is the one
+    of three copies of it (A = 3), with the velocity penalty active."""
+    mpc = MPCConfig(horizon=N, iters=200, v_penalty=5.0)
+    rng = np.random.default_rng(5)
+    with jax.enable_x64(True):
+        prob = axis_problem(mpc, DT, jnp.float64)
+        assert prob.kernel.shape == (1, 2 * N, N)
+        copies = dataclasses.replace(prob, kernel=jnp.broadcast_to(prob.kernel, (3, 2 * N, N)))
+        x0, x_ref = jnp.asarray(rng.normal(size=6) * 3), jnp.asarray(rng.normal(size=(N + 1, 6)) * 5)
+        warm = jnp.asarray(rng.normal(size=(3, N)))
+        kw = dict(a_max=2.0, v_max=0.5, iters=200)
+        shared = solve_axes(prob, x0, x_ref, warm, **kw)
+        np.testing.assert_allclose(shared, solve_axes(copies, x0, x_ref, warm, **kw), rtol=1e-12, atol=1e-12)
+        assert np.abs(np.asarray(shared)).max() == pytest.approx(2.0)  # the box is active too
+    assert axis_problem(MPCConfig(horizon=N, **WEIGHTS), DT, jnp.float32).kernel.shape == (3, 2 * N, N)
 
 
 def test_velocity_penalty_solution_matches_scipy():
@@ -137,7 +156,7 @@ def test_velocity_penalty_solution_matches_scipy():
         x_ref = jnp.asarray(np.concatenate([np.linspace(0, 1, N + 1)[:, None] * rng.normal(size=3) * 5,
                                             np.zeros((N + 1, 3))], axis=1))
         prob = axis_problem(mpc, DT, jnp.float64)
-        got = solve_axes(prob, x0, x_ref, jnp.zeros((3, N)), a_max=2.0, v_max=v_max, v_penalty=rho, iters=4000)
+        got = solve_axes(prob, x0, x_ref, jnp.zeros((3, N)), a_max=2.0, v_max=v_max, iters=4000)
         h, e = condensed_qp(x0, x_ref, dt=DT, horizon=N, **WEIGHTS)
         big_m, c = prediction_matrices(*discrete_matrices(DT, 3, jnp.float64), N)
         h, e, big_m, c = (np.asarray(a) for a in (h, e, big_m, c))

@@ -179,3 +179,47 @@ def test_unknown_method_is_a_clear_error():
     with pytest.raises(ConfigError, match="method = 'magic'"):
         weighted_repulsive_potential(jnp.zeros(3), jnp.zeros(3), jnp.ones(3), jnp.zeros(3), k_rep=1.0,
                                      d_s=2.0, gamma=0.0, k=0.0, method="magic")
+
+
+@pytest.mark.parametrize("method,convention", VARIANTS)
+def test_total_force_is_the_gradient_of_the_field_and_the_sum_of_its_obstacles(method, convention):
+    """The field force equals central differences of the total potential and
+    the attractive force plus the single-obstacle ``repulsive_force`` of each valid obstacle."""
+    kw = dict(method=method, convention=convention, r_uav=0.3)
+    gains = Gains(k_rep=3.0, d_s=4.0, gamma=1.5, k=0.7)
+    h = 1e-6
+    with jax.enable_x64(True):
+        field = jax.tree_util.tree_map(lambda a: jnp.asarray(a, jnp.float64) if a.dtype.kind == "f" else a,
+                                       _field(True))
+        p, v, goal, t = jnp.array([0.2, -0.4, 0.3]), jnp.array([1.0, 0.2, -0.1]), jnp.array([10.0, 0.0, 0.0]), 0.5
+        force = total_force(p, v, t, goal, field, gains, **kw)
+        fd = np.array([(total_potential(p + h * e, v, t, goal, field, gains, **kw)
+                        - total_potential(p - h * e, v, t, goal, field, gains, **kw)) / (2 * h) for e in jnp.eye(3)])
+        np.testing.assert_allclose(force, -fd, rtol=1e-6, atol=1e-8)
+        per_obstacle = [
+            repulsive_force(p, v, field.position[i] + t * field.velocity[i], field.velocity[i], k_rep=gains.k_rep,
+                            d_s=gains.d_s, gamma=gains.gamma, k=gains.k, method=method, convention=convention,
+                            radius=field.radius[i] + 0.3, cylinder=field.cylinder[i])
+            for i in range(2)  # the valid ones
+        ]
+        attraction = gains.k_att * (goal - p)
+        np.testing.assert_allclose(force, attraction + sum(per_obstacle), rtol=1e-12, atol=1e-12)
+        assert np.linalg.norm(per_obstacle[1]) > 0.1  # the near cylinder pushes, so the test could fail
+
+
+def test_component_first_obstacles_equal_one_at_a_time():
+    """(3, M) obstacle arrays give the M single-obstacle potentials and weights."""
+    rng = np.random.default_rng(7)
+    p, v = jnp.asarray(rng.normal(size=3)), jnp.asarray(rng.normal(size=3))
+    p_o, v_o = jnp.asarray(rng.normal(size=(5, 3)) * 2), jnp.asarray(rng.normal(size=(5, 3)))
+    radius, cylinder = jnp.asarray(rng.uniform(0.1, 0.5, 5)), jnp.array([True, False, True, False, False])
+    kw = dict(GAINS, method="direction_velocity", convention="intent")
+    together = weighted_repulsive_potential(p, v, p_o.T, v_o.T, radius=radius, cylinder=cylinder, **kw)
+    one = [weighted_repulsive_potential(p, v, p_o[i], v_o[i], radius=radius[i], cylinder=cylinder[i], **kw)
+           for i in range(5)]
+    np.testing.assert_allclose(together, one, rtol=1e-6)
+    w = weight(p, v, p_o.T, v_o.T, gamma=1.5, k=0.7, method="direction_velocity", convention="literal",
+               cylinder=cylinder)
+    assert w.shape == (5,)
+    np.testing.assert_allclose(w, [weight(p, v, p_o[i], v_o[i], gamma=1.5, k=0.7, method="direction_velocity",
+                                          convention="literal", cylinder=cylinder[i]) for i in range(5)], rtol=1e-6)
