@@ -14,8 +14,10 @@ Numbers
 -------
 Common random numbers: field ``i`` of a family is ``make_scenarios(seed, params, [i])`` for every
 setting. The vmap width of ``evaluate`` (``vmap_width``: :func:`~jaxapf.rollout.default_chunk`, or
-the smallest power of two >= settings × fields of the largest variant if that is less) depends on
-the spec and the backend only, not on the chunking or the devices. Every device call holds at
+the smallest power of two >= settings × fields of the largest variant if that is less, or the
+largest power of two whose batch working set ``W`` (below) of the spec's longest episodes fits
+:data:`WIDTH_BUDGET` if that is less) depends on the spec and the backend only, not on the
+chunking, the memory budget or the devices. Every device call holds at
 least one whole vmapped batch: a chunk's fields are padded (repeating its first field; the extra
 rows are dropped) to ``devices × per_device`` fields with ``per_device · G >= width``, and
 ``evaluate`` pads the last batch of a device's ``per_device · G`` episodes; every chunk of a
@@ -89,17 +91,21 @@ FORMAT = "jaxapf.sweep/1"
 META_KEY = b"jaxapf"
 #: Default memory budget of one chunk's working set [bytes].
 DEFAULT_MEMORY_BUDGET = 256 * 2**20
+#: Largest working set of one vmapped batch (``working_set_bytes``) the vmap width may need: long
+#: episodes get a narrower width, so a chunk fits the default ``--memory-budget``.
+WIDTH_BUDGET = DEFAULT_MEMORY_BUDGET // 2
 #: A part holds at most this many vmapped batches per device (a few seconds to a minute of work
 #: on a CPU core at the default MPC settings), so progress and resume have a fine grain.
 CALLS_PER_PART = 256
 #: Memory of the process besides its chunks (Python, JAX, loaded programs) [bytes]: about 430 MB
 #: measured on CPU (jax 0.10, warm cache); XLA compilation adds up to ~1 GB while it runs.
 PROCESS_BASELINE = 450 * 2**20
-#: Cost model of one episode step [µs] on one CPU core (float32, vmap width 32):
-#: ``c0 + c_qp·N·I + c_obs·N·M + c_n·N`` (N horizon, I FISTA iterations, M obstacle slots),
-#: fitted by least squares on 32 configurations (N 5–40, I 5–60, M 5 and 16) on a 2-core
-#: x86-64 (AVX-512) machine; the fit is within ±30 % of every measurement but one (×1.5).
-STEP_COST_US = (3.5, 0.0124, 0.0197, 0.0176)
+#: Cost model of one episode step [µs of wall time] on one CPU device (float32, vmap width 1024,
+#: XLA spreading the kernels over the cores): ``c0 + c_qp·N·I + c_obs·N·M + c_n·N`` (N horizon,
+#: I FISTA iterations, M obstacle slots), fitted by ``jaxapf bench --fit-cost`` (least squares on
+#: 18 configurations, N 10–40, I 10–60, M 4 and 16) on the 2-core AMD EPYC development machine;
+#: the fit is within 0.74–1.78× of every measurement.
+STEP_COST_US = (6.431, 0.008959, 0.008117, 0.07801)
 #: Cold XLA compile of one evaluate program on that machine [s] (2.5–8 s measured).
 COMPILE_S = 4.0
 #: The PRNG of the fields and of the random gain samples.
@@ -249,7 +255,7 @@ def episode_bytes(obstacles: int, itemsize: int) -> int:
 
 
 def step_cost_us(mpc: MPCConfig, obstacles: int) -> float:
-    """Cost model of one episode step on one CPU core [µs] (see :data:`STEP_COST_US`)."""
+    """Cost model of one episode step on one CPU device [µs] (see :data:`STEP_COST_US`)."""
     c0, c_qp, c_obs, c_n = STEP_COST_US
     n = mpc.horizon
     return c0 + c_qp * n * mpc.iters + c_obs * n * obstacles + c_n * n
@@ -360,10 +366,14 @@ def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: in
     devices = devices or jax.local_device_count()
     dtype = jnp.dtype(jnp.result_type(float))
     groups = variants(spec)
-    # the backend's width, or less for a sweep too small to fill it (a power of two; depends on
-    # the spec only, so every chunking and device count uses the same kernels)
+    # the backend's width, or less for a sweep too small to fill it or for episodes so long that
+    # one batch would not fit WIDTH_BUDGET (a power of two; depends on the spec only, so every
+    # chunking, device count and memory budget uses the same kernels)
     needed = max(len(v.settings) for v in groups) * spec.fields
-    width = width or min(default_chunk(), 1 << (needed - 1).bit_length())
+    per_episode = max(working_set_bytes(1, spec.configs(v.static, f)[0].steps, spec.family_params(f).max_obstacles,
+                                        dtype.itemsize) for v in groups for f in spec.families)
+    fits = max(1, 1 << ((WIDTH_BUDGET // per_episode).bit_length() - 1))
+    width = width or min(default_chunk(), 1 << (needed - 1).bit_length(), fits)
     blocks, chunks = {}, []
     for v in groups:
         for family in spec.families:
@@ -416,8 +426,8 @@ def describe_plan(plan: Plan) -> str:
     lines += [
         f"  time estimate:     {_fmt_seconds(run_s)} of simulation + up to {_fmt_seconds(compile_s)} of compilation "
         "(~0 with a warm compilation cache)",
-        "                     from a per-step cost model fitted on one x86-64 CPU core (jaxapf.sweep.STEP_COST_US, "
-        "±50 %), not a calibration on this machine; on accelerators it is only an upper bound",
+        "                     from a per-step cost model fitted on a 2-core x86-64 CPU (jaxapf.sweep.STEP_COST_US, "
+        "±50 %; `jaxapf bench --fit-cost` refits it here); on accelerators it is only an upper bound",
         f"  memory estimate:   {_fmt_bytes(plan.peak_bytes)} per chunk + ~{_fmt_bytes(PROCESS_BASELINE)} for the "
         "process (up to ~1 GiB more while XLA compiles); docs/sweep.md",
     ]

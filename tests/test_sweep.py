@@ -18,7 +18,9 @@ import pytest
 from jaxapf.cli import main
 from jaxapf.config import BoundWarning, ConfigError, Gains, MPCConfig, SimConfig
 from jaxapf.metrics import METRICS
-from jaxapf.sweep import Chunk, episode_config, plan_sweep, read_sweep, run_sweep
+from jaxapf.rollout import default_chunk
+from jaxapf.sweep import (DEFAULT_MEMORY_BUDGET, WIDTH_BUDGET, Chunk, episode_config, plan_sweep, read_sweep,
+                          run_sweep, working_set_bytes)
 from jaxapf.sweep_spec import SweepSpec, load_spec, parse_spec
 
 # Tiny but complete: two families sharing one obstacle-slot count (so one program per method),
@@ -302,12 +304,26 @@ def test_dry_run_prints_the_plan(reference, tmp_path, capsys):
     assert rc == 0 and f"({ROWS} already in the output, 0 to run)" in capsys.readouterr().out
 
 
-def test_plan_fills_whole_vmapped_batches_on_every_device():
+def test_plan_gives_every_device_a_whole_vmapped_batch():
     plan = plan_sweep(_spec(), chunk_fields=2, devices=4, width=32)
     block = plan.blocks[(0, "trap")]
     assert block.fields == 2 and block.padded == 4 * block.per_device
-    assert block.per_device * block.settings % 32 == 0  # whole vmapped batches on every device
+    assert block.per_device * block.settings == 32  # one whole vmapped batch on every device
     assert [(c.start, c.stop) for c in plan.chunks if (c.variant, c.family) == (1, "crossing")] == [(0, 2), (2, 4), (4, 6)]
+    # more fields than one batch: no padding to whole batches (evaluate pads its last batch)
+    wide = plan_sweep(_spec(**{"scenario.fields": 40}), chunk_fields=40, devices=1, width=32).blocks[(0, "trap")]
+    assert wide.per_device == wide.padded == 40
+
+
+def test_long_episodes_narrow_the_vmap_width_to_fit_the_default_budget():
+    data = {"name": "long", "scenario": {"families": ["clutter"], "fields": 4096}}
+    short = plan_sweep(parse_spec({**data, "sim": {"t_max": 30.0}}), devices=1)
+    assert short.width == default_chunk()
+    long = plan_sweep(parse_spec({**data, "sim": {"t_max": 300.0}}), devices=1)
+    obstacles = long.blocks[(0, "clutter")].obstacles
+    assert working_set_bytes(long.width, 3000, obstacles, 4) <= WIDTH_BUDGET < working_set_bytes(
+        2 * long.width, 3000, obstacles, 4)
+    assert long.peak_bytes <= DEFAULT_MEMORY_BUDGET
 
 
 # --------------------------------------------------------------------------------------------
