@@ -294,13 +294,15 @@ class Tuner:
         """:func:`episode_report` of every (setting, field): numpy arrays of shape (G, F).
 
         The G·F episodes (``e = g·F + f``) run in chunks of :func:`~jaxapf.rollout.default_chunk`
-        paired episodes, the last chunk padded with episode 0, so every call whose fields have the
-        same obstacle count reuses one compiled chunk whatever G and F are.
+        paired episodes, or of the smallest power of two >= G·F if that is less (a validation set
+        is not padded to a whole wide chunk), the last chunk padded with episode 0; calls of a
+        similar size and obstacle count reuse one compiled chunk.
         """
         spec = self.spec
         gains = stack_gains(settings)
         n_gains, n_fields = len(settings), scenarios.start.shape[0]
-        total, chunk = n_gains * n_fields, default_chunk()
+        total = n_gains * n_fields
+        chunk = min(default_chunk(), 1 << (total - 1).bit_length())
         index = episode_index(total, chunk)
         parts = []
         for e in index.reshape(-1, chunk):
