@@ -14,9 +14,9 @@ Numbers
 -------
 Common random numbers: field ``i`` of a family is ``make_scenarios(seed, params, [i])`` for every
 setting. The vmap width of ``evaluate`` (``vmap_width``: :func:`~jaxapf.rollout.default_chunk`, or
-the smallest power of two >= settings × fields of the largest variant if that is less, or the
-largest power of two whose batch working set ``W`` (below) of the spec's longest episodes fits
-:data:`WIDTH_BUDGET` if that is less) depends on the spec and the backend only, not on the
+the smallest power of two >= settings × fields of the largest variant if that is less; a
+(variant, family) whose batch working set ``W`` (below) would exceed :data:`WIDTH_BUDGET` runs at
+the largest power of two that fits) depends on the spec and the backend only, not on the
 chunking, the memory budget or the devices. Every device call holds at
 least one whole vmapped batch: a chunk's fields are padded (repeating its first field; the extra
 rows are dropped) to ``devices × per_device`` fields with ``per_device · G >= width``, and
@@ -226,7 +226,7 @@ class Chunk:
 @dataclasses.dataclass(frozen=True)
 class Block:
     """Shapes of the chunks of one (variant, family): ``fields`` per chunk, padded to ``padded =
-    devices · per_device`` fields with ``per_device · settings`` at least the vmap width;
+    devices · per_device`` fields with ``per_device · settings`` at least its vmap ``width``;
     ``bytes``: the memory estimate of one chunk."""
 
     sim: SimConfig
@@ -237,11 +237,12 @@ class Block:
     per_device: int
     padded: int
     bytes: int
+    width: int
 
 
 def _program(block: Block) -> tuple:
     """What identifies a compiled ``evaluate`` program: static configuration and shapes."""
-    return block.sim, block.mpc, block.obstacles, block.settings, block.per_device
+    return block.sim, block.mpc, block.obstacles, block.settings, block.per_device, block.width
 
 
 def working_set_bytes(width: int, steps: int, obstacles: int, itemsize: int) -> int:
@@ -263,13 +264,16 @@ def step_cost_us(mpc: MPCConfig, obstacles: int) -> float:
 
 def _block(sim: SimConfig, mpc: MPCConfig, obstacles: int, settings: int, fields: int, *, devices: int,
            width: int, itemsize: int, budget: int, chunk_fields: int | None) -> Block:
-    """Chunk shapes of one (variant, family).
+    """Chunk shapes of one (variant, family) at the sweep's vmap ``width``, or at the largest power
+    of two whose batch working set fits :data:`WIDTH_BUDGET` if that is less (long episodes).
 
     Each device gets at least ``ceil(width / G)`` fields, so that its episodes fill at least one
     whole vmapped batch (``evaluate`` pads the last one). Without ``chunk_fields``,
     the fields are split into the fewest chunks that fit the memory budget and the
     :data:`CALLS_PER_PART` cap, balanced, and each chunk is filled up to its padded size.
     """
+    fits = WIDTH_BUDGET // working_set_bytes(1, sim.steps, obstacles, itemsize)
+    width = min(width, max(1, 1 << (fits.bit_length() - 1)))
     fixed = devices * working_set_bytes(width, sim.steps, obstacles, itemsize)
     per_field = settings * episode_bytes(obstacles, itemsize)
     if chunk_fields is None:
@@ -285,7 +289,7 @@ def _block(sim: SimConfig, mpc: MPCConfig, obstacles: int, settings: int, fields
     padded = per_device * devices
     if chunk_fields is None:
         block = min(padded, fields)
-    return Block(sim, mpc, obstacles, settings, block, per_device, padded, fixed + padded * per_field)
+    return Block(sim, mpc, obstacles, settings, block, per_device, padded, fixed + padded * per_field, width)
 
 
 def _gaps(done: Iterable[tuple[int, int]], fields: int) -> list[tuple[int, int]]:
@@ -366,14 +370,11 @@ def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: in
     devices = devices or jax.local_device_count()
     dtype = jnp.dtype(jnp.result_type(float))
     groups = variants(spec)
-    # the backend's width, or less for a sweep too small to fill it or for episodes so long that
-    # one batch would not fit WIDTH_BUDGET (a power of two; depends on the spec only, so every
-    # chunking, device count and memory budget uses the same kernels)
+    # the backend's width, or less for a sweep too small to fill it (a power of two; depends on
+    # the spec only, so every chunking, device count and memory budget uses the same kernels);
+    # each (variant, family) narrows it further if its episodes are long (_block)
     needed = max(len(v.settings) for v in groups) * spec.fields
-    per_episode = max(working_set_bytes(1, spec.configs(v.static, f)[0].steps, spec.family_params(f).max_obstacles,
-                                        dtype.itemsize) for v in groups for f in spec.families)
-    fits = max(1, 1 << ((WIDTH_BUDGET // per_episode).bit_length() - 1))
-    width = width or min(default_chunk(), 1 << (needed - 1).bit_length(), fits)
+    width = width or min(default_chunk(), 1 << (needed - 1).bit_length())
     blocks, chunks = {}, []
     for v in groups:
         for family in spec.families:
@@ -422,7 +423,7 @@ def describe_plan(plan: Plan) -> str:
             b = plan.blocks[(v.index, family)]
             lines.append(f"    v{v.index:03d} {family:<13s} {static}: {b.settings} settings × {b.fields} fields per "
                          f"chunk (padded {b.padded}), {b.sim.steps} steps, N={b.mpc.horizon}, I={b.mpc.iters}, "
-                         f"M={b.obstacles}")
+                         f"M={b.obstacles}" + (f", vmap width {b.width}" if b.width != plan.width else ""))
     lines += [
         f"  time estimate:     {_fmt_seconds(run_s)} of simulation + up to {_fmt_seconds(compile_s)} of compilation "
         "(~0 with a warm compilation cache)",
@@ -619,7 +620,7 @@ class _Devices:
         indices[: chunk.stop - chunk.start] = np.arange(chunk.start, chunk.stop)
         fields = make_scenarios(plan.spec.seed, plan.spec.family_params(chunk.family), jnp.asarray(indices))
         return self.batch.evaluate(fields, self._variant_gains(plan.variants[chunk.variant]), block.sim, block.mpc,
-                                   plan.width)
+                                   block.width)
 
 
 @dataclasses.dataclass(frozen=True)
