@@ -67,7 +67,6 @@ class Obstacles:
             valid=jnp.zeros((size,), bool),
         )
 
-
     def columns(self) -> "ObstacleColumns":
         """The same obstacles with component-first vectors (see :class:`ObstacleColumns`)."""
         first = lambda a: jnp.moveaxis(a, -1, -2)  # noqa: E731  (..., M, 3) -> (..., 3, M)

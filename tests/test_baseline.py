@@ -209,3 +209,22 @@ def test_bench_on_two_devices_gives_the_metrics_of_one(tmp_path):
     assert engines["1"]["final_distance_mean"] > 0
     for key in ("success_rate", "collision_rate", "stalled_rate", "final_distance_mean"):
         assert engines["1"][key] == engines["2"][key]  # bit-identical episodes
+
+
+def test_fit_step_cost_recovers_a_known_model(monkeypatch):
+    """`jaxapf bench --fit-cost` fits c0 + c_qp·N·I + c_obs·N·M + c_n·N: timings made from known
+    coefficients come back exactly, and the table names the constant the sweep's dry run uses."""
+    from jaxapf import bench
+
+    truth = (5.0, 0.01, 0.02, 0.1)
+
+    def fake_benchmark(*, fields, obstacles, horizon, iters, steps, baseline_fields):
+        us = truth[0] + truth[1] * horizon * iters + truth[2] * horizon * obstacles + truth[3] * horizon
+        return {"engine": {"run_s": us * 1e-6 * fields * steps}}
+
+    monkeypatch.setattr(bench, "run_benchmark", fake_benchmark)
+    result = bench.fit_step_cost(fields=8, steps=5)
+    assert len(result["rows"]) == 18
+    np.testing.assert_allclose(result["coefficients"], truth, rtol=1e-9)
+    assert result["fit_over_measured"]["min"] == pytest.approx(1.0) == result["fit_over_measured"]["max"]
+    assert "STEP_COST_US = (5, 0.01, 0.02, 0.1)" in bench.format_step_cost(result)
