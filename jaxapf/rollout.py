@@ -96,9 +96,11 @@ ACCELERATOR_CHUNK = 4096
 XLA_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}
 
 
-def default_chunk() -> int:
-    """Episodes per vmapped chunk for the default backend."""
-    return CPU_CHUNK if jax.default_backend() == "cpu" else ACCELERATOR_CHUNK
+def default_chunk(episodes: int | None = None) -> int:
+    """Episodes per vmapped chunk for the default backend; for a batch of fewer ``episodes``, the
+    smallest power of two that holds them (so a small batch is not padded to a wide chunk)."""
+    width = CPU_CHUNK if jax.default_backend() == "cpu" else ACCELERATOR_CHUNK
+    return width if episodes is None else min(width, 1 << (max(episodes, 1) - 1).bit_length())
 
 
 def episode_index(total: int, chunk: int) -> np.ndarray:

@@ -374,7 +374,7 @@ def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: in
     # the spec only, so every chunking, device count and memory budget uses the same kernels);
     # each (variant, family) narrows it further if its episodes are long (_block)
     needed = max(len(v.settings) for v in groups) * spec.fields
-    width = width or min(default_chunk(), 1 << (needed - 1).bit_length())
+    width = width or default_chunk(needed)
     blocks, chunks = {}, []
     for v in groups:
         for family in spec.families:

@@ -302,7 +302,7 @@ class Tuner:
         gains = stack_gains(settings)
         n_gains, n_fields = len(settings), scenarios.start.shape[0]
         total = n_gains * n_fields
-        chunk = min(default_chunk(), 1 << (total - 1).bit_length())
+        chunk = default_chunk(total)
         index = episode_index(total, chunk)
         parts = []
         for e in index.reshape(-1, chunk):
