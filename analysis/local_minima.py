@@ -65,7 +65,7 @@ def findings(n: study.Numbers) -> str:
 def main() -> None:
     study.run_study(__doc__, name=STUDY, spec="paper-comparison",
                     title="Study 2 — does the weighted APF resolve local minima?", findings=findings,
-                    figures=[("report/figures/rates.png", "Success, collision and stall rates with Wilson intervals"),
+                    figures=[study.RATES_FIGURE,
                              ("report/figures/differences.png", "Paired differences to basic (filled: Holm-significant)"),
                              ("report/figures/gallery_1.png", "The worst episode, re-simulated from its seed")],
                     where=("family=" + ",".join(FAMILIES),), heatmap=None, gallery=3)

@@ -66,7 +66,7 @@ def main() -> None:
     study.run_study(__doc__, name=STUDY, spec="paper-comparison",
                     title="Study 3 — does the velocity term improve safety against moving obstacles?",
                     findings=findings,
-                    figures=[("report/figures/rates.png", "Success, collision and stall rates with Wilson intervals"),
+                    figures=[study.RATES_FIGURE,
                              ("report/figures/ecdf_min_clearance.png",
                               "Minimum clearance, ECDF per method (left of 0: collision)"),
                              ("report/figures/differences.png",

@@ -65,7 +65,7 @@ def main() -> None:
     study.run_study(__doc__, name=STUDY, spec="convention",
                     title="Study 4 — sign convention: the paper's prose (intent) vs its formulas (literal)",
                     findings=findings,
-                    figures=[("report/figures/rates.png", "Success, collision and stall rates with Wilson intervals"),
+                    figures=[study.RATES_FIGURE,
                              ("report/figures/differences.png",
                               "Paired differences literal − intent (filled: Holm-significant)")],
                     baseline="convention=intent", heatmap=None, gallery=2)

@@ -20,6 +20,8 @@ from typing import Any, Callable, Mapping
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "analysis" / "results"
+#: The report's rate chart, as most studies caption it in their README.
+RATES_FIGURE = ("report/figures/rates.png", "Success, collision and stall rates with Wilson intervals")
 
 
 def parser(doc: str) -> argparse.ArgumentParser:
