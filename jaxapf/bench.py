@@ -36,7 +36,7 @@ import numpy as np
 from .config import ConfigError, Gains, MPCConfig, SimConfig, check_int
 
 __all__ = ["run_benchmark", "format_benchmark", "run_sweep_benchmark", "format_sweep_benchmark", "time_sweep",
-           "fit_step_cost", "format_step_cost"]
+           "fit_step_cost", "format_step_cost", "parse_xla_option", "compare_xla_options", "format_xla_options"]
 
 
 def _environment(dtype: Any) -> dict[str, Any]:
@@ -62,6 +62,30 @@ def _summary(metrics: dict[str, Any]) -> dict[str, float]:
     if "final_distance" in metrics:
         out["final_distance_mean"] = float(np.mean(np.asarray(metrics["final_distance"], np.float64)))
     return out
+
+
+def _case(fields: int, obstacles: int, horizon: int, iters: int, steps: int, family: str, seed: int,
+          method: str, chunk: int | None, gains: Gains | None, scenarios: Any) -> dict[str, Any]:
+    """Configs, fields (on device) and a batch of one gain setting of a benchmark case."""
+    from .rollout import default_chunk
+
+    steps = check_int("bench.steps", steps, 1)
+    if chunk is not None:
+        chunk = check_int("bench.chunk", chunk, 1)
+    sim = SimConfig(method=method, t_max=steps * 0.1)
+    mpc = MPCConfig(horizon=horizon, iters=iters)
+    gains = Gains() if gains is None else gains
+    if scenarios is None:
+        from .scenarios import family_params, make_scenarios
+
+        scenarios = make_scenarios(seed, family_params(family, max_obstacles=obstacles), fields)
+        source = family
+    else:
+        source = "custom"
+    scenarios = _block(jax.tree_util.tree_map(jnp.asarray, scenarios))
+    gains_batch = jax.tree_util.tree_map(lambda g: jnp.asarray(g, scenarios.start.dtype)[None], gains)
+    return {"sim": sim, "mpc": mpc, "gains": gains, "gains_batch": gains_batch, "scenarios": scenarios,
+            "chunk": default_chunk() if chunk is None else chunk, "source": source}
 
 
 def run_benchmark(
@@ -103,37 +127,21 @@ def run_benchmark(
       A JSON-serialisable dict: ``config``, ``environment``, ``engine``, ``baseline`` (None when
       skipped), ``speedup`` (None when skipped).
     """
-    from .rollout import default_chunk, evaluate
+    from .rollout import evaluate
 
     fields = check_int("bench.fields", fields, 1)
-    steps = check_int("bench.steps", steps, 1)
     baseline_fields = check_int("bench.baseline_fields", baseline_fields, 0)
-    if chunk is not None:
-        chunk = check_int("bench.chunk", chunk, 1)
     devices = check_int("bench.devices", devices, 1, jax.local_device_count())
-    sim = SimConfig(method=method, t_max=steps * 0.1)
-    mpc = MPCConfig(horizon=horizon, iters=iters)
-    gains = Gains() if gains is None else gains
-    chunk = default_chunk() if chunk is None else chunk
-
     t0 = time.perf_counter()
-    if scenarios is None:
-        from .scenarios import family_params, make_scenarios
-
-        params = family_params(family, max_obstacles=obstacles)
-        scenarios = make_scenarios(seed, params, fields)
-        source = family
-    else:
-        source = "custom"
-    scenarios = _block(jax.tree_util.tree_map(jnp.asarray, scenarios))
+    case = _case(fields, obstacles, horizon, iters, steps, family, seed, method, chunk, gains, scenarios)
+    t_scenarios = time.perf_counter() - t0
+    sim, mpc, gains, chunk, source = case["sim"], case["mpc"], case["gains"], case["chunk"], case["source"]
+    scenarios, gains_batch = case["scenarios"], case["gains_batch"]
     fields = int(scenarios.start.shape[0])
     obstacles = int(scenarios.obstacles.radius.shape[-1])
-    t_scenarios = time.perf_counter() - t0
     if fields % devices:
         raise ConfigError(f"bench.fields = {fields} is not a multiple of bench.devices = {devices}")
-
     dtype = scenarios.start.dtype
-    gains_batch = jax.tree_util.tree_map(lambda g: jnp.asarray(g, dtype)[None], gains)
 
     # engine: trace + lower, compile, first run, steady run
     if devices == 1:
@@ -224,6 +232,97 @@ def run_benchmark(
         "baseline": baseline,
         "speedup": speedup,
     }
+
+
+def parse_xla_option(text: str) -> tuple[str, Any]:
+    """``KEY=VALUE`` of ``jaxapf bench --xla-option``: VALUE ``true``/``false``, an int, a float or a
+    string (an empty one allowed)."""
+    key, sep, value = text.partition("=")
+    if not sep or not key.startswith("xla_"):
+        raise ConfigError(f"bench.xla_option = {text!r}: expected KEY=VALUE with an XLA option name "
+                          "(xla_...), e.g. xla_cpu_use_fusion_emitters=true")
+    for cast in (int, float):
+        try:
+            return key, cast(value)
+        except ValueError:
+            pass
+    return key, {"true": True, "false": False}.get(value.lower(), value)
+
+
+def _max_abs_diff(a: Any, b: Any) -> float:
+    """Largest ``|a - b|`` over entries that differ (equal infinities and NaN pairs count as equal)."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    same = (a == b) | (np.isnan(a) & np.isnan(b))
+    with np.errstate(invalid="ignore"):
+        return float(np.max(np.where(same, 0.0, np.abs(a - b)), initial=0.0))
+
+
+def compare_xla_options(overrides: dict[str, Any], repeats: int = 5, **case: Any) -> dict[str, Any]:
+    """The engine compiled with :data:`~jaxapf.rollout.XLA_OPTIONS` ("shipped") and with
+    ``XLA_OPTIONS | overrides`` ("override"), both from one lowering of the benchmark case
+    (``case``: the keywords of :func:`run_benchmark` that describe the work), timed in this
+    process: the fastest of ``repeats`` interleaved steady runs of each (so the ratio of the two is
+    measured under the same load), and whether the two give the same episodes.
+
+    Returns a JSON-serialisable dict: ``config``, ``environment``, ``overrides``, per variant
+    ``compile_s``/``run_s``/``cpu_s``/``steps_per_s``, ``speedup`` (override over shipped run time:
+    > 1 means the override is faster), ``outcome_changes`` (episodes whose success, collision or
+    stalled flag differs: a closed loop amplifies float rounding, so a different compilation can
+    send a few episodes down another path), each variant's ``rates`` and ``max_abs_diff`` of every
+    metric.
+    """
+    from .rollout import XLA_OPTIONS, evaluate
+
+    repeats = check_int("bench.repeats", repeats, 1)
+    c = _case(case.get("fields", 1024), case.get("obstacles", 16), case.get("horizon", 20), case.get("iters", 30),
+              case.get("steps", 300), case.get("family", "clutter"), case.get("seed", 0),
+              case.get("method", "direction_velocity"), case.get("chunk"), None, None)
+    args = (c["scenarios"], c["gains_batch"])
+    lowered = evaluate.lower(*args, sim=c["sim"], mpc=c["mpc"], chunk=c["chunk"])
+    variants = {"shipped": dict(XLA_OPTIONS), "override": {**XLA_OPTIONS, **overrides}}
+    compiled, compile_s, metrics = {}, {}, {}
+    for name, options in variants.items():
+        t0 = time.perf_counter()
+        compiled[name] = lowered.compile(compiler_options=options)
+        compile_s[name] = time.perf_counter() - t0
+        metrics[name] = jax.device_get(_block(compiled[name](*args)))
+    timed = _interleaved({name: (lambda f=f: _block(f(*args))) for name, f in compiled.items()}, repeats)
+    scenario_steps = c["scenarios"].start.shape[0] * c["sim"].steps
+    outcomes = ("success", "collision", "stalled")
+    diff = {k: _max_abs_diff(metrics["shipped"][k], metrics["override"][k]) for k in metrics["shipped"]}
+    return {
+        "config": {"fields": int(c["scenarios"].start.shape[0]), "steps": c["sim"].steps,
+                   "obstacles": int(c["scenarios"].obstacles.radius.shape[-1]), "horizon": c["mpc"].horizon,
+                   "iters": c["mpc"].iters, "family": c["source"], "chunk": c["chunk"], "repeats": repeats},
+        "environment": _environment(c["scenarios"].start.dtype),
+        "overrides": overrides,
+        "variants": {name: {"options": variants[name], "compile_s": compile_s[name], **timed[name],
+                            "steps_per_s": scenario_steps / timed[name]["run_s"]} for name in variants},
+        "speedup": timed["shipped"]["run_s"] / timed["override"]["run_s"],
+        "outcome_changes": int(np.sum(np.any([metrics["shipped"][k] != metrics["override"][k] for k in outcomes],
+                                             axis=0))),
+        "rates": {name: _summary(m) for name, m in metrics.items()},
+        "max_abs_diff": diff,
+    }
+
+
+def format_xla_options(result: dict[str, Any]) -> str:
+    """The two variants of :func:`compare_xla_options` side by side."""
+    cfg, env = result["config"], result["environment"]
+    lines = [f"jaxapf bench --xla-option: {cfg['fields']} {cfg['family']} fields x {cfg['steps']} steps, "
+             f"{cfg['obstacles']} obstacle slots, N = {cfg['horizon']}, {cfg['iters']} FISTA iterations; "
+             f"fastest of {cfg['repeats']} interleaved runs each",
+             f"  device {env['device']}, {env['cpu_count']} CPUs, jax {env['jax']} / jaxlib {env['jaxlib']}", ""]
+    for name, v in result["variants"].items():
+        lines.append(f"  {name:<9s} {v['run_s']:8.3f} s  {v['steps_per_s']:>10,.0f} scenario-steps/s  "
+                     f"(compile {v['compile_s']:.1f} s)  {v['options']}")
+    worst = max(result["max_abs_diff"].items(), key=lambda kv: kv[1])
+    lines += ["", f"  override / shipped speed: {result['speedup']:.2f}x",
+              f"  episodes whose outcome (success, collision, stalled) differs: {result['outcome_changes']} of "
+              f"{cfg['fields']}; largest metric difference {worst[1]:.3g} ({worst[0]})"]
+    for name, rates in result["rates"].items():
+        lines.append(f"  {name:<9s} " + ", ".join(f"{k} {v:.4g}" for k, v in rates.items()))
+    return "\n".join(lines)
 
 
 def _seconds(s: float) -> str:

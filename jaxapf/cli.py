@@ -87,6 +87,10 @@ def build_parser() -> argparse.ArgumentParser:
                             "devices (SPEC: a sweep spec TOML; default a built-in 2,048-episode study)")
     bench.add_argument("--fit-cost", action="store_true",
                        help="instead: fit the per-step cost model behind `jaxapf sweep --dry-run` on this machine")
+    bench.add_argument("--xla-option", action="append", metavar="KEY=VALUE",
+                       help="instead: time the engine compiled with rollout.XLA_OPTIONS against the same with "
+                            "KEY=VALUE (repeatable), one lowering, runs interleaved, e.g. "
+                            "--xla-option xla_cpu_use_fusion_emitters=true")
 
     tune = sub.add_parser("tune", help="learn the planner gains by gradient descent through the closed loop "
                                        "and test them against defaults, grid and random search")
@@ -172,12 +176,19 @@ def _simulate(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from .bench import (fit_step_cost, format_benchmark, format_step_cost, format_sweep_benchmark, run_benchmark,
+    from .bench import (compare_xla_options, fit_step_cost, format_benchmark, format_step_cost,
+                        format_sweep_benchmark, format_xla_options, parse_xla_option, run_benchmark,
                         run_sweep_benchmark)
 
     if args.fit_cost:
         result = fit_step_cost()
         print(json.dumps(result, indent=2) if args.json else format_step_cost(result))
+        return 0
+    if args.xla_option:
+        result = compare_xla_options(dict(parse_xla_option(o) for o in args.xla_option), fields=args.fields,
+                                     obstacles=args.obstacles, horizon=args.horizon, iters=args.iters,
+                                     steps=args.steps, family=args.family, chunk=args.chunk)
+        print(json.dumps(result, indent=2) if args.json else format_xla_options(result))
         return 0
     if args.sweep is not None:
         from .sweep_spec import read_toml

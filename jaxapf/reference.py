@@ -19,7 +19,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from .config import Gains, SimConfig
-from .obstacles import Obstacles, safe_norm
+from .obstacles import ObstacleColumns, Obstacles, safe_norm
 from .potentials import total_force
 
 __all__ = ["saturate", "apf_reference"]
@@ -31,10 +31,16 @@ def saturate(u: Array, limit: float) -> Array:
 
 
 def apf_reference(
-    x: Array, t: Array, goal: Array, obstacles: Obstacles, gains: Gains, sim: SimConfig, horizon: int
+    x: Array, t: Array, goal: Array, obstacles: Obstacles | ObstacleColumns, gains: Gains, sim: SimConfig,
+    horizon: int,
 ) -> Array:
-    """MPC reference states (horizon+1, 6) for ``x(k..k+N)`` from the APF gradient flow."""
-    obstacles = obstacles.columns()
+    """MPC reference states (horizon+1, 6) for ``x(k..k+N)`` from the APF gradient flow.
+
+    ``obstacles`` in either layout; a closed loop passes :class:`ObstacleColumns`, converted once per
+    episode (:meth:`Obstacles.columns`), so no control step transposes the field again.
+    """
+    if isinstance(obstacles, Obstacles):
+        obstacles = obstacles.columns()
 
     def flow(carry, i):
         p, v = carry

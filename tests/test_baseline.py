@@ -228,3 +228,36 @@ def test_fit_step_cost_recovers_a_known_model(monkeypatch):
     np.testing.assert_allclose(result["coefficients"], truth, rtol=1e-9)
     assert result["fit_over_measured"]["min"] == pytest.approx(1.0) == result["fit_over_measured"]["max"]
     assert "STEP_COST_US = (5, 0.01, 0.02, 0.1)" in bench.format_step_cost(result)
+
+
+def test_xla_option_parsing_names_the_flag():
+    from jaxapf.bench import parse_xla_option
+    from jaxapf.config import ConfigError
+
+    assert parse_xla_option("xla_cpu_use_fusion_emitters=true") == ("xla_cpu_use_fusion_emitters", True)
+    assert parse_xla_option("xla_cpu_enable_fast_math=False") == ("xla_cpu_enable_fast_math", False)
+    assert parse_xla_option("xla_cpu_prefer_vector_width=512") == ("xla_cpu_prefer_vector_width", 512)
+    assert parse_xla_option("xla_cpu_experimental_ynn_fusion_type=") == ("xla_cpu_experimental_ynn_fusion_type", "")
+    for bad in ("fast_math=true", "xla_cpu_use_fusion_emitters"):
+        with pytest.raises(ConfigError, match=r"bench\.xla_option = .*KEY=VALUE"):
+            parse_xla_option(bad)
+
+
+def test_compare_xla_options_times_both_compilations_of_one_lowering():
+    """`jaxapf bench --xla-option`: the shipped options against an override, from one lowering.
+    An override that restates a shipped option compiles the same program: same episodes."""
+    from jaxapf.bench import compare_xla_options, format_xla_options
+    from jaxapf.rollout import XLA_OPTIONS
+
+    key, value = next(iter(XLA_OPTIONS.items()))
+    result = compare_xla_options({key: value}, repeats=1, fields=2, steps=4, obstacles=2, horizon=3, iters=2)
+    assert set(result["variants"]) == {"shipped", "override"}
+    assert result["variants"]["override"]["options"] == XLA_OPTIONS
+    assert all(v["run_s"] > 0 and v["compile_s"] > 0 for v in result["variants"].values())
+    assert result["outcome_changes"] == 0 and max(result["max_abs_diff"].values()) == 0.0
+    assert result["speedup"] == pytest.approx(result["variants"]["shipped"]["run_s"]
+                                              / result["variants"]["override"]["run_s"])
+    assert "override / shipped speed" in format_xla_options(result)
+    import json
+
+    json.dumps(result)
