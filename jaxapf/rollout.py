@@ -97,9 +97,10 @@ ACCELERATOR_CHUNK = 4096
 #:   times slower than XLA's own fused loops (``jaxapf bench``: the engine took about twice as long);
 #:   the empty list switches YNNPACK fusions off.
 #: * ``xla_cpu_use_fusion_emitters = False``: XLA's classic loop emitter instead of the newer
-#:   fusion emitters; the APF flow's many small ``(fields, obstacles)`` loops run about 1.4x faster,
-#:   the whole closed loop 10-20 % (same-process A/B of one lowering compiled both ways, see
-#:   docs/bench.md), with the same episode outcomes (continuous metrics differ in float rounding).
+#:   fusion emitters, which compile the APF flow's many small ``(fields, obstacles)`` loops into
+#:   slower code; the whole closed loop runs about 1.2x faster (``jaxapf bench --xla-option
+#:   xla_cpu_use_fusion_emitters=true`` compiles one lowering both ways and times them
+#:   interleaved; README, "Speed").
 XLA_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": "", "xla_cpu_use_fusion_emitters": False}
 
 
