@@ -112,3 +112,27 @@ def test_episode_numbers_do_not_depend_on_the_batch():
     three = evaluate(stack(fields[2:]), grid, short, MPC, chunk=2)
     for name in five:
         np.testing.assert_array_equal(np.asarray(five[name])[:, 2:], three[name])
+
+
+def test_apf_reference_follows_the_saturated_flow_in_either_obstacle_layout():
+    """SPEC 4: p_{i+1} = p_i + Δt·sat(η F(p_i, v_i, t + iΔt)), v_{i+1} = that step's velocity;
+    the closed loop hands the reference the field's columns once per episode, a direct caller
+    may hand it the field itself: same numbers."""
+    from jaxapf.potentials import total_force
+    from jaxapf.reference import apf_reference, saturate
+
+    sim = SimConfig(reference_velocity=True)
+    s, g, horizon, t = _scenario(extra_padding=2), Gains().as_arrays(), 5, 0.7
+    x = jnp.array([1.0, 0.2, 2.0, 0.4, 0.0, 0.0])
+    ref = apf_reference(x, t, s.goal, s.obstacles, g, sim, horizon)
+    np.testing.assert_array_equal(ref, apf_reference(x, t, s.goal, s.obstacles.columns(), g, sim, horizon))
+    p, v = x[:3], x[3:]
+    for i in range(horizon):
+        force = total_force(p, v, t + i * sim.dt, s.goal, s.obstacles, g, method=sim.method,
+                            convention=sim.convention, r_uav=sim.r_uav, d_min=sim.d_min, eps_v=sim.eps_v,
+                            att_cap=sim.att_cap)
+        v = saturate(g.eta * force, sim.v_max)
+        p = p + sim.dt * v
+        np.testing.assert_allclose(ref[i + 1], jnp.concatenate([p, v]), rtol=1e-5, atol=1e-6)
+    assert ref.shape == (horizon + 1, 6)
+    np.testing.assert_array_equal(ref[0], x)
