@@ -283,7 +283,10 @@ def compare_xla_options(overrides: dict[str, Any], repeats: int = 5, **case: Any
     compiled, compile_s, metrics = {}, {}, {}
     for name, options in variants.items():
         t0 = time.perf_counter()
-        compiled[name] = lowered.compile(compiler_options=options)
+        try:
+            compiled[name] = lowered.compile(compiler_options=options)
+        except jax.errors.JaxRuntimeError as err:  # an unknown option or a value of the wrong type
+            raise ConfigError(f"bench.xla_option = {overrides}: XLA rejected it ({str(err).strip()})") from None
         compile_s[name] = time.perf_counter() - t0
         metrics[name] = jax.device_get(_block(compiled[name](*args)))
     timed = _interleaved({name: (lambda f=f: _block(f(*args))) for name, f in compiled.items()}, repeats)

@@ -258,6 +258,11 @@ def test_compare_xla_options_times_both_compilations_of_one_lowering():
     assert result["speedup"] == pytest.approx(result["variants"]["shipped"]["run_s"]
                                               / result["variants"]["override"]["run_s"])
     assert "override / shipped speed" in format_xla_options(result)
+    from jaxapf.config import ConfigError
+
+    with pytest.raises(ConfigError, match=r"bench\.xla_option = .*xla_cpu_no_such_option.*XLA rejected it"):
+        compare_xla_options({"xla_cpu_no_such_option": 1}, repeats=1, fields=2, steps=2, obstacles=2, horizon=3,
+                            iters=2)
     import json
 
     json.dumps(result)
