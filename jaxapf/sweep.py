@@ -103,9 +103,10 @@ PROCESS_BASELINE = 450 * 2**20
 #: Cost model of one episode step [µs of wall time] on one CPU device (float32, vmap width 1024,
 #: XLA spreading the kernels over the cores): ``c0 + c_qp·N·I + c_obs·N·M + c_n·N`` (N horizon,
 #: I FISTA iterations, M obstacle slots), fitted by ``jaxapf bench --fit-cost`` (least squares on
-#: 18 configurations, N 10–40, I 10–60, M 4 and 16) on the 2-core AMD EPYC development machine;
-#: the fit is within 0.74–1.78× of every measurement.
-STEP_COST_US = (6.431, 0.008959, 0.008117, 0.07801)
+#: 18 configurations, N 10–40, I 10–60, M 4 and 16) on the 2-core AMD EPYC development machine
+#: with the classic loop emitters of ``rollout.XLA_OPTIONS``; the fit is within 0.77–1.46× of
+#: every measurement (two fits in a row agreed within 3 % at N = 20, I = 30, M = 16).
+STEP_COST_US = (3.002, 0.009114, 0.006484, 0.09848)
 #: Cold XLA compile of one evaluate program on that machine [s] (2.5–8 s measured).
 COMPILE_S = 4.0
 #: The PRNG of the fields and of the random gain samples.
