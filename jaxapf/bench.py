@@ -36,7 +36,8 @@ import numpy as np
 from .config import ConfigError, Gains, MPCConfig, SimConfig, check_int
 
 __all__ = ["run_benchmark", "format_benchmark", "run_sweep_benchmark", "format_sweep_benchmark", "time_sweep",
-           "fit_step_cost", "format_step_cost", "parse_xla_option", "compare_xla_options", "format_xla_options"]
+           "fit_step_cost", "format_step_cost", "parse_xla_option", "compare_xla_options", "format_xla_options", "cost_split",
+           "format_cost_split"]
 
 
 def _environment(dtype: Any) -> dict[str, Any]:
@@ -325,6 +326,59 @@ def format_xla_options(result: dict[str, Any]) -> str:
               f"{cfg['fields']}; largest metric difference {worst[1]:.3g} ({worst[0]})"]
     for name, rates in result["rates"].items():
         lines.append(f"  {name:<9s} " + ", ".join(f"{k} {v:.4g}" for k, v in rates.items()))
+    return "\n".join(lines)
+
+
+def cost_split(fields: int = 1024, obstacles: int = 16, horizon: int = 20, iters: int = 30, steps: int = 100,
+               family: str = "clutter", repeats: int = 3) -> dict[str, Any]:
+    """Where an engine step's time goes: the case run as is, with one obstacle slot, with one FISTA
+    iteration, and with both, compiled in this process and timed interleaved (fastest of
+    ``repeats`` steady runs each), in µs of wall time per scenario-step.
+
+    The extra obstacle slots cost ``full - one_obstacle`` (with every iteration) or ``one_iteration
+    - both`` (with one); the extra iterations ``full - one_iteration`` or ``one_obstacle - both``:
+    the two readings differ where the parts overlap on the cores. ``both`` is what is left: one
+    obstacle, one iteration, the plant and the metrics.
+    """
+    from .rollout import evaluate
+
+    repeats = check_int("bench.repeats", repeats, 1)
+    shapes = {"full": (obstacles, iters), "one_obstacle": (1, iters), "one_iteration": (obstacles, 1), "both": (1, 1)}
+    runs = {}
+    for name, (m, i) in shapes.items():
+        c = _case(fields, m, horizon, i, steps, family, 0, "direction_velocity", None, None, None)
+        args = (c["scenarios"], c["gains_batch"])
+        compiled = evaluate.lower(*args, sim=c["sim"], mpc=c["mpc"], chunk=c["chunk"]).compile()
+        _block(compiled(*args))
+        runs[name] = lambda f=compiled, a=args: _block(f(*a))
+    timed = _interleaved(runs, repeats)
+    us = {name: 1e6 * t["run_s"] / (fields * steps) for name, t in timed.items()}
+    return {
+        "config": {"fields": fields, "obstacles": obstacles, "horizon": horizon, "iters": iters, "steps": steps,
+                   "family": family, "repeats": repeats},
+        "environment": _environment(jnp.result_type(float)),
+        "step_us": us,
+        "obstacles_us": sorted([us["full"] - us["one_obstacle"], us["one_iteration"] - us["both"]]),
+        "iterations_us": sorted([us["full"] - us["one_iteration"], us["one_obstacle"] - us["both"]]),
+        "rest_us": us["both"],
+    }
+
+
+def format_cost_split(result: dict[str, Any]) -> str:
+    """The four runs of :func:`cost_split` and the attribution."""
+    cfg, env, us = result["config"], result["environment"], result["step_us"]
+    lines = [f"jaxapf bench --split: {cfg['fields']} {cfg['family']} fields x {cfg['steps']} steps, N = {cfg['horizon']}; "
+             f"fastest of {cfg['repeats']} interleaved runs each",
+             f"  device {env['device']}, {env['cpu_count']} CPUs, jax {env['jax']} / jaxlib {env['jaxlib']}", "",
+             f"  {'run':<36s}{'us per scenario-step':>22s}"]
+    labels = {"full": f"{cfg['obstacles']} obstacle slots, {cfg['iters']} iterations",
+              "one_obstacle": f"1 obstacle slot, {cfg['iters']} iterations",
+              "one_iteration": f"{cfg['obstacles']} obstacle slots, 1 iteration", "both": "1 obstacle slot, 1 iteration"}
+    lines += [f"  {labels[name]:<36s}{us[name]:>22.2f}" for name in labels]
+    span = lambda pair: f"{pair[0]:.2f}-{pair[1]:.2f} us"  # noqa: E731
+    lines += ["", f"  {cfg['obstacles'] - 1} further obstacle slots (APF reference): {span(result['obstacles_us'])}",
+              f"  {cfg['iters'] - 1} further FISTA iterations: {span(result['iterations_us'])}",
+              f"  the rest (1 obstacle, 1 iteration, plant, metrics): {result['rest_us']:.2f} us"]
     return "\n".join(lines)
 
 

@@ -73,7 +73,7 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--obstacles", type=int, default=16)
     bench.add_argument("--horizon", type=int, default=20)
     bench.add_argument("--iters", type=int, default=30)
-    bench.add_argument("--steps", type=int, default=300)
+    bench.add_argument("--steps", type=int, help="control steps per episode (default 300; 100 with --split)")
     bench.add_argument("--baseline-fields", type=int, default=3,
                        help="fields run by the numpy+OSQP loop (0: skip the baseline)")
     bench.add_argument("--family", default="clutter")
@@ -87,6 +87,9 @@ def build_parser() -> argparse.ArgumentParser:
                             "devices (SPEC: a sweep spec TOML; default a built-in 2,048-episode study)")
     bench.add_argument("--fit-cost", action="store_true",
                        help="instead: fit the per-step cost model behind `jaxapf sweep --dry-run` on this machine")
+    bench.add_argument("--split", action="store_true",
+                       help="instead: where a step's time goes (all obstacle slots and iterations, one obstacle, "
+                            "one iteration, both; --steps defaults to 100), timed interleaved")
     bench.add_argument("--xla-option", action="append", metavar="KEY=VALUE",
                        help="instead: time the engine compiled with rollout.XLA_OPTIONS against the same with "
                             "KEY=VALUE (repeatable), one lowering, runs interleaved, e.g. "
@@ -176,18 +179,24 @@ def _simulate(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from .bench import (compare_xla_options, fit_step_cost, format_benchmark, format_step_cost,
-                        format_sweep_benchmark, format_xla_options, parse_xla_option, run_benchmark,
-                        run_sweep_benchmark)
+    from .bench import (compare_xla_options, cost_split, fit_step_cost, format_benchmark, format_cost_split,
+                        format_step_cost, format_sweep_benchmark, format_xla_options, parse_xla_option,
+                        run_benchmark, run_sweep_benchmark)
 
     if args.fit_cost:
         result = fit_step_cost()
         print(json.dumps(result, indent=2) if args.json else format_step_cost(result))
         return 0
+    steps = args.steps if args.steps is not None else 100 if args.split else 300
+    if args.split:
+        result = cost_split(fields=args.fields, obstacles=args.obstacles, horizon=args.horizon, iters=args.iters,
+                            steps=steps, family=args.family)
+        print(json.dumps(result, indent=2) if args.json else format_cost_split(result))
+        return 0
     if args.xla_option:
         result = compare_xla_options(dict(parse_xla_option(o) for o in args.xla_option), fields=args.fields,
                                      obstacles=args.obstacles, horizon=args.horizon, iters=args.iters,
-                                     steps=args.steps, family=args.family, chunk=args.chunk)
+                                     steps=steps, family=args.family, chunk=args.chunk)
         print(json.dumps(result, indent=2) if args.json else format_xla_options(result))
         return 0
     if args.sweep is not None:
@@ -203,7 +212,7 @@ def _bench(args: argparse.Namespace) -> int:
         check_int("bench.devices", args.devices, 1)
         configure_jax(cpu_devices=args.devices)
     result = run_benchmark(fields=args.fields, obstacles=args.obstacles, horizon=args.horizon,
-                           iters=args.iters, steps=args.steps, baseline_fields=args.baseline_fields,
+                           iters=args.iters, steps=steps, baseline_fields=args.baseline_fields,
                            family=args.family, chunk=args.chunk, devices=args.devices)
     print(json.dumps(result, indent=2) if args.json else format_benchmark(result))
     return 0

@@ -266,3 +266,19 @@ def test_compare_xla_options_times_both_compilations_of_one_lowering():
     import json
 
     json.dumps(result)
+
+
+def test_cost_split_attributes_the_step_to_obstacles_iterations_and_the_rest():
+    """`jaxapf bench --split`: four compiled cases, and the attribution is their differences."""
+    from jaxapf.bench import cost_split, format_cost_split
+
+    result = cost_split(fields=2, obstacles=3, horizon=3, iters=2, steps=3, repeats=1)
+    us = result["step_us"]
+    assert set(us) == {"full", "one_obstacle", "one_iteration", "both"} and min(us.values()) > 0
+    assert result["obstacles_us"] == pytest.approx(sorted([us["full"] - us["one_obstacle"],
+                                                           us["one_iteration"] - us["both"]]))
+    assert result["iterations_us"] == pytest.approx(sorted([us["full"] - us["one_iteration"],
+                                                            us["one_obstacle"] - us["both"]]))
+    assert result["rest_us"] == us["both"]
+    text = format_cost_split(result)
+    assert "2 further obstacle slots" in text and "1 further FISTA iterations" in text
