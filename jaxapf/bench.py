@@ -36,8 +36,8 @@ import numpy as np
 from .config import ConfigError, Gains, MPCConfig, SimConfig, check_int
 
 __all__ = ["run_benchmark", "format_benchmark", "run_sweep_benchmark", "format_sweep_benchmark", "time_sweep",
-           "fit_step_cost", "format_step_cost", "parse_xla_option", "compare_xla_options", "format_xla_options", "cost_split",
-           "format_cost_split"]
+           "fit_step_cost", "format_step_cost", "parse_xla_option", "compare_xla_options", "format_xla_options",
+           "cost_split", "format_cost_split"]
 
 
 def _environment(dtype: Any) -> dict[str, Any]:
@@ -65,8 +65,9 @@ def _summary(metrics: dict[str, Any]) -> dict[str, float]:
     return out
 
 
-def _case(fields: int, obstacles: int, horizon: int, iters: int, steps: int, family: str, seed: int,
-          method: str, chunk: int | None, gains: Gains | None, scenarios: Any) -> dict[str, Any]:
+def _case(fields: int, obstacles: int, horizon: int, iters: int, steps: int, family: str, *, seed: int = 0,
+          method: str = "direction_velocity", chunk: int | None = None, gains: Gains | None = None,
+          scenarios: Any = None) -> dict[str, Any]:
     """Configs, fields (on device) and a batch of one gain setting of a benchmark case."""
     from .rollout import default_chunk
 
@@ -134,7 +135,8 @@ def run_benchmark(
     baseline_fields = check_int("bench.baseline_fields", baseline_fields, 0)
     devices = check_int("bench.devices", devices, 1, jax.local_device_count())
     t0 = time.perf_counter()
-    case = _case(fields, obstacles, horizon, iters, steps, family, seed, method, chunk, gains, scenarios)
+    case = _case(fields, obstacles, horizon, iters, steps, family, seed=seed, method=method, chunk=chunk, gains=gains,
+                 scenarios=scenarios)
     t_scenarios = time.perf_counter() - t0
     sim, mpc, gains, chunk, source = case["sim"], case["mpc"], case["gains"], case["chunk"], case["source"]
     scenarios, gains_batch = case["scenarios"], case["gains_batch"]
@@ -258,10 +260,12 @@ def _max_abs_diff(a: Any, b: Any) -> float:
         return float(np.max(np.where(same, 0.0, np.abs(a - b)), initial=0.0))
 
 
-def compare_xla_options(overrides: dict[str, Any], repeats: int = 5, **case: Any) -> dict[str, Any]:
+def compare_xla_options(overrides: dict[str, Any], fields: int = 1024, obstacles: int = 16, horizon: int = 20,
+                        iters: int = 30, steps: int = 300, family: str = "clutter", chunk: int | None = None,
+                        repeats: int = 5) -> dict[str, Any]:
     """The engine compiled with :data:`~jaxapf.rollout.XLA_OPTIONS` ("shipped") and with
     ``XLA_OPTIONS | overrides`` ("override"), both from one lowering of the benchmark case
-    (``case``: the keywords of :func:`run_benchmark` that describe the work), timed in this
+    (the work as in :func:`run_benchmark`), timed in this
     process: the fastest of ``repeats`` interleaved steady runs of each (so the ratio of the two is
     measured under the same load), and whether the two give the same episodes.
 
@@ -275,9 +279,7 @@ def compare_xla_options(overrides: dict[str, Any], repeats: int = 5, **case: Any
     from .rollout import XLA_OPTIONS, evaluate
 
     repeats = check_int("bench.repeats", repeats, 1)
-    c = _case(case.get("fields", 1024), case.get("obstacles", 16), case.get("horizon", 20), case.get("iters", 30),
-              case.get("steps", 300), case.get("family", "clutter"), case.get("seed", 0),
-              case.get("method", "direction_velocity"), case.get("chunk"), None, None)
+    c = _case(fields, obstacles, horizon, iters, steps, family, chunk=chunk)
     args = (c["scenarios"], c["gains_batch"])
     lowered = evaluate.lower(*args, sim=c["sim"], mpc=c["mpc"], chunk=c["chunk"])
     variants = {"shipped": dict(XLA_OPTIONS), "override": {**XLA_OPTIONS, **overrides}}
@@ -343,10 +345,11 @@ def cost_split(fields: int = 1024, obstacles: int = 16, horizon: int = 20, iters
     from .rollout import evaluate
 
     repeats = check_int("bench.repeats", repeats, 1)
-    shapes = {"full": (obstacles, iters), "one_obstacle": (1, iters), "one_iteration": (obstacles, 1), "both": (1, 1)}
+    shapes = {"full": (obstacles, iters), "one_obstacle": (1, iters), "one_iteration": (obstacles, 1),
+              "both": (1, 1)}
     runs = {}
     for name, (m, i) in shapes.items():
-        c = _case(fields, m, horizon, i, steps, family, 0, "direction_velocity", None, None, None)
+        c = _case(fields, m, horizon, i, steps, family)
         args = (c["scenarios"], c["gains_batch"])
         compiled = evaluate.lower(*args, sim=c["sim"], mpc=c["mpc"], chunk=c["chunk"]).compile()
         _block(compiled(*args))
@@ -367,13 +370,14 @@ def cost_split(fields: int = 1024, obstacles: int = 16, horizon: int = 20, iters
 def format_cost_split(result: dict[str, Any]) -> str:
     """The four runs of :func:`cost_split` and the attribution."""
     cfg, env, us = result["config"], result["environment"], result["step_us"]
-    lines = [f"jaxapf bench --split: {cfg['fields']} {cfg['family']} fields x {cfg['steps']} steps, N = {cfg['horizon']}; "
-             f"fastest of {cfg['repeats']} interleaved runs each",
+    lines = [f"jaxapf bench --split: {cfg['fields']} {cfg['family']} fields x {cfg['steps']} steps, "
+             f"N = {cfg['horizon']}; fastest of {cfg['repeats']} interleaved runs each",
              f"  device {env['device']}, {env['cpu_count']} CPUs, jax {env['jax']} / jaxlib {env['jaxlib']}", "",
              f"  {'run':<36s}{'us per scenario-step':>22s}"]
     labels = {"full": f"{cfg['obstacles']} obstacle slots, {cfg['iters']} iterations",
               "one_obstacle": f"1 obstacle slot, {cfg['iters']} iterations",
-              "one_iteration": f"{cfg['obstacles']} obstacle slots, 1 iteration", "both": "1 obstacle slot, 1 iteration"}
+              "one_iteration": f"{cfg['obstacles']} obstacle slots, 1 iteration",
+              "both": "1 obstacle slot, 1 iteration"}
     lines += [f"  {labels[name]:<36s}{us[name]:>22.2f}" for name in labels]
     span = lambda pair: f"{pair[0]:.2f}-{pair[1]:.2f} us"  # noqa: E731
     lines += ["", f"  {cfg['obstacles'] - 1} further obstacle slots (APF reference): {span(result['obstacles_us'])}",
