@@ -80,8 +80,9 @@ class ObstacleColumns:
     """:class:`Obstacles` with component-first vectors: ``position``, ``velocity`` (3, M), the rest (M,).
 
     The force evaluation works on whole rows of M obstacles per component (x, y, z), which XLA
-    fuses into a few contiguous loops; the closed loop converts a field once per control step
-    (:meth:`Obstacles.columns`) instead of once per prediction point.
+    fuses into a few contiguous loops; the closed loop converts a field once per episode
+    (:meth:`Obstacles.columns`) instead of once per prediction point. Functions that take either
+    layout call ``.columns()`` on what they get (a no-op here).
     """
 
     position: Array
@@ -89,6 +90,10 @@ class ObstacleColumns:
     radius: Array
     cylinder: Array
     valid: Array
+
+    def columns(self) -> "ObstacleColumns":
+        """Already component-first: itself."""
+        return self
 
 
 @jax.tree_util.register_dataclass

@@ -240,7 +240,7 @@ def total_potential(
     Padded slots contribute exactly zero (their term is masked with ``where``, whose gradient
     is exactly zero too).
     """
-    cols = obstacles if isinstance(obstacles, ObstacleColumns) else obstacles.columns()
+    cols = obstacles.columns()
     u_rep = weighted_repulsive_potential(
         p, v, cols.position + cols.velocity * t, cols.velocity, k_rep=gains.k_rep, d_s=gains.d_s,
         gamma=gains.gamma, k=gains.k, method=method, convention=convention,

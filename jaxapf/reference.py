@@ -39,8 +39,7 @@ def apf_reference(
     ``obstacles`` in either layout; a closed loop passes :class:`ObstacleColumns`, converted once per
     episode (:meth:`Obstacles.columns`), so no control step transposes the field again.
     """
-    if isinstance(obstacles, Obstacles):
-        obstacles = obstacles.columns()
+    obstacles = obstacles.columns()
 
     def flow(carry, i):
         p, v = carry
