@@ -90,6 +90,14 @@ def _case(fields: int, obstacles: int, horizon: int, iters: int, steps: int, fam
             "chunk": default_chunk() if chunk is None else chunk, "source": source}
 
 
+def _lower(case: dict[str, Any]) -> tuple[Any, tuple]:
+    """The engine (:func:`~jaxapf.rollout.evaluate`) lowered for a :func:`_case`, and its arguments."""
+    from .rollout import evaluate
+
+    args = (case["scenarios"], case["gains_batch"])
+    return evaluate.lower(*args, sim=case["sim"], mpc=case["mpc"], chunk=case["chunk"]), args
+
+
 def run_benchmark(
     fields: int = 1024,
     obstacles: int = 16,
@@ -129,8 +137,6 @@ def run_benchmark(
       A JSON-serialisable dict: ``config``, ``environment``, ``engine``, ``baseline`` (None when
       skipped), ``speedup`` (None when skipped).
     """
-    from .rollout import evaluate
-
     fields = check_int("bench.fields", fields, 1)
     baseline_fields = check_int("bench.baseline_fields", baseline_fields, 0)
     devices = check_int("bench.devices", devices, 1, jax.local_device_count())
@@ -149,7 +155,7 @@ def run_benchmark(
     # engine: trace + lower, compile, first run, steady run
     if devices == 1:
         t0 = time.perf_counter()
-        lowered = evaluate.lower(scenarios, gains_batch, sim=sim, mpc=mpc, chunk=chunk)
+        lowered, _ = _lower(case)
         t_lower = time.perf_counter() - t0
         t0 = time.perf_counter()
         run = lowered.compile()
@@ -276,12 +282,11 @@ def compare_xla_options(overrides: dict[str, Any], fields: int = 1024, obstacles
     send a few episodes down another path), each variant's ``rates`` and ``max_abs_diff`` of every
     metric.
     """
-    from .rollout import XLA_OPTIONS, evaluate
+    from .rollout import XLA_OPTIONS
 
     repeats = check_int("bench.repeats", repeats, 1)
     c = _case(fields, obstacles, horizon, iters, steps, family, chunk=chunk)
-    args = (c["scenarios"], c["gains_batch"])
-    lowered = evaluate.lower(*args, sim=c["sim"], mpc=c["mpc"], chunk=c["chunk"])
+    lowered, args = _lower(c)
     variants = {"shipped": dict(XLA_OPTIONS), "override": {**XLA_OPTIONS, **overrides}}
     compiled, compile_s, metrics = {}, {}, {}
     for name, options in variants.items():
@@ -332,7 +337,7 @@ def format_xla_options(result: dict[str, Any]) -> str:
 
 
 def cost_split(fields: int = 1024, obstacles: int = 16, horizon: int = 20, iters: int = 30, steps: int = 100,
-               family: str = "clutter", repeats: int = 3) -> dict[str, Any]:
+               family: str = "clutter", chunk: int | None = None, repeats: int = 3) -> dict[str, Any]:
     """Where an engine step's time goes: the case run as is, with one obstacle slot, with one FISTA
     iteration, and with both, compiled in this process and timed interleaved (fastest of
     ``repeats`` steady runs each), in µs of wall time per scenario-step.
@@ -342,16 +347,14 @@ def cost_split(fields: int = 1024, obstacles: int = 16, horizon: int = 20, iters
     the two readings differ where the parts overlap on the cores. ``both`` is what is left: one
     obstacle, one iteration, the plant and the metrics.
     """
-    from .rollout import evaluate
-
     repeats = check_int("bench.repeats", repeats, 1)
     shapes = {"full": (obstacles, iters), "one_obstacle": (1, iters), "one_iteration": (obstacles, 1),
               "both": (1, 1)}
     runs = {}
     for name, (m, i) in shapes.items():
-        c = _case(fields, m, horizon, i, steps, family)
-        args = (c["scenarios"], c["gains_batch"])
-        compiled = evaluate.lower(*args, sim=c["sim"], mpc=c["mpc"], chunk=c["chunk"]).compile()
+        c = _case(fields, m, horizon, i, steps, family, chunk=chunk)
+        lowered, args = _lower(c)
+        compiled = lowered.compile()
         _block(compiled(*args))
         runs[name] = lambda f=compiled, a=args: _block(f(*a))
     timed = _interleaved(runs, repeats)

@@ -190,7 +190,7 @@ def _bench(args: argparse.Namespace) -> int:
     steps = args.steps if args.steps is not None else 100 if args.split else 300
     if args.split:
         result = cost_split(fields=args.fields, obstacles=args.obstacles, horizon=args.horizon, iters=args.iters,
-                            steps=steps, family=args.family)
+                            steps=steps, family=args.family, chunk=args.chunk)
         print(json.dumps(result, indent=2) if args.json else format_cost_split(result))
         return 0
     if args.xla_option:
