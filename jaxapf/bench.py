@@ -37,7 +37,7 @@ from .config import ConfigError, Gains, MPCConfig, SimConfig, check_int
 
 __all__ = ["run_benchmark", "format_benchmark", "run_sweep_benchmark", "format_sweep_benchmark", "time_sweep",
            "fit_step_cost", "format_step_cost", "parse_xla_option", "compare_xla_options", "format_xla_options",
-           "cost_split", "format_cost_split"]
+           "cost_split", "format_cost_split", "kernel_cost", "format_kernel_cost"]
 
 
 def _environment(dtype: Any) -> dict[str, Any]:
@@ -386,6 +386,70 @@ def format_cost_split(result: dict[str, Any]) -> str:
     lines += ["", f"  {cfg['obstacles'] - 1} further obstacle slots (APF reference): {span(result['obstacles_us'])}",
               f"  {cfg['iters'] - 1} further FISTA iterations: {span(result['iterations_us'])}",
               f"  the rest (1 obstacle, 1 iteration, plant, metrics): {result['rest_us']:.2f} us"]
+    return "\n".join(lines)
+
+
+#: The elementwise operations of :func:`kernel_cost`, each applied to an array ``y`` once per loop
+#: iteration: the arithmetic, square roots, divisions and tanh of a potential and its gradient.
+KERNEL_OPS = {
+    "multiply-add": lambda y: y - 1e-3 * (y * y),
+    "sqrt": lambda y: y - 1e-3 * jnp.sqrt(y * y + 1.0),
+    "divide": lambda y: y - 1e-3 / (y + 2.0),
+    "tanh": lambda y: y - 1e-3 * jnp.tanh(y),
+}
+
+
+def kernel_cost(fields: int = 1024, obstacles: int = 16, iterations: int = 2000, repeats: int = 3) -> dict[str, Any]:
+    """What XLA:CPU makes of one elementwise operation on the engine's per-obstacle arrays.
+
+    Each of :data:`KERNEL_OPS` is applied ``iterations`` times in a ``lax.scan`` (as the APF flow and
+    FISTA apply theirs) to a float32 array in the engine's vmapped layout, ``(fields, obstacles)``
+    (batch-major: the obstacle axis is the contiguous one), and transposed, ``(obstacles,
+    fields)``; each is compiled with :data:`~jaxapf.rollout.XLA_OPTIONS` ("shipped": XLA's classic
+    loop emitter) and with ``xla_cpu_use_fusion_emitters = True`` ("fusion emitters"). Reported:
+    wall picoseconds per element and iteration, the fastest of ``repeats`` interleaved runs. An
+    operation that runs one element at a time costs about a nanosecond or more per element; a
+    vectorised one a fraction of that.
+    """
+    from .rollout import XLA_OPTIONS
+
+    fields = check_int("bench.fields", fields, 1)
+    obstacles = check_int("bench.obstacles", obstacles, 1)
+    iterations = check_int("bench.iterations", iterations, 1)
+    repeats = check_int("bench.repeats", repeats, 1)
+    layouts = {"fields x obstacles": (fields, obstacles), "obstacles x fields": (obstacles, fields)}
+    options = {"shipped": dict(XLA_OPTIONS), "fusion emitters": {**XLA_OPTIONS, "xla_cpu_use_fusion_emitters": True}}
+    y0 = {name: jnp.asarray(np.random.default_rng(0).random(shape), jnp.float32) for name, shape in layouts.items()}
+    runs = {}
+    for op, fn in KERNEL_OPS.items():
+        loop = jax.jit(lambda y, fn=fn: jax.lax.scan(lambda y, _: (fn(y), None), y, None, length=iterations)[0])
+        for layout, y in y0.items():
+            lowered = loop.lower(y)
+            for name, opts in options.items():
+                compiled = lowered.compile(compiler_options=opts)
+                _block(compiled(y))
+                runs[(op, layout, name)] = lambda f=compiled, y=y: _block(f(y))
+    timed = _interleaved(runs, repeats)
+    per_element = 1e12 / (fields * obstacles * iterations)
+    rows = [{"op": op, "layout": layout, "options": name, "ps_per_element": t["run_s"] * per_element}
+            for (op, layout, name), t in timed.items()]
+    return {"config": {"fields": fields, "obstacles": obstacles, "iterations": iterations, "repeats": repeats},
+            "environment": _environment(jnp.float32), "rows": rows}
+
+
+def format_kernel_cost(result: dict[str, Any]) -> str:
+    """:func:`kernel_cost` as a table: one row per operation, one column per layout and options."""
+    cfg, env = result["config"], result["environment"]
+    columns = list(dict.fromkeys((r["layout"], r["options"]) for r in result["rows"]))
+    cell = {(r["op"], r["layout"], r["options"]): r["ps_per_element"] for r in result["rows"]}
+    lines = [f"jaxapf bench --kernels: one elementwise op on {cfg['fields']} fields x {cfg['obstacles']} obstacles "
+             f"(float32), {cfg['iterations']} iterations of a lax.scan; fastest of {cfg['repeats']} interleaved runs",
+             f"  device {env['device']}, {env['cpu_count']} CPUs, jax {env['jax']} / jaxlib {env['jaxlib']}",
+             "  picoseconds per element and iteration", "",
+             f"  {'':14s}" + "".join(f"{layout:>24s}" for layout, _ in columns),
+             f"  {'':14s}" + "".join(f"{name:>24s}" for _, name in columns)]
+    for op in dict.fromkeys(r["op"] for r in result["rows"]):
+        lines.append(f"  {op:14s}" + "".join(f"{cell[(op, *c)]:>24.0f}" for c in columns))
     return "\n".join(lines)
 
 

@@ -90,6 +90,10 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--split", action="store_true",
                        help="instead: where a step's time goes (all obstacle slots and iterations, one obstacle, "
                             "one iteration, both; --steps defaults to 100), timed interleaved")
+    bench.add_argument("--kernels", action="store_true",
+                       help="instead: picoseconds per element of single elementwise ops (multiply-add, sqrt, "
+                            "divide, tanh) on --fields x --obstacles arrays and transposed, compiled with the "
+                            "shipped XLA options and with XLA's fusion emitters")
     bench.add_argument("--xla-option", action="append", metavar="KEY=VALUE",
                        help="instead: time the engine compiled with rollout.XLA_OPTIONS against the same with "
                             "KEY=VALUE (repeatable), one lowering, runs interleaved, e.g. "
@@ -180,12 +184,16 @@ def _simulate(args: argparse.Namespace) -> int:
 
 def _bench(args: argparse.Namespace) -> int:
     from .bench import (compare_xla_options, cost_split, fit_step_cost, format_benchmark, format_cost_split,
-                        format_step_cost, format_sweep_benchmark, format_xla_options, parse_xla_option,
-                        run_benchmark, run_sweep_benchmark)
+                        format_kernel_cost, format_step_cost, format_sweep_benchmark, format_xla_options,
+                        kernel_cost, parse_xla_option, run_benchmark, run_sweep_benchmark)
 
     if args.fit_cost:
         result = fit_step_cost()
         print(json.dumps(result, indent=2) if args.json else format_step_cost(result))
+        return 0
+    if args.kernels:
+        result = kernel_cost(fields=args.fields, obstacles=args.obstacles)
+        print(json.dumps(result, indent=2) if args.json else format_kernel_cost(result))
         return 0
     steps = args.steps if args.steps is not None else 100 if args.split else 300
     if args.split:

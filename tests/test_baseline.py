@@ -15,7 +15,7 @@ import pytest
 osqp = pytest.importorskip("osqp")
 
 from jaxapf import baseline as bl  # noqa: E402
-from jaxapf.config import Gains, MPCConfig, SimConfig  # noqa: E402
+from jaxapf.config import ConfigError, Gains, MPCConfig, SimConfig  # noqa: E402
 from jaxapf.mpc import axis_problem, solve_axes  # noqa: E402
 from jaxapf.obstacles import Obstacles, Scenario  # noqa: E402
 from jaxapf.potentials import total_force as jax_total_force  # noqa: E402
@@ -282,3 +282,19 @@ def test_cost_split_attributes_the_step_to_obstacles_iterations_and_the_rest():
     assert result["rest_us"] == us["both"]
     text = format_cost_split(result)
     assert "2 further obstacle slots" in text and "1 further FISTA iterations" in text
+
+
+def test_kernel_cost_times_every_op_in_both_layouts_with_both_emitters():
+    """`jaxapf bench --kernels`: one row per (op, layout, options), positive times, and a table."""
+    from jaxapf.bench import KERNEL_OPS, format_kernel_cost, kernel_cost
+
+    result = kernel_cost(fields=4, obstacles=3, iterations=2, repeats=1)
+    rows = result["rows"]
+    assert {(r["op"], r["layout"], r["options"]) for r in rows} == {
+        (op, layout, options) for op in KERNEL_OPS for layout in ("fields x obstacles", "obstacles x fields")
+        for options in ("shipped", "fusion emitters")}
+    assert all(r["ps_per_element"] > 0 for r in rows)
+    text = format_kernel_cost(result)
+    assert all(op in text for op in KERNEL_OPS) and "fusion emitters" in text
+    with pytest.raises(ConfigError, match="bench.iterations"):
+        kernel_cost(iterations=0)
