@@ -301,3 +301,10 @@ def test_kernel_cost_times_every_op_in_both_layouts_with_both_emitters():
     assert all(op in text for op in KERNEL_OPS) and "fusion emitters" in text
     with pytest.raises(ConfigError, match="bench.iterations"):
         kernel_cost(iterations=0)
+
+
+def test_bench_kernels_cli_rejects_a_bad_size_by_name(capsys):
+    from jaxapf.cli import main
+
+    assert main(["bench", "--kernels", "--fields", "0"]) == 2
+    assert "bench.fields = 0" in capsys.readouterr().err
