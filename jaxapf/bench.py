@@ -356,8 +356,8 @@ def cost_split(fields: int = 1024, obstacles: int = 16, horizon: int = 20, iters
     the two readings differ where the parts overlap on the cores. ``both`` is what is left: one
     obstacle, one iteration, the plant and the metrics. The obstacle reading assumes a step costs
     more with more slots; XLA compiles each slot count differently and does not guarantee it (on
-    the development CPU, 16 slots ran faster than 2 to 8, README "Speed"), so it is a lower bound
-    at best; the iteration reading compares programs that differ only in a loop's trip count.
+    the development CPU, 16 slots ran faster than 2 to 8, README "Speed"), so it can understate
+    the obstacles' share or even come out negative; the iteration reading compares programs that differ only in a loop's trip count.
     """
     repeats = check_int("bench.repeats", repeats, 1)
     shapes = {"full": (obstacles, iters), "one_obstacle": (1, iters), "one_iteration": (obstacles, 1),
