@@ -97,10 +97,12 @@ ACCELERATOR_CHUNK = 4096
 #:   times slower than XLA's own fused loops (``jaxapf bench``: the engine took about twice as long);
 #:   the empty list switches YNNPACK fusions off.
 #: * ``xla_cpu_use_fusion_emitters = False``: XLA's classic loop emitter instead of the newer
-#:   fusion emitters, which compile the APF flow's many small ``(fields, obstacles)`` loops into
-#:   slower code; the whole closed loop runs about 1.2x faster (``jaxapf bench --xla-option
-#:   xla_cpu_use_fusion_emitters=true`` compiles one lowering both ways and times them
-#:   interleaved; README, "Speed").
+#:   fusion emitters. On a lone elementwise kernel the fusion emitters are the faster ones
+#:   (``jaxapf bench --kernels``), but the closed loop's kernels are large fusions of the APF's
+#:   forward and backward pass over ``(fields, obstacles)``, which the fusion emitters compile
+#:   into slower code: the whole closed loop runs about 1.1-1.2x faster with the classic one
+#:   (``jaxapf bench --xla-option xla_cpu_use_fusion_emitters=true`` compiles one lowering both
+#:   ways and times them interleaved; README, "Speed").
 XLA_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": "", "xla_cpu_use_fusion_emitters": False}
 
 
