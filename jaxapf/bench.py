@@ -357,7 +357,9 @@ def cost_split(fields: int = 1024, obstacles: int = 16, horizon: int = 20, iters
     obstacle, one iteration, the plant and the metrics. The obstacle reading assumes a step costs
     more with more slots; XLA compiles each slot count differently and does not guarantee it (on
     the development CPU, 16 slots ran faster than 2 to 8, README "Speed"), so it can understate
-    the obstacles' share or even come out negative; the iteration reading compares programs that differ only in a loop's trip count.
+    the obstacles' share or even come out negative, and ``both`` is no floor for the rest of the
+    full step (there, half of its kernel time went to fusions the 16-slot program does not have);
+    the iteration reading compares programs that differ only in a loop's trip count.
     """
     repeats = check_int("bench.repeats", repeats, 1)
     shapes = {"full": (obstacles, iters), "one_obstacle": (1, iters), "one_iteration": (obstacles, 1),
