@@ -5,6 +5,7 @@ their gradients (both conventions, cylinders, masks, the clearance floor), the r
 condensed MPC with its velocity penalty, and the plant, end to end.
 """
 
+import json
 import sys
 
 import jax
@@ -177,14 +178,11 @@ def test_run_benchmark_small_custom_batch():
     text = format_benchmark(result)
     assert "speed-up" in text and "compile" in text
     assert "skipped" in format_benchmark(dict(result, baseline=None, speedup=None))
-    import json
-
     json.dumps(result)
 
 
 def test_bench_devices_are_checked_before_running():
     from jaxapf.bench import run_benchmark
-    from jaxapf.config import ConfigError
 
     with pytest.raises(ConfigError, match=r"bench\.devices = 0 is out of range"):
         run_benchmark(fields=2, steps=2, baseline_fields=0, devices=0)
@@ -194,7 +192,6 @@ def test_bench_devices_are_checked_before_running():
 
 def test_bench_on_two_devices_gives_the_metrics_of_one(tmp_path):
     # `jaxapf bench --devices 2` (host split into 2 CPU devices) and --devices 1 on the same fields
-    import json
     import os
     import subprocess
     import sys
@@ -235,7 +232,6 @@ def test_fit_step_cost_recovers_a_known_model(monkeypatch):
 
 def test_xla_option_parsing_names_the_flag():
     from jaxapf.bench import parse_xla_option
-    from jaxapf.config import ConfigError
 
     assert parse_xla_option("xla_cpu_use_fusion_emitters=true") == ("xla_cpu_use_fusion_emitters", True)
     assert parse_xla_option("xla_cpu_enable_fast_math=False") == ("xla_cpu_enable_fast_math", False)
@@ -261,14 +257,10 @@ def test_compare_xla_options_times_both_compilations_of_one_lowering():
     assert result["speedup"] == pytest.approx(result["variants"]["shipped"]["run_s"]
                                               / result["variants"]["override"]["run_s"])
     assert "override / shipped speed" in format_xla_options(result)
-    from jaxapf.config import ConfigError
-
+    json.dumps(result)  # the --json output
     with pytest.raises(ConfigError, match=r"bench\.xla_option = .*xla_cpu_no_such_option.*XLA rejected it"):
         compare_xla_options({"xla_cpu_no_such_option": 1}, repeats=1, fields=2, steps=2, obstacles=2, horizon=3,
                             iters=2)
-    import json
-
-    json.dumps(result)
 
 
 def test_cost_split_attributes_the_step_to_obstacles_iterations_and_the_rest():
