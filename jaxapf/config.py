@@ -1,107 +1,217 @@
-"""Validated configuration: planner gains, MPC settings and simulation settings.
+"""Static configuration: what is compiled into a program (changing it recompiles).
 
-Pytree rule (as in MJX): a field is a pytree leaf iff it holds an array. :class:`Gains` is a
-pytree whose every field is numeric, so a grid of gain settings is one ``vmap`` over a batched
-``Gains``. :class:`SimConfig` and :class:`MPCConfig` are frozen, hashable and passed as static
-arguments; changing one of them triggers a recompile, changing a gain never does.
+Every class here is frozen and hashable and is passed to ``jit`` as a static argument. Numbers
+that vary across a grid of settings are gains (:mod:`jaxapf.gains`), not configuration.
 
-Every constructor validates its values *before* anything is traced and raises
-:class:`ConfigError` naming the field and its allowed range.
+:class:`SimConfig` gathers four concerns, each its own class:
+
+==================  ===========================================================================
+:class:`PlannerConfig`  which planner (``method``) and safety filter, and the potential's settings
+:class:`VehicleConfig`  which plant, its limits and size
+:class:`EpisodeConfig`  time step, episode length, goal tolerance
+:class:`MetricConfig`   thresholds of the metrics (stall, near miss)
+==================  ===========================================================================
+
+Sweep specs and the CLI address every field by its own name in one flat namespace (``method``,
+``dt``, ``a_max``, ...: :data:`SIM_KEYS`), which :meth:`SimConfig.from_flat` routes to its part.
+:class:`MPCConfig` is the tracking controller's configuration (paper eq. 8–12).
+
+Constructors validate before anything is traced and raise
+:class:`~jaxapf.validation.ConfigError` naming the field and its allowed range. Names of planners,
+filters and plants are checked against their registries when a program is built (and by every
+spec parser), not here, so this module depends on no component.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import os
-import warnings
-from typing import Any, Literal
+from typing import Any, Literal, Mapping
 
-import jax
 import numpy as np
 
+from .validation import ConfigError, check_choice, check_int, check_range
+
 __all__ = [
-    "METHODS",
     "CONVENTIONS",
-    "ConfigError",
-    "BoundWarning",
-    "Gains",
-    "MPCConfig",
+    "PlannerConfig",
+    "VehicleConfig",
+    "EpisodeConfig",
+    "MetricConfig",
     "SimConfig",
-    "gains_from_mapping",
-    "load_gains",
+    "MPCConfig",
+    "SIM_KEYS",
+    "MPC_KEYS",
+    "STATIC_KEYS",
 ]
 
-METHODS = ("basic", "direction", "direction_velocity")
+#: Sign conventions of the direction and velocity weights (SPEC 3).
 CONVENTIONS = ("intent", "literal")
 
-Method = Literal["basic", "direction", "direction_velocity"]
 Convention = Literal["intent", "literal"]
 
 
-class ConfigError(ValueError):
-    """A configuration value is missing, of the wrong type or outside its allowed range."""
+def _positive(owner: Any, names: tuple[str, ...], prefix: str) -> None:
+    for name in names:
+        object.__setattr__(owner, name, float(check_range(f"{prefix}.{name}", getattr(owner, name), 0.0, lo_open=True)))
 
 
-class BoundWarning(UserWarning):
-    """``k > 1``: the paper's lower bound ``ω >= 1`` no longer holds (the minimum is ``2 - k``)."""
+def _nonnegative(owner: Any, names: tuple[str, ...], prefix: str) -> None:
+    for name in names:
+        object.__setattr__(owner, name, float(check_range(f"{prefix}.{name}", getattr(owner, name), 0.0)))
 
 
-# --------------------------------------------------------------------------------------------
-# range checking helpers
-# --------------------------------------------------------------------------------------------
-
-
-def _describe(lo: float | None, hi: float | None, lo_open: bool, hi_open: bool) -> str:
-    parts = []
-    if lo is not None:
-        parts.append(f"{'>' if lo_open else '>='} {lo:g}")
-    if hi is not None:
-        parts.append(f"{'<' if hi_open else '<='} {hi:g}")
-    return "a finite number " + " and ".join(parts) if parts else "a finite number"
-
-
-def check_range(
-    where: str,
-    value: Any,
-    lo: float | None = None,
-    hi: float | None = None,
-    *,
-    lo_open: bool = False,
-    hi_open: bool = False,
-) -> np.ndarray:
-    """Return ``value`` as a float64 array after checking every entry is finite and in range.
-
-    Raises :class:`ConfigError` naming ``where`` and the allowed range otherwise.
-    """
-    allowed = _describe(lo, hi, lo_open, hi_open)
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ConfigError(f"{where} = {value!r} is not numeric; allowed: {allowed}") from None
-    bad = ~np.isfinite(arr)
-    if lo is not None:
-        bad |= (arr <= lo) if lo_open else (arr < lo)
-    if hi is not None:
-        bad |= (arr >= hi) if hi_open else (arr > hi)
-    if np.any(bad):
-        shown = arr[bad].ravel()[0] if arr.ndim else arr
-        raise ConfigError(f"{where} = {float(shown)!r} is out of range; allowed: {allowed}")
-    return arr
-
-
-def check_choice(where: str, value: Any, choices: tuple[str, ...]) -> str:
-    if value not in choices:
-        raise ConfigError(f"{where} = {value!r} is not allowed; choose one of {', '.join(choices)}")
+def _name(where: str, value: Any) -> str:
+    if not isinstance(value, str) or not value:
+        raise ConfigError(f"{where} = {value!r} must be a name")
     return value
 
 
-def check_int(where: str, value: Any, lo: int, hi: int | None = None) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise ConfigError(f"{where} = {value!r} must be an integer >= {lo}")
-    if value < lo or (hi is not None and value > hi):
-        rng = f">= {lo}" + (f" and <= {hi}" if hi is not None else "")
-        raise ConfigError(f"{where} = {value!r} is out of range; allowed: an integer {rng}")
-    return int(value)
+@dataclasses.dataclass(frozen=True)
+class PlannerConfig:
+    r"""The avoidance stack: planner, safety filter and the potentials' settings (SPEC 3–4).
+
+    Attributes:
+      method: planner, a name of :data:`jaxapf.planners.PLANNERS` (``basic``, ``direction``,
+        ``direction_velocity``, ...).
+      filter: safety filter between the MPC and the plant, a name of
+        :data:`jaxapf.control.FILTERS` (``none``: the MPC's acceleration is applied as it is).
+      convention: ``intent`` (default, the paper's prose) | ``literal`` (its printed formulas), SPEC 3.
+      d_min: floor [m] > 0 on the clearance inside the repulsive potential (no inf/NaN).
+      eps_v: regulariser [m/s] > 0 of |v| in cos θ: a hovering UAV has cos θ = 0.
+      att_cap: distance [m] beyond which the attractive potential turns conic (linear in
+        distance); ``None`` (default) keeps it quadratic everywhere.
+      reference_velocity: use the flow velocities u_i as the MPC velocity reference instead of
+        the paper's zero (off by default).
+    """
+
+    method: str = "direction_velocity"
+    filter: str = "none"
+    convention: Convention = "intent"
+    d_min: float = 0.05
+    eps_v: float = 1e-3
+    att_cap: float | None = None
+    reference_velocity: bool = False
+
+    def __post_init__(self) -> None:
+        _name("sim.method", self.method)
+        _name("sim.filter", self.filter)
+        check_choice("sim.convention", self.convention, CONVENTIONS)
+        _positive(self, ("d_min", "eps_v"), "sim")
+        if self.att_cap is not None:
+            object.__setattr__(self, "att_cap", float(check_range("sim.att_cap", self.att_cap, 0.0, lo_open=True)))
+        if not isinstance(self.reference_velocity, (bool, np.bool_)):
+            raise ConfigError(f"sim.reference_velocity = {self.reference_velocity!r} must be true or false")
+
+
+@dataclasses.dataclass(frozen=True)
+class VehicleConfig:
+    """The vehicle: plant model, limits and size (SPEC 1).
+
+    Attributes:
+      plant: a name of :data:`jaxapf.dynamics.PLANTS` (``double_integrator``: the MPC's own model).
+      a_max: per-axis acceleration limit [m/s²] > 0 (hard box of the MPC).
+      v_max: per-axis velocity limit [m/s] > 0 (MPC penalty; also the norm cap of the reference).
+      r_uav: UAV sphere radius [m] >= 0.
+    """
+
+    plant: str = "double_integrator"
+    a_max: float = 3.0
+    v_max: float = 2.0
+    r_uav: float = 0.3
+
+    def __post_init__(self) -> None:
+        _name("sim.plant", self.plant)
+        _positive(self, ("a_max", "v_max"), "sim")
+        _nonnegative(self, ("r_uav",), "sim")
+
+
+@dataclasses.dataclass(frozen=True)
+class EpisodeConfig:
+    """Time and termination of an episode.
+
+    Attributes:
+      dt: control / integration step [s] > 0.
+      t_max: episode length [s] > 0 (``steps = round(t_max / dt)``).
+      r_goal: goal tolerance [m] > 0.
+    """
+
+    dt: float = 0.1
+    t_max: float = 60.0
+    r_goal: float = 0.5
+
+    def __post_init__(self) -> None:
+        _positive(self, ("dt", "t_max", "r_goal"), "sim")
+        if self.t_max / self.dt < 1:
+            raise ConfigError(f"sim.t_max = {self.t_max!r} must be at least one step (sim.dt = {self.dt!r})")
+        check_int("sim.steps", self.steps, 1, 10_000_000)
+
+    @property
+    def steps(self) -> int:
+        """Number of control steps T of an episode."""
+        return int(round(self.t_max / self.dt))
+
+
+@dataclasses.dataclass(frozen=True)
+class MetricConfig:
+    """Thresholds of the metrics (SPEC 6).
+
+    Attributes:
+      v_stall, t_stall: stall = speed below ``v_stall`` [m/s] for at least ``t_stall`` [s] while
+        farther than ``r_goal`` from the goal.
+      d_safe: clearance [m] below which time counts as ``time_near``.
+    """
+
+    v_stall: float = 0.1
+    t_stall: float = 3.0
+    d_safe: float = 1.0
+
+    def __post_init__(self) -> None:
+        _positive(self, ("v_stall", "t_stall"), "sim")
+        _nonnegative(self, ("d_safe",), "sim")
+
+
+_PARTS: Mapping[str, type] = {"planner": PlannerConfig, "vehicle": VehicleConfig, "episode": EpisodeConfig,
+                              "metrics": MetricConfig}
+#: Every field of the four parts by its flat name (sweep specs, ``[sim]`` tables, CLI).
+SIM_KEYS: tuple[str, ...] = tuple(f.name for cls in _PARTS.values() for f in dataclasses.fields(cls))
+_OWNER: Mapping[str, str] = {f.name: part for part, cls in _PARTS.items() for f in dataclasses.fields(cls)}
+
+
+@dataclasses.dataclass(frozen=True)
+class SimConfig:
+    """Everything static about an episode but the MPC: four parts by concern (module docstring).
+
+    ``SimConfig.from_flat(method="basic", t_max=30.0)`` builds one from flat names;
+    :meth:`flat` and :meth:`replace` work with flat names too.
+    """
+
+    planner: PlannerConfig = PlannerConfig()
+    vehicle: VehicleConfig = VehicleConfig()
+    episode: EpisodeConfig = EpisodeConfig()
+    metrics: MetricConfig = MetricConfig()
+
+    def __post_init__(self) -> None:
+        for part, cls in _PARTS.items():
+            if not isinstance(getattr(self, part), cls):
+                raise ConfigError(f"SimConfig.{part} must be a {cls.__name__}, got {getattr(self, part)!r}")
+
+    @classmethod
+    def from_flat(cls, values: Mapping[str, Any] | None = None, /, **kwargs: Any) -> "SimConfig":
+        """A config from flat field names (``method``, ``dt``, ...); unknown names raise
+        :class:`ConfigError` listing :data:`SIM_KEYS`."""
+        values = {**(values or {}), **kwargs}
+        for key in values:
+            if key not in _OWNER:
+                raise ConfigError(f"sim.{key} is not a simulation setting; allowed: {', '.join(SIM_KEYS)}")
+        return cls(**{part: c(**{k: v for k, v in values.items() if _OWNER[k] == part}) for part, c in _PARTS.items()})
+
+    def flat(self) -> dict[str, Any]:
+        """Every field by its flat name."""
+        return {k: getattr(getattr(self, _OWNER[k]), k) for k in SIM_KEYS}
+
+    def replace(self, **changes: Any) -> "SimConfig":
+        """The same config with fields changed by flat name."""
+        return SimConfig.from_flat(self.flat() | changes)
 
 
 def _axis_weight(where: str, value: Any) -> tuple[float, float, float]:
@@ -114,94 +224,9 @@ def _axis_weight(where: str, value: Any) -> tuple[float, float, float]:
     return tuple(float(a) for a in arr)
 
 
-def _is_user_value(x: Any) -> bool:
-    """A leaf a user handed in (number, string, sequence, numpy or concrete JAX array), as opposed
-    to what JAX itself puts into a pytree when it rebuilds one (tracers, ``ArgInfo`` or shape
-    structs under ``.lower``, ``None``/sentinels): only user values are validated."""
-    if isinstance(x, jax.core.Tracer):
-        return False
-    return isinstance(x, (int, float, str, list, tuple, np.ndarray, np.generic, jax.Array))
-
-
-# --------------------------------------------------------------------------------------------
-# Gains: numeric, traced, vmappable
-# --------------------------------------------------------------------------------------------
-
-_GAIN_RANGES: dict[str, tuple[float, bool]] = {
-    # name: (lower bound, lower bound is open)
-    "gamma": (0.0, False),
-    "k": (0.0, False),
-    "k_rep": (0.0, True),
-    "d_s": (0.0, True),
-    "k_att": (0.0, True),
-    "eta": (0.0, True),
-}
-
-
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
-class Gains:
-    r"""Planner gains; every field is a pytree leaf (scalar or batched array).
-
-    Attributes:
-      gamma: direction gain γ >= 0 in ω(θ) = 1 + γ(1 + cos θ)/2 (paper eq. 15).
-      k: relative-velocity gain k >= 0 in (2 + k tanh c) (paper eq. 19). ``k > 1`` breaks the
-        paper's lower bound ω >= 1 (warns, see SPEC 3).
-      k_rep: repulsive gain > 0 (paper eq. 13).
-      d_s: influence distance > 0 [m] (paper eq. 13).
-      k_att: attractive gain > 0, U_att = ½ k_att |p - g|².
-      eta: step gain > 0 [m/s per unit force] of the reference gradient flow u = η F.
-    """
-
-    gamma: Any = 1.0
-    k: Any = 0.5
-    k_rep: Any = 10.0
-    d_s: Any = 4.0
-    k_att: Any = 1.0
-    eta: Any = 0.5
-
-    def __post_init__(self) -> None:
-        # Pytree unflattening (vmap, grad) passes tracers or placeholders: only validate
-        # values a user handed in.
-        values = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
-        if all(_is_user_value(v) for v in values.values()):
-            validate_gains(values)
-
-    @classmethod
-    def names(cls) -> tuple[str, ...]:
-        return tuple(f.name for f in dataclasses.fields(cls))
-
-    def as_arrays(self, dtype: Any = None) -> "Gains":
-        """The same gains as ``jnp`` arrays of ``dtype`` (default: JAX's default float)."""
-        import jax.numpy as jnp
-
-        dtype = dtype or jnp.result_type(float)
-        return Gains(**{n: jnp.asarray(getattr(self, n), dtype) for n in self.names()})
-
-    def replace(self, **changes: Any) -> "Gains":
-        return dataclasses.replace(self, **changes)
-
-
-def validate_gains(values: dict[str, Any], *, prefix: str = "gains") -> None:
-    for name, (lo, lo_open) in _GAIN_RANGES.items():
-        check_range(f"{prefix}.{name}", values[name], lo, lo_open=lo_open)
-    if np.any(np.asarray(values["k"], dtype=np.float64) > 1.0):
-        warnings.warn(
-            f"{prefix}.k > 1: the paper's bound ω >= 1 fails (min ω = 2 - k < 1); "
-            "for k >= 2 a receding obstacle's 'repulsion' becomes attraction",
-            BoundWarning,
-            stacklevel=4,
-        )
-
-
-# --------------------------------------------------------------------------------------------
-# Static configuration
-# --------------------------------------------------------------------------------------------
-
-
 @dataclasses.dataclass(frozen=True)
 class MPCConfig:
-    r"""Box-constrained condensed MPC (paper eq. 8–12, SPEC 4). Static: hashable, compiled in.
+    r"""Box-constrained condensed MPC (paper eq. 8–12, SPEC 4).
 
     Attributes:
       horizon: prediction horizon N >= 1 (also the number of APF prediction points).
@@ -234,104 +259,6 @@ class MPCConfig:
         object.__setattr__(self, "v_penalty", float(check_range("mpc.v_penalty", self.v_penalty, 0.0)))
 
 
-@dataclasses.dataclass(frozen=True)
-class SimConfig:
-    r"""Episode, vehicle, potential and metric settings. Static: hashable, compiled in.
-
-    Attributes:
-      method: ``basic`` | ``direction`` | ``direction_velocity`` (SPEC 3).
-      convention: ``intent`` (default, matches the paper's prose) | ``literal`` (the paper's
-        formulas as printed), SPEC 3.
-      dt: control / integration step [s] > 0.
-      t_max: episode length [s] > 0 (``steps = round(t_max / dt)``).
-      a_max: per-axis acceleration limit [m/s²] > 0 (hard box of the MPC).
-      v_max: per-axis velocity limit [m/s] > 0 (MPC penalty; also the norm cap of the reference).
-      r_uav: UAV sphere radius [m] >= 0.
-      r_goal: goal tolerance [m] > 0.
-      d_min: floor [m] > 0 on the clearance inside the repulsive potential (no inf/NaN).
-      eps_v: regulariser [m/s] > 0 of |v| in cos θ: a hovering UAV has cos θ = 0.
-      v_stall, t_stall: stall = speed below ``v_stall`` for at least ``t_stall`` seconds while
-        farther than ``r_goal`` from the goal.
-      d_safe: clearance [m] below which time counts as ``time_near``.
-      att_cap: distance [m] beyond which the attractive potential turns conic (linear in
-        distance); ``None`` (default) keeps it quadratic everywhere.
-      reference_velocity: use the flow velocities u_i as the MPC velocity reference instead of
-        the paper's zero (off by default).
-    """
-
-    method: Method = "direction_velocity"
-    convention: Convention = "intent"
-    dt: float = 0.1
-    t_max: float = 60.0
-    a_max: float = 3.0
-    v_max: float = 2.0
-    r_uav: float = 0.3
-    r_goal: float = 0.5
-    d_min: float = 0.05
-    eps_v: float = 1e-3
-    v_stall: float = 0.1
-    t_stall: float = 3.0
-    d_safe: float = 1.0
-    att_cap: float | None = None
-    reference_velocity: bool = False
-
-    def __post_init__(self) -> None:
-        check_choice("sim.method", self.method, METHODS)
-        check_choice("sim.convention", self.convention, CONVENTIONS)
-        positive = ("dt", "t_max", "a_max", "v_max", "r_goal", "d_min", "eps_v", "v_stall", "t_stall")
-        for name in positive:
-            object.__setattr__(self, name, float(check_range(f"sim.{name}", getattr(self, name), 0.0, lo_open=True)))
-        for name in ("r_uav", "d_safe"):
-            object.__setattr__(self, name, float(check_range(f"sim.{name}", getattr(self, name), 0.0)))
-        if self.att_cap is not None:
-            object.__setattr__(self, "att_cap", float(check_range("sim.att_cap", self.att_cap, 0.0, lo_open=True)))
-        if not isinstance(self.reference_velocity, bool):
-            raise ConfigError(f"sim.reference_velocity = {self.reference_velocity!r} must be true or false")
-        if self.t_max / self.dt < 1:
-            raise ConfigError(f"sim.t_max = {self.t_max!r} must be at least one step (sim.dt = {self.dt!r})")
-        check_int("sim.steps", self.steps, 1, 10_000_000)
-
-    @property
-    def steps(self) -> int:
-        """Number of control steps T of an episode."""
-        return int(round(self.t_max / self.dt))
-
-    def replace(self, **changes: Any) -> "SimConfig":
-        return dataclasses.replace(self, **changes)
-
-
-def gains_from_mapping(mapping: dict[str, Any], where: str = "gains", base: Gains | None = None) -> Gains:
-    """:class:`Gains` from a mapping of gain names to numbers, on top of ``base`` (defaults).
-
-    Unknown keys raise :class:`ConfigError` naming the key and listing the allowed ones.
-    """
-    unknown = sorted(set(mapping) - set(Gains.names()))
-    if unknown:
-        raise ConfigError(f"{where}.{unknown[0]} is not a gain; allowed: {', '.join(Gains.names())}")
-    for name, value in mapping.items():
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{where}.{name} = {value!r} must be a number")
-    base = base or Gains()
-    values = {n: getattr(base, n) for n in Gains.names()} | {k: float(v) for k, v in mapping.items()}
-    validate_gains(values, prefix=where)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", BoundWarning)  # already warned above, under `where`
-        return Gains(**values)
-
-
-def load_gains(path: str | os.PathLike, base: Gains | None = None) -> Gains:
-    """Gains from a TOML file: either a ``[gains]`` table or gain keys at the top level
-    (the fragment written by ``jaxapf tune``)."""
-    import tomllib
-
-    try:
-        with open(path, "rb") as fh:
-            data = tomllib.load(fh)
-    except FileNotFoundError:
-        raise ConfigError(f"gains file {str(path)!r} does not exist") from None
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError(f"gains file {str(path)!r} is not valid TOML: {err}") from None
-    table = data.get("gains", data)
-    if not isinstance(table, dict):
-        raise ConfigError(f"gains file {str(path)!r}: [gains] must be a table")
-    return gains_from_mapping(table, where=f"{path}:gains", base=base)
+MPC_KEYS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(MPCConfig))
+#: Every static setting of a sweep spec: simulation settings, then MPC settings.
+STATIC_KEYS: tuple[str, ...] = SIM_KEYS + MPC_KEYS

@@ -6,11 +6,16 @@ A spec names scenario families and a number of fields, fixed settings, and the s
 
 Keys ("setting keys") live in one flat namespace:
 
-- **gains** (:class:`~jaxapf.config.Gains`: ``gamma``, ``k``, ``k_rep``, ``d_s``, ``k_att``,
-  ``eta``) are traced: any number of gain settings share one compiled program;
-- **static settings** (every field of :class:`~jaxapf.config.SimConfig` and
-  :class:`~jaxapf.config.MPCConfig`: ``method``, ``convention``, ``dt``, ``t_max``, ``horizon``,
-  ``iters``, ...) are compiled in: each distinct combination is a *variant* with its own program.
+- **gains** (every declared gain of :data:`jaxapf.gains.GAINS`: ``gamma``, ``k``, ``k_rep``,
+  ``d_s``, ``k_att``, ``eta``, and those of any registered component) are traced: any number of
+  gain settings share one compiled program;
+- **static settings** (every field of :class:`~jaxapf.config.SimConfig`'s parts and of
+  :class:`~jaxapf.config.MPCConfig`: ``method``, ``filter``, ``plant``, ``convention``, ``dt``,
+  ``t_max``, ``horizon``, ``iters``, ...) are compiled in: each distinct combination is a
+  *variant* with its own program. ``method``, ``filter`` and ``plant`` take registered names.
+
+``plugins = [...]`` at the top level names modules (or ``.py`` files) that register components;
+they are imported before anything else is checked (:mod:`jaxapf.plugins`).
 
 Expansion order (the ``setting`` index of the output): the grid product with the keys in the
 order the spec writes them, the last key varying fastest; with ``[random]``, every grid point is
@@ -22,7 +27,7 @@ Random samples: sample ``j`` of gain ``x`` (the ``i``-th ``[random]`` key) is
 (threefry, the same in float32 and float64 runs), mapped to ``lo + u (hi - lo)`` for a uniform
 range and ``exp(ln lo + u (ln hi - ln lo))`` for a log range.
 
-Every error is a :class:`~jaxapf.config.ConfigError` naming the key (``grid.gamma[2] = -1.0 is out
+Every error is a :class:`~jaxapf.validation.ConfigError` naming the key (``grid.gamma[2] = -1.0 is out
 of range; allowed: a finite number >= 0``).
 """
 
@@ -40,33 +45,38 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
-from .config import BoundWarning, ConfigError, Gains, MPCConfig, SimConfig, check_int, load_gains
-from .scenarios import FAMILIES, FamilyParams, family_params
+from ..config import MPC_KEYS, SIM_KEYS, STATIC_KEYS, MPCConfig, SimConfig
+from ..control import FILTERS
+from ..dynamics import PLANTS
+from ..gains import GAINS, Gains, read_gains_file
+from ..planners import PLANNERS
+from ..plugins import check_plugins, load_plugins
+from ..scenarios import FAMILIES, FamilyParams, family_params
+from ..validation import BoundWarning, ConfigError, check_int, check_names, check_table, relocated
 
 __all__ = [
-    "GAIN_KEYS",
     "STATIC_KEYS",
     "SIM_KEYS",
     "MPC_KEYS",
+    "MAX_SEED",
     "RandomRange",
     "Setting",
     "SweepSpec",
+    "check_value",
+    "spec_family_params",
     "load_spec",
     "parse_spec",
     "read_toml",
 ]
 
-GAIN_KEYS: tuple[str, ...] = Gains.names()
-SIM_KEYS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(SimConfig))
-MPC_KEYS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(MPCConfig))
-#: Settings compiled into the program (one variant per distinct combination).
-STATIC_KEYS: tuple[str, ...] = SIM_KEYS + MPC_KEYS
+#: Static keys that name a registered component, and the registry that knows them.
+COMPONENT_KEYS = {"method": PLANNERS, "filter": FILTERS, "plant": PLANTS}
 #: MPC weights that take a number (same on x, y, z) or 3 numbers.
 AXIS_WEIGHT_KEYS: frozenset[str] = frozenset({"q_pos", "q_vel", "f_pos", "f_vel", "r"})
 #: Largest seed: ``jax.random.key`` keeps 32 bits in float32 runs.
 MAX_SEED = 2**32 - 1
 
-_TOP_KEYS = ("name", "scenario", "sim", "gains", "grid", "random")
+_TOP_KEYS = ("name", "plugins", "scenario", "sim", "gains", "grid", "random")
 _SCENARIO_KEYS = ("families", "fields", "seed", "params")
 _RANDOM_KEYS = ("n", "seed")
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
@@ -83,12 +93,11 @@ def _is_number(value: Any) -> bool:
 
 def _kind(key: str) -> str:
     """What a setting key takes: ``number``, ``integer``, ``text``, ``boolean`` or ``weight``."""
-    if key in GAIN_KEYS:
+    if key in GAINS:
         return "number"
     if key in AXIS_WEIGHT_KEYS:
         return "weight"
-    owner = SimConfig if key in SIM_KEYS else MPCConfig
-    default = next(f.default for f in dataclasses.fields(owner) if f.name == key)
+    default = SimConfig().flat()[key] if key in SIM_KEYS else getattr(MPCConfig(), key)
     if isinstance(default, bool):
         return "boolean"
     if isinstance(default, int):
@@ -119,15 +128,6 @@ def _type_ok(kind: str, value: Any) -> bool:
     return _is_number(value) or (isinstance(value, list) and len(value) == 3 and all(map(_is_number, value)))
 
 
-def _relocated(err: ConfigError, old: str, where: str) -> ConfigError:
-    """``err`` with its location ``old`` (how the config classes name a field) replaced by ``where``
-    (where the value sits in the spec)."""
-    message = str(err)
-    if message.startswith(old):
-        return ConfigError(where + message[len(old):])
-    return ConfigError(f"{where}: {message}")
-
-
 def check_value(where: str, key: str, value: Any) -> Any:
     """Type- and range-check one value of setting ``key`` found at ``where`` in the spec; returns it
     normalised (gains and other numbers as float, weights as float or a 3-tuple of floats)."""
@@ -138,14 +138,16 @@ def check_value(where: str, key: str, value: Any) -> Any:
         value = float(value)
     elif kind == "weight":
         value = tuple(float(v) for v in value) if isinstance(value, list) else float(value)
-    owner, prefix = ((Gains, "gains") if key in GAIN_KEYS
-                     else (SimConfig, "sim") if key in SIM_KEYS else (MPCConfig, "mpc"))
+    if key in COMPONENT_KEYS:
+        COMPONENT_KEYS[key].get(value, where)
+    owner, prefix = ((Gains, "gains") if key in GAINS
+                     else (SimConfig.from_flat, "sim") if key in SIM_KEYS else (MPCConfig, "mpc"))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", BoundWarning)
         try:
             owner(**{key: value})
         except ConfigError as err:
-            raise _relocated(err, f"{prefix}.{key}", where) from None
+            raise relocated(err, f"{prefix}.{key}", where) from None
     for w in caught:  # re-issued naming the spec's key (k > 1)
         message = str(w.message).removeprefix(f"{prefix}.{key}")
         warnings.warn(f"{where} = {value!r}{message}", BoundWarning, stacklevel=2)
@@ -196,6 +198,7 @@ class SweepSpec:
 
     Attributes:
       name: the study's name (letters, digits, ``_ . -``).
+      plugins: modules registering components the spec uses (imported by :func:`parse_spec`).
       families: scenario families (SPEC 5), in the spec's order.
       fields: randomized fields per family.
       seed: scenario seed; field ``i`` has key ``fold_in(key(seed), i)``.
@@ -219,14 +222,17 @@ class SweepSpec:
     random_n: int = 0
     random_seed: int = 0
     random: tuple[tuple[str, RandomRange], ...] = ()
+    plugins: tuple[str, ...] = ()
 
     # ---- canonical form -----------------------------------------------------------------
 
     def to_json(self) -> dict[str, Any]:
         """The spec as a JSON object (stored in every output part; order-preserving lists for the
-        grid and random axes, so the hash sees their order)."""
+        grid and random axes, so the hash sees their order; ``plugins`` only when there are some)."""
+        plugins = {"plugins": list(self.plugins)} if self.plugins else {}
         return {
             "name": self.name,
+            **plugins,
             "scenario": {"families": list(self.families), "fields": self.fields, "seed": self.seed,
                          "params": {f: dict(p) for f, p in self.params.items()}},
             "sim": dict(self.sim),
@@ -249,6 +255,8 @@ class SweepSpec:
         """Inverse of :meth:`to_json` (re-validates)."""
         table: dict[str, Any] = {"name": data["name"], "scenario": dict(data["scenario"]), "sim": data["sim"],
                                  "gains": data["gains"]}
+        if data.get("plugins"):
+            table["plugins"] = list(data["plugins"])
         if data["grid"]:
             table["grid"] = {key: values for key, values in data["grid"]}
         if data["random"]:
@@ -280,7 +288,7 @@ class SweepSpec:
             varied = dict(zip(keys, point))
             for sample in samples:
                 values = {**self.sim, **self.gains, **varied, **sample}
-                gains = {k: float(values.get(k, getattr(Gains, k))) for k in GAIN_KEYS}
+                gains = {k: float(values.get(k, spec.default)) for k, spec in GAINS.items()}
                 static = tuple((k, values[k]) for k in STATIC_KEYS if k in values)
                 out.append(Setting(index=len(out), gains=gains, static=static))
         return out
@@ -291,9 +299,22 @@ class SweepSpec:
         named = set(self.sim) | {key for key, _ in self.grid}
         return tuple(k for k in STATIC_KEYS if k in named)
 
-    def family_params(self, family: str):
+    def family_params(self, family: str) -> FamilyParams:
         """The validated :class:`~jaxapf.scenarios.FamilyParams` of ``family`` with the spec's overrides."""
         return family_params(family, **self.params.get(family, {}))
+
+    def components(self, key: str) -> tuple[str, ...]:
+        """The names the spec's settings give ``method``, ``filter`` or ``plant`` (their defaults if unnamed)."""
+        default = SimConfig().flat()[key]
+        return tuple(dict.fromkeys(dict(s.static).get(key, default) for s in self.settings()))
+
+    def gain_columns(self) -> tuple[str, ...]:
+        """The gains that get a column: those the spec's planners, filters and plants read, and any the
+        spec names, in declaration order."""
+        read = {g.name for key, registry in COMPONENT_KEYS.items() for name in self.components(key)
+                for g in registry.get(name).gains}
+        named = set(self.gains) | {k for k, _ in self.grid} | {k for k, _ in self.random}
+        return tuple(k for k in GAINS.names() if k in read | named)
 
     def configs(self, static: Iterable[tuple[str, Any]], family: str) -> tuple[SimConfig, MPCConfig]:
         """:class:`SimConfig` and :class:`MPCConfig` of one setting's static part on ``family``
@@ -302,7 +323,7 @@ class SweepSpec:
         sim = {k: v for k, v in values.items() if k in SIM_KEYS}
         sim.setdefault("t_max", self.family_params(family).t_max)
         mpc = {k: v for k, v in values.items() if k in MPC_KEYS}
-        return SimConfig(**sim), MPCConfig(**mpc)
+        return SimConfig.from_flat(sim), MPCConfig(**mpc)
 
 
 # --------------------------------------------------------------------------------------------
@@ -310,27 +331,14 @@ class SweepSpec:
 # --------------------------------------------------------------------------------------------
 
 
-def _table(where: str, value: Any, allowed: Iterable[str] | None = None) -> dict[str, Any]:
-    """``value`` checked to be a table (``where``: its dotted location, ``""`` for the top level)
-    whose keys are all ``allowed``."""
-    if not isinstance(value, dict):
-        raise ConfigError(f"{where or 'the spec'} must be a table, got {value!r}")
-    if allowed is not None:
-        allowed = tuple(allowed)
-        for key in value:
-            if key not in allowed:
-                raise ConfigError(f"{where + '.' if where else ''}{key} is not a known key; allowed: {', '.join(allowed)}")
-    return value
-
-
 def spec_family_params(family: str, overrides: Any) -> FamilyParams:
     """A spec's ``[scenario.params.FAMILY]`` table applied to the family's defaults; a bad value is
     reported at ``scenario.params.FAMILY.KEY`` (shared by sweep and tune specs)."""
-    overrides = _table(f"scenario.params.{family}", overrides)
+    overrides = check_table(f"scenario.params.{family}", overrides)
     try:
         return family_params(family, **overrides)
     except ConfigError as err:
-        raise _relocated(err, f"scenario.{family}", f"scenario.params.{family}") from None
+        raise relocated(err, f"scenario.{family}", f"scenario.params.{family}") from None
 
 
 def _seed(where: str, value: Any) -> int:
@@ -338,23 +346,19 @@ def _seed(where: str, value: Any) -> int:
 
 
 def _scenario(table: dict[str, Any]) -> tuple[tuple[str, ...], int, int, dict[str, dict[str, Any]]]:
-    scenario = _table("scenario", table, _SCENARIO_KEYS)
+    scenario = check_table("scenario", table, _SCENARIO_KEYS)
     for key in ("families", "fields"):
         if key not in scenario:
             raise ConfigError(f"scenario.{key} is missing")
     families = scenario["families"]
-    if not isinstance(families, list) or not families:
+    if not isinstance(families, list):
         raise ConfigError(f"scenario.families = {families!r} must be a non-empty list of family names; "
-                          f"allowed: {', '.join(FAMILIES)}")
-    for i, family in enumerate(families):
-        if family not in FAMILIES:
-            raise ConfigError(f"scenario.families[{i}] = {family!r} is not a family; allowed: {', '.join(FAMILIES)}")
-    if len(set(families)) != len(families):
-        raise ConfigError(f"scenario.families = {families!r} lists a family twice")
+                          f"allowed: {', '.join(FAMILIES.names())}")
+    families = check_names("scenario.families", families, FAMILIES.names(), what="family")
     fields = check_int("scenario.fields", scenario["fields"], 1)
     seed = _seed("scenario.seed", scenario.get("seed", 0))
     params = {}
-    for family, overrides in _table("scenario.params", scenario.get("params", {})).items():
+    for family, overrides in check_table("scenario.params", scenario.get("params", {})).items():
         if family not in families:
             raise ConfigError(f"scenario.params.{family} is not one of scenario.families ({', '.join(families)})")
         resolved = spec_family_params(family, overrides)
@@ -364,12 +368,12 @@ def _scenario(table: dict[str, Any]) -> tuple[tuple[str, ...], int, int, dict[st
 
 
 def _fixed(where: str, table: Any, keys: tuple[str, ...]) -> dict[str, Any]:
-    table = _table(where, table, keys)
+    table = check_table(where, table, keys)
     return {key: check_value(f"{where}.{key}", key, value) for key, value in table.items()}
 
 
 def _grid(table: Any, fixed: Mapping[str, str]) -> tuple[tuple[str, tuple[Any, ...]], ...]:
-    table = _table("grid", table, GAIN_KEYS + STATIC_KEYS)
+    table = check_table("grid", table, GAINS.names() + STATIC_KEYS)
     if not table:
         raise ConfigError("grid is empty; give at least one key with a list of values, or remove [grid]")
     axes = []
@@ -394,7 +398,7 @@ def _grid(table: Any, fixed: Mapping[str, str]) -> tuple[tuple[str, tuple[Any, .
 def _range(where: str, key: str, value: Any) -> RandomRange:
     log = False
     if isinstance(value, dict):
-        table = _table(where, value, ("range", "log"))
+        table = check_table(where, value, ("range", "log"))
         if "range" not in table:
             raise ConfigError(f"{where}.range is missing; write {{range = [lo, hi]}} or {{range = [lo, hi], log = true}}")
         log = table.get("log", False)
@@ -412,7 +416,7 @@ def _range(where: str, key: str, value: Any) -> RandomRange:
 
 
 def _random(table: Any, fixed: Mapping[str, str], grid: Iterable[str]) -> tuple[int, int, tuple]:
-    table = _table("random", table)
+    table = check_table("random", table)
     if "n" not in table:
         raise ConfigError("random.n is missing; give the number of samples")
     n = check_int("random.n", table["n"], 1)
@@ -422,14 +426,14 @@ def _random(table: Any, fixed: Mapping[str, str], grid: Iterable[str]) -> tuple[
     for key, value in table.items():
         if key in _RANDOM_KEYS:
             continue
-        if key not in GAIN_KEYS:
+        if key not in GAINS:
             raise ConfigError(f"random.{key} is not a gain; only gains can be sampled (allowed: "
-                              f"{', '.join(_RANDOM_KEYS + GAIN_KEYS)})")
+                              f"{', '.join(_RANDOM_KEYS + GAINS.names())})")
         if key in fixed or key in grid:
             raise ConfigError(f"random.{key} is also set in [{fixed.get(key, 'grid')}]; set it in one place")
         ranges.append((key, _range(f"random.{key}", key, value)))
     if not ranges:
-        raise ConfigError(f"random has no gain to sample; add e.g. gamma = [0.0, 3.0] (gains: {', '.join(GAIN_KEYS)})")
+        raise ConfigError(f"random has no gain to sample; add e.g. gamma = [0.0, 3.0] (gains: {', '.join(GAINS.names())})")
     return n, seed, tuple(ranges)
 
 
@@ -441,7 +445,9 @@ def parse_spec(data: Mapping[str, Any], gains_file: str | os.PathLike | None = N
     gains the grid or ``[random]`` vary. Every check runs here, including the :class:`SimConfig` /
     :class:`MPCConfig` of every variant on every family.
     """
-    data = _table("", dict(data), _TOP_KEYS)
+    data = check_table("", dict(data), _TOP_KEYS)
+    plugins = check_plugins("plugins", data.get("plugins", []))
+    load_plugins(plugins)
     name = data.get("name")
     if not isinstance(name, str) or not _NAME.match(name):
         raise ConfigError(f"name = {name!r} must be a string of letters, digits, '_', '.', '-' "
@@ -450,16 +456,15 @@ def parse_spec(data: Mapping[str, Any], gains_file: str | os.PathLike | None = N
         raise ConfigError("scenario is missing; add [scenario] with families and fields")
     families, fields, seed, params = _scenario(data["scenario"])
     sim = _fixed("sim", data.get("sim", {}), STATIC_KEYS)
-    gains = _fixed("gains", data.get("gains", {}), GAIN_KEYS)
+    gains = _fixed("gains", data.get("gains", {}), GAINS.names())
     fixed = {**{k: "sim" for k in sim}, **{k: "gains" for k in gains}}
     grid = _grid(data["grid"], fixed) if "grid" in data else ()
     random_n, random_seed, ranges = _random(data["random"], fixed, (k for k, _ in grid)) if "random" in data else (0, 0, ())
     if gains_file is not None:
-        merged = load_gains(gains_file, base=Gains(**gains))
         varied = {k for k, _ in grid} | {k for k, _ in ranges}
-        gains = {k: float(getattr(merged, k)) for k in GAIN_KEYS if k not in varied}
+        gains = {k: v for k, v in {**gains, **read_gains_file(gains_file)}.items() if k not in varied}
     spec = SweepSpec(name=name, families=families, fields=fields, seed=seed, params=params, sim=sim, gains=gains,
-                     grid=grid, random_n=random_n, random_seed=random_seed, random=ranges)
+                     grid=grid, random_n=random_n, random_seed=random_seed, random=ranges, plugins=plugins)
     for static in {s.static for s in spec.settings()}:
         for family in families:
             spec.configs(static, family)

@@ -1,14 +1,17 @@
 """Figures of ``jaxapf report``, drawn from the report's tables (pandas) without ``pyplot``.
 
-Every function returns a :class:`matplotlib.figure.Figure` (rendered through the Agg canvas that
-``Figure.savefig`` attaches), so nothing here selects or depends on a GUI backend. The numbers come
-from :mod:`jaxapf.report` (summary and comparison tables) or from the episode rows directly.
+Every ``plot_*`` function returns a :class:`matplotlib.figure.Figure` (rendered through the Agg
+canvas that ``Figure.savefig`` attaches), so nothing here selects or depends on a GUI backend. The
+numbers come from the summary and comparison tables (:mod:`jaxapf.report.tables`) or from the
+episode rows directly; :func:`report_figures` draws every figure of a report. Line styles come from
+the registered planners.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Mapping, Sequence
+import pathlib
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -16,7 +19,13 @@ from matplotlib import colormaps
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from . import stats
+from .. import stats
+from ..metrics import METRICS
+from ..planners import PLANNERS
+from .document import FigureFile, save_figure
+from .load import ReportError, report_metrics
+from .select import Selection, format_value, ignored_columns, swept_columns, symbol
+from .tables import ALL, group_rows, groups
 
 __all__ = [
     "setting_colors",
@@ -26,11 +35,15 @@ __all__ = [
     "plot_continuous",
     "plot_differences",
     "plot_performance_profile",
+    "report_figures",
 ]
 
-ALL = "all"
-_METHOD_STYLE = {"basic": ":", "direction": "--", "direction_velocity": "-"}
 _GROUP_MARKERS = ("o", "s", "^", "D", "v", "P", "X", "<", ">", "h")
+
+
+def _linestyle(method: str) -> str:
+    """The registered planner's line style, solid for others."""
+    return (PLANNERS.get(method).linestyle if method in PLANNERS else None) or "-"
 
 
 def setting_colors(settings: Sequence[int]) -> dict[int, tuple]:
@@ -135,7 +148,7 @@ def plot_ecdf(values: Mapping[str, Mapping[int, np.ndarray]], labels: Mapping[in
                 continue
             f = f[: x.size]
             ax.step(np.concatenate([[x[0]], x]), np.concatenate([[0.0], f]), where="post",
-                    color=colors[s], linestyle=_METHOD_STYLE.get(methods[s], "-"), linewidth=1.2)
+                    color=colors[s], linestyle=_linestyle(methods[s]), linewidth=1.2)
         if vline is not None:
             ax.axvline(vline, color="red", linewidth=0.8, alpha=0.6)
         ax.set_title(group)
@@ -143,7 +156,7 @@ def plot_ecdf(values: Mapping[str, Mapping[int, np.ndarray]], labels: Mapping[in
         ax.set_ylabel("fraction of episodes ≤ x")
         ax.set_ylim(0, 1.02)
         ax.grid(True, linewidth=0.4, alpha=0.5)
-    handles = [Line2D([], [], color=colors[s], linestyle=_METHOD_STYLE.get(methods[s], "-"), label=labels[s])
+    handles = [Line2D([], [], color=colors[s], linestyle=_linestyle(methods[s]), label=labels[s])
                for s in settings]
     _legend_below(fig, handles, ncol=min(len(handles), 3))
     fig.suptitle(f"Empirical CDF of {metric} per setting"
@@ -164,7 +177,7 @@ def plot_performance_profile(taus: np.ndarray, curves: Mapping[str, Mapping[int,
             if s not in curves[group]:
                 continue
             frac, lo, hi = curves[group][s]
-            ax.plot(taus, frac, color=colors[s], linestyle=_METHOD_STYLE.get(methods[s], "-"), linewidth=1.2,
+            ax.plot(taus, frac, color=colors[s], linestyle=_linestyle(methods[s]), linewidth=1.2,
                     drawstyle="steps-post")
             if bands:
                 ax.fill_between(taus, lo, hi, color=colors[s], alpha=0.15, linewidth=0, step="post")
@@ -173,7 +186,7 @@ def plot_performance_profile(taus: np.ndarray, curves: Mapping[str, Mapping[int,
         ax.set_ylabel(f"fraction of episodes with {metric} > τ")
         ax.set_ylim(-0.02, 1.02)
         ax.grid(True, linewidth=0.4, alpha=0.5)
-    handles = [Line2D([], [], color=colors[s], linestyle=_METHOD_STYLE.get(methods[s], "-"), label=labels[s])
+    handles = [Line2D([], [], color=colors[s], linestyle=_linestyle(methods[s]), label=labels[s])
                for s in settings]
     _legend_below(fig, handles, ncol=min(len(handles), 3))
     fig.suptitle(f"Performance profile of {metric}" + (" (bands: pointwise Wilson CI)" if bands else ""),
@@ -281,3 +294,126 @@ def plot_differences(comparisons: pd.DataFrame, labels: Mapping[int, str], metri
     fig.suptitle(f"Paired differences vs baseline (green: better, red: worse; filled: Holm p ≤ {alpha:g})",
                  fontsize=10)
     return fig
+
+
+# --------------------------------------------------------------------------------------------
+# every figure of a report
+# --------------------------------------------------------------------------------------------
+
+
+def _heatmap_figures(sel: Selection, options: Any, figdir: pathlib.Path) -> tuple[list[FigureFile], list[str]]:
+    if options.heatmap is None:
+        return [], ["heatmaps skipped (--heatmap none)"]
+    x, y = options.heatmap
+    for c in (x, y):
+        if c not in sel.table.columns:
+            raise ReportError(f"--heatmap {x},{y}: no setting column {c!r}; use two of "
+                              f"{', '.join(sel.swept) or 'the swept gains (none here)'}")
+    table = sel.table.loc[sel.settings]
+    swept_here = [c for c in swept_columns(table)]
+    if x not in swept_here or y not in swept_here:
+        return [], [f"heatmaps skipped: fewer than 2 swept gains among {x}, {y} "
+                    f"(swept here: {', '.join(swept_here) or 'none'})"]
+    figures, notes = [], []
+    for method in sorted(pd.unique(table["method"])):
+        mt = table[table["method"] == method]
+        ignored = ignored_columns(mt.iloc[0])
+        if x in ignored or y in ignored:
+            continue
+        if mt[x].nunique() < 2 or mt[y].nunique() < 2:
+            notes.append(f"heatmap for {method} skipped: {x} or {y} takes a single value")
+            continue
+        if mt[x].nunique() > 15 or mt[y].nunique() > 15:
+            notes.append(f"heatmap for {method} skipped: more than 15 values of {x} or {y} (not a grid)")
+            continue
+        others = [c for c in swept_columns(mt) if c not in (x, y, "method") and c not in ignored]
+        combos = mt.groupby(others, sort=True).groups if others else {(): mt.index}
+        keys = list(combos)[:6]
+        if len(combos) > 6:
+            notes.append(f"heatmaps for {method}: only the first 6 of {len(combos)} combinations of "
+                         f"{', '.join(others)} are drawn")
+        for rate in ("success", "collision"):
+            cells = []
+            for combo in keys:
+                ids = list(combos[combo])
+                combo = combo if isinstance(combo, tuple) else (combo,)
+                panel = " ".join(f"{symbol(c)}={format_value(v)}" for c, v in zip(others, combo)) or method
+                rows = sel.data[sel.data["setting"].isin(ids)].merge(
+                    mt.loc[ids, [x, y]], left_on="setting", right_index=True, suffixes=("", "_setting"))
+                xc, yc = (f"{x}_setting" if f"{x}_setting" in rows.columns else x,
+                          f"{y}_setting" if f"{y}_setting" in rows.columns else y)
+                for group in groups(sel.data):
+                    g = group_rows(rows, group)
+                    for (xv, yv), cell in g.groupby([xc, yc]):
+                        cells.append({"row": group, "panel": panel, x: xv, y: yv,
+                                      f"{rate} rate": float(cell[rate].mean()), "n": len(cell)})
+            if not cells:
+                continue
+            fig = plot_heatmaps(pd.DataFrame(cells), x, y, f"{rate} rate",
+                                f"{rate} rate [%] of {method} over {x} × {y}")
+            figures.append(save_figure(fig, f"heatmap_{rate}_{method}", f"{rate.capitalize()} rate of {method} "
+                                       f"over {x} × {y}, per family", figdir))
+    if not figures and not notes:
+        notes.append(f"heatmaps skipped: no method varies both {x} and {y}")
+    return figures, notes
+
+
+def _profile_taus(values: np.ndarray) -> np.ndarray:
+    v = values[np.isfinite(values)]
+    if v.size == 0:
+        return np.linspace(0.0, 1.0, 2)
+    lo, hi = float(v.min()), float(v.max())
+    if hi <= lo:
+        hi = lo + 1.0
+    pad = 0.02 * (hi - lo)
+    return np.linspace(lo - pad, hi + pad, 200)
+
+
+def report_figures(sel: Selection, summary: pd.DataFrame, comparisons: pd.DataFrame, options: Any,
+                   figdir: pathlib.Path) -> tuple[list[FigureFile], list[str]]:
+    """Every figure of a report (heatmaps, ECDF, rates, continuous metrics, differences, profile),
+    written to ``figdir``, and notes on what was skipped."""
+    labels = {s: sel.labels[s] for s in sel.settings}
+    methods = {s: str(sel.table.at[s, "method"]) for s in sel.settings}
+    names = groups(sel.data)
+    rates, continuous = report_metrics(sel.data.columns)
+    units = {m: METRICS.get(m).unit for m in continuous}
+    figures, notes = _heatmap_figures(sel, options, figdir)
+
+    clearance = {g: {s: group_rows(sel.data[sel.data["setting"] == s], g)["min_clearance"].to_numpy(np.float64)
+                     for s in sel.settings} for g in names}
+    figures.append(save_figure(plot_ecdf(clearance, labels, methods, "min_clearance", "m"), "ecdf_min_clearance",
+                               "Empirical CDF of the minimum clearance per setting (left of 0: collision)", figdir))
+    figures.append(save_figure(plot_rates(summary, labels, rates, options.confidence), "rates",
+                               f"{', '.join(rates).capitalize()} rates with {100 * options.confidence:g} % Wilson "
+                               "intervals", figdir))
+    figures.append(save_figure(plot_continuous(summary, labels, continuous, units, options.confidence), "continuous",
+                               "Interquartile means of the continuous metrics with stratified bootstrap intervals "
+                               "(time_to_goal: successful episodes)", figdir))
+    if len(comparisons):
+        pooled = comparisons[comparisons["family"] == names[-1]]
+        figures.append(save_figure(plot_differences(pooled, labels, rates + continuous, options.alpha),
+                                   "differences", f"Paired differences to the baseline ({names[-1]}): rates in "
+                                   "fraction, continuous metrics as difference of IQMs; filled = Holm-significant",
+                                   figdir))
+    metric = options.profile_metric
+    values = sel.data[metric].to_numpy(np.float64)
+    taus = _profile_taus(values)
+    curves = {}
+    for g in names:
+        curves[g] = {}
+        for s in sel.settings:
+            v = group_rows(sel.data[sel.data["setting"] == s], g)[metric].to_numpy(np.float64)
+            v = v[~np.isnan(v)]
+            if v.size == 0:
+                continue
+            frac = stats.performance_profile(v, taus)
+            lo, hi = stats.wilson_interval(np.round(frac * v.size), v.size, options.confidence)
+            curves[g][s] = (frac, lo, hi)
+    bands = len(sel.settings) <= 6
+    figures.append(save_figure(plot_performance_profile(taus, curves, labels, methods, metric, bands),
+                               f"profile_{metric}", f"Performance profile: fraction of episodes with {metric} > τ"
+                               + (" (bands: pointwise Wilson intervals)" if bands else ""), figdir))
+    return figures, notes
+
+

@@ -1,0 +1,262 @@
+"""Declared gains and the :class:`Gains` pytree: every traced number of a setting.
+
+A component (a planner's weight, the APF flow, a safety filter, a plant, a world model) declares
+the numbers it reads as :class:`GainSpec` objects: name, default, allowed range, unit. Declared
+gains are collected in :data:`GAINS` and become, with no edit elsewhere, keys of :class:`Gains`,
+sweep grid keys, ``--NAME`` flags of the CLI, ``--gains`` TOML keys and tunable parameters of
+``jaxapf tune``.
+
+:class:`Gains` maps every declared name to a value and is a pytree whose every leaf is numeric
+(MJX's rule: a field is a leaf iff it is an array), so a grid of gain settings is one ``vmap`` over
+a batched ``Gains``; changing a gain never recompiles. Constructing one validates what the caller
+gave, before anything is traced, with :class:`~jaxapf.validation.ConfigError` naming the gain and
+its allowed range.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import warnings
+from typing import Any, Iterator, Mapping
+
+import jax
+import numpy as np
+
+from .registry import Registry
+from .validation import BoundWarning, ConfigError, check_range, check_table, describe_range
+
+__all__ = ["GainSpec", "GAINS", "declare_gains", "Gains", "validate_gains", "gains_from_mapping", "load_gains",
+           "read_gains_file", "check_gain_name"]
+
+
+@dataclasses.dataclass(frozen=True)
+class GainSpec:
+    """One traced number a component reads.
+
+    Attributes:
+      name: key in :class:`Gains`, sweep specs and CLI flags (``--name``, ``_`` as ``-``).
+      default: value when a setting does not name it.
+      low, high, low_open, high_open: allowed range (``None``: unbounded).
+      unit: unit in brackets for help texts and reports (``"m"``), ``""`` for none.
+      symbol: short label for figures and tables (``"γ"``), default the name.
+      doc: one line of what it does.
+      tunable: ``jaxapf tune`` may learn it.
+      tune_high: upper end of the map ``jaxapf tune`` learns it through (a bounded sigmoid instead
+        of the softplus of an unbounded gain), e.g. the paper's bound ``k <= 1``.
+      warn_above, warning: values above ``warn_above`` are allowed but break a property the
+        paper claims; they raise :class:`~jaxapf.validation.BoundWarning` with ``warning``.
+    """
+
+    name: str
+    default: float
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    high_open: bool = False
+    unit: str = ""
+    symbol: str = ""
+    doc: str = ""
+    tunable: bool = True
+    tune_high: float | None = None
+    warn_above: float | None = None
+    warning: str = ""
+
+    @property
+    def label(self) -> str:
+        return self.symbol or self.name
+
+    def range_text(self) -> str:
+        """The allowed range in words, with the unit."""
+        return describe_range(self.low, self.high, self.low_open, self.high_open) + (
+            f" [{self.unit}]" if self.unit else "")
+
+    def check(self, where: str, value: Any) -> np.ndarray:
+        """``value`` as float64 after the range check; warns (:class:`BoundWarning`) above ``warn_above``."""
+        arr = check_range(where, value, self.low, self.high, lo_open=self.low_open, hi_open=self.high_open)
+        if self.warn_above is not None and np.any(arr > self.warn_above):
+            warnings.warn(f"{where} > {self.warn_above:g}: {self.warning}", BoundWarning, stacklevel=4)
+        return arr
+
+
+def _describe(spec: GainSpec) -> str:
+    unit = f" [{spec.unit}]" if spec.unit else ""
+    return f"{spec.doc}{unit}; default {spec.default:g}; {describe_range(spec.low, spec.high, spec.low_open, spec.high_open)}"
+
+
+#: Every declared gain, in declaration order (the order of :class:`Gains` leaves and of the gain
+#: columns of a sweep).
+GAINS: Registry[GainSpec] = Registry("gain", describe=_describe)
+
+
+def declare_gains(*specs: GainSpec) -> tuple[GainSpec, ...]:
+    """Declare ``specs`` (a gain declared twice must be declared the same way); returns them."""
+    for spec in specs:
+        if spec.name in GAINS and GAINS.get(spec.name) != spec:
+            raise ConfigError(f"gain {spec.name!r} is declared already with another range or default: "
+                              f"{GAINS.get(spec.name)}")
+        check_range(f"gain {spec.name!r} default", spec.default, spec.low, spec.high, lo_open=spec.low_open,
+                    hi_open=spec.high_open)
+        GAINS.register(spec.name, spec)
+    return specs
+
+
+def _is_user_value(x: Any) -> bool:
+    """A value a user handed in (number, sequence, numpy or concrete JAX array), as opposed to what
+    JAX puts into a pytree while tracing (tracers, ``ShapeDtypeStruct``s): only user values are
+    validated."""
+    if isinstance(x, jax.core.Tracer):
+        return False
+    return isinstance(x, (int, float, str, list, tuple, np.ndarray, np.generic, jax.Array))
+
+
+def check_gain_name(where: str, name: str) -> GainSpec:
+    """The declaration of gain ``name``; :class:`ConfigError` ``"where.name is not a gain"`` otherwise."""
+    if name not in GAINS:
+        raise ConfigError(f"{where}.{name} is not a gain; allowed: {', '.join(GAINS.names())}")
+    return GAINS.get(name)
+
+
+def validate_gains(values: Mapping[str, Any], *, prefix: str = "gains") -> None:
+    """Range-check every value of ``values`` (names must be declared gains)."""
+    for name, value in values.items():
+        spec = check_gain_name(prefix, name)
+        if _is_user_value(value):
+            spec.check(f"{prefix}.{name}", value)
+
+
+@jax.tree_util.register_pytree_node_class
+class Gains(Mapping[str, Any]):
+    """A value (scalar or batched array) for every declared gain: ``Gains(gamma=2.0)`` takes the
+    declared defaults for the others. Read as ``gains.gamma`` or ``gains["gamma"]``.
+
+    Leaves are in declaration order (:data:`GAINS`). Only values the caller hands in are
+    validated; pytree operations (``vmap``, ``grad``, ``tree_map``) rebuild a ``Gains`` without
+    checks.
+    """
+
+    __slots__ = ("_values",)
+
+    def __init__(self, **values: Any) -> None:
+        validate_gains(values)
+        merged = {name: values[name] if name in values else spec.default for name, spec in GAINS.items()}
+        object.__setattr__(self, "_values", merged)
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        """Every declared gain."""
+        return GAINS.names()
+
+    # --- mapping ----------------------------------------------------------------------------
+
+    def __getitem__(self, name: str) -> Any:
+        return self._values[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._values)
+
+    def __len__(self) -> int:
+        return len(self._values)
+
+    def __getattr__(self, name: str) -> Any:
+        values = object.__getattribute__(self, "_values")
+        try:
+            return values[name]
+        except KeyError:
+            raise AttributeError(f"no gain {name!r}; gains: {', '.join(values)}") from None
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise dataclasses.FrozenInstanceError(f"Gains are immutable; use .replace({name}=...)")
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Gains) and tuple(self._values.items()) == tuple(other._values.items())
+
+    def __hash__(self) -> int:
+        return hash(tuple(self._values.items()))
+
+    def __repr__(self) -> str:
+        return "Gains(" + ", ".join(f"{k}={v!r}" for k, v in self._values.items()) + ")"
+
+    # --- pytree -------------------------------------------------------------------------------
+
+    def tree_flatten(self) -> tuple[list[Any], tuple[str, ...]]:
+        return list(self._values.values()), tuple(self._values)
+
+    @classmethod
+    def tree_unflatten(cls, names: tuple[str, ...], leaves: list[Any]) -> "Gains":
+        return cls.unchecked(dict(zip(names, leaves)))
+
+    @classmethod
+    def unchecked(cls, values: Mapping[str, Any]) -> "Gains":
+        """Gains holding exactly ``values``: no defaults added, nothing validated (traced values, and
+        the functional API of :mod:`jaxapf.planners.potentials`, which takes gains by name)."""
+        gains = object.__new__(cls)
+        object.__setattr__(gains, "_values", dict(values))
+        return gains
+
+    # --- helpers ------------------------------------------------------------------------------
+
+    def replace(self, **changes: Any) -> "Gains":
+        """The same gains with ``changes`` (validated where they are user values)."""
+        validate_gains(changes)
+        return Gains.unchecked({k: changes.get(k, v) for k, v in self._values.items()})
+
+    def as_arrays(self, dtype: Any = None) -> "Gains":
+        """The same gains as ``jnp`` arrays of ``dtype`` (default: JAX's default float)."""
+        import jax.numpy as jnp
+
+        dtype = dtype or jnp.result_type(float)
+        return jax.tree_util.tree_map(lambda g: jnp.asarray(g, dtype), self)
+
+    def floats(self) -> dict[str, float]:
+        """Scalar gains as plain floats."""
+        return {k: float(np.asarray(v)) for k, v in self._values.items()}
+
+
+def gains_from_mapping(mapping: Mapping[str, Any], where: str = "gains", base: Gains | None = None) -> Gains:
+    """:class:`Gains` from ``{name: number}`` on top of ``base`` (default: the declared defaults);
+    an unknown name or a value that is not a number raises :class:`ConfigError` naming ``where.name``."""
+    for name, value in mapping.items():
+        check_gain_name(where, name)
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where}.{name} = {value!r} must be a number")
+    values = {k: float(v) for k, v in mapping.items()}
+    validate_gains(values, prefix=where)
+    base = base or Gains()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", BoundWarning)  # already warned above, under `where`
+        return base.replace(**values)
+
+
+def load_gains(path: str | os.PathLike, base: Gains | None = None) -> Gains:
+    """Gains from a TOML file (:func:`read_gains_file`) on top of ``base`` (default: the declared defaults)."""
+    values = read_gains_file(path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", BoundWarning)  # read_gains_file warned, naming the file
+        return (base or Gains()).replace(**values)
+
+
+def read_gains_file(path: str | os.PathLike) -> dict[str, float]:
+    """The gains a TOML file names, checked: a ``[gains]`` table, or gain keys at the top level (the
+    fragment ``jaxapf tune`` writes), not both."""
+    import tomllib
+
+    try:
+        with open(path, "rb") as fh:
+            data = tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(f"gains file {str(path)!r} does not exist") from None
+    except IsADirectoryError:
+        raise ConfigError(f"gains file {str(path)!r} is a directory") from None
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"gains file {str(path)!r} is not valid TOML: {err}") from None
+    if "gains" in data:
+        extra = sorted(set(data) - {"gains"})
+        if extra:
+            raise ConfigError(f"gains file {str(path)!r}: {extra[0]} sits next to the [gains] table; put every gain "
+                              "inside [gains] (or write them all at the top level)")
+        table = check_table(f"{path}:gains", data["gains"])
+    else:
+        table = data
+    gains_from_mapping(table, where=f"{path}:gains")  # checks names, types and ranges
+    return {k: float(v) for k, v in table.items()}

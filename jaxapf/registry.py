@@ -1,0 +1,83 @@
+"""Named registries: the extension points of jaxapf.
+
+Every component a user can add -- planners, safety filters, plants, scenario families, metrics,
+declared gains -- lives in a :class:`Registry` owned by the module of its concept
+(:data:`jaxapf.planners.PLANNERS`, :data:`jaxapf.control.FILTERS`, :data:`jaxapf.dynamics.PLANTS`,
+:data:`jaxapf.scenarios.FAMILIES`, :data:`jaxapf.metrics.METRICS`, :data:`jaxapf.gains.GAINS`).
+Registering is the only step: sweep specs, CLI flags and help texts, reports, ``jaxapf list`` and
+``jaxapf tune`` read the registries, so nothing else is edited (``docs/extending.md``).
+
+An entry is looked up by name when a program is traced, and the name is part of the static
+configuration, so a new name compiles a new program. Re-registering a name would leave compiled
+programs of the old entry in JAX's caches; it is refused unless ``replace=True``.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Generic, Iterator, TypeVar
+
+from .validation import ConfigError
+
+__all__ = ["Registry"]
+
+T = TypeVar("T")
+
+
+class Registry(Generic[T]):
+    """Entries of one kind by name, in registration order.
+
+    Args:
+      what: what an entry is, in words (``"planner"``); used in error messages.
+      describe: one line about an entry for ``jaxapf list`` (default: its docstring's first line).
+    """
+
+    def __init__(self, what: str, describe: Callable[[T], str] | None = None) -> None:
+        self.what = what
+        self._entries: dict[str, T] = {}
+        self._describe = describe
+
+    def register(self, name: str, entry: T, *, replace: bool = False) -> T:
+        """Add ``entry`` under ``name`` (letters, digits and ``_``, starting with a letter); returns it."""
+        if not isinstance(name, str) or not name or not name[0].isalpha() or not name.replace("_", "").isalnum():
+            raise ConfigError(f"{self.what} name {name!r} must be letters, digits and '_', starting with a letter")
+        if name in self._entries and not replace and self._entries[name] != entry:
+            raise ConfigError(f"a {self.what} named {name!r} is registered already; pass replace=True to replace it")
+        self._entries[name] = entry
+        return entry
+
+    def get(self, name: str, where: str | None = None) -> T:
+        """The entry ``name``; :class:`ConfigError` naming ``where`` (default: the registry) otherwise."""
+        try:
+            return self._entries[name]
+        except (KeyError, TypeError):
+            at = where or self.what
+            raise ConfigError(f"{at} = {name!r} is not a registered {self.what}; "
+                              f"choose one of {', '.join(self._entries) or '(none registered)'}") from None
+
+    __getitem__ = get
+
+    def names(self) -> tuple[str, ...]:
+        return tuple(self._entries)
+
+    def items(self) -> tuple[tuple[str, T], ...]:
+        return tuple(self._entries.items())
+
+    def describe(self, name: str) -> str:
+        """One line about entry ``name``."""
+        entry = self.get(name)
+        if self._describe is not None:
+            return self._describe(entry)
+        doc = (type(entry).__doc__ if not isinstance(entry, type) else entry.__doc__) or ""
+        return doc.strip().splitlines()[0] if doc.strip() else ""
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._entries
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._entries)
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def __repr__(self) -> str:
+        return f"Registry({self.what!r}: {', '.join(self._entries)})"

@@ -1,0 +1,221 @@
+"""``jaxapf report``: statistics, figures and tables from the episodes of a sweep.
+
+``jaxapf report runs/NAME.parquet --out reports/NAME/`` answers "which method and gains are safer
+and converge more, by how much, and how sure are we?" from the Parquet rows written by
+``jaxapf sweep`` (format: ``docs/sweep-format.md``). Every number is computed from the rows;
+the definitions of the statistics are in :mod:`jaxapf.stats` and ``docs/report.md``.
+
+Outputs (in ``--out``): ``report.html`` (self-contained, figures embedded as base64 PNG),
+``report.md`` (figures as relative files), ``summary.csv`` (per setting × family),
+``comparisons.csv`` (paired tests against the baseline), ``table.tex`` (booktabs) and
+``figures/*.png|svg``.
+
+Bad input raises :class:`~jaxapf.report.load.ReportError` (a
+:class:`~jaxapf.validation.ConfigError`) with one line.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import json
+import pathlib
+from typing import Any, Mapping
+
+import numpy as np
+import pandas as pd
+
+from .. import stats
+from ..metrics import METRICS
+from .document import Document, render_html, render_markdown
+from .figures import report_figures
+from .gallery import gallery
+from .latex import latex_tables
+from .load import ReportError, load_sweep, report_metrics
+from .select import format_value, select
+from .tables import ALL, compare, comparison_table, continuous_table, findings, groups, rates_table, summarize
+
+__all__ = ["ReportOptions", "ReportResult", "build_report"]
+
+
+@dataclasses.dataclass(frozen=True)
+class ReportOptions:
+    """Settings of one report (the CLI flags).
+
+    Attributes:
+      baseline: ``COLUMN=VALUE[,COLUMN=VALUE...]`` selecting the baseline setting(s)
+        (default ``method=basic``; ``setting=3`` picks one setting).
+      where: ``COLUMN=VALUE[,VALUE...]`` row filters; values of one filter are OR-ed, filters AND-ed.
+      heatmap: the two gain columns of the heatmaps, or None to skip them.
+      gallery: number of worst episodes to re-simulate and draw (0: none).
+      resamples: bootstrap resamples of every interval.
+      confidence: level of every interval; tests are significant at ``1 - confidence`` after Holm.
+      seed: seed of every bootstrap generator.
+      profile_metric: the metric of the performance profile (higher is better).
+    """
+
+    baseline: str = "method=basic"
+    where: tuple[str, ...] = ()
+    heatmap: tuple[str, str] | None = ("gamma", "k")
+    gallery: int = 3
+    resamples: int = stats.DEFAULT_RESAMPLES
+    confidence: float = 0.95
+    seed: int = 0
+    profile_metric: str = "score"
+
+    def __post_init__(self) -> None:
+        if isinstance(self.resamples, bool) or not isinstance(self.resamples, int) or self.resamples < 100:
+            raise ReportError(f"--resamples = {self.resamples!r} must be an integer >= 100")
+        if not (isinstance(self.confidence, (int, float)) and 0.5 <= self.confidence < 1.0):
+            raise ReportError(f"--confidence = {self.confidence!r} must lie in [0.5, 1)")
+        if isinstance(self.gallery, bool) or not isinstance(self.gallery, int) or self.gallery < 0:
+            raise ReportError(f"--gallery = {self.gallery!r} must be an integer >= 0")
+        if self.heatmap is not None and (len(self.heatmap) != 2 or self.heatmap[0] == self.heatmap[1]):
+            raise ReportError(f"--heatmap = {','.join(self.heatmap)!r} must name two different columns, e.g. gamma,k")
+
+    @property
+    def alpha(self) -> float:
+        return 1.0 - self.confidence
+
+def _spec_name(meta: Mapping, path: pathlib.Path) -> str:
+    spec = meta.get("spec") if isinstance(meta.get("spec"), Mapping) else {}
+    for key in ("name", "title"):
+        if isinstance(spec.get(key), str) and spec[key]:
+            return spec[key]
+        if isinstance(spec.get("sweep"), Mapping) and isinstance(spec["sweep"].get(key), str):
+            return spec["sweep"][key]
+    name = path.name
+    return name[: -len(".parquet")] if name.endswith(".parquet") else path.stem
+
+
+@dataclasses.dataclass
+class ReportResult:
+    """What :func:`build_report` wrote."""
+
+    out: pathlib.Path
+    paths: list[pathlib.Path]
+    summary: pd.DataFrame
+    comparisons: pd.DataFrame
+    notes: list[str]
+
+
+def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
+                 options: ReportOptions = ReportOptions()) -> ReportResult:
+    """Read the sweep at ``path``, compute every statistic and write the report into ``out``."""
+    path = pathlib.Path(path)
+    out = pathlib.Path(out)
+    df, meta = load_sweep(path)
+    if options.profile_metric not in df.columns or options.profile_metric not in METRICS:
+        raise ReportError(f"--profile-metric {options.profile_metric!r} is not a metric column of {path}")
+    sel = select(df, options)
+    rates, continuous = report_metrics(sel.data.columns)
+    summary = summarize(sel.data, sel.settings, sel.table, sel.labels, options)
+    comparisons = compare(sel.data, sel.pairs, sel.labels, options)
+    out.mkdir(parents=True, exist_ok=True)
+    figdir = out / "figures"
+    figures, fig_notes = report_figures(sel, summary, comparisons, options, figdir)
+    shown, gallery_notes = gallery(sel, meta, options, figdir)
+    notes = sel.notes + fig_notes + gallery_notes
+    if meta.get("complete") is False and meta.get("rows_expected"):
+        notes.insert(0, f"the sweep is incomplete: {len(df)} of {meta['rows_expected']} episodes are present "
+                        "(an interrupted run?); only rows present in both settings are paired")
+
+    spec_name = _spec_name(meta, path)
+    groups = groups(sel.data)
+    pooled = groups[-1]
+    versions = meta.get("versions") if isinstance(meta.get("versions"), Mapping) else {}
+    n_tests = int(comparisons["p"].notna().sum()) if len(comparisons) else 0
+
+    doc = Document()
+    title = f"jaxapf report — {spec_name}"
+    doc.h(1, title)
+    doc.items([
+        f"sweep: {path} ({len(df)} episodes in the file; {len(sel.data)} reported)",
+        f"spec: {spec_name}, spec_hash {meta.get('spec_hash', '–')}, format {meta.get('format')}, "
+        f"dtype {meta.get('dtype', '–')}, PRNG {json.dumps(meta.get('prng', {}))}",
+        f"settings reported: {len(sel.settings)}; families: {', '.join(g for g in groups if g != ALL)}; "
+        f"fields per family: " + ", ".join(f"{f}: {n}" for f, n in
+                                          sel.data.groupby("family")["field"].nunique().items()),
+        f"filters: {' '.join('--where ' + w for w in options.where) or 'none'}; baseline: {options.baseline} "
+        f"(setting(s) {', '.join('#' + str(b) for b in sel.baseline_ids)})",
+        f"statistics: {100 * options.confidence:g} % intervals; rates: Wilson score intervals; medians and IQMs "
+        f"(25 % trimmed means): percentile bootstrap, {options.resamples} resamples, seed {options.seed}, "
+        f"stratified by family for '{ALL}'; paired differences: paired bootstrap over fields (same resamples); "
+        f"tests: exact McNemar (rates), Wilcoxon signed-rank (continuous), two-sided; Holm correction over all "
+        f"{n_tests} tests of the comparison tables, significant (*) when the Holm-adjusted p <= {options.alpha:.3g}",
+        "time_to_goal is NaN for an episode that does not succeed: its statistics use the successful episodes "
+        "only (n given), its paired comparisons the pairs where both succeed; other non-finite values "
+        "(e.g. min_clearance = +inf in a field without obstacles) are left out the same way",
+        "generated " + datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+    ])
+    doc.h(2, "Key findings")
+    doc.items(findings(summary, comparisons, pooled, options) or ["nothing to summarise"])
+    doc.h(2, "Versions (from the sweep's metadata)")
+    doc.table(pd.DataFrame({"package": list(versions), "version": [str(v) for v in versions.values()]})
+              if versions else pd.DataFrame({"package": ["–"], "version": ["not recorded"]}))
+
+    doc.h(2, "Settings")
+    cols = [c for c in sel.swept]
+    st = sel.table.loc[sel.settings, cols].reset_index() if cols else pd.DataFrame({"setting": sel.settings})
+    st.insert(1, "label", [sel.labels[s] for s in sel.settings])
+    st.insert(2, "role", ["baseline" if s in sel.baseline_ids else (f"vs #{sel.pairs[s]}" if s in sel.pairs else "")
+                          for s in sel.settings])
+    doc.table(st.map(format_value))
+
+    doc.h(2, "Rates")
+    doc.p(f"Rate in % with the {100 * options.confidence:g} % Wilson score interval, per setting and family"
+          + (f"; '{ALL}' pools the families (episode-weighted)." if ALL in groups else "."))
+    doc.table(rates_table(summary, rates))
+    doc.h(2, "Continuous metrics")
+    doc.p("Median and interquartile mean (IQM, mean of the middle 50 %) with percentile bootstrap intervals "
+          f"({options.resamples} resamples, stratified by family for '{ALL}'); n = episodes with a finite value.")
+    for m in continuous:
+        metric = METRICS.get(m)
+        unit = f" [{metric.unit}]" if metric.unit else ""
+        doc.h(3, f"{m}{unit}" + (" — successful episodes only" if metric.on_success else ""))
+        doc.table(continuous_table(summary, m))
+
+    doc.h(2, f"Paired comparisons with the baseline ({options.baseline})")
+    if len(comparisons):
+        doc.p("Rows with equal (family, field) are the same obstacle field (common random numbers) and are paired. "
+              "Δ = setting − baseline (rates in percentage points; continuous metrics: difference of IQMs over the "
+              "pairs) with a paired bootstrap interval. PoI = P(setting better than baseline on the same field) "
+              "+ ½ P(tie), over the pairs: > 0.5 favours the setting. Better means higher for success and "
+              "min_clearance, lower for collision, stalled, time_to_goal, path_ratio, control_effort, jerk_rms. "
+              f"p: exact McNemar (rates) or Wilcoxon signed-rank (continuous); p Holm: Holm-adjusted over all "
+              f"{n_tests} tests; * = significant at {options.alpha:.3g}.")
+        for m in rates + continuous:
+            doc.h(3, m + (" (higher is better)" if METRICS.get(m).higher_is_better else " (lower is better)"))
+            doc.table(comparison_table(comparisons, m))
+    else:
+        doc.p("No setting to compare: every reported setting is a baseline setting.")
+
+    doc.h(2, "Figures")
+    for fig in figures:
+        doc.figure(fig)
+    doc.h(2, "Worst episodes (re-simulated from their seeds)")
+    if shown:
+        doc.p("Failed episodes re-simulated with jaxapf.sweep.row_config and jaxapf.simulate.simulate_runs: "
+              "collisions (deepest first), stalls and other failures (farthest from the goal first), in turn, "
+              "distinct fields first. Red X: first collision.")
+        for fig in shown:
+            doc.figure(fig)
+    else:
+        doc.p("No gallery (see notes).")
+    doc.h(2, "Notes")
+    doc.items(notes or ["none"])
+
+    paths = []
+    summary_path = out / "summary.csv"
+    summary.to_csv(summary_path, index=False)
+    comp_path = out / "comparisons.csv"
+    comparisons.to_csv(comp_path, index=False)
+    tex_path = out / "table.tex"
+    tex_path.write_text(latex_tables(summary, comparisons, sel, pooled, options, spec_name, rates), encoding="utf-8")
+    md_path = out / "report.md"
+    md_path.write_text(render_markdown(doc), encoding="utf-8")
+    html_path = out / "report.html"
+    html_path.write_text(render_html(doc, title), encoding="utf-8")
+    paths += [html_path, md_path, summary_path, comp_path, tex_path]
+    paths += [figdir / f"{f.name}.{ext}" for f in figures + shown for ext in ("png", "svg")]
+    return ReportResult(out, paths, summary, comparisons, notes)

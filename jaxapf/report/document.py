@@ -1,0 +1,125 @@
+"""The report as a document: headings, paragraphs, lists, tables and figures, rendered to
+Markdown (figures as files) and to one self-contained HTML page (figures embedded)."""
+
+from __future__ import annotations
+
+import base64
+import dataclasses
+import html
+import io
+import pathlib
+from typing import Any, Sequence
+
+import pandas as pd
+
+__all__ = ["FigureFile", "Document", "render_markdown", "render_html", "save_figure"]
+
+
+@dataclasses.dataclass
+class FigureFile:
+    """A rendered figure: file stem, caption and PNG bytes."""
+
+    name: str
+    caption: str
+    png: bytes
+
+
+@dataclasses.dataclass
+class Document:
+    """The report's blocks in order; rendered by :func:`render_markdown` and :func:`render_html`."""
+
+    blocks: list[tuple[str, Any]] = dataclasses.field(default_factory=list)
+
+    def h(self, level: int, text: str) -> None:
+        self.blocks.append(("h", (level, text)))
+
+    def p(self, text: str) -> None:
+        self.blocks.append(("p", text))
+
+    def items(self, items: Sequence[str]) -> None:
+        if items:
+            self.blocks.append(("ul", list(items)))
+
+    def table(self, frame: pd.DataFrame) -> None:
+        self.blocks.append(("table", frame))
+
+    def figure(self, fig: FigureFile) -> None:
+        self.blocks.append(("figure", fig))
+
+
+def _md_cell(v: Any) -> str:
+    return str(v).replace("|", "\\|").replace("\n", " ")
+
+
+def render_markdown(doc: Document) -> str:
+    out = []
+    for kind, value in doc.blocks:
+        if kind == "h":
+            out.append(f"{'#' * value[0]} {value[1]}\n")
+        elif kind == "p":
+            out.append(f"{value}\n")
+        elif kind == "ul":
+            out.append("\n".join(f"- {_md_cell(i)}" for i in value) + "\n")
+        elif kind == "table":
+            cols = list(value.columns)
+            lines = ["| " + " | ".join(_md_cell(c) for c in cols) + " |", "|" + "---|" * len(cols)]
+            lines += ["| " + " | ".join(_md_cell(v) for v in row) + " |" for row in value.itertuples(index=False)]
+            out.append("\n".join(lines) + "\n")
+        elif kind == "figure":
+            out.append(f"![{value.caption}](figures/{value.name}.png)\n\n*{value.caption}* "
+                       f"(vector: `figures/{value.name}.svg`)\n")
+    return "\n".join(out)
+
+
+_CSS = """
+body{font-family:system-ui,-apple-system,'Segoe UI',sans-serif;margin:2em auto;max-width:1250px;padding:0 1em;
+color:#222;line-height:1.4}
+h1{border-bottom:2px solid #444}h2{border-bottom:1px solid #bbb;margin-top:2em}
+table{border-collapse:collapse;font-size:0.82em;margin:0.8em 0;display:block;overflow-x:auto}
+th,td{border:1px solid #ccc;padding:3px 7px;text-align:right;white-space:nowrap}
+th{background:#f0f0f0}td:first-child,th:first-child{text-align:left}
+tr:nth-child(even){background:#fafafa}
+figure{margin:1.2em 0}figure img{max-width:100%;height:auto;border:1px solid #eee}
+figcaption{font-size:0.9em;color:#444}code{background:#f4f4f4;padding:0 3px}
+"""
+
+
+def render_html(doc: Document, title: str) -> str:
+    esc = html.escape
+    out = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
+           f"<title>{esc(title)}</title>", f"<style>{_CSS}</style></head><body>"]
+    for kind, value in doc.blocks:
+        if kind == "h":
+            out.append(f"<h{value[0]}>{esc(value[1])}</h{value[0]}>")
+        elif kind == "p":
+            out.append(f"<p>{esc(value)}</p>")
+        elif kind == "ul":
+            out.append("<ul>" + "".join(f"<li>{esc(str(i))}</li>" for i in value) + "</ul>")
+        elif kind == "table":
+            head = "".join(f"<th>{esc(str(c))}</th>" for c in value.columns)
+            body = "".join("<tr>" + "".join(f"<td>{esc(str(v))}</td>" for v in row) + "</tr>"
+                           for row in value.itertuples(index=False))
+            out.append(f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>")
+        elif kind == "figure":
+            data = base64.b64encode(value.png).decode("ascii")
+            out.append(f'<figure><img alt="{esc(value.caption)}" src="data:image/png;base64,{data}">'
+                       f"<figcaption>{esc(value.caption)}</figcaption></figure>")
+    out.append("</body></html>")
+    return "\n".join(out)
+
+
+
+
+def save_figure(fig: Any, name: str, caption: str, figdir: pathlib.Path) -> FigureFile:
+    """Write ``fig`` to ``figdir/name.png`` and ``.svg`` (deterministic SVG ids, no date) and clear it."""
+    import matplotlib
+
+    figdir.mkdir(parents=True, exist_ok=True)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    png = buf.getvalue()
+    (figdir / f"{name}.png").write_bytes(png)
+    with matplotlib.rc_context({"svg.hashsalt": "jaxapf-report"}):
+        fig.savefig(figdir / f"{name}.svg", format="svg", metadata={"Date": None})
+    fig.clear()
+    return FigureFile(name, caption, png)

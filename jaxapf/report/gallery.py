@@ -1,0 +1,96 @@
+"""The gallery of a report: the worst failed episodes, re-simulated from their seeds and drawn."""
+
+from __future__ import annotations
+
+import math
+import pathlib
+from typing import Any, Mapping
+
+import pandas as pd
+
+from ..validation import ConfigError, first_line
+from .document import FigureFile, save_figure
+from .load import report_metrics
+from .select import Selection
+from .tables import _num
+
+__all__ = ["worst_episodes", "gallery"]
+
+
+def worst_episodes(data: pd.DataFrame, count: int) -> list[tuple[str, pd.Series]]:
+    """Up to ``count`` failed episodes: collisions (deepest first), stalls and other failures
+    (farthest from the goal first), taken in turn, distinct fields before repeats."""
+    fails = data[~data["success"]]
+    order = ["setting", "family", "field"]
+    cats = [
+        ("collision", fails[fails["collision"]].sort_values(["min_clearance"] + order, kind="stable")),
+        ("stall", fails[~fails["collision"] & fails["stalled"]].sort_values(
+            ["final_distance"] + order, ascending=[False, True, True, True], kind="stable")
+         if "final_distance" in fails.columns else fails[~fails["collision"] & fails["stalled"]]),
+        ("not reached", fails[~fails["collision"] & ~fails["stalled"]].sort_values(
+            ["final_distance"] + order, ascending=[False, True, True, True], kind="stable")
+         if "final_distance" in fails.columns else fails[~fails["collision"] & ~fails["stalled"]]),
+    ]
+    queues = [(name, [r for _, r in frame.iterrows()]) for name, frame in cats]
+    picked: list[tuple[str, pd.Series]] = []
+    seen_fields: set = set()
+    taken: set = set()
+    for distinct in (True, False):
+        progress = True
+        while len(picked) < count and progress:
+            progress = False
+            for name, rows in queues:
+                for r in rows:
+                    ident = (int(r["setting"]), str(r["family"]), int(r["field"]))
+                    if ident in taken or (distinct and (ident[1], ident[2]) in seen_fields):
+                        continue
+                    picked.append((name, r))
+                    taken.add(ident)
+                    seen_fields.add((ident[1], ident[2]))
+                    progress = True
+                    break
+                if len(picked) >= count:
+                    break
+    return picked
+
+
+def gallery(sel: Selection, meta: Mapping, options: Any, figdir: pathlib.Path) -> tuple[list[FigureFile], list[str]]:
+    """The ``options.gallery`` worst episodes (:func:`worst_episodes`) re-simulated with
+    :func:`jaxapf.sweep.row_config` and :func:`jaxapf.simulate.simulate_runs`, drawn, and notes."""
+    if options.gallery == 0:
+        return [], ["gallery skipped (--gallery 0)"]
+    picks = worst_episodes(sel.data, options.gallery)
+    if not picks:
+        return [], ["gallery: no failed episode among the reported settings"]
+    from ..simulate import plot_trajectories, simulate_runs
+    from ..sweep import row_config
+
+    if str(meta.get("dtype", "float32")) == "float64":
+        import jax
+
+        jax.config.update("jax_enable_x64", True)
+    rates = report_metrics(sel.data.columns)[0]
+    figures, notes = [], []
+    for i, (kind, row) in enumerate(picks, 1):
+        what = f"{sel.labels[int(row['setting'])]}, {row['family']} field {int(row['field'])}"
+        try:
+            cfg = row_config(meta, row.to_dict())
+            field, runs, _ = simulate_runs(cfg.family, cfg.seed, cfg.field, [cfg.sim.planner.method], cfg.gains,
+                                           cfg.sim, cfg.mpc, cfg.overrides)
+        except ConfigError as err:  # e.g. a planner of a plugin this process cannot import
+            notes.append(f"gallery: could not re-simulate {what}: {first_line(err)}")
+            continue
+        run = runs[0]
+        recorded = {m: bool(row[m]) for m in rates}
+        resim = {m: bool(run.metrics[m]) for m in rates}
+        check = "re-simulation matches the recorded outcome" if recorded == resim else (
+            "re-simulation differs from the recorded row: recorded "
+            + ", ".join(f"{m}={recorded[m]}" for m in rates) + "; re-simulated "
+            + ", ".join(f"{m}={resim[m]}" for m in rates))
+        fig = plot_trajectories(runs, field)
+        fig.suptitle(f"Worst episode #{i} ({kind}): {what}", fontsize=10)
+        caption = (f"{kind}: {what} (seed {cfg.seed}); recorded min clearance "
+                   f"{_num(row['min_clearance'])} m, final distance {_num(row.get('final_distance', math.nan))} m; "
+                   f"re-simulated min clearance {_num(run.metrics['min_clearance'])} m; {check}")
+        figures.append(save_figure(fig, f"gallery_{i}", caption, figdir))
+    return figures, notes

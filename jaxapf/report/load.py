@@ -1,0 +1,80 @@
+"""Loading a sweep for a report: its rows, metadata, and which metrics the report shows.
+
+What a metric means (rate or continuous, unit, direction, successful episodes only) comes from the
+metric registry (:data:`jaxapf.metrics.METRICS`); the default report shows the registered metrics
+marked ``report=True`` that the sweep wrote.
+"""
+
+from __future__ import annotations
+
+import pathlib
+from typing import Any, Iterable, Mapping
+
+import numpy as np
+import pandas as pd
+
+from ..metrics import METRICS, metric_names
+from ..validation import ConfigError
+
+__all__ = ["ReportError", "ROW_COLUMNS", "report_metrics", "load_sweep", "validate_sweep"]
+
+#: Columns that identify an episode within a setting (the pairing key, with ``seed`` if present).
+ROW_COLUMNS: tuple[str, ...] = ("family", "field", "seed")
+#: Columns every report needs besides its metrics.
+BASE_COLUMNS: tuple[str, ...] = ("setting", "method", "family", "field")
+
+
+class ReportError(ConfigError):
+    """The report cannot be made from this input (bad file, missing column, empty filter, ...)."""
+
+
+def report_metrics(columns: Iterable[str] | None = None) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """``(rates, continuous)``: the registered metrics of the default report, in registration order,
+    among ``columns`` if given."""
+    keep = None if columns is None else set(columns)
+    pick = lambda kind: tuple(m for m in metric_names(kind=kind, report=True) if keep is None or m in keep)  # noqa: E731
+    return pick("rate"), pick("continuous")
+
+
+def load_sweep(path: str | pathlib.Path) -> tuple[pd.DataFrame, dict]:
+    """The rows and metadata of a sweep (:func:`jaxapf.sweep.read_sweep`), validated.
+
+    Raises :class:`ReportError` with one line for anything that is not a sweep's output.
+    """
+    from ..sweep import read_sweep
+
+    path = pathlib.Path(path)
+    try:
+        df, meta = read_sweep(path)
+    except ConfigError as err:
+        raise ReportError(str(err)) from None
+    validate_sweep(df, meta, path)
+    return df, meta
+
+
+def validate_sweep(df: pd.DataFrame, meta: Any, path: str | pathlib.Path = "input") -> None:
+    """Check that ``(df, meta)`` looks like ``jaxapf sweep`` output; :class:`ReportError` if not.
+
+    The report's metrics the sweep says it wrote (its metadata's ``metrics``; every registered one
+    for an output that does not say) must be columns."""
+    if not isinstance(meta, Mapping) or not str(meta.get("format", "")).startswith("jaxapf.sweep/"):
+        raise ReportError(f"{path} is not the output of jaxapf sweep (no 'jaxapf' sweep metadata "
+                          "with format 'jaxapf.sweep/1' in the Parquet schema)")
+    rates, continuous = report_metrics(meta.get("metrics"))
+    missing = [c for c in BASE_COLUMNS + rates + continuous if c not in df.columns]
+    if missing:
+        raise ReportError(f"{path} lacks the column(s) {', '.join(missing)} that a jaxapf sweep writes")
+    if len(df) == 0:
+        raise ReportError(f"{path} holds no episodes (0 rows)")
+    for c in rates:
+        if not (pd.api.types.is_bool_dtype(df[c]) or set(pd.unique(df[c])) <= {0, 1}):
+            raise ReportError(f"{path}: column {c} must be boolean (0/1)")
+    for c in continuous:
+        if not pd.api.types.is_numeric_dtype(df[c]):
+            raise ReportError(f"{path}: column {c} must be numeric, not {df[c].dtype}")
+    key = ["setting"] + [c for c in ROW_COLUMNS if c in df.columns]
+    dup = df.duplicated(key)
+    if dup.any():
+        first = df.loc[dup, key].iloc[0].to_dict()
+        raise ReportError(f"{path}: {int(dup.sum())} duplicate episode row(s), e.g. {first}; "
+                          "every (setting, family, field) must appear once")

@@ -1,0 +1,157 @@
+"""Scenario family parameters and the family registry (SPEC 5).
+
+A family is a frozen, hashable :class:`FamilyParams` subclass (its parameters, validated on
+construction; a static argument of ``jit``) and a builder that lays out one field's obstacles in
+the family's local frame from a block of random numbers (:mod:`jaxapf.scenarios.layout`). Register
+one with :func:`register_family`; ``families = [NAME]`` in sweep and tune specs, ``--family NAME``
+and ``[scenario.params.NAME]`` then work for it (``docs/extending.md``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable, ClassVar, Mapping
+
+from ..registry import Registry
+from ..validation import ConfigError, check_choice, check_int, check_names, check_range, check_span
+
+__all__ = ["SHAPES", "Check", "integer", "number", "span", "choice", "names", "FamilyParams", "Family", "FAMILIES",
+           "register_family", "family_params"]
+
+SHAPES: tuple[str, ...] = ("cylinder", "sphere")
+
+# --------------------------------------------------------------------------------------------
+# parameter checks: what a family's CHECKS table maps each parameter to
+# --------------------------------------------------------------------------------------------
+
+#: ``check(where, value) -> normalised value``, raising ConfigError naming ``where``.
+Check = Callable[[str, Any], Any]
+
+
+def integer(lo: int, hi: int | None = None) -> Check:
+    """An integer in ``lo … hi``."""
+    return lambda where, value: check_int(where, value, lo, hi)
+
+
+def number(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False) -> Check:
+    """A finite number in the range."""
+    return lambda where, value: float(check_range(where, value, lo, hi, lo_open=lo_open))
+
+
+def span(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False, integer: bool = False) -> Check:
+    """An interval ``(a, b)``, ``a <= b``, whose ends lie in the range (a number ``x`` means ``(x, x)``)."""
+    return lambda where, value: check_span(where, value, lo, hi, lo_open=lo_open, integer=integer)
+
+
+def choice(choices: tuple[str, ...]) -> Check:
+    """One of ``choices``."""
+    return lambda where, value: check_choice(where, value, choices)
+
+
+def names(choices: tuple[str, ...]) -> Check:
+    """One or more distinct names of ``choices``, in their canonical order."""
+    return lambda where, value: check_names(where, value, choices, canonical=True)
+
+
+@dataclasses.dataclass(frozen=True)
+class FamilyParams:
+    """Parameters every family has (defaults shown are the base ones; families override some).
+
+    Attributes:
+      max_obstacles: obstacle slots per field (static; integer >= 1). Unused slots are invalid.
+      r_uav: UAV radius [m] >= 0 used to keep start and goal clear (engine default 0.3 m).
+      endpoint_margin: clearance [m] >= 0 that start and goal keep from every obstacle at t = 0
+        (default 0.25 m), see :func:`~jaxapf.scenarios.generate.clear_endpoints`.
+      altitude: z [m] of start, goal and obstacle centres (default 2 m).
+      t_max: recommended episode length [s] > 0 (default 60 s: 3–5× the nominal flight time).
+      distance: start–goal distance range [m] > 0, drawn uniformly (default 20–30 m).
+      heading: range [deg] within [-360, 360] of the start–goal heading about z, drawn uniformly
+        (default 0–360°, i.e. any direction).
+      shape: ``cylinder`` (vertical, infinitely tall; default) or ``sphere``.
+    """
+
+    family: ClassVar[str] = "base"
+    #: ``(per field, per obstacle slot)``: the size of a field's block of uniforms is
+    #: ``draws[0] + draws[1] · max_obstacles`` (:class:`~jaxapf.scenarios.layout.Draws`); changing it
+    #: changes every number the block holds, so a family keeps its own once published.
+    draws: ClassVar[tuple[int, int]] = (16, 6)
+    CHECKS: ClassVar[Mapping[str, Check]] = {
+        "max_obstacles": integer(1),
+        "r_uav": number(0.0),
+        "endpoint_margin": number(0.0),
+        "altitude": number(),
+        "t_max": number(0.0, lo_open=True),
+        "distance": span(0.0, lo_open=True),
+        "heading": span(-360.0, 360.0),
+        "shape": choice(SHAPES),
+    }
+
+    max_obstacles: int = 16
+    r_uav: float = 0.3
+    endpoint_margin: float = 0.25
+    altitude: float = 2.0
+    t_max: float = 60.0
+    distance: tuple[float, float] = (20.0, 30.0)
+    heading: tuple[float, float] = (0.0, 360.0)
+    shape: str = "cylinder"
+
+    def __post_init__(self) -> None:
+        where = f"scenario.{self.family}"
+        for f in dataclasses.fields(self):
+            object.__setattr__(self, f.name, self.CHECKS[f.name](f"{where}.{f.name}", getattr(self, f.name)))
+        self._check(where)
+
+    def _check(self, where: str) -> None:
+        """Constraints between fields (checked after every field is valid on its own)."""
+
+
+
+@dataclasses.dataclass(frozen=True)
+class Family:
+    """A registered family.
+
+    Attributes:
+      params: its :class:`FamilyParams` subclass (``params.family`` is the name).
+      build: ``build(draws, params, length) -> Layout``: the obstacles in the local frame (start at
+        the origin, goal at ``(length, 0)``), from the field's :class:`~jaxapf.scenarios.layout.Draws`.
+      kinds: the kinds of field it draws (one name if it draws one kind).
+    """
+
+    params: type[FamilyParams]
+    build: Callable[..., Any]
+    kinds: tuple[str, ...]
+
+    @property
+    def name(self) -> str:
+        return self.params.family
+
+
+def _describe(family: Family) -> str:
+    doc = (family.params.__doc__ or "").strip().splitlines()
+    first = doc[0] if doc else ""
+    first = first.split(": ", 1)[1] if first.startswith(f"``{family.name}``: ") else first
+    return f"{first} (kinds: {', '.join(family.kinds)})"
+
+
+#: Registered scenario families.
+FAMILIES: Registry[Family] = Registry("family", describe=_describe)
+
+
+def register_family(params: type[FamilyParams], build: Callable[..., Any], kinds: tuple[str, ...] | None = None,
+                    *, replace: bool = False) -> Family:
+    """Register the family ``params.family`` with its builder and kinds (default: one kind, its name)."""
+    return FAMILIES.register(params.family, Family(params, build, tuple(kinds or (params.family,))), replace=replace)
+
+
+def family_params(family: str, **overrides: Any) -> FamilyParams:
+    """The default parameters of ``family`` with ``overrides`` applied (and validated).
+
+    Raises :class:`ConfigError` for an unknown family, an unknown parameter name (listing the
+    allowed ones) or a value out of range.
+    """
+    cls = FAMILIES.get(family, "scenario.family").params
+    fields = tuple(f.name for f in dataclasses.fields(cls))
+    for name in overrides:
+        if name not in fields:
+            raise ConfigError(f"scenario.{family}.{name} is not a parameter of {family}; allowed: {', '.join(fields)}")
+    return cls(**overrides)

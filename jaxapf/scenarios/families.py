@@ -1,0 +1,363 @@
+r"""The built-in scenario families (SPEC 5), registered.
+
+Every field is built the same way:
+
+1. **Frame.** The start–goal distance ``L`` is drawn uniformly from ``params.distance`` and the
+   heading ψ of the start–goal line (a rotation about z) uniformly from ``params.heading``
+   (degrees). The start is always ``(0, 0, altitude)``, the goal ``(L cos ψ, L sin ψ, altitude)``.
+2. **Layout.** The family lays its obstacles out in a *local* frame: start at the origin, goal at
+   ``(L, 0)``, x along the start–goal line, y to its left. Obstacles live in the plane of flight
+   (centre z = ``altitude``; cylinders are infinitely tall anyway) and move horizontally.
+3. **World.** Positions and velocities are rotated by ψ, padded to exactly ``max_obstacles`` slots
+   and passed through :func:`~jaxapf.scenarios.generate.clear_endpoints`, which keeps start and goal at least
+   ``endpoint_margin`` clear of every obstacle at t = 0. Padded (invalid) slots are parked at
+   ``1e6`` with radius 0 and velocity 0.
+
+Keys: field ``i`` of seed ``s`` uses :func:`~jaxapf.scenarios.generate.field_key` ``= fold_in(key(s), i)``, and a field is
+bit-identical whatever batch it is computed in, so chunked sweeps give the same fields (see
+:func:`~jaxapf.scenarios.generate.make_scenarios`). A field draws one block of uniforms from its key (one threefry call: each
+call site costs XLA compile time) and hands them out in a fixed order, frame first, then layout;
+the trap family builds every kind from its own part of the block, so selecting fewer trap kinds
+does not change the geometry of the kinds that remain.
+
+Scales follow the engine's defaults: ``v_max = 2 m/s`` per axis, ``a_max = 3 m/s²``, UAV radius
+``r_uav = 0.3 m``, APF influence distance ``d_s = 4 m``, ``dt = 0.1 s``. Start–goal distances are
+20–30 m (10–15 s at a nominal 1.6 m/s = 0.8·v_max) except for the paper's long scenario 2; obstacle
+radii are 0.5–1.5 m. The families and their default numbers (each documented on its parameter
+class):
+
+``paper_static`` (:class:`PaperStaticParams`)
+    The paper's scenario 1, a classic concave trap for the basic APF: 5 cylinders of radius 1 m on a
+    half circle of radius 3 m whose open side faces the start, centred on the start–goal line at the
+    middle of a 24 m run along +x. Neighbouring surfaces are 0.30 m apart (< 0.6 m, the UAV's
+    diameter), so the cup is closed. Deterministic (optional tiny jitter, default 0).
+``paper_dynamic`` (:class:`PaperDynamicParams`)
+    The paper's scenario 2: 14 cylinders (radius 0.8–1.5 m) scattered uniformly in a 12 m wide
+    corridor along a 70 m diagonal run (heading 45°), 4 of them drifting at 0.1–0.3 m/s;
+    recommended episode 300 s.
+``trap`` (:class:`TrapParams`)
+    One randomized local-minimum trap per field, its kind drawn uniformly from ``kinds``:
+    ``on_line`` (one obstacle on the line, lateral offset ≤ 0.3 m), ``concave`` (a closed 5-cylinder
+    cup of radius 2.5–4 m facing the start), ``narrow_gap`` (two obstacles 2·r_uav + 0.1–0.6 m
+    apart), ``gnron`` (goal 0.5–2 m from an obstacle surface, i.e. inside d_s).
+``clutter`` (:class:`ClutterParams`)
+    A static forest: ``round(density · area / 100)`` (capped at ``max_obstacles``) cylinders of
+    radius 0.5–1.2 m, uniform in the ``L × 12 m`` corridor; default density 4 per 100 m².
+``crossing`` (:class:`CrossingParams`)
+    1–3 obstacles crossing the line perpendicularly at 0.5–1.5 m/s, each reaching the line at
+    30–70 % of the run when a UAV at 1.6 m/s would, ± 2 s.
+``head_on`` (:class:`HeadOnParams`)
+    1–2 obstacles starting at 60–90 % of the run (lateral offset ≤ 0.5 m) and flying toward the
+    start along the line at 0.5–1.5 m/s.
+``overtake`` (:class:`OvertakeParams`)
+    1–2 obstacles starting 4–10 m behind the start (lateral offset ≤ 0.5 m) and flying toward the
+    goal at 3–5 m/s (1.5–2.5 × v_max), i.e. overtaking the UAV: the case the velocity term is for.
+``dynamic`` (:class:`DynamicParams`)
+    ``clutter`` whose obstacles all move in uniformly random horizontal directions at 0.2–1 m/s.
+
+The paper gives no numbers for its scenarios. The ones here are chosen from the vehicle's scales
+and the classic APF failure modes, and none is tuned to make a particular method win.
+
+Parameters are frozen, hashable dataclasses (static arguments of ``jit``), validated on
+construction; :func:`~jaxapf.scenarios.family_params` builds one from a family name and overrides.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Callable, Mapping
+
+import jax
+import jax.numpy as jnp
+from jax import Array
+
+from ..validation import check_int
+from .base import FamilyParams, integer, names, number, register_family, span
+from .layout import CUP_SIZE, Draws, Layout, cup, fit, scatter, static, with_motion
+
+__all__ = ["TRAP_KINDS", "PaperStaticParams", "PaperDynamicParams", "TrapParams", "ClutterParams", "DynamicParams",
+           "MovingParams", "CrossingParams", "HeadOnParams", "OvertakeParams"]
+
+#: Trap kinds of the ``trap`` family.
+TRAP_KINDS: tuple[str, ...] = ("on_line", "concave", "narrow_gap", "gnron")
+#: Obstacle slots each trap kind needs.
+_TRAP_SIZES: Mapping[str, int] = {"on_line": 1, "concave": CUP_SIZE, "narrow_gap": 2, "gnron": 1}
+
+
+@dataclasses.dataclass(frozen=True)
+class PaperStaticParams(FamilyParams):
+    """``paper_static``: the paper's scenario 1, a concave cluster that traps the basic APF.
+
+    Start (0, 0, 2), goal (24, 0, 2) (``distance = 24``, ``heading = 0``). Five cylinders of
+    ``radius = 1 m`` sit on a half circle of ``cup_radius = 3 m`` (at -90°, -45°, 0°, 45°, 90° from
+    +x) whose open side faces the start; the cup's middle is at the middle of the run, on the line.
+    Neighbouring surfaces are 2·3·sin 22.5° - 2 = 0.30 m apart, narrower than the UAV (0.6 m),
+    so the cup is closed and the attraction pulls the UAV straight into it. ``jitter`` (default
+    0 m, at most 1 m) moves every centre by a key-dependent uniform offset in [-jitter, jitter]²;
+    with 0 the field does not depend on the key. ``max_obstacles`` defaults to (and must be at
+    least) 5.
+    """
+
+    family = "paper_static"
+    CHECKS = FamilyParams.CHECKS | {
+        "radius": number(0.0, lo_open=True),
+        "cup_radius": number(0.0, lo_open=True),
+        "jitter": number(0.0, 1.0),
+    }
+
+    max_obstacles: int = CUP_SIZE
+    distance: tuple[float, float] = (24.0, 24.0)
+    heading: tuple[float, float] = (0.0, 0.0)
+    radius: float = 1.0
+    cup_radius: float = 3.0
+    jitter: float = 0.0
+
+    def _check(self, where: str) -> None:
+        check_int(f"{where}.max_obstacles", self.max_obstacles, CUP_SIZE)
+
+
+@dataclasses.dataclass(frozen=True)
+class PaperDynamicParams(FamilyParams):
+    """``paper_dynamic``: the paper's scenario 2, a long run through clutter with moving obstacles.
+
+    Start (0, 0, 2), goal 70 m away on the diagonal (``distance = 70``, ``heading = 45°``), i.e.
+    about (49.5, 49.5, 2); recommended ``t_max = 300 s`` (the paper's horizon; the straight line
+    takes ~44 s at 1.6 m/s). ``count = 14`` cylinders with radii uniform in ``radius = 0.8–1.5 m``
+    are placed uniformly in the corridor ``0 <= x <= L``, ``|y| <= width/2 = 6 m``; the first
+    ``n_moving = 4`` of them drift in uniformly random horizontal directions at
+    ``speed = 0.1–0.3 m/s`` (slow, so they stay near the corridor while the UAV crosses it), the
+    rest are static. ``max_obstacles = 16`` (``count`` must not exceed it).
+    """
+
+    family = "paper_dynamic"
+    CHECKS = FamilyParams.CHECKS | {
+        "count": integer(1),
+        "n_moving": integer(0),
+        "width": number(0.0, lo_open=True),
+        "radius": span(0.0, lo_open=True),
+        "speed": span(0.0),
+    }
+
+    t_max: float = 300.0
+    distance: tuple[float, float] = (70.0, 70.0)
+    heading: tuple[float, float] = (45.0, 45.0)
+    count: int = 14
+    n_moving: int = 4
+    width: float = 12.0
+    radius: tuple[float, float] = (0.8, 1.5)
+    speed: tuple[float, float] = (0.1, 0.3)
+
+    def _check(self, where: str) -> None:
+        check_int(f"{where}.count", self.count, 1, self.max_obstacles)
+        check_int(f"{where}.n_moving", self.n_moving, 0, self.count)
+
+
+@dataclasses.dataclass(frozen=True)
+class TrapParams(FamilyParams):
+    """``trap``: one randomized local-minimum trap per field, kind drawn uniformly from ``kinds``.
+
+    Every trap is centred at a fraction ``along = 0.4–0.6`` of the run (uniform), with a lateral
+    offset uniform in ``[-offset, offset]``, ``offset = 0.3 m``. Kinds:
+
+    - ``on_line``: one obstacle of radius uniform in ``radius = 0.5–1.5 m`` on the line.
+    - ``concave``: a cup of 5 cylinders on a half circle of radius uniform in
+      ``cup_radius = 2.5–4 m``, open side toward the start; each cylinder's radius is
+      ``cup_radius · sin 22.5°`` (0.96–1.53 m) so neighbours touch and the cup is closed.
+    - ``narrow_gap``: two obstacles of the same radius (``radius``) either side of the line whose
+      surfaces are ``2 r_uav + gap_slack`` apart, ``gap_slack = 0.1–0.6 m``: the UAV fits, with
+      0.05–0.3 m to spare on each side.
+    - ``gnron`` (goal near obstacle): one obstacle (``radius``) whose surface is
+      ``goal_clearance = 0.5–2 m`` (UAV clearance) from the goal, in a uniformly random direction;
+      the goal lies inside the influence distance d_s = 4 m.
+
+    ``max_obstacles`` defaults to 5 and must hold the largest selected kind (concave 5, narrow_gap
+    2, on_line and gnron 1).
+    """
+
+    family = "trap"
+    CHECKS = FamilyParams.CHECKS | {
+        "kinds": names(TRAP_KINDS),
+        "along": span(0.0, 1.0),
+        "offset": number(0.0),
+        "radius": span(0.0, lo_open=True),
+        "cup_radius": span(0.0, lo_open=True),
+        "gap_slack": span(0.0),
+        "goal_clearance": span(0.0),
+    }
+
+    max_obstacles: int = CUP_SIZE
+    kinds: tuple[str, ...] = TRAP_KINDS
+    along: tuple[float, float] = (0.4, 0.6)
+    offset: float = 0.3
+    radius: tuple[float, float] = (0.5, 1.5)
+    cup_radius: tuple[float, float] = (2.5, 4.0)
+    gap_slack: tuple[float, float] = (0.1, 0.6)
+    goal_clearance: tuple[float, float] = (0.5, 2.0)
+
+    def _check(self, where: str) -> None:
+        check_int(f"{where}.max_obstacles", self.max_obstacles, max(_TRAP_SIZES[k] for k in self.kinds))
+
+
+@dataclasses.dataclass(frozen=True)
+class ClutterParams(FamilyParams):
+    """``clutter``: a random static forest.
+
+    ``round(density · L · width / 100)`` obstacles, capped at ``max_obstacles = 16``, with centres
+    uniform in the corridor ``0 <= x <= L``, ``|y| <= width/2`` (``width = 12 m``) and radii
+    uniform in ``radius = 0.5–1.2 m``; obstacles may overlap (compound obstacles). Default
+    ``density = 4`` per 100 m² gives 10–14 obstacles on the 20–30 m runs and covers ~7 % of the
+    corridor.
+    """
+
+    family = "clutter"
+    CHECKS = FamilyParams.CHECKS | {
+        "density": number(0.0),
+        "width": number(0.0, lo_open=True),
+        "radius": span(0.0, lo_open=True),
+    }
+
+    density: float = 4.0
+    width: float = 12.0
+    radius: tuple[float, float] = (0.5, 1.2)
+
+
+@dataclasses.dataclass(frozen=True)
+class DynamicParams(ClutterParams):
+    """``dynamic``: :class:`ClutterParams` whose every obstacle moves at constant velocity, in a
+    uniformly random horizontal direction, at a speed uniform in ``speed = 0.2–1.0 m/s``
+    (at most half the UAV's per-axis limit)."""
+
+    family = "dynamic"
+    CHECKS = ClutterParams.CHECKS | {"speed": span(0.0)}
+
+    speed: tuple[float, float] = (0.2, 1.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class MovingParams(FamilyParams):
+    """Common to ``crossing``, ``head_on`` and ``overtake``: a number of moving obstacles uniform in
+    the integers ``count`` (whose upper end must not exceed ``max_obstacles``), each with a radius
+    uniform in ``radius`` [m] and a speed uniform in ``speed`` [m/s]."""
+
+    CHECKS = FamilyParams.CHECKS | {
+        "count": span(1, integer=True),
+        "radius": span(0.0, lo_open=True),
+        "speed": span(0.0),
+    }
+
+    count: tuple[int, int] = (1, 2)
+    radius: tuple[float, float] = (0.5, 1.0)
+    speed: tuple[float, float] = (0.5, 1.5)
+
+    def _check(self, where: str) -> None:
+        check_int(f"{where}.count", self.count[1], 1, self.max_obstacles)
+
+
+@dataclasses.dataclass(frozen=True)
+class CrossingParams(MovingParams):
+    """``crossing``: ``count = 1–3`` obstacles (``max_obstacles = 3``, radius 0.5–1.0 m) crossing
+    the start–goal line perpendicularly (from a random side) at ``speed = 0.5–1.5 m/s``.
+
+    Obstacle i crosses the line at ``x_i = meet_i · L`` with ``meet = 0.3–0.7``, at the time
+    ``x_i / uav_speed + δ_i`` a UAV flying the straight line at ``uav_speed = 1.6 m/s``
+    (0.8·v_max) would get there, ``δ_i`` uniform in ``timing = -2…2 s`` (the ~0.3 s the UAV needs
+    to spin up from rest is ignored).
+    """
+
+    family = "crossing"
+    CHECKS = MovingParams.CHECKS | {
+        "meet": span(0.0, 1.0),
+        "timing": span(),
+        "uav_speed": number(0.0, lo_open=True),
+    }
+
+    max_obstacles: int = 3
+    count: tuple[int, int] = (1, 3)
+    meet: tuple[float, float] = (0.3, 0.7)
+    timing: tuple[float, float] = (-2.0, 2.0)
+    uav_speed: float = 1.6
+
+
+@dataclasses.dataclass(frozen=True)
+class HeadOnParams(MovingParams):
+    """``head_on``: ``count = 1–2`` obstacles (``max_obstacles = 2``, radius 0.5–1.0 m) starting at
+    a fraction ``along = 0.6–0.9`` of the run with a lateral offset uniform in ``±offset``
+    (``offset = 0.5 m``) and flying toward the start, parallel to the line, at
+    ``speed = 0.5–1.5 m/s`` (closing speed with a UAV at 1.6 m/s 2.1–3.1 m/s: they meet after
+    about 4–13 s)."""
+
+    family = "head_on"
+    CHECKS = MovingParams.CHECKS | {"along": span(0.0, 1.0), "offset": number(0.0)}
+
+    max_obstacles: int = 2
+    along: tuple[float, float] = (0.6, 0.9)
+    offset: float = 0.5
+
+
+@dataclasses.dataclass(frozen=True)
+class OvertakeParams(MovingParams):
+    """``overtake``: ``count = 1–2`` obstacles (``max_obstacles = 2``, radius 0.5–1.0 m) starting
+    ``behind = 4–10 m`` behind the start with a lateral offset uniform in ``±offset``
+    (``offset = 0.5 m``) and flying toward the goal, parallel to the line, at
+    ``speed = 3–5 m/s`` (1.5–2.5 × v_max = 2 m/s), so they catch up with the UAV from behind."""
+
+    family = "overtake"
+    CHECKS = MovingParams.CHECKS | {"behind": span(0.0, lo_open=True), "offset": number(0.0)}
+
+    max_obstacles: int = 2
+    speed: tuple[float, float] = (3.0, 5.0)
+    behind: tuple[float, float] = (4.0, 10.0)
+    offset: float = 0.5
+
+
+
+# --------------------------------------------------------------------------------------------
+# builders: (draws, params, L) -> Layout in the local frame
+# --------------------------------------------------------------------------------------------
+
+
+def _paper_static(d: Draws, p: PaperStaticParams, length: Array) -> Layout:
+    cup = cup(0.5 * length, jnp.zeros_like(length), p.cup_radius, p.radius)
+    return cup._replace(xy=cup.xy + d.uniform((-p.jitter, p.jitter), cup.xy.shape))
+
+
+def _paper_dynamic(d: Draws, p: PaperDynamicParams, length: Array) -> Layout:
+    field = scatter(d, p.max_obstacles, p.count, length, p.width, p.radius)
+    return with_motion(field, d, p.speed, jnp.arange(p.max_obstacles) < p.n_moving)
+
+
+def _trap_on_line(d: Draws, p: TrapParams, length: Array, x: Array, y: Array) -> Layout:
+    return static(jnp.stack([x, y])[None], d.uniform(p.radius, (1,)))
+
+
+def _trap_concave(d: Draws, p: TrapParams, length: Array, x: Array, y: Array) -> Layout:
+    cup_radius = d.uniform(p.cup_radius)
+    return cup(x, y, cup_radius, cup_radius * math.sin(0.5 * math.pi / (CUP_SIZE - 1)))
+
+
+def _trap_narrow_gap(d: Draws, p: TrapParams, length: Array, x: Array, y: Array) -> Layout:
+    radius = d.uniform(p.radius)
+    half = 0.5 * (2.0 * p.r_uav + d.uniform(p.gap_slack)) + radius
+    return static(jnp.stack([jnp.stack([x, y + half]), jnp.stack([x, y - half])]), jnp.stack([radius, radius]))
+
+
+def _trap_gnron(d: Draws, p: TrapParams, length: Array, x: Array, y: Array) -> Layout:
+    del x, y  # placed relative to the goal
+    radius = d.uniform(p.radius, (1,))
+    reach = radius + p.r_uav + d.uniform(p.goal_clearance, (1,))
+    goal = jnp.stack([length, jnp.zeros_like(length)])
+    return static(goal + reach[:, None] * d.directions(1), radius)
+
+
+_TRAP
+
+
+register_family(PaperStaticParams, _paper_static)
+register_family(PaperDynamicParams, _paper_dynamic)
+register_family(TrapParams, _trap, TRAP_KINDS)
+register_family(ClutterParams, _clutter)
+register_family(CrossingParams, _crossing)
+register_family(HeadOnParams, _head_on)
+register_family(OvertakeParams, _overtake)
+register_family(DynamicParams, _dynamic)

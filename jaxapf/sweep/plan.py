@@ -1,0 +1,316 @@
+"""Planning a sweep: variants, chunks and their shapes, and the time and memory estimates.
+
+See :mod:`jaxapf.sweep` for what the pieces are and why every episode runs at the same vmap width.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import re
+import warnings
+from typing import Any, Iterable, Mapping, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..config import MPCConfig, SimConfig
+from ..gains import GAINS, Gains
+from ..metrics import METRICS
+from ..text import format_bytes, format_seconds
+from ..validation import BoundWarning, ConfigError, check_int
+from .spec import Setting, SweepSpec
+
+__all__ = [
+    "DEFAULT_MEMORY_BUDGET",
+    "WIDTH_BUDGET",
+    "CALLS_PER_PART",
+    "PROCESS_BASELINE",
+    "STEP_COST_US",
+    "COMPILE_S",
+    "Variant",
+    "variants",
+    "Chunk",
+    "Block",
+    "Plan",
+    "plan_sweep",
+    "describe_plan",
+    "working_set_bytes",
+    "episode_bytes",
+    "step_cost_us",
+]
+
+#: Default memory budget of one chunk's working set [bytes].
+DEFAULT_MEMORY_BUDGET = 256 * 2**20
+#: Largest working set of one vmapped batch (``working_set_bytes``) the vmap width may need: long
+#: episodes get a narrower width, so a chunk fits the default ``--memory-budget``.
+WIDTH_BUDGET = DEFAULT_MEMORY_BUDGET // 2
+#: A part holds at most this many vmapped batches per device (a few seconds to a minute of work
+#: on a CPU core at the default MPC settings), so progress and resume have a fine grain.
+CALLS_PER_PART = 256
+#: Memory of the process besides its chunks (Python, JAX, loaded programs) [bytes]: about 430 MB
+#: measured on CPU (jax 0.10, warm cache); XLA compilation adds up to ~1 GB while it runs.
+PROCESS_BASELINE = 450 * 2**20
+#: Cost model of one episode step [µs of wall time] on one CPU device (float32, vmap width 1024,
+#: XLA spreading the kernels over the cores): ``c0 + c_qp·N·I + c_obs·N·M + c_n·N`` (N horizon,
+#: I FISTA iterations, M obstacle slots), fitted by ``jaxapf bench --fit-cost`` (least squares on
+#: 18 configurations, N 10–40, I 10–60, M 4 and 16) on the 2-core AMD EPYC development machine
+#: with the classic loop emitters of ``rollout.XLA_OPTIONS``; the fit is within 0.77–1.46× of
+#: every measurement (two fits in a row agreed within 3 % at N = 20, I = 30, M = 16).
+STEP_COST_US = (3.002, 0.009114, 0.006484, 0.09848)
+#: Cold XLA compile of one evaluate program on that machine [s] (2.5–8 s measured).
+COMPILE_S = 4.0
+#: The PRNG of the fields and of the random gain samples.
+
+_PART = re.compile(r"^part-v(\d{3,})-([a-z_][a-z0-9_]*)-f(\d{8,})-(\d{8,})\.parquet$")
+
+
+@dataclasses.dataclass(frozen=True)
+class Variant:
+    """Settings that share one static configuration (one compiled program per family shape)."""
+
+    index: int
+    static: tuple[tuple[str, Any], ...]
+    settings: tuple[Setting, ...]
+
+    def gains(self, dtype: Any) -> Gains:
+        """The variant's gain settings as a batched :class:`Gains` (leading axis G, ``dtype``)."""
+        return _gains({k: np.array([s.gains[k] for s in self.settings], dtype) for k in GAINS.names()})
+
+
+def _gains(values: Mapping[str, Any]) -> Gains:
+    """:class:`Gains` of values the spec's validation already checked (and warned about)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", BoundWarning)
+        return Gains(**values)
+
+
+def variants(spec: SweepSpec) -> list[Variant]:
+    """The spec's settings grouped by static part, in order of first appearance."""
+    groups: dict[tuple, list[Setting]] = {}
+    for setting in spec.settings():
+        groups.setdefault(setting.static, []).append(setting)
+    return [Variant(i, static, tuple(group)) for i, (static, group) in enumerate(groups.items())]
+
+
+@dataclasses.dataclass(frozen=True)
+class Chunk:
+    """Fields ``[start, stop)`` of ``family`` × every setting of variant ``variant``."""
+
+    variant: int
+    family: str
+    start: int
+    stop: int
+
+    @property
+    def name(self) -> str:
+        return f"part-v{self.variant:03d}-{self.family}-f{self.start:08d}-{self.stop:08d}.parquet"
+
+    @classmethod
+    def from_name(cls, name: str) -> "Chunk | None":
+        match = _PART.match(name)
+        return None if match is None else cls(int(match[1]), match[2], int(match[3]), int(match[4]))
+
+
+@dataclasses.dataclass(frozen=True)
+class Block:
+    """Shapes of the chunks of one (variant, family): ``fields`` per chunk, padded to ``padded =
+    devices · per_device`` fields with ``per_device · settings`` at least its vmap ``width``;
+    ``bytes``: the memory estimate of one chunk."""
+
+    sim: SimConfig
+    mpc: MPCConfig
+    obstacles: int
+    settings: int
+    fields: int
+    per_device: int
+    padded: int
+    bytes: int
+    width: int
+
+
+def _program(block: Block) -> tuple:
+    """What identifies a compiled ``evaluate`` program: static configuration and shapes."""
+    return block.sim, block.mpc, block.obstacles, block.settings, block.per_device, block.width
+
+
+def working_set_bytes(width: int, steps: int, obstacles: int, itemsize: int) -> int:
+    """``W``: one vmapped batch inside ``evaluate`` (trajectory, clearances, metric temporaries)."""
+    return width * (steps + 1) * (20 + 3 * obstacles) * itemsize
+
+
+def episode_bytes(obstacles: int, itemsize: int) -> int:
+    """``E``: memory that grows with the episodes of a chunk, per episode."""
+    return 2 * ((7 * obstacles + 12) * itemsize + 2 * obstacles) + 3 * len(METRICS) * itemsize + 320
+
+
+def step_cost_us(mpc: MPCConfig, obstacles: int) -> float:
+    """Cost model of one episode step on one CPU device [µs] (see :data:`STEP_COST_US`)."""
+    c0, c_qp, c_obs, c_n = STEP_COST_US
+    n = mpc.horizon
+    return c0 + c_qp * n * mpc.iters + c_obs * n * obstacles + c_n * n
+
+
+def _block(sim: SimConfig, mpc: MPCConfig, obstacles: int, settings: int, fields: int, *, devices: int,
+           width: int, itemsize: int, budget: int, chunk_fields: int | None) -> Block:
+    """Chunk shapes of one (variant, family) at the sweep's vmap ``width``, or at the largest power
+    of two whose batch working set fits :data:`WIDTH_BUDGET` if that is less (long episodes).
+
+    Each device gets at least ``ceil(width / G)`` fields, so that its episodes fill at least one
+    whole vmapped batch (``evaluate`` pads the last one). Without ``chunk_fields``,
+    the fields are split into the fewest chunks that fit the memory budget and the
+    :data:`CALLS_PER_PART` cap, balanced, and each chunk is filled up to its padded size.
+    """
+    fits = WIDTH_BUDGET // working_set_bytes(1, sim.steps, obstacles, itemsize)
+    width = min(width, max(1, 1 << (fits.bit_length() - 1)))
+    fixed = devices * working_set_bytes(width, sim.steps, obstacles, itemsize)
+    per_field = settings * episode_bytes(obstacles, itemsize)
+    if chunk_fields is None:
+        fit = (budget - fixed) // per_field
+        if fit < 1:
+            raise ConfigError(f"--memory-budget = {budget} bytes is too small: one field of {settings} settings needs "
+                              f"{fixed + per_field} bytes ({sim.steps} steps, {obstacles} obstacle slots)")
+        largest = min(fit, math.ceil(CALLS_PER_PART * width * devices / settings))
+        block = math.ceil(fields / math.ceil(fields / largest))
+    else:
+        block = min(chunk_fields, fields)
+    per_device = max(math.ceil(block / devices), math.ceil(width / settings))
+    padded = per_device * devices
+    if chunk_fields is None:
+        block = min(padded, fields)
+    return Block(sim, mpc, obstacles, settings, block, per_device, padded, fixed + padded * per_field, width)
+
+
+def _gaps(done: Iterable[tuple[int, int]], fields: int) -> list[tuple[int, int]]:
+    """The sub-intervals of ``[0, fields)`` not covered by the ``done`` intervals."""
+    gaps, at = [], 0
+    for start, stop in sorted(done):
+        if start > at:
+            gaps.append((at, start))
+        at = max(at, stop)
+    if at < fields:
+        gaps.append((at, fields))
+    return gaps
+
+
+@dataclasses.dataclass(frozen=True)
+class Plan:
+    """Everything a run needs, decided before it starts.
+
+    Attributes:
+      chunks: the chunks still to run, in run order (all processes).
+      done: chunks found finished in the output.
+      blocks: shapes per (variant index, family).
+    """
+
+    spec: SweepSpec
+    variants: tuple[Variant, ...]
+    blocks: Mapping[tuple[int, str], Block]
+    chunks: tuple[Chunk, ...]
+    done: tuple[Chunk, ...]
+    devices: int
+    processes: int
+    width: int
+    dtype: str
+
+    @property
+    def settings(self) -> int:
+        return sum(len(v.settings) for v in self.variants)
+
+    @property
+    def episodes(self) -> int:
+        return self.settings * len(self.spec.families) * self.spec.fields
+
+    def episodes_of(self, chunks: Iterable[Chunk]) -> int:
+        return sum(len(self.variants[c.variant].settings) * (c.stop - c.start) for c in chunks)
+
+    @property
+    def programs(self) -> int:
+        """Distinct compiled ``evaluate`` programs (static configuration × shapes), per device."""
+        return len({_program(b) for b in self.blocks.values()})
+
+    @property
+    def static_variants(self) -> int:
+        """Distinct (SimConfig, MPCConfig) pairs over variants and families."""
+        return len({(b.sim, b.mpc) for b in self.blocks.values()})
+
+    def estimate_seconds(self) -> tuple[float, float]:
+        """(run, cold compile) seconds from the cost model, for the chunks still to run."""
+        run = 0.0
+        for c in self.chunks:
+            b = self.blocks[(c.variant, c.family)]
+            run += b.settings * b.padded * b.sim.steps * step_cost_us(b.mpc, b.obstacles) * 1e-6
+        programs = len({_program(self.blocks[(c.variant, c.family)]) for c in self.chunks})
+        return run / (self.devices * self.processes), programs * COMPILE_S * self.devices
+
+    @property
+    def peak_bytes(self) -> int:
+        return max((b.bytes for b in self.blocks.values()), default=0)
+
+
+def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: int = DEFAULT_MEMORY_BUDGET,
+               chunk_fields: int | None = None, devices: int | None = None, processes: int = 1,
+               width: int | None = None) -> Plan:
+    """Cut the spec's work into chunks (skipping the ``done`` ones), see the module docstring."""
+    from ..rollout import default_width
+
+    if chunk_fields is not None:
+        chunk_fields = check_int("--chunk-fields", chunk_fields, 1)
+    devices = devices or jax.local_device_count()
+    dtype = jnp.dtype(jnp.result_type(float))
+    groups = variants(spec)
+    # the backend's width, or less for a sweep too small to fill it (a power of two; depends on
+    # the spec only, so every chunking, device count and memory budget uses the same kernels);
+    # each (variant, family) narrows it further if its episodes are long (_block)
+    needed = max(len(v.settings) for v in groups) * spec.fields
+    width = width or default_width(needed)
+    blocks, chunks = {}, []
+    for v in groups:
+        for family in spec.families:
+            sim, mpc = spec.configs(v.static, family)
+            obstacles = spec.family_params(family).max_obstacles
+            block = _block(sim, mpc, obstacles, len(v.settings), spec.fields, devices=devices, width=width,
+                           itemsize=dtype.itemsize, budget=memory_budget, chunk_fields=chunk_fields)
+            blocks[(v.index, family)] = block
+            finished = [(c.start, c.stop) for c in done if (c.variant, c.family) == (v.index, family)]
+            for lo, hi in _gaps(finished, spec.fields):
+                chunks += [Chunk(v.index, family, a, min(a + block.fields, hi)) for a in range(lo, hi, block.fields)]
+    return Plan(spec, tuple(groups), blocks, tuple(chunks), tuple(done), devices, processes, width, str(dtype))
+
+def describe_plan(plan: Plan) -> str:
+    """What a run of ``plan`` does (``jaxapf sweep --dry-run``)."""
+    spec = plan.spec
+    run_s, compile_s = plan.estimate_seconds()
+    remaining = plan.episodes_of(plan.chunks)
+    lines = [
+        f"sweep {spec.name} (spec_hash {spec.hash[:12]})",
+        f"  settings:          {plan.settings}, in {len(plan.variants)} static variant(s)",
+        f"  families:          {len(spec.families)} ({', '.join(spec.families)}), {spec.fields} fields each, "
+        f"seed {spec.seed}",
+        f"  episodes:          {plan.episodes:,}" + (f" ({plan.episodes - remaining:,} already in the output, "
+                                                    f"{remaining:,} to run)" if plan.done else ""),
+        f"  compiled variants: {plan.static_variants} distinct (SimConfig, MPCConfig); {plan.programs} evaluate "
+        f"program(s) with their shapes, each compiled once per device",
+        f"  chunks:            {len(plan.chunks)} to run" + (f", {len(plan.done)} done" if plan.done else "")
+        + f" (one Parquet part each), on {plan.devices} device(s) × {plan.processes} process(es), "
+          f"vmap width {plan.width}, {plan.dtype}",
+    ]
+    for v in plan.variants:
+        static = ", ".join(f"{k}={json.dumps(x)}" for k, x in v.static) or "defaults"
+        for family in spec.families:
+            b = plan.blocks[(v.index, family)]
+            lines.append(f"    v{v.index:03d} {family:<13s} {static}: {b.settings} settings × {b.fields} fields per "
+                         f"chunk (padded {b.padded}), {b.sim.steps} steps, N={b.mpc.horizon}, I={b.mpc.iters}, "
+                         f"M={b.obstacles}" + (f", vmap width {b.width}" if b.width != plan.width else ""))
+    lines += [
+        f"  time estimate:     {format_seconds(run_s)} of simulation + up to {format_seconds(compile_s)} of compilation "
+        "(~0 with a warm compilation cache)",
+        "                     from a per-step cost model fitted on a 2-core x86-64 CPU (jaxapf.sweep.STEP_COST_US, "
+        "±50 %; `jaxapf bench --fit-cost` refits it here); on accelerators it is only an upper bound",
+        f"  memory estimate:   {format_bytes(plan.peak_bytes)} per chunk + ~{format_bytes(PROCESS_BASELINE)} for the "
+        "process (up to ~1 GiB more while XLA compiles); docs/sweep.md",
+    ]
+    return "\n".join(lines)
+

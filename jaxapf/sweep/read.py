@@ -1,0 +1,85 @@
+"""Reading a sweep's output back: its rows and metadata, and the configuration of any row."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import pathlib
+from typing import Any, Mapping
+
+from ..config import MPCConfig, SimConfig
+from ..gains import Gains
+from ..validation import ConfigError, first_line
+from .plan import _gains
+from .schema import identity, read_meta
+from .spec import SweepSpec
+
+__all__ = ["read_sweep", "RowConfig", "row_config"]
+
+
+def read_sweep(path: str | os.PathLike) -> tuple["pd.DataFrame", dict[str, Any]]:  # noqa: F821
+    """The rows of a sweep output (sorted by setting, family in spec order, field) and its metadata.
+
+    ``path`` is the output directory (every visible ``*.parquet`` in it is a part) or one part file.
+    The metadata is the parts' ``jaxapf`` object (docs/sweep-format.md) plus ``parts`` (number of
+    part files), ``rows_expected`` (from the spec; None if the spec cannot be expanded) and
+    ``complete`` (every (setting, family, field) present). Raises :class:`ConfigError` for a path
+    that is not a sweep output, or whose parts belong to different sweeps.
+    """
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    path = pathlib.Path(path)
+    if not path.exists():
+        raise ConfigError(f"{path}: no such file or directory")
+    parts = sorted(p for p in path.glob("*.parquet") if p.is_file() and not p.name.startswith((".", "_"))) \
+        if path.is_dir() else [path]
+    if not parts:
+        raise ConfigError(f"{path} is not the output of jaxapf sweep: the directory holds no Parquet part file")
+    metas = [read_meta(p) for p in parts]
+    if len({json.dumps(identity(m), sort_keys=True) for m in metas}) > 1:
+        raise ConfigError(f"{path} mixes parts of different sweeps (their spec_hash, dtype or vmap_width differ)")
+    try:
+        df = pa.concat_tables([pq.read_table(p) for p in parts]).to_pandas()
+    except (OSError, pa.ArrowException) as err:
+        raise ConfigError(f"{path} is not a readable sweep output (Parquet): {first_line(err)}") from None
+    meta = metas[0]
+    if {"setting", "family", "field"} <= set(df.columns):
+        families = list(meta.get("spec", {}).get("scenario", {}).get("families", []))
+        rank = {f: i for i, f in enumerate(families + sorted(set(df["family"]) - set(families)))}
+        df = (df.assign(_rank=df["family"].map(rank)).sort_values(["setting", "_rank", "field"], kind="stable")
+              .drop(columns="_rank").reset_index(drop=True))
+    try:
+        spec = SweepSpec.from_json(meta["spec"])
+        expected = len(spec.settings()) * len(spec.families) * spec.fields
+    except (KeyError, TypeError, ConfigError):
+        expected = None
+    return df, {**meta, "parts": len(parts), "rows_expected": expected, "complete": len(df) == expected}
+
+
+@dataclasses.dataclass(frozen=True)
+class RowConfig:
+    """Everything needed to re-simulate one row with :func:`jaxapf.simulate.simulate_runs`:
+    ``simulate_runs(c.family, c.seed, c.field, [c.sim.method], c.gains, c.sim, c.mpc, c.overrides)``
+    (in float64 if ``c.dtype`` is float64: enable ``jax_enable_x64`` first)."""
+
+    family: str
+    params: Any
+    overrides: Mapping[str, Any]
+    seed: int
+    field: int
+    gains: Gains
+    sim: SimConfig
+    mpc: MPCConfig
+    dtype: str
+
+
+def row_config(meta: Mapping[str, Any], row: Mapping[str, Any]) -> RowConfig:
+    """The configuration of one output row (``meta`` from :func:`read_sweep`)."""
+    spec = SweepSpec.from_json(meta["spec"])
+    setting = spec.settings()[int(row["setting"])]
+    family = str(row["family"])
+    sim, mpc = spec.configs(setting.static, family)
+    return RowConfig(family=family, params=spec.family_params(family), overrides=dict(spec.params.get(family, {})),
+                         seed=spec.seed, field=int(row["field"]), gains=_gains(setting.gains), sim=sim, mpc=mpc,
+                         dtype=str(meta["dtype"]))

@@ -1,0 +1,132 @@
+"""The Parquet layout of a sweep: the schema of its rows, a chunk's table, and the metadata every
+part carries (docs/sweep-format.md)."""
+
+from __future__ import annotations
+
+import json
+import pathlib
+from typing import Any, Mapping
+
+import jax
+import numpy as np
+
+from ..config import STATIC_KEYS
+from ..metrics import METRICS
+from ..validation import ConfigError, first_line
+from .plan import Chunk, Plan
+from .spec import SweepSpec
+
+__all__ = ["FORMAT", "META_KEY", "PRNG", "sweep_meta", "schema", "part_table", "read_meta", "identity",
+           "static_columns"]
+
+FORMAT = "jaxapf.sweep/1"
+META_KEY = b"jaxapf"
+#: The PRNG of the fields and of the random gain samples.
+PRNG = {
+    "impl": str(jax.config.jax_default_prng_impl),
+    "field_key": "fold_in(key(seed), field)",
+    "gain_samples": "bits(key(random.seed), (n, gains), uint32); u = (bits + 0.5) / 2**32",
+}
+
+
+
+def static_columns(spec: SweepSpec) -> tuple[str, ...]:
+    """The simulation/MPC settings that get a column: those the spec names (but method and
+    convention, which always have one), and ``t_max`` always (its default is the family's)."""
+    named = set(spec.static_keys) - {"method", "convention"} | {"t_max"}
+    return tuple(k for k in STATIC_KEYS if k in named)
+
+
+def _spec_values(spec: SweepSpec, key: str) -> list[Any]:
+    return [v for k, v in spec.sim.items() if k == key] + [x for k, values in spec.grid if k == key for x in values]
+
+
+def _column_type(spec: SweepSpec, key: str):
+    import pyarrow as pa
+
+    values = _spec_values(spec, key)
+    if any(isinstance(v, tuple) for v in values):
+        return pa.string()  # per-axis weights given as [x, y, z]: JSON text
+    if any(isinstance(v, bool) for v in values):
+        return pa.bool_()
+    if any(isinstance(v, int) for v in values):
+        return pa.int64()
+    return pa.float64()
+
+
+def schema(spec: SweepSpec, meta: Mapping[str, Any]):
+    import pyarrow as pa
+
+    float_type = pa.from_numpy_dtype(np.dtype(meta["dtype"]))
+    fields = [pa.field("setting", pa.int32()), pa.field("method", pa.string()), pa.field("convention", pa.string())]
+    fields += [pa.field(k, pa.float64()) for k in GAIN_KEYS]
+    fields += [pa.field(k, _column_type(spec, k)) for k in static_columns(spec)]
+    fields += [pa.field("family", pa.string()), pa.field("field", pa.int64()), pa.field("seed", pa.int64())]
+    fields += [pa.field(m, pa.bool_() if m in _FLAGS else pa.int32() if m == "steps" else float_type)
+               for m in METRICS]
+    return pa.schema(fields, metadata={META_KEY: json.dumps(meta, sort_keys=True).encode()})
+
+
+def _cell(value: Any, text: bool) -> Any:
+    """A static setting's value in its column (``text``: JSON, for per-axis weights)."""
+    return json.dumps(list(value) if isinstance(value, tuple) else value) if text else value
+
+
+def part_table(plan: Plan, schema, chunk: Chunk, metrics: Mapping[str, np.ndarray]):
+    """The rows of one chunk: settings-major, fields-minor. Every column but the setting index,
+    the gains, the field and the metrics is constant within a chunk (one variant, one family)."""
+    import pyarrow as pa
+
+    spec, variant = plan.spec, plan.variants[chunk.variant]
+    sim = plan.blocks[(chunk.variant, chunk.family)].sim
+    n = chunk.stop - chunk.start
+    rows = n * len(variant.settings)
+    static = dict(variant.static)
+    constant = {"method": static.get("method", sim.method), "convention": static.get("convention", sim.convention),
+                "family": chunk.family, "seed": spec.seed}
+    for k in static_columns(spec):  # only t_max can be unnamed, and it is a SimConfig field
+        constant[k] = _cell(static[k] if k in static else getattr(sim, k), pa.types.is_string(schema.field(k).type))
+    cols: dict[str, Any] = {"setting": np.repeat(np.array([s.index for s in variant.settings], np.int32), n),
+                            "field": np.tile(np.arange(chunk.start, chunk.stop, dtype=np.int64), len(variant.settings))}
+    for k in GAIN_KEYS:
+        cols[k] = np.repeat(np.array([s.gains[k] for s in variant.settings], np.float64), n)
+    for m in METRICS:
+        cols[m] = np.ascontiguousarray(metrics[m][:, :n]).reshape(-1)
+    zeros = pa.array(np.zeros(rows, np.int32))
+    arrays = [pa.array([constant[f.name]], f.type).take(zeros) if f.name in constant else pa.array(cols[f.name], f.type)
+              for f in schema]
+    return pa.Table.from_arrays(arrays, schema=schema)
+
+
+def read_meta(path: pathlib.Path) -> dict[str, Any]:
+    """The ``jaxapf`` metadata of a part file; :class:`ConfigError` if it has none."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    try:
+        raw = (pq.read_schema(path).metadata or {}).get(META_KEY)
+    except (OSError, pa.ArrowException) as err:
+        raise ConfigError(f"{path} is not a readable sweep output (Parquet): {first_line(err)}") from None
+    try:
+        meta = json.loads(raw) if raw else None
+    except json.JSONDecodeError:
+        meta = None
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise ConfigError(f"{path} is not the output of jaxapf sweep (no '{META_KEY.decode()}' metadata of format "
+                          f"{FORMAT} in its Parquet schema)")
+    return meta
+
+
+def identity(meta: Mapping[str, Any]) -> dict[str, Any]:
+    """What must match for parts to belong to one sweep (numbers bit for bit)."""
+    return {k: meta.get(k) for k in ("spec_hash", "dtype", "vmap_width")}
+
+
+def sweep_meta(spec: SweepSpec, plan: Plan) -> dict[str, Any]:
+    """The ``jaxapf`` metadata of every part (docs/sweep-format.md)."""
+    from .versions import versions
+
+    return {"format": FORMAT, "spec": spec.to_json(), "spec_hash": spec.hash, "versions": versions(),
+            "prng": PRNG, "dtype": plan.dtype, "vmap_width": plan.width}
+
+

@@ -1,0 +1,26 @@
+"""Numbers for people: durations and sizes as the CLI and the reports print them."""
+
+from __future__ import annotations
+
+import math
+
+__all__ = ["format_seconds", "format_bytes"]
+
+
+def format_seconds(s: float) -> str:
+    """``412 µs``, ``3.2 ms``, ``4.61 s``, ``2.5 min``, ``1.2 h``."""
+    if s < 1e-3:
+        return f"{s * 1e6:.0f} µs"
+    if s < 1:
+        return f"{s * 1e3:.1f} ms"
+    if s < 120:
+        return f"{s:.2f} s"
+    if s < 7200:
+        return f"{s / 60:.1f} min"
+    return f"{s / 3600:.1f} h"
+
+
+def format_bytes(n: float) -> str:
+    """``512.0 B``, ``1.5 KiB``, ``256.0 MiB``, ``2.0 GiB``."""
+    power = min(3, int(math.log(max(n, 1), 1024)))
+    return f"{n / 1024 ** power:.1f} {('B', 'KiB', 'MiB', 'GiB')[power]}"
