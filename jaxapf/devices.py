@@ -19,9 +19,9 @@ from typing import Sequence
 import jax
 from jax.sharding import NamedSharding, PartitionSpec
 
-from .config import Gains, MPCConfig, SimConfig
-from .metrics import METRICS
-from .obstacles import Scenario
+from .config import MPCConfig, SimConfig
+from .datatypes import Scenario
+from .gains import Gains
 
 __all__ = ["DeviceBatch"]
 
@@ -38,7 +38,7 @@ class DeviceBatch:
         mesh = jax.make_mesh((len(self.devices),), ("batch",), devices=self.devices,
                              axis_types=(jax.sharding.AxisType.Auto,))
         self.fields = NamedSharding(mesh, PartitionSpec("batch"))
-        self.metrics = NamedSharding(mesh, PartitionSpec(None, "batch"))
+        self.sharding = NamedSharding(mesh, PartitionSpec(None, "batch"))
         self.pool = ThreadPoolExecutor(len(self.devices), thread_name_prefix="jaxapf-device")
 
     def __enter__(self) -> "DeviceBatch":
@@ -55,19 +55,19 @@ class DeviceBatch:
         return [jax.device_put(gains, d) for d in self.devices]
 
     def evaluate(self, scenarios: Scenario, gains: Sequence[Gains], sim: SimConfig, mpc: MPCConfig,
-                 width: int) -> dict[str, jax.Array]:
-        """Every metric as a global ``(G, F)`` array sharded over the devices; returns once all
+                 width: int, metrics: tuple[str, ...]) -> dict[str, jax.Array]:
+        """The ``metrics``, each as a global ``(G, F)`` array sharded over the devices; returns once all
         devices have been dispatched (block on the result to wait for them)."""
-        from .rollout import evaluate
+        from .rollout import evaluate_program
 
         placed = jax.device_put(scenarios, self.fields)
         shards = [jax.tree_util.tree_map(lambda x, i=i: _shard(x, i), placed) for i in range(len(self.devices))]
-        futures = [self.pool.submit(evaluate, s, g, sim, mpc, width) for s, g in zip(shards, gains)]
+        futures = [self.pool.submit(evaluate_program, s, g, sim, mpc, width, metrics) for s, g in zip(shards, gains)]
         outs = [f.result() for f in futures]
-        settings = outs[0][METRICS[0]].shape[0]
+        settings = outs[0][metrics[0]].shape[0]
         fields = scenarios.start.shape[0]
-        return {m: jax.make_array_from_single_device_arrays((settings, fields), self.metrics, [o[m] for o in outs])
-                for m in METRICS}
+        return {m: jax.make_array_from_single_device_arrays((settings, fields), self.sharding, [o[m] for o in outs])
+                for m in metrics}
 
 
 def _shard(x: jax.Array, i: int) -> jax.Array:

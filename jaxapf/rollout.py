@@ -1,43 +1,47 @@
-r"""The closed loop: APF reference → per-axis MPC → exact plant step, scanned over an episode.
+r"""The closed loop: planner → MPC → safety filter → plant, scanned over an episode.
 
 The nesting follows gymnax: one episode is a ``lax.scan`` over time (:func:`rollout`); a batch
 of fields is a ``vmap`` over scenarios; a population of gain settings is a ``vmap`` over
-:class:`~jaxapf.config.Gains` (:func:`evaluate`). Static configuration (:class:`SimConfig`,
+:class:`~jaxapf.gains.Gains` (:func:`evaluate`). Static configuration (:class:`SimConfig`,
 :class:`MPCConfig`) is compiled in; gains are traced, so a whole gain grid over many fields is
 one compiled call.
 
-Each control step ``k`` (time ``t_k = k Δt``):
+Each control step ``k`` (time ``t_k = k Δt``), with the components named by ``sim``:
 
-1. :func:`~jaxapf.reference.apf_reference` rolls the saturated APF gradient flow N steps ahead,
-   with the obstacles extrapolated at constant velocity;
-2. :func:`~jaxapf.mpc.solve_axes` solves the three per-axis condensed box QPs by FISTA, warm
-   started from the previous solution shifted by one step;
-3. the first acceleration is applied and the plant integrates it exactly
-   (:func:`~jaxapf.dynamics.step`).
+1. the planner (``sim.planner.method``, :data:`~jaxapf.planners.PLANNERS`) maps its state and the
+   UAV's ``[p, v]`` to the MPC reference for ``x(k..k+N)``; a potential-field planner rolls its
+   saturated gradient flow N steps ahead with the obstacles extrapolated at constant velocity;
+2. :func:`~jaxapf.control.mpc.solve_axes` solves the three per-axis condensed box QPs by FISTA,
+   warm started from the previous solution shifted by one step, on the plant's linear model;
+3. the safety filter (``sim.planner.filter``, :data:`~jaxapf.control.FILTERS`; ``none`` by default)
+   maps the first acceleration to the applied one;
+4. the plant (``sim.vehicle.plant``, :data:`~jaxapf.dynamics.PLANTS`; the exact double integrator
+   by default) integrates it.
 
-Episodes run for the fixed ``SimConfig.steps``; termination (goal, collision) is applied by the
+Episodes run for the fixed ``EpisodeConfig.steps``; termination (goal, collision) is applied by the
 metrics' masks, not by the loop, so every episode of a batch has the same shape.
 """
 
 from __future__ import annotations
 
 from functools import partial
+from typing import Sequence
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from .config import Gains, MPCConfig, SimConfig
-from .dynamics import step
-from .metrics import episode_metrics
-from .mpc import axis_problem, shift_warm_start, solve_axes
-from .obstacles import Scenario
-from .reference import apf_reference
-from .trajectory import Trajectory
+from .config import MPCConfig, SimConfig
+from .control import FILTERS, axis_problem, shift_warm_start, solve_axes
+from .datatypes import Scenario, Trajectory
+from .dynamics import PLANTS
+from .gains import Gains
+from .metrics import METRICS, episode_metrics
+from .planners import PLANNERS
 
-__all__ = ["rollout", "rollout_metrics", "evaluate", "episode_index", "default_chunk", "CPU_CHUNK",
-           "ACCELERATOR_CHUNK", "XLA_OPTIONS"]
+__all__ = ["rollout", "rollout_metrics", "evaluate", "evaluate_program", "episode_index", "default_width",
+           "CPU_WIDTH", "ACCELERATOR_WIDTH", "XLA_OPTIONS"]
 
 
 def rollout(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, *, remat: bool = False
@@ -45,49 +49,58 @@ def rollout(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, *,
     """Simulate one episode from rest at ``scenario.start``; returns its :class:`Trajectory`.
 
     With ``remat`` the control step is wrapped in :func:`jax.checkpoint`: reverse-mode
-    differentiation then stores only the scan carry ``(x, warm start)`` of each step and recomputes
-    the step's APF reference and FISTA iterations on the way back, so the memory of a gradient
-    grows with ``T·(6 + 3N)`` numbers instead of ``T·(residuals of one step)``. The forward values
-    are the same either way (``jaxapf tune`` measures the trade-off, see docs/tune.md).
+    differentiation then stores only the scan carry (plant state, warm start, planner and filter
+    states) of each step and recomputes the step's reference and FISTA iterations on the way back,
+    so the memory of a gradient grows with ``T·(6 + 3N)`` numbers instead of ``T·(residuals of one
+    step)``. The forward values are the same either way (``jaxapf tune`` measures the trade-off,
+    docs/tune.md).
     """
     dtype = scenario.start.dtype
     gains = jax.tree_util.tree_map(lambda g: jnp.asarray(g, dtype), gains)
-    prob = axis_problem(mpc, sim.dt, dtype)
-    x0 = jnp.concatenate([scenario.start, jnp.zeros(3, dtype)])
+    planner = PLANNERS.get(sim.planner.method, "sim.method")
+    safety = FILTERS.get(sim.planner.filter, "sim.filter")
+    plant = PLANTS.get(sim.vehicle.plant, "sim.plant")
+    dt = sim.episode.dt
+    prob = axis_problem(mpc, *plant.linear_model(dt, dtype))
     obstacles = scenario.obstacles.columns()  # once per episode, not once per control step
 
     def control_step(carry, k):
-        x, warm = carry
-        t = k * sim.dt
-        x_ref = apf_reference(x, t, scenario.goal, obstacles, gains, sim, mpc.horizon)
-        u = solve_axes(prob, x, x_ref, warm, a_max=sim.a_max, v_max=sim.v_max, iters=mpc.iters)
-        a = u[:, 0]
-        x_next = step(x, a, sim.dt)
-        return (x_next, shift_warm_start(u)), (x_next, a)
+        state, warm, plan, guard = carry
+        t = k * dt
+        x = plant.kinematics(state)
+        x_ref, plan = planner.reference(plan, x, t, scenario.goal, obstacles, gains, sim, mpc.horizon)
+        u = solve_axes(prob, x, x_ref, warm, a_max=sim.vehicle.a_max, v_max=sim.vehicle.v_max, iters=mpc.iters)
+        accel, guard, filtered = safety(guard, u[:, 0], x, t, obstacles, gains, sim)
+        state, integrated = plant.step(state, accel, gains, sim)
+        return (state, shift_warm_start(u), plan, guard), (plant.kinematics(state), accel, filtered | integrated)
 
-    warm0 = jnp.zeros((3, mpc.horizon), dtype)
-    ks = jnp.arange(sim.steps, dtype=dtype)
+    state0 = plant.init(scenario.start, gains, sim)
+    carry0 = (state0, jnp.zeros((3, mpc.horizon), dtype), planner.init(scenario, gains, sim),
+              safety.init(scenario, gains, sim))
+    ks = jnp.arange(sim.episode.steps, dtype=dtype)
     body = jax.checkpoint(control_step, prevent_cse=False) if remat else control_step
-    _, (states, controls) = jax.lax.scan(body, (x0, warm0), ks)
-    states = jnp.concatenate([x0[None], states], axis=0)
+    _, (states, controls, extras) = jax.lax.scan(body, carry0, ks)
+    states = jnp.concatenate([plant.kinematics(state0)[None], states], axis=0)
     return Trajectory(
-        time=jnp.arange(sim.steps + 1, dtype=dtype) * sim.dt,
+        time=jnp.arange(sim.episode.steps + 1, dtype=dtype) * dt,
         position=states[:, :3],
         velocity=states[:, 3:],
         control=controls,
+        extras=extras,
     )
 
 
-def rollout_metrics(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig) -> dict[str, Array]:
-    """Per-episode metrics (SPEC 6) of one episode; the trajectory is not kept."""
-    return episode_metrics(rollout(scenario, gains, sim, mpc), scenario, sim)
+def rollout_metrics(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig,
+                    metrics: Sequence[str] | None = None) -> dict[str, Array]:
+    """The ``metrics`` (default: every registered one) of one episode; the trajectory is not kept."""
+    return episode_metrics(rollout(scenario, gains, sim, mpc), scenario, sim, metrics)
 
 
-#: Episodes vmapped together per chunk on CPU: wide enough that every step's kernels run over
-#: long contiguous rows (``jaxapf bench --chunk`` measures other widths).
-CPU_CHUNK = 1024
-#: Episodes per chunk on accelerators, where wide batches pay.
-ACCELERATOR_CHUNK = 4096
+#: Episodes vmapped together (the vmap width) on CPU: wide enough that every step's kernels run
+#: over long contiguous rows (``jaxapf bench engine --width`` measures other widths).
+CPU_WIDTH = 1024
+#: Episodes vmapped together on accelerators, where wide batches pay.
+ACCELERATOR_WIDTH = 4096
 
 
 #: XLA options of every compiled closed loop (CPU only; other backends ignore them):
@@ -114,50 +127,58 @@ XLA_OPTIONS = {
 }
 
 
-def default_chunk(episodes: int | None = None) -> int:
-    """Episodes per vmapped chunk for the default backend; for a batch of fewer ``episodes``, the
-    smallest power of two that holds them (so a small batch is not padded to a wide chunk)."""
-    width = CPU_CHUNK if jax.default_backend() == "cpu" else ACCELERATOR_CHUNK
+def default_width(episodes: int | None = None) -> int:
+    """The vmap width for the default backend; for a batch of fewer ``episodes``, the smallest power
+    of two that holds them (so a small batch is not padded to a wide batch)."""
+    width = CPU_WIDTH if jax.default_backend() == "cpu" else ACCELERATOR_WIDTH
     return width if episodes is None else min(width, 1 << (max(episodes, 1) - 1).bit_length())
 
 
-def episode_index(total: int, chunk: int) -> np.ndarray:
+def episode_index(total: int, width: int) -> np.ndarray:
     """Episodes ``0 … total-1`` of a (setting, field) grid (episode ``e = g·F + f``: setting
-    ``e // F``, field ``e % F``), padded with episode 0 to a whole number of ``chunk``-wide batches;
+    ``e // F``, field ``e % F``), padded with episode 0 to a whole number of ``width``-wide batches;
     callers drop the padding."""
-    index = np.zeros(-(-total // chunk) * chunk, np.int64)
+    index = np.zeros(-(-total // width) * width, np.int64)
     index[:total] = np.arange(total)
     return index
 
 
-@partial(jax.jit, static_argnames=("sim", "mpc", "chunk"), compiler_options=XLA_OPTIONS)
-def evaluate(
-    scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, chunk: int | None = None
-) -> dict[str, Array]:
-    """Metrics of every (gain setting, field) pair: arrays of shape (G, F).
-
-    The G·F episodes form one flat batch, padded to a multiple of ``chunk`` and run as a
-    ``lax.map`` over chunks of ``chunk`` vmapped episodes (``None``: :func:`default_chunk`). Every
-    episode is therefore computed by the same kernels at the same batch width whatever G and F
-    are, so an episode's numbers do not depend on the batch it was run in.
-
-    Args:
-      scenarios: a batch of F fields (leading axis F on every leaf).
-      gains: a batch of G gain settings (leading axis G on every leaf).
-      chunk: episodes per vmapped chunk (static).
-    """
+@partial(jax.jit, static_argnames=("sim", "mpc", "width", "metrics"), compiler_options=XLA_OPTIONS)
+def evaluate_program(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, width: int,
+                     metrics: tuple[str, ...]) -> dict[str, Array]:
+    """The compiled program behind :func:`evaluate`, every static argument explicit (for
+    ``evaluate_program.lower(...)``)."""
     n_gains = jax.tree_util.tree_leaves(gains)[0].shape[0]
     n_fields = scenarios.start.shape[0]
     total = n_gains * n_fields
-    chunk = min(default_chunk() if chunk is None else chunk, total)
-    index = episode_index(total, chunk)
+    width = min(width, total)
+    index = episode_index(total, width)
     padded = index.shape[0]
     flat = (
         jax.tree_util.tree_map(lambda x: x[index % n_fields], scenarios),
         jax.tree_util.tree_map(lambda x: jnp.asarray(x)[index // n_fields], gains),
     )
-    chunks = jax.tree_util.tree_map(lambda x: x.reshape((padded // chunk, chunk) + x.shape[1:]), flat)
-    episodes = jax.vmap(lambda s, g: rollout_metrics(s, g, sim, mpc))
-    metrics = jax.lax.map(lambda c: episodes(*c), chunks)
+    batches = jax.tree_util.tree_map(lambda x: x.reshape((padded // width, width) + x.shape[1:]), flat)
+    episodes = jax.vmap(lambda s, g: rollout_metrics(s, g, sim, mpc, metrics))
+    values = jax.lax.map(lambda c: episodes(*c), batches)
     return jax.tree_util.tree_map(lambda m: m.reshape((padded,) + m.shape[2:])[:total].reshape(
-        (n_gains, n_fields) + m.shape[2:]), metrics)
+        (n_gains, n_fields) + m.shape[2:]), values)
+
+
+def evaluate(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, width: int | None = None,
+             metrics: Sequence[str] | None = None) -> dict[str, Array]:
+    """Metrics of every (gain setting, field) pair: arrays of shape (G, F), in one compiled call.
+
+    The G·F episodes form one flat batch, padded to a multiple of ``width`` and run as a
+    ``lax.map`` over batches of ``width`` vmapped episodes. Every episode is therefore computed by
+    the same kernels at the same width whatever G and F are, so an episode's numbers do not depend
+    on the batch it was run in.
+
+    Args:
+      scenarios: a batch of F fields (leading axis F on every leaf).
+      gains: a batch of G gain settings (leading axis G on every leaf).
+      width: episodes vmapped together (static; ``None``: :func:`default_width`).
+      metrics: the metrics to compute (default: every registered one, :data:`~jaxapf.metrics.METRICS`).
+    """
+    names = METRICS.names() if metrics is None else tuple(metrics)
+    return evaluate_program(scenarios, gains, sim, mpc, default_width() if width is None else width, names)

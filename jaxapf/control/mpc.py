@@ -35,8 +35,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from .config import MPCConfig
-from .dynamics import discrete_matrices
+from ..config import MPCConfig
+from ..dynamics.double_integrator import discrete_matrices
 
 __all__ = [
     "prediction_matrices",
@@ -216,10 +216,12 @@ class AxisProblem:
     v_penalty: Array
 
 
-def axis_problem(mpc: MPCConfig, dt: float, dtype) -> AxisProblem:
-    """Per-axis condensed matrices for :class:`MPCConfig` ``mpc`` and step ``dt``."""
+def axis_problem(mpc: MPCConfig, a: Array, b: Array) -> AxisProblem:
+    """Per-axis condensed matrices for :class:`MPCConfig` ``mpc`` and the model ``x(k+1) = a x(k) + b u(k)``
+    of one axis on ``(p, v)`` (a (2, 2), b (2, 1): the plant's
+    :meth:`~jaxapf.dynamics.Plant.linear_model`, the double integrator by default)."""
     n = mpc.horizon
-    a, b = discrete_matrices(dt, 1, dtype)
+    dtype = a.dtype
     big_m, c = prediction_matrices(a, b, n)
     weights = ("q_pos", "q_vel", "f_pos", "f_vel", "r")
     w = lambda name: jnp.asarray(getattr(mpc, name), dtype)  # noqa: E731  (3,) per axis

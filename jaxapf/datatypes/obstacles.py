@@ -1,4 +1,4 @@
-r"""Scenario data and obstacle geometry (SPEC 2).
+r"""Obstacle fields and their geometry (SPEC 2).
 
 An obstacle field holds a fixed maximum number ``M`` of obstacles; unused slots have
 ``valid = False`` and contribute exactly nothing (zero potential, zero force, +inf clearance).
@@ -21,12 +21,12 @@ from jax import Array
 __all__ = [
     "Obstacles",
     "ObstacleColumns",
-    "Scenario",
     "project",
     "safe_norm",
     "obstacles_at",
     "clearance",
     "segment_clearance",
+    "TINY",
 ]
 
 #: Offset added inside square roots so that norms stay differentiable at zero.
@@ -94,22 +94,6 @@ class ObstacleColumns:
     def columns(self) -> "ObstacleColumns":
         """Already component-first: itself."""
         return self
-
-
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
-class Scenario:
-    """One obstacle field with a start and a goal (all leaves arrays, batchable).
-
-    Attributes:
-      start: (3,) initial position; the UAV starts at rest.
-      goal: (3,) goal position.
-      obstacles: the padded obstacle set.
-    """
-
-    start: Array
-    goal: Array
-    obstacles: Obstacles
 
 
 def project(r: Array, cylinder: Array) -> Array:

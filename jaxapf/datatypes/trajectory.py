@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from typing import Mapping
 
 import jax
 from jax import Array
@@ -17,15 +18,19 @@ class Trajectory:
 
     Attributes:
       time: (T+1,) sample times ``t_i = i dt`` [s].
-      position: (T+1, 3) UAV position at the samples [m].
+      position: (T+1, 3) UAV position at the samples [m] (the plant's truth).
       velocity: (T+1, 3) UAV velocity at the samples [m/s].
-      control: (T, 3) acceleration applied on ``[t_i, t_{i+1})`` [m/s²].
+      control: (T, 3) acceleration command applied to the plant on ``[t_i, t_{i+1})`` [m/s²]
+        (after the safety filter).
+      extras: per-step diagnostics of the episode's components, each (T, ...) (e.g. a safety
+        filter's infeasible steps); empty for the paper's stack. Metrics may read them.
     """
 
     time: Array
     position: Array
     velocity: Array
     control: Array
+    extras: Mapping[str, Array] = dataclasses.field(default_factory=dict)
 
     @property
     def steps(self) -> int:

@@ -11,10 +11,15 @@ acceleration, so the plant integrates the applied control without discretisation
 
 from __future__ import annotations
 
+import dataclasses
+from typing import Any
+
 import jax.numpy as jnp
 from jax import Array
 
-__all__ = ["discrete_matrices", "step"]
+from .base import Plant, register_plant
+
+__all__ = ["discrete_matrices", "step", "DoubleIntegrator"]
 
 
 def discrete_matrices(dt: float, dim: int = 3, dtype=None) -> tuple[Array, Array]:
@@ -35,3 +40,23 @@ def step(x: Array, a: Array, dt: float) -> Array:
     """One exact step ``x(k+1)`` of the 3-axis double integrator; ``x`` (6,), ``a`` (3,)."""
     p, v = x[:3], x[3:]
     return jnp.concatenate([p + dt * v + 0.5 * dt * dt * a, v + dt * a])
+
+
+@dataclasses.dataclass(frozen=True)
+class DoubleIntegrator(Plant):
+    """The exact discrete double integrator (paper eq. 4–7): the MPC's own model, state ``[p, v]``."""
+
+    def init(self, start: Array, gains: Any, sim: Any) -> Array:
+        return jnp.concatenate([start, jnp.zeros(3, start.dtype)])
+
+    def kinematics(self, state: Array) -> Array:
+        return state
+
+    def step(self, state: Array, accel: Array, gains: Any, sim: Any) -> tuple[Array, dict]:
+        return step(state, accel, sim.episode.dt), {}
+
+    def linear_model(self, dt: float, dtype: Any) -> tuple[Array, Array]:
+        return discrete_matrices(dt, 1, dtype)
+
+
+register_plant("double_integrator", DoubleIntegrator())

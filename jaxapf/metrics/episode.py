@@ -1,4 +1,4 @@
-r"""Per-episode metrics (SPEC 6): every metric is defined here, once.
+r"""The built-in per-episode metrics (SPEC 6): every one is defined here, once, and registered.
 
 An episode is a fixed-length scan of ``T`` control steps; termination (goal, collision) is applied
 here by masking, so every episode of a batch has the same shape and every function below is pure,
@@ -23,7 +23,7 @@ Episode end
 Valid samples are ``0..e``, valid intervals ``0..e-1``. When the goal is reached at the very
 sample that ends a colliding interval (``collision_index == goal_index``) the collision wins.
 
-Metrics (one scalar each, in the order of :data:`METRICS`)
+Metrics (one scalar each, in registration order)
 ----------------------------------------------------------
 - ``success``: ``goal_index <= T`` and ``goal_index < collision_index``.
 - ``collision``: ``collision_index <= T`` and ``collision_index <= goal_index``.
@@ -52,47 +52,33 @@ Metrics (one scalar each, in the order of :data:`METRICS`)
 
 Dtypes: ``success``, ``collision``, ``stalled`` are bool, ``steps`` is int32, all others have the
 trajectory's floating dtype.
+
+Every metric reads the shared quantities of one :class:`EpisodeContext` (the swept clearance, the
+episode end, the valid masks), which are computed once per trace whatever metrics ask for them.
 """
 
 from __future__ import annotations
 
+import functools
 import math
+from typing import Sequence
 
 import jax
 import jax.numpy as jnp
 from jax import Array
 
-from .config import SimConfig
-from .obstacles import Obstacles, Scenario, clearance, obstacles_at, project, segment_clearance
-from .trajectory import Trajectory
+from ..config import SimConfig
+from ..datatypes import Obstacles, Scenario, Trajectory, clearance, obstacles_at, project, segment_clearance
+from .base import METRICS, Metric, compute_metrics, register_metric
 
 __all__ = [
-    "METRICS",
+    "EpisodeContext",
     "episode_metrics",
     "episode_end",
     "clearance_history",
     "interval_clearance",
     "time_to_collision",
 ]
-
-#: Metric names, in column order.
-METRICS: tuple[str, ...] = (
-    "success",
-    "collision",
-    "min_clearance",
-    "time_to_goal",
-    "path_length",
-    "path_ratio",
-    "stalled",
-    "final_distance",
-    "control_effort",
-    "jerk_rms",
-    "max_velocity_excess",
-    "time_near",
-    "min_ttc",
-    "score",
-    "steps",
-)
 
 
 # --------------------------------------------------------------------------------------------
@@ -103,14 +89,14 @@ METRICS: tuple[str, ...] = (
 def clearance_history(traj: Trajectory, scenario: Scenario, sim: SimConfig) -> Array:
     """Clearance (T+1, M) of every sample to every obstacle; +inf for padded slots."""
     per_sample = jax.vmap(clearance, in_axes=(0, None, 0, None))
-    return per_sample(traj.position, scenario.obstacles, traj.time, sim.r_uav)
+    return per_sample(traj.position, scenario.obstacles, traj.time, sim.vehicle.r_uav)
 
 
 def interval_clearance(traj: Trajectory, scenario: Scenario, sim: SimConfig) -> Array:
     """Swept clearance (T, M) of every interval to every obstacle; +inf for padded slots."""
     per_interval = jax.vmap(segment_clearance, in_axes=(0, 0, None, 0, 0, None))
     p, t = traj.position, traj.time
-    return per_interval(p[:-1], p[1:], scenario.obstacles, t[:-1], t[1:], sim.r_uav)
+    return per_interval(p[:-1], p[1:], scenario.obstacles, t[:-1], t[1:], sim.vehicle.r_uav)
 
 
 def time_to_collision(p: Array, v: Array, obstacles: Obstacles, t: Array | float, r_uav: float) -> Array:
@@ -156,7 +142,7 @@ def _end(min_interval_clearance: Array, goal_distance: Array, sim: SimConfig) ->
     """Episode-end indices from the (T,) swept clearance and the (T+1,) goal distance."""
     steps = min_interval_clearance.shape[-1]
     collision_index = _first_index(min_interval_clearance < 0, steps) + 1  # "never" -> T + 1
-    goal_index = _first_index(goal_distance <= sim.r_goal, steps + 1)
+    goal_index = _first_index(goal_distance <= sim.episode.r_goal, steps + 1)
     end_index = jnp.minimum(jnp.minimum(goal_index, collision_index), steps).astype(jnp.int32)
     return {"goal_index": goal_index, "collision_index": collision_index, "end_index": end_index}
 
@@ -165,11 +151,6 @@ def episode_end(traj: Trajectory, scenario: Scenario, sim: SimConfig) -> dict[st
     """``goal_index``, ``collision_index`` and ``end_index`` (int32 sample indices; ``T + 1`` = never)."""
     min_c = jnp.min(interval_clearance(traj, scenario, sim), axis=-1)
     return _end(min_c, _goal_distance(traj, scenario), sim)
-
-
-# --------------------------------------------------------------------------------------------
-# individual metrics (masked reductions)
-# --------------------------------------------------------------------------------------------
 
 
 def _masked_min(x: Array, mask: Array) -> Array:
@@ -185,16 +166,7 @@ def _longest_run(mask: Array) -> Array:
 
 def _stall_samples(sim: SimConfig) -> int:
     """Smallest number of samples ``n`` with ``n·dt >= t_stall`` (1e-9 relative tolerance)."""
-    return max(1, math.ceil(sim.t_stall / sim.dt * (1.0 - 1e-9)))
-
-
-def _jerk_rms(control: Array, end_index: Array, dt: float) -> Array:
-    """RMS of ``(a_{i+1} - a_i)/dt`` over consecutive valid intervals; 0 if there are fewer than two."""
-    jerk = (control[1:] - control[:-1]) / dt  # (T-1, 3)
-    pair_valid = jnp.arange(jerk.shape[0]) + 2 <= end_index
-    total = jnp.sum(jnp.where(pair_valid, jnp.sum(jerk * jerk, axis=-1), 0.0))
-    count = jnp.maximum(end_index - 1, 0)
-    return jnp.where(count > 0, jnp.sqrt(total / jnp.maximum(count, 1)), 0.0)
+    return max(1, math.ceil(sim.metrics.t_stall / sim.episode.dt * (1.0 - 1e-9)))
 
 
 def _ratio(num: Array, den: Array) -> Array:
@@ -203,94 +175,166 @@ def _ratio(num: Array, den: Array) -> Array:
     return jnp.where(den > 0, num / safe, jnp.where(num > 0, jnp.inf, 1.0))
 
 
-def _score(success: Array, time_to_goal: Array, t_opt: Array) -> Array:
+class EpisodeContext:
+    """One episode and the quantities its metrics share, each computed once (on first use).
+
+    Attributes:
+      traj, scenario, sim: the episode, its field and its static settings.
+    """
+
+    def __init__(self, traj: Trajectory, scenario: Scenario, sim: SimConfig) -> None:
+        self.traj, self.scenario, self.sim = traj, scenario, sim
+        self.steps = traj.control.shape[-2]
+        self.dt = sim.episode.dt
+
+    @functools.cached_property
+    def swept(self) -> Array:
+        """``c_i``: swept clearance (T,) of every interval to the nearest valid obstacle."""
+        return jnp.min(interval_clearance(self.traj, self.scenario, self.sim), axis=-1)
+
+    @functools.cached_property
+    def goal_distance(self) -> Array:
+        """Distance (T+1,) of every sample to the goal."""
+        return _goal_distance(self.traj, self.scenario)
+
+    @functools.cached_property
+    def end(self) -> dict[str, Array]:
+        """``goal_index``, ``collision_index``, ``end_index`` (module docstring)."""
+        return _end(self.swept, self.goal_distance, self.sim)
+
+    @property
+    def end_index(self) -> Array:
+        """``e``: the last valid sample."""
+        return self.end["end_index"]
+
+    @functools.cached_property
+    def sample_valid(self) -> Array:
+        return jnp.arange(self.steps + 1) <= self.end_index
+
+    @functools.cached_property
+    def interval_valid(self) -> Array:
+        return jnp.arange(self.steps) < self.end_index
+
+    @functools.cached_property
+    def success(self) -> Array:
+        return (self.end["goal_index"] <= self.steps) & (self.end["goal_index"] < self.end["collision_index"])
+
+    @functools.cached_property
+    def collision(self) -> Array:
+        return (self.end["collision_index"] <= self.steps) & (self.end["collision_index"] <= self.end["goal_index"])
+
+    @functools.cached_property
+    def time_to_goal(self) -> Array:
+        return jnp.where(self.success, self.end["goal_index"] * self.dt, jnp.nan)
+
+    @functools.cached_property
+    def straight(self) -> Array:
+        """``|g - start|``: the straight-line distance."""
+        return jnp.linalg.norm(self.scenario.goal - self.scenario.start)
+
+    @functools.cached_property
+    def path_length(self) -> Array:
+        p = self.traj.position
+        step_length = jnp.linalg.norm(p[1:] - p[:-1], axis=-1)
+        return jnp.sum(jnp.where(self.interval_valid, step_length, 0.0))
+
+
+# --------------------------------------------------------------------------------------------
+# the metrics (SPEC 6), in column order
+# --------------------------------------------------------------------------------------------
+
+
+def _min_clearance(ctx: EpisodeContext) -> Array:
+    traj, obstacles = ctx.traj, ctx.scenario.obstacles
+    first_sample = jnp.min(clearance(traj.position[0], obstacles, traj.time[0], ctx.sim.vehicle.r_uav))
+    return jnp.where(ctx.end_index == 0, first_sample, _masked_min(ctx.swept, ctx.interval_valid))
+
+
+def _stalled(ctx: EpisodeContext) -> Array:
+    speed = jnp.linalg.norm(ctx.traj.velocity, axis=-1)
+    mask = ctx.sample_valid & (speed < ctx.sim.metrics.v_stall) & (ctx.goal_distance > ctx.sim.episode.r_goal)
+    return _longest_run(mask) >= _stall_samples(ctx.sim)
+
+
+def _control_effort(ctx: EpisodeContext) -> Array:
+    effort = jnp.sum(ctx.traj.control * ctx.traj.control, axis=-1) * ctx.dt
+    return jnp.sum(jnp.where(ctx.interval_valid, effort, 0.0))
+
+
+def _jerk_rms(ctx: EpisodeContext) -> Array:
+    """RMS of ``(a_{i+1} - a_i)/dt`` over consecutive valid intervals; 0 if there are fewer than two."""
+    control, e = ctx.traj.control, ctx.end_index
+    jerk = (control[1:] - control[:-1]) / ctx.dt  # (T-1, 3)
+    pair_valid = jnp.arange(jerk.shape[0]) + 2 <= e
+    total = jnp.sum(jnp.where(pair_valid, jnp.sum(jerk * jerk, axis=-1), 0.0))
+    count = jnp.maximum(e - 1, 0)
+    return jnp.where(count > 0, jnp.sqrt(total / jnp.maximum(count, 1)), 0.0)
+
+
+def _max_velocity_excess(ctx: EpisodeContext) -> Array:
+    excess = jnp.max(jnp.maximum(jnp.abs(ctx.traj.velocity) - ctx.sim.vehicle.v_max, 0.0), axis=-1)
+    return jnp.max(jnp.where(ctx.sample_valid, excess, 0.0))
+
+
+def _min_ttc(ctx: EpisodeContext) -> Array:
+    traj = ctx.traj
+    ttc = jax.vmap(time_to_collision, in_axes=(0, 0, None, 0, None))(
+        traj.position, traj.velocity, ctx.scenario.obstacles, traj.time, ctx.sim.vehicle.r_uav)
+    return _masked_min(jnp.min(ttc, axis=-1), ctx.sample_valid)
+
+
+def _score(ctx: EpisodeContext) -> Array:
     """BARN score ``success · t_opt / clip(t, 2 t_opt, 8 t_opt)`` written as ``1 / clip(t/t_opt, 2, 8)``."""
-    t = jnp.where(success, time_to_goal, 0.0)
+    success, t_opt = ctx.success, ctx.straight / ctx.sim.vehicle.v_max
+    t = jnp.where(success, ctx.time_to_goal, 0.0)
     safe = jnp.where(t_opt > 0, t_opt, 1.0)
     rel = jnp.where(t_opt > 0, t / safe, jnp.where(t > 0, jnp.inf, 0.0))
     return jnp.where(success, 1.0 / jnp.clip(rel, 2.0, 8.0), 0.0)
 
 
-def episode_metrics(traj: Trajectory, scenario: Scenario, sim: SimConfig) -> dict[str, Array]:
-    """Every metric of SPEC 6 (definitions in the module docstring) for one episode.
+for _metric in (
+    Metric("success", lambda ctx: ctx.success, dtype="bool", kind="rate", higher_is_better=True, report=True,
+           doc="goal reached within r_goal before t_max with no collision"),
+    Metric("collision", lambda ctx: ctx.collision, dtype="bool", kind="rate", higher_is_better=False, report=True,
+           doc="the swept clearance fell below 0"),
+    Metric("min_clearance", _min_clearance, unit="m", higher_is_better=True, report=True,
+           doc="smallest swept clearance to any obstacle"),
+    Metric("time_to_goal", lambda ctx: ctx.time_to_goal, unit="s", higher_is_better=False, on_success=True,
+           report=True, doc="time of the first sample within r_goal of the goal"),
+    Metric("path_length", lambda ctx: ctx.path_length, unit="m", doc="length of the flown path"),
+    Metric("path_ratio", lambda ctx: _ratio(ctx.path_length, ctx.straight), higher_is_better=False, report=True,
+           doc="path length over the straight start-goal distance"),
+    Metric("stalled", _stalled, dtype="bool", kind="rate", higher_is_better=False, report=True,
+           doc="slower than v_stall for t_stall while away from the goal: the local-minimum signature"),
+    Metric("final_distance", lambda ctx: ctx.goal_distance[ctx.end_index], unit="m", higher_is_better=False,
+           doc="distance to the goal at the episode's end"),
+    Metric("control_effort", _control_effort, unit="m²/s³", higher_is_better=False, report=True,
+           doc="∫|a|² dt"),
+    Metric("jerk_rms", _jerk_rms, unit="m/s³", higher_is_better=False, report=True,
+           doc="RMS of the jerk between consecutive controls"),
+    Metric("max_velocity_excess", _max_velocity_excess, unit="m/s", higher_is_better=False,
+           doc="largest per-axis speed above v_max"),
+    Metric("time_near", lambda ctx: ctx.dt * jnp.sum(ctx.interval_valid & (ctx.swept < ctx.sim.metrics.d_safe)),
+           unit="s", higher_is_better=False, doc="time with clearance below d_safe"),
+    Metric("min_ttc", _min_ttc, unit="s", higher_is_better=True,
+           doc="smallest time to collision under constant relative velocity"),
+    Metric("score", _score, higher_is_better=True, doc="BARN score success · t_opt / clip(t, 2 t_opt, 8 t_opt)"),
+    Metric("steps", lambda ctx: ctx.end_index, dtype="int32", kind="count", doc="steps until the episode ended"),
+):
+    register_metric(_metric)
+
+
+def episode_metrics(traj: Trajectory, scenario: Scenario, sim: SimConfig,
+                    names: Sequence[str] | None = None) -> dict[str, Array]:
+    """The metrics ``names`` (default: every registered one) of one episode (module docstring).
 
     Args:
       traj: one episode of ``T`` steps (no batch axes; ``vmap`` for batches).
       scenario: the field it was flown in.
-      sim: static settings (``dt``, ``v_max``, ``r_uav``, ``r_goal``, ``v_stall``, ``t_stall``,
-        ``d_safe``).
+      sim: static settings.
 
     Returns:
-      ``{name: scalar}`` for every name of :data:`METRICS`, in that order.
+      ``{name: scalar}`` in the order of ``names``.
     """
-    dtype = traj.position.dtype
-    steps = traj.control.shape[-2]
-    dt = sim.dt
-    obstacles = scenario.obstacles
-
-    swept = jnp.min(interval_clearance(traj, scenario, sim), axis=-1)  # (T,)
-    goal_distance = _goal_distance(traj, scenario)  # (T+1,)
-    end = _end(swept, goal_distance, sim)
-    goal_index, collision_index, e = end["goal_index"], end["collision_index"], end["end_index"]
-    sample_valid = jnp.arange(steps + 1) <= e
-    interval_valid = jnp.arange(steps) < e
-
-    success = (goal_index <= steps) & (goal_index < collision_index)
-    collision = (collision_index <= steps) & (collision_index <= goal_index)
-
-    first_sample = jnp.min(clearance(traj.position[0], obstacles, traj.time[0], sim.r_uav))
-    min_clearance = jnp.where(e == 0, first_sample, _masked_min(swept, interval_valid))
-
-    time_to_goal = jnp.where(success, goal_index * dt, jnp.nan)
-
-    step_length = jnp.linalg.norm(traj.position[1:] - traj.position[:-1], axis=-1)
-    path_length = jnp.sum(jnp.where(interval_valid, step_length, 0.0))
-    straight = jnp.linalg.norm(scenario.goal - scenario.start)
-    path_ratio = _ratio(path_length, straight)
-
-    speed = jnp.linalg.norm(traj.velocity, axis=-1)
-    stall_mask = sample_valid & (speed < sim.v_stall) & (goal_distance > sim.r_goal)
-    stalled = _longest_run(stall_mask) >= _stall_samples(sim)
-
-    final_distance = goal_distance[e]
-
-    effort = jnp.sum(traj.control * traj.control, axis=-1) * dt
-    control_effort = jnp.sum(jnp.where(interval_valid, effort, 0.0))
-
-    jerk_rms = _jerk_rms(traj.control, e, dt)
-
-    excess = jnp.max(jnp.maximum(jnp.abs(traj.velocity) - sim.v_max, 0.0), axis=-1)
-    max_velocity_excess = jnp.max(jnp.where(sample_valid, excess, 0.0))
-
-    time_near = dt * jnp.sum(interval_valid & (swept < sim.d_safe))
-
-    ttc = jax.vmap(time_to_collision, in_axes=(0, 0, None, 0, None))(
-        traj.position, traj.velocity, obstacles, traj.time, sim.r_uav)
-    min_ttc = _masked_min(jnp.min(ttc, axis=-1), sample_valid)
-
-    score = _score(success, time_to_goal, straight / sim.v_max)
-
-    values = {
-        "success": success,
-        "collision": collision,
-        "min_clearance": min_clearance,
-        "time_to_goal": time_to_goal,
-        "path_length": path_length,
-        "path_ratio": path_ratio,
-        "stalled": stalled,
-        "final_distance": final_distance,
-        "control_effort": control_effort,
-        "jerk_rms": jerk_rms,
-        "max_velocity_excess": max_velocity_excess,
-        "time_near": time_near,
-        "min_ttc": min_ttc,
-        "score": score,
-        "steps": e,
-    }
-    flags = {"success", "collision", "stalled"}
-    return {
-        name: (values[name].astype(bool) if name in flags
-               else e.astype(jnp.int32) if name == "steps"
-               else jnp.asarray(values[name]).astype(dtype))
-        for name in METRICS
-    }
+    names = METRICS.names() if names is None else names
+    return compute_metrics(EpisodeContext(traj, scenario, sim), names, traj.position.dtype)

@@ -1,28 +1,69 @@
-r"""APF reference generation: N prediction points by a saturated gradient flow (SPEC 4).
+r"""Potential-field planners: N prediction points by a saturated gradient flow (SPEC 4).
 
 Starting from the current ``(p_0, v_0) = (p, v)`` at time ``t``:
 
 .. math::
-   F_i = -\nabla_p\Big[U_{att}(p_i) + \sum_o U^*_{rep}(p_i, v_i, p_o(t_i), v_o)\Big], \quad
+   F_i = -\nabla_p\Big[U_{att}(p_i) + \sum_o \omega\,U_{rep}(p_i, v_i, p_o(t_i), v_o)\Big]
+         + \sum_j T_j(p_i, v_i, t_i), \quad
    u_i = \mathrm{sat}_{v_{max}}(\eta F_i), \quad
    p_{i+1} = p_i + \Delta t\, u_i, \quad v_{i+1} = u_i
 
 with obstacles extrapolated at constant velocity, ``p_o(t_i) = p_o + v_o (t + i Δt)``, which makes
-the scheme predictive; ``sat`` clips the norm. The MPC reference is ``(P_pred, 0)`` (the paper's zero
-velocity reference) or, with ``SimConfig.reference_velocity``, ``(P_pred, [v, u_0, …, u_{N-1}])``.
+the scheme predictive; ``sat`` clips the norm. ω is the planner's :class:`~.weights.Weight`; the
+``T_j`` are extra :class:`ForceTerm`\ s that are not gradients of a potential (none for the paper's
+methods). The MPC reference is ``(P_pred, 0)`` (the paper's zero velocity reference) or, with
+``PlannerConfig.reference_velocity``, ``(P_pred, [v, u_0, …, u_{N-1}])``.
+
+The paper's three methods are ``APF(Basic())``, ``APF(Direction())`` and
+``APF(DirectionVelocity())``, registered as ``basic``, ``direction`` and ``direction_velocity``.
 """
 
 from __future__ import annotations
+
+import abc
+import dataclasses
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import jax
 import jax.numpy as jnp
 from jax import Array
 
-from .config import Gains, SimConfig
-from .obstacles import ObstacleColumns, Obstacles, safe_norm
+from ..datatypes import ObstacleColumns, Obstacles, safe_norm
+from ..gains import GainSpec, declare_gains
+from .base import Planner, register_planner
 from .potentials import total_force
+from .weights import GAMMA, K, WEIGHTS, Basic, Direction, DirectionVelocity, Weight
 
-__all__ = ["saturate", "apf_reference"]
+if TYPE_CHECKING:
+    from ..config import SimConfig
+    from ..gains import Gains
+
+__all__ = ["K_REP", "D_S", "K_ATT", "ETA", "ForceTerm", "APF", "saturate", "register_weight"]
+
+K_REP = GainSpec("k_rep", 10.0, low=0.0, low_open=True, doc="repulsive gain k_rep (paper eq. 13)")
+D_S = GainSpec("d_s", 4.0, low=0.0, low_open=True, unit="m", doc="influence distance d_s (paper eq. 13)")
+K_ATT = GainSpec("k_att", 1.0, low=0.0, low_open=True, doc="attractive gain, U_att = ½ k_att |p - g|²")
+ETA = GainSpec("eta", 0.5, low=0.0, low_open=True, unit="m/s per unit force", symbol="η",
+               doc="step gain η of the reference flow u = η F")
+#: The gains every potential-field planner reads.
+APF_GAINS = (K_REP, D_S, K_ATT, ETA)
+
+
+class ForceTerm(abc.ABC):
+    """An extra force of the flow that is not the gradient of a potential (e.g. a vortex).
+    Subclasses are frozen dataclasses.
+
+    Attributes:
+      gains: the gains it reads (declared when a planner using it is registered).
+    """
+
+    gains: ClassVar[tuple[GainSpec, ...]] = ()
+
+    @abc.abstractmethod
+    def __call__(self, p: Array, v: Array, t: Array, goal: Array, obstacles: ObstacleColumns, gains: "Gains",
+                 sim: "SimConfig") -> Array:
+        """The force (3,) at position ``p``, velocity ``v``, time ``t`` (obstacles at ``t = 0``,
+        component-first; they move as ``position + velocity · t``)."""
 
 
 def saturate(u: Array, limit: float) -> Array:
@@ -30,31 +71,86 @@ def saturate(u: Array, limit: float) -> Array:
     return u * jnp.minimum(1.0, limit / safe_norm(u))
 
 
-def apf_reference(
-    x: Array, t: Array, goal: Array, obstacles: Obstacles | ObstacleColumns, gains: Gains, sim: SimConfig,
-    horizon: int,
-) -> Array:
-    """MPC reference states (horizon+1, 6) for ``x(k..k+N)`` from the APF gradient flow.
+def _unique(specs: tuple[GainSpec, ...]) -> tuple[GainSpec, ...]:
+    return tuple({s.name: s for s in specs}.values())
 
-    ``obstacles`` in either layout; a closed loop passes :class:`ObstacleColumns`, converted once per
-    episode (:meth:`Obstacles.columns`), so no control step transposes the field again.
+
+@dataclasses.dataclass(frozen=True)
+class APF(Planner):
+    """A potential-field planner: the saturated gradient flow of ``U_att + Σ ω U_rep`` (module docstring).
+
+    Attributes:
+      weight: the repulsive weight ω.
+      terms: extra forces added to ``-∇U`` in the flow.
+      description: one line for ``jaxapf list planners`` (default: the weight's docstring).
     """
-    obstacles = obstacles.columns()
 
-    def flow(carry, i):
-        p, v = carry
-        force = total_force(
-            p, v, t + i * sim.dt, goal, obstacles, gains, method=sim.method, convention=sim.convention,
-            r_uav=sim.r_uav, d_min=sim.d_min, eps_v=sim.eps_v, att_cap=sim.att_cap,
-        )
-        u = saturate(gains.eta * force, sim.v_max)
-        return (p + sim.dt * u, u), (p + sim.dt * u, u)
+    weight: Weight
+    terms: tuple[ForceTerm, ...] = ()
+    description: str = ""
+    color: str | None = None
+    linestyle: str | None = None
 
-    p0, v0 = x[:3], x[3:]
-    _, (points, flows) = jax.lax.scan(flow, (p0, v0), jnp.arange(horizon, dtype=x.dtype))
-    positions = jnp.concatenate([p0[None], points], axis=0)
-    if sim.reference_velocity:
-        velocities = jnp.concatenate([v0[None], flows], axis=0)
-    else:
-        velocities = jnp.zeros_like(positions)
-    return jnp.concatenate([positions, velocities], axis=1)
+    @property
+    def gains(self) -> tuple[GainSpec, ...]:
+        return _unique(self.weight.gains + tuple(g for term in self.terms for g in term.gains) + APF_GAINS)
+
+    @property
+    def reads(self) -> tuple[str, ...]:
+        convention = ("convention",) if self.weight.uses_convention else ()
+        return convention + ("d_min", "eps_v", "att_cap", "reference_velocity")
+
+    def force(self, p: Array, v: Array, t: Array, goal: Array, obstacles: ObstacleColumns, gains: "Gains",
+              sim: "SimConfig") -> Array:
+        """The flow's force ``F`` (3,) at ``(p, v)`` and time ``t``."""
+        cfg = sim.planner
+        force = total_force(p, v, t, goal, obstacles, gains, method=self.weight, convention=cfg.convention,
+                            r_uav=sim.vehicle.r_uav, d_min=cfg.d_min, eps_v=cfg.eps_v, att_cap=cfg.att_cap)
+        for term in self.terms:
+            force = force + term(p, v, t, goal, obstacles, gains, sim)
+        return force
+
+    def reference(self, state: Any, x: Array, t: Array, goal: Array, obstacles: Obstacles | ObstacleColumns,
+                  gains: "Gains", sim: "SimConfig", horizon: int) -> tuple[Array, Any]:
+        """MPC reference states (horizon+1, 6) for ``x(k..k+N)`` from the flow; the state is unchanged.
+
+        ``obstacles`` in either layout; a closed loop passes :class:`~jaxapf.datatypes.ObstacleColumns`,
+        converted once per episode, so no control step transposes the field again.
+        """
+        obstacles = obstacles.columns()
+        dt = sim.episode.dt
+
+        def flow(carry, i):
+            p, v = carry
+            u = saturate(gains.eta * self.force(p, v, t + i * dt, goal, obstacles, gains, sim), sim.vehicle.v_max)
+            return (p + dt * u, u), (p + dt * u, u)
+
+        p0, v0 = x[:3], x[3:]
+        _, (points, flows) = jax.lax.scan(flow, (p0, v0), jnp.arange(horizon, dtype=x.dtype))
+        positions = jnp.concatenate([p0[None], points], axis=0)
+        if sim.planner.reference_velocity:
+            velocities = jnp.concatenate([v0[None], flows], axis=0)
+        else:
+            velocities = jnp.zeros_like(positions)
+        return jnp.concatenate([positions, velocities], axis=1), state
+
+
+def register_weight(name: str, weight: Weight, *, planner: bool = True, replace: bool = False, **style: Any) -> Weight:
+    """Register ``weight`` under ``name`` and, with ``planner`` (default), the potential-field planner
+    ``APF(weight, **style)`` as ``method = name`` (``style``: ``description``, ``color``,
+    ``linestyle``)."""
+    declare_gains(*weight.gains)
+    WEIGHTS.register(name, weight, replace=replace)
+    if planner:
+        register_planner(name, APF(weight, **style), replace=replace)
+    return weight
+
+
+# The paper's gains, in the order of its tables, then its three methods.
+declare_gains(GAMMA, K, *APF_GAINS)
+register_weight("basic", Basic(), color="tab:orange", linestyle=":",
+                description="the classical potential field: ω = 1 (paper eq. 13)")
+register_weight("direction", Direction(), color="tab:purple", linestyle="--",
+                description="direction-weighted: ω = 1 + γ(1 + cos θ)/2 (paper eq. 15)")
+register_weight("direction_velocity", DirectionVelocity(), color="tab:blue", linestyle="-",
+                description="the paper's proposal: ω = [1 + γ(1 + cos θ)/2](2 + k tanh c) (paper eq. 19)")

@@ -1,4 +1,4 @@
-r"""Attractive and direction/velocity-weighted repulsive potentials (paper section 3, SPEC 3).
+r"""Attractive and weighted repulsive potentials (paper section 3, SPEC 3), and their forces.
 
 Attractive potential, optionally conic beyond ``att_cap``:
 
@@ -8,29 +8,16 @@ Classical repulsive potential of one obstacle with clearance ``d`` (paper eq. 13
 
 .. math::  U_{rep}(d) = \tfrac12 k_{rep} (1/d - 1/d_s)^2 \ \text{for } d \le d_s, \ 0 \text{ otherwise}
 
-with ``d`` floored smoothly at ``d_min > 0`` (:func:`floored_clearance`). The weighted potential is :math:`U^*_{rep} = \omega U_{rep}`
-(paper eq. 14 and 20) with
-
-=====================  =====================================================
-method                 weight ω
-=====================  =====================================================
-``basic``              1
-``direction``          :math:`1 + \gamma (1 + \cos\theta)/2`            (eq. 15)
-``direction_velocity`` :math:`[1 + \gamma (1 + \cos\theta)/2]\,(2 + k \tanh c)`  (eq. 19)
-=====================  =====================================================
+with ``d`` floored smoothly at ``d_min > 0`` (:func:`floored_clearance`). The weighted potential
+is :math:`U^*_{rep} = \omega U_{rep}` (paper eq. 14 and 20) with a weight ω of
+:mod:`jaxapf.planners.weights`, named by ``method`` (``basic``, ``direction``,
+``direction_velocity``, or any registered weight).
 
 Forces are ``-jax.grad`` of the total potential with respect to the UAV position ``p`` (v, p_o, v_o
 held fixed), so the weighted force is :math:`-(\omega\nabla U_{rep} + U_{rep}\nabla\omega)`.
 
-Sign conventions (SPEC 3): let ``s = P(p_o - p)`` be the line of sight from the UAV to the
-obstacle (``P`` drops z for a cylinder). ``intent`` uses
-:math:`\cos\theta = v\cdot s/(|v|_\epsilon |s|)`, :math:`c = (v - v_o)\cdot s/|s|` (closing speed, > 0
-when the gap shrinks), which matches the paper's prose. ``literal`` uses the paper's printed
-:math:`r_e = p - p_o = -s`: :math:`\cos\theta = v\cdot r_e/(|v|_\epsilon |r_e|)`, :math:`c = G =
-(v - v_o)\cdot r_e/|r_e|`. :math:`|v|_\epsilon = \sqrt{|v|^2 + \epsilon^2}`.
-
-The paper's bound ``1 <= ω <= (1+γ)(2+k)`` holds above; below, the true minimum of the
-``direction_velocity`` weight is ``2 - k`` (< 1 for k > 1, negative for k > 2).
+Gains are passed by name (``k_rep``, ``d_s`` and the weight's own, e.g. ``gamma``, ``k``); every
+function accepts float32 and float64 and is ``jit``/``vmap``/``grad``-compatible.
 """
 
 from __future__ import annotations
@@ -41,10 +28,16 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from .config import CONVENTIONS, METHODS, check_choice
-from .obstacles import TINY, ObstacleColumns, Obstacles, safe_norm
+from ..config import CONVENTIONS
+from ..datatypes import ObstacleColumns, Obstacles, safe_norm
+from ..gains import Gains
+from ..validation import check_choice
+from .sight import Sight, line_of_sight, norm
+from .weights import WEIGHTS, Weight, direction_weight, velocity_weight
 
 __all__ = [
+    "D_MIN",
+    "EPS_V",
     "attractive_potential",
     "floored_clearance",
     "repulsive_potential",
@@ -58,9 +51,9 @@ __all__ = [
     "total_force",
 ]
 
-#: Default floor on the clearance inside U_rep [m] (SimConfig.d_min).
+#: Default floor on the clearance inside U_rep [m] (PlannerConfig.d_min).
 D_MIN = 0.05
-#: Default regulariser of |v| in cos θ [m/s] (SimConfig.eps_v).
+#: Default regulariser of |v| in cos θ [m/s] (PlannerConfig.eps_v).
 EPS_V = 1e-3
 
 
@@ -98,94 +91,37 @@ def repulsive_potential(d: Array, k_rep: Array, d_s: Array, d_min: float = D_MIN
     return 0.5 * k_rep * gap**2
 
 
-def direction_weight(cos_theta: Array, gamma: Array) -> Array:
-    r"""ω(θ) = 1 + γ (1 + cos θ) / 2 (paper eq. 15); in [1, 1 + γ] for γ >= 0."""
-    return 1.0 + gamma * 0.5 * (1.0 + cos_theta)
+def _weight(method: str | Weight) -> Weight:
+    return method if isinstance(method, Weight) else WEIGHTS.get(method, "method")
 
 
-def velocity_weight(c: Array, k: Array) -> Array:
-    r"""The relative-velocity factor 2 + k tanh(c) of paper eq. 19; in [2 - k, 2 + k]."""
-    return 2.0 + k * jnp.tanh(c)
-
-
-def _dot(a: Any, b: Any) -> Array:
-    """Dot product of two component-first vectors (their leading axis of size 3 is x, y, z; any
-    trailing axes broadcast). Written out so that XLA fuses it with its neighbours."""
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
-def _norm(a: Any) -> Array:
-    """Component-first :func:`~jaxapf.obstacles.safe_norm`."""
-    return jnp.sqrt(jnp.maximum(_dot(a, a), TINY))
-
-
-def _line_of_sight(p: Array, p_o: Array, cylinder: Array | bool) -> tuple[Array, Array, Array]:
-    """``s = P(p_o - p)`` component by component (``P`` drops z for a cylinder).
-
-    The difference is taken as one vector operation (``p`` broadcast along the obstacle axes of
-    ``p_o``) before it is split into components: ``∇_p`` then reaches ``p`` as a single sum over
-    the obstacles of a (3, M) cotangent, which XLA:CPU fuses with the per-obstacle backward pass
-    into one vectorised reduction; indexing ``p`` per component would instead give three sums and
-    more per-obstacle kernels (``jaxapf bench --kernels``: lone elementwise kernels run one element
-    at a time; the whole closed loop ran a median 1.14x faster this way, README "Speed").
-    """
-    p = jnp.asarray(p)
-    s = p_o - jnp.reshape(p, p.shape + (1,) * (jnp.ndim(p_o) - p.ndim))
-    return s[0], s[1], jnp.where(cylinder, 0.0, s[2])
-
-
-def _weight(v: Array, v_o: Array, sight: Any, *, gamma: Array, k: Array, method: str, convention: str,
-            eps_v: float) -> Array:
-    """ω of the obstacle(s) seen along ``sight`` (component-first); see :func:`weight`."""
-    if method == "basic":
-        return jnp.ones((), jnp.result_type(v))
-    if convention == "literal":
-        sight = tuple(-c for c in sight)  # r_e = p - p_o, the paper's printed definition
-    dist = _norm(sight)
-    speed = jnp.sqrt(_dot(v, v) + eps_v**2)
-    w = direction_weight(_dot(v, sight) / (dist * speed), gamma)
-    if method == "direction":
-        return w
-    closing = tuple(a - b for a, b in zip(v, v_o))
-    return w * velocity_weight(_dot(closing, sight) / dist, k)
-
-
-def weight(
-    p: Array,
-    v: Array,
-    p_o: Array,
-    v_o: Array,
-    *,
-    gamma: Array,
-    k: Array,
-    method: str,
-    convention: str,
-    cylinder: Array | bool = False,
-    eps_v: float = EPS_V,
-) -> Array:
-    """The weight ω of one obstacle for ``method`` under ``convention`` (see module docstring).
+def weight(p: Array, v: Array, p_o: Array, v_o: Array, *, method: str | Weight, convention: str,
+           cylinder: Array | bool = False, eps_v: float = EPS_V, goal: Array | None = None, **gains: Array) -> Array:
+    """The weight ω of one obstacle for ``method`` under ``convention`` (gains by name, e.g.
+    ``gamma=1.0, k=0.5``).
 
     ``p``, ``v``, ``p_o``, ``v_o`` are (3,) vectors; ``p_o``, ``v_o`` may also be component-first
     ``(3, M)`` arrays of M obstacles (``cylinder`` (M,)), giving ω of each, shape (M,).
     """
-    return _weight(v, v_o, _line_of_sight(p, p_o, cylinder), gamma=gamma, k=k, method=method,
-                   convention=convention, eps_v=eps_v)
+    check_choice("convention", convention, CONVENTIONS)
+    sight = Sight(line_of_sight(p, p_o, cylinder), v, v_o, p, goal)
+    return _weight(method)(sight, Gains.unchecked(gains), convention=convention, eps_v=eps_v)
 
 
-def weight_bounds(gamma: Array, k: Array, method: str) -> tuple[Array, Array]:
+def weight_bounds(method: str | Weight, **gains: Array) -> tuple[Array, Array]:
     """True (min, max) of ω over all geometries: (1, 1+γ) for ``direction``; (2 - k, (1+γ)(2+k))
     for ``direction_velocity`` when k <= 2 (for k > 2 the minimum (1+γ)(2-k) is negative)."""
-    if method == "basic":
-        return jnp.ones(()), jnp.ones(())
-    if method == "direction":
-        return jnp.ones_like(gamma), 1.0 + gamma
-    lo = jnp.where(k <= 2.0, 2.0 - k, (1.0 + gamma) * (2.0 - k))
-    return lo, (1.0 + gamma) * (2.0 + k)
+    return _weight(method).bounds(Gains.unchecked(gains))
 
 
-def _check_static(method: str, convention: str) -> None:
-    check_choice("method", method, METHODS)
-    check_choice("convention", convention, CONVENTIONS)
+def _repulsion(p: Array, v: Array, p_o: Array, v_o: Array, radius: Array | float, cylinder: Array | bool,
+               gains: Any, method: str | Weight, convention: str, d_min: float, eps_v: float,
+               goal: Array | None) -> Array:
+    """``ω · U_rep(d)`` of the obstacle(s) at ``p_o`` (see :func:`weighted_repulsive_potential`)."""
+    sight = line_of_sight(p, p_o, cylinder)
+    d = norm(sight) - radius
+    w = _weight(method)(Sight(sight, v, v_o, p, goal), gains, convention=convention, eps_v=eps_v)
+    return w * repulsive_potential(d, gains.k_rep, gains.d_s, d_min)
 
 
 def weighted_repulsive_potential(
@@ -196,14 +132,14 @@ def weighted_repulsive_potential(
     *,
     k_rep: Array,
     d_s: Array,
-    gamma: Array,
-    k: Array,
-    method: str = "direction_velocity",
+    method: str | Weight = "direction_velocity",
     convention: str = "intent",
     radius: Array | float = 0.0,
     cylinder: Array | bool = False,
     d_min: float = D_MIN,
     eps_v: float = EPS_V,
+    goal: Array | None = None,
+    **gains: Array,
 ) -> Array:
     r"""U*_rep = ω · U_rep(d) of one obstacle (paper eq. 14, 20).
 
@@ -211,16 +147,18 @@ def weighted_repulsive_potential(
       p, v: UAV position and velocity (3,).
       p_o, v_o: obstacle centre and velocity (3,), or component-first ``(3, M)`` for M obstacles
         at once (then ``radius``, ``cylinder`` are (M,) and the result is (M,)).
+      k_rep, d_s: repulsive gain and influence distance (paper eq. 13).
+      method: the weight ω, by name or as a :class:`~jaxapf.planners.weights.Weight`.
       radius: obstacle radius plus UAV radius; the clearance is ``d = |P(p - p_o)| - radius``.
       cylinder: vertical cylinder (distance ignores z) instead of a sphere.
       d_min: floor on ``d`` before the division.
       eps_v: regulariser of ``|v|`` in cos θ.
+      goal: the goal, for weights that read it.
+      gains: the weight's gains by name (``gamma``, ``k`` for ``direction_velocity``).
     """
-    _check_static(method, convention)
-    sight = _line_of_sight(p, p_o, cylinder)
-    d = _norm(sight) - radius
-    w = _weight(v, v_o, sight, gamma=gamma, k=k, method=method, convention=convention, eps_v=eps_v)
-    return w * repulsive_potential(d, k_rep, d_s, d_min)
+    check_choice("convention", convention, CONVENTIONS)
+    return _repulsion(p, v, p_o, v_o, radius, cylinder, Gains.unchecked({"k_rep": k_rep, "d_s": d_s, **gains}),
+                      method, convention, d_min, eps_v, goal)
 
 
 def repulsive_force(p: Array, v: Array, p_o: Array, v_o: Array, **kwargs: Any) -> Array:
@@ -235,9 +173,9 @@ def total_potential(
     t: Array | float,
     goal: Array,
     obstacles: Obstacles | ObstacleColumns,
-    gains: Any,
+    gains: Gains,
     *,
-    method: str,
+    method: str | Weight,
     convention: str,
     r_uav: float,
     d_min: float = D_MIN,
@@ -251,16 +189,13 @@ def total_potential(
     is exactly zero too).
     """
     cols = obstacles.columns()
-    u_rep = weighted_repulsive_potential(
-        p, v, cols.position + cols.velocity * t, cols.velocity, k_rep=gains.k_rep, d_s=gains.d_s,
-        gamma=gains.gamma, k=gains.k, method=method, convention=convention,
-        radius=cols.radius + r_uav, cylinder=cols.cylinder, d_min=d_min, eps_v=eps_v,
-    )
+    u_rep = _repulsion(p, v, cols.position + cols.velocity * t, cols.velocity, cols.radius + r_uav, cols.cylinder,
+                       gains, method, convention, d_min, eps_v, goal)
     u_rep = jnp.where(cols.valid, u_rep, 0.0)
     return attractive_potential(p, goal, gains.k_att, att_cap) + jnp.sum(u_rep)
 
 
 def total_force(p: Array, v: Array, t: Array | float, goal: Array, obstacles: Obstacles | ObstacleColumns,
-                gains: Any, **kwargs: Any) -> Array:
+                gains: Gains, **kwargs: Any) -> Array:
     """-∇_p of :func:`total_potential` (3,), by :func:`jax.grad`."""
     return -jax.grad(total_potential)(p, v, t, goal, obstacles, gains, **kwargs)

@@ -48,9 +48,9 @@ def choice(choices: tuple[str, ...]) -> Check:
     return lambda where, value: check_choice(where, value, choices)
 
 
-def names(choices: tuple[str, ...]) -> Check:
-    """One or more distinct names of ``choices``, in their canonical order."""
-    return lambda where, value: check_names(where, value, choices, canonical=True)
+def names(choices: tuple[str, ...], what: str = "name") -> Check:
+    """One or more distinct names of ``choices`` (each a ``what``), in their canonical order."""
+    return lambda where, value: check_names(where, value, choices, what=what, canonical=True)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -115,11 +115,13 @@ class Family:
       build: ``build(draws, params, length) -> Layout``: the obstacles in the local frame (start at
         the origin, goal at ``(length, 0)``), from the field's :class:`~jaxapf.scenarios.layout.Draws`.
       kinds: the kinds of field it draws (one name if it draws one kind).
+      description: one line for ``jaxapf list families``.
     """
 
     params: type[FamilyParams]
     build: Callable[..., Any]
     kinds: tuple[str, ...]
+    description: str = ""
 
     @property
     def name(self) -> str:
@@ -127,10 +129,7 @@ class Family:
 
 
 def _describe(family: Family) -> str:
-    doc = (family.params.__doc__ or "").strip().splitlines()
-    first = doc[0] if doc else ""
-    first = first.split(": ", 1)[1] if first.startswith(f"``{family.name}``: ") else first
-    return f"{first} (kinds: {', '.join(family.kinds)})"
+    return f"{family.description} (kinds: {', '.join(family.kinds)})"
 
 
 #: Registered scenario families.
@@ -138,9 +137,10 @@ FAMILIES: Registry[Family] = Registry("family", describe=_describe)
 
 
 def register_family(params: type[FamilyParams], build: Callable[..., Any], kinds: tuple[str, ...] | None = None,
-                    *, replace: bool = False) -> Family:
+                    *, description: str = "", replace: bool = False) -> Family:
     """Register the family ``params.family`` with its builder and kinds (default: one kind, its name)."""
-    return FAMILIES.register(params.family, Family(params, build, tuple(kinds or (params.family,))), replace=replace)
+    family = Family(params, build, tuple(kinds or (params.family,)), description)
+    return FAMILIES.register(params.family, family, replace=replace)
 
 
 def family_params(family: str, **overrides: Any) -> FamilyParams:

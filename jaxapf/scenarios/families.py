@@ -177,7 +177,7 @@ class TrapParams(FamilyParams):
 
     family = "trap"
     CHECKS = FamilyParams.CHECKS | {
-        "kinds": names(TRAP_KINDS),
+        "kinds": names(TRAP_KINDS, "kind"),
         "along": span(0.0, 1.0),
         "offset": number(0.0),
         "radius": span(0.0, lo_open=True),
@@ -318,8 +318,8 @@ class OvertakeParams(MovingParams):
 
 
 def _paper_static(d: Draws, p: PaperStaticParams, length: Array) -> Layout:
-    cup = cup(0.5 * length, jnp.zeros_like(length), p.cup_radius, p.radius)
-    return cup._replace(xy=cup.xy + d.uniform((-p.jitter, p.jitter), cup.xy.shape))
+    ring = cup(0.5 * length, jnp.zeros_like(length), p.cup_radius, p.radius)
+    return ring._replace(xy=ring.xy + d.uniform((-p.jitter, p.jitter), ring.xy.shape))
 
 
 def _paper_dynamic(d: Draws, p: PaperDynamicParams, length: Array) -> Layout:
@@ -350,14 +350,82 @@ def _trap_gnron(d: Draws, p: TrapParams, length: Array, x: Array, y: Array) -> L
     return static(goal + reach[:, None] * d.directions(1), radius)
 
 
-_TRAP
+_TRAP_BUILDERS: Mapping[str, Callable[..., Layout]] = {
+    "on_line": _trap_on_line,
+    "concave": _trap_concave,
+    "narrow_gap": _trap_narrow_gap,
+    "gnron": _trap_gnron,
+}
 
 
-register_family(PaperStaticParams, _paper_static)
-register_family(PaperDynamicParams, _paper_dynamic)
-register_family(TrapParams, _trap, TRAP_KINDS)
-register_family(ClutterParams, _clutter)
-register_family(CrossingParams, _crossing)
-register_family(HeadOnParams, _head_on)
-register_family(OvertakeParams, _overtake)
-register_family(DynamicParams, _dynamic)
+def _trap(d: Draws, p: TrapParams, length: Array) -> Layout:
+    """Every kind is built (they are tiny) in the order of ``TRAP_KINDS`` so that a kind's geometry
+    in a field does not depend on which other kinds are selected; one selected kind is kept."""
+    pick = d.integers(0, len(p.kinds) - 1)
+    x = d.uniform(p.along) * length
+    y = d.uniform((-p.offset, p.offset))
+    layouts = {k: fit(_TRAP_BUILDERS[k](d, p, length, x, y), CUP_SIZE) for k in TRAP_KINDS}
+    return jax.tree.map(lambda *rows: jnp.stack(rows)[pick], *(layouts[k] for k in p.kinds))
+
+
+def _clutter(d: Draws, p: ClutterParams, length: Array) -> Layout:
+    count = jnp.minimum(jnp.round(p.density * length * p.width / 100.0), p.max_obstacles)
+    return scatter(d, p.max_obstacles, count, length, p.width, p.radius)
+
+
+def _dynamic(d: Draws, p: DynamicParams, length: Array) -> Layout:
+    field = _clutter(d, p, length)
+    return with_motion(field, d, p.speed, field.valid)
+
+
+def _movers(d: Draws, p: MovingParams, place: Callable[[Array], tuple[Array, Array]]) -> Layout:
+    """``max_obstacles`` rows, the first ``count`` valid; ``place(speed)`` returns the centres and
+    velocities (n, 2) given each row's speed (n,)."""
+    n = p.max_obstacles
+    count = d.integers(*p.count)
+    radius = d.uniform(p.radius, (n,))
+    xy, vxy = place(d.uniform(p.speed, (n,)))
+    return Layout(xy, vxy, radius, jnp.arange(n) < count)
+
+
+def _crossing(d: Draws, p: CrossingParams, length: Array) -> Layout:
+    def place(speed: Array) -> tuple[Array, Array]:
+        x = d.uniform(p.meet, speed.shape) * length
+        t_meet = x / p.uav_speed + d.uniform(p.timing, speed.shape)
+        vy = d.signs(speed.shape) * speed
+        return jnp.stack([x, -vy * t_meet], -1), jnp.stack([jnp.zeros_like(vy), vy], -1)
+
+    return _movers(d, p, place)
+
+
+def _along_line(d: Draws, p: HeadOnParams | OvertakeParams, x_span: tuple, sign: float) -> Layout:
+    """Movers starting at x uniform in ``x_span`` (lateral offset ±``p.offset``) and flying parallel
+    to the line, toward the goal (``sign = +1``) or toward the start (``sign = -1``)."""
+
+    def place(speed: Array) -> tuple[Array, Array]:
+        xy = jnp.stack([d.uniform(x_span, speed.shape), d.uniform((-p.offset, p.offset), speed.shape)], -1)
+        return xy, jnp.stack([sign * speed, jnp.zeros_like(speed)], -1)
+
+    return _movers(d, p, place)
+
+
+def _head_on(d: Draws, p: HeadOnParams, length: Array) -> Layout:
+    return _along_line(d, p, (p.along[0] * length, p.along[1] * length), -1.0)
+
+
+def _overtake(d: Draws, p: OvertakeParams, length: Array) -> Layout:
+    return _along_line(d, p, (-p.behind[1], -p.behind[0]), 1.0)
+
+
+register_family(PaperStaticParams, _paper_static,
+                description="the paper's scenario 1: a closed cup of 5 cylinders across the start-goal line")
+register_family(PaperDynamicParams, _paper_dynamic,
+                description="the paper's scenario 2: a 70 m run through 14 cylinders, 4 of them drifting")
+register_family(TrapParams, _trap, TRAP_KINDS,
+                description="one local-minimum trap per field: obstacle on the line, concave cup, narrow gap, "
+                            "goal near an obstacle")
+register_family(ClutterParams, _clutter, description="a static forest of cylinders in a 12 m corridor")
+register_family(CrossingParams, _crossing, description="1-3 obstacles crossing the path perpendicularly")
+register_family(HeadOnParams, _head_on, description="1-2 obstacles flying toward the UAV along its path")
+register_family(OvertakeParams, _overtake, description="1-2 obstacles overtaking the UAV from behind at 1.5-2.5 v_max")
+register_family(DynamicParams, _dynamic, description="clutter whose every obstacle drifts in a random direction")

@@ -1,0 +1,71 @@
+"""Safety filters: the last word between the MPC's acceleration and the plant.
+
+A :class:`SafetyFilter` maps the MPC's first acceleration to the one the plant receives, every
+control step, with a state it may carry through the episode (an optax-like ``init`` and a call).
+It declares the gains it reads and reports per-step diagnostics (each becomes an entry of
+:attr:`~jaxapf.datatypes.Trajectory.extras`, which metrics may read). ``none``
+(:class:`Passthrough`) applies the MPC's acceleration as it is, the paper's stack.
+
+Register one with :func:`register_filter`; ``filter = NAME`` in a sweep spec then places it on top
+of any planner (``docs/extending.md``).
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+from typing import TYPE_CHECKING, Any, ClassVar
+
+from jax import Array
+
+from ..gains import GainSpec, declare_gains
+from ..registry import Registry
+
+if TYPE_CHECKING:
+    from ..config import SimConfig
+    from ..datatypes import ObstacleColumns, Scenario
+    from ..gains import Gains
+
+__all__ = ["SafetyFilter", "Passthrough", "FILTERS", "register_filter"]
+
+
+class SafetyFilter(abc.ABC):
+    """Maps the MPC's acceleration to the applied one. Subclasses are frozen dataclasses.
+
+    Attributes:
+      gains: the gains it reads (declared when it is registered).
+    """
+
+    gains: ClassVar[tuple[GainSpec, ...]] = ()
+
+    def init(self, scenario: "Scenario", gains: "Gains", sim: "SimConfig") -> Any:
+        """The filter's state at the start of an episode (default: none)."""
+        return ()
+
+    @abc.abstractmethod
+    def __call__(self, state: Any, accel: Array, x: Array, t: Array, obstacles: "ObstacleColumns", gains: "Gains",
+                 sim: "SimConfig") -> tuple[Array, Any, dict[str, Array]]:
+        """``(applied acceleration (3,), next state, diagnostics)`` for the MPC's ``accel`` (3,) at the
+        state ``x = [p, v]`` (6,) and time ``t`` (obstacles at ``t = 0``, component-first)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Passthrough(SafetyFilter):
+    """No filter: the MPC's acceleration is applied as it is (the paper's stack)."""
+
+    def __call__(self, state: Any, accel: Array, x: Array, t: Array, obstacles: Any, gains: Any,
+                 sim: Any) -> tuple[Array, Any, dict[str, Array]]:
+        return accel, state, {}
+
+
+#: Registered safety filters: the values of ``filter`` (default ``none``).
+FILTERS: Registry[SafetyFilter] = Registry("safety filter")
+
+
+def register_filter(name: str, safety_filter: SafetyFilter, *, replace: bool = False) -> SafetyFilter:
+    """Register ``safety_filter`` as ``filter = name`` and declare its gains."""
+    declare_gains(*safety_filter.gains)
+    return FILTERS.register(name, safety_filter, replace=replace)
+
+
+register_filter("none", Passthrough())

@@ -1,0 +1,102 @@
+"""The metric registry: one entry per number an episode yields.
+
+Each :class:`Metric` says how it is computed from an episode (a function of the
+:class:`~jaxapf.metrics.episode.EpisodeContext`, traced under ``jit``/``vmap``) and what it means:
+dtype, unit, whether it is a rate (a boolean outcome) or continuous, whether higher is better,
+whether it is meaningful only on successful episodes, and whether the default report shows it.
+The sweep's Parquet schema, the report's tables and units, ``jaxapf simulate``'s table and
+``jaxapf bench`` all read this registry; there is no second list anywhere.
+
+Register a metric with :func:`register_metric` (``docs/extending.md``); every later program
+computes it and every later sweep writes its column.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import TYPE_CHECKING, Callable, Sequence
+
+import jax.numpy as jnp
+from jax import Array
+
+from ..registry import Registry
+from ..validation import ConfigError
+
+if TYPE_CHECKING:
+    from .episode import EpisodeContext
+
+__all__ = ["Metric", "METRICS", "KINDS", "DTYPES", "register_metric", "compute_metrics", "metric_names"]
+
+#: What a metric is: a boolean outcome (its mean is a rate), a continuous number, or a count.
+KINDS = ("rate", "continuous", "count")
+#: Value types: ``bool``, ``int32``, or ``float`` (the trajectory's floating dtype).
+DTYPES = ("bool", "int32", "float")
+
+
+@dataclasses.dataclass(frozen=True)
+class Metric:
+    """One number per episode.
+
+    Attributes:
+      name: column name (letters, digits, ``_``).
+      fn: ``fn(ctx) -> scalar`` on the :class:`~jaxapf.metrics.episode.EpisodeContext`.
+      dtype: ``bool``, ``int32`` or ``float``.
+      kind: ``rate`` (``dtype`` bool), ``continuous`` or ``count``.
+      unit: unit for tables and axes (``"m"``), ``""`` for none.
+      higher_is_better: direction of improvement (``None``: neither, e.g. a diagnostic).
+      on_success: meaningful only on successful episodes (NaN or ignored otherwise).
+      report: shown in the default tables of ``jaxapf report``.
+      doc: one line of what it measures (its exact definition belongs in ``fn``'s docstring).
+    """
+
+    name: str
+    fn: Callable[["EpisodeContext"], Array]
+    dtype: str = "float"
+    kind: str = "continuous"
+    unit: str = ""
+    higher_is_better: bool | None = None
+    on_success: bool = False
+    report: bool = False
+    doc: str = ""
+
+    def __post_init__(self) -> None:
+        if self.dtype not in DTYPES:
+            raise ConfigError(f"metric {self.name!r}: dtype = {self.dtype!r}; choose one of {', '.join(DTYPES)}")
+        if self.kind not in KINDS:
+            raise ConfigError(f"metric {self.name!r}: kind = {self.kind!r}; choose one of {', '.join(KINDS)}")
+        if (self.kind == "rate") != (self.dtype == "bool"):
+            raise ConfigError(f"metric {self.name!r}: a rate is exactly a metric of dtype bool")
+
+    def cast(self, value: Array, float_dtype) -> Array:
+        """``value`` in the metric's dtype (``float``: ``float_dtype``)."""
+        if self.dtype == "bool":
+            return value.astype(bool)
+        if self.dtype == "int32":
+            return value.astype(jnp.int32)
+        return jnp.asarray(value).astype(float_dtype)
+
+
+def _describe(metric: Metric) -> str:
+    unit = f" [{metric.unit}]" if metric.unit else ""
+    better = {True: ", higher is better", False: ", lower is better", None: ""}[metric.higher_is_better]
+    return f"{metric.doc}{unit} ({metric.kind}{better}{', successful episodes only' if metric.on_success else ''})"
+
+
+#: Registered metrics, in column order.
+METRICS: Registry[Metric] = Registry("metric", describe=_describe)
+
+
+def register_metric(metric: Metric, *, replace: bool = False) -> Metric:
+    """Register ``metric`` under its name."""
+    return METRICS.register(metric.name, metric, replace=replace)
+
+
+def metric_names(*, kind: str | None = None, report: bool | None = None) -> tuple[str, ...]:
+    """Registered metric names, optionally only of one ``kind`` or only those (not) in the default report."""
+    return tuple(n for n, m in METRICS.items()
+                 if (kind is None or m.kind == kind) and (report is None or m.report == report))
+
+
+def compute_metrics(ctx: "EpisodeContext", names: Sequence[str], float_dtype) -> dict[str, Array]:
+    """``{name: value}`` of the metrics ``names`` on one episode's context."""
+    return {name: METRICS.get(name).cast(METRICS.get(name).fn(ctx), float_dtype) for name in names}

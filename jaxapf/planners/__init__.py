@@ -1,0 +1,18 @@
+"""Planners: what turns the UAV's state and the obstacles into the MPC's reference (SPEC 3–4).
+
+========================  =================================================================
+:mod:`.base`              the :class:`Planner` protocol (``init``/``reference``) and :data:`PLANNERS`
+:mod:`.apf`               potential-field planners (:class:`APF`): the saturated gradient flow
+:mod:`.weights`           repulsive weights ω (:class:`Weight`, :data:`WEIGHTS`), paper eq. 14–20
+:mod:`.potentials`        attractive and weighted repulsive potentials and their forces
+:mod:`.sight`             the line of sight, component by component
+========================  =================================================================
+"""
+
+from .apf import APF, ForceTerm, register_weight, saturate
+from .base import PLANNERS, Planner, register_planner
+from .sight import Sight
+from .weights import WEIGHTS, Basic, Direction, DirectionVelocity, Weight
+
+__all__ = ["Planner", "PLANNERS", "register_planner", "APF", "ForceTerm", "saturate", "Weight", "WEIGHTS",
+           "register_weight", "Sight", "Basic", "Direction", "DirectionVelocity"]

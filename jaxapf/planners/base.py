@@ -1,0 +1,87 @@
+"""The planner protocol and its registry.
+
+A planner turns the UAV's state and what it knows of the obstacles into the MPC's reference
+trajectory, ``N + 1`` states for ``x(k..k+N)`` (paper section 2.2), every control step. It is a pair
+of pure functions in the spirit of optax's ``init``/``update``: :meth:`Planner.init` makes the
+state it carries through an episode (``()`` for a memoryless planner), :meth:`Planner.reference`
+maps ``(state, observation)`` to ``(reference, new state)``. Both are traced under ``jit``,
+``vmap`` and ``grad``; the planner object itself is static (a frozen dataclass).
+
+Every planner declares the gains it reads (:attr:`Planner.gains`, traced) and the static
+:class:`~jaxapf.config.PlannerConfig` fields it reads (:attr:`Planner.reads`): settings that differ
+only elsewhere fly the same episodes, which reports use to pair and label settings.
+
+The paper's three methods are potential-field planners (:class:`~jaxapf.planners.apf.APF`); any
+planner registered with :func:`register_planner` becomes a value of ``method`` in sweep specs, the
+CLI and ``jaxapf tune`` (``docs/extending.md``).
+"""
+
+from __future__ import annotations
+
+import abc
+from typing import TYPE_CHECKING, Any
+
+from jax import Array
+
+from ..gains import GainSpec, declare_gains
+from ..registry import Registry
+
+if TYPE_CHECKING:
+    from ..config import SimConfig
+    from ..datatypes import ObstacleColumns, Scenario
+    from ..gains import Gains
+
+__all__ = ["Planner", "PLANNERS", "register_planner"]
+
+
+class Planner(abc.ABC):
+    """A reference generator for the MPC (module docstring).
+
+    Attributes:
+      color, linestyle: how figures draw its runs (matplotlib colour and line style; ``None``:
+        from a palette).
+    """
+
+    color: str | None = None
+    linestyle: str | None = None
+
+    @property
+    def description(self) -> str:
+        """One line about the planner (default: its class docstring's first line)."""
+        doc = (type(self).__doc__ or "").strip()
+        return doc.splitlines()[0] if doc else ""
+
+    @property
+    @abc.abstractmethod
+    def gains(self) -> tuple[GainSpec, ...]:
+        """The traced gains the planner reads."""
+
+    @property
+    def reads(self) -> tuple[str, ...]:
+        """The :class:`~jaxapf.config.PlannerConfig` fields (besides ``method``) the planner reads."""
+        return ()
+
+    def init(self, scenario: "Scenario", gains: "Gains", sim: "SimConfig") -> Any:
+        """The planner's state at the start of an episode (default: none)."""
+        return ()
+
+    @abc.abstractmethod
+    def reference(self, state: Any, x: Array, t: Array, goal: Array, obstacles: "ObstacleColumns",
+                  gains: "Gains", sim: "SimConfig", horizon: int) -> tuple[Array, Any]:
+        """The MPC reference (horizon+1, 6) for ``x(k..k+N)`` from the state ``x = [p, v]`` (6,) at
+        time ``t`` and the obstacles (component-first), and the planner's next state."""
+
+
+def _describe(planner: Planner) -> str:
+    gains = ", ".join(g.name for g in planner.gains)
+    return f"{planner.description} (gains: {gains})" if gains else planner.description
+
+
+#: Registered planners: the values of ``method``.
+PLANNERS: Registry[Planner] = Registry("planner", describe=_describe)
+
+
+def register_planner(name: str, planner: Planner, *, replace: bool = False) -> Planner:
+    """Register ``planner`` as ``method = name`` and declare its gains."""
+    declare_gains(*planner.gains)
+    return PLANNERS.register(name, planner, replace=replace)

@@ -1,0 +1,135 @@
+r"""Repulsive weights ω (paper eq. 14–20): a factor on each obstacle's repulsive potential.
+
+The weighted potential is :math:`U^*_{rep} = \omega\,U_{rep}` (paper eq. 14, 20), and the force is
+``-∇_p`` of it (:mod:`jaxapf.planners.potentials`), so a weight that depends on ``p`` adds the
+sideways term :math:`-U_{rep}\nabla\omega` by itself.
+
+=====================  ===============================================================  ==========
+name                   weight ω                                                         gains
+=====================  ===============================================================  ==========
+``basic``              1                                                                 --
+``direction``          :math:`1 + \gamma (1 + \cos\theta)/2`                   (eq. 15)  γ
+``direction_velocity`` :math:`[1 + \gamma (1 + \cos\theta)/2]\,(2 + k \tanh c)` (eq. 19)  γ, k
+=====================  ===============================================================  ==========
+
+Sign conventions (SPEC 3): with the line of sight ``s = P(p_o - p)`` (UAV to obstacle), ``intent``
+uses :math:`\cos\theta = v\cdot s/(|v|_\epsilon |s|)` and the closing speed
+:math:`c = (v - v_o)\cdot s/|s|` (> 0 when the gap shrinks), as the paper's prose says;
+``literal`` uses its printed :math:`r_e = p - p_o = -s`. :math:`|v|_\epsilon = \sqrt{|v|^2 +
+\epsilon^2}`. The paper's bound ``1 <= ω <= (1+γ)(2+k)`` holds above; below, the true minimum of
+the ``direction_velocity`` weight is ``2 - k`` (< 1 for k > 1, negative for k > 2).
+
+A new weight is a subclass of :class:`Weight` registered with
+:func:`jaxapf.planners.register_weight` (which also registers the potential-field planner that
+uses it).
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+from typing import Any, ClassVar
+
+import jax.numpy as jnp
+from jax import Array
+
+from ..gains import GainSpec
+from ..registry import Registry
+from ..validation import ConfigError
+from .sight import Sight, dot, norm
+
+__all__ = ["GAMMA", "K", "Weight", "WEIGHTS", "Basic", "Direction", "DirectionVelocity", "direction_weight",
+           "velocity_weight"]
+
+GAMMA = GainSpec("gamma", 1.0, low=0.0, symbol="γ",
+                 doc="direction gain γ in ω(θ) = 1 + γ(1 + cos θ)/2 (paper eq. 15)")
+K = GainSpec("k", 0.5, low=0.0, tune_high=1.0, warn_above=1.0,
+             doc="relative-velocity gain k in (2 + k tanh c) (paper eq. 19)",
+             warning="the paper's bound ω >= 1 fails (min ω = 2 - k < 1); for k >= 2 a receding obstacle's "
+                     "'repulsion' becomes attraction")
+
+
+def direction_weight(cos_theta: Array, gamma: Array) -> Array:
+    r"""ω(θ) = 1 + γ (1 + cos θ) / 2 (paper eq. 15); in [1, 1 + γ] for γ >= 0."""
+    return 1.0 + gamma * 0.5 * (1.0 + cos_theta)
+
+
+def velocity_weight(c: Array, k: Array) -> Array:
+    r"""The relative-velocity factor 2 + k tanh(c) of paper eq. 19; in [2 - k, 2 + k]."""
+    return 2.0 + k * jnp.tanh(c)
+
+
+class Weight(abc.ABC):
+    """ω of each obstacle: a pure function of what it sees (:class:`~jaxapf.planners.sight.Sight`)
+    and the gains. Subclasses are frozen dataclasses.
+
+    Attributes:
+      gains: the gains it reads (declared when it is registered).
+      uses_convention: whether it reads ``convention`` (SPEC 3).
+    """
+
+    gains: ClassVar[tuple[GainSpec, ...]] = ()
+    uses_convention: ClassVar[bool] = False
+
+    @abc.abstractmethod
+    def __call__(self, sight: Sight, gains: Any, *, convention: str, eps_v: float) -> Array:
+        """ω per obstacle, broadcasting against the line of sight's components (a scalar is fine)."""
+
+    def bounds(self, gains: Any) -> tuple[Array, Array]:
+        """The true (min, max) of ω over all geometries, where the weight states them."""
+        raise ConfigError(f"the weight {type(self).__name__} does not state its bounds")
+
+
+def _direction(sight: Sight, gamma: Array, convention: str, eps_v: float) -> tuple[Array, tuple, Array]:
+    """ω(θ) and the oriented line of sight with its length (shared by the direction weights)."""
+    s = tuple(-c for c in sight.s) if convention == "literal" else sight.s  # r_e = p - p_o, as printed
+    dist = norm(s)
+    speed = jnp.sqrt(dot(sight.v, sight.v) + eps_v**2)
+    return direction_weight(dot(sight.v, s) / (dist * speed), gamma), s, dist
+
+
+@dataclasses.dataclass(frozen=True)
+class Basic(Weight):
+    """ω = 1: the classical potential (paper eq. 13)."""
+
+    def __call__(self, sight: Sight, gains: Any, *, convention: str, eps_v: float) -> Array:
+        return jnp.ones((), jnp.result_type(sight.v))
+
+    def bounds(self, gains: Any) -> tuple[Array, Array]:
+        return jnp.ones(()), jnp.ones(())
+
+
+@dataclasses.dataclass(frozen=True)
+class Direction(Weight):
+    """ω = 1 + γ(1 + cos θ)/2: obstacles ahead weigh more (paper eq. 15)."""
+
+    gains = (GAMMA,)
+    uses_convention = True
+
+    def __call__(self, sight: Sight, gains: Any, *, convention: str, eps_v: float) -> Array:
+        return _direction(sight, gains.gamma, convention, eps_v)[0]
+
+    def bounds(self, gains: Any) -> tuple[Array, Array]:
+        return jnp.ones_like(gains.gamma), 1.0 + gains.gamma
+
+
+@dataclasses.dataclass(frozen=True)
+class DirectionVelocity(Weight):
+    """ω = [1 + γ(1 + cos θ)/2](2 + k tanh c): ahead and closing weigh more (paper eq. 19)."""
+
+    gains = (GAMMA, K)
+    uses_convention = True
+
+    def __call__(self, sight: Sight, gains: Any, *, convention: str, eps_v: float) -> Array:
+        w, s, dist = _direction(sight, gains.gamma, convention, eps_v)
+        closing = tuple(a - b for a, b in zip(sight.v, sight.v_o))
+        return w * velocity_weight(dot(closing, s) / dist, gains.k)
+
+    def bounds(self, gains: Any) -> tuple[Array, Array]:
+        gamma, k = gains.gamma, gains.k
+        lo = jnp.where(k <= 2.0, 2.0 - k, (1.0 + gamma) * (2.0 - k))
+        return lo, (1.0 + gamma) * (2.0 + k)
+
+
+#: Registered weights, by the name of the planner that uses them.
+WEIGHTS: Registry[Weight] = Registry("weight")
