@@ -1,7 +1,8 @@
-"""The ``jaxapf`` command line: ``simulate``, ``bench``, ``tune``, ``sweep`` and ``report``.
+"""The jaxapf command line: simulate, sweep, report, tune, bench and list.
 
-Configuration errors are reported as one line naming the field and its allowed range, with exit
-status 2; nothing reaches the user as a traceback from inside JAX.
+Choices, gain flags and their help texts come from the registries (planners, filters, plants,
+families, metrics, gains), so a registered component appears here with no edit. Configuration
+errors are reported as one line naming the field and its allowed range, with exit status 2.
 """
 
 from __future__ import annotations
@@ -13,101 +14,90 @@ import sys
 import time
 from typing import Sequence
 
-from .config import METHODS, CONVENTIONS, ConfigError, Gains, MPCConfig, SimConfig, check_int, gains_from_mapping, load_gains
-
 __all__ = ["main", "build_parser"]
 
-_GAIN_FLAGS = {"gamma": "γ", "k": "k", "k_rep": "k_rep", "d_s": "d_s [m]", "k_att": "k_att", "eta": "η"}
+_LISTS = ("planners", "filters", "plants", "families", "metrics", "gains")
 
 
-def _methods(text: str) -> list[str]:
-    methods = [m.strip() for m in text.split(",") if m.strip()]
-    for m in methods:
-        if m not in METHODS:
-            raise argparse.ArgumentTypeError(f"unknown method {m!r}; choose from {', '.join(METHODS)}")
-    if not methods:
-        raise argparse.ArgumentTypeError("give at least one method")
-    return methods
+def _planners(text: str) -> list[str]:
+    """An argparse type: comma-separated registered planners."""
+    from .planners import PLANNERS
+
+    names = [m.strip() for m in text.split(",") if m.strip()]
+    for name in names:
+        if name not in PLANNERS:
+            raise argparse.ArgumentTypeError(f"unknown planner {name!r}; choose from {', '.join(PLANNERS.names())}")
+    if not names:
+        raise argparse.ArgumentTypeError("give at least one planner")
+    return names
 
 
-def _add_planner_flags(p: argparse.ArgumentParser) -> None:
-    g = p.add_argument_group("planner gains (defaults: jaxapf.config.Gains)")
+def _gain_flags(p: argparse.ArgumentParser) -> None:
+    """``--gains FILE`` and one ``--NAME`` flag per declared gain (help from its declaration)."""
+    from .gains import GAINS
+
+    g = p.add_argument_group("gains (default: each gain's declared default; `jaxapf list gains`)")
     g.add_argument("--gains", type=pathlib.Path, metavar="FILE",
-                   help="TOML file with gain values ([gains] table or top-level keys)")
-    for name, label in _GAIN_FLAGS.items():
-        g.add_argument(f"--{name.replace('_', '-')}", dest=name, type=float, metavar="X",
-                       help=f"gain {label}")
-    s = p.add_argument_group("simulation and MPC")
-    s.add_argument("--convention", choices=CONVENTIONS, default="intent")
-    s.add_argument("--dt", type=float, default=0.1, help="control step [s] (default 0.1)")
-    s.add_argument("--t-max", type=float, help="episode length [s] (default: the family's)")
-    s.add_argument("--horizon", type=int, default=MPCConfig.horizon, help="MPC horizon N")
-    s.add_argument("--iters", type=int, default=MPCConfig.iters, help="FISTA iterations per step")
-    s.add_argument("--x64", action="store_true", help="run in float64")
+                   help="TOML file of gain values (a [gains] table or keys at the top level)")
+    for name, spec in GAINS.items():
+        unit = f" [{spec.unit}]" if spec.unit else ""
+        g.add_argument(f"--{name.replace('_', '-')}", dest=f"gain_{name}", type=float, metavar="X",
+                       help=f"{spec.doc}{unit}; default {spec.default:g}")
 
 
-def _gains(args: argparse.Namespace) -> Gains:
+def _gains(args: argparse.Namespace):
+    from .gains import GAINS, Gains, gains_from_mapping, load_gains
+
     base = load_gains(args.gains) if args.gains else Gains()
-    given = {n: getattr(args, n) for n in _GAIN_FLAGS if getattr(args, n) is not None}
+    given = {n: getattr(args, f"gain_{n}") for n in GAINS.names() if getattr(args, f"gain_{n}") is not None}
     return gains_from_mapping(given, where="--", base=base) if given else base
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .config import CONVENTIONS, MPCConfig, SimConfig
+    from .control import FILTERS
+    from .dynamics import PLANTS
+    from .planners import PLANNERS
+    from .scenarios import FAMILIES
+
     parser = argparse.ArgumentParser(prog="jaxapf", description=__doc__.splitlines()[0])
+    parser.add_argument("--plugin", action="append", default=[], metavar="MODULE",
+                        help="import a module (or .py file) that registers components before the command runs "
+                             "(repeatable; docs/extending.md)")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    sim = sub.add_parser("simulate", help="one field, several methods side by side, figures and trajectories")
-    sim.add_argument("--family", default="paper_static",
-                     help="scenario family (paper_static, paper_dynamic, trap, clutter, crossing, head_on, "
-                          "overtake, dynamic); default paper_static")
-    sim.add_argument("--seed", type=int, default=0)
-    sim.add_argument("--field", type=int, default=0, help="field index within the seed")
-    sim.add_argument("--methods", type=_methods, default=["basic", "direction_velocity"],
-                     help="comma-separated methods (default basic,direction_velocity)")
+    sim = sub.add_parser("simulate", help="one field, several planners side by side, figures and trajectories",
+                         description="Run planners on one field and write trajectories, metrics and the paper's "
+                                     "figures.")
+    sim.add_argument("--family", default="paper_static", choices=FAMILIES.names(), metavar="NAME",
+                     help=f"scenario family: {', '.join(FAMILIES.names())} (default paper_static)")
+    sim.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
+    sim.add_argument("--field", type=int, default=0, help="field index within the seed (default 0)")
+    sim.add_argument("--methods", type=_planners, default=["basic", "direction_velocity"],
+                     help=f"comma-separated planners of {', '.join(PLANNERS.names())} (default basic,direction_velocity)")
     sim.add_argument("--out", type=pathlib.Path, default=pathlib.Path("out/simulate"),
                      help="output folder (default out/simulate)")
-    _add_planner_flags(sim)
+    _gain_flags(sim)
+    s = sim.add_argument_group("simulation and MPC")
+    defaults = SimConfig().flat()
+    s.add_argument("--filter", default=defaults["filter"], choices=FILTERS.names(),
+                   help=f"safety filter between the MPC and the plant (default {defaults['filter']})")
+    s.add_argument("--plant", default=defaults["plant"], choices=PLANTS.names(),
+                   help=f"vehicle model (default {defaults['plant']})")
+    s.add_argument("--convention", choices=CONVENTIONS, default=defaults["convention"],
+                   help="sign convention of the direction and velocity weights (default intent)")
+    s.add_argument("--dt", type=float, default=defaults["dt"], help=f"control step [s] (default {defaults['dt']:g})")
+    s.add_argument("--t-max", type=float, help="episode length [s] (default: the family's)")
+    s.add_argument("--horizon", type=int, default=MPCConfig.horizon, help=f"MPC horizon N (default {MPCConfig.horizon})")
+    s.add_argument("--iters", type=int, default=MPCConfig.iters,
+                   help=f"FISTA iterations per step (default {MPCConfig.iters})")
+    s.add_argument("--x64", action="store_true", help="run in float64")
 
-    bench = sub.add_parser("bench", help="engine throughput vs a numpy+OSQP loop")
-    bench.add_argument("--fields", type=int, default=1024)
-    bench.add_argument("--obstacles", type=int, default=16)
-    bench.add_argument("--horizon", type=int, default=20)
-    bench.add_argument("--iters", type=int, default=30)
-    bench.add_argument("--steps", type=int, help="control steps per episode (default 300; 100 with --split)")
-    bench.add_argument("--baseline-fields", type=int, default=3,
-                       help="fields run by the numpy+OSQP loop (0: skip the baseline)")
-    bench.add_argument("--family", default="clutter")
-    bench.add_argument("--chunk", type=int, help="episodes per vmapped chunk (default: 1024 on CPU, 4096 on accelerators)")
-    bench.add_argument("--devices", type=int, default=1,
-                       help="split the fields over N devices (on CPU the host is split into N devices, as "
-                            "`jaxapf sweep` does; default 1)")
-    bench.add_argument("--json", action="store_true", help="print one JSON object")
-    bench.add_argument("--sweep", nargs="?", const="", type=str, metavar="SPEC",
-                       help="instead: end-to-end sweep throughput vs bare evaluate, and the speed-up on 2 CPU "
-                            "devices (SPEC: a sweep spec TOML; default a built-in 2,048-episode study)")
-    bench.add_argument("--fit-cost", action="store_true",
-                       help="instead: fit the per-step cost model behind `jaxapf sweep --dry-run` on this machine")
-    bench.add_argument("--split", action="store_true",
-                       help="instead: where a step's time goes (all obstacle slots and iterations, one obstacle, "
-                            "one iteration, both; --steps defaults to 100), timed interleaved")
-    bench.add_argument("--kernels", action="store_true",
-                       help="instead: picoseconds per element of single elementwise ops (multiply-add, sqrt, "
-                            "divide, tanh) on --fields x --obstacles arrays and transposed, compiled with the "
-                            "shipped XLA options and with XLA's fusion emitters")
-    bench.add_argument("--xla-option", action="append", metavar="KEY=VALUE",
-                       help="instead: time the engine compiled with rollout.XLA_OPTIONS against the same with "
-                            "KEY=VALUE (repeatable), one lowering, runs interleaved, e.g. "
-                            "--xla-option xla_cpu_use_fusion_emitters=true")
-
-    tune = sub.add_parser("tune", help="learn the planner gains by gradient descent through the closed loop "
-                                       "and test them against defaults, grid and random search")
-    tune.add_argument("spec", type=pathlib.Path, help="tune spec TOML (see docs/tune.md)")
-    tune.add_argument("--out", type=pathlib.Path,
-                      help="output folder (default runs/tune-NAME); a checkpoint there is resumed")
-    tune.add_argument("--quiet", action="store_true", help="no progress bar or messages")
+    _add_sweep_parser(sub)
 
     rep = sub.add_parser("report", help="statistics, figures and tables (HTML, Markdown, CSV, LaTeX) from a "
-                                        "sweep's episodes (see docs/report.md)")
+                                        "sweep's episodes (docs/report.md)",
+                         description="Write the statistical report of a sweep's episodes.")
     rep.add_argument("sweep", type=pathlib.Path, help="the sweep's output, runs/NAME.parquet")
     rep.add_argument("--out", type=pathlib.Path, help="output folder (default reports/NAME/)")
     rep.add_argument("--baseline", default="method=basic", metavar="COLUMN=VALUE[,...]",
@@ -125,12 +115,50 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--seed", type=int, default=0, help="bootstrap seed (default 0)")
     rep.add_argument("--profile-metric", default="score",
                      help="metric of the performance profile, higher is better (default score)")
-    _add_sweep_parser(sub)
+
+    tune = sub.add_parser("tune", help="learn the gains by gradient descent through the closed loop and test them "
+                                       "against defaults, grid and random search (docs/tune.md)",
+                          description="Learn gains through the closed loop, then test them on held-out fields.")
+    tune.add_argument("spec", type=pathlib.Path, help="tune spec TOML (see docs/tune.md)")
+    tune.add_argument("--out", type=pathlib.Path,
+                      help="output folder (default runs/tune-NAME); a checkpoint there is resumed")
+    tune.add_argument("--quiet", action="store_true", help="no progress bar or messages")
+
+    bench = sub.add_parser("bench", help="speed: the engine against the numpy + OSQP oracle, and whole sweeps",
+                           description="Measure the engine's and the sweep's speed on this machine.")
+    bsub = bench.add_subparsers(dest="bench", required=True)
+    eng = bsub.add_parser("engine", help="the engine against the numpy + OSQP oracle on the same fields",
+                          description="Time the batched engine and the numpy + OSQP oracle on the same fields, "
+                                      "interleaved in one run.")
+    eng.add_argument("--fields", type=int, default=1024, help="fields in the engine's batch (default 1024)")
+    eng.add_argument("--obstacles", type=int, default=16, help="obstacle slots per field (default 16)")
+    eng.add_argument("--horizon", type=int, default=20, help="MPC horizon N (default 20)")
+    eng.add_argument("--iters", type=int, default=30, help="FISTA iterations (default 30)")
+    eng.add_argument("--steps", type=int, default=300, help="control steps per episode (default 300)")
+    eng.add_argument("--oracle-fields", type=int, default=3,
+                     help="fields run by the numpy + OSQP oracle (default 3; 0: skip it)")
+    eng.add_argument("--family", default="clutter", choices=FAMILIES.names(), metavar="NAME",
+                     help="scenario family (default clutter)")
+    eng.add_argument("--width", type=int, help="vmap width (default: 1024 on CPU, 4096 on accelerators)")
+    eng.add_argument("--devices", type=int, default=1,
+                     help="split the fields over N devices (on CPU the host is split into N devices, as "
+                          "`jaxapf sweep --devices` does; default 1)")
+    eng.add_argument("--json", action="store_true", help="print one JSON object")
+    bsw = bsub.add_parser("sweep", help="the whole sweep path against bare engine calls, and on 2 CPU devices",
+                          description="Time a sweep end to end against bare engine calls on the same work.")
+    bsw.add_argument("spec", nargs="?", type=pathlib.Path,
+                     help="a sweep spec TOML (default: a built-in 2,048-episode study)")
+    bsw.add_argument("--json", action="store_true", help="print one JSON object")
+
+    lst = sub.add_parser("list", help="what is registered: " + ", ".join(_LISTS),
+                         description="Print a registry, one line per entry.")
+    lst.add_argument("what", choices=_LISTS, help="which registry")
     return parser
 
 
 def _add_sweep_parser(sub: argparse._SubParsersAction) -> None:
-    sw = sub.add_parser("sweep", help="run a study stated in a TOML spec into a Parquet dataset (see docs/sweep.md)")
+    sw = sub.add_parser("sweep", help="run a study stated in a TOML spec into a Parquet dataset (docs/sweep.md)",
+                        description="Run a study stated in a TOML spec into a Parquet dataset; a rerun resumes.")
     sw.add_argument("spec", type=pathlib.Path, help="sweep spec TOML, e.g. sweeps/compare-small.toml")
     sw.add_argument("--out", type=pathlib.Path, help="output dataset directory (default runs/NAME.parquet)")
     sw.add_argument("--dry-run", action="store_true",
@@ -162,20 +190,22 @@ def _simulate(args: argparse.Namespace) -> int:
         import jax
 
         jax.config.update("jax_enable_x64", True)
+    from .config import MPCConfig, SimConfig
     from .scenarios import family_params
     from .simulate import format_metrics_table, simulate_runs, write_outputs
 
     gains = _gains(args)
     t_max = args.t_max if args.t_max is not None else family_params(args.family).t_max
-    sim = SimConfig(method=args.methods[0], convention=args.convention, dt=args.dt, t_max=t_max)
+    sim = SimConfig.from_flat(method=args.methods[0], filter=args.filter, plant=args.plant,
+                              convention=args.convention, dt=args.dt, t_max=t_max)
     mpc = MPCConfig(horizon=args.horizon, iters=args.iters)
     start = time.perf_counter()
     field, runs, table = simulate_runs(args.family, args.seed, args.field, args.methods, gains, sim, mpc)
     config = {"command": "simulate", "family": args.family, "seed": args.seed, "field_index": args.field,
-              "methods": args.methods, "gains": {n: float(getattr(gains, n)) for n in Gains.names()},
-              "sim": vars(sim) | {"method": None}, "mpc": vars(mpc)}
+              "methods": args.methods, "gains": gains.floats(), "sim": sim.flat() | {"method": None},
+              "mpc": vars(mpc)}
     paths = write_outputs(args.out, field, runs, table, config)
-    print(f"{field.title}: {sim.steps} steps of {sim.dt:g} s, {len(runs)} methods "
+    print(f"{field.title}: {sim.episode.steps} steps of {sim.episode.dt:g} s, {len(runs)} methods "
           f"in {time.perf_counter() - start:.1f} s")
     print(format_metrics_table(runs))
     print(f"wrote {len(paths)} files to {args.out}/:", ", ".join(p.name for p in paths))
@@ -183,52 +213,31 @@ def _simulate(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from .bench import (compare_xla_options, cost_split, fit_step_cost, format_benchmark, format_cost_split,
-                        format_kernel_cost, format_step_cost, format_sweep_benchmark, format_xla_options,
-                        kernel_cost, parse_xla_option, run_benchmark, run_sweep_benchmark)
+    from .validation import check_int
 
-    if args.fit_cost:
-        result = fit_step_cost()
-        print(json.dumps(result, indent=2) if args.json else format_step_cost(result))
-        return 0
-    if args.kernels:
-        result = kernel_cost(fields=args.fields, obstacles=args.obstacles)
-        print(json.dumps(result, indent=2) if args.json else format_kernel_cost(result))
-        return 0
-    steps = args.steps if args.steps is not None else 100 if args.split else 300
-    if args.split:
-        result = cost_split(fields=args.fields, obstacles=args.obstacles, horizon=args.horizon, iters=args.iters,
-                            steps=steps, family=args.family, chunk=args.chunk)
-        print(json.dumps(result, indent=2) if args.json else format_cost_split(result))
-        return 0
-    if args.xla_option:
-        result = compare_xla_options(dict(parse_xla_option(o) for o in args.xla_option), fields=args.fields,
-                                     obstacles=args.obstacles, horizon=args.horizon, iters=args.iters,
-                                     steps=steps, family=args.family, chunk=args.chunk)
-        print(json.dumps(result, indent=2) if args.json else format_xla_options(result))
-        return 0
-    if args.sweep is not None:
-        from .sweep_spec import read_toml
+    if args.bench == "sweep":
+        from .bench.sweep import format_sweep_benchmark, run_sweep_benchmark
+        from .sweep import read_toml
 
-        result = run_sweep_benchmark(read_toml(args.sweep) if args.sweep else None)
+        result = run_sweep_benchmark(read_toml(args.spec) if args.spec else None)
         print(json.dumps(result, indent=2) if args.json else format_sweep_benchmark(result))
         return 0
+    from .bench.engine import format_benchmark, run_benchmark
 
+    check_int("bench.devices", args.devices, 1)
     if args.devices != 1:
         from .sweep import configure_jax
 
-        check_int("bench.devices", args.devices, 1)
         configure_jax(cpu_devices=args.devices)
-    result = run_benchmark(fields=args.fields, obstacles=args.obstacles, horizon=args.horizon,
-                           iters=args.iters, steps=steps, baseline_fields=args.baseline_fields,
-                           family=args.family, chunk=args.chunk, devices=args.devices)
+    result = run_benchmark(fields=args.fields, obstacles=args.obstacles, horizon=args.horizon, iters=args.iters,
+                           steps=args.steps, oracle_fields=args.oracle_fields, family=args.family, width=args.width,
+                           devices=args.devices)
     print(json.dumps(result, indent=2) if args.json else format_benchmark(result))
     return 0
 
 
 def _tune(args: argparse.Namespace) -> int:
-    from .tune import run_tune
-    from .tune_train import TuneError
+    from .tune import TuneError, run_tune
 
     try:
         run_tune(args.spec, args.out, quiet=args.quiet)
@@ -262,8 +271,8 @@ def _report(args: argparse.Namespace) -> int:
 def _sweep(args: argparse.Namespace) -> int:
     import warnings
 
-    from .sweep import configure_jax, default_cache_dir, dry_run, parse_size, run_sweep
-    from .sweep_spec import load_spec
+    from .sweep import configure_jax, default_cache_dir, dry_run, load_spec, parse_size, run_sweep
+    from .validation import ConfigError, check_int
 
     budget = parse_size(args.memory_budget)
     cluster = {k: v for k, v in (("coordinator_address", args.coordinator), ("num_processes", args.num_processes),
@@ -292,10 +301,44 @@ def _sweep(args: argparse.Namespace) -> int:
     return 0
 
 
+def _list(args: argparse.Namespace) -> int:
+    from .control import FILTERS
+    from .dynamics import PLANTS
+    from .gains import GAINS
+    from .metrics import METRICS
+    from .planners import PLANNERS
+    from .scenarios import FAMILIES
+
+    registry = {"planners": PLANNERS, "filters": FILTERS, "plants": PLANTS, "families": FAMILIES, "metrics": METRICS,
+                "gains": GAINS}[args.what]
+    width = max(len(n) for n in registry.names())
+    for name in registry.names():
+        print(f"{name:<{width}}  {registry.describe(name)}")
+        if args.what in ("planners", "filters", "plants"):
+            for gain in registry.get(name).gains:
+                print(f"{'':<{width}}    {gain.name}: {gain.doc}; default {gain.default:g}; {gain.range_text()}")
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    from .plugins import load_plugin
+    from .validation import ConfigError
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    # plugins register components (and their gain flags) before the parser is built from the registries
+    early = argparse.ArgumentParser(add_help=False)
+    early.add_argument("--plugin", action="append", default=[])
+    known, _ = early.parse_known_args(argv)
+    try:
+        for plugin in known.plugin:
+            load_plugin(plugin, "--plugin")
+    except ConfigError as err:
+        print(f"jaxapf: error: {err}", file=sys.stderr)
+        return 2
     args = build_parser().parse_args(argv)
     try:
-        return {"simulate": _simulate, "bench": _bench, "tune": _tune, "report": _report, "sweep": _sweep}[args.command](args)
+        return {"simulate": _simulate, "bench": _bench, "tune": _tune, "report": _report, "sweep": _sweep,
+                "list": _list}[args.command](args)
     except ConfigError as err:
         print(f"jaxapf {args.command}: error: {err}", file=sys.stderr)
         return 2

@@ -1,15 +1,18 @@
-r"""The "researcher without jaxapf" baseline: the same closed loop in plain numpy + OSQP.
+r"""The numpy + OSQP oracle: the same closed loop, written again the way a researcher without jaxapf would.
 
 This module re-implements :func:`jaxapf.rollout.rollout` independently, the way a controls
 researcher would write it without JAX: one scenario at a time, a Python loop over control steps,
 numpy for the potentials and the APF reference flow, and the MPC QP handed to OSQP and solved to
 tight tolerance. It serves two purposes:
 
-1. **Correctness oracle.** ``tests/test_baseline.py`` requires the JAX engine (float64, many FISTA
-   iterations) to reproduce its trajectories closely, so the engine's potentials, gradients,
+1. **Correctness oracle.** ``tests/bench/test_oracle.py`` requires the JAX engine (float64, many
+   FISTA iterations) to reproduce its trajectories closely, so the engine's potentials, gradients,
    reference flow, condensed MPC and plant are checked against code that shares none of them.
-2. **Speed baseline.** :mod:`jaxapf.bench` times it against the batched engine
-   (``jaxapf bench``).
+2. **A peer for speed.** :mod:`jaxapf.bench.engine` times it against the batched engine
+   (``jaxapf bench engine``).
+
+It knows the paper's three planners on the double integrator with no safety filter (the stack
+the paper describes); it refuses anything else.
 
 Nothing here imports the JAX implementation: every formula is written again from SPEC 3–4.
 
@@ -49,8 +52,10 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from ..validation import check_choice
+
 __all__ = [
-    "baseline_rollout",
+    "oracle_rollout",
     "total_potential",
     "total_force",
     "apf_reference",
@@ -67,7 +72,7 @@ def require_osqp():
         import osqp
     except ImportError as err:  # pragma: no cover - depends on the environment
         raise ImportError(
-            "the jaxapf baseline needs the OSQP solver, which is not installed; "
+            "the numpy + OSQP oracle needs the OSQP solver, which is not installed; "
             'install it with:  pip install "jaxapf[bench]"'
         ) from err
     return osqp
@@ -107,9 +112,9 @@ def _gain_values(gains: Any) -> dict[str, float]:
     names = ("gamma", "k", "k_rep", "d_s", "k_att", "eta")
     out = {}
     for name in names:
-        value = np.asarray(getattr(gains, name), np.float64)
+        value = np.asarray(gains[name], np.float64)
         if value.ndim != 0:
-            raise ValueError(f"baseline_rollout takes one gain setting; gains.{name} has shape {value.shape}")
+            raise ValueError(f"oracle_rollout takes one gain setting; gains.{name} has shape {value.shape}")
         out[name] = float(value)
     return out
 
@@ -142,22 +147,22 @@ def _rep_terms(p, v, t, arrays, gains, sim):
     # clearance d = |P(p - p_o)| - rho - r_uav and its gradient P r/|r| = r/|r| (r is projected)
     r = proj * (p - centres)
     dist, active = _safe_norm(r)
-    d = dist - arrays["radius"] - sim.r_uav
+    d = dist - arrays["radius"] - sim.vehicle.r_uav
     grad_d = r / dist[:, None]
     grad_d[~active] = 0.0  # safe_norm's gradient vanishes below its floor
 
     # U_rep = ½ k_rep (1/d̃ - 1/d_s)² for d̃ <= d_s, d̃ the floored clearance
-    d_fl, slope = _floored(d, sim.d_min)
+    d_fl, slope = _floored(d, sim.planner.d_min)
     inside = d_fl <= gains["d_s"]
     gap = np.where(inside, 1.0 / d_fl - 1.0 / gains["d_s"], 0.0)
     u_rep = 0.5 * gains["k_rep"] * gap * gap
     grad_u = (-gains["k_rep"] * gap / (d_fl * d_fl) * slope)[:, None] * grad_d
 
-    if sim.method == "basic":
+    if sim.planner.method == "basic":
         return u_rep, grad_u, np.ones_like(u_rep), np.zeros_like(grad_u)
 
     # line of sight s = σ P (p_o - p), n = s/|s|;  ∇_p (a·n) = -σ P (a - (a·n) n)/|s| for fixed a
-    sigma = 1.0 if sim.convention == "intent" else -1.0
+    sigma = 1.0 if sim.planner.convention == "intent" else -1.0
     sight = (-sigma) * r  # r = P (p - p_o)
     s_norm, s_active = _safe_norm(sight)
     n = sight / s_norm[:, None]
@@ -167,13 +172,13 @@ def _rep_terms(p, v, t, arrays, gains, sim):
         tangential = a - a_dot_n[:, None] * n * s_active[:, None]
         return scale * tangential
 
-    speed = np.sqrt(v @ v + sim.eps_v**2)
+    speed = np.sqrt(v @ v + sim.planner.eps_v**2)
     v_n = n @ v
     cos_theta = v_n / speed
     half_gamma = 0.5 * gains["gamma"]
     w_dir = 1.0 + half_gamma * (1.0 + cos_theta)
     grad_w_dir = (half_gamma / speed) * grad_dot(v, v_n)
-    if sim.method == "direction":
+    if sim.planner.method == "direction":
         return u_rep, grad_u, w_dir, grad_w_dir
 
     rel = v - arrays["velocity"]
@@ -195,15 +200,15 @@ def _attractive(p, goal, k_att, att_cap):
 
 
 def total_potential(p: np.ndarray, v: np.ndarray, t: float, arrays: dict, gains: dict, sim: Any) -> float:
-    """``U_att + Σ_o ω U_rep`` at ``p`` (numpy; ``arrays``/``gains`` as built by :func:`baseline_rollout`)."""
-    u_att, _ = _attractive(p, arrays["goal"], gains["k_att"], sim.att_cap)
+    """``U_att + Σ_o ω U_rep`` at ``p`` (numpy; ``arrays``/``gains`` as built by :func:`oracle_rollout`)."""
+    u_att, _ = _attractive(p, arrays["goal"], gains["k_att"], sim.planner.att_cap)
     u_rep, _, omega, _ = _rep_terms(p, v, t, arrays, gains, sim)
     return float(u_att + np.sum(np.where(arrays["valid"], omega * u_rep, 0.0)))
 
 
 def total_force(p: np.ndarray, v: np.ndarray, t: float, arrays: dict, gains: dict, sim: Any) -> np.ndarray:
     """Analytic ``-∇_p`` of :func:`total_potential`: ``-∇U_att - Σ_o (ω ∇U_rep + U_rep ∇ω)``."""
-    _, grad_att = _attractive(p, arrays["goal"], gains["k_att"], sim.att_cap)
+    _, grad_att = _attractive(p, arrays["goal"], gains["k_att"], sim.planner.att_cap)
     u_rep, grad_u, omega, grad_omega = _rep_terms(p, v, t, arrays, gains, sim)
     per_obstacle = omega[:, None] * grad_u + u_rep[:, None] * grad_omega
     per_obstacle = np.where(arrays["valid"][:, None], per_obstacle, 0.0)
@@ -223,18 +228,18 @@ def _saturate(u: np.ndarray, limit: float) -> np.ndarray:
 def apf_reference(x: np.ndarray, t: float, arrays: dict, gains: dict, sim: Any, horizon: int) -> np.ndarray:
     """Reference states (N+1, 6) for ``x(k..k+N)``: the saturated gradient flow from ``x`` at ``t``,
     obstacles extrapolated at constant velocity, zero velocity reference (or the flow velocities
-    with ``sim.reference_velocity``)."""
+    with ``sim.planner.reference_velocity``)."""
     p, v = x[:3].copy(), x[3:].copy()
     positions, velocities = [p], [v]
     for i in range(horizon):
-        force = total_force(p, v, t + i * sim.dt, arrays, gains, sim)
-        u = _saturate(gains["eta"] * force, sim.v_max)
-        p, v = p + sim.dt * u, u
+        force = total_force(p, v, t + i * sim.episode.dt, arrays, gains, sim)
+        u = _saturate(gains["eta"] * force, sim.vehicle.v_max)
+        p, v = p + sim.episode.dt * u, u
         positions.append(p)
         velocities.append(u)
     ref = np.zeros((horizon + 1, 6))
     ref[:, :3] = positions
-    if sim.reference_velocity:
+    if sim.planner.reference_velocity:
         ref[:, 3:] = velocities
     return ref
 
@@ -257,8 +262,8 @@ class CondensedMPC:
 
     def __init__(self, mpc: Any, sim: Any, *, eps: float = 1e-7, max_iter: int = 50_000):
         osqp = require_osqp()
-        n, dt = mpc.horizon, sim.dt
-        self.horizon, self.a_max, self.v_max, self.rho = n, sim.a_max, sim.v_max, float(mpc.v_penalty)
+        n, dt = mpc.horizon, sim.episode.dt
+        self.horizon, self.a_max, self.v_max, self.rho = n, sim.vehicle.a_max, sim.vehicle.v_max, float(mpc.v_penalty)
 
         eye3, zero3 = np.eye(3), np.zeros((3, 3))
         a = np.block([[eye3, dt * eye3], [zero3, eye3]])
@@ -349,16 +354,16 @@ def _osqp_major(osqp) -> int:
 # --------------------------------------------------------------------------------------------
 
 
-def baseline_rollout(scenario: Any, gains: Any, sim: Any, mpc: Any, *, eps: float = 1e-7) -> dict[str, np.ndarray]:
+def oracle_rollout(scenario: Any, gains: Any, sim: Any, mpc: Any, *, eps: float = 1e-7) -> dict[str, np.ndarray]:
     """Simulate one episode with numpy + OSQP, exactly the loop of :func:`jaxapf.rollout.rollout`.
 
     Each step ``k`` (``t_k = k Δt``): APF reference from the current state, MPC QP solved by OSQP,
     first acceleration applied, plant stepped exactly (double integrator, piecewise-constant a).
 
     Args:
-      scenario: one :class:`~jaxapf.obstacles.Scenario` (no batch axis); leaves are converted with
+      scenario: one :class:`~jaxapf.datatypes.Scenario` (no batch axis); leaves are converted with
         ``np.asarray`` to float64.
-      gains: one :class:`~jaxapf.config.Gains` setting (scalar leaves).
+      gains: one :class:`~jaxapf.gains.Gains` setting (scalar leaves).
       sim, mpc: :class:`~jaxapf.config.SimConfig`, :class:`~jaxapf.config.MPCConfig`
         (``mpc.iters`` is ignored: OSQP solves each QP to tolerance ``eps``).
       eps: OSQP's ``eps_abs`` and ``eps_rel`` (solution polishing is on).
@@ -368,13 +373,18 @@ def baseline_rollout(scenario: Any, gains: Any, sim: Any, mpc: Any, *, eps: floa
 
     Raises:
       ImportError: OSQP is not installed (``pip install "jaxapf[bench]"``).
+      ConfigError: a planner, filter or plant the oracle does not know.
     """
     require_osqp()
+    known = {"method": ("basic", "direction", "direction_velocity"), "filter": ("none",),
+             "plant": ("double_integrator",)}
+    for key, names in known.items():
+        check_choice(f"sim.{key} (the numpy + OSQP oracle)", sim.flat()[key], names)
     # Padded slots contribute exactly zero (see total_force's mask), so drop them up front.
     arrays = _valid_only(_scenario_arrays(scenario))
     g = _gain_values(gains)
     qp = CondensedMPC(mpc, sim, eps=eps)
-    steps, dt = sim.steps, sim.dt
+    steps, dt = sim.episode.steps, sim.episode.dt
 
     x = np.concatenate([arrays["start"], np.zeros(3)])
     states = np.zeros((steps + 1, 6))

@@ -121,8 +121,8 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
                         "(an interrupted run?); only rows present in both settings are paired")
 
     spec_name = _spec_name(meta, path)
-    groups = groups(sel.data)
-    pooled = groups[-1]
+    names = groups(sel.data)
+    pooled = names[-1]
     versions = meta.get("versions") if isinstance(meta.get("versions"), Mapping) else {}
     n_tests = int(comparisons["p"].notna().sum()) if len(comparisons) else 0
 
@@ -133,7 +133,7 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
         f"sweep: {path} ({len(df)} episodes in the file; {len(sel.data)} reported)",
         f"spec: {spec_name}, spec_hash {meta.get('spec_hash', '–')}, format {meta.get('format')}, "
         f"dtype {meta.get('dtype', '–')}, PRNG {json.dumps(meta.get('prng', {}))}",
-        f"settings reported: {len(sel.settings)}; families: {', '.join(g for g in groups if g != ALL)}; "
+        f"settings reported: {len(sel.settings)}; families: {', '.join(g for g in names if g != ALL)}; "
         f"fields per family: " + ", ".join(f"{f}: {n}" for f, n in
                                           sel.data.groupby("family")["field"].nunique().items()),
         f"filters: {' '.join('--where ' + w for w in options.where) or 'none'}; baseline: {options.baseline} "
@@ -164,7 +164,7 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
 
     doc.h(2, "Rates")
     doc.p(f"Rate in % with the {100 * options.confidence:g} % Wilson score interval, per setting and family"
-          + (f"; '{ALL}' pools the families (episode-weighted)." if ALL in groups else "."))
+          + (f"; '{ALL}' pools the families (episode-weighted)." if ALL in names else "."))
     doc.table(rates_table(summary, rates))
     doc.h(2, "Continuous metrics")
     doc.p("Median and interquartile mean (IQM, mean of the middle 50 %) with percentile bootstrap intervals "

@@ -5,9 +5,9 @@ runs differ only by the planner. The output folder receives
 
 - ``trajectories.parquet``: one row per (method, sample) with time, position, velocity, applied
   control (NaN on the last sample), distance to goal and clearance to every valid obstacle;
-- ``metrics.csv``: one row per method with every metric of SPEC 6;
+- ``metrics.csv``: one row per method with every registered metric;
 - ``run.json``: the configuration, the field and the package versions, so the run can be traced;
-- the figures of :func:`jaxapf.plotting.plot_all` (PNG).
+- the figures of :func:`jaxapf.simulate.figures.plot_all` (PNG).
 """
 
 from __future__ import annotations
@@ -22,21 +22,24 @@ import jax
 import numpy as np
 import pandas as pd
 
-from .config import Gains, MPCConfig, SimConfig
-from .metrics import METRICS, clearance_history, episode_end, episode_metrics
-from .obstacles import Scenario
-from .plotting import Field, Run, plot_all
-from .rollout import XLA_OPTIONS, rollout
-from .scenarios import family_params, make_scenarios
-from .versions import versions
+from ..config import MPCConfig, SimConfig
+from ..datatypes import Scenario
+from ..gains import Gains
+from ..metrics import METRICS, clearance_history, episode_end, episode_metrics
+from ..rollout import XLA_OPTIONS, rollout
+from ..scenarios import family_params, make_scenarios
+from ..versions import versions
+from .figures import Field, Run, plot_all
 
 __all__ = ["simulate_runs", "write_outputs", "format_metrics_table"]
 
+_PYTHON = {"bool": bool, "int32": int, "float": float}
 
-@partial(jax.jit, static_argnames=("sim", "mpc"), compiler_options=XLA_OPTIONS)
-def _episode(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig):
+
+@partial(jax.jit, static_argnames=("sim", "mpc", "metrics"), compiler_options=XLA_OPTIONS)
+def _episode(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, metrics: tuple[str, ...]):
     traj = rollout(scenario, gains, sim, mpc)
-    return (traj, episode_metrics(traj, scenario, sim), clearance_history(traj, scenario, sim),
+    return (traj, episode_metrics(traj, scenario, sim, metrics), clearance_history(traj, scenario, sim),
             episode_end(traj, scenario, sim)["end_index"])
 
 
@@ -47,7 +50,7 @@ def _field(scenario: Scenario, sim: SimConfig, title: str) -> Field:
         start=np.asarray(scenario.start), goal=np.asarray(scenario.goal),
         obstacle_position=obs.position[keep], obstacle_velocity=obs.velocity[keep],
         obstacle_radius=obs.radius[keep], obstacle_cylinder=obs.cylinder[keep],
-        r_uav=sim.r_uav, r_goal=sim.r_goal, d_safe=sim.d_safe, title=title,
+        r_uav=sim.vehicle.r_uav, r_goal=sim.episode.r_goal, d_safe=sim.metrics.d_safe, title=title,
     )
 
 
@@ -63,8 +66,8 @@ def simulate_runs(
 ) -> tuple[Field, list[Run], pd.DataFrame]:
     """Run ``methods`` on field ``field_index`` of ``family`` (seed ``seed``).
 
-    Returns the field, one :class:`~jaxapf.plotting.Run` per method (cut at the episode end)
-    and the long trajectory table.
+    Returns the field, one :class:`~jaxapf.simulate.figures.Run` per method (cut at the episode
+    end; its metrics as Python values of their registered type) and the long trajectory table.
     """
     params = family_params(family, **(scenario_overrides or {}))
     batch = make_scenarios(seed, params, np.array([field_index]))
@@ -73,10 +76,10 @@ def simulate_runs(
     runs, tables = [], []
     for method in methods:
         msim = sim.replace(method=method)
-        traj, metrics, clear, end = jax.device_get(_episode(scenario, gains, msim, mpc))
+        traj, metrics, clear, end = jax.device_get(_episode(scenario, gains, msim, mpc, METRICS.names()))
         n = int(end) + 1
         goal_distance = np.linalg.norm(traj.position - np.asarray(scenario.goal), axis=1)
-        metrics = {k: float(v) if np.ndim(v) == 0 else v for k, v in metrics.items()}
+        metrics = {k: _PYTHON[METRICS.get(k).dtype](v) for k, v in metrics.items()}
         run = Run(label=method, time=traj.time[:n], position=traj.position[:n], velocity=traj.velocity[:n],
                   clearance=clear[:n][:, valid], goal_distance=goal_distance[:n], metrics=metrics)
         runs.append(run)
@@ -95,13 +98,14 @@ def simulate_runs(
 
 
 def format_metrics_table(runs: Sequence[Run]) -> str:
-    """A short fixed-width table: one row per run, the headline metrics as columns."""
-    cols = ["success", "collision", "stalled", "time_to_goal", "min_clearance", "path_ratio",
-            "final_distance", "control_effort", "time_near", "min_ttc", "score"]
-    frame = pd.DataFrame([{c: r.metrics[c] for c in cols} for r in runs], index=[r.label for r in runs])
-    for c in ("success", "collision", "stalled"):
-        frame[c] = frame[c].astype(bool)
-    return frame.to_string(float_format=lambda x: f"{x:.3g}")
+    """A fixed-width table: one row per registered metric (with its unit), one column per run."""
+    def cell(value) -> str:
+        return str(value).lower() if isinstance(value, bool) else f"{value:.3g}" if isinstance(value, float) else str(value)
+
+    names = [n for n in METRICS.names() if all(n in r.metrics for r in runs)]
+    rows = {f"{n} [{METRICS.get(n).unit}]" if METRICS.get(n).unit else n: [cell(r.metrics[n]) for r in runs]
+            for n in names}
+    return pd.DataFrame(rows, index=[r.label for r in runs]).T.to_string()
 
 
 def write_outputs(out: pathlib.Path, field: Field, runs: Sequence[Run], table: pd.DataFrame,
@@ -110,7 +114,7 @@ def write_outputs(out: pathlib.Path, field: Field, runs: Sequence[Run], table: p
     out.mkdir(parents=True, exist_ok=True)
     paths = [out / "trajectories.parquet", out / "metrics.csv", out / "run.json"]
     table.to_parquet(paths[0], index=False)
-    pd.DataFrame([{"method": r.label, **{m: r.metrics[m] for m in METRICS}} for r in runs]).to_csv(
+    pd.DataFrame([{"method": r.label, **{m: r.metrics[m] for m in METRICS if m in r.metrics}} for r in runs]).to_csv(
         paths[1], index=False)
     record = {
         **config,

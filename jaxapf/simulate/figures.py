@@ -14,9 +14,9 @@ file                       content                                              
 ``trajectory_3d.png``      3-D view of each run from two angles                        Fig. 5
 =========================  ==========================================================  =========
 
-Colours are fixed per run label (:func:`run_colors`): the paper's method
-(``direction_velocity``) is blue, ``basic`` orange, ``direction`` purple; obstacles are red and
-the goal green in every figure.
+Colours are fixed per run label (:func:`run_colors`): a registered planner's own colour (the
+paper's method ``direction_velocity`` blue, ``basic`` orange, ``direction`` purple), a spare
+colour otherwise; obstacles are red and the goal green in every figure.
 """
 
 from __future__ import annotations
@@ -48,13 +48,7 @@ __all__ = [
     "plot_all",
 ]
 
-#: Fixed colours for the methods of :data:`jaxapf.config.METHODS`; other labels get the next free
-#: colour of ``_SPARE_COLORS`` in the order the runs are given.
-METHOD_COLORS: dict[str, str] = {
-    "basic": "tab:orange",
-    "direction": "tab:purple",
-    "direction_velocity": "tab:blue",
-}
+#: Colours of labels that are not registered planners with a colour, in the order the runs come.
 _SPARE_COLORS = ("tab:cyan", "tab:brown", "tab:pink", "tab:olive", "tab:gray", "black")
 _OBSTACLE_COLOR = "tab:red"
 _GOAL_COLOR = "tab:green"
@@ -180,16 +174,16 @@ class Field:
 
 
 def run_colors(runs: Sequence[Run]) -> dict[str, str]:
-    """Colour per run label: fixed for the known methods, the next spare colour otherwise."""
+    """Colour per run label: a registered planner's colour, the next spare colour otherwise."""
+    from ..planners import PLANNERS
+
     colors: dict[str, str] = {}
     spare = list(_SPARE_COLORS)
     for run in runs:
         if run.label in colors:
             continue
-        if run.label in METHOD_COLORS:
-            colors[run.label] = METHOD_COLORS[run.label]
-        else:
-            colors[run.label] = spare.pop(0) if spare else "black"
+        own = PLANNERS.get(run.label).color if run.label in PLANNERS else None
+        colors[run.label] = own or (spare.pop(0) if spare else "black")
     return colors
 
 

@@ -46,7 +46,12 @@ Without ``--chunk-fields`` the fields of a (variant, family) are cut into the fe
 chunks that fit ``--memory-budget`` and hold at most :data:`CALLS_PER_PART` vmapped batches per
 device (so parts finish often: progress, resume). Trajectories never leave ``evaluate``.
 
-from .output import OutputLock, prepare_output
+Modules: :mod:`.spec` (the TOML spec), :mod:`.plan` (variants, chunks, estimates), :mod:`.schema`
+(the Parquet layout), :mod:`.output` (the output directory), :mod:`.run` (the runner),
+:mod:`.read` (reading an output back).
+"""
+
+from .output import prepare_output
 from .plan import (CALLS_PER_PART, DEFAULT_MEMORY_BUDGET, STEP_COST_US, Chunk, Plan, Variant, describe_plan, plan_sweep,
                    variants)
 from .read import RowConfig, read_sweep, row_config
@@ -57,6 +62,6 @@ from .spec import MAX_SEED, STATIC_KEYS, RandomRange, Setting, SweepSpec, load_s
 __all__ = [
     "SweepSpec", "Setting", "RandomRange", "load_spec", "parse_spec", "read_toml", "STATIC_KEYS", "MAX_SEED",
     "Plan", "Chunk", "Variant", "variants", "plan_sweep", "describe_plan", "DEFAULT_MEMORY_BUDGET", "CALLS_PER_PART",
-    "STEP_COST_US", "FORMAT", "sweep_meta", "prepare_output", "OutputLock", "run_sweep", "dry_run", "SweepResult",
+    "STEP_COST_US", "FORMAT", "sweep_meta", "prepare_output", "run_sweep", "dry_run", "SweepResult",
     "configure_jax", "default_cache_dir", "parse_size", "read_sweep", "row_config", "RowConfig",
 ]

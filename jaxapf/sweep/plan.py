@@ -55,14 +55,13 @@ CALLS_PER_PART = 256
 PROCESS_BASELINE = 450 * 2**20
 #: Cost model of one episode step [µs of wall time] on one CPU device (float32, vmap width 1024,
 #: XLA spreading the kernels over the cores): ``c0 + c_qp·N·I + c_obs·N·M + c_n·N`` (N horizon,
-#: I FISTA iterations, M obstacle slots), fitted by ``jaxapf bench --fit-cost`` (least squares on
+#: I FISTA iterations, M obstacle slots), fitted by ``benchmarks/fit_cost.py`` (least squares on
 #: 18 configurations, N 10–40, I 10–60, M 4 and 16) on the 2-core AMD EPYC development machine
 #: with the classic loop emitters of ``rollout.XLA_OPTIONS``; the fit is within 0.77–1.46× of
 #: every measurement (two fits in a row agreed within 3 % at N = 20, I = 30, M = 16).
 STEP_COST_US = (3.002, 0.009114, 0.006484, 0.09848)
 #: Cold XLA compile of one evaluate program on that machine [s] (2.5–8 s measured).
 COMPILE_S = 4.0
-#: The PRNG of the fields and of the random gain samples.
 
 _PART = re.compile(r"^part-v(\d{3,})-([a-z_][a-z0-9_]*)-f(\d{8,})-(\d{8,})\.parquet$")
 
@@ -77,14 +76,7 @@ class Variant:
 
     def gains(self, dtype: Any) -> Gains:
         """The variant's gain settings as a batched :class:`Gains` (leading axis G, ``dtype``)."""
-        return _gains({k: np.array([s.gains[k] for s in self.settings], dtype) for k in GAINS.names()})
-
-
-def _gains(values: Mapping[str, Any]) -> Gains:
-    """:class:`Gains` of values the spec's validation already checked (and warned about)."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", BoundWarning)
-        return Gains(**values)
+        return Gains.unchecked({k: np.array([s.gains[k] for s in self.settings], dtype) for k in GAINS.names()})
 
 
 def variants(spec: SweepSpec) -> list[Variant]:
@@ -163,15 +155,15 @@ def _block(sim: SimConfig, mpc: MPCConfig, obstacles: int, settings: int, fields
     the fields are split into the fewest chunks that fit the memory budget and the
     :data:`CALLS_PER_PART` cap, balanced, and each chunk is filled up to its padded size.
     """
-    fits = WIDTH_BUDGET // working_set_bytes(1, sim.steps, obstacles, itemsize)
+    fits = WIDTH_BUDGET // working_set_bytes(1, sim.episode.steps, obstacles, itemsize)
     width = min(width, max(1, 1 << (fits.bit_length() - 1)))
-    fixed = devices * working_set_bytes(width, sim.steps, obstacles, itemsize)
+    fixed = devices * working_set_bytes(width, sim.episode.steps, obstacles, itemsize)
     per_field = settings * episode_bytes(obstacles, itemsize)
     if chunk_fields is None:
         fit = (budget - fixed) // per_field
         if fit < 1:
             raise ConfigError(f"--memory-budget = {budget} bytes is too small: one field of {settings} settings needs "
-                              f"{fixed + per_field} bytes ({sim.steps} steps, {obstacles} obstacle slots)")
+                              f"{fixed + per_field} bytes ({sim.episode.steps} steps, {obstacles} obstacle slots)")
         largest = min(fit, math.ceil(CALLS_PER_PART * width * devices / settings))
         block = math.ceil(fields / math.ceil(fields / largest))
     else:
@@ -203,6 +195,8 @@ class Plan:
       chunks: the chunks still to run, in run order (all processes).
       done: chunks found finished in the output.
       blocks: shapes per (variant index, family).
+      width: the sweep's vmap width.
+      metrics: the metrics every episode yields (the registry's at planning time).
     """
 
     spec: SweepSpec
@@ -214,6 +208,7 @@ class Plan:
     processes: int
     width: int
     dtype: str
+    metrics: tuple[str, ...]
 
     @property
     def settings(self) -> int:
@@ -241,7 +236,7 @@ class Plan:
         run = 0.0
         for c in self.chunks:
             b = self.blocks[(c.variant, c.family)]
-            run += b.settings * b.padded * b.sim.steps * step_cost_us(b.mpc, b.obstacles) * 1e-6
+            run += b.settings * b.padded * b.sim.episode.steps * step_cost_us(b.mpc, b.obstacles) * 1e-6
         programs = len({_program(self.blocks[(c.variant, c.family)]) for c in self.chunks})
         return run / (self.devices * self.processes), programs * COMPILE_S * self.devices
 
@@ -277,7 +272,9 @@ def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: in
             finished = [(c.start, c.stop) for c in done if (c.variant, c.family) == (v.index, family)]
             for lo, hi in _gaps(finished, spec.fields):
                 chunks += [Chunk(v.index, family, a, min(a + block.fields, hi)) for a in range(lo, hi, block.fields)]
-    return Plan(spec, tuple(groups), blocks, tuple(chunks), tuple(done), devices, processes, width, str(dtype))
+    return Plan(spec, tuple(groups), blocks, tuple(chunks), tuple(done), devices, processes, width, str(dtype),
+                METRICS.names())
+
 
 def describe_plan(plan: Plan) -> str:
     """What a run of ``plan`` does (``jaxapf sweep --dry-run``)."""
@@ -302,13 +299,13 @@ def describe_plan(plan: Plan) -> str:
         for family in spec.families:
             b = plan.blocks[(v.index, family)]
             lines.append(f"    v{v.index:03d} {family:<13s} {static}: {b.settings} settings × {b.fields} fields per "
-                         f"chunk (padded {b.padded}), {b.sim.steps} steps, N={b.mpc.horizon}, I={b.mpc.iters}, "
+                         f"chunk (padded {b.padded}), {b.sim.episode.steps} steps, N={b.mpc.horizon}, I={b.mpc.iters}, "
                          f"M={b.obstacles}" + (f", vmap width {b.width}" if b.width != plan.width else ""))
     lines += [
         f"  time estimate:     {format_seconds(run_s)} of simulation + up to {format_seconds(compile_s)} of compilation "
         "(~0 with a warm compilation cache)",
         "                     from a per-step cost model fitted on a 2-core x86-64 CPU (jaxapf.sweep.STEP_COST_US, "
-        "±50 %; `jaxapf bench --fit-cost` refits it here); on accelerators it is only an upper bound",
+        "±50 %; benchmarks/fit_cost.py refits it here); on accelerators it is only an upper bound",
         f"  memory estimate:   {format_bytes(plan.peak_bytes)} per chunk + ~{format_bytes(PROCESS_BASELINE)} for the "
         "process (up to ~1 GiB more while XLA compiles); docs/sweep.md",
     ]

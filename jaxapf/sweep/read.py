@@ -3,14 +3,15 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import pathlib
 from typing import Any, Mapping
 
 from ..config import MPCConfig, SimConfig
 from ..gains import Gains
+from ..scenarios import FamilyParams
 from ..validation import ConfigError, first_line
-from .plan import _gains
 from .schema import identity, read_meta
 from .spec import SweepSpec
 
@@ -38,7 +39,8 @@ def read_sweep(path: str | os.PathLike) -> tuple["pd.DataFrame", dict[str, Any]]
         raise ConfigError(f"{path} is not the output of jaxapf sweep: the directory holds no Parquet part file")
     metas = [read_meta(p) for p in parts]
     if len({json.dumps(identity(m), sort_keys=True) for m in metas}) > 1:
-        raise ConfigError(f"{path} mixes parts of different sweeps (their spec_hash, dtype or vmap_width differ)")
+        raise ConfigError(f"{path} mixes parts of different sweeps (their spec_hash, dtype, vmap_width or metrics "
+                          "differ)")
     try:
         df = pa.concat_tables([pq.read_table(p) for p in parts]).to_pandas()
     except (OSError, pa.ArrowException) as err:
@@ -60,11 +62,11 @@ def read_sweep(path: str | os.PathLike) -> tuple["pd.DataFrame", dict[str, Any]]
 @dataclasses.dataclass(frozen=True)
 class RowConfig:
     """Everything needed to re-simulate one row with :func:`jaxapf.simulate.simulate_runs`:
-    ``simulate_runs(c.family, c.seed, c.field, [c.sim.method], c.gains, c.sim, c.mpc, c.overrides)``
+    ``simulate_runs(c.family, c.seed, c.field, [c.sim.planner.method], c.gains, c.sim, c.mpc, c.overrides)``
     (in float64 if ``c.dtype`` is float64: enable ``jax_enable_x64`` first)."""
 
     family: str
-    params: Any
+    params: FamilyParams
     overrides: Mapping[str, Any]
     seed: int
     field: int
@@ -81,5 +83,5 @@ def row_config(meta: Mapping[str, Any], row: Mapping[str, Any]) -> RowConfig:
     family = str(row["family"])
     sim, mpc = spec.configs(setting.static, family)
     return RowConfig(family=family, params=spec.family_params(family), overrides=dict(spec.params.get(family, {})),
-                         seed=spec.seed, field=int(row["field"]), gains=_gains(setting.gains), sim=sim, mpc=mpc,
-                         dtype=str(meta["dtype"]))
+                     seed=spec.seed, field=int(row["field"]), gains=Gains.unchecked(setting.gains), sim=sim, mpc=mpc,
+                     dtype=str(meta["dtype"]))

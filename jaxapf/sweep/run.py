@@ -89,7 +89,7 @@ class _Devices:
 
     def dispatch(self, chunk: Chunk) -> dict[str, jax.Array]:
         """Start the chunk (asynchronously); returns global (G, padded) metric arrays."""
-        from .scenarios import make_scenarios
+        from ..scenarios import make_scenarios
 
         plan = self.plan
         block = plan.blocks[(chunk.variant, chunk.family)]
@@ -97,7 +97,7 @@ class _Devices:
         indices[: chunk.stop - chunk.start] = np.arange(chunk.start, chunk.stop)
         fields = make_scenarios(plan.spec.seed, plan.spec.family_params(chunk.family), jnp.asarray(indices))
         return self.batch.evaluate(fields, self._variant_gains(plan.variants[chunk.variant]), block.sim, block.mpc,
-                                   block.width)
+                                   block.width, plan.metrics)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -164,7 +164,7 @@ def run_sweep(
                       processes=processes)
     mine = plan.chunks[process::processes]
     out.mkdir(parents=True, exist_ok=True)
-    layout = schema(spec, meta)
+    layout = schema(plan, meta)
     total = plan.episodes_of(mine)
     from tqdm import tqdm
 
@@ -179,7 +179,7 @@ def run_sweep(
             if pending is not None:  # write the previous chunk while this one runs
                 done_chunk, arrays = pending
                 metrics = {m: np.asarray(a) for m, a in arrays.items()}
-                write_part(out, done_chunk.name, part_table(plan, schema, done_chunk, metrics))
+                write_part(out, done_chunk.name, part_table(plan, layout, done_chunk, metrics))
                 written += 1
                 bar.update(plan.episodes_of([done_chunk]))
                 if after_part is not None:

@@ -27,7 +27,7 @@ PRNG = {
     "field_key": "fold_in(key(seed), field)",
     "gain_samples": "bits(key(random.seed), (n, gains), uint32); u = (bits + 0.5) / 2**32",
 }
-
+_ARROW_TYPES = {"bool": "bool_", "int32": "int32"}
 
 
 def static_columns(spec: SweepSpec) -> tuple[str, ...]:
@@ -54,16 +54,18 @@ def _column_type(spec: SweepSpec, key: str):
     return pa.float64()
 
 
-def schema(spec: SweepSpec, meta: Mapping[str, Any]):
+def schema(plan: Plan, meta: Mapping[str, Any]):
+    """The Arrow schema of the plan's rows (docs/sweep-format.md), with ``meta`` as its metadata."""
     import pyarrow as pa
 
+    spec = plan.spec
     float_type = pa.from_numpy_dtype(np.dtype(meta["dtype"]))
     fields = [pa.field("setting", pa.int32()), pa.field("method", pa.string()), pa.field("convention", pa.string())]
-    fields += [pa.field(k, pa.float64()) for k in GAIN_KEYS]
+    fields += [pa.field(k, pa.float64()) for k in spec.gain_columns()]
     fields += [pa.field(k, _column_type(spec, k)) for k in static_columns(spec)]
     fields += [pa.field("family", pa.string()), pa.field("field", pa.int64()), pa.field("seed", pa.int64())]
-    fields += [pa.field(m, pa.bool_() if m in _FLAGS else pa.int32() if m == "steps" else float_type)
-               for m in METRICS]
+    fields += [pa.field(m, getattr(pa, _ARROW_TYPES[METRICS.get(m).dtype])() if METRICS.get(m).dtype in _ARROW_TYPES
+                        else float_type) for m in plan.metrics]
     return pa.schema(fields, metadata={META_KEY: json.dumps(meta, sort_keys=True).encode()})
 
 
@@ -72,7 +74,7 @@ def _cell(value: Any, text: bool) -> Any:
     return json.dumps(list(value) if isinstance(value, tuple) else value) if text else value
 
 
-def part_table(plan: Plan, schema, chunk: Chunk, metrics: Mapping[str, np.ndarray]):
+def part_table(plan: Plan, layout, chunk: Chunk, metrics: Mapping[str, np.ndarray]):
     """The rows of one chunk: settings-major, fields-minor. Every column but the setting index,
     the gains, the field and the metrics is constant within a chunk (one variant, one family)."""
     import pyarrow as pa
@@ -82,20 +84,20 @@ def part_table(plan: Plan, schema, chunk: Chunk, metrics: Mapping[str, np.ndarra
     n = chunk.stop - chunk.start
     rows = n * len(variant.settings)
     static = dict(variant.static)
-    constant = {"method": static.get("method", sim.method), "convention": static.get("convention", sim.convention),
-                "family": chunk.family, "seed": spec.seed}
+    constant = {"method": sim.planner.method, "convention": sim.planner.convention, "family": chunk.family,
+                "seed": spec.seed}
     for k in static_columns(spec):  # only t_max can be unnamed, and it is a SimConfig field
-        constant[k] = _cell(static[k] if k in static else getattr(sim, k), pa.types.is_string(schema.field(k).type))
+        constant[k] = _cell(static[k] if k in static else sim.flat()[k], pa.types.is_string(layout.field(k).type))
     cols: dict[str, Any] = {"setting": np.repeat(np.array([s.index for s in variant.settings], np.int32), n),
                             "field": np.tile(np.arange(chunk.start, chunk.stop, dtype=np.int64), len(variant.settings))}
-    for k in GAIN_KEYS:
+    for k in spec.gain_columns():
         cols[k] = np.repeat(np.array([s.gains[k] for s in variant.settings], np.float64), n)
-    for m in METRICS:
+    for m in plan.metrics:
         cols[m] = np.ascontiguousarray(metrics[m][:, :n]).reshape(-1)
     zeros = pa.array(np.zeros(rows, np.int32))
     arrays = [pa.array([constant[f.name]], f.type).take(zeros) if f.name in constant else pa.array(cols[f.name], f.type)
-              for f in schema]
-    return pa.Table.from_arrays(arrays, schema=schema)
+              for f in layout]
+    return pa.Table.from_arrays(arrays, schema=layout)
 
 
 def read_meta(path: pathlib.Path) -> dict[str, Any]:
@@ -119,14 +121,14 @@ def read_meta(path: pathlib.Path) -> dict[str, Any]:
 
 def identity(meta: Mapping[str, Any]) -> dict[str, Any]:
     """What must match for parts to belong to one sweep (numbers bit for bit)."""
-    return {k: meta.get(k) for k in ("spec_hash", "dtype", "vmap_width")}
+    return {k: meta.get(k) for k in ("spec_hash", "dtype", "vmap_width", "metrics")}
 
 
 def sweep_meta(spec: SweepSpec, plan: Plan) -> dict[str, Any]:
     """The ``jaxapf`` metadata of every part (docs/sweep-format.md)."""
-    from .versions import versions
+    from ..versions import versions
 
     return {"format": FORMAT, "spec": spec.to_json(), "spec_hash": spec.hash, "versions": versions(),
-            "prng": PRNG, "dtype": plan.dtype, "vmap_width": plan.width}
+            "prng": PRNG, "dtype": plan.dtype, "vmap_width": plan.width, "metrics": list(plan.metrics)}
 
 

@@ -27,15 +27,19 @@ penetration keeps being penalised.
 
 Reparametrisation
 -----------------
-The optimiser works on unconstrained reals ``θ``; gains are always in range by construction:
+The optimiser works on unconstrained reals ``θ``; gains are always in their declared range
+(:class:`~jaxapf.gains.GainSpec`) by construction. A gain with lower end ``a`` and an upper end
+``b`` for tuning (the tune spec's ``[tune] upper``, else its ``tune_high``, within its own range) is
+``a + (b - a)·σ(θ)``; one with only a lower end is ``a + f + softplus(θ)`` with ``f`` =
+:data:`OPEN_FLOOR` if the range is open at ``a`` (the gain must stay > a even where softplus
+underflows to 0), else 0; one with no bound is ``θ``. For the paper's gains:
 
 .. math::
    \gamma = \mathrm{softplus}(\theta_\gamma) \ge 0, \qquad
-   k = k_{max}\,\sigma(\theta_k) \in [0, k_{max}] \ (\text{softplus if } k_{max} = \infty), \qquad
-   x = x_{min} + \mathrm{softplus}(\theta_x) \ \text{for } x \in \{k_{rep}, d_s, k_{att}, \eta\}
+   k = k_{max}\,\sigma(\theta_k) \in [0, k_{max}], \qquad
+   x = 10^{-3} + \mathrm{softplus}(\theta_x) \ \text{for } x \in \{k_{rep}, d_s, k_{att}, \eta\}
 
-with ``x_min`` = :data:`POSITIVE_FLOOR` (those gains must be > 0 even where ``softplus``
-underflows to 0). ``k_max = 1`` (default) keeps the paper's bound ``ω >= 1`` (SPEC 3).
+with ``k_max = 1`` by default, which keeps the paper's bound ``ω >= 1`` (SPEC 3).
 """
 
 from __future__ import annotations
@@ -49,14 +53,15 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from .config import ConfigError, Gains, SimConfig, check_range
-from .metrics import clearance_history
-from .obstacles import Scenario, safe_norm
-from .trajectory import Trajectory
+from ..config import SimConfig
+from ..datatypes import Scenario, Trajectory, safe_norm
+from ..gains import GAINS, Gains, check_gain_name
+from ..metrics import clearance_history
+from ..validation import ConfigError, check_range
 
 __all__ = [
     "TERMS",
-    "POSITIVE_FLOOR",
+    "OPEN_FLOOR",
     "Objective",
     "smooth_min",
     "surrogate_terms",
@@ -67,8 +72,8 @@ __all__ = [
 #: Names of the surrogate terms, in the order of the loss.
 TERMS: tuple[str, ...] = ("soft_collision", "progress", "effort")
 
-#: Lower bound added to softplus for the gains that must be strictly positive.
-POSITIVE_FLOOR: Mapping[str, float] = {"k_rep": 1e-3, "d_s": 1e-3, "k_att": 1e-3, "eta": 1e-3}
+#: Added to the lower end of a gain whose range is open there (e.g. ``k_rep > 0``).
+OPEN_FLOOR = 1e-3
 
 
 @dataclasses.dataclass(frozen=True)
@@ -112,11 +117,11 @@ def smooth_min(x: Array, valid: Array, tau: float) -> Array:
 def surrogate_terms(traj: Trajectory, scenario: Scenario, sim: SimConfig, objective: Objective) -> dict[str, Array]:
     """The terms ``C``, ``P``, ``E`` of the module docstring for one episode (scalars, keyed by
     :data:`TERMS`: ``soft_collision``, ``progress``, ``effort``)."""
-    dt, tau = sim.dt, objective.tau
+    dt, tau = sim.episode.dt, objective.tau
     clear = clearance_history(traj, scenario, sim)[1:]  # (T, M), +inf on padded slots
     soft = smooth_min(clear, scenario.obstacles.valid, tau)
     hinge = tau * jax.nn.softplus((objective.d_safe - soft) / tau)
-    length = jnp.maximum(jnp.linalg.norm(scenario.goal - scenario.start), sim.r_goal)
+    length = jnp.maximum(jnp.linalg.norm(scenario.goal - scenario.start), sim.episode.r_goal)
     distance = safe_norm(traj.position[1:] - scenario.goal)
     return {
         "soft_collision": dt * jnp.sum(hinge),
@@ -143,60 +148,88 @@ def _softplus_inverse(y: float) -> float:
 @dataclasses.dataclass(frozen=True)
 class Reparam:
     r"""Map between unconstrained parameters ``θ`` (a dict ``{gain name: scalar}`` over
-    ``names``) and :class:`Gains` (module docstring). Gains not in ``names`` stay at ``base``.
+    ``names``) and :class:`~jaxapf.gains.Gains` (module docstring). Gains not in ``names`` stay at
+    ``base``.
 
     Attributes:
-      names: the tuned gains, a subset of :meth:`Gains.names` in that order.
+      names: the tuned gains, declared tunable gains, in declaration order.
       base: the gains the untuned entries keep (and the tuned ones start from).
-      k_max: upper bound of ``k`` (``math.inf``: ``k = softplus(θ_k)``, unbounded).
+      upper: ``(gain, b)`` pairs overriding the upper end ``b`` of a gain's map (``inf``: unbounded).
     """
 
     names: tuple[str, ...]
     base: Gains
-    k_max: float = 1.0
+    upper: tuple[tuple[str, float], ...] = ()
 
     def __post_init__(self) -> None:
-        unknown = [n for n in self.names if n not in Gains.names()]
-        if unknown:
-            raise ConfigError(f"tune.params: {unknown[0]!r} is not a gain; allowed: {', '.join(Gains.names())}")
+        for name in self.names:
+            spec = check_gain_name("tune.params", name)
+            if not spec.tunable:
+                raise ConfigError(f"tune.params: {name!r} is not a tunable gain")
         if not self.names or len(set(self.names)) != len(self.names):
             raise ConfigError(f"tune.params = {list(self.names)!r} must list one or more distinct gains")
-        object.__setattr__(self, "names", tuple(n for n in Gains.names() if n in self.names))
-        if self.k_max != math.inf:
-            object.__setattr__(self, "k_max", float(check_range("tune.k_max", self.k_max, 0.0, lo_open=True)))
+        object.__setattr__(self, "names", tuple(n for n in GAINS.names() if n in self.names))
+        upper = []
+        for name, value in self.upper:
+            check_gain_name("tune.upper", name)
+            if value != math.inf:
+                value = float(check_range(f"tune.upper.{name}", value))
+            upper.append((name, value))
+        object.__setattr__(self, "upper", tuple(upper))
+        for name in self.names:
+            low, high = self.bounds(name)
+            if high is not None and (low is None or high <= low):
+                raise ConfigError(f"tune.upper.{name} = {high!r} must lie above the gain's lower end {low!r}")
 
-    def _positive(self, name: str, theta: Array) -> Array:
-        return POSITIVE_FLOOR.get(name, 0.0) + jax.nn.softplus(theta)
+    def bounds(self, name: str) -> tuple[float | None, float | None]:
+        """``(a, b)``: the lower end and the tuning upper end (``None``: unbounded) of gain ``name``."""
+        spec = GAINS.get(name)
+        high = dict(self.upper).get(name, spec.tune_high)
+        if spec.high is not None:
+            high = spec.high if high is None or high == math.inf else min(high, spec.high)
+        return spec.low, None if high is None or high == math.inf else high
+
+    def _floor(self, name: str) -> float:
+        spec = GAINS.get(name)
+        return spec.low + (OPEN_FLOOR if spec.low_open else 0.0)
 
     def gains(self, theta: Mapping[str, Array]) -> Gains:
         """The gains of ``θ`` (differentiable; always inside their allowed ranges)."""
         values = {}
         for name in self.names:
-            if name == "k" and self.k_max != math.inf:
-                values[name] = self.k_max * jax.nn.sigmoid(theta[name])
+            low, high = self.bounds(name)
+            if high is not None:
+                value = (high - low) * jax.nn.sigmoid(theta[name])
+                values[name] = low + value if low else value
+            elif low is not None:
+                values[name] = self._floor(name) + jax.nn.softplus(theta[name])
             else:
-                values[name] = self._positive(name, theta[name])
+                values[name] = theta[name]
         return self.base.replace(**values)
 
     def theta(self, gains: Gains, dtype=None) -> dict[str, Array]:
         """The ``θ`` of ``gains`` (the inverse of :meth:`gains` on the tuned entries).
 
         Raises :class:`ConfigError` if a tuned gain lies outside the open image of its map (e.g.
-        ``k`` not strictly inside ``(0, k_max)``, ``γ = 0``), where no finite ``θ`` reaches it.
+        ``k`` not strictly inside ``(0, upper)``, ``γ = 0``), where no finite ``θ`` reaches it.
         """
         dtype = dtype or jnp.result_type(float)
         theta = {}
         for name in self.names:
-            value = float(np.asarray(getattr(gains, name)))
-            if name == "k" and self.k_max != math.inf:
-                if not 0.0 < value < self.k_max:
-                    raise ConfigError(f"init.k = {value!r} must lie strictly inside (0, tune.k_max = {self.k_max:g}) "
-                                      "to be tuned (k = k_max·sigmoid(θ))")
-                theta[name] = math.log(value / (self.k_max - value))
-            else:
-                floor = POSITIVE_FLOOR.get(name, 0.0)
+            value = float(np.asarray(gains[name]))
+            low, high = self.bounds(name)
+            if high is not None:
+                if not low < value < high:
+                    raise ConfigError(f"init.{name} = {value!r} must lie strictly inside ({low:g}, {high:g}) to be "
+                                      f"tuned ({name} = {low:g} + ({high:g} - {low:g})·sigmoid(θ))")
+                u = (value - low) / (high - low)
+                theta[name] = math.log(u / (1.0 - u))
+            elif low is not None:
+                floor = self._floor(name)
                 if not value > floor:
                     raise ConfigError(f"init.{name} = {value!r} must be > {floor:g} to be tuned "
                                       f"({name} = {floor:g} + softplus(θ))")
                 theta[name] = _softplus_inverse(value - floor)
+            else:
+                theta[name] = value
         return {n: jnp.asarray(v, dtype) for n, v in theta.items()}

@@ -26,19 +26,16 @@ import pathlib
 import time
 from typing import Mapping, Sequence
 
-import matplotlib
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-
-from . import stats  # noqa: E402
-from .config import Gains  # noqa: E402
-from .metrics import METRICS  # noqa: E402
-from .objective import TERMS  # noqa: E402
-from .tune_spec import TuneSpec, split_count  # noqa: E402
-from .tune_train import TrainState, Tuner, TuneError  # noqa: E402
+from .. import stats
+from ..gains import Gains
+from ..metrics import METRICS
+from .objective import TERMS
+from .spec import TuneSpec, split_count
+from .train import TrainState, Tuner, TuneError
 
 __all__ = [
     "SETTINGS",
@@ -66,18 +63,20 @@ def tuning_budget(spec: TuneSpec, state: TrainState) -> dict[str, int]:
 
 def random_settings(spec: TuneSpec) -> list[Gains]:
     r"""``random_n`` settings: every tuned gain ``x`` log-uniform in ``[x_0/r, x_0 r]`` around its
-    start ``x_0`` (``r`` = ``random_range``), except a bounded ``k``: uniform in ``[0, k_max]``.
-    Untuned gains stay at their start values. Deterministic in ``random_seed``."""
-    b, rp = spec.baselines, spec.reparam
+    start ``x_0`` (``r`` = ``random_range``), except one whose tuning range is bounded (e.g. ``k``
+    in ``[0, 1]``): uniform over it. Untuned gains stay at their start values. Deterministic in
+    ``random_seed``."""
+    b, rp = spec.search, spec.reparam
     rng = np.random.default_rng(b.random_seed)
     settings = []
     for _ in range(b.random_n):
         values = {}
         for name in rp.names:
-            if name == "k" and math.isfinite(rp.k_max):
-                values[name] = float(rng.uniform(0.0, rp.k_max))
+            low, high = rp.bounds(name)
+            if high is not None:
+                values[name] = float(rng.uniform(low, high))
             else:
-                start = float(getattr(rp.base, name))
+                start = float(rp.base[name])
                 values[name] = start * math.exp(rng.uniform(-math.log(b.random_range), math.log(b.random_range)))
         settings.append(rp.base.replace(**values))
     return settings
@@ -93,7 +92,7 @@ def select_best(tuner: Tuner, settings: Sequence[Gains], budget: int, label: str
     families = spec.train.families
     per = budget // len(settings)
     if per < len(families):
-        raise TuneError(f"baselines: the {label} search has {len(settings)} settings but the tuning budget of "
+        raise TuneError(f"search: the {label} search has {len(settings)} settings but the tuning budget of "
                         f"{budget} episodes gives {per} fields per setting, fewer than the {len(families)} "
                         "training families; use fewer settings or more training steps")
     start = time.perf_counter()
@@ -117,7 +116,7 @@ def test_episodes(tuner: Tuner, candidates: Mapping[str, Gains]) -> pd.DataFrame
         group = list(group)
         r = tuner.report(tuner.fields(t.seed, [t.fields] * len(group), families=group), list(candidates.values()))
         for g, setting in enumerate(candidates):
-            frame = pd.DataFrame({k: r[k][g] for k in METRICS + TERMS + ("loss",)})
+            frame = pd.DataFrame({k: r[k][g] for k in METRICS.names() + TERMS + ("loss",)})
             frame.insert(0, "setting", setting)
             frame.insert(0, "field", np.tile(np.arange(t.fields), len(group)))
             frame.insert(0, "family", np.repeat(group, t.fields))
@@ -164,7 +163,8 @@ def plot_training(history: pd.DataFrame, clip: float, path: pathlib.Path) -> Non
     collision rates."""
     train = history[history.step > 0]
     val = history[np.isfinite(history.val_loss)]
-    fig, ax = plt.subplots(2, 2, figsize=(11, 7.5), constrained_layout=True)
+    fig = Figure(figsize=(11, 7.5), layout="constrained")
+    ax = fig.subplots(2, 2)
     ax[0, 0].plot(train.step, train.loss, lw=0.8, alpha=0.6, label="training batch")
     ax[0, 0].plot(val.step, val.val_loss, "o-", label="validation set")
     ax[0, 0].set(title="surrogate loss J", xlabel="step")
@@ -189,13 +189,13 @@ def plot_training(history: pd.DataFrame, clip: float, path: pathlib.Path) -> Non
         a.legend(fontsize=7)
         a.grid(alpha=0.3)
     fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def plot_test(table: pd.DataFrame, title: str, path: pathlib.Path) -> None:
     """Success and collision rates per test family and setting with Wilson 95 % intervals."""
     families = list(dict.fromkeys(table.family))
-    fig, ax = plt.subplots(2, 1, figsize=(max(7.0, 1.4 * len(families)), 6.5), constrained_layout=True, sharex=True)
+    fig = Figure(figsize=(max(7.0, 1.4 * len(families)), 6.5), layout="constrained")
+    ax = fig.subplots(2, 1, sharex=True)
     width = 0.8 / len(SETTINGS)
     x = np.arange(len(families))
     for i, setting in enumerate(SETTINGS):
@@ -210,7 +210,6 @@ def plot_test(table: pd.DataFrame, title: str, path: pathlib.Path) -> None:
     ax[0].set_title(title)
     ax[1].set_xticks(x, families)
     fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def candidates(tuned: Gains, grid: Gains, random: Gains) -> dict[str, Gains]:

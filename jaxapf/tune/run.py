@@ -1,11 +1,11 @@
 """``jaxapf tune SPEC.toml --out DIR``: learn the planner gains, then prove them on held-out fields.
 
-Steps (each in its own module): validate the spec (:mod:`jaxapf.tune_spec`); train or resume
-(:mod:`jaxapf.tune_train`); give a grid and a random search the same episode budget and test all
-settings on held-out fields with paired statistics (:mod:`jaxapf.tune_proof`). ``DIR`` receives
+Steps (each in its own module): validate the spec (:mod:`jaxapf.tune.spec`); train or resume
+(:mod:`jaxapf.tune.train`); give a grid and a random search the same episode budget and test all
+settings on held-out fields with paired statistics (:mod:`jaxapf.tune.proof`). ``DIR`` receives
 
 - ``gains.toml``: the tuned gains as a ``[gains]`` table (``jaxapf simulate --gains``,
-  ``jaxapf sweep --gains``, :func:`jaxapf.config.load_gains`);
+  ``jaxapf sweep --gains``, :func:`jaxapf.gains.load_gains`);
 - ``summary.json``: resolved spec, spec file text, versions, the four gain settings, training
   outcome, episode budgets and wall-clock times, the test table;
 - ``history.csv``: one row per step (training batch loss, terms, gradient norm, learning rate) and
@@ -26,11 +26,11 @@ from typing import Any
 
 import pandas as pd
 
-from .tune_proof import (SETTINGS, candidates, comparison_table, plot_test, plot_training, random_settings,
-                         select_best, test_episodes, tuning_budget)
-from .tune_spec import TuneSpec, load_tune_spec
-from .tune_train import HISTORY_COLUMNS, TrainState, Tuner, gains_dict
-from .versions import versions
+from ..versions import versions
+from .proof import (SETTINGS, candidates, comparison_table, plot_test, plot_training, random_settings, select_best,
+                    test_episodes, tuning_budget)
+from .spec import TuneSpec, load_tune_spec
+from .train import HISTORY_COLUMNS, TrainState, Tuner
 
 __all__ = ["run_tune", "run_tune_spec", "write_gains_toml", "format_table"]
 
@@ -100,14 +100,14 @@ def run_tune_spec(spec: TuneSpec, text: str, out: str | pathlib.Path, *, quiet: 
     history.to_csv(out / "history.csv", index=False)
     plot_training(history, spec.train.clip, out / "training.png")
     tuned = spec.reparam.gains(state.best_theta)
-    write_gains_toml(out / "gains.toml", gains_dict(tuned),
+    write_gains_toml(out / "gains.toml", tuned.floats(),
                      f"jaxapf tune {spec.name}: gains of the best validation loss "
                      f"({state.best_val_loss:.6g}, step {state.best_step} of {state.step})")
     _say(quiet, f"trained {state.step} steps in {state.train_seconds:.1f} s; best validation loss "
                 f"{state.best_val_loss:.4g} at step {state.best_step}")
 
     budget = tuning_budget(spec, state)
-    grid = select_best(tuner, spec.baselines.grid_settings(spec.init), budget["episodes"], "grid")
+    grid = select_best(tuner, spec.search.grid_settings(spec.init), budget["episodes"], "grid")
     _say(quiet, f"grid search: {grid['settings']} settings x {grid['fields_per_setting']} fields "
                 f"in {grid['seconds']:.1f} s")
     rand = select_best(tuner, random_settings(spec), budget["episodes"], "random")
@@ -128,7 +128,7 @@ def run_tune_spec(spec: TuneSpec, text: str, out: str | pathlib.Path, *, quiet: 
         "spec": spec.as_dict(),
         "spec_file": text,
         "versions": versions(),
-        "gains": {label: gains_dict(g) for label, g in settings.items()},
+        "gains": {label: g.floats() for label, g in settings.items()},
         "training": _training_summary(spec, state),
         "budgets": {"tuning": budget | {"seconds": state.train_seconds},
                     **{name: {k: v for k, v in sel.items() if k != "gains"}

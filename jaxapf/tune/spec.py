@@ -22,11 +22,17 @@ from typing import Any, Mapping
 import jax.numpy as jnp
 import optax
 
-from .config import (BoundWarning, ConfigError, Gains, MPCConfig, SimConfig, check_choice, check_int, check_range,
-                     gains_from_mapping, validate_gains)
+from ..config import MPC_KEYS, SIM_KEYS, MPCConfig, SimConfig
+from ..control import FILTERS
+from ..dynamics import PLANTS
+from ..gains import GAINS, Gains, check_gain_name, gains_from_mapping
+from ..planners import PLANNERS
+from ..plugins import check_plugins, load_plugins
+from ..scenarios import FAMILIES, FamilyParams
+from ..sweep.spec import COMPONENT_KEYS, check_value, spec_family_params
+from ..validation import (BoundWarning, ConfigError, check_bool, check_choice, check_int, check_names, check_range,
+                          check_table)
 from .objective import Objective, Reparam
-from .scenarios import FAMILIES, FamilyParams
-from .sweep_spec import spec_family_params
 
 __all__ = [
     "SCHEDULES",
@@ -34,7 +40,7 @@ __all__ = [
     "SECTIONS",
     "TrainSpec",
     "FieldSetSpec",
-    "BaselineSpec",
+    "SearchSpec",
     "TuneSpec",
     "load_tune_spec",
     "parse_tune_spec",
@@ -49,21 +55,17 @@ TEST_FAMILIES: tuple[str, ...] = ("trap", "crossing", "head_on", "overtake", "cl
 #: Learning-rate schedules: constant, cosine decay to 0 over ``steps``, linear warm-up then cosine.
 SCHEDULES: tuple[str, ...] = ("constant", "cosine", "warmup_cosine")
 
-_SIM_KEYS = tuple(f.name for f in dataclasses.fields(SimConfig))
-_MPC_KEYS = tuple(f.name for f in dataclasses.fields(MPCConfig))
-
 #: Allowed keys of every section (``scenario`` holds one sub-table per family).
 SECTIONS: Mapping[str, tuple[str, ...]] = {
-    "": ("name", "train", "validation", "test", "objective", "init", "tune", "sim", "scenario", "baselines"),
+    "": ("name", "plugins", "train", "validation", "test", "objective", "init", "tune", "sim", "scenario", "search"),
     "train": ("families", "fields_per_step", "steps", "seed", "optimizer", "learning_rate", "schedule",
               "warmup_steps", "clip", "episode_clip", "patience", "validate_every", "remat"),
     "validation": ("fields", "seed"),
     "test": ("families", "fields", "seed"),
     "objective": tuple(f.name for f in dataclasses.fields(Objective)),
-    "init": Gains.names(),
-    "tune": ("params", "k_max"),
-    "sim": _SIM_KEYS + _MPC_KEYS,
-    "baselines": ("grid", "random_n", "random_range", "random_seed"),
+    "tune": ("params", "upper"),
+    "sim": SIM_KEYS + MPC_KEYS,
+    "search": ("grid", "random_n", "random_range", "random_seed"),
 }
 
 
@@ -142,10 +144,11 @@ class FieldSetSpec:
 
 
 @dataclasses.dataclass(frozen=True)
-class BaselineSpec:
-    """``[baselines]``: the grid (product of per-gain value lists) and random search (``random_n``
-    settings, each tuned gain log-uniform in ``[x0/random_range, x0·random_range]`` around its
-    start value ``x0``; ``k`` uniform in ``[0, k_max]`` when bounded)."""
+class SearchSpec:
+    """``[search]``: the searches tuning is compared with under the same budget: a grid (product of
+    per-gain value lists) and a random search (``random_n`` settings, each tuned gain log-uniform in
+    ``[x0/random_range, x0·random_range]`` around its start value ``x0``, or uniform over its tuning
+    range when that is bounded, e.g. ``k`` in ``[0, 1]``)."""
 
     grid: tuple[tuple[str, tuple[float, ...]], ...] = (("gamma", (0.5, 1.0, 2.0, 4.0)), ("k", (0.0, 0.5, 1.0)))
     random_n: int = 32
@@ -155,7 +158,7 @@ class BaselineSpec:
     def grid_settings(self, base: Gains) -> list[Gains]:
         """Every grid point (product in the order of the spec), on top of ``base``."""
         names = [n for n, _ in self.grid]
-        return [gains_from_mapping(dict(zip(names, values)), "baselines.grid", base)
+        return [gains_from_mapping(dict(zip(names, values)), "search.grid", base)
                 for values in itertools.product(*(v for _, v in self.grid))]
 
 
@@ -166,6 +169,7 @@ class TuneSpec:
     ``[scenario.params.FAMILY]`` overrides), shared by training, validation and test."""
 
     name: str
+    plugins: tuple[str, ...]
     train: TrainSpec
     validation: FieldSetSpec
     test: FieldSetSpec
@@ -175,7 +179,7 @@ class TuneSpec:
     sim: SimConfig
     mpc: MPCConfig
     scenario: tuple[tuple[str, FamilyParams], ...]
-    baselines: BaselineSpec
+    search: SearchSpec
 
     def family(self, name: str) -> FamilyParams:
         """The scenario parameters of family ``name``."""
@@ -184,6 +188,8 @@ class TuneSpec:
     def as_dict(self) -> dict[str, Any]:
         """The resolved spec (every default filled in) as plain JSON types."""
         def plain(x: Any) -> Any:
+            if isinstance(x, Gains):
+                return x.floats()
             if dataclasses.is_dataclass(x):
                 return {f.name: plain(getattr(x, f.name)) for f in dataclasses.fields(x)}
             if isinstance(x, (list, tuple)):
@@ -193,7 +199,8 @@ class TuneSpec:
             return x
 
         out = plain(self)
-        out["baselines"]["grid"] = {n: list(v) for n, v in self.baselines.grid}
+        out["search"]["grid"] = {n: list(v) for n, v in self.search.grid}
+        out["reparam"]["upper"] = dict(self.reparam.upper)
         out["scenario"] = {f: plain(p) | {"family": f} for f, p in self.scenario}
         return out
 
@@ -217,27 +224,13 @@ class TuneSpec:
 
 
 def _table(data: Any, where: str) -> dict[str, Any]:
-    if not isinstance(data, dict):
-        raise ConfigError(f"{where or 'spec'} must be a table")
-    allowed = SECTIONS[where]
-    unknown = sorted(set(data) - set(allowed))
-    if unknown:
-        name = f"{where}.{unknown[0]}" if where else unknown[0]
-        raise ConfigError(f"{name} is not a key of {'[' + where + ']' if where else 'the spec'}; "
-                          f"allowed: {', '.join(allowed)}")
-    return data
+    return check_table(where, data, SECTIONS[where])
 
 
 def _float(where: str, value: Any, lo: float | None = None, *, lo_open: bool = False) -> float:
     if isinstance(value, bool):
         raise ConfigError(f"{where} = {value!r} must be a number")
     return float(check_range(where, value, lo, lo_open=lo_open))
-
-
-def _bool(where: str, value: Any) -> bool:
-    if not isinstance(value, bool):
-        raise ConfigError(f"{where} = {value!r} must be true or false")
-    return value
 
 
 def _episode_clip(value: Any) -> float:
@@ -248,12 +241,7 @@ def _episode_clip(value: Any) -> float:
 
 
 def _families(where: str, value: Any) -> tuple[str, ...]:
-    names = list(value) if isinstance(value, (list, tuple)) else [value]
-    for name in names:
-        check_choice(where, name, FAMILIES)
-    if not names or len(set(names)) != len(names):
-        raise ConfigError(f"{where} = {value!r} must list one or more distinct families of {', '.join(FAMILIES)}")
-    return tuple(names)
+    return check_names(where, value, FAMILIES.names(), what="family")
 
 
 def _train(data: dict[str, Any]) -> TrainSpec:
@@ -273,7 +261,7 @@ def _train(data: dict[str, Any]) -> TrainSpec:
         episode_clip=_episode_clip(get("episode_clip")),
         patience=check_int("train.patience", get("patience"), 1),
         validate_every=check_int("train.validate_every", get("validate_every"), 1),
-        remat=_bool("train.remat", get("remat")),
+        remat=check_bool("train.remat", get("remat")),
     )
     if spec.fields_per_step < len(spec.families):
         raise ConfigError(f"train.fields_per_step = {spec.fields_per_step} must be at least the number of "
@@ -295,33 +283,41 @@ def _field_set(data: dict[str, Any], where: str, families: tuple[str, ...] | Non
 
 def _gains(table: Mapping[str, Any], where: str, base: Gains | None = None) -> Gains:
     """Gains from ``{name: number}`` on top of ``base``; errors name ``where.name``."""
-    unknown = sorted(set(table) - set(Gains.names()))
-    if unknown:
-        raise ConfigError(f"{where}.{unknown[0]} is not a gain; allowed: {', '.join(Gains.names())}")
+    for name in table:
+        check_gain_name(where, name)
     values = {k: _float(f"{where}.{k}", v) for k, v in table.items()}
-    with warnings.catch_warnings():  # the BoundWarning comes once, from the Gains built below
-        warnings.simplefilter("ignore", BoundWarning)
-        validate_gains(dataclasses.asdict(base or Gains()) | values, prefix=where)
     return gains_from_mapping(values, where, base)
 
 
-def _tune(data: dict[str, Any], init: Gains) -> Reparam:
+def read_gains(sim: SimConfig) -> tuple[str, ...]:
+    """The tunable gains the planner, filter and plant of ``sim`` read, in declaration order: what
+    ``jaxapf tune`` learns unless ``[tune] params`` says otherwise."""
+    read = {g.name for g in PLANNERS.get(sim.planner.method, "sim.method").gains}
+    read |= {g.name for g in FILTERS.get(sim.planner.filter, "sim.filter").gains}
+    read |= {g.name for g in PLANTS.get(sim.vehicle.plant, "sim.plant").gains}
+    return tuple(n for n, g in GAINS.items() if n in read and g.tunable)
+
+
+def _tune(data: dict[str, Any], init: Gains, sim: SimConfig) -> Reparam:
     d = _table(data, "tune")
-    params = d.get("params", list(Gains.names()))
+    params = d.get("params", list(read_gains(sim)))
     if not isinstance(params, list) or not all(isinstance(p, str) for p in params):
         raise ConfigError(f"tune.params = {params!r} must be a list of gain names")
-    k_max = d.get("k_max", 1.0)
-    if isinstance(k_max, bool) or not isinstance(k_max, (int, float)):
-        raise ConfigError(f"tune.k_max = {k_max!r} must be a number > 0 or inf")
-    reparam = Reparam(tuple(params), init, float(k_max))
+    upper = check_table("tune.upper", d.get("upper", {}))
+    for name, value in upper.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"tune.upper.{name} = {value!r} must be a number or inf")
+    reparam = Reparam(tuple(params), init, tuple((k, float(v)) for k, v in upper.items()))
     reparam.theta(init)  # the start must be reachable
     return reparam
 
 
 def _sim(data: dict[str, Any]) -> tuple[SimConfig, MPCConfig]:
     d = _table(data, "sim")
-    return (SimConfig(**{k: v for k, v in d.items() if k in _SIM_KEYS}),
-            MPCConfig(**{k: v for k, v in d.items() if k in _MPC_KEYS}))
+    for key, value in d.items():
+        check_value(f"sim.{key}", key, value)
+    return (SimConfig.from_flat({k: v for k, v in d.items() if k in SIM_KEYS}),
+            MPCConfig(**{k: v for k, v in d.items() if k in MPC_KEYS}))
 
 
 def _scenario(data: dict[str, Any], families: set[str]) -> tuple[tuple[str, FamilyParams], ...]:
@@ -336,33 +332,34 @@ def _scenario(data: dict[str, Any], families: set[str]) -> tuple[tuple[str, Fami
     if not isinstance(params, dict):
         raise ConfigError("scenario.params must be a table of [scenario.params.FAMILY] tables")
     for name in params:
-        check_choice("scenario.params", name, FAMILIES)
+        check_choice("scenario.params", name, FAMILIES.names())
     return tuple((f, spec_family_params(f, params.get(f, {}))) for f in sorted(families | set(params)))
 
 
-def _baselines(data: dict[str, Any], reparam: Reparam) -> BaselineSpec:
-    d = _table(data, "baselines")
-    default = BaselineSpec()
+def _search(data: dict[str, Any], reparam: Reparam) -> SearchSpec:
+    d = _table(data, "search")
+    default = SearchSpec()
     grid_raw = d.get("grid", {n: list(v) for n, v in default.grid})
     if not isinstance(grid_raw, dict) or not grid_raw:
-        raise ConfigError("baselines.grid must be a non-empty table {gain = [values, ...]}")
+        raise ConfigError("search.grid must be a non-empty table {gain = [values, ...]}")
     grid = []
     for name, values in grid_raw.items():
         if not isinstance(values, list) or not values:
-            raise ConfigError(f"baselines.grid.{name} = {values!r} must be a non-empty list of numbers")
-        grid.append((name, tuple(getattr(_gains({name: v}, "baselines.grid", reparam.base), name) for v in values)))
-    spec = BaselineSpec(
+            raise ConfigError(f"search.grid.{name} = {values!r} must be a non-empty list of numbers")
+        grid.append((name, tuple(_gains({name: v}, "search.grid", reparam.base)[name] for v in values)))
+    return SearchSpec(
         grid=tuple(grid),
-        random_n=check_int("baselines.random_n", d.get("random_n", default.random_n), 1),
-        random_range=_float("baselines.random_range", d.get("random_range", default.random_range), 1.0),
-        random_seed=check_int("baselines.random_seed", d.get("random_seed", default.random_seed), 0),
+        random_n=check_int("search.random_n", d.get("random_n", default.random_n), 1),
+        random_range=_float("search.random_range", d.get("random_range", default.random_range), 1.0),
+        random_seed=check_int("search.random_seed", d.get("random_seed", default.random_seed), 0),
     )
-    return spec
 
 
 def parse_tune_spec(data: Mapping[str, Any]) -> TuneSpec:
     """A :class:`TuneSpec` from a parsed TOML mapping (see docs/tune.md for every key)."""
     data = _table(dict(data), "")
+    plugins = check_plugins("plugins", data.get("plugins", []))
+    load_plugins(plugins)
     name = data.get("name", "tune")
     if not isinstance(name, str) or not name:
         raise ConfigError(f"name = {name!r} must be a non-empty string")
@@ -375,14 +372,14 @@ def parse_tune_spec(data: Mapping[str, Any]) -> TuneSpec:
                           "validation and test fields are never trained on")
     objective_kw = _table(data.get("objective", {}), "objective")
     objective = Objective(**{k: _float(f"objective.{k}", v) for k, v in objective_kw.items()})
-    init = _gains(_table(data.get("init", {}), "init"), "init")
-    reparam = _tune(data.get("tune", {}), init)
+    init = _gains(check_table("init", data.get("init", {})), "init")
     sim, mpc = _sim(data.get("sim", {}))
+    reparam = _tune(data.get("tune", {}), init, sim)
     return TuneSpec(
-        name=name, train=train, validation=validation, test=test, objective=objective, init=init,
+        name=name, plugins=plugins, train=train, validation=validation, test=test, objective=objective, init=init,
         reparam=reparam, sim=sim, mpc=mpc,
         scenario=_scenario(data.get("scenario", {}), set(train.families) | set(test.families)),
-        baselines=_baselines(data.get("baselines", {}), reparam),
+        search=_search(data.get("search", {}), reparam),
     )
 
 

@@ -7,7 +7,7 @@ field out with the current gains, and takes one optimiser step on
 
 .. math::  \nabla_\theta \frac{1}{B}\sum_{b=1}^{B} J\big(\mathrm{rollout}(\text{field}_b, g(\theta))\big)
 
-(:mod:`jaxapf.objective`: surrogate ``J``, reparametrisation ``g``). The gradient is exact
+(:mod:`jaxapf.tune.objective`: surrogate ``J``, reparametrisation ``g``). The gradient is exact
 reverse-mode through the ``lax.scan`` over time, the APF reference flow (itself a scan over the
 horizon of ``jax.grad`` forces) and the unrolled fixed-iteration FISTA (``clip``'s derivative at
 the box). With ``train.remat`` every control step is rematerialised (:func:`jax.checkpoint`).
@@ -40,13 +40,14 @@ import optax
 from jax import Array
 from tqdm.auto import tqdm
 
-from .config import Gains, MPCConfig, SimConfig
-from .metrics import episode_metrics
+from ..config import MPCConfig, SimConfig
+from ..datatypes import Obstacles, Scenario
+from ..gains import Gains
+from ..metrics import METRICS, episode_metrics
+from ..rollout import XLA_OPTIONS, default_width, episode_index, rollout
+from ..scenarios import FamilyParams, make_scenarios
 from .objective import TERMS, Objective, surrogate_loss, surrogate_terms
-from .obstacles import Obstacles, Scenario
-from .rollout import XLA_OPTIONS, default_chunk, episode_index, rollout
-from .scenarios import FamilyParams, make_scenarios
-from .tune_spec import TuneSpec, split_count
+from .spec import TuneSpec, split_count
 
 __all__ = [
     "CHECKPOINT",
@@ -59,7 +60,6 @@ __all__ = [
     "pad_obstacles",
     "family_fields",
     "stack_gains",
-    "gains_dict",
 ]
 
 #: File name of the checkpoint inside the output folder.
@@ -124,18 +124,13 @@ def stack_gains(settings: Sequence[Gains]) -> Gains:
     return jax.tree_util.tree_map(lambda *x: jnp.asarray(x, jnp.result_type(float)), *settings)
 
 
-def gains_dict(gains: Gains) -> dict[str, float]:
-    """The gains as plain floats (what ``gains.toml`` and ``summary.json`` hold)."""
-    return {n: float(np.asarray(getattr(gains, n))) for n in Gains.names()}
-
-
-def episode_report(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig,
-                   objective: Objective) -> dict[str, Array]:
-    """One rollout scored twice: the surrogate terms and loss (``loss``, :data:`TERMS`) and every
-    true metric of SPEC 6 (:func:`jaxapf.metrics.episode_metrics`)."""
+def episode_report(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, objective: Objective,
+                   metrics: tuple[str, ...]) -> dict[str, Array]:
+    """One rollout scored twice: the surrogate terms and loss (``loss``, :data:`TERMS`) and the
+    true ``metrics`` (:func:`jaxapf.metrics.episode_metrics`)."""
     traj = rollout(scenario, gains, sim, mpc)
     terms = surrogate_terms(traj, scenario, sim, objective)
-    return episode_metrics(traj, scenario, sim) | terms | {"loss": surrogate_loss(terms, objective)}
+    return episode_metrics(traj, scenario, sim, metrics) | terms | {"loss": surrogate_loss(terms, objective)}
 
 
 # --------------------------------------------------------------------------------------------
@@ -246,10 +241,11 @@ def _train_step(theta: dict[str, Array], opt_state: Any, batch: Scenario, spec: 
     return optax.apply_updates(theta, updates), opt_state, logs
 
 
-@partial(jax.jit, static_argnames=("sim", "mpc", "objective"), compiler_options=XLA_OPTIONS)
-def _report_chunk(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, objective: Objective):
-    """:func:`episode_report` of paired (field, gains) episodes (leading axis: the chunk)."""
-    return jax.vmap(partial(episode_report, sim=sim, mpc=mpc, objective=objective))(scenarios, gains)
+@partial(jax.jit, static_argnames=("sim", "mpc", "objective", "metrics"), compiler_options=XLA_OPTIONS)
+def _report_batch(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, objective: Objective,
+                  metrics: tuple[str, ...]):
+    """:func:`episode_report` of paired (field, gains) episodes (leading axis: the batch)."""
+    return jax.vmap(partial(episode_report, sim=sim, mpc=mpc, objective=objective, metrics=metrics))(scenarios, gains)
 
 
 # --------------------------------------------------------------------------------------------
@@ -293,21 +289,21 @@ class Tuner:
     def report(self, scenarios: Scenario, settings: Sequence[Gains]) -> dict[str, np.ndarray]:
         """:func:`episode_report` of every (setting, field): numpy arrays of shape (G, F).
 
-        The G·F episodes (``e = g·F + f``) run in chunks of :func:`~jaxapf.rollout.default_chunk`
+        The G·F episodes (``e = g·F + f``) run in batches of :func:`~jaxapf.rollout.default_width`
         paired episodes, or of the smallest power of two >= G·F if that is less (a validation set
-        is not padded to a whole wide chunk), the last chunk padded with episode 0; calls of a
-        similar size and obstacle count reuse one compiled chunk.
+        is not padded to a whole wide batch), the last batch padded with episode 0; calls of a
+        similar size and obstacle count reuse one compiled batch.
         """
         spec = self.spec
         gains = stack_gains(settings)
         n_gains, n_fields = len(settings), scenarios.start.shape[0]
         total = n_gains * n_fields
-        chunk = default_chunk(total)
-        index = episode_index(total, chunk)
+        width = default_width(total)
+        index = episode_index(total, width)
         parts = []
-        for e in index.reshape(-1, chunk):
-            parts.append(jax.device_get(_report_chunk(_take(scenarios, e % n_fields), _take(gains, e // n_fields),
-                                                      spec.sim, spec.mpc, spec.objective)))
+        for e in index.reshape(-1, width):
+            parts.append(jax.device_get(_report_batch(_take(scenarios, e % n_fields), _take(gains, e // n_fields),
+                                                      spec.sim, spec.mpc, spec.objective, METRICS.names())))
         return {k: np.concatenate([p[k] for p in parts])[:total].reshape(n_gains, n_fields) for k in parts[0]}
 
     # --- training --------------------------------------------------------------------------
@@ -365,7 +361,7 @@ class Tuner:
             if not math.isfinite(logs["loss"]):
                 bar.close()
                 raise TuneError(f"non-finite training loss at step {state.step + 1} (gains "
-                                f"{gains_dict(spec.reparam.gains(state.theta))}); lower train.learning_rate")
+                                f"{spec.reparam.gains(state.theta).floats()}); lower train.learning_rate")
             state.theta, state.opt_state, state.step = theta, opt_state, state.step + 1
             row = nan_row | logs | {"step": state.step, "learning_rate": lr}
             validate = state.step % spec.train.validate_every == 0 or state.step == spec.train.steps

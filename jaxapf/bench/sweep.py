@@ -1,0 +1,143 @@
+"""Sweep throughput: the whole ``jaxapf sweep`` path against bare engine calls on the same work, and
+the same sweep on several CPU devices (``jaxapf bench sweep``)."""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from ..text import format_seconds
+from .engine import _block, environment, interleaved
+
+__all__ = ["SWEEP_BENCH_SPEC", "time_sweep", "run_sweep_benchmark", "format_sweep_benchmark"]
+
+
+#: The work of ``jaxapf bench sweep``: 4 settings (2 compiled variants) × 2 families × 256
+#: fields, 200 steps each, default MPC (N = 20, 30 FISTA iterations).
+SWEEP_BENCH_SPEC: dict[str, Any] = {
+    "name": "bench-sweep",
+    "scenario": {"families": ["trap", "clutter"], "fields": 256, "seed": 0},
+    "sim": {"t_max": 20.0},
+    "grid": {"method": ["basic", "direction_velocity"], "gamma": [0.5, 1.0]},
+}
+
+_SWEEP_WORKER = """
+import json, sys
+from jaxapf.bench.sweep import time_sweep
+print(json.dumps(time_sweep(json.loads(sys.argv[1]))))
+"""
+
+
+def _sweep_run(spec: Any, tmp: str) -> Any:
+    """A timed-run callable of the whole sweep (scenario generation, dispatch, transfer, Parquet
+    writing, into ``tmp``), after an untimed run that compiled everything."""
+    from ..sweep import run_sweep
+
+    run_sweep(spec, f"{tmp}/warm.parquet", quiet=True)
+    return lambda: run_sweep(spec, f"{tmp}/timed.parquet", quiet=True, overwrite=True)
+
+
+def _bare_run(spec: Any) -> Any:
+    """A timed-run callable of the same episodes as one ``evaluate`` call per (variant, family) on
+    pre-generated fields (nothing written), after a compiling call."""
+    from ..rollout import default_width, evaluate
+    from ..scenarios import make_scenarios
+    from ..sweep import variants
+
+    dtype = jnp.result_type(float)
+    work = []
+    for v in variants(spec):
+        for family in spec.families:
+            sim, mpc = spec.configs(v.static, family)
+            fields = _block(make_scenarios(spec.seed, spec.family_params(family), spec.fields))
+            work.append((fields, v.gains(dtype), sim, mpc))
+    calls = [lambda w=w: _block(evaluate(w[0], w[1], w[2], w[3], default_width())) for w in work]
+    for call in calls:
+        call()
+    return lambda: [call() for call in calls]
+
+
+def time_sweep(spec_table: dict[str, Any], repeats: int = 3) -> dict[str, Any]:
+    """Wall time of a whole sweep of the spec ``spec_table`` (a TOML table) on this process's
+    devices: the fastest of ``repeats`` runs after one that compiled everything."""
+    import tempfile
+
+    from ..sweep import parse_spec
+
+    with tempfile.TemporaryDirectory() as tmp:
+        best = interleaved({"sweep": _sweep_run(parse_spec(spec_table), tmp)}, repeats)["sweep"]
+    return {"devices": jax.local_device_count(), **best}
+
+
+def run_sweep_benchmark(spec_table: dict[str, Any] | None = None, sharded_devices: int = 2,
+                        repeats: int = 3) -> dict[str, Any]:
+    """End-to-end sweep throughput vs the bare engine on the same work, and the sharded speed-up.
+
+    Measured in this process (one device unless the process was started with more), each the
+    fastest of ``repeats`` interleaved runs after a compiling one: the bare ``evaluate`` calls
+    (:func:`_bare_run`) and the whole sweep (:func:`_sweep_run`); overhead = sweep time / bare
+    time - 1. Then the same sweep in a subprocess (:func:`time_sweep`) whose host CPU is
+    split into ``sharded_devices`` devices (``XLA_FLAGS=--xla_force_host_platform_device_count``);
+    speed-up = one-device sweep time / sharded sweep time (skipped for 0 devices, or when this
+    process does not run on the CPU).
+    """
+    import json
+    import os
+    import subprocess
+    import sys
+    import tempfile
+
+    from .sweep import plan_sweep
+    from ..sweep import parse_spec
+
+    spec_table = spec_table or SWEEP_BENCH_SPEC
+    spec = parse_spec(spec_table)
+    plan = plan_sweep(spec)
+    steps = sum(len(plan.variants[c.variant].settings) * (c.stop - c.start) * plan.blocks[(c.variant, c.family)].sim.episode.steps
+                for c in plan.chunks)
+    with tempfile.TemporaryDirectory() as tmp:
+        timed = interleaved({"bare": _bare_run(spec), "sweep": _sweep_run(spec, tmp)}, repeats)
+    bare, sweep = timed["bare"], {"devices": jax.local_device_count(), **timed["sweep"]}
+    sharded = None
+    if sharded_devices > 0 and jax.default_backend() == "cpu":
+        env = {**os.environ, "XLA_FLAGS": f"--xla_force_host_platform_device_count={sharded_devices}"}
+        proc = subprocess.run([sys.executable, "-c", _SWEEP_WORKER, json.dumps(spec_table)], env=env,
+                              capture_output=True, text=True, check=True)
+        sharded = json.loads(proc.stdout.strip().splitlines()[-1])
+    rate = lambda r: {"episodes_per_s": plan.episodes / r["run_s"], "steps_per_s": steps / r["run_s"]}  # noqa: E731
+    return {
+        "config": {"spec": spec_table, "episodes": plan.episodes, "scenario_steps": steps,
+                   "settings": plan.settings, "variants": len(plan.variants), "chunks": len(plan.chunks),
+                   "vmap_width": plan.width},
+        "environment": environment(jnp.result_type(float)),
+        "bare": {**bare, **rate(bare)},
+        "sweep": {**sweep, **rate(sweep)},
+        "overhead": sweep["run_s"] / bare["run_s"] - 1.0,
+        "sharded": None if sharded is None else {**sharded, **rate(sharded),
+                                                 "speedup": sweep["run_s"] / sharded["run_s"]},
+    }
+
+
+def format_sweep_benchmark(result: dict[str, Any]) -> str:
+    """A compact table of :func:`run_sweep_benchmark`'s result."""
+    cfg, env = result["config"], result["environment"]
+    lines = [
+        f"jaxapf bench sweep: {cfg['spec']['name']}: {cfg['episodes']:,} episodes ({cfg['settings']} settings in "
+        f"{cfg['variants']} variants), {cfg['scenario_steps']:,} scenario-steps, {cfg['chunks']} chunks",
+        f"  device {env['device']} x{env['device_count']}, {env['cpu_count']} CPUs, jax {env['jax']}, {env['dtype']}, "
+        f"vmap width {cfg['vmap_width']}",
+        "",
+        f"  {'':34s}{'time':>10s}{'episodes/s':>14s}{'scenario-steps/s':>20s}",
+    ]
+    rows = [("bare evaluate (1 device)", result["bare"]), ("sweep end to end (1 device)", result["sweep"])]
+    if result["sharded"] is not None:
+        rows.append((f"sweep end to end ({result['sharded']['devices']} devices)", result["sharded"]))
+    for label, r in rows:
+        lines.append(f"  {label:34s}{format_seconds(r['run_s']):>10s}{r['episodes_per_s']:>14,.0f}{r['steps_per_s']:>20,.0f}")
+    lines += ["", f"  sweep overhead over bare evaluate: {100 * result['overhead']:+.1f} % (target < 5 %)"]
+    if result["sharded"] is not None:
+        lines.append(f"  sharded speed-up ({result['sharded']['devices']} devices / 1): {result['sharded']['speedup']:.2f}x")
+    return "\n".join(lines)
