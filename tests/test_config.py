@@ -7,7 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from jaxapf.config import BoundWarning, ConfigError, Gains, MPCConfig, SimConfig, gains_from_mapping, load_gains
+from jaxapf.config import MPCConfig, SimConfig
+from jaxapf.gains import Gains, gains_from_mapping, load_gains
+from jaxapf.validation import BoundWarning, ConfigError
 
 
 @pytest.mark.parametrize(
@@ -62,8 +64,8 @@ def test_bad_mpc(kwargs, message):
         (dict(t_max=0.01), r"sim\.t_max = 0\.01 must be at least one step"),
         (dict(r_uav=-0.1), r"sim\.r_uav = -0\.1 .*>= 0"),
         (dict(d_min=0.0), r"sim\.d_min = 0\.0"),
-        (dict(method="vortex"), r"sim\.method = 'vortex' is not allowed; choose one of basic, direction, "
-                                r"direction_velocity"),
+        (dict(method=""), r"sim\.method = '' must be a name"),
+        (dict(bogus=1.0), r"sim\.bogus is not a simulation setting; allowed: method, filter, convention"),
         (dict(convention="reversed"), r"sim\.convention = 'reversed' is not allowed; choose one of intent, literal"),
         (dict(att_cap=-1.0), r"sim\.att_cap = -1\.0"),
         (dict(reference_velocity="yes"), r"sim\.reference_velocity = 'yes' must be true or false"),
@@ -71,13 +73,32 @@ def test_bad_mpc(kwargs, message):
 )
 def test_bad_sim(kwargs, message):
     with pytest.raises(ConfigError, match=message):
-        SimConfig(**kwargs)
+        SimConfig.from_flat(**kwargs)
 
 
 def test_static_configs_are_hashable_and_equal_by_value():
     assert hash(SimConfig()) == hash(SimConfig())
     assert MPCConfig(q_pos=2.0) == MPCConfig(q_pos=(2.0, 2.0, 2.0))
-    assert SimConfig(t_max=30.0, dt=0.1).steps == 300
+    assert SimConfig.from_flat(t_max=30.0, dt=0.1).episode.steps == 300
+    sim = SimConfig.from_flat(method="basic", a_max=2.0, v_stall=0.2)
+    assert (sim.planner.method, sim.vehicle.a_max, sim.metrics.v_stall) == ("basic", 2.0, 0.2)
+    assert SimConfig.from_flat(sim.flat()) == sim and sim.replace(dt=0.05).episode.dt == 0.05
+
+
+def test_component_names_are_checked_where_a_program_is_built():
+    """Names of planners, filters and plants are checked against their registries when a closed loop is
+    built (configuration depends on no component), naming the key and the registered choices."""
+    import jax.numpy as jnp
+
+    from jaxapf import Obstacles, Scenario, rollout
+
+    scenario = Scenario(jnp.zeros(3), jnp.ones(3), Obstacles.empty(1))
+    for key, message in (("method", r"sim\.method = 'vortx' is not a registered planner; choose one of basic, "
+                                    r"direction, direction_velocity"),
+                         ("filter", r"sim\.filter = 'vortx' is not a registered safety filter; choose one of none"),
+                         ("plant", r"sim\.plant = 'vortx' is not a registered plant; choose one of double_integrator")):
+        with pytest.raises(ConfigError, match=message):
+            rollout(scenario, Gains(), SimConfig.from_flat({key: "vortx", "t_max": 0.2}), MPCConfig(horizon=2))
 
 
 @settings(max_examples=50, deadline=None)

@@ -5,13 +5,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxapf.config import Gains, MPCConfig, SimConfig
+from jaxapf.config import MPCConfig, SimConfig
+from jaxapf.gains import Gains
 from jaxapf.dynamics import step
 from jaxapf.metrics import episode_metrics
-from jaxapf.obstacles import Obstacles, Scenario
-from jaxapf.rollout import evaluate, rollout
+from jaxapf.datatypes import Obstacles, Scenario
+from jaxapf.rollout import evaluate, evaluate_program, rollout
 
-SIM = SimConfig(t_max=8.0)
+SIM = SimConfig.from_flat(t_max=8.0)
 MPC = MPCConfig(horizon=8, iters=15)
 _rollout = jax.jit(rollout, static_argnames=("sim", "mpc"))
 
@@ -40,16 +41,16 @@ def traj():
 
 def test_plant_integrates_the_applied_control_exactly(traj):
     x = jnp.concatenate([traj.position, traj.velocity], axis=1)
-    stepped = jax.vmap(step, in_axes=(0, 0, None))(x[:-1], traj.control, SIM.dt)
+    stepped = jax.vmap(step, in_axes=(0, 0, None))(x[:-1], traj.control, SIM.episode.dt)
     np.testing.assert_allclose(stepped, x[1:], rtol=0, atol=1e-6)
-    np.testing.assert_allclose(traj.time, np.arange(SIM.steps + 1) * SIM.dt, atol=1e-6)
+    np.testing.assert_allclose(traj.time, np.arange(SIM.episode.steps + 1) * SIM.episode.dt, atol=1e-6)
     np.testing.assert_array_equal(traj.position[0], [0.0, 0.0, 2.0])
     np.testing.assert_array_equal(traj.velocity[0], 0.0)
 
 
 def test_acceleration_box_holds(traj):
-    assert float(jnp.abs(traj.control).max()) <= SIM.a_max * (1 + 1e-6)
-    assert float(jnp.abs(traj.control).max()) > 0.5 * SIM.a_max  # the box is actually reached
+    assert float(jnp.abs(traj.control).max()) <= SIM.vehicle.a_max * (1 + 1e-6)
+    assert float(jnp.abs(traj.control).max()) > 0.5 * SIM.vehicle.a_max  # the box is actually reached
 
 
 def test_moves_toward_the_goal(traj):
@@ -78,10 +79,10 @@ def test_gain_grid_is_one_compiled_call_matching_single_runs():
                  d_s=np.array([3.0, 4.0, 5.0]), k_att=np.ones(3), eta=np.full(3, 0.5))
     metrics = evaluate(scenarios, grid, SIM, MPC)
     assert metrics["min_clearance"].shape == (3, 2)
-    size = evaluate._cache_size()
+    size = evaluate_program._cache_size()
     other = jax.tree_util.tree_map(lambda g: g * 0.9, grid)
     evaluate(scenarios, other, SIM, MPC)
-    assert evaluate._cache_size() == size, "changing gain values must not recompile"
+    assert evaluate_program._cache_size() == size, "changing gain values must not recompile"
     # entry (g, f) is the single episode with those gains on that field
     for g, f in [(0, 0), (2, 1)]:
         one = jax.tree_util.tree_map(lambda x: x[g], grid)
@@ -95,21 +96,21 @@ def test_float64_rollout():
     with jax.enable_x64(True):
         sc = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float64) if x.dtype == jnp.float32 else x,
                                     _scenario())
-        out = rollout(sc, Gains(), SimConfig(t_max=1.0), MPCConfig(horizon=4, iters=5))
+        out = rollout(sc, Gains(), SimConfig.from_flat(t_max=1.0), MPCConfig(horizon=4, iters=5))
         assert out.position.dtype == jnp.float64
         assert np.all(np.isfinite(np.asarray(out.position)))
 
 
 def test_episode_numbers_do_not_depend_on_the_batch():
-    """Field f gives bit-identical metrics whether run in a batch of 5 or of 3 (chunk 2, padded)."""
+    """Field f gives bit-identical metrics whether run in a batch of 5 or of 3 (width 2, padded)."""
     fields = [_scenario(), _scenario(), _scenario(), _scenario(), _scenario()]
     fields = [Scenario(start=s.start.at[1].set(0.4 * i), goal=s.goal, obstacles=s.obstacles)
               for i, s in enumerate(fields)]
     stack = lambda xs: jax.tree_util.tree_map(lambda *x: jnp.stack(x), *xs)  # noqa: E731
     grid = jax.tree_util.tree_map(lambda x: jnp.asarray([x, 0.5 * x]), Gains())
-    short = SimConfig(t_max=2.0)
-    five = evaluate(stack(fields), grid, short, MPC, chunk=2)
-    three = evaluate(stack(fields[2:]), grid, short, MPC, chunk=2)
+    short = SimConfig.from_flat(t_max=2.0)
+    five = evaluate(stack(fields), grid, short, MPC, width=2)
+    three = evaluate(stack(fields[2:]), grid, short, MPC, width=2)
     for name in five:
         np.testing.assert_array_equal(np.asarray(five[name])[:, 2:], three[name])
 
@@ -118,21 +119,22 @@ def test_apf_reference_follows_the_saturated_flow_in_either_obstacle_layout():
     """SPEC 4: p_{i+1} = p_i + Δt·sat(η F(p_i, v_i, t + iΔt)), v_{i+1} = that step's velocity;
     the closed loop hands the reference the field's columns once per episode, a direct caller
     may hand it the field itself: same numbers."""
-    from jaxapf.potentials import total_force
-    from jaxapf.reference import apf_reference, saturate
+    from jaxapf.planners import PLANNERS, saturate
+    from jaxapf.planners.potentials import total_force
 
-    sim = SimConfig(reference_velocity=True)
+    sim = SimConfig.from_flat(reference_velocity=True)
+    planner = PLANNERS.get(sim.planner.method)
     s, g, horizon, t = _scenario(extra_padding=2), Gains().as_arrays(), 5, 0.7
     x = jnp.array([1.0, 0.2, 2.0, 0.4, 0.0, 0.0])
-    ref = apf_reference(x, t, s.goal, s.obstacles, g, sim, horizon)
-    np.testing.assert_array_equal(ref, apf_reference(x, t, s.goal, s.obstacles.columns(), g, sim, horizon))
-    p, v = x[:3], x[3:]
+    ref, state = planner.reference(planner.init(s, g, sim), x, t, s.goal, s.obstacles, g, sim, horizon)
+    assert state == ()
+    np.testing.assert_array_equal(ref, planner.reference((), x, t, s.goal, s.obstacles.columns(), g, sim, horizon)[0])
+    p, v, cfg, dt = x[:3], x[3:], sim.planner, sim.episode.dt
     for i in range(horizon):
-        force = total_force(p, v, t + i * sim.dt, s.goal, s.obstacles, g, method=sim.method,
-                            convention=sim.convention, r_uav=sim.r_uav, d_min=sim.d_min, eps_v=sim.eps_v,
-                            att_cap=sim.att_cap)
-        v = saturate(g.eta * force, sim.v_max)
-        p = p + sim.dt * v
+        force = total_force(p, v, t + i * dt, s.goal, s.obstacles, g, method=cfg.method, convention=cfg.convention,
+                            r_uav=sim.vehicle.r_uav, d_min=cfg.d_min, eps_v=cfg.eps_v, att_cap=cfg.att_cap)
+        v = saturate(g.eta * force, sim.vehicle.v_max)
+        p = p + dt * v
         np.testing.assert_allclose(ref[i + 1], jnp.concatenate([p, v]), rtol=1e-5, atol=1e-6)
     assert ref.shape == (horizon + 1, 6)
     np.testing.assert_array_equal(ref[0], x)

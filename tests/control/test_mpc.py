@@ -11,7 +11,7 @@ from scipy.optimize import minimize
 
 from jaxapf.config import MPCConfig
 from jaxapf.dynamics import discrete_matrices, step
-from jaxapf.mpc import (
+from jaxapf.control.mpc import (
     axis_problem,
     condensed_qp,
     prediction_matrices,
@@ -119,7 +119,7 @@ def test_per_axis_solver_matches_general_solver():
         x0, x_ref = jnp.asarray(rng.normal(size=6) * 3), jnp.asarray(rng.normal(size=(N + 1, 6)) * 3)
         h, e = condensed_qp(x0, x_ref, dt=DT, horizon=N, **WEIGHTS)
         general = solve_box_qp(h, e, -1.0, 1.0, iters=3000).reshape(N, 3).T
-        prob = axis_problem(mpc, DT, jnp.float64)
+        prob = axis_problem(mpc, *discrete_matrices(DT, 1, jnp.float64))
         # the per-axis Hessians are the diagonal blocks of the interleaved 3N Hessian
         for ax in range(3):
             np.testing.assert_allclose(prob.h[ax], h[ax::3, ax::3], rtol=1e-12)
@@ -134,7 +134,7 @@ def test_shared_axis_kernel_equals_per_axis_kernels():
     mpc = MPCConfig(horizon=N, iters=200, v_penalty=5.0)
     rng = np.random.default_rng(5)
     with jax.enable_x64(True):
-        prob = axis_problem(mpc, DT, jnp.float64)
+        prob = axis_problem(mpc, *discrete_matrices(DT, 1, jnp.float64))
         assert prob.kernel.shape == (1, 2 * N, N)
         copies = dataclasses.replace(prob, kernel=jnp.broadcast_to(prob.kernel, (3, 2 * N, N)))
         x0, x_ref = jnp.asarray(rng.normal(size=6) * 3), jnp.asarray(rng.normal(size=(N + 1, 6)) * 5)
@@ -143,7 +143,7 @@ def test_shared_axis_kernel_equals_per_axis_kernels():
         shared = solve_axes(prob, x0, x_ref, warm, **kw)
         np.testing.assert_allclose(shared, solve_axes(copies, x0, x_ref, warm, **kw), rtol=1e-12, atol=1e-12)
         assert np.abs(np.asarray(shared)).max() == pytest.approx(2.0)  # the box is active too
-    assert axis_problem(MPCConfig(horizon=N, **WEIGHTS), DT, jnp.float32).kernel.shape == (3, 2 * N, N)
+    assert axis_problem(MPCConfig(horizon=N, **WEIGHTS), *discrete_matrices(DT, 1, jnp.float32)).kernel.shape == (3, 2 * N, N)
 
 
 def test_velocity_penalty_solution_matches_scipy():
@@ -155,7 +155,7 @@ def test_velocity_penalty_solution_matches_scipy():
         x0 = jnp.asarray(np.concatenate([np.zeros(3), [0.4, -0.3, 0.0]]))
         x_ref = jnp.asarray(np.concatenate([np.linspace(0, 1, N + 1)[:, None] * rng.normal(size=3) * 5,
                                             np.zeros((N + 1, 3))], axis=1))
-        prob = axis_problem(mpc, DT, jnp.float64)
+        prob = axis_problem(mpc, *discrete_matrices(DT, 1, jnp.float64))
         got = solve_axes(prob, x0, x_ref, jnp.zeros((3, N)), a_max=2.0, v_max=v_max, iters=4000)
         h, e = condensed_qp(x0, x_ref, dt=DT, horizon=N, **WEIGHTS)
         big_m, c = prediction_matrices(*discrete_matrices(DT, 3, jnp.float64), N)

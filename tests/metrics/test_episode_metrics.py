@@ -17,12 +17,12 @@ from hypothesis import strategies as st
 
 from jaxapf.config import SimConfig
 from jaxapf.metrics import METRICS, clearance_history, episode_end, episode_metrics, time_to_collision
-from jaxapf.obstacles import Obstacles, Scenario
-from jaxapf.trajectory import Trajectory
+from jaxapf.datatypes import Obstacles, Scenario
+from jaxapf.datatypes import Trajectory
 
-SIM = SimConfig(dt=0.1, t_max=5.0, v_max=2.0, r_uav=0.3, r_goal=0.5, v_stall=0.1, t_stall=3.0, d_safe=1.0)
-T = SIM.steps
-DT = SIM.dt
+SIM = SimConfig.from_flat(dt=0.1, t_max=5.0, v_max=2.0, r_uav=0.3, r_goal=0.5, v_stall=0.1, t_stall=3.0, d_safe=1.0)
+T = SIM.episode.steps
+DT = SIM.episode.dt
 M = 3
 F32 = dict(rtol=1e-5, atol=1e-5)
 
@@ -109,7 +109,7 @@ def test_columns_and_dtypes():
     assert set(m) == set(METRICS)  # jit hands dicts back key-sorted; the order is checked on tracing
     order: list[str] = []
     jax.eval_shape(lambda t, s: order.extend(episode_metrics(t, s, SIM)), traj, sc)
-    assert tuple(order) == METRICS
+    assert tuple(order) == METRICS.names()
     for name, v in m.items():
         assert v.shape == (), name
         if name in ("success", "collision", "stalled"):

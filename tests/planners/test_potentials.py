@@ -9,9 +9,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from jaxapf.config import CONVENTIONS, METHODS, ConfigError, Gains
-from jaxapf.obstacles import Obstacles
-from jaxapf.potentials import (
+from jaxapf.config import CONVENTIONS
+from jaxapf.gains import Gains
+from jaxapf.planners import WEIGHTS
+from jaxapf.validation import ConfigError
+from jaxapf.datatypes import Obstacles
+from jaxapf.planners.potentials import (
     repulsive_force,
     total_force,
     total_potential,
@@ -21,7 +24,8 @@ from jaxapf.potentials import (
 )
 
 GAINS = dict(k_rep=3.0, d_s=4.0, gamma=1.5, k=0.7)
-VARIANTS = [(m, c) for m in METHODS for c in CONVENTIONS]
+#: The paper's three weights under both sign conventions.
+VARIANTS = [(m, c) for m in ("basic", "direction", "direction_velocity") for c in CONVENTIONS]
 
 
 @partial(jax.jit, static_argnames=("method", "convention", "cylinder"))
@@ -131,7 +135,7 @@ vec3 = st.lists(st.floats(-5, 5), min_size=3, max_size=3).map(np.array)
        method=st.sampled_from(["direction", "direction_velocity"]), convention=st.sampled_from(CONVENTIONS))
 def test_weight_true_bounds(p, v, p_o, v_o, gamma, k, method, convention):
     w = float(_weight_jit(p, v, p_o, v_o, gamma, k, method=method, convention=convention))
-    lo, hi = (float(b) for b in weight_bounds(jnp.float32(gamma), jnp.float32(k), method))
+    lo, hi = (float(b) for b in weight_bounds(method, gamma=jnp.float32(gamma), k=jnp.float32(k)))
     assert lo - 1e-4 * (1 + abs(lo)) <= w <= hi + 1e-4 * hi
     if method == "direction_velocity" and k <= 1.0:
         assert w >= 1.0 - 1e-5  # the paper's lower bound, true only for k <= 1
@@ -176,7 +180,7 @@ def test_padded_slots_contribute_exactly_nothing():
 
 
 def test_unknown_method_is_a_clear_error():
-    with pytest.raises(ConfigError, match="method = 'magic'"):
+    with pytest.raises(ConfigError, match="method = 'magic' is not a registered weight"):
         weighted_repulsive_potential(jnp.zeros(3), jnp.zeros(3), jnp.ones(3), jnp.zeros(3), k_rep=1.0,
                                      d_s=2.0, gamma=0.0, k=0.0, method="magic")
 
@@ -223,3 +227,15 @@ def test_component_first_obstacles_equal_one_at_a_time():
     assert w.shape == (5,)
     np.testing.assert_allclose(w, [weight(p, v, p_o[i], v_o[i], gamma=1.5, k=0.7, method="direction_velocity",
                                           convention="literal", cylinder=cylinder[i]) for i in range(5)], rtol=1e-6)
+
+
+def test_the_first_import_path_keeps_working():
+    """The public contract of ``jaxapf.potentials`` and ``jaxapf.mpc`` at the paths it was published at."""
+    from jaxapf import mpc, potentials
+    from jaxapf.control import mpc as control_mpc
+    from jaxapf.planners import potentials as planner_potentials
+
+    assert potentials.repulsive_force is planner_potentials.repulsive_force
+    assert potentials.weighted_repulsive_potential is planner_potentials.weighted_repulsive_potential
+    assert mpc.condensed_qp is control_mpc.condensed_qp and mpc.solve_box_qp is control_mpc.solve_box_qp
+    assert set(WEIGHTS.names()) >= {"basic", "direction", "direction_velocity"}

@@ -16,16 +16,11 @@ from scipy import stats as sst
 
 from jaxapf import stats
 from jaxapf.cli import main
-from jaxapf.report import (
-    CONTINUOUS,
-    RATES,
-    ReportError,
-    ReportOptions,
-    _heatmap_figures,
-    _select,
-    build_report,
-    load_sweep,
-)
+from jaxapf.report import ReportError, ReportOptions, build_report, load_sweep, report_metrics
+from jaxapf.report.figures import _heatmap_figures
+from jaxapf.report.select import select
+
+RATES, CONTINUOUS = report_metrics()
 
 RESAMPLES = 200
 META = {"format": "jaxapf.sweep/1", "spec": {"name": "synthetic-test"}, "spec_hash": "f" * 64,
@@ -210,18 +205,18 @@ def test_latex_table_is_booktabs_and_escaped(report):
 def test_where_filters_and_baseline_kept(sweep):
     path, _ = sweep
     df, _ = load_sweep(path)
-    sel = _select(df, ReportOptions(where=("method=direction_velocity", "family=trap")))
+    sel = select(df, ReportOptions(where=("method=direction_velocity", "family=trap")))
     assert sel.settings == [0, 4, 5, 6, 7]  # the baseline stays, reported for the comparison
     assert set(sel.data["family"]) == {"trap"}
     assert any("exclude them" in n for n in sel.notes)
-    sel = _select(df, ReportOptions(baseline="setting=5", where=("gamma=0.5,1",)))
+    sel = select(df, ReportOptions(baseline="setting=5", where=("gamma=0.5,1",)))
     assert sel.pairs == {s: 5 for s in range(8) if s != 5}
 
 
 def test_heatmap_skipped_with_fewer_than_two_swept_gains(sweep, tmp_path):
     path, _ = sweep
     df, _ = load_sweep(path)
-    sel = _select(df, ReportOptions(where=("gamma=0.5",)))
+    sel = select(df, ReportOptions(where=("gamma=0.5",)))
     figures, notes = _heatmap_figures(sel, ReportOptions(), tmp_path)
     assert figures == [] and "fewer than 2 swept gains" in notes[0]
 
@@ -269,7 +264,7 @@ def test_bad_input_gives_one_line_and_status_2(sweep, tmp_path, capsys):
 
 
 def test_report_error_is_a_config_error():
-    from jaxapf.config import ConfigError
+    from jaxapf.validation import ConfigError
 
     assert issubclass(ReportError, ConfigError)
 
@@ -281,8 +276,8 @@ def test_report_error_is_a_config_error():
 
 def test_gallery_resimulates_a_failed_episode(tmp_path):
     # a spec whose settings match the rows (basic, direction_velocity with the default gains), so
-    # the real jaxapf.sweep.episode_config rebuilds each row; one tiny episode is re-simulated
-    from jaxapf.sweep_spec import parse_spec
+    # the real jaxapf.sweep.row_config rebuilds each row; one tiny episode is re-simulated
+    from jaxapf.sweep import parse_spec
 
     spec = parse_spec({"name": "tiny", "scenario": {"families": ["trap"], "fields": 3, "seed": 0,
                                                     "params": {"trap": {"distance": [4.0, 5.0]}}},
@@ -336,7 +331,7 @@ def _study():
     import importlib
     import sys
 
-    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "analysis"))
+    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2] / "analysis"))
     return importlib.import_module("study")
 
 

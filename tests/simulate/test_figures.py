@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from matplotlib.figure import Figure
 
-from jaxapf.plotting import (
+from jaxapf.simulate.figures import (
     FIGURES,
     Field,
     Run,

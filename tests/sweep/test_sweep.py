@@ -16,12 +16,14 @@ import pyarrow.parquet as pq
 import pytest
 
 from jaxapf.cli import main
-from jaxapf.config import BoundWarning, ConfigError, Gains, MPCConfig, SimConfig
+from jaxapf.config import MPCConfig, SimConfig
+from jaxapf.gains import Gains
+from jaxapf.validation import BoundWarning, ConfigError
 from jaxapf.metrics import METRICS
-from jaxapf.rollout import default_chunk
-from jaxapf.sweep import (DEFAULT_MEMORY_BUDGET, WIDTH_BUDGET, Chunk, episode_config, plan_sweep, read_sweep,
-                          run_sweep, working_set_bytes)
-from jaxapf.sweep_spec import SweepSpec, load_spec, parse_spec
+from jaxapf.rollout import default_width
+from jaxapf.sweep import (DEFAULT_MEMORY_BUDGET, Chunk, SweepSpec, load_spec, parse_spec, plan_sweep, read_sweep,
+                          row_config, run_sweep)
+from jaxapf.sweep.plan import WIDTH_BUDGET, working_set_bytes
 
 # Tiny but complete: two families sharing one obstacle-slot count (so one program per method),
 # two static variants (methods) × two gains; 20 steps, N = 3, I = 3.
@@ -79,11 +81,11 @@ def reference(tmp_path_factory):
 # --------------------------------------------------------------------------------------------
 
 BAD = {
-    "top-level key": ({"nmae": "x"}, "nmae is not a known key; allowed: name, scenario"),
+    "top-level key": ({"nmae": "x"}, "nmae is not a known key; allowed: name, plugins, scenario"),
     "name": ({"name": "a b"}, "name = 'a b' must be a string"),
     "scenario key": ({"scenario.feilds": 3}, "scenario.feilds is not a known key"),
     "family": ({"scenario.families": ["trap", "forest"]}, "scenario.families[1] = 'forest' is not a family"),
-    "no family": ({"scenario.families": []}, "scenario.families = [] must be a non-empty list"),
+    "no family": ({"scenario.families": []}, "scenario.families = [] must list one or more of"),
     "fields type": ({"scenario.fields": "6"}, "scenario.fields = '6' must be an integer"),
     "fields range": ({"scenario.fields": 0}, "scenario.fields = 0 is out of range"),
     "seed": ({"scenario.seed": -1}, "scenario.seed = -1 is out of range"),
@@ -104,7 +106,7 @@ BAD = {
     "grid empty": ({"grid.gamma": []}, "grid.gamma is empty"),
     "grid not a list": ({"grid.gamma": 1.0}, "grid.gamma = 1.0 must be a list"),
     "grid range": ({"grid.gamma": [0.0, 1.0, -1]}, "grid.gamma[2] = -1.0 is out of range; allowed: a finite number >= 0"),
-    "grid method": ({"grid.method": ["basic", "magic"]}, "grid.method[1] = 'magic' is not allowed; choose one of"),
+    "grid method": ({"grid.method": ["basic", "magic"]}, "grid.method[1] = 'magic' is not a registered planner; choose one of"),
     "grid a_max": ({"grid.a_max": [1.0, 0.0]}, "grid.a_max[1] = 0.0 is out of range; allowed: a finite number > 0"),
     "grid vs sim": ({"grid.horizon": [3, 5]}, "grid.horizon is also set in [sim]"),
     "sim int range": ({"sim.iters": 0}, "sim.iters = 0 is out of range; allowed: an integer >= 1"),
@@ -162,12 +164,14 @@ def test_expansion_order_random_samples_and_gains_file(tmp_path):
     assert [s.gains["k"] for s in settings[3:6]] == ks and all(0.1 <= k <= 10.0 for k in ks)
     with pytest.warns(BoundWarning):
         assert spec.random_samples() == _spec(**random_k).random_samples()
-    # --gains FILE: its values on top of [gains], the swept gamma untouched
+    # --gains FILE: its values on top of [gains] (the gains either names become fixed), the swept gamma
+    # untouched, every other gain at its default
     gains_file = tmp_path / "tuned.toml"
     gains_file.write_text("gamma = 9.0\nd_s = 3.5\n")
     tuned = parse_spec(copy.deepcopy(TINY), gains_file)
-    assert tuned.gains == {"k": 0.5, "k_rep": 5.0, "d_s": 3.5, "k_att": 1.0, "eta": 0.5}
+    assert tuned.gains == {"k_rep": 5.0, "d_s": 3.5}
     assert {s.gains["gamma"] for s in tuned.settings()} == {0.0, 1.0}
+    assert {(s.gains["k"], s.gains["eta"]) for s in tuned.settings()} == {(0.5, 0.5)}
     assert tuned.hash != _spec().hash
 
 
@@ -203,17 +207,17 @@ def test_parquet_schema_and_metadata(reference):
     assert list(df.loc[df.setting == 2, "method"].unique()) == ["direction_velocity"]
 
 
-def test_episode_config_resimulates_a_row(reference):
+def test_row_config_resimulates_a_row(reference):
     from jaxapf.simulate import simulate_runs
 
     _, df, meta = reference
     row = df[(df.setting == 3) & (df.family == "trap")].iloc[2]
-    cfg = episode_config(meta, row.to_dict())
+    cfg = row_config(meta, row.to_dict())
     assert (cfg.family, cfg.field, cfg.seed) == ("trap", int(row["field"]), 1)
     assert cfg.gains == Gains(gamma=1.0, k_rep=5.0) and cfg.overrides == {"distance": [4.0, 6.0]}
-    assert cfg.sim == SimConfig(method="direction_velocity", t_max=2.0)
+    assert cfg.sim == SimConfig.from_flat(method="direction_velocity", t_max=2.0)
     assert cfg.mpc == MPCConfig(horizon=3, iters=3)
-    _, runs, _ = simulate_runs(cfg.family, cfg.seed, cfg.field, [cfg.sim.method], cfg.gains, cfg.sim, cfg.mpc,
+    _, runs, _ = simulate_runs(cfg.family, cfg.seed, cfg.field, [cfg.sim.planner.method], cfg.gains, cfg.sim, cfg.mpc,
                                cfg.overrides)
     for m in ("success", "collision", "steps"):
         assert runs[0].metrics[m] == row[m]
@@ -321,7 +325,7 @@ def test_long_episodes_narrow_their_vmap_width_to_fit_the_default_budget():
                                          "params": {"clutter": {"max_obstacles": 16}}},
             "grid": {"t_max": [30.0, 300.0]}}
     plan = plan_sweep(parse_spec(data), devices=1)
-    assert plan.width == default_chunk()
+    assert plan.width == default_width()
     widths = {key: b.width for key, b in plan.blocks.items()}
     assert widths[(0, "clutter")] == widths[(0, "trap")] == plan.width  # 300 steps fit
     long = plan.blocks[(1, "clutter")]
@@ -336,8 +340,7 @@ def test_long_episodes_narrow_their_vmap_width_to_fit_the_default_budget():
 
 _SHARDED = textwrap.dedent("""
     import json, sys
-    from jaxapf.sweep import run_sweep
-    from jaxapf.sweep_spec import parse_spec
+    from jaxapf.sweep import parse_spec, run_sweep
     import jax
     assert jax.local_device_count() == 4, jax.devices()
     run_sweep(parse_spec(json.loads(sys.argv[1])), sys.argv[2], quiet=True, chunk_fields=5)

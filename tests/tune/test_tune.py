@@ -11,13 +11,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from jaxapf import tune_train
+from jaxapf.tune import train as tune_train
 from jaxapf.cli import main
-from jaxapf.config import ConfigError, Gains, load_gains
-from jaxapf.objective import Reparam, smooth_min
-from jaxapf.obstacles import Obstacles, Scenario
-from jaxapf.tune_spec import parse_tune_spec
-from jaxapf.tune_train import CHECKPOINT, TrainState, Tuner, episode_loss
+from jaxapf.gains import Gains, load_gains
+from jaxapf.validation import BoundWarning, ConfigError
+from jaxapf.tune.objective import Reparam, smooth_min
+from jaxapf.datatypes import Obstacles, Scenario
+from jaxapf.tune.spec import parse_tune_spec
+from jaxapf.tune.train import CHECKPOINT, TrainState, Tuner, episode_loss
 
 #: A tuning problem small enough to train in a second (two families, 6 steps of 2 fields).
 MICRO = {
@@ -28,7 +29,7 @@ MICRO = {
     "test": {"families": ["crossing"], "fields": 2, "seed": 2},
     "sim": {"t_max": 3.0, "horizon": 3, "iters": 4},
     "scenario": {"params": {"crossing": {"distance": [4.0, 5.0]}, "trap": {"distance": [4.0, 5.0]}}},
-    "baselines": {"grid": {"gamma": [0.5, 2.0]}, "random_n": 2},
+    "search": {"grid": {"gamma": [0.5, 2.0]}, "random_n": 2},
 }
 MICRO_TOML = """name = "micro"
 [train]
@@ -53,7 +54,7 @@ iters = 4
 distance = [4.0, 5.0]
 [scenario.params.trap]
 distance = [4.0, 5.0]
-[baselines]
+[search]
 grid = { gamma = [0.5, 2.0] }
 random_n = 2
 """
@@ -89,12 +90,12 @@ def test_gradient_matches_central_differences_in_float64():
         assert max(abs(float(g)) for g in grad.values()) > 1e-2
 
 
-@pytest.mark.filterwarnings("ignore::jaxapf.config.BoundWarning")  # k_max > 1 is allowed, and warned about
+@pytest.mark.filterwarnings("ignore::jaxapf.validation.BoundWarning")  # k > 1 is allowed, and warned about
 @settings(max_examples=60, deadline=None)
 @given(theta=st.lists(st.floats(allow_nan=False, allow_infinity=False, width=32), min_size=6, max_size=6),
        k_max=st.floats(0.01, 10.0))
 def test_reparametrisation_keeps_every_gain_in_range(theta, k_max):
-    reparam = Reparam(Gains.names(), Gains(), k_max)
+    reparam = Reparam(Gains.names(), Gains(), (("k", k_max),))
     # concrete values: Gains validates them itself too (ConfigError if out of range)
     gains = reparam.gains({n: jnp.float32(t) for n, t in zip(Gains.names(), theta)})
     values = {n: float(getattr(gains, n)) for n in Gains.names()}
@@ -105,12 +106,14 @@ def test_reparametrisation_keeps_every_gain_in_range(theta, k_max):
 
 
 def test_reparametrisation_inverts_and_rejects_unreachable_starts():
-    reparam = Reparam(("gamma", "k", "d_s"), Gains(gamma=2.0, k=0.25, d_s=3.0), 1.0)
+    reparam = Reparam(("gamma", "k", "d_s"), Gains(gamma=2.0, k=0.25, d_s=3.0))  # k's tuning range: [0, 1]
     gains = reparam.gains(reparam.theta(reparam.base, jnp.float32))
     np.testing.assert_allclose([gains.gamma, gains.k, gains.d_s], [2.0, 0.25, 3.0], rtol=1e-6)
     assert gains.k_rep == Gains().k_rep  # untuned gains stay
     with pytest.raises(ConfigError, match=r"init\.k = 1\.0 must lie strictly inside"):
-        Reparam(("k",), Gains(k=1.0), 1.0).theta(Gains(k=1.0))
+        Reparam(("k",), Gains(k=1.0)).theta(Gains(k=1.0))
+    with pytest.warns(BoundWarning):  # unbounded: k > 1 is allowed, and warned about
+        assert float(Reparam(("k",), Gains(), (("k", math.inf),)).gains({"k": jnp.float32(30.0)}).k) > 1.0
     with pytest.raises(ConfigError, match=r"init\.gamma = 0\.0 must be > 0"):
         Reparam(("gamma",), Gains(gamma=0.0)).theta(Gains(gamma=0.0))
 
@@ -184,7 +187,7 @@ def test_command_writes_loadable_gains_and_a_summary(command_run):
     summary = json.loads((command_run / "summary.json").read_text())
     tuned = load_gains(command_run / "gains.toml")
     assert {n: getattr(tuned, n) for n in Gains.names()} == summary["gains"]["tuned"]
-    assert summary["gains"]["default"] == dataclasses.asdict(Gains())
+    assert summary["gains"]["default"] == Gains().floats()
     budget = summary["budgets"]
     assert budget["tuning"]["episodes"] == 6 * 2 + 4 * 2
     assert budget["grid"]["episodes"] == budget["random"]["episodes"] == 20  # 2 settings x 10 fields
@@ -203,27 +206,29 @@ def test_a_checkpoint_of_another_spec_is_refused(command_run):
 @pytest.mark.parametrize(
     ("change", "message"),
     [
-        ({"trian": {}}, r"trian is not a key of the spec"),
-        ({"train": {"learning_rat": 0.1}}, r"train\.learning_rat is not a key of \[train\]"),
+        ({"trian": {}}, r"trian is not a known key; allowed: name, plugins"),
+        ({"train": {"learning_rat": 0.1}}, r"train\.learning_rat is not a known key"),
         ({"train": {"learning_rate": -1.0}}, r"train\.learning_rate = -1\.0 is out of range"),
         ({"train": {"optimizer": "adamm"}}, r"train\.optimizer = 'adamm' is not an optax optimiser"),
         ({"train": {"optimizer": "lbfgs"}}, r"train\.optimizer = 'lbfgs'"),
         ({"train": {"schedule": "linear"}}, r"train\.schedule = 'linear' is not allowed"),
-        ({"train": {"families": ["crossing", "maze"]}}, r"train\.families = 'maze' is not allowed"),
+        ({"train": {"families": ["crossing", "maze"]}}, r"train\.families\[1\] = 'maze' is not a family"),
         ({"train": {"fields_per_step": 1}}, r"train\.fields_per_step = 1 must be at least the number"),
         ({"train": {"remat": 1}}, r"train\.remat = 1 must be true or false"),
         ({"validation": {"seed": 0}}, r"train\.seed, validation\.seed and test\.seed must differ"),
         ({"objective": {"tau": 0.0}}, r"objective\.tau = 0\.0 is out of range"),
-        ({"objective": {"w_colision": 1.0}}, r"objective\.w_colision is not a key"),
-        ({"tune": {"params": ["gamma", "kappa"]}}, r"tune\.params: 'kappa' is not a gain"),
-        ({"tune": {"k_max": 0.4}}, r"init\.k = 0\.5 must lie strictly inside \(0, tune\.k_max = 0\.4\)"),
+        ({"objective": {"w_colision": 1.0}}, r"objective\.w_colision is not a known key"),
+        ({"tune": {"params": ["gamma", "kappa"]}}, r"tune\.params\.kappa is not a gain"),
+        ({"tune": {"upper": {"k": 0.4}}}, r"init\.k = 0\.5 must lie strictly inside \(0, 0\.4\)"),
+        ({"tune": {"upper": {"kappa": 0.4}}}, r"tune\.upper\.kappa is not a gain"),
         ({"init": {"d_s": -1.0}}, r"init\.d_s = -1\.0 is out of range"),
-        ({"sim": {"horizn": 3}}, r"sim\.horizn is not a key of \[sim\]"),
+        ({"sim": {"horizn": 3}}, r"sim\.horizn is not a known key"),
+        ({"sim": {"method": "magic"}}, r"sim\.method = 'magic' is not a registered planner"),
         ({"sim": {"dt": 0.0}}, r"sim\.dt = 0\.0 is out of range"),
         ({"scenario": {"params": {"trap": {"radius": [2.0, 1.0]}}}}, r"scenario\.params\.trap\.radius .* is not an interval"),
         ({"scenario": {"trap": {"distance": [4.0, 5.0]}}}, r"scenario\.trap is not allowed; .*\[scenario\.params\.trap\]"),
-        ({"baselines": {"grid": {"gama": [1.0]}}}, r"baselines\.grid\.gama is not a gain"),
-        ({"baselines": {"grid": {"k": [-1.0]}}}, r"baselines\.grid\.k = -1\.0 is out of range"),
+        ({"search": {"grid": {"gama": [1.0]}}}, r"search\.grid\.gama is not a gain"),
+        ({"search": {"grid": {"k": [-1.0]}}}, r"search\.grid\.k = -1\.0 is out of range"),
     ],
 )
 def test_spec_errors_name_the_key(change, message):

@@ -1,0 +1,102 @@
+"""The maintainers' scripts of ``benchmarks/``: they run and compute what they say (timings are not asserted)."""
+
+import json
+import sys
+
+import numpy as np
+import pytest
+
+from jaxapf.validation import ConfigError
+
+sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parents[2] / "benchmarks"))
+
+
+def test_fit_step_cost_recovers_a_known_model(monkeypatch):
+    """benchmarks/fit_cost.py fits c0 + c_qp·N·I + c_obs·N·M + c_n·N: timings made from known
+    coefficients come back exactly, and the table names the constant the sweep's dry run uses."""
+    import fit_cost
+
+    truth = (5.0, 0.01, 0.02, 0.1)
+
+    def fake_benchmark(*, fields, obstacles, horizon, iters, steps, oracle_fields):
+        us = truth[0] + truth[1] * horizon * iters + truth[2] * horizon * obstacles + truth[3] * horizon
+        return {"engine": {"run_s": us * 1e-6 * fields * steps}}
+
+    monkeypatch.setattr(fit_cost, "run_benchmark", fake_benchmark)
+    result = fit_cost.fit_step_cost(fields=8, steps=5)
+    assert len(result["rows"]) == 18
+    np.testing.assert_allclose(result["coefficients"], truth, rtol=1e-9)
+    assert result["fit_over_measured"]["min"] == pytest.approx(1.0) == result["fit_over_measured"]["max"]
+    assert "STEP_COST_US = (5, 0.01, 0.02, 0.1)" in fit_cost.format_step_cost(result)
+
+
+def test_xla_option_parsing_names_the_flag():
+    from xla_options import parse_xla_option
+
+    assert parse_xla_option("xla_cpu_use_fusion_emitters=true") == ("xla_cpu_use_fusion_emitters", True)
+    assert parse_xla_option("xla_cpu_enable_fast_math=False") == ("xla_cpu_enable_fast_math", False)
+    assert parse_xla_option("xla_cpu_prefer_vector_width=512") == ("xla_cpu_prefer_vector_width", 512)
+    assert parse_xla_option("xla_cpu_experimental_ynn_fusion_type=") == ("xla_cpu_experimental_ynn_fusion_type", "")
+    for bad in ("fast_math=true", "xla_cpu_use_fusion_emitters"):
+        with pytest.raises(ConfigError, match=r"bench\.xla_option = .*KEY=VALUE"):
+            parse_xla_option(bad)
+
+
+def test_compare_xla_options_times_both_compilations_of_one_lowering():
+    """benchmarks/xla_options.py: the shipped options against an override, from one lowering.
+    An override that restates a shipped option compiles the same program: same episodes."""
+    from xla_options import compare_xla_options, format_xla_options
+    from jaxapf.rollout import XLA_OPTIONS
+
+    key, value = next(iter(XLA_OPTIONS.items()))
+    result = compare_xla_options({key: value}, repeats=1, fields=2, steps=4, obstacles=2, horizon=3, iters=2)
+    assert set(result["variants"]) == {"shipped", "override"}
+    assert result["variants"]["override"]["options"] == XLA_OPTIONS
+    assert all(v["run_s"] > 0 and v["compile_s"] > 0 for v in result["variants"].values())
+    assert result["outcome_changes"] == 0 and max(result["max_abs_diff"].values()) == 0.0
+    assert result["speedup"] == pytest.approx(result["variants"]["shipped"]["run_s"]
+                                              / result["variants"]["override"]["run_s"])
+    assert "override / shipped speed" in format_xla_options(result)
+    json.dumps(result)  # the --json output
+    with pytest.raises(ConfigError, match=r"bench\.xla_option = .*xla_cpu_no_such_option.*XLA rejected it"):
+        compare_xla_options({"xla_cpu_no_such_option": 1}, repeats=1, fields=2, steps=2, obstacles=2, horizon=3,
+                            iters=2)
+
+
+def test_cost_split_attributes_the_step_to_obstacles_iterations_and_the_rest():
+    """benchmarks/split.py: four compiled cases, and the attribution is their differences."""
+    from split import cost_split, format_cost_split
+
+    result = cost_split(fields=2, obstacles=3, horizon=3, iters=2, steps=3, repeats=1)
+    us = result["step_us"]
+    assert set(us) == {"full", "one_obstacle", "one_iteration", "both"} and min(us.values()) > 0
+    assert result["obstacles_us"] == pytest.approx(sorted([us["full"] - us["one_obstacle"],
+                                                           us["one_iteration"] - us["both"]]))
+    assert result["iterations_us"] == pytest.approx(sorted([us["full"] - us["one_iteration"],
+                                                            us["one_obstacle"] - us["both"]]))
+    assert result["rest_us"] == us["both"]
+    text = format_cost_split(result)
+    assert "2 further obstacle slots" in text and "1 further FISTA iterations" in text
+
+
+def test_kernel_cost_times_every_op_in_both_layouts_with_both_emitters():
+    """benchmarks/kernels.py: one row per (op, layout, options), positive times, and a table."""
+    from kernels import KERNEL_OPS, format_kernel_cost, kernel_cost
+
+    result = kernel_cost(fields=4, obstacles=3, iterations=2, repeats=1)
+    rows = result["rows"]
+    assert {(r["op"], r["layout"], r["options"]) for r in rows} == {
+        (op, layout, options) for op in KERNEL_OPS for layout in ("fields x obstacles", "obstacles x fields")
+        for options in ("shipped", "fusion emitters")}
+    assert all(r["ps_per_element"] > 0 for r in rows)
+    text = format_kernel_cost(result)
+    assert all(op in text for op in KERNEL_OPS) and "fusion emitters" in text
+    with pytest.raises(ConfigError, match="bench.iterations"):
+        kernel_cost(iterations=0)
+
+
+def test_kernels_script_rejects_a_bad_size_by_name(capsys):
+    import kernels
+
+    assert kernels.main(["--fields", "0"]) == 2
+    assert "bench.fields = 0" in capsys.readouterr().err
