@@ -26,18 +26,18 @@ DIR = {"method": "direction"}
 
 def draw_paper_runs(out) -> dict[str, dict[str, dict[str, float]]]:
     """The paper's single runs, field 0 of each scenario with its default parameters."""
-    from jaxapf.config import Gains, MPCConfig, SimConfig
+    from jaxapf import Gains, MPCConfig, SimConfig
     from jaxapf.scenarios import family_params
     from jaxapf.simulate import simulate_runs, write_outputs
 
     metrics = {}
     for family in ("paper_static", "paper_dynamic"):
-        sim = SimConfig(t_max=family_params(family).t_max)
+        sim = SimConfig.from_flat(t_max=family_params(family).t_max)
         mpc = MPCConfig()
         methods = ["basic", "direction_velocity"]
         field, runs, table = simulate_runs(family, 0, 0, methods, Gains(), sim, mpc)
         config = {"command": f"analysis/{STUDY}.py", "family": family, "seed": 0, "field_index": 0,
-                  "methods": methods, "sim": vars(sim) | {"method": None}, "mpc": vars(mpc)}
+                  "methods": methods, "sim": sim.flat() | {"method": None}, "mpc": vars(mpc)}
         write_outputs(out / family, field, runs, table, config)
         (out / family / "trajectories.parquet").unlink()  # large; `jaxapf simulate` rewrites it
         metrics[family] = {r.label: r.metrics for r in runs}

@@ -46,8 +46,7 @@ def setup_jax() -> None:
 def run_spec(name: str, fields: int | None = None) -> pathlib.Path:
     """Run ``sweeps/<name>.toml`` (optionally with another field count) into ``runs/``; finished
     chunks already there are kept, so a rerun only computes what is missing. Returns the dataset."""
-    from jaxapf.sweep import run_sweep
-    from jaxapf.sweep_spec import load_spec
+    from jaxapf.sweep import load_spec, run_sweep
 
     spec = load_spec(ROOT / "sweeps" / f"{name}.toml")
     suffix = ""

@@ -29,8 +29,8 @@ import pandas as pd
 
 from jaxapf import stats
 from jaxapf.tune import run_tune_spec
-from jaxapf.tune_spec import TuneSpec, parse_tune_spec, split_count
-from jaxapf.tune_train import Tuner, batch_gradient, episode_loss
+from jaxapf.tune.spec import TuneSpec, parse_tune_spec, split_count
+from jaxapf.tune.train import Tuner, batch_gradient, episode_loss
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 OVERRIDES = {  # flag: (section, key)
@@ -39,7 +39,7 @@ OVERRIDES = {  # flag: (section, key)
     "validate_every": ("train", "validate_every"),
     "validation_fields": ("validation", "fields"),
     "test_fields": ("test", "fields"),
-    "random_n": ("baselines", "random_n"),
+    "random_n": ("search", "random_n"),
 }
 
 
@@ -83,7 +83,7 @@ def remat_effect(spec: TuneSpec, fields: int, t_max: float, rounds: int = 5) -> 
             start = time.perf_counter()
             jax.block_until_ready(fn(theta, batch))
             times[remat].append(time.perf_counter() - start)
-    return [{"remat": remat, "fields": fields, "t_max": t_max, "steps": small.sim.steps,
+    return [{"remat": remat, "fields": fields, "t_max": t_max, "steps": small.sim.episode.steps,
              "horizon": small.mpc.horizon, "iters": small.mpc.iters,
              "temp_mb": fn.memory_analysis().temp_size_in_bytes / 2**20,
              "seconds": float(np.median(times[remat]))} for remat, fn in compiled.items()]
@@ -244,8 +244,8 @@ def write_markdown(out: pathlib.Path, spec_path: str, spec: TuneSpec, summary: d
         f"Train on {', '.join(spec.train.families)} ({spec.train.fields_per_step} fields per step, seed "
         f"{spec.train.seed}); validation {spec.validation.fields} fields (seed {spec.validation.seed}); test "
         f"{spec.test.fields} fields per family (seed {spec.test.seed}) on {', '.join(spec.test.families)}. "
-        f"Episodes of {spec.sim.t_max:g} s, MPC horizon {spec.mpc.horizon}, {spec.mpc.iters} FISTA iterations, "
-        f"method {spec.sim.method}.",
+        f"Episodes of {spec.sim.episode.t_max:g} s, MPC horizon {spec.mpc.horizon}, {spec.mpc.iters} FISTA iterations, "
+        f"method {spec.sim.planner.method}.",
         "",
         "## Findings",
         "",
