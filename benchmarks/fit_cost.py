@@ -45,7 +45,8 @@ def format_step_cost(result: dict[str, Any]) -> str:
              f"device {env['device']}, {env['cpu_count']} CPUs, jax {env['jax']}",
              f"  {'N':>4s}{'I':>5s}{'M':>5s}{'measured us':>14s}{'fit us':>10s}"]
     for r in result["rows"]:
-        fit = coef[0] + coef[1] * r["horizon"] * r["iters"] + coef[2] * r["horizon"] * r["obstacles"] + coef[3] * r["horizon"]
+        n = r["horizon"]
+        fit = coef[0] + coef[1] * n * r["iters"] + coef[2] * n * r["obstacles"] + coef[3] * n
         lines.append(f"  {r['horizon']:>4d}{r['iters']:>5d}{r['obstacles']:>5d}{r['step_us']:>14.2f}{fit:>10.2f}")
     span = result["fit_over_measured"]
     lines += ["", f"  STEP_COST_US = ({', '.join(f'{c:.4g}' for c in coef)})   "

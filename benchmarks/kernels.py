@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxapf.bench.engine import bench_case, environment, interleaved, lower_case, rates_summary
+from jaxapf.bench.engine import environment, interleaved
 from jaxapf.validation import ConfigError, check_int
 
 

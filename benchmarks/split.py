@@ -15,9 +15,8 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
-from jaxapf.bench.engine import bench_case, environment, interleaved, lower_case, rates_summary
+from jaxapf.bench.engine import bench_case, environment, interleaved, lower_case
 from jaxapf.validation import ConfigError, check_int
 
 

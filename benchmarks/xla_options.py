@@ -17,7 +17,6 @@ import time
 from typing import Any
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from jaxapf.bench.engine import bench_case, environment, interleaved, lower_case, rates_summary

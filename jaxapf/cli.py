@@ -74,7 +74,8 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
     sim.add_argument("--field", type=int, default=0, help="field index within the seed (default 0)")
     sim.add_argument("--methods", type=_planners, default=["basic", "direction_velocity"],
-                     help=f"comma-separated planners of {', '.join(PLANNERS.names())} (default basic,direction_velocity)")
+                     help=f"comma-separated planners of {', '.join(PLANNERS.names())} "
+                          "(default basic,direction_velocity)")
     sim.add_argument("--out", type=pathlib.Path, default=pathlib.Path("out/simulate"),
                      help="output folder (default out/simulate)")
     _gain_flags(sim)
@@ -88,7 +89,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="sign convention of the direction and velocity weights (default intent)")
     s.add_argument("--dt", type=float, default=defaults["dt"], help=f"control step [s] (default {defaults['dt']:g})")
     s.add_argument("--t-max", type=float, help="episode length [s] (default: the family's)")
-    s.add_argument("--horizon", type=int, default=MPCConfig.horizon, help=f"MPC horizon N (default {MPCConfig.horizon})")
+    s.add_argument("--horizon", type=int, default=MPCConfig.horizon,
+                   help=f"MPC horizon N (default {MPCConfig.horizon})")
     s.add_argument("--iters", type=int, default=MPCConfig.iters,
                    help=f"FISTA iterations per step (default {MPCConfig.iters})")
     s.add_argument("--x64", action="store_true", help="run in float64")
@@ -165,7 +167,8 @@ def _add_sweep_parser(sub: argparse._SubParsersAction) -> None:
                     help="print settings, episodes, compiled variants, chunks, time and memory estimates; run nothing")
     sw.add_argument("--gains", type=pathlib.Path, metavar="FILE",
                     help="TOML of gains (e.g. a tuning result) overriding the spec's [gains]")
-    sw.add_argument("--overwrite", action="store_true", help="replace the parts of a different (or the same) sweep in --out")
+    sw.add_argument("--overwrite", action="store_true",
+                    help="replace the parts of a different (or the same) sweep in --out")
     sw.add_argument("--memory-budget", default="256M", metavar="SIZE",
                     help="working-set budget of one chunk, e.g. 256M, 2G (default 256M)")
     sw.add_argument("--chunk-fields", type=int, metavar="N", help="fields per chunk (default: from the memory budget)")
@@ -282,7 +285,8 @@ def _sweep(args: argparse.Namespace) -> int:
     if args.num_processes is not None:
         check_int("--num-processes", args.num_processes, 1)
         if args.process_id is not None and not 0 <= args.process_id < args.num_processes:
-            raise ConfigError(f"--process-id = {args.process_id} is out of range; allowed: 0 … {args.num_processes - 1}")
+            raise ConfigError(f"--process-id = {args.process_id} is out of range; "
+                              f"allowed: 0 … {args.num_processes - 1}")
     configure_jax(x64=args.x64, cache_dir=None if args.no_cache else args.cache_dir or default_cache_dir(),
                   cpu_devices=args.devices or 1, distributed=args.distributed,
                   cluster=cluster)

@@ -8,7 +8,7 @@ into global ``(G, F)`` arrays with ``jax.make_array_from_single_device_arrays``.
 ``shard_map``: on XLA:CPU the SPMD-partitioned executable rounds differently from the
 single-device one (last-bit differences in a few percent of episodes, docs/sweep.md), and
 ``jaxapf sweep`` promises the same numbers on any number of devices. Used by ``jaxapf sweep`` and
-``jaxapf bench --devices``.
+``jaxapf bench engine --devices``.
 """
 
 from __future__ import annotations

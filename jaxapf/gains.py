@@ -81,7 +81,8 @@ class GainSpec:
 
 def _describe(spec: GainSpec) -> str:
     unit = f" [{spec.unit}]" if spec.unit else ""
-    return f"{spec.doc}{unit}; default {spec.default:g}; {describe_range(spec.low, spec.high, spec.low_open, spec.high_open)}"
+    allowed = describe_range(spec.low, spec.high, spec.low_open, spec.high_open)
+    return f"{spec.doc}{unit}; default {spec.default:g}; {allowed}"
 
 
 #: Every declared gain, in declaration order (the order of :class:`Gains` leaves and of the gain

@@ -45,7 +45,8 @@ def load_plugin(name: str, where: str = "plugin") -> ModuleType:
     except ImportError as err:
         raise ConfigError(f"{where} = {name!r} cannot be imported: {first_line(err)}") from None
     except Exception as err:  # noqa: BLE001 - a plugin's own error, reported in one line
-        raise ConfigError(f"{where} = {name!r} failed while importing: {type(err).__name__}: {first_line(err)}") from None
+        raise ConfigError(f"{where} = {name!r} failed while importing: "
+                          f"{type(err).__name__}: {first_line(err)}") from None
 
 
 def check_plugins(where: str, value: Any) -> tuple[str, ...]:

@@ -75,7 +75,7 @@ def rollout(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, *,
         return (state, shift_warm_start(u), plan, guard), (plant.kinematics(state), accel, filtered | integrated)
 
     state0 = plant.init(scenario.start, gains, sim)
-    carry0 = (state0, jnp.zeros((3, mpc.horizon), dtype), planner.init(scenario, gains, sim),
+    carry0 = (state0, jnp.zeros((3, mpc.horizon), dtype), planner.init(scenario, gains, sim, mpc.horizon),
               safety.init(scenario, gains, sim))
     ks = jnp.arange(sim.episode.steps, dtype=dtype)
     body = jax.checkpoint(control_step, prevent_cse=False) if remat else control_step
@@ -111,15 +111,15 @@ ACCELERATOR_WIDTH = 4096
 #:   the empty list switches YNNPACK fusions off.
 #: * ``xla_cpu_use_fusion_emitters = False``: XLA's classic loop emitter instead of the newer
 #:   fusion emitters. On a lone elementwise kernel the fusion emitters are the faster ones
-#:   (``jaxapf bench --kernels``), but the closed loop's kernels are large fusions of the APF's
+#:   (``benchmarks/kernels.py``), but the closed loop's kernels are large fusions of the APF's
 #:   forward and backward pass over ``(fields, obstacles)``, which the fusion emitters compile
 #:   into slower code: the whole closed loop runs about 1.1-1.2x faster with the classic one
-#:   (``jaxapf bench --xla-option xla_cpu_use_fusion_emitters=true`` compiles one lowering both
-#:   ways and times them interleaved; README, "Speed").
+#:   (``benchmarks/xla_options.py --xla-option xla_cpu_use_fusion_emitters=true`` compiles one
+#:   lowering both ways and times them interleaved; docs/performance.md).
 #: * ``xla_cpu_copy_insertion_use_region_analysis = True``: XLA's copy insertion analyses the
 #:   loops' regions, so FISTA's ``lax.scan`` keeps one copy of its carry per iteration instead of
-#:   three; the same arithmetic, about 1.07x faster (median of five ``jaxapf bench --xla-option``
-#:   runs, README "Speed").
+#:   three; the same arithmetic, about 1.07x faster (median of five ``benchmarks/xla_options.py``
+#:   runs, docs/performance.md).
 XLA_OPTIONS = {
     "xla_cpu_experimental_ynn_fusion_type": "",
     "xla_cpu_use_fusion_emitters": False,

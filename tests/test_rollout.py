@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from jaxapf.config import MPCConfig, SimConfig
-from jaxapf.gains import Gains
-from jaxapf.dynamics import step
-from jaxapf.metrics import episode_metrics
 from jaxapf.datatypes import Obstacles, Scenario
+from jaxapf.dynamics import step
+from jaxapf.gains import Gains
+from jaxapf.metrics import episode_metrics
 from jaxapf.rollout import evaluate, evaluate_program, rollout
 
 SIM = SimConfig.from_flat(t_max=8.0)
@@ -85,8 +85,8 @@ def test_gain_grid_is_one_compiled_call_matching_single_runs():
     assert evaluate_program._cache_size() == size, "changing gain values must not recompile"
     # entry (g, f) is the single episode with those gains on that field
     for g, f in [(0, 0), (2, 1)]:
-        one = jax.tree_util.tree_map(lambda x: x[g], grid)
-        field = jax.tree_util.tree_map(lambda x: x[f], scenarios)
+        one = jax.tree_util.tree_map(lambda x, g=g: x[g], grid)
+        field = jax.tree_util.tree_map(lambda x, f=f: x[f], scenarios)
         single = episode_metrics(_rollout(field, one, SIM, MPC), field, SIM)
         np.testing.assert_allclose(metrics["path_length"][g, f], single["path_length"], rtol=1e-5)
         assert bool(metrics["success"][g, f]) == bool(single["success"])
@@ -126,7 +126,7 @@ def test_apf_reference_follows_the_saturated_flow_in_either_obstacle_layout():
     planner = PLANNERS.get(sim.planner.method)
     s, g, horizon, t = _scenario(extra_padding=2), Gains().as_arrays(), 5, 0.7
     x = jnp.array([1.0, 0.2, 2.0, 0.4, 0.0, 0.0])
-    ref, state = planner.reference(planner.init(s, g, sim), x, t, s.goal, s.obstacles, g, sim, horizon)
+    ref, state = planner.reference(planner.init(s, g, sim, horizon), x, t, s.goal, s.obstacles, g, sim, horizon)
     assert state == ()
     np.testing.assert_array_equal(ref, planner.reference((), x, t, s.goal, s.obstacles.columns(), g, sim, horizon)[0])
     p, v, cfg, dt = x[:3], x[3:], sim.planner, sim.episode.dt

@@ -3,7 +3,6 @@ the same sweep on several CPU devices (``jaxapf bench sweep``)."""
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 import jax
@@ -90,13 +89,13 @@ def run_sweep_benchmark(spec_table: dict[str, Any] | None = None, sharded_device
     import sys
     import tempfile
 
-    from .sweep import plan_sweep
-    from ..sweep import parse_spec
+    from ..sweep import parse_spec, plan_sweep
 
     spec_table = spec_table or SWEEP_BENCH_SPEC
     spec = parse_spec(spec_table)
     plan = plan_sweep(spec)
-    steps = sum(len(plan.variants[c.variant].settings) * (c.stop - c.start) * plan.blocks[(c.variant, c.family)].sim.episode.steps
+    steps = sum(len(plan.variants[c.variant].settings) * (c.stop - c.start)
+                * plan.blocks[(c.variant, c.family)].sim.episode.steps
                 for c in plan.chunks)
     with tempfile.TemporaryDirectory() as tmp:
         timed = interleaved({"bare": _bare_run(spec), "sweep": _sweep_run(spec, tmp)}, repeats)
@@ -136,8 +135,10 @@ def format_sweep_benchmark(result: dict[str, Any]) -> str:
     if result["sharded"] is not None:
         rows.append((f"sweep end to end ({result['sharded']['devices']} devices)", result["sharded"]))
     for label, r in rows:
-        lines.append(f"  {label:34s}{format_seconds(r['run_s']):>10s}{r['episodes_per_s']:>14,.0f}{r['steps_per_s']:>20,.0f}")
+        lines.append(f"  {label:34s}{format_seconds(r['run_s']):>10s}{r['episodes_per_s']:>14,.0f}"
+                     f"{r['steps_per_s']:>20,.0f}")
     lines += ["", f"  sweep overhead over bare evaluate: {100 * result['overhead']:+.1f} % (target < 5 %)"]
     if result["sharded"] is not None:
-        lines.append(f"  sharded speed-up ({result['sharded']['devices']} devices / 1): {result['sharded']['speedup']:.2f}x")
+        sharded = result["sharded"]
+        lines.append(f"  sharded speed-up ({sharded['devices']} devices / 1): {sharded['speedup']:.2f}x")
     return "\n".join(lines)

@@ -4,8 +4,7 @@ Every class is a pytree whose leaves are arrays (MJX's rule), so any of them can
 ``vmap`` and passed through ``jit``.
 """
 
-from .obstacles import (ObstacleColumns, Obstacles, clearance, obstacles_at, project, safe_norm,
-                        segment_clearance)
+from .obstacles import ObstacleColumns, Obstacles, clearance, obstacles_at, project, safe_norm, segment_clearance
 from .scenario import Scenario
 from .trajectory import Trajectory
 

@@ -1,7 +1,7 @@
 """The metric registry: one entry per number an episode yields.
 
 Each :class:`Metric` says how it is computed from an episode (a function of the
-:class:`~jaxapf.metrics.episode.EpisodeContext`, traced under ``jit``/``vmap``) and what it means:
+:class:`~jaxapf.metrics.context.EpisodeContext`, traced under ``jit``/``vmap``) and what it means:
 dtype, unit, whether it is a rate (a boolean outcome) or continuous, whether higher is better,
 whether it is meaningful only on successful episodes, and whether the default report shows it.
 The sweep's Parquet schema, the report's tables and units, ``jaxapf simulate``'s table and
@@ -14,16 +14,14 @@ computes it and every later sweep writes its column.
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING, Callable, Sequence
+from typing import Callable, Sequence
 
 import jax.numpy as jnp
 from jax import Array
 
 from ..registry import Registry
 from ..validation import ConfigError
-
-if TYPE_CHECKING:
-    from .episode import EpisodeContext
+from .context import EpisodeContext
 
 __all__ = ["Metric", "METRICS", "KINDS", "DTYPES", "register_metric", "compute_metrics", "metric_names"]
 
@@ -39,7 +37,7 @@ class Metric:
 
     Attributes:
       name: column name (letters, digits, ``_``).
-      fn: ``fn(ctx) -> scalar`` on the :class:`~jaxapf.metrics.episode.EpisodeContext`.
+      fn: ``fn(ctx) -> scalar`` on the :class:`~jaxapf.metrics.context.EpisodeContext`.
       dtype: ``bool``, ``int32`` or ``float``.
       kind: ``rate`` (``dtype`` bool), ``continuous`` or ``count``.
       unit: unit for tables and axes (``"m"``), ``""`` for none.

@@ -9,7 +9,7 @@ Time grid
 Samples ``i = 0..T`` at ``t_i = i·dt`` (``traj.time``); interval ``i = [t_i, t_{i+1}]``,
 ``i = 0..T-1``, carries the control ``a_i = traj.control[i]``. Obstacles move at constant velocity,
 ``centre(t) = position + velocity·t``. ``c_i`` is the swept (segment) clearance of interval ``i``,
-the minimum over valid obstacles of :func:`~jaxapf.obstacles.segment_clearance`
+the minimum over valid obstacles of :func:`~jaxapf.datatypes.segment_clearance`
 ``(p_i, p_{i+1}, obstacles, t_i, t_{i+1}, r_uav)`` (relative motion linear on the interval, closest
 approach, cylinder projection), +inf if the field has no valid obstacle.
 
@@ -59,8 +59,6 @@ episode end, the valid masks), which are computed once per trace whatever metric
 
 from __future__ import annotations
 
-import functools
-import math
 from typing import Sequence
 
 import jax
@@ -68,175 +66,11 @@ import jax.numpy as jnp
 from jax import Array
 
 from ..config import SimConfig
-from ..datatypes import Obstacles, Scenario, Trajectory, clearance, obstacles_at, project, segment_clearance
+from ..datatypes import Scenario, Trajectory, clearance
 from .base import METRICS, Metric, compute_metrics, register_metric
+from .context import EpisodeContext, longest_run, masked_min, ratio, stall_samples, time_to_collision
 
-__all__ = [
-    "EpisodeContext",
-    "episode_metrics",
-    "episode_end",
-    "clearance_history",
-    "interval_clearance",
-    "time_to_collision",
-]
-
-
-# --------------------------------------------------------------------------------------------
-# geometry along the trajectory
-# --------------------------------------------------------------------------------------------
-
-
-def clearance_history(traj: Trajectory, scenario: Scenario, sim: SimConfig) -> Array:
-    """Clearance (T+1, M) of every sample to every obstacle; +inf for padded slots."""
-    per_sample = jax.vmap(clearance, in_axes=(0, None, 0, None))
-    return per_sample(traj.position, scenario.obstacles, traj.time, sim.vehicle.r_uav)
-
-
-def interval_clearance(traj: Trajectory, scenario: Scenario, sim: SimConfig) -> Array:
-    """Swept clearance (T, M) of every interval to every obstacle; +inf for padded slots."""
-    per_interval = jax.vmap(segment_clearance, in_axes=(0, 0, None, 0, 0, None))
-    p, t = traj.position, traj.time
-    return per_interval(p[:-1], p[1:], scenario.obstacles, t[:-1], t[1:], sim.vehicle.r_uav)
-
-
-def time_to_collision(p: Array, v: Array, obstacles: Obstacles, t: Array | float, r_uav: float) -> Array:
-    r"""Time to collision (M,) under constant relative velocity, from the state ``(p, v)`` at time ``t``.
-
-    With ``r = P(p - centre(t))``, ``w = P(v - v_o)`` (``P`` drops z for a cylinder) and
-    ``R = ρ + r_uav``, the result is the smallest ``τ >= 0`` with ``|r + w τ| = R``: 0 if already
-    overlapping (``|r| <= R``), +inf if the gap is not closing (``w·r >= 0``), if the line of
-    relative motion misses the obstacle, or for a padded slot.
-
-    The smaller root of ``|w|² τ² + 2 (w·r) τ + (|r|² - R²) = 0`` is computed in the cancellation
-    free form ``τ = (|r|² - R²) / (-(w·r) + sqrt((w·r)² - |w|²(|r|² - R²)))``.
-    """
-    r = project(p - obstacles_at(obstacles, t), obstacles.cylinder)
-    w = project(v - obstacles.velocity, obstacles.cylinder)
-    big_r = obstacles.radius + r_uav
-    gap = jnp.sum(r * r, axis=-1) - big_r * big_r  # > 0 iff not overlapping
-    closing = jnp.sum(w * r, axis=-1)  # < 0 iff the gap shrinks
-    disc = closing * closing - jnp.sum(w * w, axis=-1) * gap
-    hits = (closing < 0) & (disc >= 0)
-    denom = jnp.where(hits, -closing + jnp.sqrt(jnp.maximum(disc, 0.0)), 1.0)
-    tau = jnp.where(hits, gap / denom, jnp.inf)
-    tau = jnp.where(gap <= 0, 0.0, tau)
-    return jnp.where(obstacles.valid, tau, jnp.inf).astype(p.dtype)
-
-
-# --------------------------------------------------------------------------------------------
-# episode end and masks
-# --------------------------------------------------------------------------------------------
-
-
-def _first_index(mask: Array, never: int) -> Array:
-    """Index (int32) of the first True entry of ``mask``, ``never`` if there is none."""
-    return jnp.where(jnp.any(mask), jnp.argmax(mask), never).astype(jnp.int32)
-
-
-def _goal_distance(traj: Trajectory, scenario: Scenario) -> Array:
-    """Distance (T+1,) of every sample to the goal."""
-    return jnp.linalg.norm(traj.position - scenario.goal, axis=-1)
-
-
-def _end(min_interval_clearance: Array, goal_distance: Array, sim: SimConfig) -> dict[str, Array]:
-    """Episode-end indices from the (T,) swept clearance and the (T+1,) goal distance."""
-    steps = min_interval_clearance.shape[-1]
-    collision_index = _first_index(min_interval_clearance < 0, steps) + 1  # "never" -> T + 1
-    goal_index = _first_index(goal_distance <= sim.episode.r_goal, steps + 1)
-    end_index = jnp.minimum(jnp.minimum(goal_index, collision_index), steps).astype(jnp.int32)
-    return {"goal_index": goal_index, "collision_index": collision_index, "end_index": end_index}
-
-
-def episode_end(traj: Trajectory, scenario: Scenario, sim: SimConfig) -> dict[str, Array]:
-    """``goal_index``, ``collision_index`` and ``end_index`` (int32 sample indices; ``T + 1`` = never)."""
-    min_c = jnp.min(interval_clearance(traj, scenario, sim), axis=-1)
-    return _end(min_c, _goal_distance(traj, scenario), sim)
-
-
-def _masked_min(x: Array, mask: Array) -> Array:
-    return jnp.min(jnp.where(mask, x, jnp.inf))
-
-
-def _longest_run(mask: Array) -> Array:
-    """Length (int32) of the longest run of consecutive True entries of a 1-D ``mask``."""
-    idx = jnp.arange(mask.shape[-1], dtype=jnp.int32)
-    last_false = jax.lax.cummax(jnp.where(mask, -1, idx), axis=0)
-    return jnp.max(idx - last_false)
-
-
-def _stall_samples(sim: SimConfig) -> int:
-    """Smallest number of samples ``n`` with ``n·dt >= t_stall`` (1e-9 relative tolerance)."""
-    return max(1, math.ceil(sim.metrics.t_stall / sim.episode.dt * (1.0 - 1e-9)))
-
-
-def _ratio(num: Array, den: Array) -> Array:
-    """``num / den`` for ``num, den >= 0`` with ``0/0 := 1`` and ``x/0 := +inf``."""
-    safe = jnp.where(den > 0, den, 1.0)
-    return jnp.where(den > 0, num / safe, jnp.where(num > 0, jnp.inf, 1.0))
-
-
-class EpisodeContext:
-    """One episode and the quantities its metrics share, each computed once (on first use).
-
-    Attributes:
-      traj, scenario, sim: the episode, its field and its static settings.
-    """
-
-    def __init__(self, traj: Trajectory, scenario: Scenario, sim: SimConfig) -> None:
-        self.traj, self.scenario, self.sim = traj, scenario, sim
-        self.steps = traj.control.shape[-2]
-        self.dt = sim.episode.dt
-
-    @functools.cached_property
-    def swept(self) -> Array:
-        """``c_i``: swept clearance (T,) of every interval to the nearest valid obstacle."""
-        return jnp.min(interval_clearance(self.traj, self.scenario, self.sim), axis=-1)
-
-    @functools.cached_property
-    def goal_distance(self) -> Array:
-        """Distance (T+1,) of every sample to the goal."""
-        return _goal_distance(self.traj, self.scenario)
-
-    @functools.cached_property
-    def end(self) -> dict[str, Array]:
-        """``goal_index``, ``collision_index``, ``end_index`` (module docstring)."""
-        return _end(self.swept, self.goal_distance, self.sim)
-
-    @property
-    def end_index(self) -> Array:
-        """``e``: the last valid sample."""
-        return self.end["end_index"]
-
-    @functools.cached_property
-    def sample_valid(self) -> Array:
-        return jnp.arange(self.steps + 1) <= self.end_index
-
-    @functools.cached_property
-    def interval_valid(self) -> Array:
-        return jnp.arange(self.steps) < self.end_index
-
-    @functools.cached_property
-    def success(self) -> Array:
-        return (self.end["goal_index"] <= self.steps) & (self.end["goal_index"] < self.end["collision_index"])
-
-    @functools.cached_property
-    def collision(self) -> Array:
-        return (self.end["collision_index"] <= self.steps) & (self.end["collision_index"] <= self.end["goal_index"])
-
-    @functools.cached_property
-    def time_to_goal(self) -> Array:
-        return jnp.where(self.success, self.end["goal_index"] * self.dt, jnp.nan)
-
-    @functools.cached_property
-    def straight(self) -> Array:
-        """``|g - start|``: the straight-line distance."""
-        return jnp.linalg.norm(self.scenario.goal - self.scenario.start)
-
-    @functools.cached_property
-    def path_length(self) -> Array:
-        p = self.traj.position
-        step_length = jnp.linalg.norm(p[1:] - p[:-1], axis=-1)
-        return jnp.sum(jnp.where(self.interval_valid, step_length, 0.0))
+__all__ = ["episode_metrics"]
 
 
 # --------------------------------------------------------------------------------------------
@@ -247,13 +81,13 @@ class EpisodeContext:
 def _min_clearance(ctx: EpisodeContext) -> Array:
     traj, obstacles = ctx.traj, ctx.scenario.obstacles
     first_sample = jnp.min(clearance(traj.position[0], obstacles, traj.time[0], ctx.sim.vehicle.r_uav))
-    return jnp.where(ctx.end_index == 0, first_sample, _masked_min(ctx.swept, ctx.interval_valid))
+    return jnp.where(ctx.end_index == 0, first_sample, masked_min(ctx.swept, ctx.interval_valid))
 
 
 def _stalled(ctx: EpisodeContext) -> Array:
     speed = jnp.linalg.norm(ctx.traj.velocity, axis=-1)
     mask = ctx.sample_valid & (speed < ctx.sim.metrics.v_stall) & (ctx.goal_distance > ctx.sim.episode.r_goal)
-    return _longest_run(mask) >= _stall_samples(ctx.sim)
+    return longest_run(mask) >= stall_samples(ctx.sim)
 
 
 def _control_effort(ctx: EpisodeContext) -> Array:
@@ -280,7 +114,7 @@ def _min_ttc(ctx: EpisodeContext) -> Array:
     traj = ctx.traj
     ttc = jax.vmap(time_to_collision, in_axes=(0, 0, None, 0, None))(
         traj.position, traj.velocity, ctx.scenario.obstacles, traj.time, ctx.sim.vehicle.r_uav)
-    return _masked_min(jnp.min(ttc, axis=-1), ctx.sample_valid)
+    return masked_min(jnp.min(ttc, axis=-1), ctx.sample_valid)
 
 
 def _score(ctx: EpisodeContext) -> Array:
@@ -302,7 +136,7 @@ for _metric in (
     Metric("time_to_goal", lambda ctx: ctx.time_to_goal, unit="s", higher_is_better=False, on_success=True,
            report=True, doc="time of the first sample within r_goal of the goal"),
     Metric("path_length", lambda ctx: ctx.path_length, unit="m", doc="length of the flown path"),
-    Metric("path_ratio", lambda ctx: _ratio(ctx.path_length, ctx.straight), higher_is_better=False, report=True,
+    Metric("path_ratio", lambda ctx: ratio(ctx.path_length, ctx.straight), higher_is_better=False, report=True,
            doc="path length over the straight start-goal distance"),
     Metric("stalled", _stalled, dtype="bool", kind="rate", higher_is_better=False, report=True,
            doc="slower than v_stall for t_stall while away from the goal: the local-minimum signature"),

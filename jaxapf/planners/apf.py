@@ -32,7 +32,7 @@ from ..datatypes import ObstacleColumns, Obstacles, safe_norm
 from ..gains import GainSpec, declare_gains
 from .base import Planner, register_planner
 from .potentials import total_force
-from .weights import GAMMA, K, WEIGHTS, Basic, Direction, DirectionVelocity, Weight
+from .weights import GAMMA, WEIGHTS, Basic, Direction, DirectionVelocity, K, Weight
 
 if TYPE_CHECKING:
     from ..config import SimConfig

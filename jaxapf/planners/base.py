@@ -61,8 +61,9 @@ class Planner(abc.ABC):
         """The :class:`~jaxapf.config.PlannerConfig` fields (besides ``method``) the planner reads."""
         return ()
 
-    def init(self, scenario: "Scenario", gains: "Gains", sim: "SimConfig") -> Any:
-        """The planner's state at the start of an episode (default: none)."""
+    def init(self, scenario: "Scenario", gains: "Gains", sim: "SimConfig", horizon: int) -> Any:
+        """The planner's state at the start of an episode (default: none); it keeps its shapes
+        through the episode (``horizon``: the MPC's N, for states shaped like a reference)."""
         return ()
 
     @abc.abstractmethod

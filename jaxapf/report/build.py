@@ -20,9 +20,8 @@ import dataclasses
 import datetime
 import json
 import pathlib
-from typing import Any, Mapping
+from typing import Mapping
 
-import numpy as np
 import pandas as pd
 
 from .. import stats
@@ -180,8 +179,9 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
         doc.p("Rows with equal (family, field) are the same obstacle field (common random numbers) and are paired. "
               "Δ = setting − baseline (rates in percentage points; continuous metrics: difference of IQMs over the "
               "pairs) with a paired bootstrap interval. PoI = P(setting better than baseline on the same field) "
-              "+ ½ P(tie), over the pairs: > 0.5 favours the setting. Better means higher for success and "
-              "min_clearance, lower for collision, stalled, time_to_goal, path_ratio, control_effort, jerk_rms. "
+              "+ ½ P(tie), over the pairs: > 0.5 favours the setting. Better means higher for "
+              f"{', '.join(m for m in rates + continuous if METRICS.get(m).higher_is_better)}, lower for "
+              f"{', '.join(m for m in rates + continuous if not METRICS.get(m).higher_is_better)}. "
               f"p: exact McNemar (rates) or Wilcoxon signed-rank (continuous); p Holm: Holm-adjusted over all "
               f"{n_tests} tests; * = significant at {options.alpha:.3g}.")
         for m in rates + continuous:

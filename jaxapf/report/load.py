@@ -10,10 +10,9 @@ from __future__ import annotations
 import pathlib
 from typing import Any, Iterable, Mapping
 
-import numpy as np
 import pandas as pd
 
-from ..metrics import METRICS, metric_names
+from ..metrics import metric_names
 from ..validation import ConfigError
 
 __all__ = ["ReportError", "ROW_COLUMNS", "report_metrics", "load_sweep", "validate_sweep"]

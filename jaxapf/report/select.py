@@ -143,7 +143,8 @@ class Selection:
 
 
 def select(df: pd.DataFrame, options: Any) -> Selection:
-    """The rows, settings and baseline pairs of a report with ``options`` (:class:`~jaxapf.report.build.ReportOptions`)."""
+    """The rows, settings and baseline pairs of a report with ``options``
+    (:class:`~jaxapf.report.build.ReportOptions`)."""
     table = setting_table(df)
     swept = swept_columns(table)
     labels = setting_labels(table, swept)

@@ -9,8 +9,18 @@
 """
 
 from .base import FAMILIES, SHAPES, Family, FamilyParams, family_params, register_family
-from .families import (TRAP_KINDS, ClutterParams, CrossingParams, DynamicParams, HeadOnParams, MovingParams,
-                       OvertakeParams, PaperDynamicParams, PaperStaticParams, TrapParams)
+from .families import (
+                       TRAP_KINDS,
+                       ClutterParams,
+                       CrossingParams,
+                       DynamicParams,
+                       HeadOnParams,
+                       MovingParams,
+                       OvertakeParams,
+                       PaperDynamicParams,
+                       PaperStaticParams,
+                       TrapParams,
+)
 from .generate import clear_endpoints, field_key, make_scenario, make_scenarios
 from .layout import Draws, Layout
 

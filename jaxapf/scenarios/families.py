@@ -13,9 +13,11 @@ Every field is built the same way:
    ``endpoint_margin`` clear of every obstacle at t = 0. Padded (invalid) slots are parked at
    ``1e6`` with radius 0 and velocity 0.
 
-Keys: field ``i`` of seed ``s`` uses :func:`~jaxapf.scenarios.generate.field_key` ``= fold_in(key(s), i)``, and a field is
+Keys: field ``i`` of seed ``s`` uses :func:`~jaxapf.scenarios.generate.field_key`
+``= fold_in(key(s), i)``, and a field is
 bit-identical whatever batch it is computed in, so chunked sweeps give the same fields (see
-:func:`~jaxapf.scenarios.generate.make_scenarios`). A field draws one block of uniforms from its key (one threefry call: each
+:func:`~jaxapf.scenarios.generate.make_scenarios`). A field draws one block of uniforms from its key
+(one threefry call: each
 call site costs XLA compile time) and hands them out in a fixed order, frame first, then layout;
 the trap family builds every kind from its own part of the block, so selecting fewer trap kinds
 does not change the geometry of the kinds that remain.

@@ -100,7 +100,9 @@ def simulate_runs(
 def format_metrics_table(runs: Sequence[Run]) -> str:
     """A fixed-width table: one row per registered metric (with its unit), one column per run."""
     def cell(value) -> str:
-        return str(value).lower() if isinstance(value, bool) else f"{value:.3g}" if isinstance(value, float) else str(value)
+        if isinstance(value, bool):
+            return str(value).lower()
+        return f"{value:.3g}" if isinstance(value, float) else str(value)
 
     names = [n for n in METRICS.names() if all(n in r.metrics for r in runs)]
     rows = {f"{n} [{METRICS.get(n).unit}]" if METRICS.get(n).unit else n: [cell(r.metrics[n]) for r in runs]

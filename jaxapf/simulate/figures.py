@@ -241,7 +241,8 @@ def outcome(run: Run, field: Field) -> str:
 # --------------------------------------------------------------------------------------------
 
 
-def _xy_bounds(runs: Sequence[Run], field: Field, times: Sequence[float]) -> tuple[tuple[float, float], tuple[float, float]]:
+def _xy_bounds(runs: Sequence[Run], field: Field,
+               times: Sequence[float]) -> tuple[tuple[float, float], tuple[float, float]]:
     """Square-ish x–y limits holding start, goal, every path and the obstacles at ``times``."""
     lo = np.minimum(field.start[:2], field.goal[:2]) - field.r_goal
     hi = np.maximum(field.start[:2], field.goal[:2]) + field.r_goal
@@ -563,7 +564,8 @@ def plot_goal_distance(runs: Sequence[Run], field: Field) -> Figure:
 
 
 def _z_span(runs: Sequence[Run], field: Field, margin: float = 3.0) -> tuple[float, float]:
-    zs = [field.start[2], field.goal[2]] + [float(z) for r in runs for z in (r.position[:, 2].min(), r.position[:, 2].max())]
+    zs = [field.start[2], field.goal[2]] + [float(z) for r in runs
+                                            for z in (r.position[:, 2].min(), r.position[:, 2].max())]
     return min(zs) - margin, max(zs) + margin
 
 

@@ -52,8 +52,17 @@ Modules: :mod:`.spec` (the TOML spec), :mod:`.plan` (variants, chunks, estimates
 """
 
 from .output import prepare_output
-from .plan import (CALLS_PER_PART, DEFAULT_MEMORY_BUDGET, STEP_COST_US, Chunk, Plan, Variant, describe_plan, plan_sweep,
-                   variants)
+from .plan import (
+                   CALLS_PER_PART,
+                   DEFAULT_MEMORY_BUDGET,
+                   STEP_COST_US,
+                   Chunk,
+                   Plan,
+                   Variant,
+                   describe_plan,
+                   plan_sweep,
+                   variants,
+)
 from .read import RowConfig, read_sweep, row_config
 from .run import SweepResult, configure_jax, default_cache_dir, dry_run, parse_size, run_sweep
 from .schema import FORMAT, sweep_meta

@@ -36,7 +36,7 @@ def prepare_output(out: pathlib.Path, meta: Mapping[str, Any], *, overwrite: boo
     """Check ``out`` against this sweep and return the chunks already finished there.
 
     Refuses (:class:`ConfigError`) a path that is a file, a directory holding other files, or parts
-    of a different sweep (spec hash, dtype or vmap width) unless ``overwrite``, which deletes the
+    of a different sweep (spec hash, dtype, vmap width or metrics) unless ``overwrite``, which deletes the
     parts (and nothing else). With ``clean`` (one process only), stale temporary files of a killed
     run are removed.
     """

@@ -9,7 +9,6 @@ import dataclasses
 import json
 import math
 import re
-import warnings
 from typing import Any, Iterable, Mapping, Sequence
 
 import jax
@@ -20,7 +19,7 @@ from ..config import MPCConfig, SimConfig
 from ..gains import GAINS, Gains
 from ..metrics import METRICS
 from ..text import format_bytes, format_seconds
-from ..validation import BoundWarning, ConfigError, check_int
+from ..validation import ConfigError, check_int
 from .spec import Setting, SweepSpec
 
 __all__ = [
@@ -302,7 +301,8 @@ def describe_plan(plan: Plan) -> str:
                          f"chunk (padded {b.padded}), {b.sim.episode.steps} steps, N={b.mpc.horizon}, I={b.mpc.iters}, "
                          f"M={b.obstacles}" + (f", vmap width {b.width}" if b.width != plan.width else ""))
     lines += [
-        f"  time estimate:     {format_seconds(run_s)} of simulation + up to {format_seconds(compile_s)} of compilation "
+        f"  time estimate:     {format_seconds(run_s)} of simulation + up to {format_seconds(compile_s)} of "
+        "compilation "
         "(~0 with a warm compilation cache)",
         "                     from a per-step cost model fitted on a 2-core x86-64 CPU (jaxapf.sweep.STEP_COST_US, "
         "±50 %; benchmarks/fit_cost.py refits it here); on accelerators it is only an upper bound",

@@ -14,7 +14,7 @@ from ..config import STATIC_KEYS
 from ..metrics import METRICS
 from ..validation import ConfigError, first_line
 from .plan import Chunk, Plan
-from .spec import SweepSpec
+from .spec import AXIS_WEIGHT_KEYS, SweepSpec
 
 __all__ = ["FORMAT", "META_KEY", "PRNG", "sweep_meta", "schema", "part_table", "read_meta", "identity",
            "static_columns"]
@@ -45,6 +45,8 @@ def _column_type(spec: SweepSpec, key: str):
     import pyarrow as pa
 
     values = _spec_values(spec, key)
+    if any(isinstance(v, str) for v in values):
+        return pa.string()  # names: filter, plant
     if any(isinstance(v, tuple) for v in values):
         return pa.string()  # per-axis weights given as [x, y, z]: JSON text
     if any(isinstance(v, bool) for v in values):
@@ -69,9 +71,11 @@ def schema(plan: Plan, meta: Mapping[str, Any]):
     return pa.schema(fields, metadata={META_KEY: json.dumps(meta, sort_keys=True).encode()})
 
 
-def _cell(value: Any, text: bool) -> Any:
-    """A static setting's value in its column (``text``: JSON, for per-axis weights)."""
-    return json.dumps(list(value) if isinstance(value, tuple) else value) if text else value
+def _cell(key: str, value: Any, text: bool) -> Any:
+    """A static setting's value in its column: per-axis weights in a text column as JSON text."""
+    if text and key in AXIS_WEIGHT_KEYS:
+        return json.dumps(list(value) if isinstance(value, tuple) else value)
+    return value
 
 
 def part_table(plan: Plan, layout, chunk: Chunk, metrics: Mapping[str, np.ndarray]):
@@ -87,7 +91,7 @@ def part_table(plan: Plan, layout, chunk: Chunk, metrics: Mapping[str, np.ndarra
     constant = {"method": sim.planner.method, "convention": sim.planner.convention, "family": chunk.family,
                 "seed": spec.seed}
     for k in static_columns(spec):  # only t_max can be unnamed, and it is a SimConfig field
-        constant[k] = _cell(static[k] if k in static else sim.flat()[k], pa.types.is_string(layout.field(k).type))
+        constant[k] = _cell(k, static[k] if k in static else sim.flat()[k], pa.types.is_string(layout.field(k).type))
     cols: dict[str, Any] = {"setting": np.repeat(np.array([s.index for s in variant.settings], np.int32), n),
                             "field": np.tile(np.arange(chunk.start, chunk.stop, dtype=np.int64), len(variant.settings))}
     for k in spec.gain_columns():

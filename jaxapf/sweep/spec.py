@@ -400,7 +400,8 @@ def _range(where: str, key: str, value: Any) -> RandomRange:
     if isinstance(value, dict):
         table = check_table(where, value, ("range", "log"))
         if "range" not in table:
-            raise ConfigError(f"{where}.range is missing; write {{range = [lo, hi]}} or {{range = [lo, hi], log = true}}")
+            raise ConfigError(f"{where}.range is missing; write {{range = [lo, hi]}} "
+                              "or {range = [lo, hi], log = true}")
         log = table.get("log", False)
         if not isinstance(log, bool):
             raise ConfigError(f"{where}.log = {log!r} must be true or false")
@@ -433,16 +434,17 @@ def _random(table: Any, fixed: Mapping[str, str], grid: Iterable[str]) -> tuple[
             raise ConfigError(f"random.{key} is also set in [{fixed.get(key, 'grid')}]; set it in one place")
         ranges.append((key, _range(f"random.{key}", key, value)))
     if not ranges:
-        raise ConfigError(f"random has no gain to sample; add e.g. gamma = [0.0, 3.0] (gains: {', '.join(GAINS.names())})")
+        raise ConfigError(f"random has no gain to sample; add e.g. gamma = [0.0, 3.0] "
+                          f"(gains: {', '.join(GAINS.names())})")
     return n, seed, tuple(ranges)
 
 
 def parse_spec(data: Mapping[str, Any], gains_file: str | os.PathLike | None = None) -> SweepSpec:
     """Validate a spec given as a mapping (parsed TOML) and return it as a :class:`SweepSpec`.
 
-    ``gains_file`` (``--gains FILE``, read by :func:`~jaxapf.config.load_gains`) overrides the
-    spec's ``[gains]``: the file's values on top of the spec's, every gain then fixed, except the
-    gains the grid or ``[random]`` vary. Every check runs here, including the :class:`SimConfig` /
+    ``gains_file`` (``--gains FILE``, read by :func:`~jaxapf.gains.read_gains_file`) overrides the
+    spec's ``[gains]``: the file's values on top of the spec's, every gain either names then fixed,
+    except the gains the grid or ``[random]`` vary. Every check runs here, including the :class:`SimConfig` /
     :class:`MPCConfig` of every variant on every family.
     """
     data = check_table("", dict(data), _TOP_KEYS)
@@ -459,7 +461,8 @@ def parse_spec(data: Mapping[str, Any], gains_file: str | os.PathLike | None = N
     gains = _fixed("gains", data.get("gains", {}), GAINS.names())
     fixed = {**{k: "sim" for k in sim}, **{k: "gains" for k in gains}}
     grid = _grid(data["grid"], fixed) if "grid" in data else ()
-    random_n, random_seed, ranges = _random(data["random"], fixed, (k for k, _ in grid)) if "random" in data else (0, 0, ())
+    random_n, random_seed, ranges = (_random(data["random"], fixed, (k for k, _ in grid)) if "random" in data
+                                     else (0, 0, ()))
     if gains_file is not None:
         varied = {k for k, _ in grid} | {k for k, _ in ranges}
         gains = {k: v for k, v in {**gains, **read_gains_file(gains_file)}.items() if k not in varied}

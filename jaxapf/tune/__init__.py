@@ -13,7 +13,7 @@ fields against the defaults, a grid search and a random search given the same ep
 from .objective import TERMS, Objective, Reparam, surrogate_loss, surrogate_terms
 from .run import run_tune, run_tune_spec, write_gains_toml
 from .spec import SearchSpec, TuneSpec, load_tune_spec, parse_tune_spec, read_gains
-from .train import TrainState, Tuner, TuneError
+from .train import TrainState, TuneError, Tuner
 
 __all__ = ["run_tune", "run_tune_spec", "write_gains_toml", "TuneSpec", "SearchSpec", "load_tune_spec",
            "parse_tune_spec", "read_gains", "Objective", "Reparam", "TERMS", "surrogate_terms", "surrogate_loss",

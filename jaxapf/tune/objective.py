@@ -39,7 +39,7 @@ underflows to 0), else 0; one with no bound is ``θ``. For the paper's gains:
    k = k_{max}\,\sigma(\theta_k) \in [0, k_{max}], \qquad
    x = 10^{-3} + \mathrm{softplus}(\theta_x) \ \text{for } x \in \{k_{rep}, d_s, k_{att}, \eta\}
 
-with ``k_max = 1`` by default, which keeps the paper's bound ``ω >= 1`` (SPEC 3).
+with ``k_max = 1`` (``k``'s declared tuning range), which keeps the paper's bound ``ω >= 1`` (SPEC 3).
 """
 
 from __future__ import annotations

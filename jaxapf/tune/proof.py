@@ -11,7 +11,7 @@ wall-clock times are reported next to the episode counts.
 
 Test
 ----
-Four settings -- ``tuned``, ``default`` (:class:`~jaxapf.config.Gains`, the paper-style
+Four settings -- ``tuned``, ``default`` (:class:`~jaxapf.gains.Gains`, the paper-style
 defaults), ``grid`` and ``random`` -- fly the same held-out fields (seed ``test.seed``, never seen
 in training or selection) of every test family, so outcomes are paired. For each family and pooled
 over all of them: success and collision rates with Wilson 95 % intervals, and exact McNemar tests of
@@ -35,7 +35,7 @@ from ..gains import Gains
 from ..metrics import METRICS
 from .objective import TERMS
 from .spec import TuneSpec, split_count
-from .train import TrainState, Tuner, TuneError
+from .train import TrainState, TuneError, Tuner
 
 __all__ = [
     "SETTINGS",

@@ -27,8 +27,17 @@ from typing import Any
 import pandas as pd
 
 from ..versions import versions
-from .proof import (SETTINGS, candidates, comparison_table, plot_test, plot_training, random_settings, select_best,
-                    test_episodes, tuning_budget)
+from .proof import (
+    SETTINGS,
+    candidates,
+    comparison_table,
+    plot_test,
+    plot_training,
+    random_settings,
+    select_best,
+    test_episodes,
+    tuning_budget,
+)
 from .spec import TuneSpec, load_tune_spec
 from .train import HISTORY_COLUMNS, TrainState, Tuner
 
@@ -58,8 +67,8 @@ def format_table(table: pd.DataFrame) -> str:
     out = [f"{'family':<10} {'setting':<8} {'n':>5}  {'success [95% CI]':<22} {'p_holm':>7}  "
            f"{'collision [95% CI]':<22} {'p_holm':>7}  {'loss':>7}"]
     for r in table.itertuples():
-        rate = lambda o: f"{getattr(r, o):.3f} [{getattr(r, o + '_lo'):.3f}, {getattr(r, o + '_hi'):.3f}]"  # noqa: E731
-        p = lambda o: "" if r.setting == "default" else f"{getattr(r, o + '_p_holm'):.3g}"  # noqa: E731
+        rate = lambda o, r=r: f"{getattr(r, o):.3f} [{getattr(r, o + '_lo'):.3f}, {getattr(r, o + '_hi'):.3f}]"
+        p = lambda o, r=r: "" if r.setting == "default" else f"{getattr(r, o + '_p_holm'):.3g}"
         out.append(f"{r.family:<10} {r.setting:<8} {r.n:>5}  {rate('success'):<22} {p('success'):>7}  "
                    f"{rate('collision'):<22} {p('collision'):>7}  {r.loss:>7.3f}")
     return "\n".join(out)
@@ -82,7 +91,7 @@ def run_tune(spec_path: str | pathlib.Path, out: str | pathlib.Path | None = Non
     summary written to ``summary.json``. ``out`` defaults to ``runs/tune-NAME``.
 
     Raises :class:`~jaxapf.config.ConfigError` for a bad spec and
-    :class:`~jaxapf.tune_train.TuneError` when training or a baseline cannot go on.
+    :class:`~jaxapf.tune.train.TuneError` when training or a search cannot go on.
     """
     spec, text = load_tune_spec(spec_path)
     return run_tune_spec(spec, text, out if out is not None else pathlib.Path("runs") / f"tune-{spec.name}",

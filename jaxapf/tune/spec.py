@@ -1,7 +1,7 @@
 """The ``jaxapf tune`` spec file: TOML, validated into a :class:`TuneSpec`.
 
 Every key is checked before anything is traced; an unknown key or a bad value raises
-:class:`~jaxapf.config.ConfigError` naming it (``train.learning_rate = -1.0 is out of range; ...``).
+:class:`~jaxapf.validation.ConfigError` naming it (``train.learning_rate = -1.0 is out of range; ...``).
 The keys, their defaults and ranges are listed in ``docs/tune.md``; :data:`SECTIONS` is the
 authoritative list.
 """
@@ -16,7 +16,6 @@ import json
 import math
 import os
 import tomllib
-import warnings
 from typing import Any, Mapping
 
 import jax.numpy as jnp
@@ -29,9 +28,16 @@ from ..gains import GAINS, Gains, check_gain_name, gains_from_mapping
 from ..planners import PLANNERS
 from ..plugins import check_plugins, load_plugins
 from ..scenarios import FAMILIES, FamilyParams
-from ..sweep.spec import COMPONENT_KEYS, check_value, spec_family_params
-from ..validation import (BoundWarning, ConfigError, check_bool, check_choice, check_int, check_names, check_range,
-                          check_table)
+from ..sweep.spec import check_value, spec_family_params
+from ..validation import (
+    ConfigError,
+    check_bool,
+    check_choice,
+    check_int,
+    check_names,
+    check_range,
+    check_table,
+)
 from .objective import Objective, Reparam
 
 __all__ = [

@@ -2,7 +2,7 @@ r"""Training for ``jaxapf tune``: learn the planner gains by gradient descent th
 
 One training step draws ``fields_per_step`` fresh fields from the training families (seed
 ``train.seed``; step ``s`` uses field indices ``s·c_f … (s+1)·c_f - 1`` of family ``f``, with the
-step's ``c_f`` fields of each family fixed by :func:`~jaxapf.tune_spec.split_count`), rolls every
+step's ``c_f`` fields of each family fixed by :func:`~jaxapf.tune.spec.split_count`), rolls every
 field out with the current gains, and takes one optimiser step on
 
 .. math::  \nabla_\theta \frac{1}{B}\sum_{b=1}^{B} J\big(\mathrm{rollout}(\text{field}_b, g(\theta))\big)
@@ -254,7 +254,7 @@ def _report_batch(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCCon
 
 
 class Tuner:
-    """Fields, training and scoring for one :class:`~jaxapf.tune_spec.TuneSpec`."""
+    """Fields, training and scoring for one :class:`~jaxapf.tune.spec.TuneSpec`."""
 
     def __init__(self, spec: TuneSpec) -> None:
         self.spec = spec

@@ -5,10 +5,11 @@ import sys
 
 import numpy as np
 import pytest
+from conftest import ROOT
 
 from jaxapf.validation import ConfigError
 
-sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parents[2] / "benchmarks"))
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
 
 def test_fit_step_cost_recovers_a_known_model(monkeypatch):
@@ -46,6 +47,7 @@ def test_compare_xla_options_times_both_compilations_of_one_lowering():
     """benchmarks/xla_options.py: the shipped options against an override, from one lowering.
     An override that restates a shipped option compiles the same program: same episodes."""
     from xla_options import compare_xla_options, format_xla_options
+
     from jaxapf.rollout import XLA_OPTIONS
 
     key, value = next(iter(XLA_OPTIONS.items()))

@@ -8,13 +8,11 @@ import pytest
 
 from jaxapf.validation import ConfigError
 
-from test_oracle import _scenario
 
-
-def test_run_benchmark_small_custom_batch():
+def test_run_benchmark_small_custom_batch(field_factory):
     from jaxapf.bench import format_benchmark, run_benchmark
 
-    one = _scenario(np)
+    one = field_factory(np)
     batch = jax.tree_util.tree_map(lambda x: np.stack([x, x]).astype(np.float32) if x.dtype == np.float64
                                    else np.stack([x, x]), one)
     result = run_benchmark(steps=5, horizon=4, iters=5, oracle_fields=2, scenarios=batch)
@@ -67,3 +65,16 @@ def test_bench_cli_has_subcommands_not_instead_flags(capsys):
     assert "bench.fields = 0" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["bench", "--split"])
+
+
+def test_sweep_benchmark_times_the_sweep_against_bare_calls_on_the_same_work():
+    from jaxapf.bench.sweep import format_sweep_benchmark, run_sweep_benchmark
+
+    table = {"name": "bench-tiny", "scenario": {"families": ["crossing"], "fields": 4},
+             "sim": {"t_max": 0.5, "horizon": 3, "iters": 2}, "grid": {"method": ["basic", "direction"]}}
+    result = run_sweep_benchmark(table, sharded_devices=0, repeats=1)
+    assert result["config"]["episodes"] == 8 and result["config"]["scenario_steps"] == 8 * 5
+    assert result["bare"]["run_s"] > 0 and result["sweep"]["run_s"] > 0 and result["sharded"] is None
+    assert result["overhead"] == pytest.approx(result["sweep"]["run_s"] / result["bare"]["run_s"] - 1.0)
+    assert "sweep overhead" in format_sweep_benchmark(result)
+    json.dumps(result)

@@ -5,7 +5,6 @@ their gradients (both conventions, cylinders, masks, the clearance floor), the r
 condensed MPC with its velocity penalty, and the plant, end to end.
 """
 
-import json
 import sys
 
 import jax
@@ -15,13 +14,13 @@ import pytest
 
 osqp = pytest.importorskip("osqp")
 
+from conftest import three_obstacle_field  # noqa: E402
+
 from jaxapf.bench import oracle as bl  # noqa: E402
 from jaxapf.config import MPCConfig, SimConfig  # noqa: E402
-from jaxapf.gains import Gains
-from jaxapf.validation import ConfigError
 from jaxapf.control.mpc import axis_problem, solve_axes  # noqa: E402
 from jaxapf.dynamics import discrete_matrices  # noqa: E402
-from jaxapf.datatypes import Obstacles, Scenario  # noqa: E402
+from jaxapf.gains import Gains  # noqa: E402
 from jaxapf.planners.potentials import total_force as jax_total_force  # noqa: E402
 from jaxapf.rollout import rollout  # noqa: E402
 
@@ -29,20 +28,7 @@ COMBOS = [(m, c) for m in ("basic", "direction", "direction_velocity") for c in 
 
 
 def _scenario(xp=jnp):
-    """3 real obstacles (a static sphere near the start-goal line, a cylinder, a moving sphere
-    crossing the path) and one padded slot. Create inside the x64 context for float64."""
-    f = lambda a: xp.asarray(a, dtype=xp.float64)  # noqa: E731
-    return Scenario(
-        start=f([0.0, 0.0, 0.0]),
-        goal=f([12.0, 0.5, 0.5]),
-        obstacles=Obstacles(
-            position=f([[4.0, 0.3, 0.0], [7.0, -1.5, 5.0], [9.0, 4.0, 0.2], [1e6, 1e6, 1e6]]),
-            velocity=f([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [-0.3, -0.6, 0.0], [0.0, 0.0, 0.0]]),
-            radius=f([1.0, 0.8, 0.7, 0.0]),
-            cylinder=xp.asarray([False, True, False, False]),
-            valid=xp.asarray([True, True, True, False]),
-        ),
-    )
+    return three_obstacle_field(xp)
 
 
 def _gains():

@@ -10,7 +10,6 @@ import pytest
 from scipy.optimize import minimize
 
 from jaxapf.config import MPCConfig
-from jaxapf.dynamics import discrete_matrices, step
 from jaxapf.control.mpc import (
     axis_problem,
     condensed_qp,
@@ -19,6 +18,7 @@ from jaxapf.control.mpc import (
     solve_axes,
     solve_box_qp,
 )
+from jaxapf.dynamics import discrete_matrices, step
 
 DT, N = 0.1, 8
 WEIGHTS = dict(q_pos=(1.0, 2.0, 0.5), q_vel=(0.1, 0.2, 0.3), f_pos=(5.0, 4.0, 3.0), f_vel=(0.5, 0.6, 0.7),
@@ -106,7 +106,7 @@ def test_float32_default_iterations_cost_within_tolerance():
         u = np.asarray(solve_box_qp(h, e, -3.0, 3.0, iters=mpc.iters), np.float64)
         h64, e64 = (np.asarray(a, np.float64) for a in (h, e))
         best = _scipy_box_qp(h64, e64, np.full(e.shape, -3.0), np.full(e.shape, 3.0))
-        cost = lambda x: 0.5 * x @ h64 @ x + e64 @ x  # noqa: E731
+        cost = lambda x, h64=h64, e64=e64: 0.5 * x @ h64 @ x + e64 @ x
         gaps.append((cost(u) - cost(best)) / abs(cost(best)))
     assert max(gaps) < 0.01, gaps
 
@@ -143,7 +143,8 @@ def test_shared_axis_kernel_equals_per_axis_kernels():
         shared = solve_axes(prob, x0, x_ref, warm, **kw)
         np.testing.assert_allclose(shared, solve_axes(copies, x0, x_ref, warm, **kw), rtol=1e-12, atol=1e-12)
         assert np.abs(np.asarray(shared)).max() == pytest.approx(2.0)  # the box is active too
-    assert axis_problem(MPCConfig(horizon=N, **WEIGHTS), *discrete_matrices(DT, 1, jnp.float32)).kernel.shape == (3, 2 * N, N)
+    prob = axis_problem(MPCConfig(horizon=N, **WEIGHTS), *discrete_matrices(DT, 1, jnp.float32))
+    assert prob.kernel.shape == (3, 2 * N, N)
 
 
 def test_velocity_penalty_solution_matches_scipy():

@@ -16,9 +16,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from jaxapf.config import SimConfig
+from jaxapf.datatypes import Obstacles, Scenario, Trajectory
 from jaxapf.metrics import METRICS, clearance_history, episode_end, episode_metrics, time_to_collision
-from jaxapf.datatypes import Obstacles, Scenario
-from jaxapf.datatypes import Trajectory
 
 SIM = SimConfig.from_flat(dt=0.1, t_max=5.0, v_max=2.0, r_uav=0.3, r_goal=0.5, v_stall=0.1, t_stall=3.0, d_safe=1.0)
 T = SIM.episode.steps

@@ -10,10 +10,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from jaxapf.config import CONVENTIONS
+from jaxapf.datatypes import Obstacles
 from jaxapf.gains import Gains
 from jaxapf.planners import WEIGHTS
-from jaxapf.validation import ConfigError
-from jaxapf.datatypes import Obstacles
 from jaxapf.planners.potentials import (
     repulsive_force,
     total_force,
@@ -22,6 +21,7 @@ from jaxapf.planners.potentials import (
     weight_bounds,
     weighted_repulsive_potential,
 )
+from jaxapf.validation import ConfigError
 
 GAINS = dict(k_rep=3.0, d_s=4.0, gamma=1.5, k=0.7)
 #: The paper's three weights under both sign conventions.

@@ -12,6 +12,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+from conftest import ROOT
 from scipy import stats as sst
 
 from jaxapf import stats
@@ -331,7 +332,7 @@ def _study():
     import importlib
     import sys
 
-    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2] / "analysis"))
+    sys.path.insert(0, str(ROOT / "analysis"))
     return importlib.import_module("study")
 
 

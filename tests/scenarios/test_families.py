@@ -13,7 +13,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from jaxapf.validation import ConfigError
 from jaxapf.datatypes import Obstacles, clearance
 from jaxapf.scenarios import (
     FAMILIES,
@@ -24,6 +23,7 @@ from jaxapf.scenarios import (
     make_scenario,
     make_scenarios,
 )
+from jaxapf.validation import ConfigError
 
 N = 8
 DEFAULTS = {f: family_params(f) for f in FAMILIES}
@@ -378,7 +378,8 @@ def test_bad_params(family, overrides, message):
 
 
 def test_unknown_family_lists_the_families():
-    with pytest.raises(ConfigError, match=r"scenario\.family = 'spiral' is not a registered family; choose one of paper_static, "
+    with pytest.raises(ConfigError, match=r"scenario\.family = 'spiral' is not a registered family; "
+                                          r"choose one of paper_static, "
                                           r"paper_dynamic, trap, clutter, crossing, head_on, overtake, dynamic"):
         family_params("spiral")
 

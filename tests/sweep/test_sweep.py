@@ -18,12 +18,21 @@ import pytest
 from jaxapf.cli import main
 from jaxapf.config import MPCConfig, SimConfig
 from jaxapf.gains import Gains
-from jaxapf.validation import BoundWarning, ConfigError
 from jaxapf.metrics import METRICS
 from jaxapf.rollout import default_width
-from jaxapf.sweep import (DEFAULT_MEMORY_BUDGET, Chunk, SweepSpec, load_spec, parse_spec, plan_sweep, read_sweep,
-                          row_config, run_sweep)
+from jaxapf.sweep import (
+    DEFAULT_MEMORY_BUDGET,
+    Chunk,
+    SweepSpec,
+    load_spec,
+    parse_spec,
+    plan_sweep,
+    read_sweep,
+    row_config,
+    run_sweep,
+)
 from jaxapf.sweep.plan import WIDTH_BUDGET, working_set_bytes
+from jaxapf.validation import BoundWarning, ConfigError
 
 # Tiny but complete: two families sharing one obstacle-slot count (so one program per method),
 # two static variants (methods) × two gains; 20 steps, N = 3, I = 3.
@@ -89,7 +98,8 @@ BAD = {
     "fields type": ({"scenario.fields": "6"}, "scenario.fields = '6' must be an integer"),
     "fields range": ({"scenario.fields": 0}, "scenario.fields = 0 is out of range"),
     "seed": ({"scenario.seed": -1}, "scenario.seed = -1 is out of range"),
-    "family param": ({"scenario.params.trap.obstacles": 8}, "scenario.params.trap.obstacles is not a parameter of trap"),
+    "family param": ({"scenario.params.trap.obstacles": 8},
+                     "scenario.params.trap.obstacles is not a parameter of trap"),
     "family param range": ({"scenario.params.trap.offset": -1.0},
                            "scenario.params.trap.offset = -1.0 is out of range"),
     "params of unlisted family": ({"scenario.params.clutter.density": 2.0},
@@ -105,8 +115,10 @@ BAD = {
     "grid key": ({"grid.gama": [1.0]}, "grid.gama is not a known key"),
     "grid empty": ({"grid.gamma": []}, "grid.gamma is empty"),
     "grid not a list": ({"grid.gamma": 1.0}, "grid.gamma = 1.0 must be a list"),
-    "grid range": ({"grid.gamma": [0.0, 1.0, -1]}, "grid.gamma[2] = -1.0 is out of range; allowed: a finite number >= 0"),
-    "grid method": ({"grid.method": ["basic", "magic"]}, "grid.method[1] = 'magic' is not a registered planner; choose one of"),
+    "grid range": ({"grid.gamma": [0.0, 1.0, -1]},
+                   "grid.gamma[2] = -1.0 is out of range; allowed: a finite number >= 0"),
+    "grid method": ({"grid.method": ["basic", "magic"]},
+                    "grid.method[1] = 'magic' is not a registered planner; choose one of"),
     "grid a_max": ({"grid.a_max": [1.0, 0.0]}, "grid.a_max[1] = 0.0 is out of range; allowed: a finite number > 0"),
     "grid vs sim": ({"grid.horizon": [3, 5]}, "grid.horizon is also set in [sim]"),
     "sim int range": ({"sim.iters": 0}, "sim.iters = 0 is out of range; allowed: an integer >= 1"),
@@ -295,8 +307,8 @@ def test_changed_spec_is_refused_unless_overwrite(reference, tmp_path):
 
 def test_dry_run_prints_the_plan(reference, tmp_path, capsys):
     spec_path = _toml(tmp_path / "tiny.toml", TINY)
-    rc = main(["sweep", str(spec_path), "--dry-run", "--no-cache", "--devices", "1", "--out", str(tmp_path / "none.parquet"),
-               "--chunk-fields", "4"])
+    rc = main(["sweep", str(spec_path), "--dry-run", "--no-cache", "--devices", "1",
+               "--out", str(tmp_path / "none.parquet"), "--chunk-fields", "4"])
     text = capsys.readouterr().out
     assert rc == 0 and not (tmp_path / "none.parquet").exists()
     for line in ("settings:          4, in 2 static variant(s)", f"episodes:          {ROWS}",
@@ -313,7 +325,8 @@ def test_plan_gives_every_device_a_whole_vmapped_batch():
     block = plan.blocks[(0, "trap")]
     assert block.fields == 2 and block.padded == 4 * block.per_device
     assert block.per_device * block.settings == 32  # one whole vmapped batch on every device
-    assert [(c.start, c.stop) for c in plan.chunks if (c.variant, c.family) == (1, "crossing")] == [(0, 2), (2, 4), (4, 6)]
+    crossing = [(c.start, c.stop) for c in plan.chunks if (c.variant, c.family) == (1, "crossing")]
+    assert crossing == [(0, 2), (2, 4), (4, 6)]
     # more fields than one batch: no padding to whole batches (evaluate pads its last batch)
     wide = plan_sweep(_spec(**{"scenario.fields": 40}), chunk_fields=40, devices=1, width=32).blocks[(0, "trap")]
     assert wide.per_device == wide.padded == 40

@@ -1,6 +1,5 @@
 """``jaxapf tune``: exact gradients, reparametrisation ranges, training, determinism, resume, spec checks."""
 
-import dataclasses
 import json
 import math
 
@@ -11,14 +10,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from jaxapf.tune import train as tune_train
 from jaxapf.cli import main
-from jaxapf.gains import Gains, load_gains
-from jaxapf.validation import BoundWarning, ConfigError
-from jaxapf.tune.objective import Reparam, smooth_min
 from jaxapf.datatypes import Obstacles, Scenario
+from jaxapf.gains import Gains, load_gains
+from jaxapf.tune import train as tune_train
+from jaxapf.tune.objective import Reparam, smooth_min
 from jaxapf.tune.spec import parse_tune_spec
 from jaxapf.tune.train import CHECKPOINT, TrainState, Tuner, episode_loss
+from jaxapf.validation import BoundWarning, ConfigError
 
 #: A tuning problem small enough to train in a second (two families, 6 steps of 2 fields).
 MICRO = {
@@ -225,8 +224,10 @@ def test_a_checkpoint_of_another_spec_is_refused(command_run):
         ({"sim": {"horizn": 3}}, r"sim\.horizn is not a known key"),
         ({"sim": {"method": "magic"}}, r"sim\.method = 'magic' is not a registered planner"),
         ({"sim": {"dt": 0.0}}, r"sim\.dt = 0\.0 is out of range"),
-        ({"scenario": {"params": {"trap": {"radius": [2.0, 1.0]}}}}, r"scenario\.params\.trap\.radius .* is not an interval"),
-        ({"scenario": {"trap": {"distance": [4.0, 5.0]}}}, r"scenario\.trap is not allowed; .*\[scenario\.params\.trap\]"),
+        ({"scenario": {"params": {"trap": {"radius": [2.0, 1.0]}}}},
+         r"scenario\.params\.trap\.radius .* is not an interval"),
+        ({"scenario": {"trap": {"distance": [4.0, 5.0]}}},
+         r"scenario\.trap is not allowed; .*\[scenario\.params\.trap\]"),
         ({"search": {"grid": {"gama": [1.0]}}}, r"search\.grid\.gama is not a gain"),
         ({"search": {"grid": {"k": [-1.0]}}}, r"search\.grid\.k = -1\.0 is out of range"),
     ],
