@@ -35,7 +35,8 @@ def findings(n: study.Numbers) -> str:
             f"{100 * n.rate_value({'gamma': g, 'k': k}, 'all', 'collision'):.1f}" for k in ks) + " |")
 
     lines += ["", "## Best setting per family (highest success; ties: lower collision)", "",
-              "| family | best γ, k | success | collision | vs γ = 0, k = 0: Δ success | default γ = 1, k = 0.5: success |",
+              "| family | best γ, k | success | collision | vs γ = 0, k = 0: Δ success "
+              "| default γ = 1, k = 0.5: success |",
               "|---|---|---|---|---|---|"]
     best = {}
     for family in (*families, "all"):
@@ -55,14 +56,16 @@ def findings(n: study.Numbers) -> str:
         at = pooled[pooled["gamma"] == g].set_index("k")
         within = at.loc[[k for k in ks if k <= 1.0]]
         beyond = at.loc[[k for k in ks if k > 1.0]]
-        lines.append(f"- γ = {g:g}: success {100 * within['success_rate'].min():.1f}–{100 * within['success_rate'].max():.1f} % "
+        success, collision = within["success_rate"], within["collision_rate"]
+        lines.append(f"- γ = {g:g}: success {100 * success.min():.1f}–{100 * success.max():.1f} % "
                      f"for k ≤ 1, {100 * beyond['success_rate'].min():.1f}–{100 * beyond['success_rate'].max():.1f} % "
-                     f"for k > 1; collisions {100 * within['collision_rate'].min():.1f}–{100 * within['collision_rate'].max():.1f} % "
+                     f"for k > 1; collisions {100 * collision.min():.1f}–{100 * collision.max():.1f} % "
                      f"vs {100 * beyond['collision_rate'].min():.1f}–{100 * beyond['collision_rate'].max():.1f} %.")
     k3 = {"gamma": 1.0, "k": 3.0}
     d3 = {m: n.delta(k3, "all", m) for m in ("success", "collision")}
     lines += ["", f"At γ = 1, k = 3 (ω can reach 2 − k = −1: receding obstacles attract) against the "
-                  f"γ = 0, k = 0 reference, pooled: success {d3['success'].text()}, collisions {d3['collision'].text()}."]
+                  f"γ = 0, k = 0 reference, pooled: success {d3['success'].text()}, "
+                  f"collisions {d3['collision'].text()}."]
 
     settings = [(g, k) for g in gammas for k in ks if (g, k) != (0.0, 0.0)]
     pooled_delta = {gk: n.delta({"gamma": gk[0], "k": gk[1]}, "all", "success") for gk in settings}

@@ -51,7 +51,8 @@ def findings(n: study.Numbers) -> str:
                if resolved else "No method–family pair is significantly better on both stall and success. "))
         lines.append("")
         lines.append(
-            "A reading of SPEC 3 that fits this (an interpretation, not measured here): ω ≥ 1 only *scales* the repulsion up (more for obstacles ahead "
+            "A reading of SPEC 3 that fits this (an interpretation, not measured here): ω ≥ 1 only *scales* the "
+            "repulsion up (more for obstacles ahead "
             "and closing), so near a trap's equilibrium the repulsion grows and the equilibrium moves "
             "back rather than disappearing; the sideways `U_rep ∇ω` term is non-zero only where ω "
             "varies across the line of sight, and in a symmetric trap approached head-on its two halves "
@@ -66,7 +67,8 @@ def main() -> None:
     study.run_study(__doc__, name=STUDY, spec="paper-comparison",
                     title="Study 2 — does the weighted APF resolve local minima?", findings=findings,
                     figures=[study.RATES_FIGURE,
-                             ("report/figures/differences.png", "Paired differences to basic (filled: Holm-significant)"),
+                             ("report/figures/differences.png",
+                              "Paired differences to basic (filled: Holm-significant)"),
                              ("report/figures/gallery_1.png", "The worst episode, re-simulated from its seed")],
                     where=("family=" + ",".join(FAMILIES),), heatmap=None, gallery=3)
 

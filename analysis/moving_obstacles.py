@@ -29,7 +29,8 @@ def findings(n: study.Numbers) -> str:
             lines.append(f"| {family} | {setting['method']} | {n.rate(setting, family, 'collision')} | "
                          f"{n.rate(setting, family, 'success')} | {n.iqm(setting, family, 'min_clearance')} |")
     lines += ["", "## The velocity term: `direction_velocity` − `direction`, paired", "",
-              "| family | Δ collision | Δ success | Δ min clearance (IQM) | Δ jerk RMS (IQM) |", "|---|---|---|---|---|"]
+              "| family | Δ collision | Δ success | Δ min clearance (IQM) | Δ jerk RMS (IQM) |",
+              "|---|---|---|---|---|"]
     rows = {}
     for family in (*FAMILIES, "all"):
         d = {m: n.delta(DV, family, m) for m in ("collision", "success", "min_clearance", "jerk_rms")}
@@ -46,7 +47,8 @@ def findings(n: study.Numbers) -> str:
     lines.append(
         f"Pooled over the four families, the data {verdict} a lower collision rate from the velocity term "
         f"({pooled['collision'].text()}). "
-        + (f"Fewer collisions on {', '.join(safer)}. " if safer else "No single family has significantly fewer collisions. ")
+        + (f"Fewer collisions on {', '.join(safer)}. " if safer
+           else "No single family has significantly fewer collisions. ")
         + (f"More collisions on {', '.join(less_safe)}. " if less_safe else "")
         + (f"The minimum clearance is larger on {', '.join(wider)}: the paper's 'earlier avoidance' in "
            "numbers. " if wider else "The minimum clearance is not significantly larger on any family. ")

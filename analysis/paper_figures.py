@@ -79,7 +79,8 @@ def statistics_text(n: study.Numbers) -> str:
     dy_c = n.delta(DV, "paper_dynamic", "min_clearance")
     dy_j = n.delta(DV, "paper_dynamic", "jerk_rms")
     dy_s = n.delta(DV, "paper_dynamic", "success")
-    claim1 = "supported" if st_s.better and st_st.better else "contradicted" if (st_s.worse or st_st.worse) else "not supported"
+    claim1 = ("supported" if st_s.better and st_st.better
+              else "contradicted" if (st_s.worse or st_st.worse) else "not supported")
     claim2 = "supported" if dy_c.better else "contradicted" if dy_c.worse else "not supported"
     claim3 = "supported" if dy_j.better else "contradicted" if dy_j.worse else "not supported"
     lines += [

@@ -20,7 +20,8 @@ METHODS = ("direction", "direction_velocity")
 def findings(n: study.Numbers) -> str:
     families = n.families()
     lines = ["## `literal` − `intent`, paired per method and family", "",
-             "| family | method | success intent → literal | collision intent → literal | Δ success | Δ collision | Δ min clearance (IQM) |",
+             "| family | method | success intent → literal | collision intent → literal | Δ success | Δ collision "
+             "| Δ min clearance (IQM) |",
              "|---|---|---|---|---|---|---|"]
     deltas = {}
     for family in (*families, "all"):
@@ -43,7 +44,8 @@ def findings(n: study.Numbers) -> str:
             f"by {d['collision'].text()}. "
             + (f"Significantly worse on {', '.join(worse)}. " if worse else "")
             + (f"Significantly better on {', '.join(better)}. " if better else "")
-            + ("No single family shows a significant difference in success or collisions." if not worse and not better else ""))
+            + ("No single family shows a significant difference in success or collisions."
+               if not worse and not better else ""))
     wider = sorted({f for (f, m), d in deltas.items() if f != "all" and d["min_clearance"].better})
     narrower = sorted({f for (f, m), d in deltas.items() if f != "all" and d["min_clearance"].worse})
     lines.append(f"- Minimum clearance under `literal` is significantly larger on {', '.join(wider) or 'no family'} "

@@ -94,7 +94,8 @@ def gradient_diagnosis(spec: TuneSpec, gains_theta: dict, fields: int) -> pd.Dat
     training fields, grouped by the episode's true outcome (success / collision / stalled / other)."""
     tuner = Tuner(spec)
     batch = tuner.fields(spec.train.seed, split_count(fields, len(spec.train.families)))
-    grads = jax.jit(jax.vmap(jax.grad(lambda th, s: episode_loss(th, s, spec)[0]), in_axes=(None, 0)))(gains_theta, batch)
+    per_episode = jax.vmap(jax.grad(lambda th, s: episode_loss(th, s, spec)[0]), in_axes=(None, 0))
+    grads = jax.jit(per_episode)(gains_theta, batch)
     norms = np.sqrt(sum(np.asarray(g, np.float64) ** 2 for g in grads.values()))
     r = tuner.report(batch, [spec.reparam.gains(gains_theta)])
     outcome = np.select([r["success"][0], r["collision"][0], r["stalled"][0]], ["success", "collision", "stalled"],
@@ -169,11 +170,13 @@ def verdicts(spec: TuneSpec, summary: dict, history: pd.DataFrame, episodes: pd.
     lines.append(f"**Tuning {verdict} the grid search** on the pooled test set: success {pooled.tuned:.3f} vs "
                  f"{pooled.grid:.3f} (difference {pooled.difference:+.3f}; McNemar {pooled.wins} wins / "
                  f"{pooled.losses} losses, Holm p = {pooled.p_holm:.3g}). Significantly better per family: "
-                 f"{', '.join(sig(vs_grid, 1)) or 'none'}; significantly worse: {', '.join(sig(vs_grid, -1)) or 'none'}.")
+                 f"{', '.join(sig(vs_grid, 1)) or 'none'}; significantly worse: "
+                 f"{', '.join(sig(vs_grid, -1)) or 'none'}.")
     pooled_d = vs_default[vs_default.family == "all"].iloc[0]
     lines.append(f"Against the paper-style defaults, tuning changes pooled success by {pooled_d.difference:+.3f} "
                  f"(Holm p = {pooled_d.p_holm:.3g}); significantly better on "
-                 f"{', '.join(sig(vs_default, 1)) or 'no family'}, worse on {', '.join(sig(vs_default, -1)) or 'no family'}.")
+                 f"{', '.join(sig(vs_default, 1)) or 'no family'}, worse on "
+                 f"{', '.join(sig(vs_default, -1)) or 'no family'}.")
     gain = {name: gain_ci(episodes, fams) for name, fams in (("train", train), ("held", held))}
     (g_train, lo_train, hi_train), (g_held, lo_held, hi_held) = gain["train"], gain["held"]
     overfit = hi_held < g_train
