@@ -3,7 +3,7 @@ r"""The proof step of ``jaxapf tune``: tuned gains against the defaults, a grid 
 Budgets
 -------
 Tuning used ``B = steps_run · fields_per_step + validations · validation.fields`` episode rollouts.
-Each search baseline gets the same ``B``: its ``S`` settings (the grid product, or ``random_n``
+Each search gets the same ``B``: its ``S`` settings (the grid product, or ``random_n``
 random settings) are each flown on the first ``⌊B/S⌋`` training fields (seed ``train.seed``,
 split over the training families as in a training step), and the setting with the highest success
 rate wins (ties: the lowest mean surrogate loss). Gradients cost more than forward rollouts, so the

@@ -75,7 +75,7 @@ HISTORY_COLUMNS: tuple[str, ...] = (
 
 
 class TuneError(RuntimeError):
-    """Training cannot go on (a non-finite loss, a budget too small for a baseline, a checkpoint
+    """Training cannot go on (a non-finite loss, a budget too small for a search, a checkpoint
     from another spec)."""
 
 
