@@ -115,8 +115,8 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--resamples", type=int, default=2000, help="bootstrap resamples (default 2000)")
     rep.add_argument("--confidence", type=float, default=0.95, help="interval level (default 0.95)")
     rep.add_argument("--seed", type=int, default=0, help="bootstrap seed (default 0)")
-    rep.add_argument("--profile-metric", default="score",
-                     help="metric of the performance profile, higher is better (default score)")
+    rep.add_argument("--profile-metric", default="spl",
+                     help="metric of the performance profile, higher is better (default spl)")
 
     tune = sub.add_parser("tune", help="learn the gains by gradient descent through the closed loop and test them "
                                        "against defaults, grid and random search (docs/tune.md)",

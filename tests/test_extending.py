@@ -56,6 +56,7 @@ SCRIPT = textwrap.dedent("""
     out["rows"] = len(rows)
     out["filters"] = sorted(set(rows["filter"]))
     out["mean_speed_positive"] = bool((rows["mean_speed"] > 0).all())
+    out["kinds"] = sorted(set(rows["kind"]))
     clearance = lambda method, beta: rows[(rows.method == method) & (rows.beta == beta)].sort_values(
         "field")["min_clearance"].to_numpy()
     out["beta_changes_sideways"] = bool((clearance("sideways_drift", 0.0) != clearance("sideways_drift", 2.0)).any())
@@ -116,6 +117,7 @@ def test_out_of_package_components_run_through_sweep_report_and_tune(tmp_path):
     for column in ("beta", "drift", "c_d", "mean_speed", "filter"):
         assert column in out["columns"], column
     assert out["filters"] == ["damped"] and out["mean_speed_positive"]
+    assert out["kinds"] == ["thick", "thin"]  # the family's kinds reach every row
     assert out["beta_changes_sideways"] and out["basic_ignores_beta"]
     # the report: the metric's statistics and unit, and labels that leave out what basic ignores
     assert out["report_has_metric"] and out["report_mentions_metric"]

@@ -21,8 +21,11 @@ class Scenario:
       start: (3,) initial position; the UAV starts at rest.
       goal: (3,) goal position.
       obstacles: the padded obstacle set.
+      kind: int32 index of the field's kind in its family's ``kinds`` (``make_scenarios`` sets it;
+        ``None`` for a hand-made field, which then has no such leaf).
     """
 
     start: Array
     goal: Array
     obstacles: Obstacles
+    kind: Array | None = None

@@ -44,6 +44,10 @@ class Metric:
       higher_is_better: direction of improvement (``None``: neither, e.g. a diagnostic).
       on_success: meaningful only on successful episodes (NaN or ignored otherwise).
       report: shown in the default tables of ``jaxapf report``.
+      margin: the relevance margin of a difference between two settings, in the metric's unit (a
+        rate's in proportion: 0.02 = 2 percentage points); a smaller difference does not matter.
+        Reports judge equivalence against it and may override it (``--margin NAME=VALUE``).
+        ``None``: no verdict of relevance.
       doc: one line of what it measures (its exact definition belongs in ``fn``'s docstring).
     """
 
@@ -55,6 +59,7 @@ class Metric:
     higher_is_better: bool | None = None
     on_success: bool = False
     report: bool = False
+    margin: float | None = None
     doc: str = ""
 
     def __post_init__(self) -> None:
@@ -64,6 +69,8 @@ class Metric:
             raise ConfigError(f"metric {self.name!r}: kind = {self.kind!r}; choose one of {', '.join(KINDS)}")
         if (self.kind == "rate") != (self.dtype == "bool"):
             raise ConfigError(f"metric {self.name!r}: a rate is exactly a metric of dtype bool")
+        if self.margin is not None and not self.margin > 0:
+            raise ConfigError(f"metric {self.name!r}: margin = {self.margin!r} must be > 0 or None")
 
     def cast(self, value: Array, float_dtype) -> Array:
         """``value`` in the metric's dtype (``float``: ``float_dtype``)."""

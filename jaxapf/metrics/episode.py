@@ -42,13 +42,23 @@ Metrics (one scalar each, in registration order)
 - ``jerk_rms``: ``j_i = (a_{i+1} - a_i)/dt`` for consecutive valid intervals (``i + 1 <= e - 1``),
   ``sqrt(mean_i |j_i|²)``; 0 with fewer than two valid intervals.
 - ``max_velocity_excess``: ``max`` over valid samples and axes of ``max(|v_{i,axis}| - v_max, 0)``.
-- ``time_near``: ``dt`` × number of valid intervals with ``c_i < d_safe``.
+- ``time_near``: ``dt`` × number of valid intervals with ``c_i < d_safe`` while closing in: the
+  sample clearance to the nearest obstacle falls over the interval, ``n_{i+1} < n_i`` with
+  ``n_i = min_o d_{i,o}``, or the closest approach lies inside it, ``c_i < min(n_i, n_{i+1})``. A UAV
+  hovering still near an obstacle (a stall) accumulates nothing; one approaching or passing does.
 - ``min_ttc``: min over valid samples and valid obstacles of :func:`time_to_collision`
   ``(p_i, v_i, obstacles, t_i, r_uav)``.
-- ``score`` (BARN): ``success · t_opt / clip(time_to_goal, 2 t_opt, 8 t_opt)`` with
-  ``t_opt = |g - start| / v_max``; 0 if not ``success``. Degenerate ``t_opt = 0`` takes the limit
-  ``t_opt → 0⁺`` at fixed ``time_to_goal``: 1/2 if ``time_to_goal = 0``, else 1/8.
+- ``spl`` (success weighted by path length, Anderson et al. 2018, "On Evaluation of Embodied
+  Navigation Agents", arXiv:1807.06757): ``success · L / max(path_length, L)`` with ``L = |g - start|``,
+  the straight-line distance (a lower bound of the shortest collision-free path, so ``spl`` can only
+  understate an agent's efficiency). In [0, 1]; 1 for a straight successful flight, 0 for a failure;
+  degenerate ``L = 0``: ``success`` if the path length is 0, else 0.
 - ``steps``: ``e`` (int32).
+
+Efficiency metrics (``time_to_goal``, ``path_ratio``, ``control_effort``, ``jerk_rms``, ``min_ttc``)
+are registered as meaningful only on successful episodes (``Metric.on_success``): a collision cuts a
+path short and an early stall looks "efficient", so reports compare them on the pairs where both
+settings succeed. ``min_ttc`` is larger in stalled episodes than in successful ones for that reason.
 
 Dtypes: ``success``, ``collision``, ``stalled`` are bool, ``steps`` is int32, all others have the
 trajectory's floating dtype.
@@ -68,7 +78,8 @@ from jax import Array
 from ..config import SimConfig
 from ..datatypes import Scenario, Trajectory, clearance
 from .base import METRICS, Metric, compute_metrics, register_metric
-from .context import EpisodeContext, longest_run, masked_min, ratio, stall_samples, time_to_collision
+from .context import (EpisodeContext, clearance_history, longest_run, masked_min, ratio, stall_samples,
+                      time_to_collision)
 
 __all__ = ["episode_metrics"]
 
@@ -117,42 +128,46 @@ def _min_ttc(ctx: EpisodeContext) -> Array:
     return masked_min(jnp.min(ttc, axis=-1), ctx.sample_valid)
 
 
-def _score(ctx: EpisodeContext) -> Array:
-    """BARN score ``success · t_opt / clip(t, 2 t_opt, 8 t_opt)`` written as ``1 / clip(t/t_opt, 2, 8)``."""
-    success, t_opt = ctx.success, ctx.straight / ctx.sim.vehicle.v_max
-    t = jnp.where(success, ctx.time_to_goal, 0.0)
-    safe = jnp.where(t_opt > 0, t_opt, 1.0)
-    rel = jnp.where(t_opt > 0, t / safe, jnp.where(t > 0, jnp.inf, 0.0))
-    return jnp.where(success, 1.0 / jnp.clip(rel, 2.0, 8.0), 0.0)
+def _spl(ctx: EpisodeContext) -> Array:
+    """``success · L / max(path_length, L)`` (module docstring); ``0/0 := 1`` for a degenerate L = 0."""
+    efficiency = 1.0 / ratio(jnp.maximum(ctx.path_length, ctx.straight), ctx.straight)
+    return jnp.where(ctx.success, efficiency, 0.0)
+
+
+def _time_near(ctx: EpisodeContext) -> Array:
+    nearest = jnp.min(clearance_history(ctx.traj, ctx.scenario, ctx.sim), axis=-1)  # (T+1,)
+    closing = (nearest[1:] < nearest[:-1]) | (ctx.swept < jnp.minimum(nearest[1:], nearest[:-1]))
+    return ctx.dt * jnp.sum(ctx.interval_valid & (ctx.swept < ctx.sim.metrics.d_safe) & closing)
 
 
 for _metric in (
     Metric("success", lambda ctx: ctx.success, dtype="bool", kind="rate", higher_is_better=True, report=True,
-           doc="goal reached within r_goal before t_max with no collision"),
+           margin=0.02, doc="goal reached within r_goal before t_max with no collision"),
     Metric("collision", lambda ctx: ctx.collision, dtype="bool", kind="rate", higher_is_better=False, report=True,
-           doc="the swept clearance fell below 0"),
-    Metric("min_clearance", _min_clearance, unit="m", higher_is_better=True, report=True,
+           margin=0.02, doc="the swept clearance fell below 0"),
+    Metric("min_clearance", _min_clearance, unit="m", higher_is_better=True, report=True, margin=0.05,
            doc="smallest swept clearance to any obstacle"),
     Metric("time_to_goal", lambda ctx: ctx.time_to_goal, unit="s", higher_is_better=False, on_success=True,
-           report=True, doc="time of the first sample within r_goal of the goal"),
+           report=True, margin=0.5, doc="time of the first sample within r_goal of the goal"),
     Metric("path_length", lambda ctx: ctx.path_length, unit="m", doc="length of the flown path"),
-    Metric("path_ratio", lambda ctx: ratio(ctx.path_length, ctx.straight), higher_is_better=False, report=True,
-           doc="path length over the straight start-goal distance"),
-    Metric("stalled", _stalled, dtype="bool", kind="rate", higher_is_better=False, report=True,
+    Metric("path_ratio", lambda ctx: ratio(ctx.path_length, ctx.straight), higher_is_better=False,
+           on_success=True, report=True, margin=0.02, doc="path length over the straight start-goal distance"),
+    Metric("stalled", _stalled, dtype="bool", kind="rate", higher_is_better=False, report=True, margin=0.02,
            doc="slower than v_stall for t_stall while away from the goal: the local-minimum signature"),
     Metric("final_distance", lambda ctx: ctx.goal_distance[ctx.end_index], unit="m", higher_is_better=False,
-           doc="distance to the goal at the episode's end"),
-    Metric("control_effort", _control_effort, unit="m²/s³", higher_is_better=False, report=True,
-           doc="∫|a|² dt"),
-    Metric("jerk_rms", _jerk_rms, unit="m/s³", higher_is_better=False, report=True,
+           margin=0.1, doc="distance to the goal at the episode's end"),
+    Metric("control_effort", _control_effort, unit="m²/s³", higher_is_better=False, on_success=True, report=True,
+           margin=0.5, doc="∫|a|² dt"),
+    Metric("jerk_rms", _jerk_rms, unit="m/s³", higher_is_better=False, on_success=True, report=True, margin=0.25,
            doc="RMS of the jerk between consecutive controls"),
-    Metric("max_velocity_excess", _max_velocity_excess, unit="m/s", higher_is_better=False,
+    Metric("max_velocity_excess", _max_velocity_excess, unit="m/s", higher_is_better=False, margin=0.05,
            doc="largest per-axis speed above v_max"),
-    Metric("time_near", lambda ctx: ctx.dt * jnp.sum(ctx.interval_valid & (ctx.swept < ctx.sim.metrics.d_safe)),
-           unit="s", higher_is_better=False, doc="time with clearance below d_safe"),
-    Metric("min_ttc", _min_ttc, unit="s", higher_is_better=True,
+    Metric("time_near", _time_near, unit="s", higher_is_better=False, margin=0.5,
+           doc="time closing in on an obstacle within d_safe"),
+    Metric("min_ttc", _min_ttc, unit="s", higher_is_better=True, on_success=True, margin=0.25,
            doc="smallest time to collision under constant relative velocity"),
-    Metric("score", _score, higher_is_better=True, doc="BARN score success · t_opt / clip(t, 2 t_opt, 8 t_opt)"),
+    Metric("spl", _spl, higher_is_better=True, report=True, margin=0.02,
+           doc="success weighted by path length, S·L/max(path, L) (Anderson et al. 2018)"),
     Metric("steps", lambda ctx: ctx.end_index, dtype="int32", kind="count", doc="steps until the episode ended"),
 ):
     register_metric(_metric)

@@ -32,7 +32,7 @@ from ..datatypes import ObstacleColumns, Obstacles, safe_norm
 from ..gains import GainSpec, declare_gains
 from .base import Planner, register_planner
 from .potentials import total_force
-from .weights import GAMMA, WEIGHTS, Basic, Direction, DirectionVelocity, K, Weight
+from .weights import GAMMA, WEIGHTS, Basic, Direction, DirectionVelocity, K, Normalised, Weight
 
 if TYPE_CHECKING:
     from ..config import SimConfig
@@ -154,3 +154,7 @@ register_weight("direction", Direction(), color="tab:purple", linestyle="--",
                 description="direction-weighted: ω = 1 + γ(1 + cos θ)/2 (paper eq. 15)")
 register_weight("direction_velocity", DirectionVelocity(), color="tab:blue", linestyle="-",
                 description="the paper's proposal: ω = [1 + γ(1 + cos θ)/2](2 + k tanh c) (paper eq. 19)")
+register_weight("direction_normalised", Normalised(Direction()), color="tab:pink", linestyle="--",
+                description="direction weight divided by its abeam value 1 + γ/2: shape without strength")
+register_weight("direction_velocity_normalised", Normalised(DirectionVelocity()), color="tab:cyan", linestyle="-.",
+                description="the paper's weight divided by its abeam, non-closing value (1 + γ/2)·2")

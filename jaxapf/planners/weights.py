@@ -19,6 +19,14 @@ uses :math:`\cos\theta = v\cdot s/(|v|_\epsilon |s|)` and the closing speed
 \epsilon^2}`. The paper's bound ``1 <= ω <= (1+γ)(2+k)`` holds above; below, the true minimum of
 the ``direction_velocity`` weight is ``2 - k`` (< 1 for k > 1, negative for k > 2).
 
+At equal gains the weights also change the repulsion's *strength* (at hover ``direction`` has
+ω = 1 + γ/2, ``direction_velocity`` (1 + γ/2)·2), so a comparison at equal ``k_rep`` compares
+strengths as much as shapes (SPEC 3, "Comparing methods fairly"). :class:`Normalised` divides a
+weight by its value at the reference condition — obstacle abeam (θ = 90°), zero closing speed
+(:meth:`Weight.reference`) — so every normalised weight is 1 there, as ``basic`` is, and only the
+*shape* of the weighting differs; ``direction_normalised`` and ``direction_velocity_normalised``
+are registered.
+
 A new weight is a subclass of :class:`Weight` registered with
 :func:`jaxapf.planners.register_weight` (which also registers the potential-field planner that
 uses it).
@@ -38,8 +46,8 @@ from ..registry import Registry
 from ..validation import ConfigError
 from .sight import Sight, dot, norm
 
-__all__ = ["GAMMA", "K", "Weight", "WEIGHTS", "Basic", "Direction", "DirectionVelocity", "direction_weight",
-           "velocity_weight"]
+__all__ = ["GAMMA", "K", "Weight", "WEIGHTS", "Basic", "Direction", "DirectionVelocity", "Normalised",
+           "reference_sight", "direction_weight", "velocity_weight"]
 
 GAMMA = GainSpec("gamma", 1.0, low=0.0, symbol="γ",
                  doc="direction gain γ in ω(θ) = 1 + γ(1 + cos θ)/2 (paper eq. 15)")
@@ -78,6 +86,19 @@ class Weight(abc.ABC):
     def bounds(self, gains: Any) -> tuple[Array, Array]:
         """The true (min, max) of ω over all geometries, where the weight states them."""
         raise ConfigError(f"the weight {type(self).__name__} does not state its bounds")
+
+    def reference(self, gains: Any, *, convention: str = "intent", eps_v: float = 1e-3) -> Array:
+        """ω at the reference condition: an obstacle abeam (θ = 90°) with zero closing speed
+        (:func:`reference_sight`). A weight that reads more than the relative geometry (e.g. the
+        goal) overrides this."""
+        return self(reference_sight(jnp.result_type(float)), gains, convention=convention, eps_v=eps_v)
+
+
+def reference_sight(dtype: Any) -> Sight:
+    """A UAV moving at 1 m/s along y, an obstacle 1 m away along x moving with it: θ = 90°, c = 0."""
+    one, zero = jnp.ones((), dtype), jnp.zeros((), dtype)
+    v = jnp.stack([zero, one, zero])
+    return Sight(s=(one, zero, zero), v=v, v_o=v, p=jnp.zeros(3, dtype))
 
 
 def _direction(sight: Sight, gamma: Array, convention: str, eps_v: float) -> tuple[Array, tuple, Array]:
@@ -133,3 +154,28 @@ class DirectionVelocity(Weight):
 
 #: Registered weights, by the name of the planner that uses them.
 WEIGHTS: Registry[Weight] = Registry("weight")
+
+
+@dataclasses.dataclass(frozen=True)
+class Normalised(Weight):
+    """ω / ω_ref: the inner weight divided by its value at the reference condition (θ = 90°, zero
+    closing speed), so it is 1 there whatever the gains (module docstring)."""
+
+    inner: Weight
+
+    @property
+    def gains(self) -> tuple[GainSpec, ...]:  # type: ignore[override]
+        return self.inner.gains
+
+    @property
+    def uses_convention(self) -> bool:  # type: ignore[override]
+        return self.inner.uses_convention
+
+    def __call__(self, sight: Sight, gains: Any, *, convention: str, eps_v: float) -> Array:
+        ref = self.inner.reference(gains, convention=convention, eps_v=eps_v)
+        return self.inner(sight, gains, convention=convention, eps_v=eps_v) / ref
+
+    def bounds(self, gains: Any) -> tuple[Array, Array]:
+        lo, hi = self.inner.bounds(gains)
+        ref = self.inner.reference(gains)
+        return lo / ref, hi / ref

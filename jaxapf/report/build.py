@@ -60,7 +60,7 @@ class ReportOptions:
     resamples: int = stats.DEFAULT_RESAMPLES
     confidence: float = 0.95
     seed: int = 0
-    profile_metric: str = "score"
+    profile_metric: str = "spl"
 
     def __post_init__(self) -> None:
         if isinstance(self.resamples, bool) or not isinstance(self.resamples, int) or self.resamples < 100:

@@ -319,14 +319,14 @@ class OvertakeParams(MovingParams):
 # --------------------------------------------------------------------------------------------
 
 
-def _paper_static(d: Draws, p: PaperStaticParams, length: Array) -> Layout:
+def _paper_static(d: Draws, p: PaperStaticParams, length: Array) -> tuple[Layout, int]:
     ring = cup(0.5 * length, jnp.zeros_like(length), p.cup_radius, p.radius)
-    return ring._replace(xy=ring.xy + d.uniform((-p.jitter, p.jitter), ring.xy.shape))
+    return ring._replace(xy=ring.xy + d.uniform((-p.jitter, p.jitter), ring.xy.shape)), 0
 
 
-def _paper_dynamic(d: Draws, p: PaperDynamicParams, length: Array) -> Layout:
+def _paper_dynamic(d: Draws, p: PaperDynamicParams, length: Array) -> tuple[Layout, int]:
     field = scatter(d, p.max_obstacles, p.count, length, p.width, p.radius)
-    return with_motion(field, d, p.speed, jnp.arange(p.max_obstacles) < p.n_moving)
+    return with_motion(field, d, p.speed, jnp.arange(p.max_obstacles) < p.n_moving), 0
 
 
 def _trap_on_line(d: Draws, p: TrapParams, length: Array, x: Array, y: Array) -> Layout:
@@ -360,24 +360,30 @@ _TRAP_BUILDERS: Mapping[str, Callable[..., Layout]] = {
 }
 
 
-def _trap(d: Draws, p: TrapParams, length: Array) -> Layout:
+def _trap(d: Draws, p: TrapParams, length: Array) -> tuple[Layout, Array]:
     """Every kind is built (they are tiny) in the order of ``TRAP_KINDS`` so that a kind's geometry
-    in a field does not depend on which other kinds are selected; one selected kind is kept."""
+    in a field does not depend on which other kinds are selected; one selected kind is kept, and its
+    index in ``TRAP_KINDS`` is the field's kind."""
     pick = d.integers(0, len(p.kinds) - 1)
     x = d.uniform(p.along) * length
     y = d.uniform((-p.offset, p.offset))
     layouts = {k: fit(_TRAP_BUILDERS[k](d, p, length, x, y), CUP_SIZE) for k in TRAP_KINDS}
-    return jax.tree.map(lambda *rows: jnp.stack(rows)[pick], *(layouts[k] for k in p.kinds))
+    kind = jnp.asarray([TRAP_KINDS.index(k) for k in p.kinds])[pick]
+    return jax.tree.map(lambda *rows: jnp.stack(rows)[pick], *(layouts[k] for k in p.kinds)), kind
 
 
-def _clutter(d: Draws, p: ClutterParams, length: Array) -> Layout:
+def _forest(d: Draws, p: ClutterParams, length: Array) -> Layout:
     count = jnp.minimum(jnp.round(p.density * length * p.width / 100.0), p.max_obstacles)
     return scatter(d, p.max_obstacles, count, length, p.width, p.radius)
 
 
-def _dynamic(d: Draws, p: DynamicParams, length: Array) -> Layout:
-    field = _clutter(d, p, length)
-    return with_motion(field, d, p.speed, field.valid)
+def _clutter(d: Draws, p: ClutterParams, length: Array) -> tuple[Layout, int]:
+    return _forest(d, p, length), 0
+
+
+def _dynamic(d: Draws, p: DynamicParams, length: Array) -> tuple[Layout, int]:
+    field = _forest(d, p, length)
+    return with_motion(field, d, p.speed, field.valid), 0
 
 
 def _movers(d: Draws, p: MovingParams, place: Callable[[Array], tuple[Array, Array]]) -> Layout:
@@ -390,14 +396,14 @@ def _movers(d: Draws, p: MovingParams, place: Callable[[Array], tuple[Array, Arr
     return Layout(xy, vxy, radius, jnp.arange(n) < count)
 
 
-def _crossing(d: Draws, p: CrossingParams, length: Array) -> Layout:
+def _crossing(d: Draws, p: CrossingParams, length: Array) -> tuple[Layout, int]:
     def place(speed: Array) -> tuple[Array, Array]:
         x = d.uniform(p.meet, speed.shape) * length
         t_meet = x / p.uav_speed + d.uniform(p.timing, speed.shape)
         vy = d.signs(speed.shape) * speed
         return jnp.stack([x, -vy * t_meet], -1), jnp.stack([jnp.zeros_like(vy), vy], -1)
 
-    return _movers(d, p, place)
+    return _movers(d, p, place), 0
 
 
 def _along_line(d: Draws, p: HeadOnParams | OvertakeParams, x_span: tuple, sign: float) -> Layout:
@@ -411,12 +417,12 @@ def _along_line(d: Draws, p: HeadOnParams | OvertakeParams, x_span: tuple, sign:
     return _movers(d, p, place)
 
 
-def _head_on(d: Draws, p: HeadOnParams, length: Array) -> Layout:
-    return _along_line(d, p, (p.along[0] * length, p.along[1] * length), -1.0)
+def _head_on(d: Draws, p: HeadOnParams, length: Array) -> tuple[Layout, int]:
+    return _along_line(d, p, (p.along[0] * length, p.along[1] * length), -1.0), 0
 
 
-def _overtake(d: Draws, p: OvertakeParams, length: Array) -> Layout:
-    return _along_line(d, p, (-p.behind[1], -p.behind[0]), 1.0)
+def _overtake(d: Draws, p: OvertakeParams, length: Array) -> tuple[Layout, int]:
+    return _along_line(d, p, (-p.behind[1], -p.behind[0]), 1.0), 0
 
 
 register_family(PaperStaticParams, _paper_static,

@@ -96,17 +96,18 @@ def _to_world(xy: Array, heading: Array, z: float) -> Array:
     return jnp.stack([c * x - s * y, s * x + c * y, jnp.full_like(x, z)], axis=-1)
 
 
-def _local_field(u: Array, params: FamilyParams) -> tuple[Array, Array, Layout]:
-    """Start–goal distance L, heading ψ [rad] and the local layout (``max_obstacles`` rows) from a
-    field's block of uniforms ``u``."""
+def _local_field(u: Array, params: FamilyParams) -> tuple[Array, Array, Layout, Array]:
+    """Start–goal distance L, heading ψ [rad], the local layout (``max_obstacles`` rows) and the kind
+    (int32 index into the family's kinds) from a field's block of uniforms ``u``."""
     d = Draws(u)
     length = d.uniform(params.distance)
     heading = jnp.deg2rad(d.uniform(params.heading))
-    return length, heading, fit(FAMILIES.get(params.family).build(d, params, length), params.max_obstacles)
+    layout, kind = FAMILIES.get(params.family).build(d, params, length)
+    return length, heading, fit(layout, params.max_obstacles), jnp.asarray(kind, jnp.int32)
 
 
-def _place(length: Array, heading: Array, layout: Layout, altitude: Array, r_uav: Array, margin: Array,
-           cylinder: Array) -> Scenario:
+def _place(length: Array, heading: Array, layout: Layout, kind: Array, altitude: Array, r_uav: Array,
+           margin: Array, cylinder: Array) -> Scenario:
     """The field in the world frame, with clear endpoints."""
     zero = jnp.zeros_like(length)
     start = jnp.stack([zero, zero, zero + altitude])
@@ -118,7 +119,7 @@ def _place(length: Array, heading: Array, layout: Layout, altitude: Array, r_uav
         cylinder=jnp.broadcast_to(cylinder, layout.valid.shape),
         valid=layout.valid,
     )
-    return Scenario(start, goal, clear_endpoints(obstacles, start, goal, r_uav, margin))
+    return Scenario(start, goal, clear_endpoints(obstacles, start, goal, r_uav, margin), kind)
 
 
 def _placement(params: FamilyParams) -> tuple[float, float, float, bool]:
@@ -166,11 +167,11 @@ def _draw_batch(base_key: Array, indices: Array, size: int) -> Array:
 
 
 @partial(jax.jit, static_argnames="params")
-def _local_batch(u: Array, params: FamilyParams) -> tuple[Array, Array, Layout]:
+def _local_batch(u: Array, params: FamilyParams) -> tuple[Array, Array, Layout, Array]:
     return jax.vmap(lambda row: _local_field(row, params))(u)
 
 
-_place_batch = jax.jit(jax.vmap(_place, in_axes=(0, 0, 0, None, None, None, None)))
+_place_batch = jax.jit(jax.vmap(_place, in_axes=(0, 0, 0, 0, None, None, None, None)))
 
 
 def make_scenarios(seed: int | Array, params: FamilyParams, fields: int | Array) -> Scenario:

@@ -87,8 +87,9 @@ class _Devices:
             self._gains[variant.index] = self.batch.put_gains(variant.gains(self.plan.dtype))
         return self._gains[variant.index]
 
-    def dispatch(self, chunk: Chunk) -> dict[str, jax.Array]:
-        """Start the chunk (asynchronously); returns global (G, padded) metric arrays."""
+    def dispatch(self, chunk: Chunk) -> tuple[dict[str, jax.Array], jax.Array]:
+        """Start the chunk (asynchronously); returns global (G, padded) metric arrays and the
+        fields' kinds."""
         from ..scenarios import make_scenarios
 
         plan = self.plan
@@ -96,8 +97,9 @@ class _Devices:
         indices = np.full(block.padded, chunk.start, np.int64)
         indices[: chunk.stop - chunk.start] = np.arange(chunk.start, chunk.stop)
         fields = make_scenarios(plan.spec.seed, plan.spec.family_params(chunk.family), jnp.asarray(indices))
-        return self.batch.evaluate(fields, self._variant_gains(plan.variants[chunk.variant]), block.sim, block.mpc,
-                                   block.width, plan.metrics)
+        metrics = self.batch.evaluate(fields, self._variant_gains(plan.variants[chunk.variant]), block.sim,
+                                      block.mpc, block.width, plan.metrics)
+        return metrics, fields.kind
 
 
 @dataclasses.dataclass(frozen=True)
@@ -173,13 +175,13 @@ def run_sweep(
     runner = _Devices(plan)
     written = 0
     try:
-        pending: tuple[Chunk, dict[str, jax.Array]] | None = None
+        pending: tuple[Chunk, tuple[dict[str, jax.Array], jax.Array]] | None = None
         for chunk in (*mine, None):
             running = None if chunk is None else (chunk, runner.dispatch(chunk))
             if pending is not None:  # write the previous chunk while this one runs
-                done_chunk, arrays = pending
+                done_chunk, (arrays, kinds) = pending
                 metrics = {m: np.asarray(a) for m, a in arrays.items()}
-                write_part(out, done_chunk.name, part_table(plan, layout, done_chunk, metrics))
+                write_part(out, done_chunk.name, part_table(plan, layout, done_chunk, metrics, np.asarray(kinds)))
                 written += 1
                 bar.update(plan.episodes_of([done_chunk]))
                 if after_part is not None:

@@ -12,6 +12,7 @@ import numpy as np
 
 from ..config import STATIC_KEYS
 from ..metrics import METRICS
+from ..scenarios import FAMILIES
 from ..validation import ConfigError, first_line
 from .plan import Chunk, Plan
 from .spec import AXIS_WEIGHT_KEYS, SweepSpec
@@ -65,7 +66,8 @@ def schema(plan: Plan, meta: Mapping[str, Any]):
     fields = [pa.field("setting", pa.int32()), pa.field("method", pa.string()), pa.field("convention", pa.string())]
     fields += [pa.field(k, pa.float64()) for k in spec.gain_columns()]
     fields += [pa.field(k, _column_type(spec, k)) for k in static_columns(spec)]
-    fields += [pa.field("family", pa.string()), pa.field("field", pa.int64()), pa.field("seed", pa.int64())]
+    fields += [pa.field("family", pa.string()), pa.field("kind", pa.string()), pa.field("field", pa.int64()),
+               pa.field("seed", pa.int64())]
     fields += [pa.field(m, getattr(pa, _ARROW_TYPES[METRICS.get(m).dtype])() if METRICS.get(m).dtype in _ARROW_TYPES
                         else float_type) for m in plan.metrics]
     return pa.schema(fields, metadata={META_KEY: json.dumps(meta, sort_keys=True).encode()})
@@ -78,9 +80,10 @@ def _cell(key: str, value: Any, text: bool) -> Any:
     return value
 
 
-def part_table(plan: Plan, layout, chunk: Chunk, metrics: Mapping[str, np.ndarray]):
+def part_table(plan: Plan, layout, chunk: Chunk, metrics: Mapping[str, np.ndarray], kinds: np.ndarray):
     """The rows of one chunk: settings-major, fields-minor. Every column but the setting index,
-    the gains, the field and the metrics is constant within a chunk (one variant, one family)."""
+    the gains, the field, its kind and the metrics is constant within a chunk (one variant, one
+    family). ``kinds``: the kind index of each of the chunk's (padded) fields."""
     import pyarrow as pa
 
     spec, variant = plan.spec, plan.variants[chunk.variant]
@@ -92,8 +95,10 @@ def part_table(plan: Plan, layout, chunk: Chunk, metrics: Mapping[str, np.ndarra
                 "seed": spec.seed}
     for k in static_columns(spec):  # only t_max can be unnamed, and it is a SimConfig field
         constant[k] = _cell(k, static[k] if k in static else sim.flat()[k], pa.types.is_string(layout.field(k).type))
+    names = np.asarray(FAMILIES.get(chunk.family).kinds, dtype=object)
     cols: dict[str, Any] = {"setting": np.repeat(np.array([s.index for s in variant.settings], np.int32), n),
-                            "field": np.tile(np.arange(chunk.start, chunk.stop, dtype=np.int64), len(variant.settings))}
+                            "field": np.tile(np.arange(chunk.start, chunk.stop, dtype=np.int64), len(variant.settings)),
+                            "kind": np.tile(names[np.asarray(kinds)[:n]], len(variant.settings))}
     for k in spec.gain_columns():
         cols[k] = np.repeat(np.array([s.gains[k] for s in variant.settings], np.float64), n)
     for m in plan.metrics:

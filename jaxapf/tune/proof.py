@@ -148,7 +148,7 @@ def comparison_table(episodes: pd.DataFrame, families: Sequence[str]) -> pd.Data
                 row |= {f"{outcome}_b": test.b, f"{outcome}_c": test.c,
                         f"{outcome}_p": math.nan if setting == "default" else test.pvalue}
             row |= {"min_clearance": float(e.min_clearance.mean()), "time_to_goal": float(e.time_to_goal.median()),
-                    "score": float(e.score.mean()), "loss": float(e.loss.mean())}
+                    "spl": float(e.spl.mean()), "loss": float(e.loss.mean())}
             row |= {t: float(e[t].mean()) for t in TERMS}
             rows.append(row)
     table = pd.DataFrame(rows)

@@ -139,8 +139,7 @@ def test_straight_line_at_constant_speed():
     assert m["max_velocity_excess"] == 0  # |v| = v_max exactly is no excess
     assert m["time_near"] == 0
     assert m["min_ttc"] == np.inf  # the line of motion misses the obstacle
-    # t_opt = 8 / 2 = 4 s; 3.8 s is clipped up to 2 t_opt = 8 s → 1/2
-    np.testing.assert_allclose(m["score"], 0.5, **F32)
+    assert m["spl"] == 1.0  # a straight success: 7.6 m flown < L = 8 m
 
 
 def test_straight_line_without_obstacles_has_infinite_clearance():
@@ -149,17 +148,21 @@ def test_straight_line_without_obstacles_has_infinite_clearance():
     assert m["min_clearance"] == np.inf and m["min_ttc"] == np.inf and m["time_near"] == 0
 
 
-def test_slow_success_gets_the_barn_floor_and_midrange_score():
-    # 0.5 m/s → t_opt = 1 s (goal 2 m away); reached at x = 1.5 → i = 30 → 3 s: score = 1/3
-    sc = scenario([0, 0, 0], [2, 0, 0])
-    m = values(_metrics(trajectory(line([0, 0, 0], [0.5, 0, 0]), [0.5, 0, 0]), sc, SIM))
-    assert m["success"] and m["steps"] == 30
-    np.testing.assert_allclose(m["score"], 1.0 / 3.0, **F32)
-    # 0.02 m/s on a 0.555 m trip: t_opt = 0.2775 s, reached at x = 0.056 → i = 28 → 2.8 s > 8 t_opt
-    sc = scenario([0, 0, 0], [0.555, 0, 0])
-    m = values(_metrics(trajectory(line([0, 0, 0], [0.02, 0, 0]), [0.02, 0, 0]), sc, SIM))
-    assert m["success"] and m["steps"] == 28
-    np.testing.assert_allclose(m["score"], 1.0 / 8.0, **F32)
+def test_spl_weighs_a_success_by_its_detour():
+    # along (0,0) → (4,3) → (8,0) at 2.4 m/s: arc length s_i = 0.24 i; the goal (L = 8 m, at s = 10) is
+    # first within 0.5 m at s = 9.6 (sample 40); the flown path is the sum of the chords (the corner
+    # is cut a little): SPL = L / path. Slowness alone costs nothing.
+    arc = 0.24 * np.arange(T + 1)[:, None]
+    first, second = np.array([4.0, 3.0, 0.0]), np.array([4.0, -3.0, 0.0])
+    positions = np.where(arc <= 5.0, arc / 5.0 * first, first + np.minimum(arc - 5.0, 5.0) / 5.0 * second)
+    m = values(_metrics(trajectory(positions, 0.0), scenario([0, 0, 0], [8, 0, 0]), SIM))
+    assert m["success"] and m["steps"] == 40
+    flown = np.linalg.norm(np.diff(positions[:41], axis=0), axis=1).sum()
+    assert 9.5 < flown < 9.6
+    np.testing.assert_allclose(m["path_length"], flown, **F32)
+    np.testing.assert_allclose(m["spl"], 8.0 / flown, **F32)
+    slow = values(_metrics(trajectory(line([0, 0, 0], [0.5, 0, 0]), [0.5, 0, 0]), scenario([0, 0, 0], [2, 0, 0]), SIM))
+    assert slow["success"] and slow["steps"] == 30 and slow["spl"] == 1.0
 
 
 def test_stop_halfway_and_hover():
@@ -172,7 +175,7 @@ def test_stop_halfway_and_hover():
     assert not m["success"] and not m["collision"]
     assert m["stalled"]  # samples 20..50 at rest: 31 samples = 3.1 s >= 3 s
     assert m["steps"] == T
-    assert np.isnan(m["time_to_goal"]) and m["score"] == 0
+    assert np.isnan(m["time_to_goal"]) and m["spl"] == 0
     np.testing.assert_allclose(m["final_distance"], 7.0, **F32)
     np.testing.assert_allclose(m["path_length"], 3.0, **F32)
     np.testing.assert_allclose(m["path_ratio"], 0.3, **F32)
@@ -216,11 +219,12 @@ def test_tunnelling_through_an_obstacle_between_samples_is_a_collision():
     np.testing.assert_allclose(m["final_distance"], 44.0, **F32)
     np.testing.assert_allclose(m["path_length"], 6.0, **F32)
     np.testing.assert_allclose(m["max_velocity_excess"], 18.0, **F32)
-    # intervals [2, 4] (swept 0.2) and [4, 6] (-0.8) are below d_safe = 1; [0, 2] (2.2) is not
+    # intervals [2, 4] (swept 0.2, closing in) and [4, 6] (-0.8, the closest approach inside it) are
+    # below d_safe = 1; [0, 2] (2.2) is not
     np.testing.assert_allclose(m["time_near"], 2 * DT, **F32)
     # ttc at x = 0, 2, 4: 4.2/20, 2.2/20, 0.2/20; at x = 6 receding: inf
     np.testing.assert_allclose(m["min_ttc"], 0.2 / 20, **F32)
-    assert np.isnan(m["time_to_goal"]) and m["score"] == 0
+    assert np.isnan(m["time_to_goal"]) and m["spl"] == 0
 
 
 @pytest.mark.parametrize("goal_x, success", [(6.0, False), (4.0, True)])
@@ -247,13 +251,27 @@ def test_episode_end_never():
 
 def test_time_near_passing_an_obstacle():
     # cylinder at (4, 1) with R = 0.2 + 0.3: clearance < 1 iff |x - 4| < sqrt(1.25) ≈ 1.118,
-    # so intervals [0.2k, 0.2k + 0.2] for k = 14..25 are near: 12 intervals = 1.2 s.
+    # so intervals [0.2k, 0.2k + 0.2] for k = 14..25 are near; the clearance falls until abeam
+    # (x = 4 at the end of interval 19): 6 intervals closing in = 0.6 s.
     sc = scenario([0, 0, 0], [10, 0, 0], dict(position=[4, 1, -3], radius=0.2, cylinder=True))
     m = values(_metrics(trajectory(line([0, 0, 0], [2, 0, 0]), [2, 0, 0]), sc, SIM))
     assert m["success"] and m["steps"] == 48
-    np.testing.assert_allclose(m["time_near"], 12 * DT, **F32)
+    np.testing.assert_allclose(m["time_near"], 6 * DT, **F32)
     np.testing.assert_allclose(m["min_clearance"], 0.5, **F32)
     assert m["min_ttc"] == np.inf
+
+
+def test_time_near_does_not_grow_while_hovering_near_an_obstacle():
+    # brake to rest 0.9 m clear of a cylinder (clearance < d_safe = 1) and hover there for 4 s:
+    # only the approach counts, not the hovering (a stall must not dominate the metric)
+    a = np.zeros((T, 3))
+    a[:10, 0] = -2.0
+    traj = integrate([0, 0, 0], [2, 0, 0], a)  # stops at x = 1 at sample 10
+    sc = scenario([0, 0, 0], [10, 0, 0], dict(position=[2.4, 0, 0], radius=0.2, cylinder=True))
+    m = values(_metrics(traj, sc, SIM))
+    assert m["stalled"] and not m["collision"]
+    np.testing.assert_allclose(m["min_clearance"], 2.4 - 1.0 - 0.5, **F32)
+    assert 0 < m["time_near"] <= 10 * DT
 
 
 def test_velocity_excess_counts_only_valid_samples_and_each_axis():
@@ -287,7 +305,7 @@ def test_too_short_episodes():
     assert m["path_length"] == 0 and m["control_effort"] == 0 and m["jerk_rms"] == 0
     assert m["time_to_goal"] == 0 and m["path_ratio"] == 0 and m["time_near"] == 0
     np.testing.assert_allclose(m["min_clearance"], 2 - 0.5 - 0.3, **F32)
-    np.testing.assert_allclose(m["score"], 0.5, **F32)  # t = 0 <= 2 t_opt
+    assert m["spl"] == 1.0  # L / max(0, L)
     # one valid interval: effort counts, jerk needs two
     sc = scenario([0, 0, 0], [0.6, 0, 0])
     traj = trajectory(line([0, 0, 0], [2, 0, 0]), [2, 0, 0], np.tile([1.0, 0.0, 0.0], (T, 1)))
@@ -300,7 +318,7 @@ def test_start_equal_goal_is_nan_free():
     traj = trajectory(line([1, 1, 1], [0, 0, 0]), 0.0)
     m = values(_metrics(traj, scenario([1, 1, 1], [1, 1, 1]), SIM))
     assert m["success"] and m["steps"] == 0
-    assert m["path_ratio"] == 1.0 and m["score"] == 0.5
+    assert m["path_ratio"] == 1.0 and m["spl"] == 1.0
     assert not any(np.isnan(v) for v in m.values())
 
 

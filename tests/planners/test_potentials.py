@@ -239,3 +239,37 @@ def test_the_first_import_path_keeps_working():
     assert potentials.weighted_repulsive_potential is planner_potentials.weighted_repulsive_potential
     assert mpc.condensed_qp is control_mpc.condensed_qp and mpc.solve_box_qp is control_mpc.solve_box_qp
     assert set(WEIGHTS.names()) >= {"basic", "direction", "direction_velocity"}
+
+
+@settings(max_examples=30, deadline=None)
+@given(gamma=st.floats(0.0, 5.0), k=st.floats(0.0, 3.0))
+def test_every_normalised_weight_is_one_at_its_reference_condition(gamma, k):
+    """ω / ω(θ = 90°, c = 0) = 1 there, for every registered weight and any gains (SPEC 3, fair strength)."""
+    from jaxapf.planners.weights import Normalised, reference_sight
+
+    gains = Gains.unchecked({"gamma": jnp.float32(gamma), "k": jnp.float32(k)})
+    for name, w in WEIGHTS.items():
+        value = Normalised(w)(reference_sight(jnp.float32), gains, convention="intent", eps_v=1e-3)
+        np.testing.assert_allclose(float(value), 1.0, rtol=1e-6, err_msg=name)
+
+
+def test_normalised_weights_are_the_paper_weights_over_their_abeam_values():
+    rng = np.random.default_rng(3)
+    g = dict(gamma=1.7, k=0.6)
+    for _ in range(5):
+        p, v, p_o, v_o = (jnp.asarray(rng.normal(size=3)) for _ in range(4))
+        w_d = weight(p, v, p_o, v_o, method="direction", convention="intent", **g)
+        w_dv = weight(p, v, p_o, v_o, method="direction_velocity", convention="literal", **g)
+        np.testing.assert_allclose(weight(p, v, p_o, v_o, method="direction_normalised", convention="intent", **g),
+                                   w_d / (1 + g["gamma"] / 2), rtol=1e-6)
+        np.testing.assert_allclose(weight(p, v, p_o, v_o, method="direction_velocity_normalised",
+                                          convention="literal", **g), w_dv / ((1 + g["gamma"] / 2) * 2), rtol=1e-6)
+    # hovering beside a static obstacle every normalised weight is basic's 1; with γ = 0 the
+    # normalised direction planner's force is basic's
+    p, p_o = jnp.array([0.0, 0.0, 0.0]), jnp.array([1.5, 0.0, 0.0])
+    for name in ("direction_normalised", "direction_velocity_normalised"):
+        assert float(weight(p, jnp.zeros(3), p_o, jnp.zeros(3), method=name, convention="intent", **g)) == 1.0
+    kw = dict(k_rep=3.0, d_s=4.0, gamma=0.0, k=0.0, convention="intent")
+    v = jnp.array([0.5, 0.3, 0.0])
+    np.testing.assert_allclose(repulsive_force(p, v, p_o, jnp.zeros(3), method="direction_normalised", **kw),
+                               repulsive_force(p, v, p_o, jnp.zeros(3), method="basic", **kw), rtol=1e-6)

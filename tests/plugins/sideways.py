@@ -72,12 +72,12 @@ class PillarParams(FamilyParams):
     thick: float = 1.2
 
 
-def _pillar(d: Any, p: PillarParams, length: Any) -> Layout:
+def _pillar(d: Any, p: PillarParams, length: Any) -> tuple[Layout, Any]:
     x = d.uniform(p.along) * length
     thick = d.uniform((0.0, 1.0)) < 0.5
     radius = jnp.where(thick, p.thick, d.uniform(p.thin))
     xy = jnp.stack([x, jnp.zeros_like(x)])[None]
-    return Layout(xy, jnp.zeros_like(xy), radius[None], jnp.ones((1,), bool))
+    return Layout(xy, jnp.zeros_like(xy), radius[None], jnp.ones((1,), bool)), thick.astype(jnp.int32)
 
 
 def _mean_speed(ctx: jaxapf.EpisodeContext):

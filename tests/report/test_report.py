@@ -61,7 +61,7 @@ def make_rows(families=("trap", "clutter"), fields: int = 12, seed: int = 7,
                     stalled=bool(not success and not collision),
                     final_distance=0.4 if success else 3.0 + abs(e[3]),
                     control_effort=5.0 + abs(e[3]), jerk_rms=2.0 + abs(e[4]), max_velocity_excess=0.0,
-                    time_near=1.0, min_ttc=3.0, score=0.4 if success else 0.0, steps=200))
+                    time_near=1.0, min_ttc=3.0, spl=0.9 if success else 0.0, steps=200))
     df = pd.DataFrame(rows)
     df["setting"] = df["setting"].astype("int32")
     df["steps"] = df["steps"].astype("int32")
@@ -104,7 +104,7 @@ def test_outputs_exist_and_html_is_self_contained(report):
     for name in ("report.html", "report.md", "summary.csv", "comparisons.csv", "table.tex"):
         assert (report / name).stat().st_size > 0, name
     figures = {p.name for p in (report / "figures").iterdir()}
-    for stem in ("ecdf_min_clearance", "rates", "continuous", "differences", "profile_score",
+    for stem in ("ecdf_min_clearance", "rates", "continuous", "differences", "profile_spl",
                  "heatmap_success_direction_velocity", "heatmap_collision_direction_velocity"):
         assert {f"{stem}.png", f"{stem}.svg"} <= figures, stem
     text = (report / "report.html").read_text(encoding="utf-8")
@@ -125,7 +125,7 @@ def test_header_states_spec_versions_and_statistics(report, sweep):
     assert "spec_hash " + "f" * 64 in md
     assert "| jax | 0.0.test |" in md
     assert f"{RESAMPLES} resamples, seed 0" in md
-    assert "Holm correction over all 96 tests" in md  # 4 settings × 3 groups × 8 metrics
+    assert "Holm correction over all 108 tests" in md  # 4 settings × 3 groups × 9 metrics
     assert "successful episodes only" in md
     # key findings come from the rows: the settings with the highest pooled success rate
     rate = df.groupby("setting")["success"].agg(["sum", "count"])
@@ -169,7 +169,7 @@ def test_comparisons_pair_fields_and_match_direct_computation(report, sweep):
     assert sorted(set(comp["setting"])) == [4, 5, 6, 7]
     assert set(comp["baseline"]) == {0}
     # 4 settings × (2 families + all) × (3 rates + 5 continuous) = 96 rows; Holm over their 96 p's
-    assert len(comp) == 96
+    assert len(comp) == 108
     assert np.all(comp["p_holm"] >= comp["p"] - 1e-12)
     np.testing.assert_allclose(comp["p_holm"], stats.holm(comp["p"].to_numpy()))
     pairs = df[df.setting == 6].merge(df[df.setting == 0], on=["family", "field", "seed"])

@@ -199,10 +199,10 @@ def test_parquet_schema_and_metadata(reference):
     schema = pq.read_schema(out / parts[0])
     gains = ["gamma", "k", "k_rep", "d_s", "k_att", "eta"]
     assert schema.names == ["setting", "method", "convention", *gains, "t_max", "horizon", "iters",
-                            "family", "field", "seed", *METRICS]
+                            "family", "kind", "field", "seed", *METRICS]
     types = dict(zip(schema.names, schema.types))
     assert types["setting"] == pa.int32() and types["field"] == pa.int64() and types["seed"] == pa.int64()
-    assert all(types[c] == pa.string() for c in ("method", "convention", "family"))
+    assert all(types[c] == pa.string() for c in ("method", "convention", "family", "kind"))
     assert all(types[g] == pa.float64() for g in gains) and types["t_max"] == pa.float64()
     assert types["horizon"] == pa.int64() and types["iters"] == pa.int64()
     assert all(types[m] == pa.bool_() for m in ("success", "collision", "stalled")) and types["steps"] == pa.int32()
