@@ -302,6 +302,19 @@ class WilcoxonResult:
 EXACT_WILCOXON_MAX = 100
 
 
+def _signed_rank_null(twice: np.ndarray) -> np.ndarray:
+    """Null distribution of ``2 T+`` for the doubled (mid)ranks ``twice`` (integers):
+    ``dist[t] = P(Σ twice_i B_i = t)``, ``B_i ~ Bernoulli(½)`` independent, ``t = 0..Σ twice``."""
+    total = int(np.sum(twice))
+    dist = np.zeros(total + 1)
+    dist[0] = 1.0
+    for r in twice:
+        shifted = np.zeros_like(dist)
+        shifted[r:] = dist[: total + 1 - r]
+        dist = 0.5 * (dist + shifted)
+    return dist
+
+
 def _signed_rank_exact(d: np.ndarray) -> tuple[float, float]:
     """Exact two-sided signed-rank test of the non-zero differences ``d``, ties included.
 
@@ -315,12 +328,7 @@ def _signed_rank_exact(d: np.ndarray) -> tuple[float, float]:
     ranks = _st.rankdata(np.abs(d))
     twice = np.rint(2.0 * ranks).astype(np.int64)
     total = int(twice.sum())
-    dist = np.zeros(total + 1)
-    dist[0] = 1.0
-    for r in twice:
-        shifted = np.zeros_like(dist)
-        shifted[r:] = dist[: total + 1 - r]
-        dist = 0.5 * (dist + shifted)
+    dist = _signed_rank_null(twice)
     t_plus = int(twice[d > 0].sum())
     lower = float(dist[: t_plus + 1].sum())
     upper = float(dist[t_plus:].sum())
