@@ -300,3 +300,116 @@ def test_paired_proportion_difference_errors():
         stats.paired_proportion_difference([True], [False], confidence=1.0)
     with pytest.raises(ValueError, match="differ in size"):
         stats.paired_proportion_difference([True, False], [False])
+
+
+def _walsh_brute_force(d, k):
+    """(HL, W_(k), W_(M+1-k)) from every Walsh average, materialised and sorted."""
+    d = np.asarray(d, dtype=float)
+    i, j = np.triu_indices(d.size)
+    walsh = np.sort((d[i] + d[j]) / 2)
+    if k == 0:
+        return float(np.median(walsh)), -math.inf, math.inf
+    return float(np.median(walsh)), walsh[k - 1], walsh[-k]
+
+
+def _enumerated_rank(n, conf):
+    """Largest k with P(T+ <= k - 1) <= α/2, T+ over all 2ⁿ equally likely sign patterns of ranks 1..n."""
+    signs = (np.arange(2 ** n)[:, None] >> np.arange(n)) & 1
+    t_plus = signs @ np.arange(1, n + 1)
+    cdf = np.cumsum(np.bincount(t_plus)) / 2 ** n
+    return int(np.sum(cdf <= (1 - conf) / 2 + 1e-12))
+
+
+def test_walsh_rank_against_enumeration_and_tables():
+    for n in range(1, 15):
+        for conf in (0.9, 0.95, 0.99):
+            assert stats._walsh_rank(n, conf) == _enumerated_rank(n, conf), (n, conf)
+    # tabulated two-sided 5 % critical values of the signed-rank statistic: n = 20 -> 52, n = 30 -> 137,
+    # n = 50 -> 434 (k = critical value + 1)
+    assert [stats._walsh_rank(n, 0.95) for n in (20, 30, 50)] == [53, 138, 435]
+    # the normal approximation with continuity correction, used from n = 51, is within one rank at n = 50:
+    # floor(1275/2 - 1.959964·sqrt(50·51·101/24) + ½) = floor(637.5 - 1.959964·103.5910 + 0.5) = 435
+    sigma = math.sqrt(50 * 51 * 101 / 24)
+    assert abs(math.floor(1275 / 2 - Z95 * sigma + 0.5) - stats._walsh_rank(50, 0.95)) <= 1
+    assert stats._walsh_rank(5, 0.95) == 0 and stats._walsh_rank(6, 0.95) == 1  # 2·2⁻⁶ = 0.031 <= 0.05
+
+
+def test_hodges_lehmann_hand_computed():
+    # d = 1..5: the 15 Walsh averages are 1, 1.5, 2, 2, 2.5, 2.5, 3, 3, 3, 3.5, 3.5, 4, 4, 4.5, 5 -> median 3;
+    # with 5 pairs no rank reaches 95 % (the best interval [min, max] has coverage 1 - 2·2⁻⁵ = 0.9375)
+    est, lo, hi = stats.hodges_lehmann_paired([1.0, 2.0, 3.0, 4.0, 5.0], np.zeros(5))
+    assert est == 3.0 and lo == -math.inf and hi == math.inf
+    # at 90 % it does: P(T+ <= 0) = 1/32 <= 0.05 < P(T+ <= 1) = 2/32 -> k = 1, the interval [1, 5]
+    assert stats.hodges_lehmann_paired([1.0, 2.0, 3.0, 4.0, 5.0], np.zeros(5), 0.9) == (3.0, 1.0, 5.0)
+    # d = 1..6: 21 Walsh averages, median 3.5; k = 1 at 95 % (2⁻⁶ <= 0.025 < 2·2⁻⁶) -> [1, 6]
+    assert stats.hodges_lehmann_paired(np.arange(1.0, 7.0) + 10, np.full(6, 10.0)) == (3.5, 1.0, 6.0)
+    # zero differences are kept: d = (0, 0, 0, 4) has Walsh averages 0 ×6, 2 ×3, 4 -> median 0
+    assert stats.hodges_lehmann_paired([5.0, 5.0, 5.0, 9.0], [5.0, 5.0, 5.0, 5.0])[0] == 0.0
+    assert all(math.isnan(v) for v in stats.hodges_lehmann_paired([], []))
+    with pytest.raises(ValueError, match="finite"):
+        stats.hodges_lehmann_paired([1.0, math.nan], [0.0, 0.0])
+    with pytest.raises(ValueError, match="differ in size"):
+        stats.hodges_lehmann_paired([1.0, 2.0], [0.0])
+    with pytest.raises(ValueError, match="confidence"):
+        stats.hodges_lehmann_paired([1.0, 2.0], [0.0, 0.0], confidence=0.0)
+
+
+@pytest.mark.parametrize("materialise", [None, 7])
+def test_hodges_lehmann_matches_brute_force(monkeypatch, materialise):
+    # materialise = 7 forces the selection rounds (normally only n > ~1450 needs them) on small samples
+    if materialise is not None:
+        monkeypatch.setattr(stats, "_WALSH_MATERIALISE", materialise)
+    rng = np.random.default_rng(5)
+    for n in (1, 2, 6, 7, 12, 25, 50, 51, 90, 200):
+        for data in (rng.standard_t(2, size=n),  # heavy tails, no ties
+                     np.round(rng.normal(0.3, 1.0, size=n), 1),  # many ties and zero differences
+                     np.full(n, 0.1), 1e6 + rng.normal(size=n)):  # all tied; huge offset (rounding)
+            base = rng.normal(size=n)
+            ours = stats.hodges_lehmann_paired(base + data, base, 0.95)
+            ref = _walsh_brute_force((base + data) - base, stats._walsh_rank(n, 0.95))
+            assert ours == pytest.approx(ref, rel=1e-13, abs=1e-13), (n, data[:3])
+
+
+def test_hodges_lehmann_interval_coverage():
+    # shifted symmetric (t with 5 degrees of freedom) differences: for n = 20 the exact interval
+    # [W_(53), W_(158)] has coverage 1 - 2 P(T+ <= 52) = 0.952; 1000 replications, binomial sd 0.7 %.
+    # n = 80 uses the normal approximation (600 replications, sd 0.9 %).
+    rng = np.random.default_rng(6)
+    for n, reps in ((20, 1000), (80, 600)):
+        covered = 0
+        for _ in range(reps):
+            d = 0.7 + rng.standard_t(5, size=n)
+            _, lo, hi = stats.hodges_lehmann_paired(d, np.zeros(n))
+            covered += lo <= 0.7 <= hi
+        assert 0.93 <= covered / reps <= 0.975, (n, covered / reps)
+
+
+def test_hodges_lehmann_large_sample_bounded_memory():
+    # n = 10 000 pairs have 50 005 000 Walsh averages (400 MB as float64); the selection keeps the peak
+    # far below that. The results are checked as order statistics by counting the sums d_i + d_j
+    # (i <= j) below and at each value, a block of rows at a time.
+    import tracemalloc
+
+    rng = np.random.default_rng(7)
+    n = 10_000
+    d = np.round(rng.standard_t(3, size=n), 3)  # ties as well
+    tracemalloc.start()
+    est, lo, hi = stats.hodges_lehmann_paired(d, np.zeros(n))
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 64e6
+    m = n * (n + 1) // 2
+    k = stats._walsh_rank(n, 0.95)
+    ds = np.sort(d)
+    values = np.array([lo, hi, est]) * 2  # as sums
+    below = np.zeros(3, np.int64)
+    upto = np.zeros(3, np.int64)
+    for start in range(0, n, 500):
+        rows = np.arange(start, min(start + 500, n))
+        sums = ds[rows, None] + ds[None, :]
+        upper = np.arange(n)[None, :] >= rows[:, None]
+        below += [(upper & (sums < v)).sum() for v in values]
+        upto += [(upper & (sums <= v)).sum() for v in values]
+    assert below[0] < k <= upto[0]  # lower bound = k-th smallest
+    assert below[1] < m + 1 - k <= upto[1]  # upper bound = k-th largest
+    assert below[2] <= m // 2 and upto[2] >= m // 2 + 1  # median of an even number of averages
