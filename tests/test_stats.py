@@ -413,3 +413,116 @@ def test_hodges_lehmann_large_sample_bounded_memory():
     assert below[0] < k <= upto[0]  # lower bound = k-th smallest
     assert below[1] < m + 1 - k <= upto[1]  # upper bound = k-th largest
     assert below[2] <= m // 2 and upto[2] >= m // 2 + 1  # median of an even number of averages
+
+
+# --------------------------------------------------------------------------------------------
+# equivalence (TOST), verdict, minimum detectable difference
+# --------------------------------------------------------------------------------------------
+
+
+def _tango_reference(b, c, n, delta):
+    """Score statistic of H0 p_x - p_y = delta with the restricted MLE found numerically."""
+    from scipy.optimize import minimize_scalar
+
+    def nll(q):  # cells: only x = q + delta, only y = q, concordant 1 - 2q - delta
+        cells = np.array([q + delta, q, 1 - 2 * q - delta])
+        counts = np.array([b, c, n - b - c])
+        return -np.sum(np.where(counts > 0, counts * np.log(np.maximum(cells, 1e-300)), 0.0))
+
+    q_lo, q_hi = max(0.0, -delta), (1 - delta) / 2
+    q = minimize_scalar(nll, bounds=(q_lo, q_hi), method="bounded", options={"xatol": 1e-13}).x
+    var = n * ((2 * q + delta) - delta ** 2)  # n Var(b/n - c/n) under the restricted fit
+    return (b - c - n * delta) / math.sqrt(var)
+
+
+def test_equivalence_rate_is_tango_score_test():
+    # p_upper = Φ(Z(δ = margin)); p_lower = 1 - Φ(Z(δ = -margin)); Z with the restricted MLE
+    for a, b, c, d in [(59, 6, 16, 80), (10, 0, 0, 10), (3, 12, 1, 30), (0, 5, 9, 0)]:
+        n = a + b + c + d
+        for margin in (0.05, 0.2, 0.45):
+            res = stats.equivalence_test(*_table(a, b, c, d), margin, kind="rate")
+            assert res.p_upper == pytest.approx(sst.norm.cdf(_tango_reference(b, c, n, margin)), abs=1e-6)
+            assert res.p_lower == pytest.approx(sst.norm.sf(_tango_reference(b, c, n, -margin)), abs=1e-6)
+            assert res.p == max(res.p_lower, res.p_upper)
+    # inverting it gives Tango's interval: Fagerland et al. (2014) report -0.1240 to -0.0054 (95 %) for
+    # Cavo et al.; the margin at which the lower test has p = 0.025 is the lower limit
+    from scipy.optimize import brentq
+
+    x, y = _table(59, 6, 16, 80)
+    limit = brentq(lambda m: stats.equivalence_test(x, y, m, kind="rate").p_lower - 0.025, 0.07, 0.5)
+    assert limit == pytest.approx(0.1240, abs=5e-5)
+
+
+def test_equivalence_hand_cases():
+    # no discordant pair among n = 10, margin 0.1: q̃ = 0, Z = (0 - 10·0.1)/sqrt(10·0.1·0.9) = -1.054093,
+    # p = Φ(-1.054093) = 0.145920 on each side -> not shown (a Wald test, se = 0, would claim it).
+    # n = 100: Z = -10/sqrt(100·0.09) = -3.333333, p = 0.000429 -> equivalent.
+    res = stats.equivalence_test(*_table(5, 0, 0, 5), 0.1, kind="rate")
+    assert res.p_lower == pytest.approx(0.145920, abs=1e-6) and res.p_upper == pytest.approx(0.145920, abs=1e-6)
+    assert not res.equivalent
+    res = stats.equivalence_test(*_table(50, 0, 0, 50), 0.1, kind="rate")
+    assert res.p == pytest.approx(0.000429, abs=1e-6) and res.equivalent
+    # identical samples, many pairs, generous margin: equivalent; the same for continuous values
+    rng = np.random.default_rng(8)
+    x = rng.uniform(size=2000) < 0.3
+    assert stats.equivalence_test(x, x, 0.02, kind="rate").equivalent
+    v = rng.normal(size=2000)
+    res = stats.equivalence_test(v, v, 0.01, kind="continuous")
+    assert res.equivalent and res.p < 1e-6
+    # a clear shift beyond the margin: not equivalent (the side it lies beyond has p near 1)
+    res = stats.equivalence_test(v + 1.0 + 0.1 * rng.normal(size=2000), v, 0.5, kind="continuous")
+    assert not res.equivalent and res.p_upper > 0.99 and res.p_lower < 1e-6
+    res = stats.equivalence_test(*_table(40, 30, 0, 30), 0.1, kind="rate")  # Δ = 0.3
+    assert not res.equivalent and res.p_upper > 0.99
+    # continuous, small n: exact one-sided signed-rank tests on d ± margin. d = 1..6, margin 10:
+    # every d + 10 > 0 and every d - 10 < 0, so both p = P(T+ = 21) = 2⁻⁶
+    res = stats.equivalence_test(np.arange(1.0, 7.0), np.zeros(6), 10.0, kind="continuous")
+    assert res.p_lower == pytest.approx(2.0 ** -6) and res.p_upper == pytest.approx(2.0 ** -6) and res.equivalent
+    # no pairs
+    res = stats.equivalence_test([], [], 0.1, kind="rate")
+    assert math.isnan(res.p) and not res.equivalent
+    assert math.isnan(stats.equivalence_test([], [], 0.1, kind="continuous").p)
+
+
+def test_equivalence_errors():
+    with pytest.raises(ValueError, match="kind"):
+        stats.equivalence_test([1.0], [1.0], 0.1, kind="rates")
+    with pytest.raises(ValueError, match="margin"):
+        stats.equivalence_test([1.0], [1.0], 0.0, kind="continuous")
+    with pytest.raises(ValueError, match="margin"):
+        stats.equivalence_test([True], [True], 1.0, kind="rate")
+    with pytest.raises(ValueError, match="confidence"):
+        stats.equivalence_test([1.0], [1.0], 0.1, kind="continuous", confidence=1.5)
+    with pytest.raises(ValueError, match="differ in size"):
+        stats.equivalence_test([True, False], [True], 0.1, kind="rate")
+
+
+def test_equivalence_rate_agrees_with_interval_rule():
+    # TOST at α (p <= 0.05) is the 1 - 2α = 90 % interval inside (-margin, margin). Tango's test and
+    # Newcombe's interval are different approximations, so they may disagree only when an end of the
+    # interval lies within a small distance of the margin.
+    rng = np.random.default_rng(9)
+    disagree = 0
+    for _ in range(1500):
+        cells = rng.multinomial(int(rng.integers(30, 500)), rng.dirichlet(np.ones(4)))
+        margin = float(rng.uniform(0.02, 0.4))
+        x, y = _table(*cells)
+        equivalent = stats.equivalence_test(x, y, margin, kind="rate", confidence=0.95).equivalent
+        _, lo, hi = stats.paired_proportion_difference(x, y, confidence=0.90)
+        if equivalent != (-margin < lo and hi < margin):
+            disagree += 1
+            assert min(abs(lo + margin), abs(hi - margin)) < 0.01, (cells, margin, lo, hi)
+    assert disagree < 15  # 1 %
+
+
+def test_equivalence_continuous_agrees_with_hodges_lehmann_interval():
+    # for continuous data (no ties, no zeros) and n <= 50 both are exact and the rule holds exactly:
+    # TOST at α <=> the 1 - 2α Hodges–Lehmann interval lies inside (-margin, margin)
+    rng = np.random.default_rng(10)
+    for _ in range(300):
+        n = int(rng.integers(6, 51))
+        d = rng.normal(rng.uniform(-1, 1), 1, size=n)
+        margin = float(rng.uniform(0.05, 1.5))
+        res = stats.equivalence_test(d, np.zeros(n), margin, kind="continuous", confidence=0.95)
+        _, lo, hi = stats.hodges_lehmann_paired(d, np.zeros(n), confidence=0.90)
+        assert res.equivalent == (-margin < lo and hi < margin)
