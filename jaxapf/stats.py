@@ -17,6 +17,8 @@ function                               what
 :func:`paired_proportion_difference`   ``p_x - p_y`` of paired booleans, Newcombe's hybrid score CI
 :func:`hodges_lehmann_paired`          Hodges–Lehmann paired shift, signed-rank (Walsh average) CI
 :func:`equivalence_test`               two one-sided tests (TOST) of ``|Δ| < margin``, rates or shifts
+:func:`verdict`                        better / worse / equivalent / inconclusive, weighing relevance
+:func:`minimum_detectable_difference`  smallest difference the paired test detects (power 0.8)
 :func:`holm`                           Holm step-down adjusted p-values
 :func:`performance_profile`            fraction of values above each threshold τ
 :func:`ecdf`                           empirical CDF
@@ -50,6 +52,9 @@ __all__ = [
     "hodges_lehmann_paired",
     "EquivalenceResult",
     "equivalence_test",
+    "VERDICTS",
+    "verdict",
+    "minimum_detectable_difference",
     "holm",
     "performance_profile",
     "ecdf",
@@ -707,6 +712,107 @@ def equivalence_test(x, y, margin: float, *, kind: str, confidence: float = 0.95
     return EquivalenceResult(p_lower, p_upper, p, bool(p <= alpha))
 
 
+#: The four verdicts of :func:`verdict`.
+VERDICTS = ("better", "worse", "equivalent", "inconclusive")
+
+
+def verdict(lo: float, hi: float, p_difference: float, p_equivalence: float, margin: float,
+            higher_is_better: bool, alpha: float = 0.05) -> str:
+    """Verdict of one comparison of x against y, weighing significance *and* relevance.
+
+    Args:
+      lo, hi: confidence interval of the difference ``Δ = x - y`` (e.g. of
+        :func:`paired_proportion_difference` or :func:`hodges_lehmann_paired`).
+      p_difference: p-value of the test of ``Δ = 0`` (McNemar / Wilcoxon), after whatever
+        multiplicity adjustment the caller applies (e.g. :func:`holm`).
+      p_equivalence: TOST p-value of ``|Δ| < margin`` (:func:`equivalence_test`).
+      margin: the smallest difference that matters (>= 0; 0 switches relevance off).
+      higher_is_better: direction of the metric (``collision``: False).
+      alpha: level of both tests.
+
+    Rule, with "up" meaning better for x (the interval is mirrored when lower is better):
+
+    * **irrelevant** when the equivalence test rejects (``p_equivalence <= alpha``) or the
+      whole interval lies inside ``(-margin, margin)``;
+    * **"better"** / **"worse"** when the difference test is significant
+      (``p_difference <= alpha``) *and* the whole interval lies beyond 0 in that direction,
+      unless irrelevant: a significant but irrelevant difference is **"equivalent"**;
+    * otherwise **"equivalent"** when irrelevant, and **"inconclusive"** when neither.
+
+    Why "better" needs the interval beyond 0 and not beyond the margin: the verdict states the
+    *direction* the data establish; relevance only overrides it when the data establish that
+    the difference is too small to matter (the confidence-interval criterion of equivalence
+    trials, e.g. ICH E9 / Schuirmann: the interval within the margin). Requiring the whole
+    interval beyond the margin would test superiority *by* the margin, a stronger question
+    that leaves most real improvements "inconclusive"; requiring only the point estimate beyond
+    the margin would let noise decide. A significant difference whose interval straddles the
+    margin is therefore "better" (established direction, relevance not excluded), and the
+    interval in the report shows how large it may be. Both the p-value and the interval are
+    required so that the verdict never contradicts the interval shown next to it (the exact
+    McNemar test and the score interval can disagree at the edge). NaN inputs count as "not
+    significant" / "not inside", so a comparison without pairs is "inconclusive".
+    """
+    if not 0.0 < alpha < 1.0:
+        raise ValueError(f"alpha = {alpha!r} must lie strictly between 0 and 1")
+    if not (math.isfinite(margin) and margin >= 0):
+        raise ValueError(f"margin = {margin!r} must be non-negative and finite")
+    if lo > hi:
+        raise ValueError(f"interval ({lo!r}, {hi!r}) has lower > upper")
+    if not higher_is_better:
+        lo, hi = -hi, -lo
+    irrelevant = bool(p_equivalence <= alpha) or bool(-margin < lo and hi < margin)
+    if p_difference <= alpha and (lo > 0 or hi < 0):
+        if irrelevant:
+            return "equivalent"
+        return "better" if lo > 0 else "worse"
+    return "equivalent" if irrelevant else "inconclusive"
+
+
+def minimum_detectable_difference(x, y, *, kind: str, alpha: float = 0.05, power: float = 0.8) -> float:
+    r"""Smallest true paired difference the two-sided test at ``alpha`` detects with ``power`` at this ``n``.
+
+    Normal approximation, ``K = Φ⁻¹(1 - α/2) + Φ⁻¹(power)`` (1.96 + 0.84 = 2.80 by default):
+
+    * ``kind="rate"`` (McNemar): with the observed discordant fraction ``ψ̂ = (b + c)/n``,
+      ``MDE = K √(ψ/n)``, ψ = the discordant probability: Connor's sample-size formula for
+      McNemar's test (Biometrics 43 (1987) 207–211), ``n = (z_α √ψ + z_β √(ψ - δ²))² / δ²``,
+      solved for δ with ``ψ - δ² ≈ ψ`` (slightly conservative). A true difference δ needs at
+      least a fraction δ of discordant pairs, so ``ψ = max(ψ̂, δ)``; solving gives
+      ``MDE = max(K √(ψ̂/n), K²/n)``, which stays positive when no pair is discordant.
+    * ``kind="continuous"`` (Wilcoxon signed-rank): ``MDE = K √(π/3) · sd(d) / √n`` with ``sd``
+      the sample standard deviation (ddof 1) of ``d = x - y``: the normal-theory (z-test)
+      detectable shift, inflated by the inverse asymptotic relative efficiency of the
+      signed-rank test under normality, ``3/π`` (Hodges & Lehmann 1956): the Wilcoxon test needs
+      ``π/3`` times as many pairs, i.e. ``√(π/3) ≈ 1.023`` times the shift at the same ``n``. (For
+      heavy-tailed differences the Wilcoxon test does better than this; the sd then overstates
+      the MDE.) ``sd(d) = 0``: 0.
+
+    ``inf`` when no difference is detectable: the smallest attainable two-sided exact p-value
+    with ``n`` pairs is ``2^{1-n}`` (every pair discordant / of one sign), so for
+    ``2^{1-n} > alpha`` (n <= 5 at 5 %) nothing can be detected; a rate MDE above 1 is also
+    ``inf``. NaN for no pairs (continuous: fewer than 2).
+    """
+    if not 0.0 < alpha < 1.0:
+        raise ValueError(f"alpha = {alpha!r} must lie strictly between 0 and 1")
+    if not 0.5 <= power < 1.0:
+        raise ValueError(f"power = {power!r} must lie in [0.5, 1)")
+    k = float(_st.norm.ppf(1.0 - alpha / 2.0) + _st.norm.ppf(power))
+    if kind == "rate":
+        a, b, c, d = _paired_counts(x, y)
+        n = a + b + c + d
+        if n == 0:
+            return math.nan
+        mde = max(k * math.sqrt((b + c) / n / n), k * k / n)
+        return math.inf if (2.0 ** (1 - n) > alpha or mde > 1.0) else float(mde)
+    if kind == "continuous":
+        diff = _paired_differences(x, y, "minimum_detectable_difference")
+        n = diff.size
+        if n < 2:
+            return math.nan
+        if 2.0 ** (1 - n) > alpha:
+            return math.inf
+        return float(k * math.sqrt(math.pi / 3.0) * np.std(diff, ddof=1) / math.sqrt(n))
+    raise ValueError(f"kind = {kind!r} must be 'rate' or 'continuous'")
 
 
 # --------------------------------------------------------------------------------------------

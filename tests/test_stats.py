@@ -526,3 +526,73 @@ def test_equivalence_continuous_agrees_with_hodges_lehmann_interval():
         res = stats.equivalence_test(d, np.zeros(n), margin, kind="continuous", confidence=0.95)
         _, lo, hi = stats.hodges_lehmann_paired(d, np.zeros(n), confidence=0.90)
         assert res.equivalent == (-margin < lo and hi < margin)
+
+
+def test_verdict_every_branch():
+    v = stats.verdict
+    # significant, interval beyond 0, reaching past the margin: better / worse
+    assert v(0.05, 0.30, 0.001, 0.9, 0.1, True) == "better"
+    assert v(-0.30, -0.05, 0.001, 0.9, 0.1, True) == "worse"
+    # significant and the interval beyond 0 but straddling the margin: still better (direction shown,
+    # relevance not excluded)
+    assert v(0.02, 0.15, 0.01, 0.2, 0.1, True) == "better"
+    # lower is better (collisions): a negative difference is an improvement
+    assert v(-0.30, -0.05, 0.001, 0.9, 0.1, False) == "better"
+    assert v(0.05, 0.30, 0.001, 0.9, 0.1, False) == "worse"
+    # significant but irrelevant: the interval inside (-margin, margin), or the equivalence test rejects
+    assert v(0.01, 0.04, 0.001, 0.2, 0.1, True) == "equivalent"
+    assert v(-0.04, -0.01, 0.001, 0.2, 0.1, False) == "equivalent"
+    assert v(0.01, 0.12, 0.001, 0.03, 0.1, True) == "equivalent"
+    # not significant: equivalent when the equivalence test rejects or the interval is inside the margin
+    assert v(-0.03, 0.04, 0.6, 0.01, 0.1, True) == "equivalent"
+    assert v(-0.03, 0.04, 0.6, 0.2, 0.1, True) == "equivalent"
+    # otherwise inconclusive: wide interval; significant p but interval touching 0 (methods disagree)
+    assert v(-0.2, 0.3, 0.4, 0.6, 0.1, True) == "inconclusive"
+    assert v(0.0, 0.3, 0.04, 0.6, 0.1, True) == "inconclusive"
+    assert v(0.05, 0.3, 0.06, 0.6, 0.1, True) == "inconclusive"  # interval beyond 0, test not significant
+    # alpha is the caller's (e.g. compare the Holm-adjusted p with it)
+    assert v(0.05, 0.30, 0.02, 0.9, 0.1, True, alpha=0.01) == "inconclusive"
+    # margin 0 switches relevance off; NaN (no pairs) is inconclusive
+    assert v(0.001, 0.002, 0.001, math.nan, 0.0, True) == "better"
+    assert v(math.nan, math.nan, math.nan, math.nan, 0.1, True) == "inconclusive"
+    assert set(stats.VERDICTS) == {"better", "worse", "equivalent", "inconclusive"}
+    with pytest.raises(ValueError, match="alpha"):
+        v(0.0, 1.0, 0.5, 0.5, 0.1, True, alpha=1.0)
+    with pytest.raises(ValueError, match="margin"):
+        v(0.0, 1.0, 0.5, 0.5, -0.1, True)
+    with pytest.raises(ValueError, match="lower > upper"):
+        v(1.0, 0.0, 0.5, 0.5, 0.1, True)
+
+
+def test_minimum_detectable_difference_hand_computed():
+    # K = Φ⁻¹(0.975) + Φ⁻¹(0.8) = 1.959964 + 0.841621 = 2.801585, K² = 7.848880
+    # rates, n = 100, b + c = 10: ψ̂ = 0.1, K·sqrt(0.1/100) = 2.801585·0.0316228 = 0.0885939 > K²/n = 0.0784888
+    mdd = stats.minimum_detectable_difference
+    assert mdd(*_table(45, 6, 4, 45), kind="rate") == pytest.approx(0.0885939, abs=1e-6)
+    # no discordant pair: ψ = max(0, δ) gives δ = K²/n = 0.0784888 (not 0)
+    assert mdd(*_table(50, 0, 0, 50), kind="rate") == pytest.approx(0.0784888, abs=1e-6)
+    # n = 8: K²/8 = 0.981110 is still a difference; n = 7: K²/7 = 1.121 > 1, nothing detectable;
+    # n = 5: even 5 discordant pairs of one sign give p = 2·2⁻⁵ = 0.0625 > 0.05
+    assert mdd(*_table(4, 0, 0, 4), kind="rate") == pytest.approx(0.981110, abs=1e-6)
+    assert mdd(*_table(4, 0, 0, 3), kind="rate") == math.inf
+    assert mdd(*_table(0, 5, 0, 0), kind="rate") == math.inf
+    # Connor's formula solved back: n = K² ψ / δ² at the detectable δ
+    assert 2.801585 ** 2 * 0.1 / 0.0885939 ** 2 == pytest.approx(100, rel=1e-5)
+    # continuous: d = 1..9, sd = sqrt(60/8) = 2.738613, n = 9:
+    # K·sqrt(π/3)·sd/3 = 2.801585·1.023327·2.738613/3 = 2.617143
+    d = np.arange(1.0, 10.0)
+    assert mdd(d + 3.0, np.full(9, 3.0), kind="continuous") == pytest.approx(2.617143, abs=1e-6)
+    assert mdd(np.ones(9), np.zeros(9), kind="continuous") == 0.0  # no spread
+    assert mdd(d[:5], np.zeros(5), kind="continuous") == math.inf
+    assert math.isnan(mdd([1.0], [0.0], kind="continuous")) and math.isnan(mdd([], [], kind="rate"))
+    # higher power or a smaller alpha need a larger difference
+    assert mdd(d, 0 * d, kind="continuous", power=0.9) > mdd(d, 0 * d, kind="continuous")
+    assert mdd(d, 0 * d, kind="continuous", alpha=0.01) > mdd(d, 0 * d, kind="continuous")
+    with pytest.raises(ValueError, match="kind"):
+        mdd(d, d, kind="shift")
+    with pytest.raises(ValueError, match="power"):
+        mdd(d, d, kind="continuous", power=1.0)
+    with pytest.raises(ValueError, match="alpha"):
+        mdd(d, d, kind="continuous", alpha=0.0)
+    with pytest.raises(ValueError, match="differ in size"):
+        mdd(d, d[:3], kind="continuous")
