@@ -220,3 +220,379 @@ def test_performance_profile_and_ecdf():
     np.testing.assert_allclose(xs, [1, 2, 3])
     np.testing.assert_allclose(f, [1 / 3, 2 / 3, 1])
     assert np.all(np.isnan(stats.performance_profile([], [0.0, 1.0])))
+
+
+# --------------------------------------------------------------------------------------------
+# paired estimates: difference of proportions (Newcombe), Hodges–Lehmann
+# --------------------------------------------------------------------------------------------
+
+
+def _table(a, b, c, d):
+    """Paired booleans with a pairs (1, 1), b pairs (1, 0), c pairs (0, 1), d pairs (0, 0)."""
+    x = np.array([True] * a + [True] * b + [False] * c + [False] * d)
+    y = np.array([True] * a + [False] * b + [True] * c + [False] * d)
+    return x, y
+
+
+def _newcombe_reference(a, b, c, d, conf):
+    """Newcombe's method 10 written out from the paper's formulas (scalar arithmetic throughout)."""
+    n = a + b + c + d
+    z = sst.norm.ppf(0.5 + conf / 2)
+
+    def wilson(k):
+        p = k / n
+        centre = (2 * n * p + z * z) / (2 * (n + z * z))
+        half = z * math.sqrt(z * z + 4 * n * p * (1 - p)) / (2 * (n + z * z))
+        return centre - half, centre + half
+
+    p1, p2 = (a + b) / n, (a + c) / n
+    (l1, u1), (l2, u2) = wilson(a + b), wilson(a + c)
+    big_a, denom = a * d - b * c, (a + b) * (c + d) * (a + c) * (b + d)
+    corrected = big_a - n / 2 if big_a > n / 2 else (0 if big_a >= 0 else big_a)
+    phi = corrected / math.sqrt(denom) if denom else 0.0
+    delta = math.sqrt(max((p1 - l1) ** 2 - 2 * phi * (p1 - l1) * (u2 - p2) + (u2 - p2) ** 2, 0))
+    eps = math.sqrt(max((p2 - l2) ** 2 - 2 * phi * (p2 - l2) * (u1 - p1) + (u1 - p1) ** 2, 0))
+    return (b - c) / n, (b - c) / n - delta, (b - c) / n + eps
+
+
+def test_paired_proportion_difference_published_and_hand_computed():
+    # Fagerland, Lydersen & Laake (Stat. Med. 2014; their book §8 and R package contingencytables)
+    # work Newcombe's square-and-add interval on Cavo et al. (2012): a = 59, b = 6, c = 16, d = 80,
+    # estimate -10/161 = -0.0621, 95 % CI -0.1186 to -0.0046.
+    est, lo, hi = stats.paired_proportion_difference(*_table(59, 6, 16, 80))
+    assert est == pytest.approx(-10 / 161, rel=1e-12)
+    assert lo == pytest.approx(-0.1186, abs=5e-5)
+    assert hi == pytest.approx(-0.0046, abs=5e-5)
+    # Bentur et al. (2009), a = 1, b = 1, c = 7, d = 12, n = 21: ad - bc = 5 lies in [0, n/2], so the
+    # corrected φ̂ = 0 and the interval is plain square-and-add of the marginal Wilson intervals:
+    #   p̂x = 2/21 = 0.095238, Wilson [0.026519, 0.289141]; p̂y = 8/21 = 0.380952, Wilson [0.207510, 0.591213]
+    #   L = -6/21 - sqrt((0.095238 - 0.026519)² + (0.591213 - 0.380952)²) = -0.285714 - 0.221206 = -0.506920
+    #   U = -6/21 + sqrt((0.380952 - 0.207510)² + (0.289141 - 0.095238)²) = -0.285714 + 0.260155 = -0.025559
+    est, lo, hi = stats.paired_proportion_difference(*_table(1, 1, 7, 12))
+    assert est == pytest.approx(-6 / 21, rel=1e-12)
+    assert lo == pytest.approx(-0.506920, abs=2e-6)
+    assert hi == pytest.approx(-0.025559, abs=2e-6)
+    # negative ad - bc (φ̂ = A/√D uncorrected) and the other branches against the written-out formulas
+    for cells in [(2, 10, 8, 1), (12, 9, 2, 21), (0, 0, 0, 5), (0, 3, 0, 0), (40, 0, 0, 0)]:
+        assert stats.paired_proportion_difference(*_table(*cells)) == pytest.approx(
+            _newcombe_reference(*cells, 0.95), abs=1e-12)
+
+
+@settings(max_examples=300, deadline=None)
+@given(cells=st.tuples(*[st.integers(0, 60)] * 4), conf=st.sampled_from([0.8, 0.9, 0.95, 0.99]))
+def test_paired_proportion_difference_properties(cells, conf):
+    x, y = _table(*cells)
+    est, lo, hi = stats.paired_proportion_difference(x, y, conf)
+    if sum(cells) == 0:
+        assert all(math.isnan(v) for v in (est, lo, hi))
+        return
+    assert -1.0 <= lo <= est <= hi <= 1.0
+    assert est == pytest.approx(stats.mean(x.astype(float)) - stats.mean(y.astype(float)))
+    assert (est, lo, hi) == pytest.approx(_newcombe_reference(*cells, conf), abs=1e-12)
+    est_s, lo_s, hi_s = stats.paired_proportion_difference(y, x, conf)  # swapping x and y mirrors it
+    assert (est_s, lo_s, hi_s) == pytest.approx((-est, -hi, -lo), abs=1e-12)
+    wide = stats.paired_proportion_difference(x, y, 0.995)
+    assert wide[1] <= lo + 1e-12 and hi <= wide[2] + 1e-12
+
+
+def test_paired_proportion_difference_errors():
+    with pytest.raises(ValueError, match="confidence"):
+        stats.paired_proportion_difference([True], [False], confidence=1.0)
+    with pytest.raises(ValueError, match="differ in size"):
+        stats.paired_proportion_difference([True, False], [False])
+
+
+def _walsh_brute_force(d, k):
+    """(HL, W_(k), W_(M+1-k)) from every Walsh average, materialised and sorted."""
+    d = np.asarray(d, dtype=float)
+    i, j = np.triu_indices(d.size)
+    walsh = np.sort((d[i] + d[j]) / 2)
+    if k == 0:
+        return float(np.median(walsh)), -math.inf, math.inf
+    return float(np.median(walsh)), walsh[k - 1], walsh[-k]
+
+
+def _enumerated_rank(n, conf):
+    """Largest k with P(T+ <= k - 1) <= α/2, T+ over all 2ⁿ equally likely sign patterns of ranks 1..n."""
+    signs = (np.arange(2 ** n)[:, None] >> np.arange(n)) & 1
+    t_plus = signs @ np.arange(1, n + 1)
+    cdf = np.cumsum(np.bincount(t_plus)) / 2 ** n
+    return int(np.sum(cdf <= (1 - conf) / 2 + 1e-12))
+
+
+def test_walsh_rank_against_enumeration_and_tables():
+    for n in range(1, 15):
+        for conf in (0.9, 0.95, 0.99):
+            assert stats._walsh_rank(n, conf) == _enumerated_rank(n, conf), (n, conf)
+    # tabulated two-sided 5 % critical values of the signed-rank statistic: n = 20 -> 52, n = 30 -> 137,
+    # n = 50 -> 434 (k = critical value + 1)
+    assert [stats._walsh_rank(n, 0.95) for n in (20, 30, 50)] == [53, 138, 435]
+    # the normal approximation with continuity correction, used from n = 51, is within one rank at n = 50:
+    # floor(1275/2 - 1.959964·sqrt(50·51·101/24) + ½) = floor(637.5 - 1.959964·103.5910 + 0.5) = 435
+    sigma = math.sqrt(50 * 51 * 101 / 24)
+    assert abs(math.floor(1275 / 2 - Z95 * sigma + 0.5) - stats._walsh_rank(50, 0.95)) <= 1
+    assert stats._walsh_rank(5, 0.95) == 0 and stats._walsh_rank(6, 0.95) == 1  # 2·2⁻⁶ = 0.031 <= 0.05
+
+
+def test_hodges_lehmann_hand_computed():
+    # d = 1..5: the 15 Walsh averages are 1, 1.5, 2, 2, 2.5, 2.5, 3, 3, 3, 3.5, 3.5, 4, 4, 4.5, 5 -> median 3;
+    # with 5 pairs no rank reaches 95 % (the best interval [min, max] has coverage 1 - 2·2⁻⁵ = 0.9375)
+    est, lo, hi = stats.hodges_lehmann_paired([1.0, 2.0, 3.0, 4.0, 5.0], np.zeros(5))
+    assert est == 3.0 and lo == -math.inf and hi == math.inf
+    # at 90 % it does: P(T+ <= 0) = 1/32 <= 0.05 < P(T+ <= 1) = 2/32 -> k = 1, the interval [1, 5]
+    assert stats.hodges_lehmann_paired([1.0, 2.0, 3.0, 4.0, 5.0], np.zeros(5), 0.9) == (3.0, 1.0, 5.0)
+    # d = 1..6: 21 Walsh averages, median 3.5; k = 1 at 95 % (2⁻⁶ <= 0.025 < 2·2⁻⁶) -> [1, 6]
+    assert stats.hodges_lehmann_paired(np.arange(1.0, 7.0) + 10, np.full(6, 10.0)) == (3.5, 1.0, 6.0)
+    # zero differences are kept: d = (0, 0, 0, 4) has Walsh averages 0 ×6, 2 ×3, 4 -> median 0
+    assert stats.hodges_lehmann_paired([5.0, 5.0, 5.0, 9.0], [5.0, 5.0, 5.0, 5.0])[0] == 0.0
+    assert all(math.isnan(v) for v in stats.hodges_lehmann_paired([], []))
+    with pytest.raises(ValueError, match="finite"):
+        stats.hodges_lehmann_paired([1.0, math.nan], [0.0, 0.0])
+    with pytest.raises(ValueError, match="differ in size"):
+        stats.hodges_lehmann_paired([1.0, 2.0], [0.0])
+    with pytest.raises(ValueError, match="confidence"):
+        stats.hodges_lehmann_paired([1.0, 2.0], [0.0, 0.0], confidence=0.0)
+
+
+@pytest.mark.parametrize("materialise", [None, 7])
+def test_hodges_lehmann_matches_brute_force(monkeypatch, materialise):
+    # materialise = 7 forces the selection rounds (normally only n > ~1450 needs them) on small samples
+    if materialise is not None:
+        monkeypatch.setattr(stats, "_WALSH_MATERIALISE", materialise)
+    rng = np.random.default_rng(5)
+    for n in (1, 2, 6, 7, 12, 25, 50, 51, 90, 200):
+        for data in (rng.standard_t(2, size=n),  # heavy tails, no ties
+                     np.round(rng.normal(0.3, 1.0, size=n), 1),  # many ties and zero differences
+                     np.full(n, 0.1), 1e6 + rng.normal(size=n)):  # all tied; huge offset (rounding)
+            base = rng.normal(size=n)
+            ours = stats.hodges_lehmann_paired(base + data, base, 0.95)
+            ref = _walsh_brute_force((base + data) - base, stats._walsh_rank(n, 0.95))
+            assert ours == pytest.approx(ref, rel=1e-13, abs=1e-13), (n, data[:3])
+
+
+def test_hodges_lehmann_interval_coverage():
+    # shifted symmetric (t with 5 degrees of freedom) differences: for n = 20 the exact interval
+    # [W_(53), W_(158)] has coverage 1 - 2 P(T+ <= 52) = 0.952; 1000 replications, binomial sd 0.7 %.
+    # n = 80 uses the normal approximation (600 replications, sd 0.9 %).
+    rng = np.random.default_rng(6)
+    for n, reps in ((20, 1000), (80, 600)):
+        covered = 0
+        for _ in range(reps):
+            d = 0.7 + rng.standard_t(5, size=n)
+            _, lo, hi = stats.hodges_lehmann_paired(d, np.zeros(n))
+            covered += lo <= 0.7 <= hi
+        assert 0.93 <= covered / reps <= 0.975, (n, covered / reps)
+
+
+def test_hodges_lehmann_large_sample_bounded_memory():
+    # n = 10 000 pairs have 50 005 000 Walsh averages (400 MB as float64); the selection keeps the peak
+    # far below that. The results are checked as order statistics by counting the sums d_i + d_j
+    # (i <= j) below and at each value, a block of rows at a time.
+    import tracemalloc
+
+    rng = np.random.default_rng(7)
+    n = 10_000
+    d = np.round(rng.standard_t(3, size=n), 3)  # ties as well
+    tracemalloc.start()
+    est, lo, hi = stats.hodges_lehmann_paired(d, np.zeros(n))
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 64e6
+    m = n * (n + 1) // 2
+    k = stats._walsh_rank(n, 0.95)
+    ds = np.sort(d)
+    values = np.array([lo, hi, est]) * 2  # as sums
+    below = np.zeros(3, np.int64)
+    upto = np.zeros(3, np.int64)
+    for start in range(0, n, 500):
+        rows = np.arange(start, min(start + 500, n))
+        sums = ds[rows, None] + ds[None, :]
+        upper = np.arange(n)[None, :] >= rows[:, None]
+        below += [(upper & (sums < v)).sum() for v in values]
+        upto += [(upper & (sums <= v)).sum() for v in values]
+    assert below[0] < k <= upto[0]  # lower bound = k-th smallest
+    assert below[1] < m + 1 - k <= upto[1]  # upper bound = k-th largest
+    assert below[2] <= m // 2 and upto[2] >= m // 2 + 1  # median of an even number of averages
+
+
+# --------------------------------------------------------------------------------------------
+# equivalence (TOST), verdict, minimum detectable difference
+# --------------------------------------------------------------------------------------------
+
+
+def _tango_reference(b, c, n, delta):
+    """Score statistic of H0 p_x - p_y = delta with the restricted MLE found numerically."""
+    from scipy.optimize import minimize_scalar
+
+    def nll(q):  # cells: only x = q + delta, only y = q, concordant 1 - 2q - delta
+        cells = np.array([q + delta, q, 1 - 2 * q - delta])
+        counts = np.array([b, c, n - b - c])
+        return -np.sum(np.where(counts > 0, counts * np.log(np.maximum(cells, 1e-300)), 0.0))
+
+    q_lo, q_hi = max(0.0, -delta), (1 - delta) / 2
+    q = minimize_scalar(nll, bounds=(q_lo, q_hi), method="bounded", options={"xatol": 1e-13}).x
+    var = n * ((2 * q + delta) - delta ** 2)  # n Var(b/n - c/n) under the restricted fit
+    return (b - c - n * delta) / math.sqrt(var)
+
+
+def test_equivalence_rate_is_tango_score_test():
+    # p_upper = Φ(Z(δ = margin)); p_lower = 1 - Φ(Z(δ = -margin)); Z with the restricted MLE
+    for a, b, c, d in [(59, 6, 16, 80), (10, 0, 0, 10), (3, 12, 1, 30), (0, 5, 9, 0)]:
+        n = a + b + c + d
+        for margin in (0.05, 0.2, 0.45):
+            res = stats.equivalence_test(*_table(a, b, c, d), margin, kind="rate")
+            assert res.p_upper == pytest.approx(sst.norm.cdf(_tango_reference(b, c, n, margin)), abs=1e-6)
+            assert res.p_lower == pytest.approx(sst.norm.sf(_tango_reference(b, c, n, -margin)), abs=1e-6)
+            assert res.p == max(res.p_lower, res.p_upper)
+    # inverting it gives Tango's interval: Fagerland et al. (2014) report -0.1240 to -0.0054 (95 %) for
+    # Cavo et al.; the margin at which the lower test has p = 0.025 is the lower limit
+    from scipy.optimize import brentq
+
+    x, y = _table(59, 6, 16, 80)
+    limit = brentq(lambda m: stats.equivalence_test(x, y, m, kind="rate").p_lower - 0.025, 0.07, 0.5)
+    assert limit == pytest.approx(0.1240, abs=5e-5)
+
+
+def test_equivalence_hand_cases():
+    # no discordant pair among n = 10, margin 0.1: q̃ = 0, Z = (0 - 10·0.1)/sqrt(10·0.1·0.9) = -1.054093,
+    # p = Φ(-1.054093) = 0.145920 on each side -> not shown (a Wald test, se = 0, would claim it).
+    # n = 100: Z = -10/sqrt(100·0.09) = -3.333333, p = 0.000429 -> equivalent.
+    res = stats.equivalence_test(*_table(5, 0, 0, 5), 0.1, kind="rate")
+    assert res.p_lower == pytest.approx(0.145920, abs=1e-6) and res.p_upper == pytest.approx(0.145920, abs=1e-6)
+    assert not res.equivalent
+    res = stats.equivalence_test(*_table(50, 0, 0, 50), 0.1, kind="rate")
+    assert res.p == pytest.approx(0.000429, abs=1e-6) and res.equivalent
+    # identical samples, many pairs, generous margin: equivalent; the same for continuous values
+    rng = np.random.default_rng(8)
+    x = rng.uniform(size=2000) < 0.3
+    assert stats.equivalence_test(x, x, 0.02, kind="rate").equivalent
+    v = rng.normal(size=2000)
+    res = stats.equivalence_test(v, v, 0.01, kind="continuous")
+    assert res.equivalent and res.p < 1e-6
+    # a clear shift beyond the margin: not equivalent (the side it lies beyond has p near 1)
+    res = stats.equivalence_test(v + 1.0 + 0.1 * rng.normal(size=2000), v, 0.5, kind="continuous")
+    assert not res.equivalent and res.p_upper > 0.99 and res.p_lower < 1e-6
+    res = stats.equivalence_test(*_table(40, 30, 0, 30), 0.1, kind="rate")  # Δ = 0.3
+    assert not res.equivalent and res.p_upper > 0.99
+    # continuous, small n: exact one-sided signed-rank tests on d ± margin. d = 1..6, margin 10:
+    # every d + 10 > 0 and every d - 10 < 0, so both p = P(T+ = 21) = 2⁻⁶
+    res = stats.equivalence_test(np.arange(1.0, 7.0), np.zeros(6), 10.0, kind="continuous")
+    assert res.p_lower == pytest.approx(2.0 ** -6) and res.p_upper == pytest.approx(2.0 ** -6) and res.equivalent
+    # no pairs
+    res = stats.equivalence_test([], [], 0.1, kind="rate")
+    assert math.isnan(res.p) and not res.equivalent
+    assert math.isnan(stats.equivalence_test([], [], 0.1, kind="continuous").p)
+
+
+def test_equivalence_errors():
+    with pytest.raises(ValueError, match="kind"):
+        stats.equivalence_test([1.0], [1.0], 0.1, kind="rates")
+    with pytest.raises(ValueError, match="margin"):
+        stats.equivalence_test([1.0], [1.0], 0.0, kind="continuous")
+    with pytest.raises(ValueError, match="margin"):
+        stats.equivalence_test([True], [True], 1.0, kind="rate")
+    with pytest.raises(ValueError, match="confidence"):
+        stats.equivalence_test([1.0], [1.0], 0.1, kind="continuous", confidence=1.5)
+    with pytest.raises(ValueError, match="differ in size"):
+        stats.equivalence_test([True, False], [True], 0.1, kind="rate")
+
+
+def test_equivalence_rate_agrees_with_interval_rule():
+    # TOST at α (p <= 0.05) is the 1 - 2α = 90 % interval inside (-margin, margin). Tango's test and
+    # Newcombe's interval are different approximations, so they may disagree only when an end of the
+    # interval lies within a small distance of the margin.
+    rng = np.random.default_rng(9)
+    disagree = 0
+    for _ in range(1500):
+        cells = rng.multinomial(int(rng.integers(30, 500)), rng.dirichlet(np.ones(4)))
+        margin = float(rng.uniform(0.02, 0.4))
+        x, y = _table(*cells)
+        equivalent = stats.equivalence_test(x, y, margin, kind="rate", confidence=0.95).equivalent
+        _, lo, hi = stats.paired_proportion_difference(x, y, confidence=0.90)
+        if equivalent != (-margin < lo and hi < margin):
+            disagree += 1
+            assert min(abs(lo + margin), abs(hi - margin)) < 0.01, (cells, margin, lo, hi)
+    assert disagree < 15  # 1 %
+
+
+def test_equivalence_continuous_agrees_with_hodges_lehmann_interval():
+    # for continuous data (no ties, no zeros) and n <= 50 both are exact and the rule holds exactly:
+    # TOST at α <=> the 1 - 2α Hodges–Lehmann interval lies inside (-margin, margin)
+    rng = np.random.default_rng(10)
+    for _ in range(300):
+        n = int(rng.integers(6, 51))
+        d = rng.normal(rng.uniform(-1, 1), 1, size=n)
+        margin = float(rng.uniform(0.05, 1.5))
+        res = stats.equivalence_test(d, np.zeros(n), margin, kind="continuous", confidence=0.95)
+        _, lo, hi = stats.hodges_lehmann_paired(d, np.zeros(n), confidence=0.90)
+        assert res.equivalent == (-margin < lo and hi < margin)
+
+
+def test_verdict_every_branch():
+    v = stats.verdict
+    # significant, interval beyond 0, reaching past the margin: better / worse
+    assert v(0.05, 0.30, 0.001, 0.9, 0.1, True) == "better"
+    assert v(-0.30, -0.05, 0.001, 0.9, 0.1, True) == "worse"
+    # significant and the interval beyond 0 but straddling the margin: still better (direction shown,
+    # relevance not excluded)
+    assert v(0.02, 0.15, 0.01, 0.2, 0.1, True) == "better"
+    # lower is better (collisions): a negative difference is an improvement
+    assert v(-0.30, -0.05, 0.001, 0.9, 0.1, False) == "better"
+    assert v(0.05, 0.30, 0.001, 0.9, 0.1, False) == "worse"
+    # significant but irrelevant: the interval inside (-margin, margin), or the equivalence test rejects
+    assert v(0.01, 0.04, 0.001, 0.2, 0.1, True) == "equivalent"
+    assert v(-0.04, -0.01, 0.001, 0.2, 0.1, False) == "equivalent"
+    assert v(0.01, 0.12, 0.001, 0.03, 0.1, True) == "equivalent"
+    # not significant: equivalent when the equivalence test rejects or the interval is inside the margin
+    assert v(-0.03, 0.04, 0.6, 0.01, 0.1, True) == "equivalent"
+    assert v(-0.03, 0.04, 0.6, 0.2, 0.1, True) == "equivalent"
+    # otherwise inconclusive: wide interval; significant p but interval touching 0 (methods disagree)
+    assert v(-0.2, 0.3, 0.4, 0.6, 0.1, True) == "inconclusive"
+    assert v(0.0, 0.3, 0.04, 0.6, 0.1, True) == "inconclusive"
+    assert v(0.05, 0.3, 0.06, 0.6, 0.1, True) == "inconclusive"  # interval beyond 0, test not significant
+    # alpha is the caller's (e.g. compare the Holm-adjusted p with it)
+    assert v(0.05, 0.30, 0.02, 0.9, 0.1, True, alpha=0.01) == "inconclusive"
+    # margin 0 switches relevance off; NaN (no pairs) is inconclusive
+    assert v(0.001, 0.002, 0.001, math.nan, 0.0, True) == "better"
+    assert v(math.nan, math.nan, math.nan, math.nan, 0.1, True) == "inconclusive"
+    assert set(stats.VERDICTS) == {"better", "worse", "equivalent", "inconclusive"}
+    with pytest.raises(ValueError, match="alpha"):
+        v(0.0, 1.0, 0.5, 0.5, 0.1, True, alpha=1.0)
+    with pytest.raises(ValueError, match="margin"):
+        v(0.0, 1.0, 0.5, 0.5, -0.1, True)
+    with pytest.raises(ValueError, match="lower > upper"):
+        v(1.0, 0.0, 0.5, 0.5, 0.1, True)
+
+
+def test_minimum_detectable_difference_hand_computed():
+    # K = Φ⁻¹(0.975) + Φ⁻¹(0.8) = 1.959964 + 0.841621 = 2.801585, K² = 7.848880
+    # rates, n = 100, b + c = 10: ψ̂ = 0.1, K·sqrt(0.1/100) = 2.801585·0.0316228 = 0.0885939 > K²/n = 0.0784888
+    mdd = stats.minimum_detectable_difference
+    assert mdd(*_table(45, 6, 4, 45), kind="rate") == pytest.approx(0.0885939, abs=1e-6)
+    # no discordant pair: ψ = max(0, δ) gives δ = K²/n = 0.0784888 (not 0)
+    assert mdd(*_table(50, 0, 0, 50), kind="rate") == pytest.approx(0.0784888, abs=1e-6)
+    # n = 8: K²/8 = 0.981110 is still a difference; n = 7: K²/7 = 1.121 > 1, nothing detectable;
+    # n = 5: even 5 discordant pairs of one sign give p = 2·2⁻⁵ = 0.0625 > 0.05
+    assert mdd(*_table(4, 0, 0, 4), kind="rate") == pytest.approx(0.981110, abs=1e-6)
+    assert mdd(*_table(4, 0, 0, 3), kind="rate") == math.inf
+    assert mdd(*_table(0, 5, 0, 0), kind="rate") == math.inf
+    # Connor's formula solved back: n = K² ψ / δ² at the detectable δ
+    assert 2.801585 ** 2 * 0.1 / 0.0885939 ** 2 == pytest.approx(100, rel=1e-5)
+    # continuous: d = 1..9, sd = sqrt(60/8) = 2.738613, n = 9:
+    # K·sqrt(π/3)·sd/3 = 2.801585·1.023327·2.738613/3 = 2.617143
+    d = np.arange(1.0, 10.0)
+    assert mdd(d + 3.0, np.full(9, 3.0), kind="continuous") == pytest.approx(2.617143, abs=1e-6)
+    assert mdd(np.ones(9), np.zeros(9), kind="continuous") == 0.0  # no spread
+    assert mdd(d[:5], np.zeros(5), kind="continuous") == math.inf
+    assert math.isnan(mdd([1.0], [0.0], kind="continuous")) and math.isnan(mdd([], [], kind="rate"))
+    # higher power or a smaller alpha need a larger difference
+    assert mdd(d, 0 * d, kind="continuous", power=0.9) > mdd(d, 0 * d, kind="continuous")
+    assert mdd(d, 0 * d, kind="continuous", alpha=0.01) > mdd(d, 0 * d, kind="continuous")
+    with pytest.raises(ValueError, match="kind"):
+        mdd(d, d, kind="shift")
+    with pytest.raises(ValueError, match="power"):
+        mdd(d, d, kind="continuous", power=1.0)
+    with pytest.raises(ValueError, match="alpha"):
+        mdd(d, d, kind="continuous", alpha=0.0)
+    with pytest.raises(ValueError, match="differ in size"):
+        mdd(d, d[:3], kind="continuous")
