@@ -78,8 +78,7 @@ from jax import Array
 from ..config import SimConfig
 from ..datatypes import Scenario, Trajectory, clearance
 from .base import METRICS, Metric, compute_metrics, register_metric
-from .context import (EpisodeContext, clearance_history, longest_run, masked_min, ratio, stall_samples,
-                      time_to_collision)
+from .context import EpisodeContext, clearance_history, longest_run, masked_min, ratio, stall_samples, time_to_collision
 
 __all__ = ["episode_metrics"]
 
