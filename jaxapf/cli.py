@@ -117,6 +117,12 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--seed", type=int, default=0, help="bootstrap seed (default 0)")
     rep.add_argument("--profile-metric", default="spl",
                      help="metric of the performance profile, higher is better (default spl)")
+    rep.add_argument("--margin", action="append", default=[], metavar="METRIC=VALUE",
+                     help="relevance margin of a metric, overriding its registered one (repeatable; rates as "
+                          "proportions, e.g. success=0.05)")
+    rep.add_argument("--efficiency", choices=("both-success", "all-pairs"), default="both-success",
+                     help="compare metrics meaningful only on successes on the pairs where both settings succeed "
+                          "(default) or on all pairs")
 
     tune = sub.add_parser("tune", help="learn the gains by gradient descent through the closed loop and test them "
                                        "against defaults, grid and random search (docs/tune.md)",
@@ -257,7 +263,8 @@ def _report(args: argparse.Namespace) -> int:
         c.strip() for c in args.heatmap.split(","))
     options = ReportOptions(baseline=args.baseline, where=tuple(args.where), heatmap=heatmap,
                             gallery=args.gallery, resamples=args.resamples, confidence=args.confidence,
-                            seed=args.seed, profile_metric=args.profile_metric)
+                            seed=args.seed, profile_metric=args.profile_metric, margins=_margins(args.margin),
+                            efficiency=args.efficiency)
     name = args.sweep.name.removesuffix(".parquet") or "report"
     out = args.out if args.out is not None else pathlib.Path("reports") / name
     start = time.perf_counter()
@@ -269,6 +276,21 @@ def _report(args: argparse.Namespace) -> int:
     print(f"wrote {out}/report.html, report.md, summary.csv, comparisons.csv, table.tex and "
           f"{sum(1 for p in result.paths if p.parent.name == 'figures')} figure files")
     return 0
+
+
+def _margins(texts: Sequence[str]) -> tuple[tuple[str, float], ...]:
+    from .validation import ConfigError
+
+    out = []
+    for text in texts:
+        name, sep, value = text.partition("=")
+        try:
+            out.append((name.strip(), float(value)))
+        except ValueError:
+            raise ConfigError(f"--margin {text!r} must look like METRIC=NUMBER, e.g. success=0.05") from None
+        if not sep:
+            raise ConfigError(f"--margin {text!r} must look like METRIC=NUMBER, e.g. success=0.05")
+    return tuple(out)
 
 
 def _sweep(args: argparse.Namespace) -> int:

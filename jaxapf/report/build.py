@@ -32,7 +32,7 @@ from .gallery import gallery
 from .latex import latex_tables
 from .load import ReportError, load_sweep, report_metrics
 from .select import format_value, select
-from .tables import ALL, compare, comparison_table, continuous_table, findings, groups, rates_table, summarize
+from .tables import ALL, compare, comparison_table, continuous_table, findings, groups, margins, rates_table, summarize
 
 __all__ = ["ReportOptions", "ReportResult", "build_report"]
 
@@ -51,6 +51,9 @@ class ReportOptions:
       confidence: level of every interval; tests are significant at ``1 - confidence`` after Holm.
       seed: seed of every bootstrap generator.
       profile_metric: the metric of the performance profile (higher is better).
+      margins: ``(metric, margin)`` overrides of the registry's relevance margins (``--margin``).
+      efficiency: ``both-success`` (default): metrics meaningful only on successful episodes are
+        compared on the pairs where both settings succeed; ``all-pairs``: on every pair.
     """
 
     baseline: str = "method=basic"
@@ -61,8 +64,19 @@ class ReportOptions:
     confidence: float = 0.95
     seed: int = 0
     profile_metric: str = "spl"
+    margins: tuple[tuple[str, float], ...] = ()
+    efficiency: str = "both-success"
 
     def __post_init__(self) -> None:
+        if self.efficiency not in ("both-success", "all-pairs"):
+            raise ReportError(f"--efficiency = {self.efficiency!r} is not allowed; "
+                              "choose one of both-success, all-pairs")
+        for name, margin in self.margins:
+            if name not in METRICS:
+                raise ReportError(f"--margin {name}=...: {name!r} is not a metric; choose one of "
+                                  f"{', '.join(METRICS.names())}")
+            if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not margin > 0:
+                raise ReportError(f"--margin {name}={margin!r} must be a number > 0")
         if isinstance(self.resamples, bool) or not isinstance(self.resamples, int) or self.resamples < 100:
             raise ReportError(f"--resamples = {self.resamples!r} must be an integer >= 100")
         if not (isinstance(self.confidence, (int, float)) and 0.5 <= self.confidence < 1.0):
@@ -139,12 +153,24 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
         f"(setting(s) {', '.join('#' + str(b) for b in sel.baseline_ids)})",
         f"statistics: {100 * options.confidence:g} % intervals; rates: Wilson score intervals; medians and IQMs "
         f"(25 % trimmed means): percentile bootstrap, {options.resamples} resamples, seed {options.seed}, "
-        f"stratified by family for '{ALL}'; paired differences: paired bootstrap over fields (same resamples); "
-        f"tests: exact McNemar (rates), Wilcoxon signed-rank (continuous), two-sided; Holm correction over all "
-        f"{n_tests} tests of the comparison tables, significant (*) when the Holm-adjusted p <= {options.alpha:.3g}",
-        "time_to_goal is NaN for an episode that does not succeed: its statistics use the successful episodes "
-        "only (n given), its paired comparisons the pairs where both succeed; other non-finite values "
-        "(e.g. min_clearance = +inf in a field without obstacles) are left out the same way",
+        f"stratified by family and kind for pooled groups; paired differences: for rates the difference in "
+        f"proportions with Newcombe's score interval and the exact McNemar test, for continuous metrics the "
+        f"Hodges-Lehmann shift with its signed-rank interval and the Wilcoxon signed-rank test; Holm correction "
+        f"over all {n_tests} difference tests of the comparison tables (*: Holm-adjusted p <= {options.alpha:.3g}) "
+        f"and, separately, over the equivalence tests (two one-sided tests within each metric's relevance margin)",
+        "groups: each family, each kind of a family with several kinds "
+        f"({', '.join(g for g in names if '/' in g) or 'none'}), and '{ALL}' pooling the families; a pooled row "
+        "says what it pools",
+        "metrics meaningful only on successful episodes ("
+        + ", ".join(m for m in continuous if METRICS.get(m).on_success) + "): summarised over successful episodes "
+        + ("and compared on the pairs where both settings succeed (n given)" if options.efficiency == "both-success"
+           else "and compared on all pairs (--efficiency all-pairs)")
+        + "; other non-finite values (e.g. min_clearance = +inf in a field without obstacles) are left out",
+        "relevance margins: " + ", ".join(f"{m} {v:g}" for m, v in margins(options).items()
+                                          if v is not None and m in rates + continuous)
+        + " (rates as proportions); verdict: better or worse when the Holm-adjusted difference is significant and "
+          "its interval excludes 0 on that side, unless the difference is shown to lie within the margin "
+          "(equivalent); equivalent when the equivalence test rejects; inconclusive otherwise",
         "generated " + datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
     ])
     doc.h(2, "Key findings")
@@ -162,12 +188,15 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
     doc.table(st.map(format_value))
 
     doc.h(2, "Rates")
-    doc.p(f"Rate in % with the {100 * options.confidence:g} % Wilson score interval, per setting and family"
-          + (f"; '{ALL}' pools the families (episode-weighted)." if ALL in names else "."))
+    doc.p(f"Rate in % with the {100 * options.confidence:g} % Wilson score interval, per setting and group"
+          + (f"; '{ALL}' pools the families (episode-weighted)." if ALL in names else ".")
+          + (" 'among solvable' counts only the fields where a collision-free path exists "
+             "(jaxapf.scenarios.solvable)." if "n_solvable" in summary.columns else ""))
     doc.table(rates_table(summary, rates))
     doc.h(2, "Continuous metrics")
     doc.p("Median and interquartile mean (IQM, mean of the middle 50 %) with percentile bootstrap intervals "
-          f"({options.resamples} resamples, stratified by family for '{ALL}'); n = episodes with a finite value.")
+          f"({options.resamples} resamples, stratified for pooled groups); n = episodes with a finite value "
+          "(successful episodes for a metric meaningful only there).")
     for m in continuous:
         metric = METRICS.get(m)
         unit = f" [{metric.unit}]" if metric.unit else ""
@@ -177,13 +206,15 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
     doc.h(2, f"Paired comparisons with the baseline ({options.baseline})")
     if len(comparisons):
         doc.p("Rows with equal (family, field) are the same obstacle field (common random numbers) and are paired. "
-              "Δ = setting − baseline (rates in percentage points; continuous metrics: difference of IQMs over the "
-              "pairs) with a paired bootstrap interval. PoI = P(setting better than baseline on the same field) "
-              "+ ½ P(tie), over the pairs: > 0.5 favours the setting. Better means higher for "
-              f"{', '.join(m for m in rates + continuous if METRICS.get(m).higher_is_better)}, lower for "
+              "Δ pp = setting − baseline difference in proportions (percentage points) with Newcombe's score "
+              "interval, tested by exact McNemar; HL shift = the Hodges-Lehmann estimate of the paired differences "
+              "(setting − baseline) with its signed-rank interval, tested by Wilcoxon signed-rank. margin: the "
+              "difference below which it does not matter; p equiv.: two one-sided tests that the difference lies "
+              "within it; MDE: the smallest difference this many pairs detects with power 0.8. PoI = P(setting "
+              "better than baseline on the same field) + ½ P(tie): > 0.5 favours the setting. Better means higher "
+              f"for {', '.join(m for m in rates + continuous if METRICS.get(m).higher_is_better)}, lower for "
               f"{', '.join(m for m in rates + continuous if not METRICS.get(m).higher_is_better)}. "
-              f"p: exact McNemar (rates) or Wilcoxon signed-rank (continuous); p Holm: Holm-adjusted over all "
-              f"{n_tests} tests; * = significant at {options.alpha:.3g}.")
+              f"p Holm: Holm-adjusted over all {n_tests} difference tests; * = significant at {options.alpha:.3g}.")
         for m in rates + continuous:
             doc.h(3, m + (" (higher is better)" if METRICS.get(m).higher_is_better else " (lower is better)"))
             doc.table(comparison_table(comparisons, m))

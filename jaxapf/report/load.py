@@ -17,8 +17,9 @@ from ..validation import ConfigError
 
 __all__ = ["ReportError", "ROW_COLUMNS", "report_metrics", "load_sweep", "validate_sweep"]
 
-#: Columns that identify an episode within a setting (the pairing key, with ``seed`` if present).
-ROW_COLUMNS: tuple[str, ...] = ("family", "field", "seed")
+#: Columns that identify an episode within a setting, and columns that are a function of its field
+#: (the pairing key: those present).
+ROW_COLUMNS: tuple[str, ...] = ("family", "kind", "field", "seed", "solvable")
 #: Columns every report needs besides its metrics.
 BASE_COLUMNS: tuple[str, ...] = ("setting", "method", "family", "field")
 

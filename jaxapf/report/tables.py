@@ -1,4 +1,20 @@
-"""The report's statistics tables (per setting, and paired with the baseline) and their text."""
+"""The report's statistics tables (per setting, and paired with the baseline) and their text.
+
+Groups. Rows are summarised and compared per family, per kind of a family that draws several kinds
+(``trap/gnron``), and pooled over families (``all``); a pooled row says what it pools (``pools``).
+
+Comparisons. Each comparison reports the estimate its test is about, with an interval: for a rate,
+the paired difference in proportions (Newcombe's hybrid score interval) next to the exact McNemar
+test; for a continuous metric, the Hodges–Lehmann shift of the paired differences (its
+signed-rank interval) next to the Wilcoxon signed-rank test. A metric that is meaningful only on
+successful episodes (``Metric.on_success``: time to goal, path ratio, effort, jerk, TTC) is
+compared on the pairs where both settings succeed (``conditioning``), unless the report asks for
+all pairs. Each comparison is also tested for equivalence within the metric's relevance margin
+(two one-sided tests: Tango's score test for rates, signed-rank tests for continuous metrics), gets
+a verdict — better, worse, equivalent or inconclusive (:func:`jaxapf.stats.verdict`) — and states
+the smallest difference it could detect at its sample size (power 0.8). Difference and
+equivalence p-values are each Holm-adjusted over the table.
+"""
 
 from __future__ import annotations
 
@@ -12,56 +28,108 @@ from .. import stats
 from ..metrics import METRICS
 from .load import ROW_COLUMNS, report_metrics
 
-__all__ = ["ALL", "groups", "group_rows", "summarize", "compare", "rates_table", "continuous_table",
-           "comparison_table", "findings"]
+__all__ = ["ALL", "groups", "group_rows", "pools", "summarize", "compare", "rates_table", "continuous_table",
+           "comparison_table", "findings", "margins"]
 
 #: The name of the group that pools every family of a report.
 ALL = "all"
 
 
 def groups(data: pd.DataFrame) -> list[str]:
+    """Each family; ``family/kind`` for each kind of a family with several kinds in the data; ``all``."""
+    out = []
     families = sorted(str(f) for f in pd.unique(data["family"]))
-    return families + ([ALL] if len(families) > 1 else [])
+    for family in families:
+        out.append(family)
+        if "kind" in data.columns:
+            kinds = sorted(str(k) for k in pd.unique(data.loc[data["family"] == family, "kind"]))
+            if len(kinds) > 1:
+                out += [f"{family}/{kind}" for kind in kinds]
+    return out + ([ALL] if len(families) > 1 else [])
 
 
 def group_rows(frame: pd.DataFrame, group: str) -> pd.DataFrame:
-    return frame if group == ALL else frame[frame["family"] == group]
+    """The rows of ``group`` (a family, ``family/kind`` or ``all``)."""
+    if group == ALL:
+        return frame
+    family, _, kind = group.partition("/")
+    rows = frame[frame["family"] == family]
+    return rows[rows["kind"] == kind] if kind else rows
+
+
+def pools(data: pd.DataFrame, group: str) -> str:
+    """What a group pools: ``""`` for one kind, else its kinds or families with their field counts."""
+    rows = group_rows(data, group)
+    by = "family" if group == ALL else "kind"
+    if group != ALL and ("/" in group or by not in rows.columns):
+        return ""
+    counts = rows.drop_duplicates([c for c in ROW_COLUMNS if c in rows.columns]).groupby(by).size()
+    if len(counts) < 2:
+        return ""
+    return ", ".join(f"{name} ({n} fields)" for name, n in counts.items())
 
 
 def _strata(frame: pd.DataFrame, group: str) -> np.ndarray | None:
-    return frame["family"].to_numpy() if group == ALL else None
+    """Bootstrap strata of a pooled group: its families and kinds."""
+    if "/" in group or (group != ALL and "kind" not in frame.columns):
+        return None
+    keys = frame["family"].astype(str)
+    if "kind" in frame.columns:
+        keys = keys + "/" + frame["kind"].astype(str)
+    return keys.to_numpy()
+
+
+def margins(options: Any) -> dict[str, float | None]:
+    """The relevance margin of every metric: the registry's, overridden by ``options.margins``."""
+    return {name: metric.margin for name, metric in METRICS.items()} | dict(options.margins)
+
+
+def _success_mask(frame: pd.DataFrame, suffix: str = "") -> np.ndarray:
+    column = f"success{suffix}"
+    return frame[column].to_numpy(dtype=bool) if column in frame.columns else np.ones(len(frame), bool)
 
 
 def summarize(data: pd.DataFrame, settings: Sequence[int], table: pd.DataFrame, labels: Mapping[int, str],
               options: Any) -> pd.DataFrame:
-    """One row per (setting, family group) — each family and, with several, ``all`` pooled.
+    """One row per (setting, group) (:func:`groups`), with ``pools`` saying what a pooled row pools.
 
-    Columns: ``setting, label``, the setting columns, ``family, n``; per rate ``r``: ``r_k`` (count),
-    ``r_rate``, ``r_lo``, ``r_hi`` (Wilson); per continuous metric ``m``: ``m_n`` (finite values;
-    ``time_to_goal``: successful episodes), ``m_median``, ``m_median_lo``, ``m_median_hi``,
-    ``m_iqm``, ``m_iqm_lo``, ``m_iqm_hi`` (percentile bootstrap, stratified by family for ``all``).
+    Columns: ``setting, label``, the setting columns, ``family`` (the group), ``pools``, ``n``; per
+    rate ``r``: ``r_k`` (count), ``r_rate``, ``r_lo``, ``r_hi`` (Wilson); with a ``solvable`` column,
+    ``n_solvable`` and ``r_solvable_rate`` (the rate among solvable fields); per continuous metric
+    ``m``: ``m_n`` (finite values; successful episodes for a metric meaningful only there),
+    ``m_median``, ``m_median_lo``, ``m_median_hi``, ``m_iqm``, ``m_iqm_lo``, ``m_iqm_hi``
+    (percentile bootstrap, stratified by family and kind for a pooled group).
     """
     records = []
     boot = dict(n_resamples=options.resamples, confidence=options.confidence, seed=options.seed)
     rates, continuous = report_metrics(data.columns)
+    names = groups(data)
+    pooled = {g: pools(data, g) for g in names}
     for s in settings:
         rows_s = data[data["setting"] == s]
-        for group in groups(data):
+        for group in names:
             sub = group_rows(rows_s, group)
             n = len(sub)
             if n == 0:
                 continue
             rec: dict[str, Any] = {"setting": int(s), "label": labels[s]}
             rec.update({c: table.at[s, c] for c in table.columns})
-            rec.update(family=group, n=n)
+            rec.update(family=group, pools=pooled[group], n=n)
+            solvable = sub["solvable"].to_numpy(dtype=bool) if "solvable" in sub.columns else None
+            if solvable is not None:
+                rec["n_solvable"] = int(solvable.sum())
             for r in rates:
                 k = int(sub[r].sum())
                 lo, hi = stats.wilson_interval(k, n, options.confidence)
                 rec.update({f"{r}_k": k, f"{r}_rate": k / n, f"{r}_lo": float(lo), f"{r}_hi": float(hi)})
+                if solvable is not None:
+                    among = sub[r].to_numpy(dtype=bool)[solvable]
+                    rec[f"{r}_solvable_rate"] = float(among.mean()) if among.size else math.nan
             strata = _strata(sub, group)
+            success = _success_mask(sub)
             for m in continuous:
                 v = sub[m].to_numpy(dtype=np.float64)
-                keep = np.isfinite(v)
+                keep = np.isfinite(v) & (success if METRICS.get(m).on_success else True)
                 x = v[keep]
                 st = strata[keep] if strata is not None else None
                 rec[f"{m}_n"] = int(keep.sum())
@@ -72,58 +140,89 @@ def summarize(data: pd.DataFrame, settings: Sequence[int], table: pd.DataFrame, 
     return pd.DataFrame.from_records(records)
 
 
+def _compare_one(metric: str, x: np.ndarray, y: np.ndarray, rate: bool, margin: float | None,
+                 options: Any) -> dict[str, Any]:
+    """The statistics of one paired comparison (``x``: the setting, ``y``: its baseline)."""
+    conf, alpha = options.confidence, options.alpha
+    if rate:
+        x, y = x.astype(bool), y.astype(bool)
+        test = stats.mcnemar_exact(x, y)
+        est, lo, hi = stats.paired_proportion_difference(x, y, conf) if len(x) else (math.nan,) * 3
+        out = dict(test="mcnemar", statistic=float(test.b), discordant=f"b={test.b}, c={test.c}", p=test.pvalue,
+                   value=float(np.mean(x)) if len(x) else math.nan,
+                   baseline_value=float(np.mean(y)) if len(y) else math.nan)
+    else:
+        w = stats.wilcoxon_paired(x, y)
+        est, lo, hi = stats.hodges_lehmann_paired(x, y, conf) if len(x) else (math.nan,) * 3
+        out = dict(test="wilcoxon", statistic=w.statistic, discordant=f"nonzero={w.n_nonzero}", p=w.pvalue,
+                   value=float(np.median(x)) if len(x) else math.nan,
+                   baseline_value=float(np.median(y)) if len(y) else math.nan)
+    kind = "rate" if rate else "continuous"
+    if margin is not None and len(x):
+        eq = stats.equivalence_test(x, y, margin, kind=kind, confidence=1.0 - alpha)
+        p_eq = eq.p
+    else:
+        p_eq = math.nan
+    mde = stats.minimum_detectable_difference(x, y, kind=kind, alpha=alpha) if len(x) > 1 else math.inf
+    return out | dict(delta=est, delta_lo=lo, delta_hi=hi, margin=math.nan if margin is None else margin,
+                      p_equivalence=p_eq, mde=mde)
+
+
 def compare(data: pd.DataFrame, pairs: Mapping[int, int], labels: Mapping[int, str],
             options: Any) -> pd.DataFrame:
-    """Paired comparisons of every setting with its baseline, per family group and metric.
+    """Paired comparisons of every setting with its baseline, per group and metric (module docstring).
 
-    Rows are paired on (family, field, seed). Rates: exact McNemar test, difference in rates (mean
-    paired difference). Continuous metrics, on the pairs where both values are finite
-    (``time_to_goal``: both successful): Wilcoxon signed-rank test, difference of IQMs. Both with
-    paired bootstrap CIs, and the paired probability of improvement with its bootstrap CI.
-    ``p_holm``: Holm-adjusted over every p-value of the table; ``significant``: ``p_holm <= alpha``.
+    Rows are paired on (family, kind, field, seed). Columns: ``setting, label, baseline,
+    baseline_label, family`` (the group), ``metric, higher_is_better, test, conditioning``
+    (``all pairs`` or ``both succeed``), ``n_pairs, value, baseline_value`` (rates, or medians over
+    the pairs), ``delta, delta_lo, delta_hi`` (the test's estimate and interval), ``statistic,
+    discordant, p, margin, p_equivalence, mde``, ``poi, poi_lo, poi_hi`` (paired probability of
+    improvement), ``p_holm``, ``p_equivalence_holm``, ``significant``, ``verdict``.
     """
     key = [c for c in ROW_COLUMNS if c in data.columns]
     boot = dict(n_resamples=options.resamples, confidence=options.confidence, seed=options.seed)
     rates, continuous = report_metrics(data.columns)
+    margin_of = margins(options)
+    names = groups(data)
     records = []
     for s, b in pairs.items():
         merged = pd.merge(data[data["setting"] == s], data[data["setting"] == b], on=key, suffixes=("_x", "_y"))
-        for group in groups(data):
+        for group in names:
             sub = group_rows(merged, group)
             if len(sub) == 0:
                 continue
             strata = _strata(sub, group)
+            both = _success_mask(sub, "_x") & _success_mask(sub, "_y")
             for metric in rates + continuous:
-                hib = METRICS.get(metric).higher_is_better
+                entry = METRICS.get(metric)
+                rate = metric in rates
                 x = sub[f"{metric}_x"].to_numpy(dtype=np.float64)
                 y = sub[f"{metric}_y"].to_numpy(dtype=np.float64)
+                keep = np.ones(len(x), bool) if rate else np.isfinite(x) & np.isfinite(y)
+                conditioning = "all pairs"
+                if entry.on_success and options.efficiency == "both-success":
+                    keep &= both
+                    conditioning = "both succeed"
+                x, y = x[keep], y[keep]
+                st = strata[keep] if strata is not None else None
                 rec: dict[str, Any] = {"setting": int(s), "label": labels[s], "baseline": int(b),
                                        "baseline_label": labels[b], "family": group, "metric": metric,
-                                       "higher_is_better": hib}
-                if metric in rates:
-                    st = strata
-                    test = stats.mcnemar_exact(x.astype(bool), y.astype(bool))
-                    d, lo, hi = stats.paired_bootstrap_ci(x, y, stats.mean, strata=st, **boot)
-                    rec.update(test="mcnemar", n_pairs=len(x), value=stats.mean(x), baseline_value=stats.mean(y),
-                               delta=d, delta_lo=lo, delta_hi=hi, statistic=float(test.b),
-                               discordant=f"b={test.b}, c={test.c}", p=test.pvalue)
-                else:
-                    keep = np.isfinite(x) & np.isfinite(y)
-                    x, y = x[keep], y[keep]
-                    st = strata[keep] if strata is not None else None
-                    w = stats.wilcoxon_paired(x, y)
-                    d, lo, hi = stats.paired_bootstrap_ci(x, y, stats.iqm, strata=st, **boot)
-                    rec.update(test="wilcoxon", n_pairs=len(x), value=float(stats.iqm(x)),
-                               baseline_value=float(stats.iqm(y)), delta=d, delta_lo=lo, delta_hi=hi,
-                               statistic=w.statistic, discordant=f"nonzero={w.n_nonzero}", p=w.pvalue)
-                scores = stats.pair_scores(x, y, hib)
+                                       "higher_is_better": entry.higher_is_better, "conditioning": conditioning,
+                                       "n_pairs": len(x)}
+                rec.update(_compare_one(metric, x, y, rate, margin_of.get(metric), options))
+                scores = stats.pair_scores(x, y, entry.higher_is_better)
                 poi_lo, poi_hi = stats.bootstrap_ci(scores, stats.mean, strata=st, **boot)
                 rec.update(poi=float(stats.mean(scores)) if len(scores) else math.nan, poi_lo=poi_lo, poi_hi=poi_hi)
                 records.append(rec)
     frame = pd.DataFrame.from_records(records)
     if len(frame):
         frame["p_holm"] = stats.holm(frame["p"].to_numpy(dtype=np.float64))
+        frame["p_equivalence_holm"] = stats.holm(frame["p_equivalence"].to_numpy(dtype=np.float64))
         frame["significant"] = frame["p_holm"] <= options.alpha
+        frame["verdict"] = [
+            stats.verdict(r.delta_lo, r.delta_hi, r.p_holm, r.p_equivalence_holm,
+                          0.0 if math.isnan(r.margin) else r.margin, bool(r.higher_is_better), options.alpha)
+            for r in frame.itertuples()]
     return frame
 
 
@@ -167,38 +266,60 @@ def _signed(v: float, scale: float = 1.0, digits: int = 3) -> str:
     return f"{v:+.{digits}g}"
 
 
+def _group(r: Any) -> str:
+    """A group's name, with what it pools."""
+    return f"{r['family']} (pools {r['pools']})" if isinstance(r.get("pools"), str) and r["pools"] else r["family"]
+
+
 def rates_table(summary: pd.DataFrame, rates: Sequence[str]) -> pd.DataFrame:
+    """Rates per setting and group with Wilson intervals; among solvable fields where known."""
     rows = []
+    solvable = "n_solvable" in summary.columns
     for _, r in summary.iterrows():
-        rows.append({"setting": r["label"], "family": r["family"], "n": int(r["n"]),
-                     **{f"{m} % [CI]": _with_ci(r[f"{m}_rate"], r[f"{m}_lo"], r[f"{m}_hi"], _pct) for m in rates}})
+        row = {"setting": r["label"], "group": _group(r), "n": int(r["n"]),
+               **{f"{m} % [CI]": _with_ci(r[f"{m}_rate"], r[f"{m}_lo"], r[f"{m}_hi"], _pct) for m in rates}}
+        if solvable:
+            row["solvable fields"] = int(r["n_solvable"])
+            row.update({f"{m} % among solvable": _pct(r[f"{m}_solvable_rate"]) for m in rates})
+        rows.append(row)
     return pd.DataFrame(rows)
 
 
 def continuous_table(summary: pd.DataFrame, metric: str) -> pd.DataFrame:
+    """Median and IQM of one continuous metric per setting and group, with bootstrap intervals."""
     rows = []
     for _, r in summary.iterrows():
-        rows.append({"setting": r["label"], "family": r["family"], "n": int(r[f"{metric}_n"]),
+        rows.append({"setting": r["label"], "group": _group(r), "n": int(r[f"{metric}_n"]),
                      "median [CI]": _with_ci(r[f"{metric}_median"], r[f"{metric}_median_lo"], r[f"{metric}_median_hi"]),
                      "IQM [CI]": _with_ci(r[f"{metric}_iqm"], r[f"{metric}_iqm_lo"], r[f"{metric}_iqm_hi"])})
     return pd.DataFrame(rows)
 
 
+def _delta_text(r: Any, rate: bool) -> str:
+    fmt = (lambda v: _signed(v, 100.0, 3)) if rate else _signed
+    return _with_ci(r["delta"], r["delta_lo"], r["delta_hi"], fmt)
+
+
 def comparison_table(comp: pd.DataFrame, metric: str) -> pd.DataFrame:
+    """The paired comparisons of one metric: estimate and interval, verdict, tests, margin, MDE."""
     rows = []
     rate = METRICS.get(metric).kind == "rate"
+    scale = (lambda v: _signed(v, 100.0, 3)) if rate else (lambda v: _num(v))
     for _, r in comp[comp["metric"] == metric].iterrows():
-        fmt = (lambda v: _signed(v, 100.0, 3)) if rate else (lambda v: _signed(v))
         value = (_pct(r["value"]) + " vs " + _pct(r["baseline_value"])) if rate else (
             _num(r["value"]) + " vs " + _num(r["baseline_value"]))
         rows.append({
-            "setting": r["label"], "baseline": f"#{int(r['baseline'])}", "family": r["family"],
-            "pairs": int(r["n_pairs"]),
-            ("rate %" if rate else "IQM") + " (setting vs baseline)": value,
-            ("Δ pp [CI]" if rate else "Δ IQM [CI]"): _with_ci(r["delta"], r["delta_lo"], r["delta_hi"], fmt),
+            "setting": r["label"], "baseline": f"#{int(r['baseline'])}", "group": r["family"],
+            "pairs": f"{int(r['n_pairs'])}" + (" (both succeed)" if r["conditioning"] == "both succeed" else ""),
+            ("rate %" if rate else "median") + " (setting vs baseline)": value,
+            ("Δ pp [CI]" if rate else "HL shift [CI]"): _delta_text(r, rate),
+            "verdict": r["verdict"],
+            "p Holm": _p(r["p_holm"]) + (" *" if bool(r["significant"]) else ""),
+            "margin": "–" if not math.isfinite(float(r["margin"])) else scale(r["margin"]).lstrip("+"),
+            "p equiv. Holm": _p(r["p_equivalence_holm"]),
+            "MDE": scale(r["mde"]).lstrip("+") if math.isfinite(float(r["mde"])) else "∞",
             "PoI [CI]": _with_ci(r["poi"], r["poi_lo"], r["poi_hi"], lambda v: f"{float(v):.2f}"),
             "test": f"{r['test']} ({r['discordant']})",
-            "p": _p(r["p"]), "p Holm": _p(r["p_holm"]) + (" *" if bool(r["significant"]) else ""),
         })
     return pd.DataFrame(rows)
 
@@ -227,22 +348,18 @@ def findings(summary: pd.DataFrame, comparisons: pd.DataFrame, group: str, optio
         names = ", ".join(rows["label"].head(3)) + (f" and {len(rows) - 3} more" if len(rows) > 3 else "")
         out.append(f"{text} ({group}): {names}: {value}.")
     if len(comparisons):
-        comp = comparisons[(comparisons["family"] == group) & comparisons["significant"].astype(bool)]
+        comp = comparisons[comparisons["family"] == group]
         total = int(comparisons["p"].notna().sum())
-        if len(comp) == 0:
-            out.append(f"No paired difference to the baseline is significant at {options.alpha:.3g} after Holm "
-                       f"correction over {total} tests.")
-        else:
-            out.append(f"{len(comp)} paired difference(s) to the baseline are significant ({group}, Holm over "
-                       f"{total} tests, α = {options.alpha:.3g}); the strongest:")
-            for _, r in comp.sort_values(["p_holm", "setting"]).head(10).iterrows():
-                rate = METRICS.get(r["metric"]).kind == "rate"
-                delta = _with_ci(r["delta"], r["delta_lo"], r["delta_hi"],
-                                 (lambda v: _signed(v, 100.0, 3)) if rate else _signed)
-                better = "better" if (r["delta"] > 0) == bool(r["higher_is_better"]) else "worse"
-                out.append(f"  {r['label']} vs #{int(r['baseline'])}: {r['metric']} "
-                           f"{'Δ ' + delta + ' pp' if rate else 'Δ IQM ' + delta} ({better}), "
-                           f"PoI {float(r['poi']):.2f}, p Holm {_p(r['p_holm'])}")
+        counts = comp["verdict"].value_counts()
+        out.append(f"Verdicts against the baseline ({group}, {len(comp)} comparisons; Holm over {total} tests, "
+                   f"α = {options.alpha:.3g}; relevance margins per metric): "
+                   + ", ".join(f"{counts.get(v, 0)} {v}" for v in stats.VERDICTS) + ".")
+        relevant = comp[comp["verdict"].isin(("better", "worse"))]
+        for _, r in relevant.sort_values(["p_holm", "setting"]).head(10).iterrows():
+            rate = METRICS.get(r["metric"]).kind == "rate"
+            what = "Δ " + _delta_text(r, rate) + " pp" if rate else "shift " + _delta_text(r, rate)
+            unit = "" if rate else f" {METRICS.get(r['metric']).unit}".rstrip()
+            pairs = f"{int(r['n_pairs'])} pairs" + (", both succeed" if r["conditioning"] == "both succeed" else "")
+            out.append(f"  {r['label']} vs #{int(r['baseline'])}: {r['metric']} {what}{unit} ({r['verdict']}; "
+                       f"{pairs}; p Holm {_p(r['p_holm'])})")
     return out
-
-

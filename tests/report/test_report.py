@@ -17,6 +17,7 @@ from scipy import stats as sst
 
 from jaxapf import stats
 from jaxapf.cli import main
+from jaxapf.metrics import METRICS
 from jaxapf.report import ReportError, ReportOptions, build_report, load_sweep, report_metrics
 from jaxapf.report.figures import _heatmap_figures
 from jaxapf.report.select import select
@@ -125,7 +126,7 @@ def test_header_states_spec_versions_and_statistics(report, sweep):
     assert "spec_hash " + "f" * 64 in md
     assert "| jax | 0.0.test |" in md
     assert f"{RESAMPLES} resamples, seed 0" in md
-    assert "Holm correction over all 108 tests" in md  # 4 settings × 3 groups × 9 metrics
+    assert "Holm correction over all 108 difference tests" in md  # 4 settings × 3 groups × 9 metrics
     assert "successful episodes only" in md
     # key findings come from the rows: the settings with the highest pooled success rate
     rate = df.groupby("setting")["success"].agg(["sum", "count"])
@@ -153,8 +154,9 @@ def test_summary_matches_direct_pandas_computation(report, sweep):
             assert row[f"{r}_rate"] == pytest.approx(g[r].mean())
             lo, hi = stats.wilson_interval(k, len(g))
             assert (row[f"{r}_lo"], row[f"{r}_hi"]) == pytest.approx((float(lo), float(hi)))
+        on_success = {name for name, m in METRICS.items() if m.on_success}
         for m in CONTINUOUS:
-            v = g[m].dropna()
+            v = (g[g["success"]] if m in on_success else g)[m].dropna()
             assert row[f"{m}_n"] == len(v)
             assert row[f"{m}_median"] == pytest.approx(v.median())
             assert row[f"{m}_iqm"] == pytest.approx(sst.trim_mean(v, 0.25))
@@ -322,7 +324,10 @@ def test_sweep_to_report_end_to_end(tmp_path):
             assert got[f"{rate}_k"] == int(group[rate].sum())
     comparisons = pd.read_csv(out / "comparisons.csv")
     assert set(comparisons["label"]) == {"#1 direction_velocity"}
-    assert (comparisons.loc[comparisons["test"] == "mcnemar", "n_pairs"] == 4).all()
+    whole = comparisons[comparisons["family"].isin(["trap", "all"])]  # not the trap/<kind> groups
+    assert (whole.loc[whole["test"] == "mcnemar", "n_pairs"] == 4).all()
+    kinds = comparisons[comparisons["family"].str.startswith("trap/")]
+    assert set(kinds["family"]) == {f"trap/{k}" for k in rows["kind"].unique()}
     md = (out / "report.md").read_text(encoding="utf-8")
     assert "re-simulation matches the recorded outcome" in md
     assert (out / "report.html").read_text(encoding="utf-8").count("data:image/png;base64,") >= 5
