@@ -191,7 +191,7 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
     doc.p(f"Rate in % with the {100 * options.confidence:g} % Wilson score interval, per setting and group"
           + (f"; '{ALL}' pools the families (episode-weighted)." if ALL in names else ".")
           + (" 'among solvable' counts only the fields where a collision-free path exists "
-             "(jaxapf.scenarios.solvable)." if "n_solvable" in summary.columns else ""))
+             "(jaxapf.scenarios.solvable, the solvability oracle)." if "n_solvable" in summary.columns else ""))
     doc.table(rates_table(summary, rates))
     doc.h(2, "Continuous metrics")
     doc.p("Median and interquartile mean (IQM, mean of the middle 50 %) with percentile bootstrap intervals "

@@ -15,11 +15,12 @@ import pandas as pd
 from ..metrics import metric_names
 from ..validation import ConfigError
 
-__all__ = ["ReportError", "ROW_COLUMNS", "report_metrics", "load_sweep", "validate_sweep"]
+__all__ = ["ReportError", "ROW_COLUMNS", "FIELD_COLUMNS", "report_metrics", "load_sweep", "validate_sweep"]
 
-#: Columns that identify an episode within a setting, and columns that are a function of its field
-#: (the pairing key: those present).
-ROW_COLUMNS: tuple[str, ...] = ("family", "kind", "field", "seed", "solvable")
+#: Columns that identify an episode within a setting (the pairing key: those present).
+ROW_COLUMNS: tuple[str, ...] = ("family", "kind", "field", "seed")
+#: Row columns that describe the episode's field under its setting's vehicle (not a setting column).
+FIELD_COLUMNS: tuple[str, ...] = ("solvable",)
 #: Columns every report needs besides its metrics.
 BASE_COLUMNS: tuple[str, ...] = ("setting", "method", "family", "field")
 
@@ -59,7 +60,7 @@ def validate_sweep(df: pd.DataFrame, meta: Any, path: str | pathlib.Path = "inpu
     for an output that does not say) must be columns."""
     if not isinstance(meta, Mapping) or not str(meta.get("format", "")).startswith("jaxapf.sweep/"):
         raise ReportError(f"{path} is not the output of jaxapf sweep (no 'jaxapf' sweep metadata "
-                          "with format 'jaxapf.sweep/1' in the Parquet schema)")
+                          "with a 'jaxapf.sweep/N' format in the Parquet schema)")
     rates, continuous = report_metrics(meta.get("metrics"))
     missing = [c for c in BASE_COLUMNS + rates + continuous if c not in df.columns]
     if missing:

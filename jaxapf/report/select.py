@@ -15,7 +15,7 @@ from ..dynamics import PLANTS
 from ..gains import GAINS
 from ..metrics import METRICS
 from ..planners import PLANNERS
-from .load import ROW_COLUMNS, ReportError, report_metrics
+from .load import FIELD_COLUMNS, ROW_COLUMNS, ReportError, report_metrics
 
 __all__ = ["Selection", "select", "setting_table", "swept_columns", "setting_labels", "parse_filters",
            "ignored_columns", "format_value", "symbol"]
@@ -49,7 +49,7 @@ def ignored_columns(row: Any) -> tuple[str, ...]:
 def setting_table(df: pd.DataFrame) -> pd.DataFrame:
     """One row per setting (index ``setting``) with every column constant within a setting
     (method, convention, gains, simulation settings); metrics and row columns excluded."""
-    cols = [c for c in df.columns if c not in METRICS and c not in ROW_COLUMNS and c != "setting"]
+    cols = [c for c in df.columns if c not in METRICS and c not in ROW_COLUMNS + FIELD_COLUMNS and c != "setting"]
     grouped = df.groupby("setting", sort=True)
     constant = [c for c in cols if bool((grouped[c].nunique(dropna=False) <= 1).all())]
     return grouped[constant].first()

@@ -360,6 +360,6 @@ def findings(summary: pd.DataFrame, comparisons: pd.DataFrame, group: str, optio
             what = "Δ " + _delta_text(r, rate) + " pp" if rate else "shift " + _delta_text(r, rate)
             unit = "" if rate else f" {METRICS.get(r['metric']).unit}".rstrip()
             pairs = f"{int(r['n_pairs'])} pairs" + (", both succeed" if r["conditioning"] == "both succeed" else "")
-            out.append(f"  {r['label']} vs #{int(r['baseline'])}: {r['metric']} {what}{unit} ({r['verdict']}; "
-                       f"{pairs}; p Holm {_p(r['p_holm'])})")
+            out.append(f"{r['verdict'].capitalize()}: {r['label']} vs #{int(r['baseline'])}, {r['metric']} "
+                       f"{what}{unit} ({pairs}; p Holm {_p(r['p_holm'])}).")
     return out

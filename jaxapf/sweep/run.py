@@ -78,6 +78,7 @@ class _Devices:
         self.batch = DeviceBatch(jax.local_devices()[: plan.devices])
         self.plan = plan
         self._gains: dict[int, list[Gains]] = {}
+        self._oracle: dict[tuple, np.ndarray] = {}
 
     def close(self) -> None:
         self.batch.close()
@@ -87,9 +88,10 @@ class _Devices:
             self._gains[variant.index] = self.batch.put_gains(variant.gains(self.plan.dtype))
         return self._gains[variant.index]
 
-    def dispatch(self, chunk: Chunk) -> tuple[dict[str, jax.Array], jax.Array]:
-        """Start the chunk (asynchronously); returns global (G, padded) metric arrays and the
-        fields' kinds."""
+    def dispatch(self, chunk: Chunk) -> tuple[dict[str, jax.Array], jax.Array, np.ndarray | None]:
+        """Start the chunk (asynchronously); returns global (G, padded) metric arrays, the fields'
+        kinds and, with the spec's ``oracle``, whether each real field is solvable (computed on the
+        host while the devices run)."""
         from ..scenarios import make_scenarios
 
         plan = self.plan
@@ -99,7 +101,21 @@ class _Devices:
         fields = make_scenarios(plan.spec.seed, plan.spec.family_params(chunk.family), jnp.asarray(indices))
         metrics = self.batch.evaluate(fields, self._variant_gains(plan.variants[chunk.variant]), block.sim,
                                       block.mpc, block.width, plan.metrics)
-        return metrics, fields.kind
+        return metrics, fields.kind, self._solvable(chunk, fields, block.sim) if plan.spec.oracle else None
+
+    def _solvable(self, chunk: Chunk, fields: Any, sim: Any) -> np.ndarray:
+        """:func:`~jaxapf.scenarios.solvable` of the chunk's real fields, once per field and vehicle
+        (variants that differ only in method or gains share the answer)."""
+        from ..scenarios import solvable
+
+        vehicle = dict(r_uav=sim.vehicle.r_uav, v_max=sim.vehicle.v_max, t_max=sim.episode.t_max,
+                       r_goal=sim.episode.r_goal)
+        key = (chunk.family, chunk.start, chunk.stop, *vehicle.values())
+        if key not in self._oracle:
+            n = chunk.stop - chunk.start
+            real = jax.tree_util.tree_map(lambda a: np.asarray(a)[:n], fields)
+            self._oracle[key] = solvable(real, **vehicle)
+        return self._oracle[key]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -175,13 +191,14 @@ def run_sweep(
     runner = _Devices(plan)
     written = 0
     try:
-        pending: tuple[Chunk, tuple[dict[str, jax.Array], jax.Array]] | None = None
+        pending: tuple[Chunk, tuple[dict[str, jax.Array], jax.Array, np.ndarray | None]] | None = None
         for chunk in (*mine, None):
             running = None if chunk is None else (chunk, runner.dispatch(chunk))
             if pending is not None:  # write the previous chunk while this one runs
-                done_chunk, (arrays, kinds) = pending
+                done_chunk, (arrays, kinds, solvable) = pending
                 metrics = {m: np.asarray(a) for m, a in arrays.items()}
-                write_part(out, done_chunk.name, part_table(plan, layout, done_chunk, metrics, np.asarray(kinds)))
+                write_part(out, done_chunk.name,
+                           part_table(plan, layout, done_chunk, metrics, np.asarray(kinds), solvable))
                 written += 1
                 bar.update(plan.episodes_of([done_chunk]))
                 if after_part is not None:

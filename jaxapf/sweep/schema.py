@@ -20,7 +20,9 @@ from .spec import AXIS_WEIGHT_KEYS, SweepSpec
 __all__ = ["FORMAT", "META_KEY", "PRNG", "sweep_meta", "schema", "part_table", "read_meta", "identity",
            "static_columns"]
 
-FORMAT = "jaxapf.sweep/1"
+FORMAT = "jaxapf.sweep/2"
+#: Formats this version reads: /1 lacks the ``kind`` and ``solvable`` columns, nothing else changed.
+READABLE_FORMATS = ("jaxapf.sweep/1", FORMAT)
 META_KEY = b"jaxapf"
 #: The PRNG of the fields and of the random gain samples.
 PRNG = {
@@ -68,6 +70,8 @@ def schema(plan: Plan, meta: Mapping[str, Any]):
     fields += [pa.field(k, _column_type(spec, k)) for k in static_columns(spec)]
     fields += [pa.field("family", pa.string()), pa.field("kind", pa.string()), pa.field("field", pa.int64()),
                pa.field("seed", pa.int64())]
+    if spec.oracle:
+        fields.append(pa.field("solvable", pa.bool_()))
     fields += [pa.field(m, getattr(pa, _ARROW_TYPES[METRICS.get(m).dtype])() if METRICS.get(m).dtype in _ARROW_TYPES
                         else float_type) for m in plan.metrics]
     return pa.schema(fields, metadata={META_KEY: json.dumps(meta, sort_keys=True).encode()})
@@ -80,10 +84,12 @@ def _cell(key: str, value: Any, text: bool) -> Any:
     return value
 
 
-def part_table(plan: Plan, layout, chunk: Chunk, metrics: Mapping[str, np.ndarray], kinds: np.ndarray):
+def part_table(plan: Plan, layout, chunk: Chunk, metrics: Mapping[str, np.ndarray], kinds: np.ndarray,
+               solvable: np.ndarray | None = None):
     """The rows of one chunk: settings-major, fields-minor. Every column but the setting index,
-    the gains, the field, its kind and the metrics is constant within a chunk (one variant, one
-    family). ``kinds``: the kind index of each of the chunk's (padded) fields."""
+    the gains, the field, its kind, its solvability and the metrics is constant within a chunk (one
+    variant, one family). ``kinds``: the kind index of each of the chunk's (padded) fields;
+    ``solvable``: the oracle's answer for each real field (with the spec's ``oracle``)."""
     import pyarrow as pa
 
     spec, variant = plan.spec, plan.variants[chunk.variant]
@@ -99,6 +105,8 @@ def part_table(plan: Plan, layout, chunk: Chunk, metrics: Mapping[str, np.ndarra
     cols: dict[str, Any] = {"setting": np.repeat(np.array([s.index for s in variant.settings], np.int32), n),
                             "field": np.tile(np.arange(chunk.start, chunk.stop, dtype=np.int64), len(variant.settings)),
                             "kind": np.tile(names[np.asarray(kinds)[:n]], len(variant.settings))}
+    if solvable is not None:
+        cols["solvable"] = np.tile(np.asarray(solvable, bool), len(variant.settings))
     for k in spec.gain_columns():
         cols[k] = np.repeat(np.array([s.gains[k] for s in variant.settings], np.float64), n)
     for m in plan.metrics:
@@ -122,15 +130,15 @@ def read_meta(path: pathlib.Path) -> dict[str, Any]:
         meta = json.loads(raw) if raw else None
     except json.JSONDecodeError:
         meta = None
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+    if not isinstance(meta, dict) or meta.get("format") not in READABLE_FORMATS:
         raise ConfigError(f"{path} is not the output of jaxapf sweep (no '{META_KEY.decode()}' metadata of format "
-                          f"{FORMAT} in its Parquet schema)")
+                          f"{' or '.join(READABLE_FORMATS)} in its Parquet schema)")
     return meta
 
 
 def identity(meta: Mapping[str, Any]) -> dict[str, Any]:
     """What must match for parts to belong to one sweep (numbers bit for bit)."""
-    return {k: meta.get(k) for k in ("spec_hash", "dtype", "vmap_width", "metrics")}
+    return {k: meta.get(k) for k in ("format", "spec_hash", "dtype", "vmap_width", "metrics")}
 
 
 def sweep_meta(spec: SweepSpec, plan: Plan) -> dict[str, Any]:

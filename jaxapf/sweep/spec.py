@@ -52,7 +52,7 @@ from ..gains import GAINS, Gains, read_gains_file
 from ..planners import PLANNERS
 from ..plugins import check_plugins, load_plugins
 from ..scenarios import FAMILIES, FamilyParams, family_params
-from ..validation import BoundWarning, ConfigError, check_int, check_names, check_table, relocated
+from ..validation import BoundWarning, ConfigError, check_bool, check_int, check_names, check_table, relocated
 
 __all__ = [
     "STATIC_KEYS",
@@ -77,7 +77,7 @@ AXIS_WEIGHT_KEYS: frozenset[str] = frozenset({"q_pos", "q_vel", "f_pos", "f_vel"
 MAX_SEED = 2**32 - 1
 
 _TOP_KEYS = ("name", "plugins", "scenario", "sim", "gains", "grid", "random")
-_SCENARIO_KEYS = ("families", "fields", "seed", "params")
+_SCENARIO_KEYS = ("families", "fields", "seed", "params", "oracle")
 _RANDOM_KEYS = ("n", "seed")
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
@@ -203,6 +203,8 @@ class SweepSpec:
       fields: randomized fields per family.
       seed: scenario seed; field ``i`` has key ``fold_in(key(seed), i)``.
       params: per-family parameter overrides (validated by :func:`family_params`), normalised.
+      oracle: add the ``solvable`` column (:func:`~jaxapf.scenarios.solvable`; ``[scenario] oracle``,
+        default true).
       sim: fixed static settings (``[sim]``).
       gains: fixed gains (``[gains]``, then ``--gains FILE`` on top).
       grid: ``(key, values)`` axes in the spec's order.
@@ -223,6 +225,7 @@ class SweepSpec:
     random_seed: int = 0
     random: tuple[tuple[str, RandomRange], ...] = ()
     plugins: tuple[str, ...] = ()
+    oracle: bool = True
 
     # ---- canonical form -----------------------------------------------------------------
 
@@ -234,7 +237,7 @@ class SweepSpec:
             "name": self.name,
             **plugins,
             "scenario": {"families": list(self.families), "fields": self.fields, "seed": self.seed,
-                         "params": {f: dict(p) for f, p in self.params.items()}},
+                         "params": {f: dict(p) for f, p in self.params.items()}, "oracle": self.oracle},
             "sim": dict(self.sim),
             "gains": dict(self.gains),
             "grid": [[key, list(values)] for key, values in self.grid],
@@ -345,7 +348,7 @@ def _seed(where: str, value: Any) -> int:
     return check_int(where, value, 0, MAX_SEED)
 
 
-def _scenario(table: dict[str, Any]) -> tuple[tuple[str, ...], int, int, dict[str, dict[str, Any]]]:
+def _scenario(table: dict[str, Any]) -> tuple[tuple[str, ...], int, int, dict[str, dict[str, Any]], bool]:
     scenario = check_table("scenario", table, _SCENARIO_KEYS)
     for key in ("families", "fields"):
         if key not in scenario:
@@ -364,7 +367,8 @@ def _scenario(table: dict[str, Any]) -> tuple[tuple[str, ...], int, int, dict[st
         resolved = spec_family_params(family, overrides)
         params[family] = {k: list(v) if isinstance(v, tuple) else v
                           for k, v in ((k, getattr(resolved, k)) for k in overrides)}
-    return tuple(families), fields, seed, params
+    oracle = check_bool("scenario.oracle", scenario.get("oracle", True))
+    return tuple(families), fields, seed, params, oracle
 
 
 def _fixed(where: str, table: Any, keys: tuple[str, ...]) -> dict[str, Any]:
@@ -456,7 +460,7 @@ def parse_spec(data: Mapping[str, Any], gains_file: str | os.PathLike | None = N
                           "(it names the default output runs/NAME.parquet)")
     if "scenario" not in data:
         raise ConfigError("scenario is missing; add [scenario] with families and fields")
-    families, fields, seed, params = _scenario(data["scenario"])
+    families, fields, seed, params, oracle = _scenario(data["scenario"])
     sim = _fixed("sim", data.get("sim", {}), STATIC_KEYS)
     gains = _fixed("gains", data.get("gains", {}), GAINS.names())
     fixed = {**{k: "sim" for k in sim}, **{k: "gains" for k in gains}}
@@ -467,7 +471,8 @@ def parse_spec(data: Mapping[str, Any], gains_file: str | os.PathLike | None = N
         varied = {k for k, _ in grid} | {k for k, _ in ranges}
         gains = {k: v for k, v in {**gains, **read_gains_file(gains_file)}.items() if k not in varied}
     spec = SweepSpec(name=name, families=families, fields=fields, seed=seed, params=params, sim=sim, gains=gains,
-                     grid=grid, random_n=random_n, random_seed=random_seed, random=ranges, plugins=plugins)
+                     grid=grid, random_n=random_n, random_seed=random_seed, random=ranges, plugins=plugins,
+                     oracle=oracle)
     for static in {s.static for s in spec.settings()}:
         for family in families:
             spec.configs(static, family)

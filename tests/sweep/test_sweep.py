@@ -199,16 +199,17 @@ def test_parquet_schema_and_metadata(reference):
     schema = pq.read_schema(out / parts[0])
     gains = ["gamma", "k", "k_rep", "d_s", "k_att", "eta"]
     assert schema.names == ["setting", "method", "convention", *gains, "t_max", "horizon", "iters",
-                            "family", "kind", "field", "seed", *METRICS]
+                            "family", "kind", "field", "seed", "solvable", *METRICS]
     types = dict(zip(schema.names, schema.types))
     assert types["setting"] == pa.int32() and types["field"] == pa.int64() and types["seed"] == pa.int64()
     assert all(types[c] == pa.string() for c in ("method", "convention", "family", "kind"))
     assert all(types[g] == pa.float64() for g in gains) and types["t_max"] == pa.float64()
     assert types["horizon"] == pa.int64() and types["iters"] == pa.int64()
-    assert all(types[m] == pa.bool_() for m in ("success", "collision", "stalled")) and types["steps"] == pa.int32()
+    assert all(types[m] == pa.bool_() for m in ("solvable", "success", "collision", "stalled"))
+    assert types["steps"] == pa.int32()
     assert types["min_clearance"] == pa.float32()
     assert {"format", "spec", "spec_hash", "versions", "prng", "dtype"} <= set(meta)
-    assert meta["format"] == "jaxapf.sweep/1" and meta["dtype"] == "float32"
+    assert meta["format"] == "jaxapf.sweep/2" and meta["dtype"] == "float32"
     assert meta["spec_hash"] == _spec().hash and SweepSpec.from_json(meta["spec"]) == _spec()
     assert meta["prng"]["field_key"] == "fold_in(key(seed), field)"
     assert meta["complete"] and meta["rows_expected"] == ROWS == len(df)
@@ -217,6 +218,24 @@ def test_parquet_schema_and_metadata(reference):
     assert sorted(df["setting"].unique()) == [0, 1, 2, 3]
     assert (df.groupby(["setting", "family"]).size() == 6).all()
     assert list(df.loc[df.setting == 2, "method"].unique()) == ["direction_velocity"]
+
+
+def test_solvable_column_is_the_oracle_on_each_field(reference, tmp_path):
+    from jaxapf.scenarios import make_scenarios, solvable
+
+    _, df, _ = reference
+    spec = _spec()
+    sim = SimConfig.from_flat(t_max=2.0)
+    for family in spec.families:
+        fields = make_scenarios(spec.seed, spec.family_params(family), np.arange(spec.fields))
+        want = solvable(fields, r_uav=sim.vehicle.r_uav, v_max=sim.vehicle.v_max, t_max=2.0, r_goal=sim.episode.r_goal)
+        for _, rows in df[df.family == family].groupby("setting"):
+            np.testing.assert_array_equal(rows.sort_values("field")["solvable"].to_numpy(bool), want)
+    # 2 s at 2 m/s cannot cover a 4-6 m trap: the oracle says so (a proof), whatever the planner
+    assert not df.loc[df.family == "trap", "solvable"].any()
+    out = tmp_path / "no-oracle.parquet"
+    run_sweep(_spec(**{"scenario.oracle": False}), out, quiet=True)
+    assert "solvable" not in pq.read_schema(next(out.glob("part-*.parquet"))).names
 
 
 def test_row_config_resimulates_a_row(reference):
