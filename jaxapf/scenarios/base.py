@@ -60,8 +60,12 @@ class FamilyParams:
     Attributes:
       max_obstacles: obstacle slots per field (static; integer >= 1). Unused slots are invalid.
       r_uav: UAV radius [m] >= 0 used to keep start and goal clear (engine default 0.3 m).
-      endpoint_margin: clearance [m] >= 0 that start and goal keep from every obstacle at t = 0
+      start_margin: clearance [m] >= 0 that the start keeps from every obstacle at t = 0
         (default 0.25 m), see :func:`~jaxapf.scenarios.generate.clear_endpoints`.
+      goal_margin: clearance [m] >= 0 that the goal keeps from every obstacle at t = 0 (default
+        4 m, the default influence distance ``d_s``: no repulsion at the goal at t = 0, so a family
+        does not silently include GNRON fields, goals non-reachable with obstacles nearby; ``trap``,
+        whose ``gnron`` kind means them, and the families of passing movers keep 0.25 m).
       altitude: z [m] of start, goal and obstacle centres (default 2 m).
       t_max: recommended episode length [s] > 0 (default 60 s: 3–5× the nominal flight time).
       distance: start–goal distance range [m] > 0, drawn uniformly (default 20–30 m).
@@ -78,7 +82,8 @@ class FamilyParams:
     CHECKS: ClassVar[Mapping[str, Check]] = {
         "max_obstacles": integer(1),
         "r_uav": number(0.0),
-        "endpoint_margin": number(0.0),
+        "start_margin": number(0.0),
+        "goal_margin": number(0.0),
         "altitude": number(),
         "t_max": number(0.0, lo_open=True),
         "distance": span(0.0, lo_open=True),
@@ -88,7 +93,8 @@ class FamilyParams:
 
     max_obstacles: int = 16
     r_uav: float = 0.3
-    endpoint_margin: float = 0.25
+    start_margin: float = 0.25
+    goal_margin: float = 4.0
     altitude: float = 2.0
     t_max: float = 60.0
     distance: tuple[float, float] = (20.0, 30.0)

@@ -9,9 +9,12 @@ Every field is built the same way:
    ``(L, 0)``, x along the start–goal line, y to its left. Obstacles live in the plane of flight
    (centre z = ``altitude``; cylinders are infinitely tall anyway) and move horizontally.
 3. **World.** Positions and velocities are rotated by ψ, padded to exactly ``max_obstacles`` slots
-   and passed through :func:`~jaxapf.scenarios.generate.clear_endpoints`, which keeps start and goal at least
-   ``endpoint_margin`` clear of every obstacle at t = 0. Padded (invalid) slots are parked at
-   ``1e6`` with radius 0 and velocity 0.
+   and passed through :func:`~jaxapf.scenarios.generate.clear_endpoints`, which keeps the start at least
+   ``start_margin`` (0.25 m) and the goal at least ``goal_margin`` clear of every obstacle at t = 0.
+   ``goal_margin`` defaults to 4 m, the influence distance ``d_s``, so that only ``trap``'s
+   ``gnron`` kind (where ``trap`` keeps 0.25 m) puts obstacles near the goal; the families of
+   passing movers (``crossing``, ``head_on``, ``overtake``) keep 0.25 m, their obstacles leave.
+   Padded (invalid) slots are parked at ``1e6`` with radius 0 and velocity 0.
 
 Keys: field ``i`` of seed ``s`` uses :func:`~jaxapf.scenarios.generate.field_key`
 ``= fold_in(key(s), i)``, and a field is
@@ -74,7 +77,7 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from ..validation import check_int
+from ..validation import ConfigError, check_int
 from .base import FamilyParams, integer, names, number, register_family, span
 from .layout import CUP_SIZE, Draws, Layout, cup, fit, scatter, static, with_motion
 
@@ -174,7 +177,8 @@ class TrapParams(FamilyParams):
       the goal lies inside the influence distance d_s = 4 m.
 
     ``max_obstacles`` defaults to 5 and must hold the largest selected kind (concave 5, narrow_gap
-    2, on_line and gnron 1).
+    2, on_line and gnron 1). ``goal_margin`` defaults to 0.25 m and must not exceed the lower end of
+    ``goal_clearance`` while ``gnron`` is selected (it would push the obstacle away from the goal).
     """
 
     family = "trap"
@@ -196,9 +200,14 @@ class TrapParams(FamilyParams):
     cup_radius: tuple[float, float] = (2.5, 4.0)
     gap_slack: tuple[float, float] = (0.1, 0.6)
     goal_clearance: tuple[float, float] = (0.5, 2.0)
+    goal_margin: float = 0.25
 
     def _check(self, where: str) -> None:
         check_int(f"{where}.max_obstacles", self.max_obstacles, max(_TRAP_SIZES[k] for k in self.kinds))
+        if "gnron" in self.kinds and self.goal_margin > self.goal_clearance[0]:
+            raise ConfigError(f"{where}.goal_margin = {self.goal_margin:g} exceeds goal_clearance's lower end "
+                              f"{self.goal_clearance[0]:g}: it would push the gnron obstacle away from the goal; "
+                              "lower goal_margin or drop gnron from kinds")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -240,7 +249,9 @@ class DynamicParams(ClutterParams):
 class MovingParams(FamilyParams):
     """Common to ``crossing``, ``head_on`` and ``overtake``: a number of moving obstacles uniform in
     the integers ``count`` (whose upper end must not exceed ``max_obstacles``), each with a radius
-    uniform in ``radius`` [m] and a speed uniform in ``speed`` [m/s]."""
+    uniform in ``radius`` [m] and a speed uniform in ``speed`` [m/s]. ``goal_margin`` defaults to
+    0.25 m: these obstacles cross or run along the line and are gone from the goal's neighbourhood
+    long before the UAV arrives, and a larger margin would push them off their courses."""
 
     CHECKS = FamilyParams.CHECKS | {
         "count": span(1, integer=True),
@@ -251,6 +262,7 @@ class MovingParams(FamilyParams):
     count: tuple[int, int] = (1, 2)
     radius: tuple[float, float] = (0.5, 1.0)
     speed: tuple[float, float] = (0.5, 1.5)
+    goal_margin: float = 0.25
 
     def _check(self, where: str) -> None:
         check_int(f"{where}.count", self.count[1], 1, self.max_obstacles)

@@ -55,14 +55,15 @@ def _sq_norm(r: Array) -> Array:
 
 
 def clear_endpoints(obstacles: Obstacles, start: Array, goal: Array, r_uav: float | Array,
-                    margin: float | Array) -> Obstacles:
-    """Keep ``start`` and ``goal`` at least ``margin`` clear (UAV clearance, t = 0) of every obstacle.
+                    start_margin: float | Array, goal_margin: float | Array) -> Obstacles:
+    """Keep ``start`` at least ``start_margin`` and ``goal`` at least ``goal_margin`` clear (UAV
+    clearance, t = 0) of every obstacle.
 
-    Deterministic: an obstacle whose clearance from the start is below ``margin`` is moved radially
-    away from the start (in xy for a cylinder, in 3-D for a sphere) until its clearance is
-    ``margin`` (plus 1 mm against rounding); then the same for the goal. After two such passes an
-    obstacle that still violates either end (possible only when start and goal are closer than
-    an obstacle's diameter plus margins) is marked invalid. An obstacle centred exactly on an end
+    Deterministic: an obstacle whose clearance from the start is below ``start_margin`` is moved
+    radially away from the start (in xy for a cylinder, in 3-D for a sphere) until its clearance is
+    ``start_margin`` (plus 1 mm against rounding); then the same for the goal and ``goal_margin``.
+    After two such passes an obstacle that still violates either end (possible only when start and
+    goal are closer than an obstacle's diameter plus margins) is marked invalid. An obstacle centred exactly on an end
     is moved perpendicular to the start–goal line (to its left). Invalid slots come back parked.
     """
     along = goal - start
@@ -70,13 +71,14 @@ def clear_endpoints(obstacles: Obstacles, start: Array, goal: Array, r_uav: floa
     left_sq = _sq_norm(left)
     unit_y = jnp.array([0.0, 1.0, 0.0], left.dtype)
     fallback = jnp.where(left_sq > 0, left / jnp.sqrt(jnp.where(left_sq > 0, left_sq, 1.0)), unit_y)
-    need = obstacles.radius + r_uav + margin  # centre distance at which the clearance is `margin`
+    reach = obstacles.radius + r_uav  # + margin: the centre distance at which the clearance is the margin
 
     def distance(position: Array, point: Array) -> tuple[Array, Array]:
         rel = project(position - point, obstacles.cylinder)
         return rel, jnp.sqrt(_sq_norm(rel))
 
-    def push(position: Array, point: Array) -> Array:
+    def push(position: Array, point: Array, margin: float | Array) -> Array:
+        need = reach + margin
         rel, dist = distance(position, point)
         direction = jnp.where((dist > 0)[:, None], rel / jnp.where(dist > 0, dist, 1.0)[:, None], fallback)
         move = jnp.where(obstacles.valid & (dist < need), need + _PUSH_SLACK - dist, 0.0)
@@ -84,8 +86,8 @@ def clear_endpoints(obstacles: Obstacles, start: Array, goal: Array, r_uav: floa
 
     position = obstacles.position
     for _ in range(2):
-        position = push(push(position, start), goal)
-    ok = (distance(position, start)[1] >= need) & (distance(position, goal)[1] >= need)
+        position = push(push(position, start, start_margin), goal, goal_margin)
+    ok = (distance(position, start)[1] >= reach + start_margin) & (distance(position, goal)[1] >= reach + goal_margin)
     return _park(dataclasses.replace(obstacles, position=position, valid=obstacles.valid & ok))
 
 
@@ -107,7 +109,7 @@ def _local_field(u: Array, params: FamilyParams) -> tuple[Array, Array, Layout, 
 
 
 def _place(length: Array, heading: Array, layout: Layout, kind: Array, altitude: Array, r_uav: Array,
-           margin: Array, cylinder: Array) -> Scenario:
+           start_margin: Array, goal_margin: Array, cylinder: Array) -> Scenario:
     """The field in the world frame, with clear endpoints."""
     zero = jnp.zeros_like(length)
     start = jnp.stack([zero, zero, zero + altitude])
@@ -119,12 +121,13 @@ def _place(length: Array, heading: Array, layout: Layout, kind: Array, altitude:
         cylinder=jnp.broadcast_to(cylinder, layout.valid.shape),
         valid=layout.valid,
     )
-    return Scenario(start, goal, clear_endpoints(obstacles, start, goal, r_uav, margin), kind)
+    return Scenario(start, goal, clear_endpoints(obstacles, start, goal, r_uav, start_margin, goal_margin),
+                    kind)
 
 
-def _placement(params: FamilyParams) -> tuple[float, float, float, bool]:
+def _placement(params: FamilyParams) -> tuple[float, float, float, float, bool]:
     """The arguments of :func:`_place` taken from ``params`` (traced, so they do not recompile)."""
-    return params.altitude, params.r_uav, params.endpoint_margin, params.shape == "cylinder"
+    return params.altitude, params.r_uav, params.start_margin, params.goal_margin, params.shape == "cylinder"
 
 
 def _stage_boundary(local: tuple, params: FamilyParams) -> tuple[tuple, tuple]:
@@ -171,7 +174,7 @@ def _local_batch(u: Array, params: FamilyParams) -> tuple[Array, Array, Layout, 
     return jax.vmap(lambda row: _local_field(row, params))(u)
 
 
-_place_batch = jax.jit(jax.vmap(_place, in_axes=(0, 0, 0, 0, None, None, None, None)))
+_place_batch = jax.jit(jax.vmap(_place, in_axes=(0, 0, 0, 0, None, None, None, None, None)))
 
 
 def make_scenarios(seed: int | Array, params: FamilyParams, fields: int | Array) -> Scenario:
