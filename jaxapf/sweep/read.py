@@ -63,9 +63,11 @@ def read_sweep(path: str | os.PathLike) -> tuple["pd.DataFrame", dict[str, Any]]
 class RowConfig:
     """Everything needed to re-simulate one row with :func:`jaxapf.simulate.simulate_runs`:
     ``simulate_runs(c.family, c.seed, c.field, [c.sim.planner.method], c.gains, c.sim, c.mpc, c.overrides)``
-    (in float64 if ``c.dtype`` is float64: enable ``jax_enable_x64`` first)."""
+    (in float64 if ``c.dtype`` is float64: enable ``jax_enable_x64`` first). ``family`` is the
+    registered family, ``label`` the row's ``family`` column (a variant's name for a variant)."""
 
     family: str
+    label: str
     params: FamilyParams
     overrides: Mapping[str, Any]
     seed: int
@@ -80,8 +82,10 @@ def row_config(meta: Mapping[str, Any], row: Mapping[str, Any]) -> RowConfig:
     """The configuration of one output row (``meta`` from :func:`read_sweep`)."""
     spec = SweepSpec.from_json(meta["spec"])
     setting = spec.settings()[int(row["setting"])]
-    family = str(row["family"])
-    sim, mpc = spec.configs(setting.static, family)
-    return RowConfig(family=family, params=spec.family_params(family), overrides=dict(spec.params.get(family, {})),
-                     seed=spec.seed, field=int(row["field"]), gains=Gains.unchecked(setting.gains), sim=sim, mpc=mpc,
+    label = str(row["family"])
+    sim, mpc = spec.configs(setting.static, label)
+    params = spec.family_params(label)
+    overrides = {k: v for k, v in spec.params.get(label, {}).items() if k != "family"}
+    return RowConfig(family=params.family, label=label, params=params, overrides=overrides, seed=spec.seed,
+                     field=int(row["field"]), gains=Gains.unchecked(setting.gains), sim=sim, mpc=mpc,
                      dtype=str(meta["dtype"]))

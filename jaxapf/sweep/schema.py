@@ -101,7 +101,7 @@ def part_table(plan: Plan, layout, chunk: Chunk, metrics: Mapping[str, np.ndarra
                 "seed": spec.seed}
     for k in static_columns(spec):  # only t_max can be unnamed, and it is a SimConfig field
         constant[k] = _cell(k, static[k] if k in static else sim.flat()[k], pa.types.is_string(layout.field(k).type))
-    names = np.asarray(FAMILIES.get(chunk.family).kinds, dtype=object)
+    names = np.asarray(FAMILIES.get(spec.family_params(chunk.family).family).kinds, dtype=object)
     cols: dict[str, Any] = {"setting": np.repeat(np.array([s.index for s in variant.settings], np.int32), n),
                             "field": np.tile(np.arange(chunk.start, chunk.stop, dtype=np.int64), len(variant.settings)),
                             "kind": np.tile(names[np.asarray(kinds)[:n]], len(variant.settings))}

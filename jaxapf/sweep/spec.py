@@ -52,7 +52,16 @@ from ..gains import GAINS, Gains, read_gains_file
 from ..planners import PLANNERS
 from ..plugins import check_plugins, load_plugins
 from ..scenarios import FAMILIES, FamilyParams, family_params
-from ..validation import BoundWarning, ConfigError, check_bool, check_int, check_names, check_table, relocated
+from ..validation import (
+    BoundWarning,
+    ConfigError,
+    check_bool,
+    check_choice,
+    check_int,
+    check_names,
+    check_table,
+    relocated,
+)
 
 __all__ = [
     "STATIC_KEYS",
@@ -64,6 +73,7 @@ __all__ = [
     "SweepSpec",
     "check_value",
     "spec_family_params",
+    "variant_names",
     "load_spec",
     "parse_spec",
     "read_toml",
@@ -202,7 +212,8 @@ class SweepSpec:
       families: scenario families (SPEC 5), in the spec's order.
       fields: randomized fields per family.
       seed: scenario seed; field ``i`` has key ``fold_in(key(seed), i)``.
-      params: per-family parameter overrides (validated by :func:`family_params`), normalised.
+      params: per-family (or per-variant) parameter overrides (validated by
+        :func:`spec_family_params`), normalised; a variant's table names its ``family``.
       oracle: add the ``solvable`` column (:func:`~jaxapf.scenarios.solvable`; ``[scenario] oracle``,
         default true).
       sim: fixed static settings (``[sim]``).
@@ -303,8 +314,9 @@ class SweepSpec:
         return tuple(k for k in STATIC_KEYS if k in named)
 
     def family_params(self, family: str) -> FamilyParams:
-        """The validated :class:`~jaxapf.scenarios.FamilyParams` of ``family`` with the spec's overrides."""
-        return family_params(family, **self.params.get(family, {}))
+        """The validated :class:`~jaxapf.scenarios.FamilyParams` of ``family`` (a family or a variant)
+        with the spec's overrides."""
+        return spec_family_params(family, self.params.get(family, {}))
 
     def components(self, key: str) -> tuple[str, ...]:
         """The names the spec's settings give ``method``, ``filter`` or ``plant`` (their defaults if unnamed)."""
@@ -334,14 +346,39 @@ class SweepSpec:
 # --------------------------------------------------------------------------------------------
 
 
-def spec_family_params(family: str, overrides: Any) -> FamilyParams:
-    """A spec's ``[scenario.params.FAMILY]`` table applied to the family's defaults; a bad value is
-    reported at ``scenario.params.FAMILY.KEY`` (shared by sweep and tune specs)."""
-    overrides = check_table(f"scenario.params.{family}", overrides)
+#: A variant's name: letters, digits and ``_`` (``/`` separates a family from its kind in reports).
+_VARIANT = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+
+
+def variant_names(params: Any) -> tuple[str, ...]:
+    """The variants a ``[scenario.params]`` table defines: sub-tables that name their ``family``."""
+    if not isinstance(params, dict):
+        return ()
+    return tuple(label for label, table in params.items()
+                 if isinstance(table, dict) and "family" in table and label not in FAMILIES)
+
+
+def spec_family_params(label: str, overrides: Any) -> FamilyParams:
+    """A spec's ``[scenario.params.LABEL]`` table applied to a family's defaults (shared by sweep and
+    tune specs); a bad value is reported at ``scenario.params.LABEL.KEY``.
+
+    ``LABEL`` is a registered family, or a *variant*: a name of its own whose table names the family
+    it varies, ``family = "crossing"``; a variant's rows carry its name in the ``family`` column.
+    """
+    where = f"scenario.params.{label}"
+    overrides = dict(check_table(where, overrides))
+    base = overrides.pop("family", label)
+    if label in FAMILIES and base != label:
+        raise ConfigError(f"{where}.family = {base!r}: {label} is a registered family; give the variant a name "
+                          "of its own")
+    if label not in FAMILIES:
+        if not _VARIANT.match(label):
+            raise ConfigError(f"{where}: a variant's name is letters, digits and '_', starting with a letter")
+        check_choice(f"{where}.family", base, FAMILIES.names())
     try:
-        return family_params(family, **overrides)
+        return family_params(base, **overrides)
     except ConfigError as err:
-        raise relocated(err, f"scenario.{family}", f"scenario.params.{family}") from None
+        raise relocated(err, f"scenario.{base}", where) from None
 
 
 def _seed(where: str, value: Any) -> int:
@@ -354,19 +391,21 @@ def _scenario(table: dict[str, Any]) -> tuple[tuple[str, ...], int, int, dict[st
         if key not in scenario:
             raise ConfigError(f"scenario.{key} is missing")
     families = scenario["families"]
+    tables = check_table("scenario.params", scenario.get("params", {}))
+    choices = FAMILIES.names() + variant_names(tables)
     if not isinstance(families, list):
         raise ConfigError(f"scenario.families = {families!r} must be a non-empty list of family names; "
-                          f"allowed: {', '.join(FAMILIES.names())}")
-    families = check_names("scenario.families", families, FAMILIES.names(), what="family")
+                          f"allowed: {', '.join(choices)}")
+    families = check_names("scenario.families", families, choices, what="family or variant")
     fields = check_int("scenario.fields", scenario["fields"], 1)
     seed = _seed("scenario.seed", scenario.get("seed", 0))
     params = {}
-    for family, overrides in check_table("scenario.params", scenario.get("params", {})).items():
-        if family not in families:
-            raise ConfigError(f"scenario.params.{family} is not one of scenario.families ({', '.join(families)})")
-        resolved = spec_family_params(family, overrides)
-        params[family] = {k: list(v) if isinstance(v, tuple) else v
-                          for k, v in ((k, getattr(resolved, k)) for k in overrides)}
+    for label, overrides in tables.items():
+        if label not in families:
+            raise ConfigError(f"scenario.params.{label} is not one of scenario.families ({', '.join(families)})")
+        resolved = spec_family_params(label, overrides)
+        params[label] = {k: (list(v) if isinstance(v, tuple) else v) if k != "family" else overrides[k]
+                         for k, v in ((k, getattr(resolved, k, None)) for k in overrides)}
     oracle = check_bool("scenario.oracle", scenario.get("oracle", True))
     return tuple(families), fields, seed, params, oracle
 

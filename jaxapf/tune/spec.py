@@ -28,7 +28,7 @@ from ..gains import GAINS, Gains, check_gain_name, gains_from_mapping
 from ..planners import PLANNERS
 from ..plugins import check_plugins, load_plugins
 from ..scenarios import FAMILIES, FamilyParams
-from ..sweep.spec import check_value, spec_family_params
+from ..sweep.spec import check_value, spec_family_params, variant_names
 from ..validation import (
     ConfigError,
     check_bool,
@@ -207,7 +207,7 @@ class TuneSpec:
         out = plain(self)
         out["search"]["grid"] = {n: list(v) for n, v in self.search.grid}
         out["reparam"]["upper"] = dict(self.reparam.upper)
-        out["scenario"] = {f: plain(p) | {"family": f} for f, p in self.scenario}
+        out["scenario"] = {f: plain(p) | {"family": p.family} for f, p in self.scenario}
         return out
 
     def digest(self) -> str:
@@ -246,16 +246,16 @@ def _episode_clip(value: Any) -> float:
     return _float("train.episode_clip", value, 0.0, lo_open=True)
 
 
-def _families(where: str, value: Any) -> tuple[str, ...]:
-    return check_names(where, value, FAMILIES.names(), what="family")
+def _families(where: str, value: Any, choices: tuple[str, ...]) -> tuple[str, ...]:
+    return check_names(where, value, choices, what="family or variant")
 
 
-def _train(data: dict[str, Any]) -> TrainSpec:
+def _train(data: dict[str, Any], choices: tuple[str, ...]) -> TrainSpec:
     d = _table(data, "train")
     default = TrainSpec()
     get = lambda key: d.get(key, getattr(default, key))  # noqa: E731
     spec = TrainSpec(
-        families=_families("train.families", get("families")),
+        families=_families("train.families", get("families"), choices),
         fields_per_step=check_int("train.fields_per_step", get("fields_per_step"), 1),
         steps=check_int("train.steps", get("steps"), 0),
         seed=check_int("train.seed", get("seed"), 0),
@@ -278,9 +278,10 @@ def _train(data: dict[str, Any]) -> TrainSpec:
 
 
 def _field_set(data: dict[str, Any], where: str, families: tuple[str, ...] | None, default_fields: int,
-               default_seed: int) -> FieldSetSpec:
+               default_seed: int, choices: tuple[str, ...] = ()) -> FieldSetSpec:
     d = _table(data, where)
-    fams = families if families is not None else _families(f"{where}.families", d.get("families", list(TEST_FAMILIES)))
+    fams = families if families is not None else _families(f"{where}.families", d.get("families", list(TEST_FAMILIES)),
+                                                           choices)
     fields = check_int(f"{where}.fields", d.get("fields", default_fields), 1)
     if families is not None and fields < len(families):
         raise ConfigError(f"{where}.fields = {fields} must be at least the number of train.families ({len(families)})")
@@ -338,7 +339,7 @@ def _scenario(data: dict[str, Any], families: set[str]) -> tuple[tuple[str, Fami
     if not isinstance(params, dict):
         raise ConfigError("scenario.params must be a table of [scenario.params.FAMILY] tables")
     for name in params:
-        check_choice("scenario.params", name, FAMILIES.names())
+        check_choice("scenario.params", name, FAMILIES.names() + variant_names(params))
     return tuple((f, spec_family_params(f, params.get(f, {}))) for f in sorted(families | set(params)))
 
 
@@ -369,9 +370,11 @@ def parse_tune_spec(data: Mapping[str, Any]) -> TuneSpec:
     name = data.get("name", "tune")
     if not isinstance(name, str) or not name:
         raise ConfigError(f"name = {name!r} must be a non-empty string")
-    train = _train(data.get("train", {}))
+    scenario = data.get("scenario", {})
+    choices = FAMILIES.names() + variant_names(scenario.get("params", {}) if isinstance(scenario, dict) else {})
+    train = _train(data.get("train", {}), choices)
     validation = _field_set(data.get("validation", {}), "validation", train.families, 64, train.seed + 1)
-    test = _field_set(data.get("test", {}), "test", None, 256, train.seed + 2)
+    test = _field_set(data.get("test", {}), "test", None, 256, train.seed + 2, choices)
     seeds = {"train.seed": train.seed, "validation.seed": validation.seed, "test.seed": test.seed}
     if len(set(seeds.values())) != 3:
         raise ConfigError(f"train.seed, validation.seed and test.seed must differ (got {seeds}): "
@@ -384,7 +387,7 @@ def parse_tune_spec(data: Mapping[str, Any]) -> TuneSpec:
     return TuneSpec(
         name=name, plugins=plugins, train=train, validation=validation, test=test, objective=objective, init=init,
         reparam=reparam, sim=sim, mpc=mpc,
-        scenario=_scenario(data.get("scenario", {}), set(train.families) | set(test.families)),
+        scenario=_scenario(scenario, set(train.families) | set(test.families)),
         search=_search(data.get("search", {}), reparam),
     )
 

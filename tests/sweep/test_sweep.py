@@ -93,7 +93,16 @@ BAD = {
     "top-level key": ({"nmae": "x"}, "nmae is not a known key; allowed: name, plugins, scenario"),
     "name": ({"name": "a b"}, "name = 'a b' must be a string"),
     "scenario key": ({"scenario.feilds": 3}, "scenario.feilds is not a known key"),
-    "family": ({"scenario.families": ["trap", "forest"]}, "scenario.families[1] = 'forest' is not a family"),
+    "family": ({"scenario.families": ["trap", "forest"]},
+               "scenario.families[1] = 'forest' is not a family or variant"),
+    "variant of nothing": ({"scenario.families": ["trap", "crossing", "fast"],
+                            "scenario.params.fast": {"family": "forest"}},
+                           "scenario.params.fast.family = 'forest' is not allowed; choose one of paper_static"),
+    "variant param": ({"scenario.families": ["trap", "crossing", "fast"],
+                       "scenario.params.fast": {"family": "crossing", "sped": [1.0, 2.0]}},
+                      "scenario.params.fast.sped is not a parameter of crossing"),
+    "family renamed": ({"scenario.params.trap.family": "clutter"},
+                       "scenario.params.trap.family = 'clutter': trap is a registered family"),
     "no family": ({"scenario.families": []}, "scenario.families = [] must list one or more of"),
     "fields type": ({"scenario.fields": "6"}, "scenario.fields = '6' must be an integer"),
     "fields range": ({"scenario.fields": 0}, "scenario.fields = 0 is out of range"),
@@ -236,6 +245,34 @@ def test_solvable_column_is_the_oracle_on_each_field(reference, tmp_path):
     out = tmp_path / "no-oracle.parquet"
     run_sweep(_spec(**{"scenario.oracle": False}), out, quiet=True)
     assert "solvable" not in pq.read_schema(next(out.glob("part-*.parquet"))).names
+
+
+def test_a_variant_is_a_family_of_its_own_name(tmp_path):
+    from jaxapf.simulate import simulate_runs
+
+    data = copy.deepcopy(TINY)
+    data["scenario"]["families"] = ["crossing", "crossing_fast"]
+    data["scenario"]["params"] = {"crossing": {"max_obstacles": 5},
+                                  "crossing_fast": {"family": "crossing", "max_obstacles": 5, "speed": [2.0, 3.0]}}
+    spec = parse_spec(data)
+    assert spec.family_params("crossing_fast").speed == (2.0, 3.0)
+    assert SweepSpec.from_json(spec.to_json()) == spec
+    out = tmp_path / "variants.parquet"
+    run_sweep(spec, out, quiet=True)
+    df, meta = read_sweep(out)
+    assert set(df["family"]) == {"crossing", "crossing_fast"} and set(df["kind"]) == {"crossing"}
+    # same keys, other speeds: the variant's fields differ from the family's
+    a = df[(df.family == "crossing") & (df.setting == 3)]["min_clearance"].to_numpy()
+    b = df[(df.family == "crossing_fast") & (df.setting == 3)]["min_clearance"].to_numpy()
+    assert not np.array_equal(a, b)
+    row = df[(df.family == "crossing_fast") & (df.setting == 3)].iloc[1]
+    cfg = row_config(meta, row.to_dict())
+    assert (cfg.family, cfg.label, cfg.overrides) == ("crossing", "crossing_fast",
+                                                      {"max_obstacles": 5, "speed": [2.0, 3.0]})
+    _, runs, _ = simulate_runs(cfg.family, cfg.seed, cfg.field, [cfg.sim.planner.method], cfg.gains, cfg.sim,
+                               cfg.mpc, cfg.overrides)
+    assert runs[0].metrics["steps"] == row["steps"]
+    np.testing.assert_allclose(runs[0].metrics["min_clearance"], row["min_clearance"], rtol=1e-4)
 
 
 def test_row_config_resimulates_a_row(reference):
