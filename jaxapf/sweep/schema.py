@@ -41,7 +41,8 @@ def static_columns(spec: SweepSpec) -> tuple[str, ...]:
 
 
 def _spec_values(spec: SweepSpec, key: str) -> list[Any]:
-    return [v for k, v in spec.sim.items() if k == key] + [x for k, values in spec.grid if k == key for x in values]
+    return ([v for k, v in spec.sim.items() if k == key] + [x for k, values in spec.grid if k == key for x in values]
+            + [v for entry in spec.explicit for k, v in entry if k == key])
 
 
 def _column_type(spec: SweepSpec, key: str):
@@ -68,6 +69,8 @@ def schema(plan: Plan, meta: Mapping[str, Any]):
     fields = [pa.field("setting", pa.int32()), pa.field("method", pa.string()), pa.field("convention", pa.string())]
     fields += [pa.field(k, pa.float64()) for k in spec.gain_columns()]
     fields += [pa.field(k, _column_type(spec, k)) for k in static_columns(spec)]
+    fields += [pa.field(k, pa.string() if isinstance(v, str) else pa.int64()) for k, v in
+               (spec.tags[0] if spec.tags else ())]
     fields += [pa.field("family", pa.string()), pa.field("kind", pa.string()), pa.field("field", pa.int64()),
                pa.field("seed", pa.int64())]
     if spec.oracle:
@@ -109,6 +112,8 @@ def part_table(plan: Plan, layout, chunk: Chunk, metrics: Mapping[str, np.ndarra
         cols["solvable"] = np.tile(np.asarray(solvable, bool), len(variant.settings))
     for k in spec.gain_columns():
         cols[k] = np.repeat(np.array([s.gains[k] for s in variant.settings], np.float64), n)
+    for k in spec.tag_names:
+        cols[k] = np.repeat(np.array([dict(s.tags)[k] for s in variant.settings], dtype=object), n)
     for m in plan.metrics:
         cols[m] = np.ascontiguousarray(metrics[m][:, :n]).reshape(-1)
     zeros = pa.array(np.zeros(rows, np.int32))

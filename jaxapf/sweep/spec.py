@@ -1,7 +1,8 @@
 r"""Sweep specifications: a study stated as a TOML file, validated completely before anything runs.
 
 A spec names scenario families and a number of fields, fixed settings, and the settings to vary
-(a cartesian ``[grid]`` and/or ``[random]`` gain samples). :func:`load_spec` parses and checks it;
+(a cartesian ``[grid]`` and/or ``[random]`` gain samples, or an explicit list of ``[[setting]]``
+tables). :func:`load_spec` parses and checks it;
 :meth:`SweepSpec.settings` expands it into the list of settings every field is run with.
 
 Keys ("setting keys") live in one flat namespace:
@@ -21,6 +22,9 @@ Expansion order (the ``setting`` index of the output): the grid product with the
 order the spec writes them, the last key varying fastest; with ``[random]``, every grid point is
 crossed with the same ``n`` samples (samples innermost), so grid points are paired on gains too.
 Without ``[grid]`` there is one grid point (the fixed values); without ``[random]``, one sample.
+``[[setting]]`` tables (not combined with ``[grid]`` or ``[random]``) are the settings, in the
+order written; each may carry ``tags``, a table of text or integer values that become columns of
+their own (e.g. the selection seed of a tuned setting), the same tag names in every setting.
 
 Random samples: sample ``j`` of gain ``x`` (the ``i``-th ``[random]`` key) is
 ``u = (b + 0.5) / 2^32`` with ``b = jax.random.bits(jax.random.key(random.seed), (n, d), uint32)[j, i]``
@@ -49,6 +53,7 @@ from ..config import MPC_KEYS, SIM_KEYS, STATIC_KEYS, MPCConfig, SimConfig
 from ..control import FILTERS
 from ..dynamics import PLANTS
 from ..gains import GAINS, Gains, read_gains_file
+from ..metrics import METRICS
 from ..planners import PLANNERS
 from ..plugins import check_plugins, load_plugins
 from ..scenarios import FAMILIES, FamilyParams, family_params
@@ -86,10 +91,13 @@ AXIS_WEIGHT_KEYS: frozenset[str] = frozenset({"q_pos", "q_vel", "f_pos", "f_vel"
 #: Largest seed: ``jax.random.key`` keeps 32 bits in float32 runs.
 MAX_SEED = 2**32 - 1
 
-_TOP_KEYS = ("name", "plugins", "scenario", "sim", "gains", "grid", "random")
+_TOP_KEYS = ("name", "plugins", "scenario", "sim", "gains", "grid", "random", "setting")
 _SCENARIO_KEYS = ("families", "fields", "seed", "params", "oracle")
 _RANDOM_KEYS = ("n", "seed")
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+_TAG = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+#: Columns of every sweep row that a tag may not shadow.
+_RESERVED_COLUMNS = frozenset({"setting", "family", "kind", "field", "seed", "solvable"})
 
 
 # --------------------------------------------------------------------------------------------
@@ -200,6 +208,7 @@ class Setting:
     index: int
     gains: Mapping[str, float]
     static: tuple[tuple[str, Any], ...]
+    tags: tuple[tuple[str, Any], ...] = ()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -222,6 +231,8 @@ class SweepSpec:
       random_n: number of random gain samples (0: no ``[random]``).
       random_seed: seed of the gain samples.
       random: ``(gain, range)`` in the spec's order.
+      explicit: the ``[[setting]]`` tables: each a tuple of ``(key, value)`` in the spec's order.
+      tags: each explicit setting's ``(tag, value)`` pairs (the same tags in every setting).
     """
 
     name: str
@@ -237,6 +248,8 @@ class SweepSpec:
     random: tuple[tuple[str, RandomRange], ...] = ()
     plugins: tuple[str, ...] = ()
     oracle: bool = True
+    explicit: tuple[tuple[tuple[str, Any], ...], ...] = ()
+    tags: tuple[tuple[tuple[str, Any], ...], ...] = ()
 
     # ---- canonical form -----------------------------------------------------------------
 
@@ -244,6 +257,9 @@ class SweepSpec:
         """The spec as a JSON object (stored in every output part; order-preserving lists for the
         grid and random axes, so the hash sees their order; ``plugins`` only when there are some)."""
         plugins = {"plugins": list(self.plugins)} if self.plugins else {}
+        explicit = {"setting": [{**{k: list(v) if isinstance(v, tuple) else v for k, v in entry},
+                                 **({"tags": dict(tags)} if tags else {})}
+                                for entry, tags in zip(self.explicit, self.tags or [()] * len(self.explicit))]}
         return {
             "name": self.name,
             **plugins,
@@ -256,6 +272,7 @@ class SweepSpec:
                 "n": self.random_n, "seed": self.random_seed,
                 "ranges": [[key, {"range": [r.low, r.high], "log": r.log}] for key, r in self.random],
             },
+            **(explicit if self.explicit else {}),
         }
 
     @property
@@ -276,6 +293,8 @@ class SweepSpec:
         if data["random"]:
             table["random"] = {"n": data["random"]["n"], "seed": data["random"]["seed"],
                                **{key: r for key, r in data["random"]["ranges"]}}
+        if data.get("setting"):
+            table["setting"] = [dict(entry) for entry in data["setting"]]
         return parse_spec(table)
 
     # ---- expansion ----------------------------------------------------------------------
@@ -294,23 +313,32 @@ class SweepSpec:
         return [{key: float(col[j]) for key, col in columns.items()} for j in range(self.random_n)]
 
     def settings(self) -> list[Setting]:
-        """Every setting, in ``setting`` order (grid product, last key fastest; samples innermost)."""
-        samples = self.random_samples()
-        keys = [key for key, _ in self.grid]
+        """Every setting, in ``setting`` order: the ``[[setting]]`` tables as written, or the grid
+        product (last key fastest) crossed with the random samples (innermost)."""
+        if self.explicit:
+            points = [(dict(entry), tags) for entry, tags in zip(self.explicit, self.tags or [()] * len(self.explicit))]
+        else:
+            keys = [key for key, _ in self.grid]
+            points = [(dict(zip(keys, point)) | sample, ())
+                      for point in itertools.product(*(values for _, values in self.grid))
+                      for sample in self.random_samples()]
         out = []
-        for point in itertools.product(*(values for _, values in self.grid)):
-            varied = dict(zip(keys, point))
-            for sample in samples:
-                values = {**self.sim, **self.gains, **varied, **sample}
-                gains = {k: float(values.get(k, spec.default)) for k, spec in GAINS.items()}
-                static = tuple((k, values[k]) for k in STATIC_KEYS if k in values)
-                out.append(Setting(index=len(out), gains=gains, static=static))
+        for varied, tags in points:
+            values = {**self.sim, **self.gains, **varied}
+            gains = {k: float(values.get(k, spec.default)) for k, spec in GAINS.items()}
+            static = tuple((k, values[k]) for k in STATIC_KEYS if k in values)
+            out.append(Setting(index=len(out), gains=gains, static=static, tags=tuple(tags)))
         return out
+
+    @property
+    def tag_names(self) -> tuple[str, ...]:
+        """The ``tags`` of the ``[[setting]]`` tables (each a column), in the order written."""
+        return tuple(k for k, _ in self.tags[0]) if self.tags else ()
 
     @property
     def static_keys(self) -> tuple[str, ...]:
         """Static settings the spec names (``[sim]`` and grid), in :data:`STATIC_KEYS` order."""
-        named = set(self.sim) | {key for key, _ in self.grid}
+        named = set(self.sim) | {key for key, _ in self.grid} | {key for entry in self.explicit for key, _ in entry}
         return tuple(k for k in STATIC_KEYS if k in named)
 
     def family_params(self, family: str) -> FamilyParams:
@@ -328,7 +356,8 @@ class SweepSpec:
         spec names, in declaration order."""
         read = {g.name for key, registry in COMPONENT_KEYS.items() for name in self.components(key)
                 for g in registry.get(name).gains}
-        named = set(self.gains) | {k for k, _ in self.grid} | {k for k, _ in self.random}
+        named = (set(self.gains) | {k for k, _ in self.grid} | {k for k, _ in self.random}
+                 | {k for entry in self.explicit for k, _ in entry})
         return tuple(k for k in GAINS.names() if k in read | named)
 
     def configs(self, static: Iterable[tuple[str, Any]], family: str) -> tuple[SimConfig, MPCConfig]:
@@ -438,6 +467,41 @@ def _grid(table: Any, fixed: Mapping[str, str]) -> tuple[tuple[str, tuple[Any, .
     return tuple(axes)
 
 
+def _explicit(value: Any, fixed: Mapping[str, str]) -> tuple[tuple, tuple]:
+    """The ``[[setting]]`` tables: ``(key, value)`` pairs and ``(tag, value)`` pairs of each."""
+    if not isinstance(value, list) or not value or not all(isinstance(t, dict) for t in value):
+        raise ConfigError("setting must be one or more [[setting]] tables")
+    entries, tags = [], []
+    for i, table in enumerate(value):
+        where = f"setting[{i}]"
+        table = check_table(where, table, GAINS.names() + STATIC_KEYS + ("tags",))
+        for key in table:
+            if key in fixed:
+                raise ConfigError(f"{where}.{key} is also set in [{fixed[key]}]; set it in one place")
+        entries.append(tuple((k, check_value(f"{where}.{k}", k, v)) for k, v in table.items() if k != "tags"))
+        own = check_table(f"{where}.tags", table.get("tags", {}))
+        for name, v in own.items():
+            if (not _TAG.match(name) or name in GAINS or name in STATIC_KEYS or name in _RESERVED_COLUMNS
+                    or name in METRICS):
+                raise ConfigError(f"{where}.tags.{name}: a tag is letters, digits and '_' and not the name of a "
+                                  "gain, setting or column")
+            if isinstance(v, bool) or not isinstance(v, (str, int)):
+                raise ConfigError(f"{where}.tags.{name} = {v!r} must be text or an integer")
+        tags.append(tuple(own.items()))
+    names = [tuple(k for k, _ in t) for t in tags]
+    for i, n in enumerate(names):
+        if set(n) != set(names[0]):
+            raise ConfigError(f"setting[{i}].tags has {', '.join(n) or 'no tags'}; every setting needs the same "
+                              f"tags ({', '.join(names[0]) or 'none'})")
+        for name, v in tags[i]:
+            first = dict(tags[0])[name]
+            if isinstance(v, str) != isinstance(first, str):
+                raise ConfigError(f"setting[{i}].tags.{name} = {v!r}: setting[0] gives it as "
+                                  f"{'text' if isinstance(first, str) else 'an integer'}; use one type")
+    order = names[0]
+    return tuple(entries), tuple(tuple((k, dict(t)[k]) for k in order) for t in tags) if order else ()
+
+
 def _range(where: str, key: str, value: Any) -> RandomRange:
     log = False
     if isinstance(value, dict):
@@ -503,15 +567,19 @@ def parse_spec(data: Mapping[str, Any], gains_file: str | os.PathLike | None = N
     sim = _fixed("sim", data.get("sim", {}), STATIC_KEYS)
     gains = _fixed("gains", data.get("gains", {}), GAINS.names())
     fixed = {**{k: "sim" for k in sim}, **{k: "gains" for k in gains}}
+    if "setting" in data and ("grid" in data or "random" in data):
+        raise ConfigError("setting: [[setting]] tables list the settings themselves; remove [grid] and [random] "
+                          "or the [[setting]] tables")
+    explicit, tags = _explicit(data["setting"], fixed) if "setting" in data else ((), ())
     grid = _grid(data["grid"], fixed) if "grid" in data else ()
     random_n, random_seed, ranges = (_random(data["random"], fixed, (k for k, _ in grid)) if "random" in data
                                      else (0, 0, ()))
     if gains_file is not None:
-        varied = {k for k, _ in grid} | {k for k, _ in ranges}
+        varied = {k for k, _ in grid} | {k for k, _ in ranges} | {k for entry in explicit for k, _ in entry}
         gains = {k: v for k, v in {**gains, **read_gains_file(gains_file)}.items() if k not in varied}
     spec = SweepSpec(name=name, families=families, fields=fields, seed=seed, params=params, sim=sim, gains=gains,
                      grid=grid, random_n=random_n, random_seed=random_seed, random=ranges, plugins=plugins,
-                     oracle=oracle)
+                     oracle=oracle, explicit=explicit, tags=tags)
     for static in {s.static for s in spec.settings()}:
         for family in families:
             spec.configs(static, family)

@@ -4,6 +4,7 @@ import copy
 import json
 import os
 import pathlib
+import re
 import shutil
 import subprocess
 import sys
@@ -245,6 +246,54 @@ def test_solvable_column_is_the_oracle_on_each_field(reference, tmp_path):
     out = tmp_path / "no-oracle.parquet"
     run_sweep(_spec(**{"scenario.oracle": False}), out, quiet=True)
     assert "solvable" not in pq.read_schema(next(out.glob("part-*.parquet"))).names
+
+
+def _explicit_spec() -> dict:
+    data = copy.deepcopy(TINY)
+    del data["grid"]
+    data["setting"] = [
+        {"method": "basic", "d_s": 3.0, "tags": {"role": "tuned", "selection_seed": 0}},
+        {"method": "direction_velocity", "gamma": 2.0, "k": 0.25, "tags": {"role": "tuned", "selection_seed": 0}},
+        {"method": "direction_velocity", "tags": {"role": "default", "selection_seed": 1}},
+    ]
+    return data
+
+
+def test_explicit_settings_with_tags(tmp_path):
+    spec = parse_spec(_explicit_spec())
+    settings = spec.settings()
+    assert [dict(s.static)["method"] for s in settings] == ["basic", "direction_velocity", "direction_velocity"]
+    assert settings[0].gains["d_s"] == 3.0 and settings[2].gains["d_s"] == 4.0  # the default
+    assert {s.gains["k_rep"] for s in settings} == {5.0}  # [gains] k_rep = 5
+    assert (settings[1].gains["gamma"], settings[1].gains["k"]) == (2.0, 0.25)
+    assert spec.tag_names == ("role", "selection_seed")
+    assert SweepSpec.from_json(spec.to_json()) == spec
+    out = tmp_path / "explicit.parquet"
+    run_sweep(spec, out, quiet=True)
+    df, _ = read_sweep(out)
+    names = pq.read_schema(next(out.glob("part-*.parquet"))).names
+    assert names.index("role") == names.index("selection_seed") - 1 < names.index("family")
+    table = df.groupby("setting")[["method", "d_s", "gamma", "role", "selection_seed"]].first()
+    assert table.to_dict("list") == {"method": ["basic", "direction_velocity", "direction_velocity"],
+                                     "d_s": [3.0, 4.0, 4.0], "gamma": [1.0, 2.0, 1.0],
+                                     "role": ["tuned", "tuned", "default"], "selection_seed": [0, 0, 1]}
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda d: d.update(grid={"gamma": [1.0]}), "setting: [[setting]] tables list the settings themselves"),
+    (lambda d: d["setting"][1].update(k_rep=1.0), "setting[1].k_rep is also set in [gains]"),
+    (lambda d: d["setting"][0].update(gama=1.0), "setting[0].gama is not a known key"),
+    (lambda d: d["setting"][0].update(gamma=-1.0), "setting[0].gamma = -1.0 is out of range"),
+    (lambda d: d["setting"][2]["tags"].pop("role"), "setting[2].tags has selection_seed; every setting needs"),
+    (lambda d: d["setting"][2]["tags"].update(role=3), "setting[2].tags.role = 3: setting[0] gives it as text"),
+    (lambda d: d["setting"][0]["tags"].update(success="x"), "setting[0].tags.success: a tag is"),
+    (lambda d: d["setting"][0]["tags"].update(role=1.5), "setting[0].tags.role = 1.5 must be text or an integer"),
+])
+def test_explicit_settings_are_validated(change, message):
+    data = _explicit_spec()
+    change(data)
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        parse_spec(data)
 
 
 def test_a_variant_is_a_family_of_its_own_name(tmp_path):
