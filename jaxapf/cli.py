@@ -1,4 +1,4 @@
-"""The jaxapf command line: simulate, sweep, report, tune, bench and list.
+"""The jaxapf command line: simulate, sweep, report, tune, compare, bench and list.
 
 Choices, gain flags and their help texts come from the registries (planners, filters, plants,
 families, metrics, gains), so a registered component appears here with no edit. Configuration
@@ -120,6 +120,9 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--margin", action="append", default=[], metavar="METRIC=VALUE",
                      help="relevance margin of a metric, overriding its registered one (repeatable; rates as "
                           "proportions, e.g. success=0.05)")
+    rep.add_argument("--pair-on", default="", metavar="COLUMN[,COLUMN...]",
+                     help="with several baseline settings, pair each setting with the baseline that equals it on "
+                          "these columns (default: every swept column the baseline reads)")
     rep.add_argument("--efficiency", choices=("both-success", "all-pairs"), default="both-success",
                      help="compare metrics meaningful only on successes on the pairs where both settings succeed "
                           "(default) or on all pairs")
@@ -131,6 +134,18 @@ def build_parser() -> argparse.ArgumentParser:
     tune.add_argument("--out", type=pathlib.Path,
                       help="output folder (default runs/tune-NAME); a checkpoint there is resumed")
     tune.add_argument("--quiet", action="store_true", help="no progress bar or messages")
+
+    cmp = sub.add_parser("compare", help="methods each at its tuned best under equal budgets, tested on held-out "
+                                         "fields with paired statistics (docs/compare.md)",
+                         description="Select every method's gains on training fields under the same episode budget "
+                                     "for several selection seeds, then test all on held-out fields and report.")
+    cmp.add_argument("spec", type=pathlib.Path, help="compare spec TOML (see docs/compare.md)")
+    cmp.add_argument("--out", type=pathlib.Path,
+                     help="output folder (default runs/compare-NAME); what is finished there is reused")
+    cmp.add_argument("--resamples", type=int, default=2000, help="bootstrap resamples of the report (default 2000)")
+    cmp.add_argument("--gallery", type=int, default=0, help="worst test episodes to re-simulate and draw (default 0)")
+    cmp.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
+    cmp.add_argument("--quiet", action="store_true", help="no progress bar or messages")
 
     bench = sub.add_parser("bench", help="speed: the engine against the numpy + OSQP oracle, and whole sweeps",
                            description="Measure the engine's and the sweep's speed on this machine.")
@@ -256,6 +271,20 @@ def _tune(args: argparse.Namespace) -> int:
     return 0
 
 
+def _compare(args: argparse.Namespace) -> int:
+    from .compare import run_compare
+    from .sweep import configure_jax, default_cache_dir
+    from .tune import TuneError
+
+    configure_jax(cache_dir=None if args.no_cache else default_cache_dir())
+    try:
+        run_compare(args.spec, args.out, quiet=args.quiet, resamples=args.resamples, gallery=args.gallery)
+    except TuneError as err:
+        print(f"jaxapf compare: error: {err}", file=sys.stderr)
+        return 1
+    return 0
+
+
 def _report(args: argparse.Namespace) -> int:
     from .report import ReportOptions, build_report
 
@@ -264,7 +293,8 @@ def _report(args: argparse.Namespace) -> int:
     options = ReportOptions(baseline=args.baseline, where=tuple(args.where), heatmap=heatmap,
                             gallery=args.gallery, resamples=args.resamples, confidence=args.confidence,
                             seed=args.seed, profile_metric=args.profile_metric, margins=_margins(args.margin),
-                            efficiency=args.efficiency)
+                            efficiency=args.efficiency,
+                            pair_on=tuple(c.strip() for c in args.pair_on.split(",") if c.strip()))
     name = args.sweep.name.removesuffix(".parquet") or "report"
     out = args.out if args.out is not None else pathlib.Path("reports") / name
     start = time.perf_counter()
@@ -363,8 +393,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     args = build_parser().parse_args(argv)
     try:
-        return {"simulate": _simulate, "bench": _bench, "tune": _tune, "report": _report, "sweep": _sweep,
-                "list": _list}[args.command](args)
+        return {"simulate": _simulate, "bench": _bench, "tune": _tune, "compare": _compare, "report": _report,
+                "sweep": _sweep, "list": _list}[args.command](args)
     except ConfigError as err:
         print(f"jaxapf {args.command}: error: {err}", file=sys.stderr)
         return 2

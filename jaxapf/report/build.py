@@ -54,6 +54,9 @@ class ReportOptions:
       margins: ``(metric, margin)`` overrides of the registry's relevance margins (``--margin``).
       efficiency: ``both-success`` (default): metrics meaningful only on successful episodes are
         compared on the pairs where both settings succeed; ``all-pairs``: on every pair.
+      pair_on: with several baseline settings, the setting columns on which a setting and its
+        baseline must agree (``--pair-on``; e.g. ``selection`` in ``jaxapf compare``'s test); empty:
+        every swept column except those the baseline filter fixes or the baseline method ignores.
     """
 
     baseline: str = "method=basic"
@@ -66,6 +69,7 @@ class ReportOptions:
     profile_metric: str = "spl"
     margins: tuple[tuple[str, float], ...] = ()
     efficiency: str = "both-success"
+    pair_on: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.efficiency not in ("both-success", "all-pairs"):

@@ -202,6 +202,9 @@ def select(df: pd.DataFrame, options: Any) -> Selection:
         raise ReportError(f"baseline {options.baseline} is not in the data ({key} has: {_choices(col)})")
 
     fixed = {k for k, _ in base_filters}
+    for c in options.pair_on:
+        if c not in table.columns:
+            raise ReportError(f"--pair-on {c}: no setting column {c!r}; use one of {', '.join(table.columns)}")
     pairs: dict[int, int] = {}
     for s in selected:
         if s in baseline_ids:
@@ -212,15 +215,19 @@ def select(df: pd.DataFrame, options: Any) -> Selection:
         matches = []
         for b in baseline_ids:
             ignored = ignored_columns(table.loc[b])
-            cols = [c for c in swept if c not in fixed and c not in ignored]
+            cols = list(options.pair_on) or [c for c in swept if c not in fixed and c not in ignored]
             if all(_same(table.at[s, c], table.at[b, c]) for c in cols):
                 matches.append(b)
         if matches:
             pairs[s] = min(matches)
         else:
-            notes.append(f"{labels[s]}: no baseline setting matches it on the swept columns, so it is "
-                         "not compared")
-    if len(baseline_ids) > 1:
+            on = ", ".join(options.pair_on) if options.pair_on else "the swept columns"
+            notes.append(f"{labels[s]}: no baseline setting matches it on {on}, so it is not compared")
+    if len(baseline_ids) > 1 and options.pair_on:
+        notes.append(f"{len(baseline_ids)} settings match the baseline {options.baseline} "
+                     f"({', '.join('#' + str(b) for b in baseline_ids)}): each setting is paired with the "
+                     f"lowest-numbered one that equals it on {', '.join(options.pair_on)} (--pair-on)")
+    elif len(baseline_ids) > 1:
         ignores = {str(table.at[b, "method"]): [c for c in ignored_columns(table.loc[b]) if c in swept]
                    for b in baseline_ids}
         ignored_text = "; ".join(f"{m} ignores {', '.join(c)}" for m, c in ignores.items() if c) or "none ignore any"

@@ -79,6 +79,7 @@ __all__ = [
     "check_value",
     "spec_family_params",
     "variant_names",
+    "parse_range",
     "load_spec",
     "parse_spec",
     "read_toml",
@@ -502,7 +503,9 @@ def _explicit(value: Any, fixed: Mapping[str, str]) -> tuple[tuple, tuple]:
     return tuple(entries), tuple(tuple((k, dict(t)[k]) for k in order) for t in tags) if order else ()
 
 
-def _range(where: str, key: str, value: Any) -> RandomRange:
+def parse_range(where: str, key: str, value: Any) -> RandomRange:
+    """A sampling range of gain ``key`` at ``where``: ``[lo, hi]`` (uniform) or ``{range = [lo, hi],
+    log = true}`` (log-uniform, lo > 0)."""
     log = False
     if isinstance(value, dict):
         table = check_table(where, value, ("range", "log"))
@@ -539,7 +542,7 @@ def _random(table: Any, fixed: Mapping[str, str], grid: Iterable[str]) -> tuple[
                               f"{', '.join(_RANDOM_KEYS + GAINS.names())})")
         if key in fixed or key in grid:
             raise ConfigError(f"random.{key} is also set in [{fixed.get(key, 'grid')}]; set it in one place")
-        ranges.append((key, _range(f"random.{key}", key, value)))
+        ranges.append((key, parse_range(f"random.{key}", key, value)))
     if not ranges:
         raise ConfigError(f"random has no gain to sample; add e.g. gamma = [0.0, 3.0] "
                           f"(gains: {', '.join(GAINS.names())})")

@@ -1,0 +1,241 @@
+"""``jaxapf compare SPEC.toml --out DIR``: the tuned comparison protocol, in one command.
+
+1. **Selection** (:mod:`jaxapf.compare.select`): for every method and every selection seed, the
+   gains are chosen on training fields of that seed under the same episode budget.
+2. **Test**: every method at its defaults and at each seed's selected gains flies the same held-out
+   fields (``[test]``: its own seed, possibly other families) -- a sweep with one ``[[setting]]``
+   per (method, selection), tagged ``selection`` = ``default`` or ``seed<s>``, written to
+   ``DIR/test.parquet`` in the sweep format (``jaxapf report`` reads it).
+3. **Report**: ``jaxapf report`` of the test with the baseline method as baseline, each setting
+   paired with the baseline of the same ``selection`` (``--pair-on selection``), into
+   ``DIR/report/``; and ``DIR/compare.md``: budgets and selected gains per method and seed, test
+   rates per seed with their spread, and the verdicts against the baseline seed by seed.
+
+``DIR`` also holds ``selection/`` (one JSON file per method and seed; a rerun reuses those of the
+same spec, and a gradient search resumes from its checkpoint), ``selection.csv`` and
+``summary.json``. Rerunning the command resumes whatever is missing.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import pathlib
+import sys
+from typing import Any, Sequence
+
+import numpy as np
+import pandas as pd
+
+from ..validation import ConfigError
+from ..versions import versions
+from .select import Selection, select, spec_digest
+from .spec import CompareSpec, load_compare_spec
+
+__all__ = ["run_compare", "run_compare_spec", "test_sweep_spec", "DEFAULT"]
+
+#: The ``selection`` tag of a method at its default gains.
+DEFAULT = "default"
+#: Metrics whose verdicts ``compare.md`` lists seed by seed.
+_VERDICT_METRICS = ("success", "collision", "stalled", "min_clearance", "time_to_goal", "path_ratio")
+
+
+def _say(quiet: bool, message: str) -> None:
+    if not quiet:
+        print(message, file=sys.stderr, flush=True)
+
+
+def _tag(seed: int) -> str:
+    return f"seed{seed}"
+
+
+def test_sweep_spec(spec: CompareSpec, selections: Sequence[Selection]):
+    """The held-out test as a sweep spec: one ``[[setting]]`` per (selection, method), defaults first."""
+    from ..sweep.spec import parse_spec
+
+    settings = [{"method": m, "tags": {"selection": DEFAULT}} for m in spec.methods]
+    by = {(s.method, s.seed): s for s in selections}
+    for seed in spec.selection.seeds:
+        for m in spec.methods:
+            chosen = by[(m, seed)].gains
+            searched = spec.method_gains(m)
+            settings.append({"method": m, **{g: chosen[g] for g in searched}, "tags": {"selection": _tag(seed)}})
+    data = {
+        "name": f"{spec.name}-test",
+        "plugins": list(spec.plugins),
+        "scenario": {"families": list(spec.test.families), "fields": spec.test.fields, "seed": spec.test.seed,
+                     "params": {f: dict(p) for f, p in spec.params.items() if f in spec.test.families}},
+        "sim": {k: list(v) if isinstance(v, tuple) else v for k, v in spec.sim.items()},
+        "setting": settings,
+    }
+    return parse_spec(data)
+
+
+def run_compare(spec_path: str | pathlib.Path, out: str | pathlib.Path | None = None, *, quiet: bool = False,
+                resamples: int = 2000, gallery: int = 0) -> dict[str, Any]:
+    """Run the protocol on the spec file at ``spec_path`` (module docstring); ``out`` defaults to
+    ``runs/compare-NAME``. Returns the summary written to ``summary.json``."""
+    spec, text = load_compare_spec(spec_path)
+    return run_compare_spec(spec, text, out if out is not None else pathlib.Path("runs") / f"compare-{spec.name}",
+                            quiet=quiet, resamples=resamples, gallery=gallery)
+
+
+def run_compare_spec(spec: CompareSpec, text: str, out: str | pathlib.Path, *, quiet: bool = False,
+                     resamples: int = 2000, gallery: int = 0) -> dict[str, Any]:
+    """:func:`run_compare` on a validated spec; ``text`` is recorded as the spec file."""
+    from ..report import ReportOptions, build_report
+    from ..sweep import run_sweep
+
+    out = pathlib.Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    digest = spec_digest(spec)
+    stamp = out / "spec_digest"
+    if stamp.exists() and stamp.read_text().strip() != digest:
+        raise ConfigError(f"{out} holds a comparison of another spec; use another --out or delete it")
+    stamp.write_text(digest + "\n")
+
+    selections = []
+    for seed in spec.selection.seeds:
+        for method in spec.methods:
+            s = select(spec, method, seed, out / "selection", quiet=quiet)
+            selections.append(s)
+            _say(quiet, f"selection {method} seed {seed}: {s.chosen} of {s.candidates} ({s.search}), "
+                        f"{s.episodes} episodes in {s.seconds:.1f} s, training success {s.selection_success:.3f}")
+    table = pd.DataFrame([{k: v for k, v in s.to_json().items() if k != "gains"}
+                          | {g: s.gains[g] for g in spec.method_gains(s.method)} for s in selections])
+    table.to_csv(out / "selection.csv", index=False)
+
+    test = test_sweep_spec(spec, selections)
+    result = run_sweep(test, out / "test.parquet", quiet=quiet)
+    _say(quiet, result.summary(test.name))
+    report = build_report(out / "test.parquet", out / "report",
+                          ReportOptions(baseline=f"method={spec.baseline}", pair_on=("selection",), heatmap=None,
+                                        gallery=gallery, resamples=resamples))
+    markdown = compare_markdown(spec, selections, report.summary, report.comparisons)
+    (out / "compare.md").write_text(markdown, encoding="utf-8")
+    summary = {"name": spec.name, "spec_file": text, "spec_digest": digest, "versions": versions(),
+               "selections": [s.to_json() for s in selections],
+               "test": {"episodes": result.episodes + result.skipped, "seconds": result.seconds}}
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=_plain) + "\n", encoding="utf-8")
+    _say(quiet, f"wrote {out}/: compare.md, selection.csv, summary.json, test.parquet, report/")
+    return summary
+
+
+def _plain(x: Any) -> Any:
+    if isinstance(x, (np.floating, np.integer)):
+        return x.item()
+    raise TypeError(type(x).__name__)
+
+
+# --------------------------------------------------------------------------------------------
+# compare.md
+# --------------------------------------------------------------------------------------------
+
+
+def _md(frame: pd.DataFrame) -> list[str]:
+    cols = [str(c) for c in frame.columns]
+    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    lines += ["| " + " | ".join(str(v) for v in row) + " |" for row in frame.itertuples(index=False)]
+    return lines + [""]
+
+
+def _pct(x: float) -> str:
+    return "–" if not math.isfinite(float(x)) else f"{100 * float(x):.1f}"
+
+
+def _setting_of(summary: pd.DataFrame, method: str, selection: str) -> int:
+    rows = summary[(summary["method"] == method) & (summary["selection"] == selection)]
+    return int(rows["setting"].iloc[0])
+
+
+def compare_markdown(spec: CompareSpec, selections: Sequence[Selection], summary: pd.DataFrame,
+                     comparisons: pd.DataFrame) -> str:
+    """``compare.md``: budgets, selected gains, test rates per seed with their spread, and the
+    verdicts against the baseline seed by seed (every number from the selections and the report)."""
+    sel = spec.selection
+    tags = [_tag(s) for s in sel.seeds]
+    lines = [f"# jaxapf compare — {spec.name}", "",
+             f"- methods: {', '.join(spec.methods)}; baseline: {spec.baseline}",
+             f"- selection: {sel.search} search on {', '.join(sel.families)}; budget {sel.budget:,} episode "
+             f"rollouts per method and seed; seeds {', '.join(map(str, sel.seeds))}; searched gains "
+             f"{', '.join(sel.gains)} (each method those it reads)",
+             f"- test: {spec.test.fields} held-out fields per family of seed {spec.test.seed} on "
+             f"{', '.join(spec.test.families)}; every method at its defaults and at each seed's selection",
+             "- statistics and definitions: [report/report.md](report/report.md) (each setting is paired with "
+             f"{spec.baseline} of the same selection)", ""]
+
+    lines += ["## Selection: budget and outcome per method and seed", ""]
+    rows = [{"method": s.method, "seed": s.seed, "search": s.search, "candidates": s.candidates,
+             "fields per candidate": s.fields_per_candidate, "episodes": f"{s.episodes:,} of {s.budget:,}",
+             "seconds": f"{s.seconds:.1f}", "training success %": _pct(s.selection_success), "chosen": s.chosen}
+            for s in selections]
+    lines += _md(pd.DataFrame(rows))
+
+    lines += ["## Selected gains", ""]
+    gains = [g for g in sel.gains if any(g in spec.method_gains(m) for m in spec.methods)]
+    rows = [{"method": s.method, "seed": s.seed,
+             **{g: (f"{s.gains[g]:.3g}" if g in spec.method_gains(s.method) else "–") for g in gains}}
+            for s in selections]
+    lines += _md(pd.DataFrame(rows))
+
+    groups = list(dict.fromkeys(summary["family"]))
+    lines += ["## Held-out test: rates per selection, and their spread over seeds", "",
+              "Rates in %; *spread* is the mean over the selection seeds [lowest, highest].", ""]
+    for metric in ("success", "collision", "stalled"):
+        rows = []
+        for group in groups:
+            for m in spec.methods:
+                sub = summary[(summary["family"] == group) & (summary["method"] == m)].set_index("selection")
+                values = [float(sub.at[t, f"{metric}_rate"]) for t in tags]
+                rows.append({"group": group, "method": m, DEFAULT: _pct(sub.at[DEFAULT, f"{metric}_rate"]),
+                             **{t: _pct(v) for t, v in zip(tags, values)},
+                             "spread": f"{_pct(np.mean(values))} [{_pct(min(values))}, {_pct(max(values))}]"})
+        lines += [f"### {metric}", ""] + _md(pd.DataFrame(rows))
+
+    lines += ["## Against the baseline, seed by seed", "",
+              f"Each cell: the paired difference to {spec.baseline} of the same selection with its 95 % "
+              "interval (rates in percentage points; Newcombe / Hodges-Lehmann) and the verdict (better, worse, "
+              "equivalent within the metric's relevance margin, or inconclusive; Holm over the whole report).", ""]
+    findings = []
+    for m in spec.methods:
+        if m == spec.baseline:
+            continue
+        rows = []
+        for group in groups:
+            for metric in _VERDICT_METRICS:
+                cells, verdicts = {}, []
+                for t in (DEFAULT, *tags):
+                    sid = _setting_of(summary, m, t)
+                    r = comparisons[(comparisons["setting"] == sid) & (comparisons["family"] == group)
+                                    & (comparisons["metric"] == metric)]
+                    if not len(r):
+                        cells[t] = "–"
+                        continue
+                    r = r.iloc[0]
+                    scale = 100.0 if metric in ("success", "collision", "stalled") else 1.0
+                    lo, hi = scale * r["delta_lo"], scale * r["delta_hi"]
+                    cells[t] = (f"{scale * r['delta']:+.3g} [{lo:+.3g}, {hi:+.3g}] {r['verdict']}"
+                                if math.isfinite(r["delta"]) else f"– {r['verdict']}")
+                    if t != DEFAULT:
+                        verdicts.append(str(r["verdict"]))
+                counts = pd.Series(verdicts).value_counts()
+                agreement = ", ".join(f"{v} {c}/{len(tags)}" for v, c in counts.items())
+                rows.append({"group": group, "metric": metric, **cells, "tuned seeds": agreement})
+                if group == "all" and metric in ("success", "collision") and len(verdicts) == len(tags):
+                    findings.append((m, metric, counts))
+        lines += [f"### {m} vs {spec.baseline}", ""] + _md(pd.DataFrame(rows))
+
+    lines += ["## What the test says (pooled over the test families)", ""]
+    for m, metric, counts in findings:
+        top, n = counts.index[0], int(counts.iloc[0])
+        tally = ", ".join(f"{v} {c}" for v, c in counts.items())
+        if n == len(tags):
+            lines.append(f"- {m} vs {spec.baseline}, {metric}: **{top}** for every selection seed ({n}/{len(tags)}).")
+        elif "better" in counts.index and "worse" in counts.index:
+            lines.append(f"- {m} vs {spec.baseline}, {metric}: the selection seeds contradict each other ({tally}): "
+                         "no conclusion survives the selection's randomness.")
+        else:
+            lines.append(f"- {m} vs {spec.baseline}, {metric}: {top} for {n} of {len(tags)} selection seeds ({tally}): "
+                         "not robust to the selection's randomness.")
+    lines.append("")
+    return "\n".join(lines)

@@ -1,0 +1,187 @@
+r"""Selection: each method's gains, chosen on training fields under the same episode budget.
+
+For one method and one selection seed ``s`` the searched gains (those of ``[selection] gains`` the
+method reads) are chosen by
+
+- ``random``: ``candidates`` settings, the method's defaults (:class:`~jaxapf.gains.Gains`) first,
+  then ``candidates - 1`` draws from ``[selection.ranges]``. The draws are one matrix of uniforms
+  from ``numpy.random.default_rng(s)``, a column per searched gain in declaration order, shared by
+  every method: two methods try the same ``k_rep`` values.
+- ``grid``: the product of ``[selection.grid]`` over the gains the method reads (defaults first
+  if they are a grid point, which they need not be).
+- ``gradient``: ``jaxapf tune``'s training (:class:`~jaxapf.tune.Tuner`) from the defaults, with
+  as many steps as the budget pays for (``steps · fields_per_step`` training episodes plus
+  ``(1 + ⌈steps / validate_every⌉) · validation_fields`` validation episodes); early stopping may
+  spend less, and the episodes spent are reported.
+
+A random or grid search flies every candidate on the same first ``⌊budget / candidates⌋``
+training fields of seed ``s`` (split over ``[selection] families`` like a training step) and keeps
+the highest success rate, ties broken by the lowest mean surrogate loss
+(:func:`jaxapf.tune.proof.select_best`). Every method gets the same budget of episode rollouts; a
+gradient episode costs several forward ones, so wall-clock seconds are reported too.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import json
+import math
+import os
+import pathlib
+import time
+from typing import Any
+
+import numpy as np
+
+from ..gains import Gains
+from ..tune import TuneError, Tuner, parse_tune_spec
+from ..tune.proof import select_best, tuning_budget
+from .spec import CompareSpec
+
+__all__ = ["Selection", "tune_spec", "random_candidates", "grid_candidates", "gradient_steps", "select",
+           "spec_digest"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Selection:
+    """What one selection chose and what it cost."""
+
+    method: str
+    seed: int
+    search: str
+    gains: dict[str, float]
+    candidates: int
+    fields_per_candidate: int
+    episodes: int
+    budget: int
+    seconds: float
+    selection_success: float
+    selection_loss: float
+    chosen: str  # "defaults", "candidate 7" or "step 40"
+
+    def to_json(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+def spec_digest(spec: CompareSpec) -> str:
+    """sha256 of the spec's canonical JSON: a selection file belongs to one spec."""
+    import hashlib
+
+    text = json.dumps(dataclasses.asdict(spec), sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _free_seed(start: int, taken: set[int]) -> int:
+    seed = start % 2**32
+    while seed in taken:
+        seed = (seed + 1) % 2**32
+    return seed
+
+
+def tune_spec(spec: CompareSpec, method: str, seed: int, steps: int = 0):
+    """The :class:`~jaxapf.tune.TuneSpec` of one selection: training families and seed, the
+    method, the shared ``[sim]``, scenario parameters and objective, the method's searched gains.
+    Its validation and (unused) test seeds avoid every selection seed and the test seed."""
+    sel = spec.selection
+    options = dict(sel.gradient)
+    validation_fields = options.pop("validation_fields", 4 * len(sel.families))
+    taken = set(sel.seeds) | {spec.test.seed}
+    validation_seed = _free_seed(seed + 1_000_003, taken)
+    test_seed = _free_seed(seed + 2_000_003, taken | {validation_seed})
+    names = spec.method_gains(method)
+    if not names:
+        raise TuneError(f"{method} reads none of selection.gains ({', '.join(sel.gains)}): nothing to select")
+    data = {
+        "name": f"{spec.name}-{method}-seed{seed}",
+        "plugins": list(spec.plugins),
+        "train": {"families": list(sel.families), "seed": seed, "steps": steps,
+                  "fields_per_step": options.pop("fields_per_step", max(16, len(sel.families))), **options},
+        "validation": {"fields": validation_fields, "seed": validation_seed},
+        "test": {"families": [sel.families[0]], "fields": 1, "seed": test_seed},
+        "sim": {**{k: list(v) if isinstance(v, tuple) else v for k, v in spec.sim.items()}, "method": method},
+        "scenario": {"params": {f: dict(p) for f, p in spec.params.items() if f in sel.families}},
+        "objective": dict(spec.objective),
+        "tune": {"params": list(names)},
+    }
+    return parse_tune_spec(data)
+
+
+def random_candidates(spec: CompareSpec, method: str, seed: int) -> list[Gains]:
+    """The method's defaults, then ``candidates - 1`` draws (module docstring)."""
+    sel = spec.selection
+    names = set(spec.method_gains(method))
+    u = np.random.default_rng(seed).uniform(size=(sel.candidates - 1, len(sel.ranges)))
+    out = [Gains()]
+    for row in u:
+        values = {g: float(r.sample(np.array([row[i]]))[0]) for i, (g, r) in enumerate(sel.ranges) if g in names}
+        out.append(Gains().replace(**values))
+    return out
+
+
+def grid_candidates(spec: CompareSpec, method: str) -> list[Gains]:
+    """The product of the grid over the gains the method reads (the defaults alone if none)."""
+    names = set(spec.method_gains(method))
+    axes = [(g, values) for g, values in spec.selection.grid if g in names]
+    return [Gains().replace(**dict(zip([g for g, _ in axes], point)))
+            for point in itertools.product(*(values for _, values in axes))]
+
+
+def gradient_steps(budget: int, fields_per_step: int, validation_fields: int, validate_every: int) -> int:
+    """Most training steps whose training and validation episodes fit in ``budget``."""
+    steps = max(0, (budget - validation_fields) // fields_per_step)
+    while steps > 0 and (steps * fields_per_step
+                         + (1 + math.ceil(steps / validate_every)) * validation_fields) > budget:
+        steps -= 1
+    return steps
+
+
+def _write_json(path: pathlib.Path, data: dict) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "w", encoding="utf-8") as fh:
+        json.dump(data, fh, indent=2, sort_keys=True)
+        fh.write("\n")
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def select(spec: CompareSpec, method: str, seed: int, out: pathlib.Path, *, quiet: bool = True) -> Selection:
+    """The selection of ``method`` with seed ``seed``; read from ``out/<method>-seed<seed>.json`` if a
+    finished one of this spec is there, else run and written there (a gradient search checkpoints
+    into ``out/<method>-seed<seed>/`` and resumes)."""
+    out.mkdir(parents=True, exist_ok=True)
+    digest = spec_digest(spec)
+    path = out / f"{method}-seed{seed}.json"
+    if path.exists():
+        saved = json.loads(path.read_text(encoding="utf-8"))
+        if saved.get("spec_digest") == digest:
+            return Selection(**saved["selection"])
+    sel = spec.selection
+    start = time.perf_counter()
+    if sel.search == "gradient":
+        probe = tune_spec(spec, method, seed, 0)
+        t = probe.train
+        steps = gradient_steps(sel.budget, t.fields_per_step, probe.validation.fields, t.validate_every)
+        if steps < 1:
+            raise TuneError(f"selection.budget = {sel.budget} pays for no gradient step of {t.fields_per_step} fields "
+                            f"plus {probe.validation.fields} validation fields; raise the budget")
+        tspec = tune_spec(spec, method, seed, steps)
+        tuner = Tuner(tspec)
+        (out / f"{method}-seed{seed}").mkdir(exist_ok=True)
+        state = tuner.train(out / f"{method}-seed{seed}", quiet=quiet)
+        used = tuning_budget(tspec, state)
+        best = next(r for r in state.history if r["step"] == state.best_step and math.isfinite(r["val_loss"]))
+        result = Selection(method, seed, sel.search, tspec.reparam.gains(state.best_theta).floats(), steps,
+                           t.fields_per_step, used["episodes"], sel.budget, time.perf_counter() - start,
+                           float(best["val_success"]), float(best["val_loss"]), f"step {state.best_step}")
+    else:
+        tuner = Tuner(tune_spec(spec, method, seed))
+        settings = random_candidates(spec, method, seed) if sel.search == "random" else grid_candidates(spec, method)
+        best = select_best(tuner, settings, sel.budget, sel.search)
+        chosen = "defaults" if best["gains"] == Gains() else f"candidate {best['index']}"
+        result = Selection(method, seed, sel.search, best["gains"].floats(), best["settings"],
+                           best["fields_per_setting"], best["episodes"], sel.budget, time.perf_counter() - start,
+                           best["selection_success"], best["selection_loss"], chosen)
+    _write_json(path, {"spec_digest": digest, "selection": result.to_json()})
+    return result

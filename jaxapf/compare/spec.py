@@ -1,0 +1,240 @@
+"""The ``jaxapf compare`` spec: TOML, validated into a :class:`CompareSpec` before anything runs.
+
+A comparison names the methods, how each gets its gains (``[selection]``: a search on training
+fields under the same episode budget for every method, repeated for several selection seeds) and
+the held-out test (``[test]``: fields and families never used in selection). ``docs/compare.md``
+lists every key; an unknown key or a bad value raises :class:`~jaxapf.validation.ConfigError`
+naming it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import re
+import tomllib
+from typing import Any, Mapping
+
+from ..gains import GAINS, GainSpec
+from ..planners import PLANNERS
+from ..plugins import check_plugins, load_plugins
+from ..sweep.spec import STATIC_KEYS, RandomRange, check_value, parse_range, spec_family_params, variant_names
+from ..validation import ConfigError, check_choice, check_int, check_names, check_table
+
+__all__ = ["SEARCHES", "MIN_SEEDS", "GRADIENT_KEYS", "SelectionSpec", "TestSpec", "CompareSpec", "default_range",
+           "parse_compare_spec", "load_compare_spec"]
+
+#: How a method's gains are selected on the training fields.
+SEARCHES: tuple[str, ...] = ("random", "grid", "gradient")
+#: Fewest independent selections per method: one selection is an anecdote.
+MIN_SEEDS = 3
+#: ``[selection.gradient]`` keys: those of a tune spec's ``[train]`` that a comparison may set
+#: (families, seed and steps come from ``[selection]`` and its budget), and ``validation_fields``.
+GRADIENT_KEYS: tuple[str, ...] = ("fields_per_step", "optimizer", "learning_rate", "schedule", "warmup_steps",
+                                  "clip", "episode_clip", "patience", "validate_every", "remat",
+                                  "validation_fields")
+
+_TOP = ("name", "plugins", "methods", "baseline", "selection", "test", "sim", "scenario", "objective")
+_SELECTION = ("families", "seeds", "budget", "search", "candidates", "gains", "ranges", "grid", "gradient")
+_TEST = ("families", "fields", "seed")
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+
+
+def default_range(spec: GainSpec) -> RandomRange:
+    """The random search's range of a gain the spec leaves open: uniform over a bounded tuning range
+    (``k``: [0, 1]), else log-uniform within a factor 4 of the declared default."""
+    if spec.tune_high is not None:
+        return RandomRange(spec.low, spec.tune_high)
+    return RandomRange(spec.default / 4.0, spec.default * 4.0, log=True)
+
+
+@dataclasses.dataclass(frozen=True)
+class SelectionSpec:
+    """How every method's gains are selected (``[selection]``).
+
+    Attributes:
+      families: training families or variants (their fields come from each selection seed).
+      seeds: independent selection seeds (>= :data:`MIN_SEEDS`): training fields, random draws.
+      budget: episode rollouts per method and seed, the same for every method.
+      search: ``random``, ``grid`` or ``gradient`` (:data:`SEARCHES`).
+      candidates: settings of a random search (the method's defaults are the first).
+      gains: the gains searched (a method searches those it reads).
+      ranges: ``(gain, range)`` of the random search, one per searched gain.
+      grid: ``(gain, values)`` of a grid search.
+      gradient: ``(key, value)`` training options of a gradient search (:data:`GRADIENT_KEYS`).
+    """
+
+    families: tuple[str, ...]
+    seeds: tuple[int, ...]
+    budget: int
+    search: str = "random"
+    candidates: int = 32
+    gains: tuple[str, ...] = ()
+    ranges: tuple[tuple[str, RandomRange], ...] = ()
+    grid: tuple[tuple[str, tuple[float, ...]], ...] = ()
+    gradient: tuple[tuple[str, Any], ...] = ()
+
+
+@dataclasses.dataclass(frozen=True)
+class TestSpec:
+    """The held-out test (``[test]``): ``fields`` per family of seed ``seed`` (no selection seed)."""
+
+    families: tuple[str, ...]
+    fields: int
+    seed: int
+
+
+@dataclasses.dataclass(frozen=True)
+class CompareSpec:
+    """A validated comparison: methods, selection, test, and the shared simulation settings.
+
+    ``sim`` holds fixed static settings (``[sim]``, as in a sweep spec; not ``method``), ``params``
+    the ``[scenario.params.LABEL]`` tables of every family or variant used, ``objective`` the
+    surrogate loss's weights (``[objective]``: selection ties and the gradient search).
+    """
+
+    name: str
+    methods: tuple[str, ...]
+    baseline: str
+    selection: SelectionSpec
+    test: TestSpec
+    sim: Mapping[str, Any]
+    params: Mapping[str, Mapping[str, Any]]
+    objective: Mapping[str, float]
+    plugins: tuple[str, ...] = ()
+
+    def method_gains(self, method: str) -> tuple[str, ...]:
+        """The searched gains ``method`` reads (its planner's, plus the filter's and plant's)."""
+        from ..control import FILTERS
+        from ..dynamics import PLANTS
+
+        read = {g.name for g in PLANNERS.get(method).gains}
+        read |= {g.name for g in FILTERS.get(self.sim.get("filter", "none")).gains}
+        read |= {g.name for g in PLANTS.get(self.sim.get("plant", "double_integrator")).gains}
+        return tuple(g for g in self.selection.gains if g in read)
+
+
+def _seeds(value: Any) -> tuple[int, ...]:
+    if not isinstance(value, list):
+        raise ConfigError(f"selection.seeds = {value!r} must be a list of at least {MIN_SEEDS} distinct integers")
+    seeds = tuple(check_int(f"selection.seeds[{i}]", s, 0, 2**32 - 1) for i, s in enumerate(value))
+    if len(set(seeds)) != len(seeds) or len(seeds) < MIN_SEEDS:
+        raise ConfigError(f"selection.seeds = {value!r} must list at least {MIN_SEEDS} distinct seeds: "
+                          "each is an independent selection, and their spread is part of the result")
+    return seeds
+
+
+def _selection(data: Any, choices: tuple[str, ...], methods: tuple[str, ...]) -> SelectionSpec:
+    d = check_table("selection", data, _SELECTION)
+    for key in ("families", "seeds", "budget"):
+        if key not in d:
+            raise ConfigError(f"selection.{key} is missing")
+    families = check_names("selection.families", d["families"], choices, what="family or variant")
+    seeds = _seeds(d["seeds"])
+    budget = check_int("selection.budget", d["budget"], 1)
+    search = check_choice("selection.search", d.get("search", "random"), SEARCHES)
+    candidates = check_int("selection.candidates", d.get("candidates", 32), 1)
+    read = {g.name for m in methods for g in PLANNERS.get(m).gains}
+    tunable = tuple(n for n, g in GAINS.items() if g.tunable and n in read)
+    gains = check_names("selection.gains", d.get("gains", list(tunable)), tunable, what="tunable gain read by "
+                        "one of the methods", canonical=True)
+    ranges_in = check_table("selection.ranges", d.get("ranges", {}), gains)
+    ranges = tuple((g, parse_range(f"selection.ranges.{g}", g, ranges_in[g]) if g in ranges_in
+                    else default_range(GAINS.get(g))) for g in gains)
+    grid = ()
+    if search == "grid":
+        table = check_table("selection.grid", d.get("grid", {}), gains)
+        if not table:
+            raise ConfigError("selection.grid is empty; a grid search needs values for at least one gain, "
+                              "e.g. grid = { k_rep = [5.0, 10.0, 20.0] }")
+        for g, values in table.items():
+            if not isinstance(values, list) or not values:
+                raise ConfigError(f"selection.grid.{g} = {values!r} must be a non-empty list of numbers")
+        grid = tuple((g, tuple(check_value(f"selection.grid.{g}[{i}]", g, v) for i, v in enumerate(table[g])))
+                     for g in gains if g in table)
+    elif "grid" in d:
+        raise ConfigError(f"selection.grid is for search = \"grid\" (this spec's search is {search!r})")
+    gradient = ()
+    if "gradient" in d:
+        if search != "gradient":
+            raise ConfigError(f"selection.gradient is for search = \"gradient\" (this spec's search is {search!r})")
+        gradient = tuple(check_table("selection.gradient", d["gradient"], GRADIENT_KEYS).items())
+    if "candidates" in d and search != "random":
+        raise ConfigError(f"selection.candidates is for search = \"random\" (this spec's search is {search!r})")
+    return SelectionSpec(families=families, seeds=seeds, budget=budget, search=search, candidates=candidates,
+                         gains=gains, ranges=ranges, grid=grid, gradient=gradient)
+
+
+def _test(data: Any, choices: tuple[str, ...], seeds: tuple[int, ...]) -> TestSpec:
+    d = check_table("test", data, _TEST)
+    for key in ("families", "fields"):
+        if key not in d:
+            raise ConfigError(f"test.{key} is missing")
+    families = check_names("test.families", d["families"], choices, what="family or variant")
+    fields = check_int("test.fields", d["fields"], 1)
+    seed = check_int("test.seed", d.get("seed", max(seeds) + 1), 0, 2**32 - 1)
+    if seed in seeds:
+        raise ConfigError(f"test.seed = {seed} is also a selection seed; the test fields must be held out")
+    return TestSpec(families=families, fields=fields, seed=seed)
+
+
+def parse_compare_spec(data: Mapping[str, Any]) -> CompareSpec:
+    """A :class:`CompareSpec` from a parsed TOML mapping (every key checked; docs/compare.md)."""
+    data = check_table("", dict(data), _TOP)
+    plugins = check_plugins("plugins", data.get("plugins", []))
+    load_plugins(plugins)
+    name = data.get("name", "compare")
+    if not isinstance(name, str) or not _NAME.match(name):
+        raise ConfigError(f"name = {name!r} must be a string of letters, digits, '_', '.', '-'")
+    if "methods" not in data:
+        raise ConfigError("methods is missing; list the planners to compare, e.g. methods = [\"basic\", "
+                          "\"direction_velocity\"]")
+    methods = check_names("methods", data["methods"], PLANNERS.names(), what="registered planner")
+    if len(methods) < 2:
+        raise ConfigError(f"methods = {data['methods']!r} must list at least two planners")
+    baseline = check_choice("baseline", data.get("baseline", methods[0]), methods)
+    scenario = check_table("scenario", data.get("scenario", {}), ("params",))
+    tables = check_table("scenario.params", scenario.get("params", {}))
+    from ..scenarios import FAMILIES
+
+    choices = FAMILIES.names() + variant_names(tables)
+    if "selection" not in data:
+        raise ConfigError("selection is missing; add [selection] with families, seeds and budget")
+    selection = _selection(data["selection"], choices, methods)
+    if "test" not in data:
+        raise ConfigError("test is missing; add [test] with families and fields")
+    test = _test(data["test"], choices, selection.seeds)
+    used = set(selection.families) | set(test.families)
+    for label in tables:
+        if label not in used:
+            raise ConfigError(f"scenario.params.{label} is not one of selection.families or test.families")
+    params = {label: dict(tables.get(label, {})) for label in sorted(used)}
+    for label, table in params.items():
+        spec_family_params(label, table)
+    sim = check_table("sim", data.get("sim", {}), tuple(k for k in STATIC_KEYS if k != "method"))
+    sim = {k: check_value(f"sim.{k}", k, v) for k, v in sim.items()}
+    from ..tune.objective import Objective
+
+    keys = tuple(f.name for f in dataclasses.fields(Objective))
+    objective = check_table("objective", data.get("objective", {}), keys)
+    for key, value in objective.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise ConfigError(f"objective.{key} = {value!r} must be a number")
+    Objective(**{k: float(v) for k, v in objective.items()})
+    return CompareSpec(name=name, methods=methods, baseline=baseline, selection=selection, test=test, sim=sim,
+                       params=params, objective={k: float(v) for k, v in objective.items()}, plugins=plugins)
+
+
+def load_compare_spec(path: str | os.PathLike) -> tuple[CompareSpec, str]:
+    """The validated spec of the TOML file at ``path`` and the file's text."""
+    try:
+        with open(path, "rb") as fh:
+            raw = fh.read()
+    except FileNotFoundError:
+        raise ConfigError(f"spec file {str(path)!r} does not exist") from None
+    try:
+        data = tomllib.loads(raw.decode())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        raise ConfigError(f"spec file {str(path)!r} is not valid TOML: {err}") from None
+    return parse_compare_spec(data), raw.decode()

@@ -1,0 +1,187 @@
+"""``jaxapf compare``: the tuned comparison protocol at tiny size, and its parts against independent
+computations (the selection's argmax recomputed with :func:`jaxapf.evaluate`, the budget arithmetic
+by hand)."""
+
+from __future__ import annotations
+
+import copy
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from jaxapf import evaluate
+from jaxapf.cli import main
+from jaxapf.compare import parse_compare_spec, run_compare_spec
+from jaxapf.compare.select import gradient_steps, grid_candidates, random_candidates
+from jaxapf.config import MPCConfig, SimConfig
+from jaxapf.gains import Gains
+from jaxapf.scenarios import family_params, make_scenarios
+from jaxapf.sweep import read_sweep
+from jaxapf.tune.spec import split_count
+from jaxapf.tune.train import stack_gains
+from jaxapf.validation import ConfigError
+
+SHORT = {"distance": [5.0, 6.0]}
+TINY = {
+    "name": "tiny",
+    "methods": ["basic", "direction_velocity"],
+    "selection": {"families": ["trap", "crossing"], "seeds": [1, 2, 3], "budget": 24, "candidates": 4},
+    "test": {"families": ["trap", "head_on"], "fields": 6, "seed": 10},
+    "sim": {"t_max": 8.0, "horizon": 4, "iters": 4},
+    "scenario": {"params": {"trap": SHORT, "crossing": SHORT | {"max_obstacles": 5}, "head_on": SHORT}},
+}
+
+
+def _spec(**changes):
+    """TINY with ``changes`` at dotted keys (``None`` removes a key)."""
+    data = copy.deepcopy(TINY)
+    for dotted, value in changes.items():
+        *path, key = dotted.split(".")
+        table = data
+        for p in path:
+            table = table.setdefault(p, {})
+        if value is None:
+            table.pop(key, None)
+        else:
+            table[key] = value
+    return parse_compare_spec(data)
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("compare") / "tiny"
+    spec = _spec()
+    summary = run_compare_spec(spec, "(test)", out, quiet=True, resamples=200)
+    return spec, out, summary
+
+
+def test_every_method_gets_the_same_budget_for_every_seed(run):
+    spec, out, _ = run
+    table = pd.read_csv(out / "selection.csv")
+    assert len(table) == len(spec.methods) * len(spec.selection.seeds)
+    assert set(table["episodes"]) == {24} and set(table["budget"]) == {24}
+    assert set(table["candidates"]) == {4} and set(table["fields_per_candidate"]) == {6}
+
+
+def test_the_test_flies_every_selection_on_the_same_held_out_fields(run):
+    spec, out, _ = run
+    df, meta = read_sweep(out / "test.parquet")
+    assert meta["spec"]["scenario"]["seed"] == 10
+    assert len(df) == 2 * 4 * 2 * 6  # methods × (default + 3 seeds) × families × fields
+    assert set(df["selection"]) == {"default", "seed1", "seed2", "seed3"}
+    assert (df.groupby(["family", "field"])["setting"].nunique() == 8).all()  # paired on every field
+    selections = {(s["method"], s["seed"]): s["gains"] for s in
+                  (json.loads(p.read_text())["selection"] for p in (out / "selection").glob("*.json"))}
+    for (method, seed), gains in selections.items():
+        rows = df[(df["method"] == method) & (df["selection"] == f"seed{seed}")]
+        for g in spec.method_gains(method):
+            assert set(rows[g]) == {gains[g]}
+    defaults = df[df["selection"] == "default"]
+    for g, v in Gains().floats().items():
+        assert set(defaults[g]) == {v}
+
+
+def test_report_pairs_each_setting_with_the_baseline_of_its_selection(run):
+    _, out, _ = run
+    comparisons = pd.read_csv(out / "report" / "comparisons.csv")
+    summary = pd.read_csv(out / "report" / "summary.csv")
+    selection = summary.groupby("setting")["selection"].first()
+    method = summary.groupby("setting")["method"].first()
+    for s, b in comparisons[["setting", "baseline"]].drop_duplicates().itertuples(index=False):
+        assert method[s] == "direction_velocity" and method[b] == "basic"
+        assert selection[s] == selection[b]
+    md = (out / "compare.md").read_text()
+    for heading in ("## Selection: budget and outcome", "## Selected gains", "spread", "## Against the baseline"):
+        assert heading in md
+
+
+def test_selection_is_the_argmax_of_success_recomputed_independently(run):
+    spec, out, _ = run
+    # the candidates of basic, seed 2, flown again with jaxapf.evaluate on the same training fields
+    candidates = random_candidates(spec, "basic", 2)
+    fields = [make_scenarios(2, family_params(f, **spec.params[f]), np.arange(c))
+              for f, c in zip(spec.selection.families, split_count(6, 2))]
+    sim, mpc = SimConfig.from_flat(method="basic", t_max=8.0), MPCConfig(horizon=4, iters=4)
+    success = sum(np.asarray(evaluate(f, stack_gains(candidates), sim, mpc)["success"]).sum(axis=1) for f in fields)
+    chosen = json.loads((out / "selection" / "basic-seed2.json").read_text())["selection"]
+    best = [i for i, c in enumerate(candidates) if success[i] == success.max()]
+    assert any(candidates[i].floats() == chosen["gains"] for i in best)
+    assert chosen["selection_success"] == pytest.approx(success.max() / 6)
+
+
+def test_a_rerun_reuses_what_is_finished_and_a_changed_spec_is_refused(run):
+    spec, out, summary = run
+    again = run_compare_spec(spec, "(test)", out, quiet=True, resamples=200)
+    assert again["selections"] == summary["selections"]  # read back, seconds included
+    with pytest.raises(ConfigError, match="holds a comparison of another spec"):
+        run_compare_spec(_spec(**{"selection.budget": 32}), "(test)", out, quiet=True, resamples=200)
+
+
+def test_random_candidates_share_draws_across_methods_and_start_at_the_defaults():
+    spec = _spec(**{"selection.candidates": 16})
+    basic, dv = random_candidates(spec, "basic", 5), random_candidates(spec, "direction_velocity", 5)
+    assert basic[0] == dv[0] == Gains() and len(basic) == 16
+    for a, b in zip(basic, dv):
+        assert all(getattr(a, g) == getattr(b, g) for g in ("k_rep", "d_s", "k_att", "eta"))
+        assert (a.gamma, a.k) == (1.0, 0.5)  # basic reads neither: they stay at their defaults
+    ranges = dict(spec.selection.ranges)
+    for c in dv[1:]:
+        for g, r in ranges.items():
+            assert r.low <= getattr(c, g) <= r.high
+    assert random_candidates(spec, "basic", 6)[1] != basic[1]
+
+
+def test_grid_candidates_are_the_product_over_the_gains_a_method_reads():
+    spec = _spec(**{"selection.search": "grid", "selection.candidates": None,
+                    "selection.grid": {"k_rep": [5.0, 20.0], "gamma": [0.5, 2.0, 4.0]}})
+    assert len(grid_candidates(spec, "basic")) == 2
+    assert len(grid_candidates(spec, "direction_velocity")) == 6
+
+
+@pytest.mark.parametrize("budget, per_step, val, every, steps", [
+    (24, 4, 4, 2, 3),    # 3·4 + (1 + 2)·4 = 24
+    (23, 4, 4, 2, 2),    # 2·4 + (1 + 1)·4 = 16 (3 steps would need 24)
+    (100, 16, 8, 10, 5),  # 5·16 + 2·8 = 96
+    (10, 16, 8, 10, 0),
+])
+def test_gradient_steps_fill_the_budget(budget, per_step, val, every, steps):
+    assert gradient_steps(budget, per_step, val, every) == steps
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"selection.seeds": [1, 2]}, "selection.seeds = [1, 2] must list at least 3 distinct seeds"),
+    ({"selection.seeds": [1, 1, 2]}, "must list at least 3 distinct seeds"),
+    ({"test.seed": 2}, "test.seed = 2 is also a selection seed"),
+    ({"methods": ["basic"]}, "must list at least two planners"),
+    ({"methods": ["basic", "magic"]}, "methods[1] = 'magic' is not a registered planner"),
+    ({"baseline": "direction"}, "baseline = 'direction' is not allowed"),
+    ({"selection.budget": 0}, "selection.budget = 0 is out of range"),
+    ({"selection.search": "bayes"}, "selection.search = 'bayes' is not allowed"),
+    ({"selection.grid": {"k_rep": [1.0]}}, "selection.grid is for search = \"grid\""),
+    ({"selection.ranges": {"k_rep": [5.0, 1.0]}}, "selection.ranges.k_rep = [5.0, 1.0] is not a range"),
+    ({"selection.gains": ["d_min"]}, "selection.gains[0] = 'd_min' is not a tunable gain"),
+    ({"sim.method": "basic"}, "sim.method is not a known key"),
+    ({"test.families": ["forest"]}, "test.families[0] = 'forest' is not a family or variant"),
+    ({"scenario.params.clutter": {"density": 1.0}}, "scenario.params.clutter is not one of selection.families"),
+])
+def test_bad_specs_name_the_key(change, message):
+    data = copy.deepcopy(TINY)
+    with pytest.raises(ConfigError, match=message.replace("[", r"\[").replace("]", r"\]").replace("(", r"\(")):
+        for dotted, value in change.items():
+            *path, key = dotted.split(".")
+            table = data
+            for p in path:
+                table = table.setdefault(p, {})
+            table[key] = value
+        parse_compare_spec(data)
+
+
+def test_cli_reports_a_bad_spec_in_one_line(tmp_path, capsys):
+    spec = tmp_path / "bad.toml"
+    spec.write_text('name = "x"\nmethods = ["basic", "direction"]\n[selection]\nfamilies = ["trap"]\n'
+                    'seeds = [1, 2]\nbudget = 8\n[test]\nfamilies = ["trap"]\nfields = 2\n')
+    assert main(["compare", str(spec), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("jaxapf compare: error: selection.seeds")
