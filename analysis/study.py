@@ -18,6 +18,8 @@ import shutil
 import sys
 from typing import Any, Callable, Mapping
 
+import numpy as np
+
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "analysis" / "results"
 #: The report's rate chart, as most studies caption it in their README.
@@ -112,37 +114,43 @@ def _select(frame, where: Mapping[str, Any]):
 
 @dataclasses.dataclass(frozen=True)
 class Delta:
-    """One paired comparison of the report: setting minus baseline, with its test."""
+    """One paired comparison of the report: setting minus baseline, with its estimate, interval,
+    test and verdict (better, worse, equivalent within the metric's margin, or inconclusive)."""
 
     metric: str
     delta: float
     lo: float
     hi: float
     p_holm: float
-    significant: bool
+    verdict: str
     higher_is_better: bool
     value: float
     baseline_value: float
     n_pairs: int
+    conditioning: str = "all pairs"
 
     @property
     def better(self) -> bool:
-        """Significantly better than the baseline."""
-        return self.significant and (self.delta > 0) == self.higher_is_better
+        """Relevantly better than the baseline (the report's verdict)."""
+        return self.verdict == "better"
 
     @property
     def worse(self) -> bool:
-        """Significantly worse than the baseline."""
-        return self.significant and self.delta != 0 and (self.delta > 0) != self.higher_is_better
+        """Relevantly worse than the baseline (the report's verdict)."""
+        return self.verdict == "worse"
 
     @property
-    def verdict(self) -> str:
-        return "better" if self.better else "worse" if self.worse else "no significant difference"
+    def equivalent(self) -> bool:
+        """Shown to lie within the metric's relevance margin."""
+        return self.verdict == "equivalent"
 
     def text(self) -> str:
-        """``+5.9 pp [+4.8, +6.9] (worse, Holm p < 0.001)`` for rates, IQM differences otherwise."""
+        """``+5.9 pp [+4.8, +6.9] (worse, Holm p < 0.001)``: rates in percentage points (Newcombe
+        interval), continuous metrics as the Hodges-Lehmann shift (signed-rank interval)."""
         scale, unit = (100.0, " pp") if self.metric in RATE_METRICS else (1.0, "")
         p = "< 0.001" if self.p_holm < 0.001 else f"= {self.p_holm:.3f}"
+        if not np.isfinite(self.delta):
+            return f"– ({self.verdict})"
         return (f"{scale * self.delta:+.3g}{unit} [{scale * self.lo:+.3g}, {scale * self.hi:+.3g}] "
                 f"({self.verdict}, Holm p {p})")
 
@@ -188,8 +196,8 @@ class Numbers:
             raise LookupError(f"no comparison of {dict(setting)} on {family}, {metric}")
         r = rows.iloc[0]
         return Delta(metric, float(r["delta"]), float(r["delta_lo"]), float(r["delta_hi"]), float(r["p_holm"]),
-                     bool(r["significant"]), bool(r["higher_is_better"]), float(r["value"]),
-                     float(r["baseline_value"]), int(r["n_pairs"]))
+                     str(r["verdict"]), bool(r["higher_is_better"]), float(r["value"]),
+                     float(r["baseline_value"]), int(r["n_pairs"]), str(r["conditioning"]))
 
 
 def write_readme(out: pathlib.Path, title: str, command: str, parquet: pathlib.Path, sections: list[str],

@@ -168,7 +168,9 @@ class TrapParams(FamilyParams):
     - ``on_line``: one obstacle of radius uniform in ``radius = 0.5–1.5 m`` on the line.
     - ``concave``: a cup of 5 cylinders on a half circle of radius uniform in
       ``cup_radius = 2.5–4 m``, open side toward the start; each cylinder's radius is
-      ``cup_radius · sin 22.5°`` (0.96–1.53 m) so neighbours touch and the cup is closed.
+      ``cup_fill · cup_radius · sin 22.5°`` (0.96–1.53 m at the default ``cup_fill = 1``) so
+      neighbours touch and the cup is closed; ``cup_fill < 1`` opens gaps of
+      ``2 (1 - cup_fill) cup_radius sin 22.5°`` between neighbours (an easier, leaky cup).
     - ``narrow_gap``: two obstacles of the same radius (``radius``) either side of the line whose
       surfaces are ``2 r_uav + gap_slack`` apart, ``gap_slack = 0.1–0.6 m``: the UAV fits, with
       0.05–0.3 m to spare on each side.
@@ -188,6 +190,7 @@ class TrapParams(FamilyParams):
         "offset": number(0.0),
         "radius": span(0.0, lo_open=True),
         "cup_radius": span(0.0, lo_open=True),
+        "cup_fill": number(0.0, 1.0, lo_open=True),
         "gap_slack": span(0.0),
         "goal_clearance": span(0.0),
     }
@@ -198,6 +201,7 @@ class TrapParams(FamilyParams):
     offset: float = 0.3
     radius: tuple[float, float] = (0.5, 1.5)
     cup_radius: tuple[float, float] = (2.5, 4.0)
+    cup_fill: float = 1.0
     gap_slack: tuple[float, float] = (0.1, 0.6)
     goal_clearance: tuple[float, float] = (0.5, 2.0)
     goal_margin: float = 0.25
@@ -347,7 +351,7 @@ def _trap_on_line(d: Draws, p: TrapParams, length: Array, x: Array, y: Array) ->
 
 def _trap_concave(d: Draws, p: TrapParams, length: Array, x: Array, y: Array) -> Layout:
     cup_radius = d.uniform(p.cup_radius)
-    return cup(x, y, cup_radius, cup_radius * math.sin(0.5 * math.pi / (CUP_SIZE - 1)))
+    return cup(x, y, cup_radius, p.cup_fill * cup_radius * math.sin(0.5 * math.pi / (CUP_SIZE - 1)))
 
 
 def _trap_narrow_gap(d: Draws, p: TrapParams, length: Array, x: Array, y: Array) -> Layout:

@@ -343,14 +343,14 @@ def _study():
 
 def test_study_delta_verdicts_and_text():
     study = _study()
-    fewer_collisions = study.Delta("collision", -0.05, -0.08, -0.02, 0.001, True, False, 0.10, 0.15, 512)
+    fewer_collisions = study.Delta("collision", -0.05, -0.08, -0.02, 0.001, "better", False, 0.10, 0.15, 512)
     assert fewer_collisions.better and not fewer_collisions.worse
     assert fewer_collisions.text() == "-5 pp [-8, -2] (better, Holm p = 0.001)"
-    less_success = study.Delta("success", -0.05, -0.08, -0.02, 0.0001, True, True, 0.4, 0.45, 512)
+    less_success = study.Delta("success", -0.05, -0.08, -0.02, 0.0001, "worse", True, 0.4, 0.45, 512)
     assert less_success.worse and less_success.text().endswith("(worse, Holm p < 0.001)")
-    not_significant = study.Delta("min_clearance", 0.2, 0.1, 0.3, 0.2, False, True, 1.0, 0.8, 512)
-    assert not not_significant.better and not not_significant.worse
-    assert not_significant.text() == "+0.2 [+0.1, +0.3] (no significant difference, Holm p = 0.200)"
+    same = study.Delta("min_clearance", 0.002, 0.001, 0.003, 0.01, "equivalent", True, 1.0, 0.998, 512)
+    assert same.equivalent and not same.better
+    assert same.text() == "+0.002 [+0.001, +0.003] (equivalent, Holm p = 0.010)"
 
 
 def test_study_numbers_read_the_report(report):
@@ -367,6 +367,6 @@ def test_study_numbers_read_the_report(report):
     d = n.delta(setting, "trap", "success")
     c = tables.comparisons
     want = c[(c["setting"] == row["setting"]) & (c["family"] == "trap") & (c["metric"] == "success")].iloc[0]
-    assert (d.delta, d.p_holm, d.n_pairs) == (want["delta"], want["p_holm"], 12)
+    assert (d.delta, d.p_holm, d.n_pairs, d.verdict) == (want["delta"], want["p_holm"], 12, want["verdict"])
     with pytest.raises(LookupError, match="0 rows match"):
         n.row({"method": "nonexistent"}, "trap")

@@ -312,6 +312,17 @@ def trap_by_kind():
     return {k: _batch(family_params("trap", kinds=(k,))) for k in TRAP_KINDS}
 
 
+def test_a_leaky_cup_has_the_closed_cups_centres_and_gaps_of_the_stated_width(trap_by_kind):
+    leaky = _batch(family_params("trap", kinds=("concave",), cup_fill=0.3)).obstacles
+    closed = trap_by_kind["concave"].obstacles
+    np.testing.assert_allclose(leaky.position, closed.position, atol=1e-5)
+    np.testing.assert_allclose(leaky.radius, 0.3 * closed.radius, rtol=1e-5)
+    gaps = np.linalg.norm(np.diff(leaky.position, axis=1), axis=-1) - leaky.radius[:, 1:] - leaky.radius[:, :-1]
+    np.testing.assert_allclose(gaps, 2 * 0.7 * closed.radius[:, 1:], rtol=1e-4, atol=1e-4)
+    with pytest.raises(ConfigError, match=r"scenario\.trap\.cup_fill = 0"):
+        family_params("trap", cup_fill=0.0)
+
+
 def test_trap_kinds(trap_by_kind):
     p = DEFAULTS["trap"]
     counts = {"on_line": 1, "concave": 5, "narrow_gap": 2, "gnron": 1}
