@@ -84,7 +84,10 @@ class Metric:
 def _describe(metric: Metric) -> str:
     unit = f" [{metric.unit}]" if metric.unit else ""
     better = {True: ", higher is better", False: ", lower is better", None: ""}[metric.higher_is_better]
-    return f"{metric.doc}{unit} ({metric.kind}{better}{', successful episodes only' if metric.on_success else ''})"
+    success = ", successful episodes only" if metric.on_success else ""
+    margin = "" if metric.margin is None else f", margin {metric.margin:g}" + (
+        f" {metric.unit}" if metric.unit and metric.kind != "rate" else "")
+    return f"{metric.doc}{unit} ({metric.kind}{better}{success}{margin})"
 
 
 #: Registered metrics, in column order.

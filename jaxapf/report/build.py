@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import json
+import math
 import pathlib
 from typing import Mapping
 
@@ -32,7 +33,18 @@ from .gallery import gallery
 from .latex import latex_tables
 from .load import ReportError, load_sweep, report_metrics
 from .select import format_value, select
-from .tables import ALL, compare, comparison_table, continuous_table, findings, groups, margins, rates_table, summarize
+from .tables import (
+    ALL,
+    compare,
+    comparison_table,
+    continuous_table,
+    findings,
+    groups,
+    headline,
+    margins,
+    rates_table,
+    summarize,
+)
 
 __all__ = ["ReportOptions", "ReportResult", "build_report"]
 
@@ -79,8 +91,11 @@ class ReportOptions:
             if name not in METRICS:
                 raise ReportError(f"--margin {name}=...: {name!r} is not a metric; choose one of "
                                   f"{', '.join(METRICS.names())}")
-            if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not margin > 0:
-                raise ReportError(f"--margin {name}={margin!r} must be a number > 0")
+            if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not 0 < margin < math.inf:
+                raise ReportError(f"--margin {name}={margin!r} must be a finite number > 0")
+            if METRICS.get(name).kind == "rate" and not margin < 1:
+                raise ReportError(f"--margin {name}={margin!r}: a rate's margin is a proportion below 1 "
+                                  "(0.02 = 2 percentage points)")
         if isinstance(self.resamples, bool) or not isinstance(self.resamples, int) or self.resamples < 100:
             raise ReportError(f"--resamples = {self.resamples!r} must be an integer >= 100")
         if not (isinstance(self.confidence, (int, float)) and 0.5 <= self.confidence < 1.0):
@@ -139,7 +154,7 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
 
     spec_name = _spec_name(meta, path)
     names = groups(sel.data)
-    pooled = names[-1]
+    pooled = headline(names)
     versions = meta.get("versions") if isinstance(meta.get("versions"), Mapping) else {}
     n_tests = int(comparisons["p"].notna().sum()) if len(comparisons) else 0
 
@@ -209,7 +224,8 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
 
     doc.h(2, f"Paired comparisons with the baseline ({options.baseline})")
     if len(comparisons):
-        doc.p("Rows with equal (family, field) are the same obstacle field (common random numbers) and are paired. "
+        doc.p("Rows with equal (family, kind, field, seed) are the same obstacle field (common random numbers) and "
+              "are paired. "
               "Δ pp = setting − baseline difference in proportions (percentage points) with Newcombe's score "
               "interval, tested by exact McNemar; HL shift = the Hodges-Lehmann estimate of the paired differences "
               "(setting − baseline) with its signed-rank interval, tested by Wilcoxon signed-rank. margin: the "

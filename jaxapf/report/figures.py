@@ -25,7 +25,7 @@ from ..planners import PLANNERS
 from .document import FigureFile, save_figure
 from .load import ReportError, report_metrics
 from .select import Selection, format_value, ignored_columns, swept_columns, symbol
-from .tables import ALL, group_rows, groups
+from .tables import ALL, group_rows, groups, headline
 
 __all__ = [
     "setting_colors",
@@ -283,8 +283,8 @@ def plot_differences(comparisons: pd.DataFrame, labels: Mapping[int, str], metri
         ax.axvline(0.0, color="black", linewidth=0.8)
         if len(sub):
             arrow = "↑ better" if bool(sub["higher_is_better"].iloc[0]) else "↓ better"
-            kind = "rate" if sub["test"].iloc[0] == "mcnemar" else "IQM"
-            ax.set_xlabel(f"Δ {kind} {metric} ({arrow})", fontsize=8)
+            kind = "Δ rate" if sub["test"].iloc[0] == "mcnemar" else "HL shift"
+            ax.set_xlabel(f"{kind} {metric} ({arrow})", fontsize=8)
         else:
             ax.set_xlabel(f"Δ {metric} (no pairs)", fontsize=8)
         ax.grid(True, axis="x", linewidth=0.4, alpha=0.5)
@@ -389,12 +389,14 @@ def report_figures(sel: Selection, summary: pd.DataFrame, comparisons: pd.DataFr
                                "intervals", figdir))
     figures.append(save_figure(plot_continuous(summary, labels, continuous, units, options.confidence), "continuous",
                                "Interquartile means of the continuous metrics with stratified bootstrap intervals "
-                               "(time_to_goal: successful episodes)", figdir))
+                               "(metrics meaningful only on successes: successful episodes)", figdir))
     if len(comparisons):
-        pooled = comparisons[comparisons["family"] == names[-1]]
+        group = headline(names)
+        pooled = comparisons[comparisons["family"] == group]
         figures.append(save_figure(plot_differences(pooled, labels, rates + continuous, options.alpha),
-                                   "differences", f"Paired differences to the baseline ({names[-1]}): rates in "
-                                   "fraction, continuous metrics as difference of IQMs; filled = Holm-significant",
+                                   "differences", f"Paired differences to the baseline ({group}): rates as the "
+                                   "difference in proportions (Newcombe interval), continuous metrics as the "
+                                   "Hodges-Lehmann shift (signed-rank interval); filled = Holm-significant",
                                    figdir))
     metric = options.profile_metric
     values = sel.data[metric].to_numpy(np.float64)

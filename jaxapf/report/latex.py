@@ -108,7 +108,7 @@ def latex_tables(summary: pd.DataFrame, comparisons: pd.DataFrame, sel: Selectio
         lines += [
             r"\begin{table}[t]", r"\centering", r"\small",
             rf"\caption{{Paired comparison with the baseline ({_tex(options.baseline)}; {_tex(group)}): "
-            rf"difference in rate (percentage points, paired bootstrap {conf}\,\% interval), paired probability "
+            rf"difference in rate (percentage points, Newcombe {conf}\,\% interval), paired probability "
             rf"of improvement (PoI) and Holm-adjusted exact McNemar $p$ over {int(comparisons['p'].notna().sum())} "
             rf"tests.}}",
             r"\label{tab:jaxapf-paired}", r"\begin{tabular}{llllll}", r"\toprule",

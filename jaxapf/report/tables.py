@@ -48,6 +48,12 @@ def groups(data: pd.DataFrame) -> list[str]:
     return out + ([ALL] if len(families) > 1 else [])
 
 
+def headline(names: Sequence[str]) -> str:
+    """The group a report's key findings, LaTeX table and differences figure are about: ``all``
+    when families are pooled, else the one family (not one of its kinds)."""
+    return ALL if ALL in names else next(g for g in names if "/" not in g)
+
+
 def group_rows(frame: pd.DataFrame, group: str) -> pd.DataFrame:
     """The rows of ``group`` (a family, ``family/kind`` or ``all``)."""
     if group == ALL:

@@ -101,3 +101,23 @@ def test_solvable_column_gives_rates_among_solvable_fields():
     assert row["n_solvable"] == 3 * N // 4
     assert row["success_solvable_rate"] == 1.0
     assert row["success_rate"] == pytest.approx(0.75)
+
+
+def test_the_headline_group_is_all_or_the_one_family_never_one_of_its_kinds():
+    from jaxapf.report.tables import headline
+
+    assert headline(["trap", "trap/concave", "trap/on_line"]) == "trap"
+    assert headline(["clutter", "trap", "trap/concave", "all"]) == "all"
+
+
+@pytest.mark.parametrize("margin, message", [
+    (("success", 1.0), "a rate's margin is a proportion below 1"),
+    (("min_clearance", float("inf")), "must be a finite number > 0"),
+    (("min_clearance", 0.0), "must be a finite number > 0"),
+    (("speed", 0.1), "'speed' is not a metric"),
+])
+def test_bad_margins_are_refused_in_one_line(margin, message):
+    from jaxapf.report import ReportError
+
+    with pytest.raises(ReportError, match=message):
+        ReportOptions(margins=(margin,))

@@ -312,6 +312,26 @@ def trap_by_kind():
     return {k: _batch(family_params("trap", kinds=(k,))) for k in TRAP_KINDS}
 
 
+@pytest.mark.parametrize("family", FAMILIES.names())
+def test_every_family_names_its_kinds_and_every_field_has_one(family):
+    kinds = FAMILIES.get(family).kinds
+    assert kinds and all(isinstance(k, str) and k for k in kinds)
+    index = np.asarray(make_scenarios(0, DEFAULTS[family], np.arange(64)).kind)
+    assert index.shape == (64,) and np.all((index >= 0) & (index < len(kinds)))
+    if len(kinds) > 1:
+        assert set(index.tolist()) == set(range(len(kinds)))  # 64 draws see every kind
+
+
+def test_a_trap_fields_kind_is_the_kind_its_geometry_was_built_as():
+    batch = make_scenarios(3, DEFAULTS["trap"], np.arange(64))
+    index, valid = np.asarray(batch.kind), np.asarray(batch.obstacles.valid).sum(axis=1)
+    sizes = {"on_line": 1, "concave": 5, "narrow_gap": 2, "gnron": 1}
+    assert all(valid[i] == sizes[TRAP_KINDS[k]] for i, k in enumerate(index))
+    for kind in TRAP_KINDS:  # and a single-kind trap draws exactly its geometry and index
+        only = make_scenarios(3, family_params("trap", kinds=(kind,)), np.arange(8))
+        assert set(np.asarray(only.kind).tolist()) == {TRAP_KINDS.index(kind)}
+
+
 def test_a_leaky_cup_has_the_closed_cups_centres_and_gaps_of_the_stated_width(trap_by_kind):
     leaky = _batch(family_params("trap", kinds=("concave",), cup_fill=0.3)).obstacles
     closed = trap_by_kind["concave"].obstacles
