@@ -82,18 +82,21 @@ def findings(n: study.Numbers) -> str:
     lines += ["", "## Conclusion", "",
               f"- For k ≤ 1.5 the pooled success rate moves within {100 * spread:.1f} percentage points over the "
               f"whole γ range.",
-              f"- Significantly higher pooled success than γ = 0, k = 0 (Holm over every test of the report): "
-              f"{names(better)}. Significantly lower: {names(worse)}.",
+              f"- Relevantly higher pooled success than γ = 0, k = 0 (verdict *better*: Holm-significant over every "
+              f"test of the report and beyond the 2 pp margin): {names(better)}. Relevantly lower: {names(worse)}.",
               f"- k = {k_top:g} (ω reaches (1+γ)(2 − k) < 0 for receding obstacles: they attract): pooled collisions "
               f"{100 * top_coll.min():.1f}–{100 * top_coll.max():.1f} % over the γ rows, against at most "
               f"{100 * moderate['collision_rate'].max():.1f} % for any k ≤ 1.5. "
-              + ("1 < k ≤ 1.5, where only the paper's lower bound ω ≥ 1 fails, costs nothing significant here."
+              + ("1 < k ≤ 1.5, where only the paper's lower bound ω ≥ 1 fails, costs nothing relevant here."
                  if not any(k > 1.0 and k <= 1.5 for _, k in worse) else
-                 "Settings with 1 < k ≤ 1.5 are already significantly worse."),
+                 "Settings with 1 < k ≤ 1.5 are already relevantly worse."),
               "- The best cell per family (table above) is mostly within the intervals of its neighbours; read "
               "it as 'no gain setting in this grid rescues the trap or overtake families', not as a tuning "
               "recommendation. The heatmaps show every cell per family; `report/report.md` has each "
-              "setting's paired test against γ = 0, k = 0."]
+              "setting's paired test against γ = 0, k = 0.",
+              "- γ and k also change the repulsion's strength (ω at hover is (1 + γ/2)·2), so a cell differs from "
+              "its neighbours in strength as well as in the shape of the weighting; study 7 separates the two at "
+              "the default γ, k."]
     return "\n".join(lines)
 
 

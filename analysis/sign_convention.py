@@ -21,7 +21,7 @@ def findings(n: study.Numbers) -> str:
     families = n.families()
     lines = ["## `literal` − `intent`, paired per method and family", "",
              "| family | method | success intent → literal | collision intent → literal | Δ success | Δ collision "
-             "| Δ min clearance (IQM) |",
+             "| Δ min clearance (HL shift) |",
              "|---|---|---|---|---|---|---|"]
     deltas = {}
     for family in (*families, "all"):
@@ -42,21 +42,22 @@ def findings(n: study.Numbers) -> str:
         lines.append(
             f"- `{method}`: pooled, the literal formulas change success by {d['success'].text()} and collisions "
             f"by {d['collision'].text()}. "
-            + (f"Significantly worse on {', '.join(worse)}. " if worse else "")
-            + (f"Significantly better on {', '.join(better)}. " if better else "")
-            + ("No single family shows a significant difference in success or collisions."
-               if not worse and not better else ""))
+            + (f"Relevantly worse on {', '.join(worse)}. " if worse else "")
+            + (f"Relevantly better on {', '.join(better)}. " if better else "")
+            + ("No family or kind shows a relevant difference (better or worse by more than the 2 pp margin, "
+               "Holm-significant) in success or collisions." if not worse and not better else ""))
     wider = sorted({f for (f, m), d in deltas.items() if f != "all" and d["min_clearance"].better})
     narrower = sorted({f for (f, m), d in deltas.items() if f != "all" and d["min_clearance"].worse})
-    lines.append(f"- Minimum clearance under `literal` is significantly larger on {', '.join(wider) or 'no family'} "
-                 f"and smaller on {', '.join(narrower) or 'no family'} (for at least one method).")
+    lines.append(f"- Minimum clearance under `literal` is relevantly larger (by more than its 0.05 m margin) on "
+                 f"{', '.join(wider) or 'no family'} and smaller on {', '.join(narrower) or 'no family'} (for at least "
+                 "one method).")
     intent_worse = [m for m in METHODS if deltas["all", m]["success"].better or deltas["all", m]["collision"].better]
     intent_better = [m for m in METHODS if deltas["all", m]["success"].worse or deltas["all", m]["collision"].worse]
     if intent_worse and not intent_better:
-        lines.append(f"- The prose's reading is **not** the better planner: pooled, `literal` is significantly "
-                     f"better for {', '.join(f'`{m}`' for m in intent_worse)} and never significantly worse.")
+        lines.append(f"- The prose's reading is **not** the better planner: pooled, `literal` is relevantly "
+                     f"better for {', '.join(f'`{m}`' for m in intent_worse)} and never relevantly worse.")
     lines += ["", "Which reading the authors ran cannot be told from the paper. Where the two differ "
-                  "significantly above, a reimplementation from the printed formulas would not reproduce a "
+                  "relevantly above, a reimplementation from the printed formulas would not reproduce a "
                   "planner built from the prose; where they do not, the convention matters less than the "
                   "paper's contradiction suggests. `direction` has no velocity term, so its difference comes "
                   "from the sign of cos θ alone."]

@@ -61,13 +61,13 @@ def run_spec(name: str, fields: int | None = None) -> pathlib.Path:
     return out
 
 
-def report(parquet: pathlib.Path, out: pathlib.Path, *, resamples: int, **options: Any):
-    """:func:`jaxapf.report.build_report` into ``out/report``, keeping what a reader of the repository
+def report(parquet: pathlib.Path, out: pathlib.Path, *, resamples: int, folder: str = "report", **options: Any):
+    """:func:`jaxapf.report.build_report` into ``out/<folder>``, keeping what a reader of the repository
     needs (``report.md`` with its PNG figures, ``summary.csv``, ``comparisons.csv``, ``table.tex``);
     the self-contained HTML and the SVGs are dropped here (``jaxapf report`` writes them)."""
     from jaxapf.report import ReportOptions, build_report
 
-    target = out / "report"
+    target = out / folder
     if target.exists():
         shutil.rmtree(target)
     result = build_report(parquet, target, ReportOptions(resamples=resamples, **options))
@@ -186,6 +186,8 @@ class Numbers:
     def iqm(self, setting: Mapping[str, Any], family: str, metric: str) -> str:
         """``0.917 [0.896, 0.948]`` (IQM, bootstrap)."""
         r = self.row(setting, family)
+        if not np.isfinite(r[f"{metric}_iqm"]):
+            return "– (no episodes)"
         return f"{r[f'{metric}_iqm']:.3g} [{r[f'{metric}_iqm_lo']:.3g}, {r[f'{metric}_iqm_hi']:.3g}]"
 
     def delta(self, setting: Mapping[str, Any], family: str, metric: str) -> Delta:

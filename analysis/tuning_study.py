@@ -111,19 +111,30 @@ def gradient_diagnosis(spec: TuneSpec, gains_theta: dict, fields: int) -> pd.Dat
 # --------------------------------------------------------------------------------------------
 
 
+#: Relevance margin of a success-rate difference (the registry's, 2 percentage points).
+MARGIN = 0.02
+
+
 def paired(episodes: pd.DataFrame, a: str, b: str, families: list[str]) -> pd.DataFrame:
     """Success of setting ``a`` vs ``b`` on the same fields, per family and pooled: difference of
-    rates, exact McNemar (``b`` = a succeeds where b fails), Holm over the rows."""
+    rates with Newcombe's interval, exact McNemar (``b`` = a succeeds where b fails), equivalence
+    within :data:`MARGIN` (Tango TOST), both Holm-adjusted over the rows, and the verdict
+    (:func:`jaxapf.stats.verdict`, as ``jaxapf report`` gives it)."""
     rows = []
     for family in families + ["all"]:
         sub = episodes if family == "all" else episodes[episodes.family == family]
         x = sub[sub.setting == a].sort_values(["family", "field"]).success.to_numpy()
         y = sub[sub.setting == b].sort_values(["family", "field"]).success.to_numpy()
         test = stats.mcnemar_exact(x, y)
+        diff, lo, hi = stats.paired_proportion_difference(x, y)
         rows.append({"family": family, "n": len(x), f"{a}": x.mean(), f"{b}": y.mean(),
-                     "difference": x.mean() - y.mean(), "wins": test.b, "losses": test.c, "p": test.pvalue})
+                     "difference": diff, "lo": lo, "hi": hi, "wins": test.b, "losses": test.c, "p": test.pvalue,
+                     "p_equivalence": stats.equivalence_test(x, y, MARGIN, kind="rate").p})
     table = pd.DataFrame(rows)
     table["p_holm"] = stats.holm(table.p.to_numpy())
+    table["p_equivalence_holm"] = stats.holm(table.p_equivalence.to_numpy())
+    table["verdict"] = [stats.verdict(r.lo, r.hi, r.p_holm, r.p_equivalence_holm, MARGIN, True)
+                        for r in table.itertuples()]
     return table
 
 
@@ -162,21 +173,21 @@ def verdicts(spec: TuneSpec, summary: dict, history: pd.DataFrame, episodes: pd.
     train = list(spec.train.families)
     held = [f for f in spec.test.families if f not in train]
     pooled = vs_grid[vs_grid.family == "all"].iloc[0]
-    sig = lambda t, sign: [r.family for r in t.itertuples() if r.family != "all" and r.p_holm < 0.05  # noqa: E731
-                           and np.sign(r.difference) == sign]
+    sig = lambda t, sign: [r.family for r in t.itertuples()  # noqa: E731
+                           if r.family != "all" and r.verdict == ("better" if sign > 0 else "worse")]
     lines = []
-    verdict = ("beats" if pooled.p_holm < 0.05 and pooled.difference > 0 else
-               "loses to" if pooled.p_holm < 0.05 and pooled.difference < 0 else "does not significantly differ from")
+    verdict = {"better": "beats", "worse": "loses to", "equivalent": "is equivalent (within 2 pp) to",
+               "inconclusive": "cannot be told apart from"}[pooled.verdict]
     lines.append(f"**Tuning {verdict} the grid search** on the pooled test set: success {pooled.tuned:.3f} vs "
-                 f"{pooled.grid:.3f} (difference {pooled.difference:+.3f}; McNemar {pooled.wins} wins / "
-                 f"{pooled.losses} losses, Holm p = {pooled.p_holm:.3g}). Significantly better per family: "
-                 f"{', '.join(sig(vs_grid, 1)) or 'none'}; significantly worse: "
-                 f"{', '.join(sig(vs_grid, -1)) or 'none'}.")
+                 f"{pooled.grid:.3f} (difference {pooled.difference:+.3f} [{pooled.lo:+.3f}, {pooled.hi:+.3f}], "
+                 f"Newcombe 95 %; McNemar {pooled.wins} wins / {pooled.losses} losses, Holm p = {pooled.p_holm:.3g}; "
+                 f"verdict *{pooled.verdict}*). Relevantly better per family: {', '.join(sig(vs_grid, 1)) or 'none'}; "
+                 f"relevantly worse: {', '.join(sig(vs_grid, -1)) or 'none'}.")
     pooled_d = vs_default[vs_default.family == "all"].iloc[0]
     lines.append(f"Against the paper-style defaults, tuning changes pooled success by {pooled_d.difference:+.3f} "
-                 f"(Holm p = {pooled_d.p_holm:.3g}); significantly better on "
-                 f"{', '.join(sig(vs_default, 1)) or 'no family'}, worse on "
-                 f"{', '.join(sig(vs_default, -1)) or 'no family'}.")
+                 f"[{pooled_d.lo:+.3f}, {pooled_d.hi:+.3f}] (Holm p = {pooled_d.p_holm:.3g}; verdict "
+                 f"*{pooled_d.verdict}*); relevantly better on {', '.join(sig(vs_default, 1)) or 'no family'}, "
+                 f"worse on {', '.join(sig(vs_default, -1)) or 'no family'}.")
     gain = {name: gain_ci(episodes, fams) for name, fams in (("train", train), ("held", held))}
     (g_train, lo_train, hi_train), (g_held, lo_held, hi_held) = gain["train"], gain["held"]
     overfit = hi_held < g_train
@@ -187,9 +198,9 @@ def verdicts(spec: TuneSpec, summary: dict, history: pd.DataFrame, episodes: pd.
                     "the tuned gains overfit the training families." if overfit else
                     "The held-out interval contains (or exceeds) the training gain: on average no evidence that the "
                     "gain is specific to the training families."))
-    worse = [r for r in vs_default.itertuples() if r.family != "all" and r.p_holm < 0.05 and r.difference < 0]
+    worse = [r for r in vs_default.itertuples() if r.family != "all" and r.verdict == "worse"]
     if worse:
-        lines.append("Where it overfits: tuned is significantly worse than the defaults on "
+        lines.append("Where it overfits: tuned is relevantly worse than the defaults on "
                      + ", ".join(f"{r.family} ({'held out' if r.family in held else 'trained on'}; "
                                  f"{r.difference:+.3f}, {r.losses} losses / {r.wins} wins, Holm p = {r.p_holm:.3g})"
                                  for r in worse)
@@ -197,7 +208,7 @@ def verdicts(spec: TuneSpec, summary: dict, history: pd.DataFrame, episodes: pd.
                          f"{n} {summary['gains']['default'][n]:.3g} → {summary['gains']['tuned'][n]:.3g}"
                          for n in spec.reparam.names) + ") toward what the training families reward.")
     else:
-        lines.append("No test family is significantly worse with the tuned gains than with the defaults.")
+        lines.append("No test family is relevantly worse with the tuned gains than with the defaults.")
     val = history[np.isfinite(history.val_loss)]
     best = val.loc[val.val_loss.idxmin()]
     tuned_train = episodes[(episodes.setting == "tuned") & episodes.family.isin(train)].success
