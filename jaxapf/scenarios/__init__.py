@@ -5,7 +5,7 @@
 :mod:`.layout`      the builders' toolkit: a field's random numbers, obstacles in the local frame
 :mod:`.families`    the built-in families (``paper_static``, ``trap``, ``clutter``, ...)
 :mod:`.generate`    keys, the world frame, clear endpoints, :func:`make_scenarios`
-:mod:`.oracle`      the solvability oracle :func:`solvable`: could any planner fly a field?
+:mod:`.solvability` the solvability oracle :func:`solvable`: could any planner fly a field?
 ==================  ====================================================================
 """
 
@@ -24,7 +24,7 @@ from .families import (
 )
 from .generate import clear_endpoints, field_key, make_scenario, make_scenarios
 from .layout import Draws, Layout
-from .oracle import reach_cell, solvable, solvable_field
+from .solvability import reach_cell, solvable, solvable_field
 
 __all__ = ["FAMILIES", "Family", "FamilyParams", "register_family", "family_params", "SHAPES", "TRAP_KINDS",
            "PaperStaticParams", "PaperDynamicParams", "TrapParams", "ClutterParams", "DynamicParams", "MovingParams",
