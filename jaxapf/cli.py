@@ -17,6 +17,16 @@ from typing import Sequence
 __all__ = ["main", "build_parser"]
 
 _LISTS = ("planners", "filters", "plants", "families", "metrics", "gains")
+#: What an interrupted command leaves behind, for the one line Ctrl-C prints.
+_KEPT = {
+    "simulate": "no output was written (the files are written after the runs)",
+    "sweep": "every finished part is kept; rerun the same command to resume",
+    "report": "the report folder may be incomplete; rerun the same command to rewrite it",
+    "tune": "the last checkpoint is kept; rerun the same command to resume",
+    "compare": "finished selections and test parts are kept; rerun the same command to resume",
+    "bench": "nothing was written",
+    "list": "nothing was written",
+}
 
 
 def _planners(text: str) -> list[str]:
@@ -190,6 +200,9 @@ def _add_sweep_parser(sub: argparse._SubParsersAction) -> None:
                     help="TOML of gains (e.g. a tuning result) overriding the spec's [gains]")
     sw.add_argument("--overwrite", action="store_true",
                     help="replace the parts of a different (or the same) sweep in --out")
+    sw.add_argument("--repair", action="store_true",
+                    help="remove the damaged parts found in --out (checksum mismatch, truncated, unreadable) and "
+                         "recompute exactly their chunks")
     sw.add_argument("--memory-budget", default="256M", metavar="SIZE",
                     help="working-set budget of one chunk, e.g. 256M, 2G (default 256M)")
     sw.add_argument("--chunk-fields", type=int, metavar="N", help="fields per chunk (default: from the memory budget)")
@@ -215,10 +228,15 @@ def _simulate(args: argparse.Namespace) -> int:
 
         jax.config.update("jax_enable_x64", True)
     from .config import MPCConfig, SimConfig
+    from .lock import check_writable
     from .scenarios import family_params
     from .simulate import format_metrics_table, simulate_runs, write_outputs
+    from .validation import MAX_FIELDS, MAX_SEED, check_int
 
+    check_int("--seed", args.seed, 0, MAX_SEED)
+    check_int("--field", args.field, 0, MAX_FIELDS - 1)
     gains = _gains(args)
+    check_writable(args.out)
     t_max = args.t_max if args.t_max is not None else family_params(args.family).t_max
     sim = SimConfig.from_flat(method=args.methods[0], filter=args.filter, plant=args.plant,
                               convention=args.convention, dt=args.dt, t_max=t_max)
@@ -297,8 +315,13 @@ def _report(args: argparse.Namespace) -> int:
                             pair_on=tuple(c.strip() for c in args.pair_on.split(",") if c.strip()))
     name = args.sweep.name.removesuffix(".parquet") or "report"
     out = args.out if args.out is not None else pathlib.Path("reports") / name
+    from .lock import check_writable
+
+    check_writable(out)
     start = time.perf_counter()
     result = build_report(args.sweep, out, options)
+    if result.incomplete:
+        print(f"INCOMPLETE SWEEP: {result.incomplete}")
     print(f"report of {args.sweep}: {len(result.summary)} setting × family rows, "
           f"{len(result.comparisons)} paired comparisons in {time.perf_counter() - start:.1f} s")
     for note in result.notes:
@@ -324,8 +347,6 @@ def _margins(texts: Sequence[str]) -> tuple[tuple[str, float], ...]:
 
 
 def _sweep(args: argparse.Namespace) -> int:
-    import warnings
-
     from .sweep import configure_jax, default_cache_dir, dry_run, load_spec, parse_size, run_sweep
     from .validation import ConfigError, check_int
 
@@ -339,20 +360,21 @@ def _sweep(args: argparse.Namespace) -> int:
         if args.process_id is not None and not 0 <= args.process_id < args.num_processes:
             raise ConfigError(f"--process-id = {args.process_id} is out of range; "
                               f"allowed: 0 … {args.num_processes - 1}")
+    if args.devices is not None:
+        check_int("--devices", args.devices, 1)
+    if args.chunk_fields is not None:
+        check_int("--chunk-fields", args.chunk_fields, 1)
     configure_jax(x64=args.x64, cache_dir=None if args.no_cache else args.cache_dir or default_cache_dir(),
                   cpu_devices=args.devices or 1, distributed=args.distributed,
                   cluster=cluster)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        spec = load_spec(args.spec, args.gains)
-    for w in caught:
-        print(f"jaxapf sweep: warning: {w.message}", file=sys.stderr)
+    spec = load_spec(args.spec, args.gains)
     out = args.out or pathlib.Path("runs") / f"{spec.name}.parquet"
     if args.dry_run:
-        print(dry_run(spec, out, overwrite=args.overwrite, memory_budget=budget, chunk_fields=args.chunk_fields))
+        print(dry_run(spec, out, overwrite=args.overwrite, repair=args.repair, memory_budget=budget,
+                      chunk_fields=args.chunk_fields))
         return 0
     result = run_sweep(spec, out, memory_budget=budget, chunk_fields=args.chunk_fields, overwrite=args.overwrite,
-                       quiet=args.quiet)
+                       repair=args.repair, quiet=args.quiet)
     print(result.summary(spec.name))
     return 0
 
@@ -392,12 +414,27 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"jaxapf: error: {err}", file=sys.stderr)
         return 2
     args = build_parser().parse_args(argv)
+    import warnings
+
+    from .validation import Interrupted
+
+    def one_line(message, category, filename, lineno, file=None, line=None):
+        print(f"jaxapf {args.command}: warning: {str(message).strip().splitlines()[0]}", file=sys.stderr)
+
     try:
-        return {"simulate": _simulate, "bench": _bench, "tune": _tune, "compare": _compare, "report": _report,
-                "sweep": _sweep, "list": _list}[args.command](args)
+        with warnings.catch_warnings():
+            warnings.showwarning = one_line
+            return {"simulate": _simulate, "bench": _bench, "tune": _tune, "compare": _compare, "report": _report,
+                    "sweep": _sweep, "list": _list}[args.command](args)
     except ConfigError as err:
         print(f"jaxapf {args.command}: error: {err}", file=sys.stderr)
         return 2
+    except Interrupted as err:
+        print(f"jaxapf {args.command}: {err}", file=sys.stderr)
+        return 130
+    except KeyboardInterrupt:
+        print(f"jaxapf {args.command}: interrupted; {_KEPT[args.command]}", file=sys.stderr)
+        return 130
     except ImportError as err:
         print(f"jaxapf {args.command}: error: {err}", file=sys.stderr)
         return 2

@@ -74,9 +74,16 @@ class GainSpec:
     def check(self, where: str, value: Any) -> np.ndarray:
         """``value`` as float64 after the range check; warns (:class:`BoundWarning`) above ``warn_above``."""
         arr = check_range(where, value, self.low, self.high, lo_open=self.low_open, hi_open=self.high_open)
+        if np.any(np.abs(arr) > _FLOAT32_MAX):
+            raise ConfigError(f"{where} = {value!r} is too large: gains are computed in float32, whose largest "
+                              f"value is {_FLOAT32_MAX:.3g}")
         if self.warn_above is not None and np.any(arr > self.warn_above):
             warnings.warn(f"{where} > {self.warn_above:g}: {self.warning}", BoundWarning, stacklevel=4)
         return arr
+
+
+#: The largest float32: a gain beyond it would silently become inf.
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 def _describe(spec: GainSpec) -> str:
@@ -118,12 +125,18 @@ def check_gain_name(where: str, name: str) -> GainSpec:
     return GAINS.get(name)
 
 
+def gain_key(prefix: str, name: str) -> str:
+    """Where a gain's value sits, for messages: ``gains.k_rep`` in a spec, ``--k-rep`` on the command
+    line (``prefix`` ``"--"``)."""
+    return f"--{name.replace('_', '-')}" if prefix == "--" else f"{prefix}.{name}"
+
+
 def validate_gains(values: Mapping[str, Any], *, prefix: str = "gains") -> None:
     """Range-check every value of ``values`` (names must be declared gains)."""
     for name, value in values.items():
         spec = check_gain_name(prefix, name)
         if _is_user_value(value):
-            spec.check(f"{prefix}.{name}", value)
+            spec.check(gain_key(prefix, name), value)
 
 
 @jax.tree_util.register_pytree_node_class
@@ -220,7 +233,7 @@ def gains_from_mapping(mapping: Mapping[str, Any], where: str = "gains", base: G
     for name, value in mapping.items():
         check_gain_name(where, name)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{where}.{name} = {value!r} must be a number")
+            raise ConfigError(f"{gain_key(where, name)} = {value!r} must be a number")
     values = {k: float(v) for k, v in mapping.items()}
     validate_gains(values, prefix=where)
     base = base or Gains()

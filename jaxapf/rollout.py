@@ -40,8 +40,17 @@ from .gains import Gains
 from .metrics import METRICS, episode_metrics
 from .planners import PLANNERS
 
-__all__ = ["rollout", "rollout_metrics", "evaluate", "evaluate_program", "episode_index", "default_width",
+__all__ = ["rollout", "gains_read", "rollout_metrics", "evaluate", "evaluate_program", "episode_index", "default_width",
            "CPU_WIDTH", "ACCELERATOR_WIDTH", "XLA_OPTIONS"]
+
+
+def gains_read(sim: SimConfig) -> frozenset[str]:
+    """The gains a :func:`rollout` with ``sim`` reads: those its planner, safety filter and plant
+    declare. Settings that agree on these fly the same episodes (a sweep runs them once)."""
+    read = {g.name for g in PLANNERS.get(sim.planner.method, "sim.method").gains}
+    read |= {g.name for g in FILTERS.get(sim.planner.filter, "sim.filter").gains}
+    read |= {g.name for g in PLANTS.get(sim.vehicle.plant, "sim.plant").gains}
+    return frozenset(read)
 
 
 def rollout(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, *, remat: bool = False

@@ -14,6 +14,10 @@ import numpy as np
 
 __all__ = [
     "ConfigError",
+    "MAX_SEED",
+    "MAX_FIELDS",
+    "MAX_SETTINGS",
+    "Interrupted",
     "BoundWarning",
     "describe_range",
     "check_range",
@@ -28,8 +32,23 @@ __all__ = [
 ]
 
 
+#: Largest seed (or ``simulate --field``): ``jax.random.key`` keeps 32 bits in float32 runs.
+MAX_SEED = 2**32 - 1
+#: Most fields per family: field ``i``'s key is ``fold_in(key(seed), i)`` with a 32-bit ``i``, so
+#: larger indices would repeat fields; 2^31 keeps every index an int32 too.
+MAX_FIELDS = 2**31
+#: Most settings a spec may expand to (the grid product times the random samples); each is a
+#: Python object, and more than this would not fit a run anyway (sweep specs, tune and
+#: compare searches).
+MAX_SETTINGS = 100_000
+
+
 class ConfigError(ValueError):
     """A configuration value is missing, of the wrong type or outside its allowed range."""
+
+
+class Interrupted(Exception):
+    """The user interrupted a command (Ctrl-C); the message says what was kept and how to go on."""
 
 
 class BoundWarning(UserWarning):

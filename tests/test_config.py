@@ -104,12 +104,17 @@ def test_component_names_are_checked_where_a_program_is_built():
 @settings(max_examples=50, deadline=None)
 @given(st.floats(allow_nan=True, allow_infinity=True))
 def test_any_float_is_accepted_iff_in_range(x):
-    ok = math.isfinite(x) and x > 0
+    ok = math.isfinite(x) and 0 < x <= np.finfo(np.float32).max
     if ok:
         assert Gains(d_s=x).d_s == x
     else:
         with pytest.raises(ConfigError, match="gains.d_s"):
             Gains(d_s=x)
+
+
+def test_float32_overflow_is_a_validation_error():
+    with pytest.raises(ConfigError, match=r"gains\.k_rep = 1e\+39 is too large: gains are computed in float32"):
+        Gains(k_rep=1e39)
 
 
 def test_gains_file(tmp_path):

@@ -138,3 +138,21 @@ def test_apf_reference_follows_the_saturated_flow_in_either_obstacle_layout():
         np.testing.assert_allclose(ref[i + 1], jnp.concatenate([p, v]), rtol=1e-5, atol=1e-6)
     assert ref.shape == (horizon + 1, 6)
     np.testing.assert_array_equal(ref[0], x)
+
+
+@pytest.mark.parametrize("method", ["basic", "direction", "direction_velocity"])
+def test_a_rollout_reads_only_the_gains_its_planner_declares(method):
+    """The contract a sweep's deduplication of identical settings rests on (jaxapf.rollout.gains_read):
+    changing every gain outside gains_read changes no number; changing one inside does."""
+    from jaxapf.gains import GAINS
+    from jaxapf.rollout import gains_read
+
+    sim = SimConfig.from_flat(method=method, t_max=4.0)
+    mpc = MPCConfig(horizon=4, iters=5)
+    read = gains_read(sim)
+    base = _rollout(_scenario(), Gains(), sim, mpc)
+    unread = {n: GAINS.get(n).default * 0.5 + 0.1 for n in GAINS.names() if n not in read}
+    same = _rollout(_scenario(), Gains().replace(**unread), sim, mpc)
+    np.testing.assert_array_equal(np.asarray(same.position), np.asarray(base.position))
+    moved = _rollout(_scenario(), Gains().replace(k_rep=3.0 * Gains().k_rep), sim, mpc)
+    assert "k_rep" in read and not np.array_equal(np.asarray(moved.position), np.asarray(base.position))

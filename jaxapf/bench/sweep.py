@@ -94,7 +94,7 @@ def run_sweep_benchmark(spec_table: dict[str, Any] | None = None, sharded_device
     spec_table = spec_table or SWEEP_BENCH_SPEC
     spec = parse_spec(spec_table)
     plan = plan_sweep(spec)
-    steps = sum(len(plan.variants[c.variant].settings) * (c.stop - c.start)
+    steps = sum(len(plan.variants[c.variant].simulated) * (c.stop - c.start)
                 * plan.blocks[(c.variant, c.family)].sim.episode.steps
                 for c in plan.chunks)
     with tempfile.TemporaryDirectory() as tmp:

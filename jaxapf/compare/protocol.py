@@ -13,7 +13,8 @@
 
 ``DIR`` also holds ``selection/`` (one JSON file per method and seed; a rerun reuses those of the
 same spec, and a gradient search resumes from its checkpoint), ``selection.csv`` and
-``summary.json``. Rerunning the command resumes whatever is missing.
+``summary.json``. Rerunning the command resumes whatever is missing; the command holds
+``DIR/.lock`` while it runs (one writer per folder, :mod:`jaxapf.lock`).
 """
 
 from __future__ import annotations
@@ -27,7 +28,8 @@ from typing import Any, Sequence
 import numpy as np
 import pandas as pd
 
-from ..validation import ConfigError
+from ..lock import OutputLock, check_writable
+from ..validation import ConfigError, Interrupted
 from ..versions import versions
 from .select import Selection, select, spec_digest
 from .spec import CompareSpec, load_compare_spec
@@ -83,11 +85,22 @@ def run_compare(spec_path: str | pathlib.Path, out: str | pathlib.Path | None = 
 def run_compare_spec(spec: CompareSpec, text: str, out: str | pathlib.Path, *, quiet: bool = False,
                      resamples: int = 2000, gallery: int = 0) -> dict[str, Any]:
     """:func:`run_compare` on a validated spec; ``text`` is recorded as the spec file."""
+    out = pathlib.Path(out)
+    check_writable(out)
+    with OutputLock(out, "jaxapf compare", lambda line: _say(quiet, f"note: {line}")):
+        try:
+            return _run(spec, text, out, quiet=quiet, resamples=resamples, gallery=gallery)
+        except KeyboardInterrupt:
+            raise Interrupted(f"interrupted; finished selections and test parts are kept in {out}; rerun the same "
+                              "command to resume") from None
+
+
+def _run(spec: CompareSpec, text: str, out: pathlib.Path, *, quiet: bool, resamples: int, gallery: int
+         ) -> dict[str, Any]:
+    """The body of :func:`run_compare_spec`, under the lock."""
     from ..report import ReportOptions, build_report
     from ..sweep import run_sweep
 
-    out = pathlib.Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     digest = spec_digest(spec)
     stamp = out / "spec_digest"
     if stamp.exists() and stamp.read_text().strip() != digest:

@@ -20,7 +20,17 @@ from ..gains import GAINS, GainSpec
 from ..planners import PLANNERS
 from ..plugins import check_plugins, load_plugins
 from ..sweep.spec import STATIC_KEYS, RandomRange, check_value, parse_range, spec_family_params, variant_names
-from ..validation import ConfigError, check_choice, check_int, check_names, check_table
+from ..tune.spec import MAX_HELD_FIELDS
+from ..validation import (
+    MAX_FIELDS,
+    MAX_SEED,
+    MAX_SETTINGS,
+    ConfigError,
+    check_choice,
+    check_int,
+    check_names,
+    check_table,
+)
 
 __all__ = ["SEARCHES", "MIN_SEEDS", "GRADIENT_KEYS", "SelectionSpec", "TestSpec", "CompareSpec", "default_range",
            "parse_compare_spec", "load_compare_spec"]
@@ -118,7 +128,7 @@ class CompareSpec:
 def _seeds(value: Any) -> tuple[int, ...]:
     if not isinstance(value, list):
         raise ConfigError(f"selection.seeds = {value!r} must be a list of at least {MIN_SEEDS} distinct integers")
-    seeds = tuple(check_int(f"selection.seeds[{i}]", s, 0, 2**32 - 1) for i, s in enumerate(value))
+    seeds = tuple(check_int(f"selection.seeds[{i}]", s, 0, MAX_SEED) for i, s in enumerate(value))
     if len(set(seeds)) != len(seeds) or len(seeds) < MIN_SEEDS:
         raise ConfigError(f"selection.seeds = {value!r} must list at least {MIN_SEEDS} distinct seeds: "
                           "each is an independent selection, and their spread is part of the result")
@@ -132,9 +142,9 @@ def _selection(data: Any, choices: tuple[str, ...], methods: tuple[str, ...]) ->
             raise ConfigError(f"selection.{key} is missing")
     families = check_names("selection.families", d["families"], choices, what="family or variant")
     seeds = _seeds(d["seeds"])
-    budget = check_int("selection.budget", d["budget"], 1)
+    budget = check_int("selection.budget", d["budget"], 1, MAX_HELD_FIELDS)
     search = check_choice("selection.search", d.get("search", "random"), SEARCHES)
-    candidates = check_int("selection.candidates", d.get("candidates", 32), 1)
+    candidates = check_int("selection.candidates", d.get("candidates", 32), 1, MAX_SETTINGS)
     read = {g.name for m in methods for g in PLANNERS.get(m).gains}
     tunable = tuple(n for n, g in GAINS.items() if g.tunable and n in read)
     gains = check_names("selection.gains", d.get("gains", list(tunable)), tunable, what="tunable gain read by "
@@ -151,6 +161,9 @@ def _selection(data: Any, choices: tuple[str, ...], methods: tuple[str, ...]) ->
         for g, values in table.items():
             if not isinstance(values, list) or not values:
                 raise ConfigError(f"selection.grid.{g} = {values!r} must be a non-empty list of numbers")
+        count = math.prod(len(values) for values in table.values())
+        if count > MAX_SETTINGS:
+            raise ConfigError(f"selection.grid expands to {count:,} settings; at most {MAX_SETTINGS:,} are allowed")
         grid = tuple((g, tuple(check_value(f"selection.grid.{g}[{i}]", g, v) for i, v in enumerate(table[g])))
                      for g in gains if g in table)
     elif "grid" in d:
@@ -172,8 +185,8 @@ def _test(data: Any, choices: tuple[str, ...], seeds: tuple[int, ...]) -> TestSp
         if key not in d:
             raise ConfigError(f"test.{key} is missing")
     families = check_names("test.families", d["families"], choices, what="family or variant")
-    fields = check_int("test.fields", d["fields"], 1)
-    seed = check_int("test.seed", d.get("seed", max(seeds) + 1), 0, 2**32 - 1)
+    fields = check_int("test.fields", d["fields"], 1, MAX_FIELDS)
+    seed = check_int("test.seed", d.get("seed", max(seeds) + 1), 0, MAX_SEED)
     if seed in seeds:
         raise ConfigError(f"test.seed = {seed} is also a selection seed; the test fields must be held out")
     return TestSpec(families=families, fields=fields, seed=seed)

@@ -129,6 +129,7 @@ class ReportResult:
     summary: pd.DataFrame
     comparisons: pd.DataFrame
     notes: list[str]
+    incomplete: str | None = None  # what is missing, when the sweep is incomplete
 
 
 def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
@@ -148,20 +149,27 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
     figures, fig_notes = report_figures(sel, summary, comparisons, options, figdir)
     shown, gallery_notes = gallery(sel, meta, options, figdir)
     notes = sel.notes + fig_notes + gallery_notes
+    incomplete = None
     if meta.get("complete") is False and meta.get("rows_expected"):
-        notes.insert(0, f"the sweep is incomplete: {len(df)} of {meta['rows_expected']} episodes are present "
-                        "(an interrupted run?); only rows present in both settings are paired")
+        incomplete = (f"the sweep is incomplete: {len(df)} of {meta['rows_expected']} episodes are present "
+                      "(an interrupted run?); only rows present in both settings are paired")
+        notes.insert(0, incomplete)
 
     spec_name = _spec_name(meta, path)
     names = groups(sel.data)
     pooled = headline(names)
+    sizes = sel.data.groupby("family")["field"].nunique()
+    if ALL in names and sizes.nunique() > 1:
+        notes.insert(int(incomplete is not None),
+                     f"families of unequal sizes: the pooled '{ALL}' rows weight each family by its episodes ("
+                     + ", ".join(f"{f} {n} fields" for f, n in sizes.items()) + "); read the per-family rows first")
     versions = meta.get("versions") if isinstance(meta.get("versions"), Mapping) else {}
     n_tests = int(comparisons["p"].notna().sum()) if len(comparisons) else 0
 
     doc = Document()
-    title = f"jaxapf report — {spec_name}"
+    title = f"jaxapf report — {spec_name}" + (" (INCOMPLETE SWEEP)" if incomplete else "")
     doc.h(1, title)
-    doc.items([
+    doc.items(([f"**{incomplete[0].upper() + incomplete[1:]}.**"] if incomplete else []) + [
         f"sweep: {path} ({len(df)} episodes in the file; {len(sel.data)} reported)",
         f"spec: {spec_name}, spec_hash {meta.get('spec_hash', '–')}, format {meta.get('format')}, "
         f"dtype {meta.get('dtype', '–')}, PRNG {json.dumps(meta.get('prng', {}))}",
@@ -208,7 +216,9 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
 
     doc.h(2, "Rates")
     doc.p(f"Rate in % with the {100 * options.confidence:g} % Wilson score interval, per setting and group"
-          + (f"; '{ALL}' pools the families (episode-weighted)." if ALL in names else ".")
+          + (f"; '{ALL}' pools the families (episode-weighted"
+             + (", and the families differ in size: " + ", ".join(f"{f} {n}" for f, n in sizes.items())
+                + " fields" if sizes.nunique() > 1 else "") + ")." if ALL in names else ".")
           + (" 'among solvable' counts only the fields where a collision-free path exists "
              "(jaxapf.scenarios.solvable, the solvability oracle)." if "n_solvable" in summary.columns else ""))
     doc.table(rates_table(summary, rates))
@@ -269,4 +279,4 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
     html_path.write_text(render_html(doc, title), encoding="utf-8")
     paths += [html_path, md_path, summary_path, comp_path, tex_path]
     paths += [figdir / f"{f.name}.{ext}" for f in figures + shown for ext in ("png", "svg")]
-    return ReportResult(out, paths, summary, comparisons, notes)
+    return ReportResult(out, paths, summary, comparisons, notes, incomplete)

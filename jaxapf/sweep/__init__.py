@@ -51,6 +51,7 @@ Modules: :mod:`.spec` (the TOML spec), :mod:`.plan` (variants, chunks, estimates
 :mod:`.read` (reading an output back).
 """
 
+from ..validation import MAX_SEED
 from .output import prepare_output
 from .plan import (
                    CALLS_PER_PART,
@@ -66,7 +67,7 @@ from .plan import (
 from .read import RowConfig, read_sweep, row_config
 from .run import SweepResult, configure_jax, default_cache_dir, dry_run, parse_size, run_sweep
 from .schema import FORMAT, sweep_meta
-from .spec import MAX_SEED, STATIC_KEYS, RandomRange, Setting, SweepSpec, load_spec, parse_spec, read_toml
+from .spec import STATIC_KEYS, RandomRange, Setting, SweepSpec, load_spec, parse_spec, read_toml
 
 __all__ = [
     "SweepSpec", "Setting", "RandomRange", "load_spec", "parse_spec", "read_toml", "STATIC_KEYS", "MAX_SEED",

@@ -1,66 +1,164 @@
-"""A sweep's output directory: finding what is done, writing parts atomically."""
+"""A sweep's output directory: one writer, parts written atomically, every part verifiable.
+
+- **One writer.** :func:`jaxapf.lock.OutputLock` holds ``OUT/.lock`` while a run writes; a second
+  run on the same output refuses with one line. Temporary files (``.part-….tmp-PID``) therefore
+  belong to a dead writer whenever the lock is ours, and only then are they removed.
+- **Atomic parts.** A part is written to a hidden temporary file, fsynced and renamed.
+- **Verifiable parts.** Every part carries, in its Parquet metadata under ``jaxapf_part``, the
+  SHA-256 of its ``jaxapf`` metadata and of every value of every column (:func:`content_hash`),
+  and Parquet's own CRC of every data page. :func:`verify_part` re-reads a part and checks both;
+  a resume verifies every part before trusting it, and :func:`jaxapf.sweep.read_sweep` every part
+  it reads. A damaged part (truncated, bit-flipped, unreadable) is named with the remedy:
+  ``--repair`` removes exactly the damaged parts, whose chunks the run then recomputes.
+"""
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 import pathlib
 import re
 from typing import Any, Mapping
 
-from ..validation import ConfigError
-from .plan import Chunk
-from .schema import identity, read_meta
+import numpy as np
 
-__all__ = ["prepare_output", "write_part", "part_files"]
+from ..lock import LOCK_NAME
+from ..validation import ConfigError, first_line
+from .plan import Chunk
+from .schema import META_KEY, identity, read_meta
+
+__all__ = ["PART_KEY", "prepare_output", "write_part", "part_files", "content_hash", "verify_part",
+           "read_part"]
 
 _TMP = re.compile(r"^\.part-.*\.tmp-\d+$")
+#: Parquet metadata key of a part's own record: ``{"sha256": ..., "rows": ...}``.
+PART_KEY = b"jaxapf_part"
+
+
+def content_hash(table) -> str:
+    """SHA-256 of a part: its ``jaxapf`` metadata, then every column's name, type and values.
+
+    Values are hashed as arrays (numbers and booleans by their bytes, text by length-prefixed
+    UTF-8), so the hash is the same whatever chunking or encoding Parquet used to store them.
+    """
+    h = hashlib.sha256()
+    h.update((table.schema.metadata or {}).get(META_KEY, b""))
+    for field, column in zip(table.schema, table.columns):
+        h.update(f"\n{field.name}:{field.type}:{len(column)}\n".encode())
+        values = column.to_numpy(zero_copy_only=False)
+        if values.dtype == object:
+            for v in values:
+                b = str(v).encode()
+                h.update(len(b).to_bytes(8, "little"))
+                h.update(b)
+        else:
+            h.update(np.ascontiguousarray(values).tobytes())
+    return h.hexdigest()
 
 
 def write_part(out: pathlib.Path, name: str, table) -> None:
-    """Write ``table`` to ``out/name`` atomically: hidden temporary file, fsync, rename."""
+    """Write ``table`` to ``out/name`` atomically (hidden temporary file, fsync, rename), with its
+    content hash in the metadata and a CRC on every data page."""
     import pyarrow.parquet as pq
 
+    record = json.dumps({"sha256": content_hash(table), "rows": table.num_rows}).encode()
+    table = table.replace_schema_metadata({**(table.schema.metadata or {}), PART_KEY: record})
     tmp = out / f".{name}.tmp-{os.getpid()}"
     with open(tmp, "wb") as fh:
-        pq.write_table(table, fh)
+        pq.write_table(table, fh, write_page_checksum=True)
         fh.flush()
         os.fsync(fh.fileno())
     os.replace(tmp, out / name)
+
+
+def read_part(path: pathlib.Path, *, hashed: bool = True):
+    """The table of one part, checked: page CRCs and (``hashed``: every part of the current format)
+    its content hash. Raises :class:`ConfigError` naming the part and what is wrong with it."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    try:
+        table = pq.read_table(path, page_checksum_verification=True)
+    except (OSError, pa.ArrowException, ValueError) as err:
+        raise ConfigError(f"{path.name}: unreadable ({first_line(err)})") from None
+    metadata = dict(table.schema.metadata or {})
+    raw = metadata.pop(PART_KEY, None)
+    try:
+        record = json.loads(raw) if raw else None
+        expected = record["sha256"] if isinstance(record, dict) else None
+    except (ValueError, KeyError, TypeError):
+        expected = None
+    if expected is None and not hashed:
+        return table.replace_schema_metadata(metadata)
+    if expected is None:
+        raise ConfigError(f"{path.name}: no content hash (damaged, or written before jaxapf checked its parts)")
+    if content_hash(table.replace_schema_metadata(metadata)) != expected:
+        raise ConfigError(f"{path.name}: content hash mismatch (the file was changed after it was written)")
+    return table.replace_schema_metadata(metadata)
+
+
+def verify_part(path: pathlib.Path) -> str | None:
+    """None if the part reads back intact, else one line saying what is wrong with it (a part of
+    the legacy format, which carries no hash, is checked for readability only)."""
+    from .schema import LEGACY_FORMAT
+
+    try:
+        legacy = read_meta(path).get("format") == LEGACY_FORMAT
+        read_part(path, hashed=not legacy)
+    except ConfigError as err:
+        return str(err) if str(err).startswith(path.name) else f"{path.name}: {err}"
+    return None
 
 
 def part_files(out: pathlib.Path) -> list[pathlib.Path]:
     return sorted(p for p in out.iterdir() if Chunk.from_name(p.name) is not None)
 
 
-def prepare_output(out: pathlib.Path, meta: Mapping[str, Any], *, overwrite: bool, clean: bool) -> list[Chunk]:
+def prepare_output(out: pathlib.Path, meta: Mapping[str, Any], *, overwrite: bool, clean: bool,
+                   repair: bool = False) -> list[Chunk]:
     """Check ``out`` against this sweep and return the chunks already finished there.
 
-    Refuses (:class:`ConfigError`) a path that is a file, a directory holding other files, or parts
-    of a different sweep (spec hash, dtype, vmap width or metrics) unless ``overwrite``, which deletes the
-    parts (and nothing else). With ``clean`` (one process only), stale temporary files of a killed
-    run are removed.
+    Every part is verified (:func:`verify_part`). Refuses (:class:`ConfigError`) a path that is a
+    file, a directory holding other files, damaged parts (unless ``repair``, which removes exactly
+    them so that their chunks run again), or parts of a different sweep (spec hash, dtype, vmap
+    width, metrics, format) unless ``overwrite``, which deletes the parts (and nothing else). With
+    ``clean`` (the lock's holder only), temporary files of a dead writer are removed.
     """
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out} is a file; a sweep writes a directory of Parquet parts")
     if not out.exists():
         return []
     foreign = [p.name for p in out.iterdir()
-               if Chunk.from_name(p.name) is None and not _TMP.match(p.name)]
+               if Chunk.from_name(p.name) is None and not _TMP.match(p.name) and p.name != LOCK_NAME]
     if foreign:
         raise ConfigError(f"--out {out} holds files that are not sweep parts ({', '.join(sorted(foreign)[:3])}); "
                           "choose another --out")
     parts = part_files(out)
-    if parts and not overwrite:
-        old = identity(read_meta(parts[0]))
+    if clean:
+        for p in out.iterdir():
+            if _TMP.match(p.name):
+                p.unlink(missing_ok=True)
+    if overwrite:
+        if clean:
+            for p in parts:
+                p.unlink(missing_ok=True)
+        return []
+    damaged = {p: problem for p in parts if (problem := verify_part(p)) is not None}
+    if damaged and not repair:
+        listed = "; ".join(damaged[p] for p in sorted(damaged)[:3]) + (
+            f"; and {len(damaged) - 3} more" if len(damaged) > 3 else "")
+        raise ConfigError(f"--out {out}: {len(damaged)} damaged part(s): {listed}. Rerun the same command with "
+                          "--repair to remove exactly those parts and recompute their chunks")
+    if damaged and clean:
+        for p in damaged:
+            p.unlink(missing_ok=True)
+    good = [p for p in parts if p not in damaged]
+    if good:
+        old = identity(read_meta(good[0]))
         new = identity(meta)
         if old != new:
             what = "; ".join(f"{k} {old[k]!s:.12} here, {new[k]!s:.12} now" for k in new if old[k] != new[k])
             raise ConfigError(f"--out {out} holds a different sweep ({what}); rerun with --overwrite to replace it, "
                               "or choose another --out")
-    if clean:
-        for p in out.iterdir():
-            if _TMP.match(p.name) or (overwrite and p in parts):
-                p.unlink()
-    return [] if overwrite else [Chunk.from_name(p.name) for p in parts]
-
-
+    return [Chunk.from_name(p.name) for p in good]

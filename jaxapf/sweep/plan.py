@@ -67,23 +67,52 @@ _PART = re.compile(r"^part-v(\d{3,})-([a-z_][a-z0-9_]*)-f(\d{8,})-(\d{8,})\.parq
 
 @dataclasses.dataclass(frozen=True)
 class Variant:
-    """Settings that share one static configuration (one compiled program per family shape)."""
+    """Settings that share one static configuration (one compiled program per family shape).
+
+    ``inverse[i]`` is the position of setting ``i``'s episodes among the ``simulated`` settings:
+    settings that agree on every gain the variant's planner, filter and plant read
+    (:func:`~jaxapf.rollout.gains_read`) -- e.g. ``basic`` at two values of γ, which it ignores --
+    fly the same episodes, so only the first of them is simulated and its rows are repeated.
+    """
 
     index: int
     static: tuple[tuple[str, Any], ...]
     settings: tuple[Setting, ...]
+    simulated: tuple[int, ...]
+    inverse: tuple[int, ...]
+
+    @property
+    def duplicates(self) -> int:
+        """Settings that repeat an earlier one of the variant in every gain it reads."""
+        return len(self.settings) - len(self.simulated)
 
     def gains(self, dtype: Any) -> Gains:
-        """The variant's gain settings as a batched :class:`Gains` (leading axis G, ``dtype``)."""
-        return Gains.unchecked({k: np.array([s.gains[k] for s in self.settings], dtype) for k in GAINS.names()})
+        """The simulated settings' gains as a batched :class:`Gains` (leading axis, ``dtype``)."""
+        chosen = [self.settings[i] for i in self.simulated]
+        return Gains.unchecked({k: np.array([s.gains[k] for s in chosen], dtype) for k in GAINS.names()})
 
 
 def variants(spec: SweepSpec) -> list[Variant]:
-    """The spec's settings grouped by static part, in order of first appearance."""
+    """The spec's settings grouped by static part, in order of first appearance, each group with
+    its distinct settings (:class:`Variant`)."""
+    from ..rollout import gains_read
+
     groups: dict[tuple, list[Setting]] = {}
     for setting in spec.settings():
         groups.setdefault(setting.static, []).append(setting)
-    return [Variant(i, static, tuple(group)) for i, (static, group) in enumerate(groups.items())]
+    out = []
+    for i, (static, group) in enumerate(groups.items()):
+        read = sorted(gains_read(spec.configs(static, spec.families[0])[0]))
+        first: dict[tuple, int] = {}
+        simulated, inverse = [], []
+        for j, setting in enumerate(group):
+            key = tuple(float(setting.gains[k]) for k in read)
+            if key not in first:
+                first[key] = len(simulated)
+                simulated.append(j)
+            inverse.append(first[key])
+        out.append(Variant(i, static, tuple(group), tuple(simulated), tuple(inverse)))
+    return out
 
 
 @dataclasses.dataclass(frozen=True)
@@ -217,6 +246,11 @@ class Plan:
     def episodes(self) -> int:
         return self.settings * len(self.spec.families) * self.spec.fields
 
+    @property
+    def duplicates(self) -> int:
+        """Settings run once for an identical earlier one (:class:`Variant`)."""
+        return sum(v.duplicates for v in self.variants)
+
     def episodes_of(self, chunks: Iterable[Chunk]) -> int:
         return sum(len(self.variants[c.variant].settings) * (c.stop - c.start) for c in chunks)
 
@@ -244,6 +278,10 @@ class Plan:
         return max((b.bytes for b in self.blocks.values()), default=0)
 
 
+#: Most chunks (each one Parquet part and one Python object) a plan may hold.
+MAX_CHUNKS = 1_000_000
+
+
 def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: int = DEFAULT_MEMORY_BUDGET,
                chunk_fields: int | None = None, devices: int | None = None, processes: int = 1,
                width: int | None = None) -> Plan:
@@ -258,16 +296,23 @@ def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: in
     # the backend's width, or less for a sweep too small to fill it (a power of two; depends on
     # the spec only, so every chunking, device count and memory budget uses the same kernels);
     # each (variant, family) narrows it further if its episodes are long (_block)
-    needed = max(len(v.settings) for v in groups) * spec.fields
+    needed = max(len(v.simulated) for v in groups) * spec.fields
     width = width or default_width(needed)
     blocks, chunks = {}, []
     for v in groups:
         for family in spec.families:
             sim, mpc = spec.configs(v.static, family)
             obstacles = spec.family_params(family).max_obstacles
-            block = _block(sim, mpc, obstacles, len(v.settings), spec.fields, devices=devices, width=width,
+            block = _block(sim, mpc, obstacles, len(v.simulated), spec.fields, devices=devices, width=width,
                            itemsize=dtype.itemsize, budget=memory_budget, chunk_fields=chunk_fields)
             blocks[(v.index, family)] = block
+    count = sum(-(-spec.fields // b.fields) for b in blocks.values())
+    if count > MAX_CHUNKS:
+        raise ConfigError(f"the sweep would be cut into {count:,} chunks (parts); at most {MAX_CHUNKS:,} are allowed: "
+                          "fewer scenario.fields, or larger chunks (--chunk-fields, --memory-budget)")
+    for v in groups:
+        for family in spec.families:
+            block = blocks[(v.index, family)]
             finished = [(c.start, c.stop) for c in done if (c.variant, c.family) == (v.index, family)]
             for lo, hi in _gaps(finished, spec.fields):
                 chunks += [Chunk(v.index, family, a, min(a + block.fields, hi)) for a in range(lo, hi, block.fields)]
@@ -282,7 +327,9 @@ def describe_plan(plan: Plan) -> str:
     remaining = plan.episodes_of(plan.chunks)
     lines = [
         f"sweep {spec.name} (spec_hash {spec.hash[:12]})",
-        f"  settings:          {plan.settings}, in {len(plan.variants)} static variant(s)",
+        f"  settings:          {plan.settings}, in {len(plan.variants)} static variant(s)"
+        + (f"; {plan.duplicates} repeat an earlier setting in every gain their method reads and are not simulated "
+           "again (their rows copy it)" if plan.duplicates else ""),
         f"  families:          {len(spec.families)} ({', '.join(spec.families)}), {spec.fields} fields each, "
         f"seed {spec.seed}",
         f"  episodes:          {plan.episodes:,}" + (f" ({plan.episodes - remaining:,} already in the output, "
@@ -297,7 +344,9 @@ def describe_plan(plan: Plan) -> str:
         static = ", ".join(f"{k}={json.dumps(x)}" for k, x in v.static) or "defaults"
         for family in spec.families:
             b = plan.blocks[(v.index, family)]
-            lines.append(f"    v{v.index:03d} {family:<13s} {static}: {b.settings} settings × {b.fields} fields per "
+            lines.append(f"    v{v.index:03d} {family:<13s} {static}: {b.settings} settings"
+                         + (f" (of {len(v.settings)}; the others repeat one)" if v.duplicates else "")
+                         + f" × {b.fields} fields per "
                          f"chunk (padded {b.padded}), {b.sim.episode.steps} steps, N={b.mpc.horizon}, I={b.mpc.iters}, "
                          f"M={b.obstacles}" + (f", vmap width {b.width}" if b.width != plan.width else ""))
     lines += [

@@ -12,7 +12,8 @@ from ..config import MPCConfig, SimConfig
 from ..gains import Gains
 from ..scenarios import FamilyParams
 from ..validation import ConfigError, first_line
-from .schema import identity, read_meta
+from .output import read_part
+from .schema import LEGACY_FORMAT, identity, read_meta
 from .spec import SweepSpec
 
 __all__ = ["read_sweep", "RowConfig", "row_config"]
@@ -24,11 +25,11 @@ def read_sweep(path: str | os.PathLike) -> tuple["pd.DataFrame", dict[str, Any]]
     ``path`` is the output directory (every visible ``*.parquet`` in it is a part) or one part file.
     The metadata is the parts' ``jaxapf`` object (docs/sweep-format.md) plus ``parts`` (number of
     part files), ``rows_expected`` (from the spec; None if the spec cannot be expanded) and
-    ``complete`` (every (setting, family, field) present). Raises :class:`ConfigError` for a path
-    that is not a sweep output, or whose parts belong to different sweeps.
+    ``complete`` (every (setting, family, field) present). Every part is verified (its page CRCs
+    and content hash, :func:`~jaxapf.sweep.output.read_part`). Raises :class:`ConfigError` for a
+    path that is not a sweep output, a damaged part, or parts of different sweeps.
     """
     import pyarrow as pa
-    import pyarrow.parquet as pq
 
     path = pathlib.Path(path)
     if not path.exists():
@@ -41,8 +42,14 @@ def read_sweep(path: str | os.PathLike) -> tuple["pd.DataFrame", dict[str, Any]]
     if len({json.dumps(identity(m), sort_keys=True) for m in metas}) > 1:
         raise ConfigError(f"{path} mixes parts of different sweeps (their spec_hash, dtype, vmap_width or metrics "
                           "differ)")
+    tables = []
+    for p, m in zip(parts, metas):
+        try:
+            tables.append(read_part(p, hashed=m.get("format") != LEGACY_FORMAT))
+        except ConfigError as err:
+            raise ConfigError(f"{path}: damaged part {err}; rerun the sweep with --repair to recompute it") from None
     try:
-        df = pa.concat_tables([pq.read_table(p) for p in parts]).to_pandas()
+        df = pa.concat_tables(tables).to_pandas()
     except (OSError, pa.ArrowException) as err:
         raise ConfigError(f"{path} is not a readable sweep output (Parquet): {first_line(err)}") from None
     meta = metas[0]

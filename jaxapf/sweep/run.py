@@ -16,7 +16,8 @@ import numpy as np
 
 from ..devices import DeviceBatch
 from ..gains import Gains
-from ..validation import ConfigError
+from ..lock import OutputLock, check_writable
+from ..validation import ConfigError, Interrupted
 from .output import prepare_output, write_part
 from .plan import DEFAULT_MEMORY_BUDGET, Chunk, Plan, Variant, describe_plan, plan_sweep
 from .schema import part_table, schema, sweep_meta
@@ -127,12 +128,15 @@ class SweepResult:
     skipped: int
     parts: int
     seconds: float
+    duplicates: int = 0  # settings identical to an earlier one in every gain read, not simulated again
 
     def summary(self, name: str) -> str:
         rate = self.episodes / self.seconds if self.seconds > 0 else 0.0
         skipped = f" ({self.skipped:,} already done)" if self.skipped else ""
+        same = (f"; {self.duplicates} setting(s) repeat an earlier one in every gain their method reads: "
+                "simulated once, rows copied" if self.duplicates else "")
         return (f"sweep {name}: {self.episodes:,} episodes{skipped} in {self.seconds:.1f} s, "
-                f"{rate:,.1f} episodes/s -> {self.out}")
+                f"{rate:,.1f} episodes/s -> {self.out}{same}")
 
 
 def _sync(name: str) -> None:
@@ -142,11 +146,13 @@ def _sync(name: str) -> None:
         multihost_utils.sync_global_devices(name)
 
 
-def dry_run(spec: SweepSpec, out: str | os.PathLike, *, overwrite: bool = False, **plan: Any) -> str:
+def dry_run(spec: SweepSpec, out: str | os.PathLike, *, overwrite: bool = False, repair: bool = False,
+            **plan: Any) -> str:
     """:func:`describe_plan` of what :func:`run_sweep` would do with ``out`` as it is now
-    (refusing, like the run, an output of a different sweep); ``plan``: :func:`plan_sweep` options."""
+    (refusing, like the run, an output of a different sweep or with damaged parts, unless
+    ``repair``); ``plan``: :func:`plan_sweep` options."""
     done = prepare_output(pathlib.Path(out), sweep_meta(spec, plan_sweep(spec, **plan)), overwrite=overwrite,
-                          clean=False)
+                          clean=False, repair=repair)
     return describe_plan(plan_sweep(spec, done=done, **plan))
 
 
@@ -157,16 +163,20 @@ def run_sweep(
     memory_budget: int = DEFAULT_MEMORY_BUDGET,
     chunk_fields: int | None = None,
     overwrite: bool = False,
+    repair: bool = False,
     quiet: bool = False,
     devices: int | None = None,
     after_part: Callable[[Chunk], None] | None = None,
 ) -> SweepResult:
     """Run (or resume) ``spec`` into the Parquet dataset directory ``out``.
 
-    Finished parts already in ``out`` are kept and their chunks skipped; the fields they do not
-    cover are cut into chunks of the current size. ``after_part`` is called after each part is
-    written (tests use it to interrupt a run). In a multi-process run (``jax.distributed``), process
-    ``p`` runs chunks ``p, p + P, p + 2P, …`` of the plan.
+    Finished parts already in ``out`` are verified and kept, and their chunks skipped; the fields
+    they do not cover are cut into chunks of the current size. A damaged part is refused, or with
+    ``repair`` removed and its chunk recomputed. The run holds ``out/.lock`` (one writer per
+    output, :class:`jaxapf.lock.OutputLock`). ``after_part`` is called after each part is written
+    (tests use it to interrupt a run). Ctrl-C raises :class:`~jaxapf.validation.Interrupted`
+    saying what was kept. In a multi-process run (``jax.distributed``), process ``p`` runs chunks
+    ``p, p + P, p + 2P, …`` of the plan; process 0 holds the lock.
     """
     start = time.perf_counter()
     out = pathlib.Path(out)
@@ -174,9 +184,30 @@ def run_sweep(
     probe = plan_sweep(spec, memory_budget=memory_budget, chunk_fields=chunk_fields, devices=devices,
                        processes=processes)
     meta = sweep_meta(spec, probe)
-    prepare_output(out, meta, overwrite=overwrite, clean=process == 0)
+    note = (lambda line: None) if quiet else (lambda line: print(f"note: {line}", file=sys.stderr, flush=True))
+    lock = OutputLock(out, "jaxapf sweep", note)
+    if process == 0:
+        if out.exists() and not out.is_dir():
+            raise ConfigError(f"--out {out} is a file; a sweep writes a directory of Parquet parts")
+        check_writable(out)
+        lock.acquire()
+    try:
+        return _run(spec, out, meta, start, memory_budget=memory_budget, chunk_fields=chunk_fields,
+                    overwrite=overwrite, repair=repair, quiet=quiet, devices=devices, after_part=after_part)
+    finally:
+        lock.release()
+
+
+def _run(spec: SweepSpec, out: pathlib.Path, meta: Mapping[str, Any], start: float, *,
+         memory_budget: int, chunk_fields: int | None, overwrite: bool, repair: bool, quiet: bool,
+         devices: int | None, after_part: Callable[[Chunk], None] | None) -> SweepResult:
+    """The body of :func:`run_sweep`, under the lock."""
+    process, processes = jax.process_index(), jax.process_count()
+    if process == 0:
+        done = prepare_output(out, meta, overwrite=overwrite, clean=True, repair=repair)
     _sync("jaxapf-sweep-prepared")
-    done = prepare_output(out, meta, overwrite=False, clean=False)
+    if process != 0:
+        done = prepare_output(out, meta, overwrite=False, clean=False)
     _sync("jaxapf-sweep-listed")
     plan = plan_sweep(spec, done=done, memory_budget=memory_budget, chunk_fields=chunk_fields, devices=devices,
                       processes=processes)
@@ -190,13 +221,15 @@ def run_sweep(
                disable=quiet or not sys.stderr.isatty())
     runner = _Devices(plan)
     written = 0
+    kept = len(done)
     try:
         pending: tuple[Chunk, tuple[dict[str, jax.Array], jax.Array, np.ndarray | None]] | None = None
         for chunk in (*mine, None):
             running = None if chunk is None else (chunk, runner.dispatch(chunk))
             if pending is not None:  # write the previous chunk while this one runs
                 done_chunk, (arrays, kinds, solvable) = pending
-                metrics = {m: np.asarray(a) for m, a in arrays.items()}
+                inverse = np.asarray(plan.variants[done_chunk.variant].inverse)  # identical settings
+                metrics = {m: np.asarray(a)[inverse] for m, a in arrays.items()}
                 write_part(out, done_chunk.name,
                            part_table(plan, layout, done_chunk, metrics, np.asarray(kinds), solvable))
                 written += 1
@@ -204,9 +237,13 @@ def run_sweep(
                 if after_part is not None:
                     after_part(done_chunk)
             pending = running
+    except KeyboardInterrupt:
+        raise Interrupted(f"interrupted; {kept + written} finished part(s) are kept in {out} ({written} written "
+                          f"now); rerun the same command to resume") from None
     finally:
         runner.close()
         bar.close()
-    return SweepResult(out, total, plan.episodes_of(done), written, time.perf_counter() - start)
+    return SweepResult(out, total, plan.episodes_of(done), written, time.perf_counter() - start,
+                       plan.duplicates)
 
 

@@ -17,12 +17,15 @@ from ..validation import ConfigError, first_line
 from .plan import Chunk, Plan
 from .spec import AXIS_WEIGHT_KEYS, SweepSpec
 
-__all__ = ["FORMAT", "META_KEY", "PRNG", "sweep_meta", "schema", "part_table", "read_meta", "identity",
+__all__ = ["FORMAT", "LEGACY_FORMAT", "META_KEY", "PRNG", "sweep_meta", "schema", "part_table", "read_meta", "identity",
            "static_columns"]
 
 FORMAT = "jaxapf.sweep/2"
-#: Formats this version reads: /1 lacks the ``kind`` and ``solvable`` columns, nothing else changed.
-READABLE_FORMATS = ("jaxapf.sweep/1", FORMAT)
+#: The format before kinds, solvability and content hashes; still read (its parts are not verified).
+LEGACY_FORMAT = "jaxapf.sweep/1"
+#: Formats this version reads: /1 lacks the ``kind`` and ``solvable`` columns and the parts' content
+#: hashes, nothing else changed.
+READABLE_FORMATS = (LEGACY_FORMAT, FORMAT)
 META_KEY = b"jaxapf"
 #: The PRNG of the fields and of the random gain samples.
 PRNG = {

@@ -41,6 +41,7 @@ import dataclasses
 import hashlib
 import itertools
 import json
+import math
 import os
 import re
 import tomllib
@@ -58,6 +59,9 @@ from ..planners import PLANNERS
 from ..plugins import check_plugins, load_plugins
 from ..scenarios import FAMILIES, FamilyParams, family_params
 from ..validation import (
+    MAX_FIELDS,
+    MAX_SEED,
+    MAX_SETTINGS,
     BoundWarning,
     ConfigError,
     check_bool,
@@ -72,7 +76,6 @@ __all__ = [
     "STATIC_KEYS",
     "SIM_KEYS",
     "MPC_KEYS",
-    "MAX_SEED",
     "RandomRange",
     "Setting",
     "SweepSpec",
@@ -89,8 +92,6 @@ __all__ = [
 COMPONENT_KEYS = {"method": PLANNERS, "filter": FILTERS, "plant": PLANTS}
 #: MPC weights that take a number (same on x, y, z) or 3 numbers.
 AXIS_WEIGHT_KEYS: frozenset[str] = frozenset({"q_pos", "q_vel", "f_pos", "f_vel", "r"})
-#: Largest seed: ``jax.random.key`` keeps 32 bits in float32 runs.
-MAX_SEED = 2**32 - 1
 
 _TOP_KEYS = ("name", "plugins", "scenario", "sim", "gains", "grid", "random", "setting")
 _SCENARIO_KEYS = ("families", "fields", "seed", "params", "oracle")
@@ -427,7 +428,7 @@ def _scenario(table: dict[str, Any]) -> tuple[tuple[str, ...], int, int, dict[st
         raise ConfigError(f"scenario.families = {families!r} must be a non-empty list of family names; "
                           f"allowed: {', '.join(choices)}")
     families = check_names("scenario.families", families, choices, what="family or variant")
-    fields = check_int("scenario.fields", scenario["fields"], 1)
+    fields = check_int("scenario.fields", scenario["fields"], 1, MAX_FIELDS)
     seed = _seed("scenario.seed", scenario.get("seed", 0))
     params = {}
     for label, overrides in tables.items():
@@ -530,7 +531,7 @@ def _random(table: Any, fixed: Mapping[str, str], grid: Iterable[str]) -> tuple[
     table = check_table("random", table)
     if "n" not in table:
         raise ConfigError("random.n is missing; give the number of samples")
-    n = check_int("random.n", table["n"], 1)
+    n = check_int("random.n", table["n"], 1, MAX_SETTINGS)
     seed = _seed("random.seed", table.get("seed", 0))
     grid = set(grid)
     ranges = []
@@ -580,6 +581,10 @@ def parse_spec(data: Mapping[str, Any], gains_file: str | os.PathLike | None = N
     if gains_file is not None:
         varied = {k for k, _ in grid} | {k for k, _ in ranges} | {k for entry in explicit for k, _ in entry}
         gains = {k: v for k, v in {**gains, **read_gains_file(gains_file)}.items() if k not in varied}
+    count = math.prod(len(values) for _, values in grid) * max(random_n, 1) if not explicit else len(explicit)
+    if count > MAX_SETTINGS:
+        raise ConfigError(f"the spec expands to {count:,} settings (grid product x random.n); at most "
+                          f"{MAX_SETTINGS:,} are allowed: fewer grid values or samples")
     spec = SweepSpec(name=name, families=families, fields=fields, seed=seed, params=params, sim=sim, gains=gains,
                      grid=grid, random_n=random_n, random_seed=random_seed, random=ranges, plugins=plugins,
                      oracle=oracle, explicit=explicit, tags=tags)

@@ -12,7 +12,12 @@ settings on held-out fields with paired statistics (:mod:`jaxapf.tune.proof`). `
   the validation scores where validated (step 0 = the start gains);
 - ``test_results.csv`` (the table), ``test_episodes.parquet`` (one row per test episode);
 - ``training.png`` (training curves), ``test.png`` (test rates with 95 % intervals);
-- ``checkpoint.npz``: the training state; rerunning the command resumes from it.
+- ``checkpoint.npz``: the training state; rerunning the command resumes from it;
+- ``searches.json``: the grid and random searches' results, reused by a rerun with the same spec.
+
+The command holds ``DIR/.lock`` while it runs (one writer per folder, :mod:`jaxapf.lock`). Rerun
+on a finished folder of the same spec, it prints the test table again and recomputes nothing;
+interrupted (Ctrl-C), it keeps the checkpoint and finished searches for the rerun to resume.
 """
 
 from __future__ import annotations
@@ -26,6 +31,9 @@ from typing import Any
 
 import pandas as pd
 
+from ..gains import Gains
+from ..lock import OutputLock, check_writable
+from ..validation import Interrupted
 from ..versions import versions
 from .proof import (
     SETTINGS,
@@ -41,7 +49,7 @@ from .proof import (
 from .spec import TuneSpec, load_tune_spec
 from .train import HISTORY_COLUMNS, TrainState, Tuner
 
-__all__ = ["run_tune", "run_tune_spec", "write_gains_toml", "format_table"]
+__all__ = ["run_tune", "run_tune_spec", "write_gains_toml", "format_table", "finished_summary", "OUTPUTS"]
 
 
 def _json_safe(x: Any) -> Any:
@@ -98,10 +106,64 @@ def run_tune(spec_path: str | pathlib.Path, out: str | pathlib.Path | None = Non
                          quiet=quiet)
 
 
+#: Files a finished run leaves (``checkpoint.npz`` and ``searches.json`` come earlier).
+OUTPUTS: tuple[str, ...] = ("gains.toml", "summary.json", "history.csv", "test_results.csv", "test_episodes.parquet",
+                            "training.png", "test.png")
+
+
+def finished_summary(out: pathlib.Path, digest: str) -> dict[str, Any] | None:
+    """The summary of a finished run of the spec with ``digest`` in ``out``, None if there is none."""
+    try:
+        summary = json.loads((out / "summary.json").read_text())
+    except (OSError, ValueError):
+        return None
+    if summary.get("spec_digest") != digest or not all((out / name).is_file() for name in OUTPUTS):
+        return None
+    return summary
+
+
+def _search(tuner: Tuner, label: str, settings: list[Gains], budget: int, out: pathlib.Path,
+            digest: str) -> dict[str, Any]:
+    """:func:`select_best`, or its result stored in ``out/searches.json`` by a run of the same spec
+    and budget."""
+    path = out / "searches.json"
+    try:
+        stored = json.loads(path.read_text())
+    except (OSError, ValueError):
+        stored = {}
+    if stored.get("spec_digest") != digest or stored.get("budget") != budget:
+        stored = {"spec_digest": digest, "budget": budget}
+    if label in stored:
+        entry = stored[label]
+        return entry | {"gains": tuner.spec.reparam.base.replace(**entry["gains"])}
+    result = select_best(tuner, settings, budget, label)
+    stored[label] = result | {"gains": result["gains"].floats()}
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(_json_safe(stored), indent=2) + "\n")
+    tmp.replace(path)
+    return result
+
+
 def run_tune_spec(spec: TuneSpec, text: str, out: str | pathlib.Path, *, quiet: bool = False) -> dict[str, Any]:
     """:func:`run_tune` on a validated spec; ``text`` is recorded as the spec file."""
     out = pathlib.Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    check_writable(out)
+    with OutputLock(out, "jaxapf tune", lambda line: _say(quiet, f"note: {line}")):
+        try:
+            return _run(spec, text, out, quiet)
+        except KeyboardInterrupt:
+            raise Interrupted(f"interrupted; the last training checkpoint and finished searches are kept in {out}; "
+                              "rerun the same command to resume") from None
+
+
+def _run(spec: TuneSpec, text: str, out: pathlib.Path, quiet: bool) -> dict[str, Any]:
+    """The body of :func:`run_tune_spec`, under the lock."""
+    digest = spec.digest()
+    done = finished_summary(out, digest)
+    if done is not None:
+        _say(quiet, f"{out} already holds this tuning run (finished); nothing to do. Its test table:")
+        _say(quiet, format_table(pd.read_csv(out / "test_results.csv")))
+        return done
     tuner = Tuner(spec)
 
     state = tuner.train(out, quiet=quiet)
@@ -116,10 +178,10 @@ def run_tune_spec(spec: TuneSpec, text: str, out: str | pathlib.Path, *, quiet: 
                 f"{state.best_val_loss:.4g} at step {state.best_step}")
 
     budget = tuning_budget(spec, state)
-    grid = select_best(tuner, spec.search.grid_settings(spec.init), budget["episodes"], "grid")
+    grid = _search(tuner, "grid", spec.search.grid_settings(spec.init), budget["episodes"], out, digest)
     _say(quiet, f"grid search: {grid['settings']} settings x {grid['fields_per_setting']} fields "
                 f"in {grid['seconds']:.1f} s")
-    rand = select_best(tuner, random_settings(spec), budget["episodes"], "random")
+    rand = _search(tuner, "random", random_settings(spec), budget["episodes"], out, digest)
     _say(quiet, f"random search: {rand['settings']} settings x {rand['fields_per_setting']} fields "
                 f"in {rand['seconds']:.1f} s")
 
@@ -135,6 +197,7 @@ def run_tune_spec(spec: TuneSpec, text: str, out: str | pathlib.Path, *, quiet: 
     summary = {
         "name": spec.name,
         "spec": spec.as_dict(),
+        "spec_digest": digest,
         "spec_file": text,
         "versions": versions(),
         "gains": {label: g.floats() for label, g in settings.items()},
@@ -148,6 +211,5 @@ def run_tune_spec(spec: TuneSpec, text: str, out: str | pathlib.Path, *, quiet: 
     }
     (out / "summary.json").write_text(json.dumps(_json_safe(summary), indent=2) + "\n")
     _say(quiet, format_table(table))
-    _say(quiet, f"wrote {out}/: gains.toml, summary.json, history.csv, test_results.csv, "
-                "test_episodes.parquet, training.png, test.png, checkpoint.npz")
+    _say(quiet, f"wrote {out}/: {', '.join(OUTPUTS)}, checkpoint.npz, searches.json")
     return summary

@@ -22,14 +22,14 @@ import jax.numpy as jnp
 import optax
 
 from ..config import MPC_KEYS, SIM_KEYS, MPCConfig, SimConfig
-from ..control import FILTERS
-from ..dynamics import PLANTS
 from ..gains import GAINS, Gains, check_gain_name, gains_from_mapping
-from ..planners import PLANNERS
 from ..plugins import check_plugins, load_plugins
+from ..rollout import gains_read
 from ..scenarios import FAMILIES, FamilyParams
 from ..sweep.spec import check_value, spec_family_params, variant_names
 from ..validation import (
+    MAX_SEED,
+    MAX_SETTINGS,
     ConfigError,
     check_bool,
     check_choice,
@@ -54,7 +54,12 @@ __all__ = [
     "make_optimizer",
     "check_optimizer",
     "split_count",
+    "MAX_HELD_FIELDS",
 ]
+
+#: Most fields a set (training: steps × fields_per_step; validation; test) may hold: each set is
+#: drawn up front, at up to ~0.5 kB a field (2 GB here).
+MAX_HELD_FIELDS = 2**22
 
 #: Default test families: every randomized family (the paper's two fixed scenarios need their own t_max).
 TEST_FAMILIES: tuple[str, ...] = ("trap", "crossing", "head_on", "overtake", "clutter", "dynamic")
@@ -256,9 +261,9 @@ def _train(data: dict[str, Any], choices: tuple[str, ...]) -> TrainSpec:
     get = lambda key: d.get(key, getattr(default, key))  # noqa: E731
     spec = TrainSpec(
         families=_families("train.families", get("families"), choices),
-        fields_per_step=check_int("train.fields_per_step", get("fields_per_step"), 1),
-        steps=check_int("train.steps", get("steps"), 0),
-        seed=check_int("train.seed", get("seed"), 0),
+        fields_per_step=check_int("train.fields_per_step", get("fields_per_step"), 1, MAX_HELD_FIELDS),
+        steps=check_int("train.steps", get("steps"), 1, MAX_HELD_FIELDS),
+        seed=check_int("train.seed", get("seed"), 0, MAX_SEED),
         optimizer=check_optimizer(get("optimizer")),
         learning_rate=_float("train.learning_rate", get("learning_rate"), 0.0, lo_open=True),
         schedule=check_choice("train.schedule", get("schedule"), SCHEDULES),
@@ -272,6 +277,10 @@ def _train(data: dict[str, Any], choices: tuple[str, ...]) -> TrainSpec:
     if spec.fields_per_step < len(spec.families):
         raise ConfigError(f"train.fields_per_step = {spec.fields_per_step} must be at least the number of "
                           f"train.families ({len(spec.families)}): every family is in every step")
+    if spec.steps * spec.fields_per_step > MAX_HELD_FIELDS:
+        raise ConfigError(f"train.steps × train.fields_per_step = {spec.steps * spec.fields_per_step:,} training "
+                          f"fields; at most {MAX_HELD_FIELDS:,} are allowed (they are drawn up front): fewer "
+                          "steps or fields per step")
     if spec.schedule == "warmup_cosine" and not 0 < spec.warmup_steps < max(spec.steps, 1):
         raise ConfigError(f"train.warmup_steps = {spec.warmup_steps} must lie in 1..steps-1 for warmup_cosine")
     return spec
@@ -282,10 +291,10 @@ def _field_set(data: dict[str, Any], where: str, families: tuple[str, ...] | Non
     d = _table(data, where)
     fams = families if families is not None else _families(f"{where}.families", d.get("families", list(TEST_FAMILIES)),
                                                            choices)
-    fields = check_int(f"{where}.fields", d.get("fields", default_fields), 1)
+    fields = check_int(f"{where}.fields", d.get("fields", default_fields), 1, MAX_HELD_FIELDS)
     if families is not None and fields < len(families):
         raise ConfigError(f"{where}.fields = {fields} must be at least the number of train.families ({len(families)})")
-    return FieldSetSpec(fams, fields, check_int(f"{where}.seed", d.get("seed", default_seed), 0))
+    return FieldSetSpec(fams, fields, check_int(f"{where}.seed", d.get("seed", default_seed), 0, MAX_SEED))
 
 
 def _gains(table: Mapping[str, Any], where: str, base: Gains | None = None) -> Gains:
@@ -299,9 +308,7 @@ def _gains(table: Mapping[str, Any], where: str, base: Gains | None = None) -> G
 def read_gains(sim: SimConfig) -> tuple[str, ...]:
     """The tunable gains the planner, filter and plant of ``sim`` read, in declaration order: what
     ``jaxapf tune`` learns unless ``[tune] params`` says otherwise."""
-    read = {g.name for g in PLANNERS.get(sim.planner.method, "sim.method").gains}
-    read |= {g.name for g in FILTERS.get(sim.planner.filter, "sim.filter").gains}
-    read |= {g.name for g in PLANTS.get(sim.vehicle.plant, "sim.plant").gains}
+    read = gains_read(sim)
     return tuple(n for n, g in GAINS.items() if n in read and g.tunable)
 
 
@@ -353,12 +360,17 @@ def _search(data: dict[str, Any], reparam: Reparam) -> SearchSpec:
     for name, values in grid_raw.items():
         if not isinstance(values, list) or not values:
             raise ConfigError(f"search.grid.{name} = {values!r} must be a non-empty list of numbers")
+        if len(values) > MAX_SETTINGS:
+            raise ConfigError(f"search.grid.{name} has {len(values):,} values; at most {MAX_SETTINGS:,} are allowed")
         grid.append((name, tuple(_gains({name: v}, "search.grid", reparam.base)[name] for v in values)))
+    count = math.prod(len(v) for _, v in grid)
+    if count > MAX_SETTINGS:
+        raise ConfigError(f"search.grid expands to {count:,} settings; at most {MAX_SETTINGS:,} are allowed")
     return SearchSpec(
         grid=tuple(grid),
-        random_n=check_int("search.random_n", d.get("random_n", default.random_n), 1),
+        random_n=check_int("search.random_n", d.get("random_n", default.random_n), 1, MAX_SETTINGS),
         random_range=_float("search.random_range", d.get("random_range", default.random_range), 1.0),
-        random_seed=check_int("search.random_seed", d.get("random_seed", default.random_seed), 0),
+        random_seed=check_int("search.random_seed", d.get("random_seed", default.random_seed), 0, MAX_SEED),
     )
 
 

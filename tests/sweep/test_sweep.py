@@ -32,7 +32,7 @@ from jaxapf.sweep import (
     row_config,
     run_sweep,
 )
-from jaxapf.sweep.plan import WIDTH_BUDGET, working_set_bytes
+from jaxapf.sweep.plan import WIDTH_BUDGET, describe_plan, working_set_bytes
 from jaxapf.validation import BoundWarning, ConfigError
 
 # Tiny but complete: two families sharing one obstacle-slot count (so one program per method),
@@ -408,6 +408,27 @@ def test_changed_spec_is_refused_unless_overwrite(reference, tmp_path):
     (out / "notes.txt").write_text("mine")
     with pytest.raises(ConfigError, match="holds files that are not sweep parts"):
         run_sweep(changed, out, overwrite=True, quiet=True)
+
+
+def test_identical_settings_run_once_and_give_the_rows_of_separate_runs(reference, tmp_path):
+    """``basic`` ignores γ: its two γ settings are one simulation, repeated, and said so."""
+    _, ref, _ = reference
+    plan = plan_sweep(_spec())
+    assert plan.duplicates == 1 and plan.variants[0].simulated == (0,) and plan.variants[0].inverse == (0, 0)
+    assert plan.variants[1].simulated == (0, 1)  # direction_velocity reads γ
+    metrics = list(METRICS.names())
+    basic = ref[ref["method"] == "basic"]
+    for gamma in (0.0, 1.0):
+        alone = run_sweep(_spec(**{"grid.method": ["basic"], "grid.gamma": [gamma]}), tmp_path / f"g{gamma}",
+                          quiet=True)
+        assert alone.duplicates == 0
+        df, _ = read_sweep(tmp_path / f"g{gamma}")
+        mine = basic[basic["gamma"] == gamma].sort_values(["family", "field"])
+        np.testing.assert_allclose(mine[metrics].to_numpy(float), df.sort_values(["family", "field"])[metrics]
+                                   .to_numpy(float), rtol=1e-6)
+    result = run_sweep(_spec(), tmp_path / "again", quiet=True)
+    assert result.duplicates == 1 and "1 setting(s) repeat an earlier one" in result.summary("tiny")
+    assert "1 repeat an earlier setting" in describe_plan(plan)
 
 
 def test_dry_run_prints_the_plan(reference, tmp_path, capsys):
