@@ -327,6 +327,18 @@ def _draw_start_goal_xy(ax, field: Field) -> None:
     ax.plot(*field.start[:2], "s", color="black", markersize=6, zorder=5)
 
 
+def _legend_below(fig: Figure, handles: list) -> None:
+    """A legend under the axes in as many columns (at most 5) as fit the figure's width."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    for ncol in range(min(len(handles), 5), 0, -1):
+        legend = fig.legend(handles=handles, loc="outside lower center", ncol=ncol, fontsize=8)
+        if ncol == 1 or legend.get_window_extent(renderer).width <= 0.98 * fig.bbox.width:
+            return
+        legend.remove()
+
+
 def _legend_handles(runs: Sequence[Run], field: Field, colors: Mapping[str, str], *, moving_ghost: bool,
                     uav: bool = False, track: bool = False) -> list:
     """Proxy artists for a legend: one path per run, then start, goal, obstacle kinds, collision."""
@@ -404,7 +416,7 @@ def plot_trajectories(runs: Sequence[Run], field: Field) -> Figure:
         ax.set_title(f"{run.label} — {outcome(run, field)}")
         _label_xy(ax)
     handles = _legend_handles(runs, field, colors, moving_ghost=True)
-    fig.legend(handles=handles, loc="outside lower center", ncol=min(len(handles), 5), fontsize=8)
+    _legend_below(fig, handles)
     _suptitle(fig, _title("Trajectories (top view, obstacles at t = 0)", field))
     return fig
 
@@ -642,7 +654,7 @@ def plot_trajectory_3d(runs: Sequence[Run], field: Field,
             ax.set_title(f"{run.label} — view {v_i + 1} (elev {elev:g}°, azim {azim:g}°)\n{outcome(run, field)}",
                          fontsize=9)
     handles = _legend_handles(runs, field, colors, moving_ghost=False, track=True)
-    fig.legend(handles=handles, loc="outside lower center", ncol=min(len(handles), 5), fontsize=8)
+    _legend_below(fig, handles)
     _suptitle(fig, _title("3-D trajectories (obstacles where they are at the run's final time)", field))
     return fig
 

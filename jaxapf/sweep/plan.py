@@ -273,6 +273,23 @@ class Plan:
         programs = len({_program(self.blocks[(c.variant, c.family)]) for c in self.chunks})
         return run / (self.devices * self.processes), programs * COMPILE_S * self.devices
 
+    def padding_note(self) -> str | None:
+        """One line when more than 10 % of the episodes still to simulate are padding (chunks
+        filled up to whole vmapped batches on every device, e.g. after an odd ``--chunk-fields``)."""
+        real = padded = 0
+        worst = None
+        for c in self.chunks:
+            b = self.blocks[(c.variant, c.family)]
+            real += b.settings * (c.stop - c.start)
+            padded += b.settings * b.padded
+            if worst is None or b.padded - b.fields > worst.padded - worst.fields:
+                worst = b
+        if padded == 0 or (padded - real) / padded <= 0.1:
+            return None
+        return (f"{100 * (padded - real) / padded:.0f} % of the episodes to simulate are padding: chunks of "
+                f"{worst.fields} fields are padded to {worst.padded} to fill whole vmapped batches; --chunk-fields "
+                f"{worst.padded} (or a multiple) avoids it")
+
     @property
     def peak_bytes(self) -> int:
         return max((b.bytes for b in self.blocks.values()), default=0)
@@ -355,6 +372,7 @@ def describe_plan(plan: Plan) -> str:
         "(~0 with a warm compilation cache)",
         "                     from a per-step cost model fitted on a 2-core x86-64 CPU (jaxapf.sweep.STEP_COST_US, "
         "±50 %; benchmarks/fit_cost.py refits it here); on accelerators it is only an upper bound",
+        *([f"  padding:           {plan.padding_note()}"] if plan.padding_note() else []),
         f"  memory estimate:   {format_bytes(plan.peak_bytes)} per chunk + ~{format_bytes(PROCESS_BASELINE)} for the "
         "process (up to ~1 GiB more while XLA compiles); docs/sweep.md",
     ]

@@ -38,16 +38,16 @@ def read_sweep(path: str | os.PathLike) -> tuple["pd.DataFrame", dict[str, Any]]
         if path.is_dir() else [path]
     if not parts:
         raise ConfigError(f"{path} is not the output of jaxapf sweep: the directory holds no Parquet part file")
-    metas = [read_meta(p) for p in parts]
+    metas, tables = [], []
+    for p in parts:  # every part verified before the parts are compared with each other
+        metas.append(read_meta(p))
+        try:
+            tables.append(read_part(p, hashed=metas[-1].get("format") != LEGACY_FORMAT))
+        except ConfigError as err:
+            raise ConfigError(f"{path}: damaged part {err}; rerun the sweep with --repair to recompute it") from None
     if len({json.dumps(identity(m), sort_keys=True) for m in metas}) > 1:
         raise ConfigError(f"{path} mixes parts of different sweeps (their spec_hash, dtype, vmap_width or metrics "
                           "differ)")
-    tables = []
-    for p, m in zip(parts, metas):
-        try:
-            tables.append(read_part(p, hashed=m.get("format") != LEGACY_FORMAT))
-        except ConfigError as err:
-            raise ConfigError(f"{path}: damaged part {err}; rerun the sweep with --repair to recompute it") from None
     try:
         df = pa.concat_tables(tables).to_pandas()
     except (OSError, pa.ArrowException) as err:

@@ -193,15 +193,17 @@ def run_sweep(
         lock.acquire()
     try:
         return _run(spec, out, meta, start, memory_budget=memory_budget, chunk_fields=chunk_fields,
-                    overwrite=overwrite, repair=repair, quiet=quiet, devices=devices, after_part=after_part)
+                    overwrite=overwrite, repair=repair, quiet=quiet, devices=devices, after_part=after_part,
+                    note=note)
     finally:
         lock.release()
 
 
 def _run(spec: SweepSpec, out: pathlib.Path, meta: Mapping[str, Any], start: float, *,
          memory_budget: int, chunk_fields: int | None, overwrite: bool, repair: bool, quiet: bool,
-         devices: int | None, after_part: Callable[[Chunk], None] | None) -> SweepResult:
-    """The body of :func:`run_sweep`, under the lock."""
+         devices: int | None, after_part: Callable[[Chunk], None] | None, note: Callable[[str], None]
+         ) -> SweepResult:
+    """The body of :func:`run_sweep`, under the lock; ``note`` prints one line (unless quiet)."""
     process, processes = jax.process_index(), jax.process_count()
     if process == 0:
         done = prepare_output(out, meta, overwrite=overwrite, clean=True, repair=repair)
@@ -212,6 +214,8 @@ def _run(spec: SweepSpec, out: pathlib.Path, meta: Mapping[str, Any], start: flo
     plan = plan_sweep(spec, done=done, memory_budget=memory_budget, chunk_fields=chunk_fields, devices=devices,
                       processes=processes)
     mine = plan.chunks[process::processes]
+    if process == 0 and plan.padding_note():
+        note(plan.padding_note())
     out.mkdir(parents=True, exist_ok=True)
     layout = schema(plan, meta)
     total = plan.episodes_of(mine)

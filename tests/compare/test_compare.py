@@ -165,6 +165,12 @@ def test_gradient_steps_fill_the_budget(budget, per_step, val, every, steps):
     ({"sim.method": "basic"}, "sim.method is not a known key"),
     ({"test.families": ["forest"]}, "test.families[0] = 'forest' is not a family or variant"),
     ({"scenario.params.clutter": {"density": 1.0}}, "scenario.params.clutter is not one of selection.families"),
+    ({"selection.budget": 10**9}, "selection.budget = 1000000000 is out of range; allowed: an integer >= 1 and "
+                                  "<= 4194304"),
+    ({"selection.candidates": 10**9}, "selection.candidates = 1000000000 is out of range"),
+    ({"test.fields": 5 * 10**9}, "test.fields = 5000000000 is out of range"),
+    ({"selection.search": "grid", "selection.grid": {"k_rep": [5.0] * 400, "d_s": [2.0] * 400}},
+     "selection.grid expands to 160,000 settings; at most 100,000 are allowed"),
 ])
 def test_bad_specs_name_the_key(change, message):
     data = copy.deepcopy(TINY)

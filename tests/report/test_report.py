@@ -370,3 +370,44 @@ def test_study_numbers_read_the_report(report):
     assert (d.delta, d.p_holm, d.n_pairs, d.verdict) == (want["delta"], want["p_holm"], 12, want["verdict"])
     with pytest.raises(LookupError, match="0 rows match"):
         n.row({"method": "nonexistent"}, "trap")
+
+
+def test_an_incomplete_sweep_says_so_in_the_title_and_first_lines(tmp_path, capsys):
+    from jaxapf.sweep import parse_spec, run_sweep
+
+    spec = parse_spec({"name": "cut", "scenario": {"families": ["trap"], "fields": 4, "seed": 3},
+                       "sim": {"t_max": 2.0, "horizon": 3, "iters": 3}, "grid": {"k_rep": [5.0, 10.0]}})
+
+    class Stop(Exception):
+        pass
+
+    def stop(chunk):
+        raise Stop
+
+    runs = tmp_path / "cut.parquet"
+    with pytest.raises(Stop):
+        run_sweep(spec, runs, chunk_fields=2, quiet=True, after_part=stop)
+    out = tmp_path / "report"
+    assert main(["report", str(runs), "--out", str(out), "--resamples", "100", "--gallery", "0",
+                 "--heatmap", "none", "--baseline", "setting=0"]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    assert printed[0] == ("INCOMPLETE SWEEP: the sweep is incomplete: 4 of 8 episodes are present (an interrupted "
+                          "run?); only rows present in both settings are paired")
+    md = (out / "report.md").read_text(encoding="utf-8").splitlines()
+    assert md[0] == "# jaxapf report — cut (INCOMPLETE SWEEP)"
+    first_item = next(line for line in md[1:] if line.startswith("- "))
+    assert first_item.startswith("- **The sweep is incomplete: 4 of 8 episodes are present")
+
+
+def test_pooling_families_of_unequal_sizes_is_said(tmp_path):
+    df = pd.concat([make_rows(families=("trap",), fields=12), make_rows(families=("clutter",), fields=6, seed=8)])
+    path = write_sweep(tmp_path / "unequal.parquet", df)
+    result = build_report(path, tmp_path / "out", ReportOptions(gallery=0, resamples=100, heatmap=None))
+    note = ("families of unequal sizes: the pooled 'all' rows weight each family by its episodes (clutter 6 fields, "
+            "trap 12 fields); read the per-family rows first")
+    assert note in result.notes
+    assert "the families differ in size: clutter 6, trap 12 fields" in (tmp_path / "out" / "report.md").read_text(
+        encoding="utf-8")
+    balanced = build_report(write_sweep(tmp_path / "equal.parquet", make_rows()), tmp_path / "out2",
+                            ReportOptions(gallery=0, resamples=100, heatmap=None))
+    assert not any("unequal sizes" in n for n in balanced.notes)

@@ -210,3 +210,20 @@ def test_backend_left_alone(example):
     FIGURES["goal_distance.png"](runs, field).savefig(buf, format="png", dpi=30)
     assert buf.getvalue().startswith(b"\x89PNG")
     assert matplotlib.get_backend() == before
+
+
+@pytest.mark.parametrize("n_runs", [1, 2])
+@pytest.mark.parametrize("name", list(FIGURES))
+def test_legends_fit_inside_the_figure(example, name, n_runs):
+    """No legend is cut off at an edge (the report's gallery draws one run per figure)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    field, runs = example
+    fig = FIGURES[name](runs[:n_runs], field)
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    renderer = canvas.get_renderer()
+    legends = figure_legends(fig) + [ax.get_legend() for ax in fig.get_axes() if ax.get_legend() is not None]
+    for legend in legends:
+        box = legend.get_window_extent(renderer)
+        assert box.x0 >= -1 and box.x1 <= fig.bbox.width + 1, (name, box, fig.bbox.width)

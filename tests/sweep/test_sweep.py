@@ -439,7 +439,8 @@ def test_dry_run_prints_the_plan(reference, tmp_path, capsys):
     assert rc == 0 and not (tmp_path / "none.parquet").exists()
     for line in ("settings:          4, in 2 static variant(s)", f"episodes:          {ROWS}",
                  "compiled variants: 2 distinct (SimConfig, MPCConfig)", "chunks:            8 to run",
-                 "time estimate:", "cost model", "memory estimate:"):
+                 "time estimate:", "cost model", "memory estimate:",
+                 "are padding: chunks of 4 fields are padded to 16", "--chunk-fields 16 (or a multiple) avoids it"):
         assert line in text, line
     # against a finished output: nothing left to run
     rc = main(["sweep", str(spec_path), "--dry-run", "--no-cache", "--devices", "1", "--out", str(reference[0])])

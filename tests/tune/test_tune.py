@@ -230,6 +230,14 @@ def test_a_checkpoint_of_another_spec_is_refused(command_run):
          r"scenario\.trap is not allowed; .*\[scenario\.params\.trap\]"),
         ({"search": {"grid": {"gama": [1.0]}}}, r"search\.grid\.gama is not a gain"),
         ({"search": {"grid": {"k": [-1.0]}}}, r"search\.grid\.k = -1\.0 is out of range"),
+        ({"train": {"steps": 0}}, r"train\.steps = 0 is out of range; allowed: an integer >= 1"),
+        ({"train": {"steps": 10**6, "fields_per_step": 100}},
+         r"train\.steps × train\.fields_per_step = 100,000,000 training fields; at most 4,194,304"),
+        ({"search": {"random_n": 10**9}}, r"search\.random_n = 1000000000 is out of range; .* <= 100000"),
+        ({"search": {"grid": {"gamma": [1.0] * 400, "k": [0.5] * 400}}},
+         r"search\.grid expands to 160,000 settings; at most 100,000"),
+        ({"test": {"fields": 5 * 10**9}}, r"test\.fields = 5000000000 is out of range"),
+        ({"init": {"k_rep": 1e39}}, r"init\.k_rep = 1e\+39 is too large: gains are computed in float32"),
     ],
 )
 def test_spec_errors_name_the_key(change, message):
@@ -245,4 +253,67 @@ def test_cli_reports_a_bad_spec_in_one_line(tmp_path, capsys):
     path.write_text("[train]\nsteps = -3\n")
     assert main(["tune", str(path), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
-    assert err.strip() == "jaxapf tune: error: train.steps = -3 is out of range; allowed: an integer >= 0"
+    assert err.strip() == ("jaxapf tune: error: train.steps = -3 is out of range; allowed: an integer >= 1 and "
+                           "<= 4194304")
+
+
+def test_a_rerun_of_a_finished_tune_recomputes_nothing(command_run, capsys, monkeypatch):
+    """Rerun on its finished folder, the command prints the test table and runs no episode."""
+    before = {p.name: p.stat().st_mtime_ns for p in command_run.iterdir()}
+
+    def no_episodes(*args, **kwargs):
+        raise AssertionError("a finished tune ran episodes again")
+
+    monkeypatch.setattr(Tuner, "report", no_episodes)
+    spec = command_run.parent / "micro.toml"
+    assert main(["tune", str(spec), "--out", str(command_run)]) == 0
+    assert "already holds this tuning run (finished); nothing to do" in capsys.readouterr().err
+    assert {p.name: p.stat().st_mtime_ns for p in command_run.iterdir()} == before
+
+
+def test_an_interrupted_tune_reuses_its_finished_searches(command_run, tmp_path, monkeypatch, capsys):
+    """Ctrl-C after the grid search: one line; the rerun reuses the grid search (searches.json) and
+    ends with the same summary as the uninterrupted run."""
+    from jaxapf.tune import proof, run
+
+    spec = command_run.parent / "micro.toml"
+    out = tmp_path / "out"
+    searches = []
+    select = proof.select_best
+
+    def interrupted_after_grid(tuner, settings, budget, label):
+        searches.append(label)
+        if label == "random":
+            raise KeyboardInterrupt
+        return select(tuner, settings, budget, label)
+
+    monkeypatch.setattr(run, "select_best", interrupted_after_grid)
+    assert main(["tune", str(spec), "--out", str(out), "--quiet"]) == 130
+    err = capsys.readouterr().err.strip()
+    assert err == (f"jaxapf tune: interrupted; the last training checkpoint and finished searches are kept in {out}; "
+                   "rerun the same command to resume")
+    assert not (out / ".lock").exists() and "grid" in json.loads((out / "searches.json").read_text())
+    searches.clear()
+
+    def counted(tuner, settings, budget, label):
+        searches.append(label)
+        return select(tuner, settings, budget, label)
+
+    monkeypatch.setattr(run, "select_best", counted)
+    assert main(["tune", str(spec), "--out", str(out), "--quiet"]) == 0
+    assert searches == ["random"]  # the grid search was reused
+    mine, reference = (json.loads((d / "summary.json").read_text()) for d in (out, command_run))
+    assert mine["gains"] == reference["gains"] and mine["test"] == reference["test"]
+
+
+def test_a_second_tune_on_the_same_folder_refuses(tmp_path, capsys):
+    from jaxapf.lock import OutputLock
+
+    (tmp_path / "micro.toml").write_text(MICRO_TOML)
+    with OutputLock(tmp_path / "out", "jaxapf tune"):
+        lock = json.loads((tmp_path / "out" / ".lock").read_text())
+        lock["pid"], lock["start"] = 1, None  # a live process that is not this one
+        (tmp_path / "out" / ".lock").write_text(json.dumps(lock))
+        assert main(["tune", str(tmp_path / "micro.toml"), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "is being written by pid 1" in err and "one writer" in err

@@ -1,0 +1,257 @@
+"""A sweep's output under faults: concurrent writers, damaged parts, unwritable folders, Ctrl-C.
+
+Each test asserts what a user relies on when publishing from a sweep: no row lost, doubled or
+silently changed, and one plain line (never a traceback) for every refusal.
+"""
+
+import errno
+import json
+import os
+import pathlib
+import signal
+import socket
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from jaxapf.cli import main
+from jaxapf.lock import LOCK_NAME, OutputLock
+from jaxapf.sweep import parse_spec, read_sweep, run_sweep
+from jaxapf.sweep.output import part_files, verify_part
+from jaxapf.validation import ConfigError
+
+SPEC = {
+    "name": "faults",
+    "scenario": {"families": ["trap", "crossing"], "fields": 12, "seed": 3},
+    "sim": {"t_max": 2.0, "horizon": 3, "iters": 3},
+    "grid": {"k_rep": [5.0, 10.0]},
+}
+ROWS = 2 * 2 * 12
+KEY = ["setting", "family", "field"]
+
+SPEC_TOML = """name = "faults"
+[scenario]
+families = ["trap", "crossing"]
+fields = 12
+seed = 3
+[sim]
+t_max = 2.0
+horizon = 3
+iters = 3
+[grid]
+k_rep = [5.0, 10.0]
+"""
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    out = tmp_path_factory.mktemp("ref") / "faults.parquet"
+    run_sweep(parse_spec(SPEC), out, chunk_fields=3, quiet=True)
+    df, _ = read_sweep(out)
+    return out, df
+
+
+def _copy(src: pathlib.Path, dst: pathlib.Path) -> pathlib.Path:
+    dst.mkdir()
+    for p in src.iterdir():
+        (dst / p.name).write_bytes(p.read_bytes())
+    return dst
+
+
+def _cli(args: list[str], tmp_path: pathlib.Path, **kw) -> subprocess.Popen:
+    spec = tmp_path / "faults.toml"
+    spec.write_text(SPEC_TOML)
+    env = {**os.environ, "JAX_PLATFORMS": "cpu"}
+    return subprocess.Popen([sys.executable, "-m", "jaxapf", "sweep", str(spec), "--no-cache", "--quiet", *args],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, **kw)
+
+
+def _wait_for(predicate, timeout: float = 120.0) -> None:
+    end = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > end:
+            raise TimeoutError
+        time.sleep(0.05)
+
+
+def _one_line(stderr: str) -> str:
+    lines = [line for line in stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "Traceback" not in stderr, stderr
+    return lines[0]
+
+
+# --------------------------------------------------------------------------------------------
+# one writer per output
+# --------------------------------------------------------------------------------------------
+
+def test_a_second_sweep_on_the_same_output_refuses_and_the_first_finishes(reference, tmp_path):
+    out = tmp_path / "shared.parquet"
+    first = _cli(["--out", str(out), "--chunk-fields", "3"], tmp_path)
+    _wait_for(lambda: (out / LOCK_NAME).exists())
+    second = _cli(["--out", str(out), "--chunk-fields", "4"], tmp_path)
+    _, err2 = second.communicate(timeout=300)
+    _, err1 = first.communicate(timeout=300)
+    assert first.returncode == 0, err1
+    assert second.returncode == 2
+    line = _one_line(err2)
+    assert f"is being written by pid {first.pid} on {socket.gethostname()}" in line and "one writer" in line
+    df, meta = read_sweep(out)
+    assert meta["complete"] and len(df) == ROWS and not df.duplicated(KEY).any()
+    pd.testing.assert_frame_equal(df, reference[1])
+    assert not (out / LOCK_NAME).exists()
+
+
+def test_a_stale_lock_is_removed_with_a_note_and_a_foreign_one_names_the_command(reference, tmp_path, capsys):
+    out = _copy(reference[0], tmp_path / "stale.parquet")
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    lock = {"pid": int(dead.stdout), "host": socket.gethostname(), "start": "1", "since": time.time(),
+            "command": "jaxapf sweep old.toml"}
+    (out / LOCK_NAME).write_text(json.dumps(lock))
+    result = run_sweep(parse_spec(SPEC), out, quiet=False)
+    assert result.episodes == 0 and result.skipped == ROWS
+    assert f"removed the stale lock of pid {lock['pid']}" in capsys.readouterr().err
+    assert not (out / LOCK_NAME).exists()
+    (out / LOCK_NAME).write_text(json.dumps(lock | {"host": "another-host", "pid": 1}))
+    with pytest.raises(ConfigError, match=r"locked by pid 1 on another-host .* cannot be checked from here; .*rm '"):
+        run_sweep(parse_spec(SPEC), out, quiet=True)
+
+
+def test_the_lock_of_a_live_process_is_kept(tmp_path):
+    with OutputLock(tmp_path, "test"):
+        with pytest.raises(ConfigError, match="already being written by this process"):
+            OutputLock(tmp_path, "test").acquire()
+        assert (tmp_path / LOCK_NAME).exists()
+    assert not (tmp_path / LOCK_NAME).exists()
+
+
+# --------------------------------------------------------------------------------------------
+# every part verifiable
+# --------------------------------------------------------------------------------------------
+
+def test_a_truncated_part_is_named_and_repair_recomputes_exactly_it(reference, tmp_path):
+    out = _copy(reference[0], tmp_path / "trunc.parquet")
+    parts = part_files(out)
+    victim = parts[len(parts) // 2]  # not the first part
+    victim.write_bytes(victim.read_bytes()[: victim.stat().st_size // 2])
+    with pytest.raises(ConfigError, match=rf"1 damaged part\(s\): {victim.name}: .*--repair"):
+        run_sweep(parse_spec(SPEC), out, chunk_fields=3, quiet=True)
+    with pytest.raises(ConfigError, match=victim.name):
+        read_sweep(out)
+    before = {p.name: p.stat().st_mtime_ns for p in parts if p != victim}
+    rerun = []
+    result = run_sweep(parse_spec(SPEC), out, chunk_fields=3, repair=True, quiet=True, after_part=rerun.append)
+    assert [c.name for c in rerun] == [victim.name] and result.episodes == 2 * 3
+    assert {p.name: p.stat().st_mtime_ns for p in part_files(out) if p.name != victim.name} == before
+    pd.testing.assert_frame_equal(read_sweep(out)[0], reference[1])
+
+
+def test_cli_names_the_damaged_part_with_the_remedy(reference, tmp_path, capsys):
+    out = _copy(reference[0], tmp_path / "cli.parquet")
+    victim = part_files(out)[-1]
+    victim.write_bytes(victim.read_bytes()[:-7])
+    spec = tmp_path / "faults.toml"
+    spec.write_text(SPEC_TOML)
+    rc = main(["sweep", str(spec), "--dry-run", "--no-cache", "--out", str(out), "--chunk-fields", "3"])
+    err = capsys.readouterr().err
+    assert rc == 2 and victim.name in _one_line(err) and "--repair" in err
+
+
+def test_every_bit_flip_is_refused_or_harmless(reference, tmp_path):
+    """60 single-bit flips at random offsets of random parts: reading either refuses, naming the
+    part, or returns exactly the reference rows. None changes a number silently."""
+    rng = np.random.default_rng(0)
+    out = _copy(reference[0], tmp_path / "flips.parquet")
+    parts = part_files(out)
+    refused = harmless = 0
+    for _ in range(60):
+        victim = parts[rng.integers(len(parts))]
+        data = bytearray(victim.read_bytes())
+        at = int(rng.integers(len(data)))
+        data[at] ^= 1 << int(rng.integers(8))
+        original = victim.read_bytes()
+        victim.write_bytes(bytes(data))
+        try:
+            df, _ = read_sweep(out)
+        except ConfigError as err:
+            assert victim.name in str(err)
+            assert verify_part(victim) is not None
+            refused += 1
+        else:
+            pd.testing.assert_frame_equal(df, reference[1])
+            harmless += 1
+        victim.write_bytes(original)
+    assert refused + harmless == 60 and refused > 0
+
+
+# --------------------------------------------------------------------------------------------
+# unwritable outputs and interruptions: one line, before any work
+# --------------------------------------------------------------------------------------------
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only directories")
+def test_a_read_only_output_folder_is_refused_before_any_work(tmp_path, capsys):
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    folder.chmod(0o555)
+    spec = tmp_path / "faults.toml"
+    spec.write_text(SPEC_TOML)
+    try:
+        rc = main(["sweep", str(spec), "--no-cache", "--out", str(folder / "x.parquet")])
+    finally:
+        folder.chmod(0o755)
+    assert rc == 2 and "cannot be written: Permission denied" in _one_line(capsys.readouterr().err)
+
+
+@pytest.mark.parametrize("command", ["sweep", "report", "simulate"])
+def test_a_read_only_file_system_is_one_line(command, tmp_path, capsys, monkeypatch):
+    """The same refusal on a read-only file system (EROFS, faked: tests may run as root)."""
+    def refuse(self, data):
+        raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(self))
+
+    monkeypatch.setattr(pathlib.Path, "write_bytes", refuse)
+    spec = tmp_path / "faults.toml"
+    spec.write_text(SPEC_TOML)
+    out = str(tmp_path / "out")
+    argv = {"sweep": ["sweep", str(spec), "--no-cache", "--out", out],
+            "report": ["report", str(tmp_path / "missing.parquet"), "--out", out],
+            "simulate": ["simulate", "--family", "trap", "--out", out]}[command]
+    rc = main(argv)
+    assert rc == 2 and "cannot be written: Read-only file system" in _one_line(capsys.readouterr().err)
+
+
+def test_output_paths_that_are_files_are_refused(tmp_path, capsys):
+    spec = tmp_path / "faults.toml"
+    spec.write_text(SPEC_TOML)
+    taken = tmp_path / "taken"
+    taken.write_text("mine")
+    assert main(["sweep", str(spec), "--no-cache", "--out", str(taken)]) == 2
+    assert "is a file" in _one_line(capsys.readouterr().err)
+    assert main(["report", str(tmp_path / "missing.parquet"), "--out", str(taken)]) == 2
+    assert "is a file" in _one_line(capsys.readouterr().err)
+    assert taken.read_text() == "mine"
+
+
+def test_sigint_ends_a_sweep_with_one_line_and_the_rerun_completes_it(reference, tmp_path):
+    out = tmp_path / "sigint.parquet"
+    run = _cli(["--out", str(out), "--chunk-fields", "1"], tmp_path)
+    _wait_for(lambda: out.exists() and len(part_files(out)) >= 2)
+    run.send_signal(signal.SIGINT)
+    _, err = run.communicate(timeout=120)
+    if run.returncode == 0:
+        pytest.skip("the sweep finished before the signal arrived")
+    assert run.returncode == 130
+    line = _one_line(err)
+    assert line.startswith("jaxapf sweep: interrupted; ") and "finished part(s) are kept" in line
+    assert "rerun the same command to resume" in line
+    kept = part_files(out)
+    assert kept and all(verify_part(p) is None for p in kept)
+    assert not (out / LOCK_NAME).exists() and not any(p.name.startswith(".part-") for p in out.iterdir())
+    rerun = _cli(["--out", str(out), "--chunk-fields", "1"], tmp_path)
+    _, err = rerun.communicate(timeout=300)
+    assert rerun.returncode == 0, err
+    df, meta = read_sweep(out)
+    assert meta["complete"] and not df.duplicated(KEY).any()
+    pd.testing.assert_frame_equal(df, reference[1])
