@@ -79,10 +79,11 @@ def _free_seed(start: int, taken: set[int]) -> int:
     return seed
 
 
-def tune_spec(spec: CompareSpec, method: str, seed: int, steps: int = 0):
+def tune_spec(spec: CompareSpec, method: str, seed: int, steps: int = 1):
     """The :class:`~jaxapf.tune.TuneSpec` of one selection: training families and seed, the
     method, the shared ``[sim]``, scenario parameters and objective, the method's searched gains.
-    Its validation and (unused) test seeds avoid every selection seed and the test seed."""
+    Its validation and (unused) test seeds avoid every selection seed and the test seed; ``steps``
+    matters to a gradient search only (the others use the spec for its fields and scoring)."""
     sel = spec.selection
     options = dict(sel.gradient)
     validation_fields = options.pop("validation_fields", 4 * len(sel.families))
