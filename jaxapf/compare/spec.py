@@ -115,13 +115,13 @@ class CompareSpec:
     plugins: tuple[str, ...] = ()
 
     def method_gains(self, method: str) -> tuple[str, ...]:
-        """The searched gains ``method`` reads (its planner's, plus the filter's and plant's)."""
-        from ..control import FILTERS
-        from ..dynamics import PLANTS
+        """The searched gains ``method`` reads (its planner's, plus the filter's and plant's:
+        :func:`jaxapf.rollout.gains_read`)."""
+        from ..config import SIM_KEYS, SimConfig
+        from ..rollout import gains_read
 
-        read = {g.name for g in PLANNERS.get(method).gains}
-        read |= {g.name for g in FILTERS.get(self.sim.get("filter", "none")).gains}
-        read |= {g.name for g in PLANTS.get(self.sim.get("plant", "double_integrator")).gains}
+        sim = SimConfig.from_flat({**{k: v for k, v in self.sim.items() if k in SIM_KEYS}, "method": method})
+        read = gains_read(sim)
         return tuple(g for g in self.selection.gains if g in read)
 
 

@@ -255,3 +255,29 @@ def test_sigint_ends_a_sweep_with_one_line_and_the_rerun_completes_it(reference,
     df, meta = read_sweep(out)
     assert meta["complete"] and not df.duplicated(KEY).any()
     pd.testing.assert_frame_equal(df, reference[1])
+
+
+@pytest.mark.parametrize("command", ["report", "simulate", "compare"])
+def test_ctrl_c_is_one_line_saying_what_was_kept(command, tmp_path, capsys, monkeypatch, reference):
+    """Ctrl-C in any command: one line, status 130, no traceback."""
+    import jaxapf.compare.protocol
+    import jaxapf.report
+    import jaxapf.simulate
+
+    def interrupt(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    target = {"report": (jaxapf.report, "build_report"), "simulate": (jaxapf.simulate, "simulate_runs"),
+              "compare": (jaxapf.compare.protocol, "select")}[command]
+    monkeypatch.setattr(*target, interrupt)
+    spec = tmp_path / "c.toml"
+    spec.write_text('methods = ["basic", "direction"]\n[selection]\nfamilies = ["trap"]\nseeds = [1, 2, 3]\n'
+                    'budget = 8\n[test]\nfamilies = ["trap"]\nfields = 2\n')
+    argv = {"report": ["report", str(reference[0]), "--out", str(tmp_path / "r")],
+            "simulate": ["simulate", "--family", "trap", "--out", str(tmp_path / "s")],
+            "compare": ["compare", str(spec), "--out", str(tmp_path / "c"), "--no-cache"]}[command]
+    assert main(argv) == 130
+    line = _one_line(capsys.readouterr().err)
+    assert line.startswith(f"jaxapf {command}: interrupted; ")
+    if command == "compare":
+        assert "finished selections and test parts are kept" in line and not (tmp_path / "c" / LOCK_NAME).exists()
