@@ -157,12 +157,15 @@ def build_parser() -> argparse.ArgumentParser:
     cmp.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
     cmp.add_argument("--quiet", action="store_true", help="no progress bar or messages")
 
-    bench = sub.add_parser("bench", help="speed: the engine against the numpy + OSQP oracle, and whole sweeps",
+    bench = sub.add_parser("bench", help="speed: the engine against a vectorised numpy peer and the numpy + OSQP "
+                                         "oracle, and whole sweeps",
                            description="Measure the engine's and the sweep's speed on this machine.")
     bsub = bench.add_subparsers(dest="bench", required=True)
-    eng = bsub.add_parser("engine", help="the engine against the numpy + OSQP oracle on the same fields",
-                          description="Time the batched engine and the numpy + OSQP oracle on the same fields, "
-                                      "interleaved in one run.")
+    eng = bsub.add_parser("engine", help="the engine against a vectorised numpy peer and the numpy + OSQP oracle "
+                                         "on the same fields",
+                          description="Time the batched engine, the same closed loop in numpy vectorised over the "
+                                      "fields, and the per-field numpy + OSQP oracle on the same fields, interleaved "
+                                      "in one run.")
     eng.add_argument("--fields", type=int, default=1024, help="fields in the engine's batch (default 1024)")
     eng.add_argument("--obstacles", type=int, default=16, help="obstacle slots per field (default 16)")
     eng.add_argument("--horizon", type=int, default=20, help="MPC horizon N (default 20)")
@@ -170,6 +173,9 @@ def build_parser() -> argparse.ArgumentParser:
     eng.add_argument("--steps", type=int, default=300, help="control steps per episode (default 300)")
     eng.add_argument("--oracle-fields", type=int, default=3,
                      help="fields run by the numpy + OSQP oracle (default 3; 0: skip it)")
+    eng.add_argument("--vectorised-steps", type=int, default=30,
+                     help="control steps of the vectorised numpy peer on all fields, per timed round (default 30; "
+                          "0: skip it)")
     eng.add_argument("--family", default="clutter", choices=FAMILIES.names(), metavar="NAME",
                      help="scenario family (default clutter)")
     eng.add_argument("--width", type=int, help="vmap width (default: 1024 on CPU, 4096 on accelerators)")
@@ -273,7 +279,7 @@ def _bench(args: argparse.Namespace) -> int:
         configure_jax(cpu_devices=args.devices)
     result = run_benchmark(fields=args.fields, obstacles=args.obstacles, horizon=args.horizon, iters=args.iters,
                            steps=args.steps, oracle_fields=args.oracle_fields, family=args.family, width=args.width,
-                           devices=args.devices)
+                           devices=args.devices, vectorised_steps=args.vectorised_steps)
     print(json.dumps(result, indent=2) if args.json else format_benchmark(result))
     return 0
 

@@ -126,6 +126,7 @@ def run_benchmark(
     steps: int = 300,
     oracle_fields: int = 3,
     family: str = "clutter",
+    vectorised_steps: int = 30,
     seed: int = 0,
     method: str = "direction_velocity",
     width: int | None = None,
@@ -142,6 +143,10 @@ def run_benchmark(
       horizon, iters: MPC horizon N and FISTA iterations (``MPCConfig``).
       steps: control steps per episode (``SimConfig(t_max=steps * 0.1)``, dt = 0.1 s).
       oracle_fields: how many of the fields the oracle runs (0 skips it).
+      vectorised_steps: control steps of the vectorised numpy peer
+        (:func:`~jaxapf.bench.vectorised.vectorised_rollout`) on all ``fields`` in each timed
+        round (0 skips it): a step costs the same all episode long, so its scenario-steps/s from
+        fewer steps is the whole episode's.
       family, seed: scenario family and seed (``make_scenarios(seed, params, fields)``).
       method: planner (``PlannerConfig.method``).
       width: the vmap width of :func:`~jaxapf.rollout.evaluate` (default:
@@ -154,11 +159,13 @@ def run_benchmark(
         ``fields`` and ``obstacles`` are then read from it.
 
     Returns:
-      A JSON-serialisable dict: ``config``, ``environment``, ``engine``, ``oracle`` (None when
-      skipped), ``speedup`` (None when skipped).
+      A JSON-serialisable dict: ``config``, ``environment``, ``engine``, ``oracle`` and
+      ``vectorised`` (None when skipped), ``speedup`` and ``speedup_vectorised`` (engine over each
+      peer in scenario-steps/s; None when skipped).
     """
     fields = check_int("bench.fields", fields, 1)
     oracle_fields = check_int("bench.oracle_fields", oracle_fields, 0)
+    vectorised_steps = check_int("bench.vectorised_steps", vectorised_steps, 0)
     devices = check_int("bench.devices", devices, 1, jax.local_device_count())
     t0 = time.perf_counter()
     case = bench_case(fields, obstacles, horizon, iters, steps, family, seed=seed, method=method, width=width,
@@ -196,14 +203,24 @@ def run_benchmark(
 
         require_osqp()
         host = jax.device_get(scenarios)
-    runs, cpus, per_field, base_cpu = [], [], [], 0.0
+    n_vec = 3 if vectorised_steps > 0 else 0
+    if n_vec:
+        import dataclasses
+
+        from .vectorised import vectorised_rollout
+
+        host = jax.device_get(scenarios)
+        vec_sim = dataclasses.replace(sim, episode=dataclasses.replace(
+            sim.episode, t_max=min(vectorised_steps, sim.episode.steps) * sim.episode.dt))
+        vec_steps = vec_sim.episode.steps
+    runs, cpus, per_field, base_cpu, vec_runs = [], [], [], 0.0, []
     try:
         t0 = time.perf_counter()
         _block(run(scenarios, gains_batch))
         t_first = time.perf_counter() - t0
         # Steady engine runs alternate with the oracle's fields (engine, field 0, engine, field 1,
         # ...), so a drift of a shared machine's speed hits both sides of the ratio alike.
-        for i in range(max(n_base, 1)):
+        for i in range(max(n_base, n_vec, 1)):
             t0, c0 = time.perf_counter(), time.process_time()
             metrics = _block(run(scenarios, gains_batch))
             runs.append(time.perf_counter() - t0)
@@ -214,6 +231,10 @@ def run_benchmark(
                 oracle_rollout(one, gains, sim, mpc)
                 per_field.append(time.perf_counter() - t0)
                 base_cpu += time.process_time() - c0
+            if i < n_vec:
+                t0 = time.perf_counter()
+                vectorised_rollout(host, gains, vec_sim, mpc, dtype=np.dtype(dtype))
+                vec_runs.append(time.perf_counter() - t0)
     finally:
         if devices > 1:
             batch.close()
@@ -246,6 +267,12 @@ def run_benchmark(
             "all_fields_estimate_s": total / n_base * fields,
         }
         speedup = engine["steps_per_s"] / oracle["steps_per_s"]
+    vectorised = speedup_vectorised = None
+    if n_vec:
+        t_vec = float(np.median(vec_runs))
+        vectorised = {"steps": vec_steps, "run_s": t_vec, "run_all_s": vec_runs,
+                      "steps_per_s": fields * vec_steps / t_vec}
+        speedup_vectorised = engine["steps_per_s"] / vectorised["steps_per_s"]
 
     return {
         "config": {
@@ -256,6 +283,7 @@ def run_benchmark(
             "steps": sim.episode.steps,
             "dt": sim.episode.dt,
             "oracle_fields": n_base,
+            "vectorised_steps": vectorised["steps"] if vectorised else 0,
             "family": source,
             "seed": seed,
             "method": method,
@@ -267,6 +295,8 @@ def run_benchmark(
         "engine": engine,
         "oracle": oracle,
         "speedup": speedup,
+        "vectorised": vectorised,
+        "speedup_vectorised": speedup_vectorised,
     }
 
 
@@ -301,6 +331,13 @@ def format_benchmark(result: dict[str, Any]) -> str:
         ]
     else:
         lines += ["", "  oracle skipped (oracle_fields = 0)"]
+    vec = result.get("vectorised")
+    if vec is not None:
+        lines += [
+            f"  {'vectorised numpy, all fields':34s}{format_seconds(vec['run_s']):>12s}{vec['steps_per_s']:>20,.0f}",
+            f"  {'  (' + str(vec['steps']) + ' steps, median of ' + str(len(vec['run_all_s'])) + ')':34s}",
+            f"  speed-up (engine / vectorised numpy steps/s): {result['speedup_vectorised']:,.1f}x",
+        ]
     rates = [f"{k[:-5]} {v:.1%}" for k, v in eng.items() if k.endswith("_rate")]
     if rates:
         lines.append("  engine episodes: " + ", ".join(rates))

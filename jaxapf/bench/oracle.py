@@ -120,7 +120,9 @@ def _gain_values(gains: Any) -> dict[str, float]:
 
 
 # --------------------------------------------------------------------------------------------
-# potentials and forces (SPEC 3), vectorised over the obstacles of one field
+# potentials and forces (SPEC 3), vectorised over the obstacles of one field and over any
+# leading batch axes (p (..., 3), obstacle arrays (..., M, ...)): the per-field oracle calls them
+# with none, the vectorised peer (jaxapf.bench.vectorised) with one axis of fields
 # --------------------------------------------------------------------------------------------
 
 
@@ -140,23 +142,23 @@ def _floored(d: np.ndarray, d_min: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _rep_terms(p, v, t, arrays, gains, sim):
-    """Per-obstacle ``U_rep`` (M,), ``∇U_rep`` (M, 3), ``ω`` (M,), ``∇ω`` (M, 3); masked by the caller."""
+    """Per-obstacle ``U_rep`` (..., M), ``∇U_rep`` (..., M, 3), ``ω`` (..., M), ``∇ω`` (..., M, 3);
+    masked by the caller."""
     centres = arrays["position"] + arrays["velocity"] * t
     proj = arrays["proj"]  # diag(P): drops z for a cylinder
 
     # clearance d = |P(p - p_o)| - rho - r_uav and its gradient P r/|r| = r/|r| (r is projected)
-    r = proj * (p - centres)
+    r = proj * (p[..., None, :] - centres)
     dist, active = _safe_norm(r)
     d = dist - arrays["radius"] - sim.vehicle.r_uav
-    grad_d = r / dist[:, None]
-    grad_d[~active] = 0.0  # safe_norm's gradient vanishes below its floor
+    grad_d = np.where(active[..., None], r / dist[..., None], 0.0)  # safe_norm's gradient vanishes below its floor
 
     # U_rep = ½ k_rep (1/d̃ - 1/d_s)² for d̃ <= d_s, d̃ the floored clearance
     d_fl, slope = _floored(d, sim.planner.d_min)
     inside = d_fl <= gains["d_s"]
     gap = np.where(inside, 1.0 / d_fl - 1.0 / gains["d_s"], 0.0)
     u_rep = 0.5 * gains["k_rep"] * gap * gap
-    grad_u = (-gains["k_rep"] * gap / (d_fl * d_fl) * slope)[:, None] * grad_d
+    grad_u = (-gains["k_rep"] * gap / (d_fl * d_fl) * slope)[..., None] * grad_d
 
     if sim.planner.method == "basic":
         return u_rep, grad_u, np.ones_like(u_rep), np.zeros_like(grad_u)
@@ -165,54 +167,60 @@ def _rep_terms(p, v, t, arrays, gains, sim):
     sigma = 1.0 if sim.planner.convention == "intent" else -1.0
     sight = (-sigma) * r  # r = P (p - p_o)
     s_norm, s_active = _safe_norm(sight)
-    n = sight / s_norm[:, None]
-    scale = (-sigma / s_norm)[:, None] * proj
+    n = sight / s_norm[..., None]
+    scale = (-sigma / s_norm)[..., None] * proj
 
-    def grad_dot(a, a_dot_n):  # a (M, 3) or (3,), a_dot_n (M,)
-        tangential = a - a_dot_n[:, None] * n * s_active[:, None]
+    def grad_dot(a, a_dot_n):  # a (..., M, 3), a_dot_n (..., M)
+        tangential = a - a_dot_n[..., None] * n * s_active[..., None]
         return scale * tangential
 
-    speed = np.sqrt(v @ v + sim.planner.eps_v**2)
-    v_n = n @ v
+    v_m = v[..., None, :]  # the vehicle's velocity against every obstacle
+    speed = np.sqrt((v * v).sum(axis=-1) + sim.planner.eps_v**2)[..., None]
+    v_n = (n * v_m).sum(axis=-1)
     cos_theta = v_n / speed
     half_gamma = 0.5 * gains["gamma"]
     w_dir = 1.0 + half_gamma * (1.0 + cos_theta)
-    grad_w_dir = (half_gamma / speed) * grad_dot(v, v_n)
+    grad_w_dir = (half_gamma / speed)[..., None] * grad_dot(v_m, v_n)
     if sim.planner.method == "direction":
         return u_rep, grad_u, w_dir, grad_w_dir
 
-    rel = v - arrays["velocity"]
+    rel = v_m - arrays["velocity"]
     c = (rel * n).sum(axis=-1)
     tc = np.tanh(c)
     w_vel = 2.0 + gains["k"] * tc
-    grad_w_vel = (gains["k"] * (1.0 - tc * tc))[:, None] * grad_dot(rel, c)
+    grad_w_vel = (gains["k"] * (1.0 - tc * tc))[..., None] * grad_dot(rel, c)
     omega = w_dir * w_vel
-    grad_omega = grad_w_dir * w_vel[:, None] + w_dir[:, None] * grad_w_vel
+    grad_omega = grad_w_dir * w_vel[..., None] + w_dir[..., None] * grad_w_vel
     return u_rep, grad_u, omega, grad_omega
 
 
 def _attractive(p, goal, k_att, att_cap):
+    """``U_att`` (...) and ``∇U_att`` (..., 3): quadratic, linear beyond ``att_cap`` (if set)."""
     e = p - goal
     dist, active = _safe_norm(e)
-    if att_cap is None or dist <= att_cap:
-        return 0.5 * k_att * dist**2, (k_att * e if active else np.zeros(3))
-    return k_att * (att_cap * dist - 0.5 * att_cap**2), k_att * att_cap * e / dist
+    u = 0.5 * k_att * dist**2
+    grad = np.where(active[..., None], k_att * e, 0.0)
+    if att_cap is None:
+        return u, grad
+    far = dist > att_cap
+    return (np.where(far, k_att * (att_cap * dist - 0.5 * att_cap**2), u),
+            np.where(far[..., None], k_att * att_cap * e / dist[..., None], grad))
 
 
 def total_potential(p: np.ndarray, v: np.ndarray, t: float, arrays: dict, gains: dict, sim: Any) -> float:
     """``U_att + Σ_o ω U_rep`` at ``p`` (numpy; ``arrays``/``gains`` as built by :func:`oracle_rollout`)."""
     u_att, _ = _attractive(p, arrays["goal"], gains["k_att"], sim.planner.att_cap)
     u_rep, _, omega, _ = _rep_terms(p, v, t, arrays, gains, sim)
-    return float(u_att + np.sum(np.where(arrays["valid"], omega * u_rep, 0.0)))
+    return u_att + np.sum(np.where(arrays["valid"], omega * u_rep, 0.0), axis=-1)
 
 
 def total_force(p: np.ndarray, v: np.ndarray, t: float, arrays: dict, gains: dict, sim: Any) -> np.ndarray:
     """Analytic ``-∇_p`` of :func:`total_potential`: ``-∇U_att - Σ_o (ω ∇U_rep + U_rep ∇ω)``."""
     _, grad_att = _attractive(p, arrays["goal"], gains["k_att"], sim.planner.att_cap)
     u_rep, grad_u, omega, grad_omega = _rep_terms(p, v, t, arrays, gains, sim)
-    per_obstacle = omega[:, None] * grad_u + u_rep[:, None] * grad_omega
-    per_obstacle = np.where(arrays["valid"][:, None], per_obstacle, 0.0)
-    return -(grad_att + np.sum(per_obstacle, axis=0))
+    per_obstacle = omega[..., None] * grad_u + u_rep[..., None] * grad_omega
+    per_obstacle = np.where(arrays["valid"][..., None], per_obstacle, 0.0)
+    return -(grad_att + np.sum(per_obstacle, axis=-2))
 
 
 # --------------------------------------------------------------------------------------------
@@ -222,14 +230,14 @@ def total_force(p: np.ndarray, v: np.ndarray, t: float, arrays: dict, gains: dic
 
 def _saturate(u: np.ndarray, limit: float) -> np.ndarray:
     norm, _ = _safe_norm(u)
-    return u * min(1.0, limit / norm)
+    return u * np.minimum(1.0, limit / norm)[..., None]
 
 
 def apf_reference(x: np.ndarray, t: float, arrays: dict, gains: dict, sim: Any, horizon: int) -> np.ndarray:
-    """Reference states (N+1, 6) for ``x(k..k+N)``: the saturated gradient flow from ``x`` at ``t``,
-    obstacles extrapolated at constant velocity, zero velocity reference (or the flow velocities
-    with ``sim.planner.reference_velocity``)."""
-    p, v = x[:3].copy(), x[3:].copy()
+    """Reference states (..., N+1, 6) for ``x(k..k+N)`` (``x`` (..., 6)): the saturated gradient
+    flow from ``x`` at ``t``, obstacles extrapolated at constant velocity, zero velocity reference
+    (or the flow velocities with ``sim.planner.reference_velocity``)."""
+    p, v = x[..., :3], x[..., 3:]
     positions, velocities = [p], [v]
     for i in range(horizon):
         force = total_force(p, v, t + i * sim.episode.dt, arrays, gains, sim)
@@ -237,10 +245,10 @@ def apf_reference(x: np.ndarray, t: float, arrays: dict, gains: dict, sim: Any, 
         p, v = p + sim.episode.dt * u, u
         positions.append(p)
         velocities.append(u)
-    ref = np.zeros((horizon + 1, 6))
-    ref[:, :3] = positions
+    ref = np.zeros(x.shape[:-1] + (horizon + 1, 6), x.dtype)
+    ref[..., :3] = np.stack(positions, axis=-2)
     if sim.planner.reference_velocity:
-        ref[:, 3:] = velocities
+        ref[..., 3:] = np.stack(velocities, axis=-2)
     return ref
 
 
