@@ -111,6 +111,8 @@ def build_parser() -> argparse.ArgumentParser:
                                         "sweep's episodes (docs/report.md)",
                          description="Write the statistical report of a sweep's episodes.")
     rep.add_argument("sweep", type=pathlib.Path, help="the sweep's output, runs/NAME.parquet")
+    rep.add_argument("--no-cache", action="store_true",
+                     help="do not use the persistent compilation cache for the gallery's re-simulations")
     rep.add_argument("--out", type=pathlib.Path, help="output folder (default reports/NAME/)")
     rep.add_argument("--baseline", default="method=basic", metavar="COLUMN=VALUE[,...]",
                      help="baseline setting(s) every other setting is compared with (default method=basic; "
@@ -311,6 +313,9 @@ def _compare(args: argparse.Namespace) -> int:
 
 def _report(args: argparse.Namespace) -> int:
     from .report import ReportOptions, build_report
+    from .sweep import configure_jax, default_cache_dir
+
+    configure_jax(cache_dir=None if args.no_cache else default_cache_dir())
 
     heatmap = None if args.heatmap.strip().lower() in ("", "none") else tuple(
         c.strip() for c in args.heatmap.split(","))
