@@ -15,7 +15,7 @@ def test_run_benchmark_small_custom_batch(field_factory):
     one = field_factory(np)
     batch = jax.tree_util.tree_map(lambda x: np.stack([x, x]).astype(np.float32) if x.dtype == np.float64
                                    else np.stack([x, x]), one)
-    result = run_benchmark(steps=5, horizon=4, iters=5, oracle_fields=2, scenarios=batch)
+    result = run_benchmark(steps=5, horizon=4, iters=5, oracle_fields=2, vectorised_steps=0, scenarios=batch)
     assert result["config"]["fields"] == 2 and result["config"]["obstacles"] == 4
     assert result["engine"]["run_s"] > 0 and result["oracle"]["fields"] == 2
     # one steady engine run before each oracle field; the reported one is their median
