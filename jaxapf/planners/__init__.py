@@ -6,13 +6,15 @@
 :mod:`.weights`           repulsive weights ω (:class:`Weight`, :data:`WEIGHTS`), paper eq. 14–20
 :mod:`.potentials`        attractive and weighted repulsive potentials and their forces
 :mod:`.sight`             the line of sight, component by component
+:mod:`.vortex`            a vortex force term (:class:`Vortex`) and the ``vortex`` planner
 ========================  =================================================================
 """
 
 from .apf import APF, ForceTerm, register_weight, saturate
 from .base import PLANNERS, Planner, register_planner
 from .sight import Sight
+from .vortex import Vortex
 from .weights import WEIGHTS, Basic, Direction, DirectionVelocity, Weight
 
 __all__ = ["Planner", "PLANNERS", "register_planner", "APF", "ForceTerm", "saturate", "Weight", "WEIGHTS",
-           "register_weight", "Sight", "Basic", "Direction", "DirectionVelocity"]
+           "register_weight", "Sight", "Basic", "Direction", "DirectionVelocity", "Vortex"]
