@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from ..control.mpc import _momentum
 from ..validation import check_choice
 from .oracle import _gain_values, apf_reference
 
@@ -54,16 +55,6 @@ def _axis_matrices(sim: Any, mpc: Any, dtype) -> dict[str, np.ndarray]:
     return dict(m=m, c=c, q_aug=np.asarray(prob.q_aug, dtype), kernel=np.asarray(prob.kernel, dtype),
                 step=(1.0 / np.asarray(prob.lipschitz, np.float64)).astype(dtype)[:, None],
                 rho=dtype(prob.v_penalty), m_vel=m[3::2], c_vel=c[3::2])
-
-
-def _momentum(iters: int) -> list[float]:
-    """FISTA's extrapolation coefficients ``(t_j - 1)/t_{j+1}``."""
-    t, out = 1.0, []
-    for _ in range(iters):
-        t_next = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * t * t))
-        out.append((t - 1.0) / t_next)
-        t = t_next
-    return out
 
 
 def _solve_axes(mats: dict, x: np.ndarray, x_ref: np.ndarray, warm: np.ndarray, *, a_max: float, v_max: float,
@@ -106,7 +97,7 @@ def vectorised_rollout(scenarios: Any, gains: Any, sim: Any, mpc: Any, *, dtype:
     arrays = _field_arrays(scenarios, dtype)
     g = _gain_values(gains)
     mats = _axis_matrices(sim, mpc, dtype)
-    betas = _momentum(mpc.iters)
+    betas = [float(b) for b in _momentum(mpc.iters)]  # the engine's FISTA coefficients
     steps, dt = sim.episode.steps, dtype(sim.episode.dt)
     fields = arrays["start"].shape[0]
     x = np.concatenate([arrays["start"], np.zeros((fields, 3), dtype)], axis=1)
