@@ -157,7 +157,8 @@ def evaluate_program(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPC
                      metrics: tuple[str, ...]) -> dict[str, Array]:
     """The compiled program behind :func:`evaluate`, every static argument explicit (for
     ``evaluate_program.lower(...)``)."""
-    n_gains = jax.tree_util.tree_leaves(gains)[0].shape[0]
+    n_gains = max((jnp.shape(x)[0] for x in jax.tree_util.tree_leaves(gains) if jnp.ndim(x)), default=1)
+    gains = jax.tree_util.tree_map(lambda x: x if jnp.ndim(x) else jnp.full((n_gains,), x), gains)
     n_fields = scenarios.start.shape[0]
     total = n_gains * n_fields
     width = min(width, total)
@@ -185,7 +186,8 @@ def evaluate(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, 
 
     Args:
       scenarios: a batch of F fields (leading axis F on every leaf).
-      gains: a batch of G gain settings (leading axis G on every leaf).
+      gains: a batch of G gain settings (leading axis G on every array leaf; a scalar leaf, e.g. a
+        gain left at its default, is shared by all G settings).
       width: episodes vmapped together (static; ``None``: :func:`default_width`).
       metrics: the metrics to compute (default: every registered one, :data:`~jaxapf.metrics.METRICS`).
     """

@@ -85,7 +85,7 @@ def test_gain_grid_is_one_compiled_call_matching_single_runs():
     assert evaluate_program._cache_size() == size, "changing gain values must not recompile"
     # entry (g, f) is the single episode with those gains on that field
     for g, f in [(0, 0), (2, 1)]:
-        one = jax.tree_util.tree_map(lambda x, g=g: x[g], grid)
+        one = jax.tree_util.tree_map(lambda x, g=g: x[g] if np.ndim(x) else x, grid)  # gains left scalar broadcast
         field = jax.tree_util.tree_map(lambda x, f=f: x[f], scenarios)
         single = episode_metrics(_rollout(field, one, SIM, MPC), field, SIM)
         np.testing.assert_allclose(metrics["path_length"][g, f], single["path_length"], rtol=1e-5)
