@@ -91,7 +91,8 @@ def test_gradient_matches_central_differences_in_float64():
 
 @pytest.mark.filterwarnings("ignore::jaxapf.validation.BoundWarning")  # k > 1 is allowed, and warned about
 @settings(max_examples=60, deadline=None)
-@given(theta=st.lists(st.floats(allow_nan=False, allow_infinity=False, width=32), min_size=6, max_size=6),
+@given(theta=st.lists(st.floats(allow_nan=False, allow_infinity=False, width=32), min_size=len(Gains.names()),
+                     max_size=len(Gains.names())),
        k_max=st.floats(0.01, 10.0))
 def test_reparametrisation_keeps_every_gain_in_range(theta, k_max):
     reparam = Reparam(Gains.names(), Gains(), (("k", k_max),))
@@ -102,6 +103,7 @@ def test_reparametrisation_keeps_every_gain_in_range(theta, k_max):
     assert values["gamma"] >= 0.0
     assert 0.0 <= values["k"] <= k_max * (1 + 1e-6)
     assert all(values[n] > 0.0 for n in ("k_rep", "d_s", "k_att", "eta"))
+    assert all(values[n] >= 0.0 for n in ("n_g", "k_v"))
 
 
 def test_reparametrisation_inverts_and_rejects_unreachable_starts():
