@@ -39,3 +39,29 @@ def three_obstacle_field(xp=jnp, dtype=None) -> Scenario:
 def field_factory():
     """:func:`three_obstacle_field`, as a fixture for tests outside its module's directory."""
     return three_obstacle_field
+
+
+def one_obstacle_scenario(goal_x: float, obstacle_x: float, radius: float) -> Scenario:
+    """Start at the origin (2 m up), the goal and one vertical cylinder on the x axis."""
+    return Scenario(start=jnp.asarray([0.0, 0.0, 2.0]), goal=jnp.asarray([goal_x, 0.0, 2.0]),
+                    obstacles=Obstacles(position=jnp.asarray([[obstacle_x, 0.0, 2.0]]), velocity=jnp.zeros((1, 3)),
+                                        radius=jnp.asarray([radius]), cylinder=jnp.asarray([True]),
+                                        valid=jnp.asarray([True])))
+
+
+def outcomes(scenario: Scenario, methods, t_max: float = 40.0) -> dict[str, dict[str, bool]]:
+    """success / collision / stalled of one episode per planner (default gains, N = 10, I = 20)."""
+    import jax
+
+    from jaxapf import Gains
+    from jaxapf.config import MPCConfig, SimConfig
+    from jaxapf.metrics import episode_metrics
+    from jaxapf.rollout import rollout
+
+    mpc, out = MPCConfig(horizon=10, iters=20), {}
+    for method in methods:
+        sim = SimConfig.from_flat(method=method, t_max=t_max)
+        traj = jax.jit(rollout, static_argnums=(2, 3))(scenario, Gains(), sim, mpc)
+        metrics = episode_metrics(traj, scenario, sim, ("success", "collision", "stalled"))
+        out[method] = {k: bool(v) for k, v in metrics.items()}
+    return out

@@ -4,15 +4,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import three_obstacle_field
+from conftest import one_obstacle_scenario, outcomes, three_obstacle_field
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from jaxapf.bench import oracle
 from jaxapf.config import MPCConfig, SimConfig
-from jaxapf.datatypes import Obstacles, Scenario
 from jaxapf.gains import Gains
-from jaxapf.metrics import episode_metrics
 from jaxapf.planners import PLANNERS, WEIGHTS
 from jaxapf.planners.potentials import total_force
 from jaxapf.rollout import rollout
@@ -97,17 +95,7 @@ def test_n_zero_is_the_basic_planner_to_rounding():
 
 def test_the_ge_cui_planner_reaches_a_goal_next_to_an_obstacle():
     """GNRON: a goal 1 m in front of a cylinder. The basic field settles short of it; Ge–Cui arrives."""
-    scenario = Scenario(start=jnp.asarray([0.0, 0.0, 2.0]), goal=jnp.asarray([10.0, 0.0, 2.0]),
-                        obstacles=Obstacles(position=jnp.asarray([[12.0, 0.0, 2.0]]), velocity=jnp.zeros((1, 3)),
-                                            radius=jnp.asarray([1.0]), cylinder=jnp.asarray([True]),
-                                            valid=jnp.asarray([True])))
-    mpc = MPCConfig(horizon=10, iters=20)
-    outcome = {}
-    for method in ("basic", "ge_cui"):
-        sim = SimConfig.from_flat(method=method, t_max=40.0)
-        traj = jax.jit(rollout, static_argnums=(2, 3))(scenario, Gains(), sim, mpc)
-        outcome[method] = {k: bool(v) for k, v in episode_metrics(traj, scenario, sim, ("success", "collision",
-                                                                                      "stalled")).items()}
+    outcome = outcomes(one_obstacle_scenario(10.0, 12.0, 1.0), ("basic", "ge_cui"))
     assert outcome["basic"] == {"success": False, "collision": False, "stalled": True}
     assert outcome["ge_cui"] == {"success": True, "collision": False, "stalled": False}
 

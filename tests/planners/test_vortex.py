@@ -4,15 +4,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import three_obstacle_field
+from conftest import one_obstacle_scenario, outcomes, three_obstacle_field
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from jaxapf.bench import oracle
 from jaxapf.config import MPCConfig, SimConfig
-from jaxapf.datatypes import Obstacles, Scenario
+from jaxapf.datatypes import Obstacles
 from jaxapf.gains import Gains
-from jaxapf.metrics import episode_metrics
 from jaxapf.planners import PLANNERS, Vortex
 from jaxapf.rollout import rollout
 
@@ -90,17 +89,7 @@ def test_vanishes_beyond_the_influence_distance_and_for_padded_slots():
 def test_the_vortex_planner_passes_an_obstacle_on_the_line_to_the_goal():
     """The GNRON trap in its purest form: a sphere exactly between start and goal. The basic
     potential field stalls in front of it; the vortex goes around and reaches the goal."""
-    scenario = Scenario(start=jnp.asarray([0.0, 0.0, 2.0]), goal=jnp.asarray([16.0, 0.0, 2.0]),
-                        obstacles=Obstacles(position=jnp.asarray([[8.0, 0.0, 2.0]]), velocity=jnp.zeros((1, 3)),
-                                            radius=jnp.asarray([1.5]), cylinder=jnp.asarray([True]),
-                                            valid=jnp.asarray([True])))
-    mpc = MPCConfig(horizon=10, iters=20)
-    outcome = {}
-    for method in ("basic", "vortex"):
-        sim = SimConfig.from_flat(method=method, t_max=40.0)
-        traj = jax.jit(rollout, static_argnums=(2, 3))(scenario, Gains(), sim, mpc)
-        outcome[method] = {k: bool(v) for k, v in episode_metrics(traj, scenario, sim, ("success", "collision",
-                                                                                      "stalled")).items()}
+    outcome = outcomes(one_obstacle_scenario(16.0, 8.0, 1.5), ("basic", "vortex"))
     assert outcome["basic"] == {"success": False, "collision": False, "stalled": True}
     assert outcome["vortex"] == {"success": True, "collision": False, "stalled": False}
 
