@@ -8,11 +8,13 @@
 :mod:`.sight`             the line of sight, component by component
 :mod:`.vortex`            a vortex force term (:class:`Vortex`) and the ``vortex`` planner
 :mod:`.goal_distance`     Ge–Cui's goal-distance weight (:class:`GoalDistance`), planner ``ge_cui``
+:mod:`.escape`            stall escape toward a virtual goal (:class:`StallEscape`), planner ``basic_escape``
 ========================  =================================================================
 """
 
 from .apf import APF, ForceTerm, register_weight, saturate
 from .base import PLANNERS, Planner, register_planner
+from .escape import StallEscape
 from .goal_distance import GoalDistance
 from .sight import Sight
 from .vortex import Vortex
@@ -20,4 +22,4 @@ from .weights import WEIGHTS, Basic, Direction, DirectionVelocity, Weight
 
 __all__ = ["Planner", "PLANNERS", "register_planner", "APF", "ForceTerm", "saturate", "Weight", "WEIGHTS",
            "register_weight", "Sight", "Basic", "Direction", "DirectionVelocity", "Vortex",
-           "GoalDistance"]
+           "GoalDistance", "StallEscape"]

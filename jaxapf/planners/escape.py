@@ -1,0 +1,115 @@
+r"""Stall escape: a planner with state that steers a stalled UAV toward a virtual goal to the side.
+
+A potential-field UAV that stops far from its goal sits in a local minimum: attraction and
+repulsion cancel, and waiting does not help. :class:`StallEscape` wraps any planner and carries,
+through the episode, how long the UAV has been slow and what it is doing about it
+(:meth:`StallEscape.init`/:meth:`StallEscape.reference`, a pair of pure functions):
+
+- **Detection.** The UAV counts as slow while its speed is below ``sim.metrics.v_stall`` and it
+  is farther than ``sim.episode.r_goal`` from the goal; after ``t_detect`` seconds of being slow
+  (and not escaping), an escape starts.
+- **Escape.** For ``t_escape`` seconds the wrapped planner is given a *virtual goal* instead of
+  the real one: the point ``d_escape`` metres to the side of the UAV, perpendicular to the
+  horizontal direction to the goal, fixed when the escape starts. Escapes alternate sides, left
+  of the goal direction first, then right, and so on (a stall that survives one side tries the
+  other). Afterwards the real goal is restored, and detection starts afresh.
+
+Virtual-goal escapes are a classical remedy for local minima of potential fields; the side is
+chosen deterministically (alternating) rather than at random, so an episode needs no random key
+and the same field always flies the same episode. Every quantity is a ``jnp.where`` of the state,
+so the planner jit-compiles, vmaps and differentiates (the switching times themselves carry no
+gradient).
+
+Registered planner: ``basic_escape`` = ``StallEscape(APF(Basic()))`` (gains ``t_detect``,
+``t_escape``, ``d_escape`` and the basic potential's).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import TYPE_CHECKING, Any, NamedTuple
+
+import jax.numpy as jnp
+from jax import Array
+
+from ..gains import GainSpec
+from .apf import APF
+from .base import Planner, register_planner
+from .weights import Basic
+
+if TYPE_CHECKING:
+    from ..config import SimConfig
+    from ..datatypes import ObstacleColumns, Scenario
+    from ..gains import Gains
+
+__all__ = ["T_DETECT", "T_ESCAPE", "D_ESCAPE", "EscapeState", "StallEscape"]
+
+T_DETECT = GainSpec("t_detect", 2.0, low=0.0, low_open=True, unit="s", tunable=False,
+                    doc="stall escape: seconds of low speed far from the goal before an escape starts")
+T_ESCAPE = GainSpec("t_escape", 3.0, low=0.0, low_open=True, unit="s", tunable=False,
+                    doc="stall escape: seconds the virtual goal replaces the goal")
+D_ESCAPE = GainSpec("d_escape", 4.0, low=0.0, low_open=True, unit="m",
+                    doc="stall escape: distance of the virtual goal to the side of the UAV")
+
+
+class EscapeState(NamedTuple):
+    """What :class:`StallEscape` carries: the wrapped planner's state, seconds slow so far, seconds
+    of escape left, the virtual goal (3,) and the number of escapes started."""
+
+    inner: Any
+    slow: Array
+    left: Array
+    virtual_goal: Array
+    escapes: Array
+
+
+@dataclasses.dataclass(frozen=True)
+class StallEscape(Planner):
+    """A planner whose stalls far from the goal start escapes toward a virtual goal to the side
+    (module docstring)."""
+
+    inner: Planner
+    description: str = ""
+    color: str | None = None
+    linestyle: str | None = None
+
+    @property
+    def gains(self) -> tuple[GainSpec, ...]:
+        return tuple({g.name: g for g in (*self.inner.gains, T_DETECT, T_ESCAPE, D_ESCAPE)}.values())
+
+    @property
+    def reads(self) -> tuple[str, ...]:
+        return self.inner.reads
+
+    def init(self, scenario: "Scenario", gains: "Gains", sim: "SimConfig", horizon: int) -> EscapeState:
+        zero = jnp.zeros((), scenario.start.dtype)
+        return EscapeState(self.inner.init(scenario, gains, sim, horizon), zero, zero, scenario.goal,
+                           jnp.zeros((), jnp.int32))
+
+    def reference(self, state: EscapeState, x: Array, t: Array, goal: Array, obstacles: "ObstacleColumns",
+                  gains: "Gains", sim: "SimConfig", horizon: int) -> tuple[Array, EscapeState]:
+        dt = sim.episode.dt
+        p, v = x[:3], x[3:]
+        far = jnp.sum((p - goal) ** 2) > sim.episode.r_goal ** 2
+        slow_now = (jnp.sum(v * v) < sim.metrics.v_stall ** 2) & far & (state.left <= 0.0)
+        slow = jnp.where(slow_now, state.slow + dt, 0.0)
+        start = slow >= gains.t_detect
+        # the virtual goal: d_escape to the left (even escapes) or right (odd) of the goal direction
+        heading = jnp.stack([goal[0] - p[0], goal[1] - p[1]])
+        length = jnp.sqrt(jnp.sum(heading * heading))
+        heading = jnp.where(length > 1e-9, heading / jnp.where(length > 1e-9, length, 1.0),
+                            jnp.asarray([1.0, 0.0], x.dtype))
+        side = jnp.where(state.escapes % 2 == 0, 1.0, -1.0).astype(x.dtype)
+        lateral = side * jnp.stack([-heading[1], heading[0], jnp.zeros((), x.dtype)])
+        virtual_goal = jnp.where(start, p + gains.d_escape * lateral, state.virtual_goal)
+        left = jnp.where(start, gains.t_escape, jnp.maximum(state.left - dt, 0.0))
+        target = jnp.where(left > 0.0, virtual_goal, goal)
+        ref, inner = self.inner.reference(state.inner, x, t, target, obstacles, gains, sim, horizon)
+        return ref, EscapeState(inner, jnp.where(start, 0.0, slow), left, virtual_goal,
+                                state.escapes + start.astype(jnp.int32))
+
+
+register_planner("basic_escape", StallEscape(APF(Basic()), color="tab:olive", linestyle="--",
+                                             description="basic potential field with stall escape: after t_detect "
+                                                         "s slow far from the goal, a virtual goal d_escape to the "
+                                                         "side for t_escape s, sides alternating"))
