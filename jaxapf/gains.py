@@ -24,7 +24,7 @@ import jax
 import numpy as np
 
 from .registry import Registry
-from .validation import BoundWarning, ConfigError, check_range, check_table, describe_range
+from .validation import BoundWarning, ConfigError, check_range, check_table, describe_range, read_toml_file
 
 __all__ = ["GainSpec", "GAINS", "declare_gains", "Gains", "validate_gains", "gains_from_mapping", "load_gains",
            "read_gains_file", "check_gain_name"]
@@ -253,17 +253,7 @@ def load_gains(path: str | os.PathLike, base: Gains | None = None) -> Gains:
 def read_gains_file(path: str | os.PathLike) -> dict[str, float]:
     """The gains a TOML file names, checked: a ``[gains]`` table, or gain keys at the top level (the
     fragment ``jaxapf tune`` writes), not both."""
-    import tomllib
-
-    try:
-        with open(path, "rb") as fh:
-            data = tomllib.load(fh)
-    except FileNotFoundError:
-        raise ConfigError(f"gains file {str(path)!r} does not exist") from None
-    except IsADirectoryError:
-        raise ConfigError(f"gains file {str(path)!r} is a directory") from None
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError(f"gains file {str(path)!r} is not valid TOML: {err}") from None
+    data, _ = read_toml_file(path, "gains file")
     if "gains" in data:
         extra = sorted(set(data) - {"gains"})
         if extra:

@@ -8,6 +8,8 @@ kind of mistake always reads the same.
 
 from __future__ import annotations
 
+import os
+import tomllib
 from typing import Any, Iterable, Sequence
 
 import numpy as np
@@ -29,6 +31,7 @@ __all__ = [
     "check_table",
     "relocated",
     "first_line",
+    "read_toml_file",
 ]
 
 
@@ -175,3 +178,20 @@ def relocated(err: ConfigError, old: str, where: str) -> ConfigError:
 def first_line(err: BaseException) -> str:
     """The first line of an exception's message (its type's name if it has none)."""
     return (str(err).strip().splitlines() or [type(err).__name__])[0]
+
+
+def read_toml_file(path: str | os.PathLike, what: str = "spec file") -> tuple[dict[str, Any], str]:
+    """The table of the TOML file at ``path`` and its text, unvalidated; a file that is missing, a
+    directory, not UTF-8 or not TOML is a :class:`ConfigError` naming ``what`` and the path."""
+    try:
+        with open(path, "rb") as fh:
+            raw = fh.read()
+    except FileNotFoundError:
+        raise ConfigError(f"{what} {str(path)!r} does not exist") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{what} {str(path)!r} is a directory") from None
+    try:
+        text = raw.decode()
+        return tomllib.loads(text), text
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        raise ConfigError(f"{what} {str(path)!r} is not valid TOML: {err}") from None

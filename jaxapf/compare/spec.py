@@ -13,7 +13,6 @@ import dataclasses
 import math
 import os
 import re
-import tomllib
 from typing import Any, Mapping
 
 from ..gains import GAINS, GainSpec
@@ -30,6 +29,7 @@ from ..validation import (
     check_int,
     check_names,
     check_table,
+    read_toml_file,
 )
 
 __all__ = ["SEARCHES", "MIN_SEEDS", "GRADIENT_KEYS", "SelectionSpec", "TestSpec", "CompareSpec", "default_range",
@@ -241,13 +241,5 @@ def parse_compare_spec(data: Mapping[str, Any]) -> CompareSpec:
 
 def load_compare_spec(path: str | os.PathLike) -> tuple[CompareSpec, str]:
     """The validated spec of the TOML file at ``path`` and the file's text."""
-    try:
-        with open(path, "rb") as fh:
-            raw = fh.read()
-    except FileNotFoundError:
-        raise ConfigError(f"spec file {str(path)!r} does not exist") from None
-    try:
-        data = tomllib.loads(raw.decode())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
-        raise ConfigError(f"spec file {str(path)!r} is not valid TOML: {err}") from None
-    return parse_compare_spec(data), raw.decode()
+    data, text = read_toml_file(path)
+    return parse_compare_spec(data), text

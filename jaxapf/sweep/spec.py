@@ -44,7 +44,6 @@ import json
 import math
 import os
 import re
-import tomllib
 import warnings
 from typing import Any, Iterable, Mapping
 
@@ -69,6 +68,7 @@ from ..validation import (
     check_int,
     check_names,
     check_table,
+    read_toml_file,
     relocated,
 )
 
@@ -595,16 +595,8 @@ def parse_spec(data: Mapping[str, Any], gains_file: str | os.PathLike | None = N
 
 
 def read_toml(path: str | os.PathLike) -> dict[str, Any]:
-    """The table of a TOML spec file, unvalidated (:class:`ConfigError` if it cannot be read)."""
-    try:
-        with open(path, "rb") as fh:
-            return tomllib.load(fh)
-    except FileNotFoundError:
-        raise ConfigError(f"spec file {str(path)!r} does not exist") from None
-    except IsADirectoryError:
-        raise ConfigError(f"spec file {str(path)!r} is a directory") from None
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError(f"spec file {str(path)!r} is not valid TOML: {err}") from None
+    """The table of a TOML spec file, unvalidated (:func:`~jaxapf.validation.read_toml_file`)."""
+    return read_toml_file(path)[0]
 
 
 def load_spec(path: str | os.PathLike, gains_file: str | os.PathLike | None = None) -> SweepSpec:

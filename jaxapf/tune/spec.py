@@ -15,7 +15,6 @@ import itertools
 import json
 import math
 import os
-import tomllib
 from typing import Any, Mapping
 
 import jax.numpy as jnp
@@ -37,6 +36,7 @@ from ..validation import (
     check_names,
     check_range,
     check_table,
+    read_toml_file,
 )
 from .objective import Objective, Reparam
 
@@ -406,13 +406,5 @@ def parse_tune_spec(data: Mapping[str, Any]) -> TuneSpec:
 
 def load_tune_spec(path: str | os.PathLike) -> tuple[TuneSpec, str]:
     """The validated spec of the TOML file at ``path`` and the file's text."""
-    try:
-        with open(path, "rb") as fh:
-            raw = fh.read()
-    except FileNotFoundError:
-        raise ConfigError(f"spec file {str(path)!r} does not exist") from None
-    try:
-        data = tomllib.loads(raw.decode())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
-        raise ConfigError(f"spec file {str(path)!r} is not valid TOML: {err}") from None
-    return parse_tune_spec(data), raw.decode()
+    data, text = read_toml_file(path)
+    return parse_tune_spec(data), text

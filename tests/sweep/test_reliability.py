@@ -281,3 +281,19 @@ def test_ctrl_c_is_one_line_saying_what_was_kept(command, tmp_path, capsys, monk
     assert line.startswith(f"jaxapf {command}: interrupted; ")
     if command == "compare":
         assert "finished selections and test parts are kept" in line and not (tmp_path / "c" / LOCK_NAME).exists()
+
+
+@pytest.mark.parametrize("command", ["sweep", "tune", "compare"])
+@pytest.mark.parametrize("bad", ["directory", "not utf-8"])
+def test_an_unreadable_spec_file_is_one_line(command, bad, tmp_path, capsys):
+    """Every command reads its TOML through one reader (jaxapf.validation.read_toml_file)."""
+    path = tmp_path / "spec.toml"
+    if bad == "directory":
+        path.mkdir()
+    else:
+        path.write_bytes(b"\xff\xfename = 1\n")
+    assert main([command, str(path), "--out", str(tmp_path / "out")]) == 2
+    line = _one_line(capsys.readouterr().err)
+    assert line == (f"jaxapf {command}: error: spec file {str(path)!r} is a directory" if bad == "directory" else
+                    f"jaxapf {command}: error: spec file {str(path)!r} is not valid TOML: 'utf-8' codec can't decode "
+                    "byte 0xff in position 0: invalid start byte")
