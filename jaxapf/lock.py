@@ -1,4 +1,5 @@
-"""Output folders: checked writable before any work, and one writer each (a lock file naming its owner).
+"""Output folders: checked writable before any work, one writer each (a lock file naming its owner),
+and files written atomically (:func:`write_atomic`).
 
 A command that writes into a folder (``jaxapf sweep``, ``tune``, ``compare``) holds ``FOLDER/.lock``
 while it runs: a file created atomically (``O_CREAT | O_EXCL``) holding the owner's pid, host,
@@ -17,11 +18,11 @@ import pathlib
 import socket
 import sys
 import time
-from typing import Any, Callable
+from typing import IO, Any, Callable
 
 from .validation import ConfigError, first_line
 
-__all__ = ["LOCK_NAME", "OutputLock", "LockInfo", "check_writable"]
+__all__ = ["LOCK_NAME", "OutputLock", "LockInfo", "check_writable", "write_atomic"]
 
 #: Name of the lock file inside the output folder.
 LOCK_NAME = ".lock"
@@ -39,6 +40,19 @@ def check_writable(folder: str | os.PathLike, option: str = "--out") -> None:
         probe.unlink()
     except OSError as err:
         raise ConfigError(f"{option} {folder} cannot be written: {err.strerror or first_line(err)}") from None
+
+
+def write_atomic(path: str | os.PathLike, write: Callable[[IO[bytes]], Any]) -> None:
+    """Write ``path`` completely or not at all: ``write(fh)`` fills the hidden temporary file
+    ``.NAME.tmp-PID`` beside it, which is fsynced and renamed over ``path``. A killed writer leaves
+    at most its temporary file, never a partial ``path``."""
+    path = pathlib.Path(path)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    with open(tmp, "wb") as fh:
+        write(fh)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
 
 
 def _start_time(pid: int) -> str | None:

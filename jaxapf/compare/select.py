@@ -27,7 +27,6 @@ import dataclasses
 import itertools
 import json
 import math
-import os
 import pathlib
 import time
 from typing import Any
@@ -35,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from ..gains import Gains
+from ..lock import write_atomic
 from ..tune import TuneError, Tuner, parse_tune_spec
 from ..tune.proof import select_best, tuning_budget
 from .spec import CompareSpec
@@ -138,13 +138,8 @@ def gradient_steps(budget: int, fields_per_step: int, validation_fields: int, va
 
 
 def _write_json(path: pathlib.Path, data: dict) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", encoding="utf-8") as fh:
-        json.dump(data, fh, indent=2, sort_keys=True)
-        fh.write("\n")
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    text = json.dumps(data, indent=2, sort_keys=True) + "\n"
+    write_atomic(path, lambda fh: fh.write(text.encode("utf-8")))
 
 
 def select(spec: CompareSpec, method: str, seed: int, out: pathlib.Path, *, quiet: bool = True) -> Selection:

@@ -16,14 +16,13 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import pathlib
 import re
 from typing import Any, Mapping
 
 import numpy as np
 
-from ..lock import LOCK_NAME
+from ..lock import LOCK_NAME, write_atomic
 from ..validation import ConfigError, first_line
 from .plan import Chunk
 from .schema import META_KEY, identity, read_meta
@@ -58,18 +57,13 @@ def content_hash(table) -> str:
 
 
 def write_part(out: pathlib.Path, name: str, table) -> None:
-    """Write ``table`` to ``out/name`` atomically (hidden temporary file, fsync, rename), with its
+    """Write ``table`` to ``out/name`` atomically (:func:`jaxapf.lock.write_atomic`), with its
     content hash in the metadata and a CRC on every data page."""
     import pyarrow.parquet as pq
 
     record = json.dumps({"sha256": content_hash(table), "rows": table.num_rows}).encode()
     table = table.replace_schema_metadata({**(table.schema.metadata or {}), PART_KEY: record})
-    tmp = out / f".{name}.tmp-{os.getpid()}"
-    with open(tmp, "wb") as fh:
-        pq.write_table(table, fh, write_page_checksum=True)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, out / name)
+    write_atomic(out / name, lambda fh: pq.write_table(table, fh, write_page_checksum=True))
 
 
 def read_part(path: pathlib.Path, *, hashed: bool = True):

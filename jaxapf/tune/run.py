@@ -32,7 +32,7 @@ from typing import Any
 import pandas as pd
 
 from ..gains import Gains
-from ..lock import OutputLock, check_writable
+from ..lock import OutputLock, check_writable, write_atomic
 from ..validation import Interrupted
 from ..versions import versions
 from .proof import (
@@ -138,9 +138,8 @@ def _search(tuner: Tuner, label: str, settings: list[Gains], budget: int, out: p
         return entry | {"gains": tuner.spec.reparam.base.replace(**entry["gains"])}
     result = select_best(tuner, settings, budget, label)
     stored[label] = result | {"gains": result["gains"].floats()}
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(_json_safe(stored), indent=2) + "\n")
-    tmp.replace(path)
+    text = json.dumps(_json_safe(stored), indent=2) + "\n"
+    write_atomic(path, lambda fh: fh.write(text.encode("utf-8")))
     return result
 
 

@@ -26,7 +26,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
 import pathlib
 import sys
 import time
@@ -43,6 +42,7 @@ from tqdm.auto import tqdm
 from ..config import MPCConfig, SimConfig
 from ..datatypes import Obstacles, Scenario
 from ..gains import Gains
+from ..lock import write_atomic
 from ..metrics import METRICS, episode_metrics
 from ..rollout import XLA_OPTIONS, default_width, episode_index, rollout
 from ..scenarios import FamilyParams, make_scenarios
@@ -159,7 +159,7 @@ class TrainState:
         return sum(1 for row in self.history if math.isfinite(row["val_loss"]))
 
     def save(self, path: pathlib.Path, digest: str, next_fields: dict[str, int]) -> None:
-        """Write atomically: a temporary file in the same folder, fsynced, renamed over ``path``."""
+        """Write atomically (:func:`jaxapf.lock.write_atomic`)."""
         meta = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
                 if f.name not in ("theta", "opt_state", "best_theta")}
         meta |= {"format": _CHECKPOINT_FORMAT, "spec_digest": digest,
@@ -167,12 +167,7 @@ class TrainState:
         arrays = {f"theta/{k}": np.asarray(v) for k, v in self.theta.items()}
         arrays |= {f"best_theta/{k}": np.asarray(v) for k, v in self.best_theta.items()}
         arrays |= {f"opt/{i}": np.asarray(x) for i, x in enumerate(jax.tree_util.tree_leaves(self.opt_state))}
-        tmp = path.with_name(path.name + ".tmp")
-        with open(tmp, "wb") as fh:
-            np.savez(fh, meta=np.asarray(json.dumps(meta)), **arrays)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
+        write_atomic(path, lambda fh: np.savez(fh, meta=np.asarray(json.dumps(meta)), **arrays))
 
     @classmethod
     def load(cls, path: pathlib.Path, digest: str, like: "TrainState") -> "TrainState":
