@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 from scipy import stats as _st
@@ -242,6 +242,15 @@ def bootstrap_ci(x, statistic: Statistic = np.mean, *, strata=None, n_resamples:
     return _percentile(reps, confidence)
 
 
+def _paired(x, y, dtype: Any = np.float64) -> tuple[np.ndarray, np.ndarray]:
+    """``x`` and ``y`` as flat arrays of ``dtype``; a :class:`ValueError` if they differ in size."""
+    x = np.asarray(x, dtype=dtype).reshape(-1)
+    y = np.asarray(y, dtype=dtype).reshape(-1)
+    if x.shape != y.shape:
+        raise ValueError(f"paired samples differ in size: {x.shape} vs {y.shape}")
+    return x, y
+
+
 def paired_bootstrap_ci(x, y, statistic: Statistic = np.mean, *, strata=None,
                         n_resamples: int = DEFAULT_RESAMPLES, confidence: float = 0.95,
                         seed: int = 0) -> tuple[float, float, float]:
@@ -254,10 +263,7 @@ def paired_bootstrap_ci(x, y, statistic: Statistic = np.mean, *, strata=None,
 
     Returns ``(estimate, lower, upper)``; NaNs for no pairs.
     """
-    x = np.asarray(x, dtype=np.float64).reshape(-1)
-    y = np.asarray(y, dtype=np.float64).reshape(-1)
-    if x.shape != y.shape:
-        raise ValueError(f"paired samples differ in size: {x.shape} vs {y.shape}")
+    x, y = _paired(x, y)
     if x.size == 0:
         return math.nan, math.nan, math.nan
     estimate = float(statistic(x, axis=-1) - statistic(y, axis=-1))
@@ -290,12 +296,7 @@ def mcnemar_exact(x, y) -> McNemarResult:
     ``(0, 1)``, so ``b ~ Binomial(b + c, ½)``; the p-value is
     ``scipy.stats.binomtest(b, b + c, 0.5)`` (two-sided). No discordant pair: p = 1.
     """
-    x = np.asarray(x, dtype=bool).reshape(-1)
-    y = np.asarray(y, dtype=bool).reshape(-1)
-    if x.shape != y.shape:
-        raise ValueError(f"paired samples differ in size: {x.shape} vs {y.shape}")
-    b = int(np.sum(x & ~y))
-    c = int(np.sum(~x & y))
+    _, b, c, _ = _paired_counts(x, y)
     p = 1.0 if b + c == 0 else float(_st.binomtest(b, b + c, 0.5).pvalue)
     return McNemarResult(b, c, min(p, 1.0))
 
@@ -359,13 +360,7 @@ def wilcoxon_paired(x, y) -> WilcoxonResult:
     the normal approximation (tie-corrected). The statistic is ``min(T+, T-)``, as scipy's.
     Every difference zero: statistic 0, p = 1. No pairs: NaNs.
     """
-    x = np.asarray(x, dtype=np.float64).reshape(-1)
-    y = np.asarray(y, dtype=np.float64).reshape(-1)
-    if x.shape != y.shape:
-        raise ValueError(f"paired samples differ in size: {x.shape} vs {y.shape}")
-    d = x - y
-    if np.any(~np.isfinite(d)):
-        raise ValueError("wilcoxon_paired needs finite values; filter the pairs first")
+    d = _paired_differences(x, y, "wilcoxon_paired")
     nonzero = int(np.count_nonzero(d))
     if d.size == 0:
         return WilcoxonResult(math.nan, math.nan, 0, 0)
@@ -380,10 +375,7 @@ def wilcoxon_paired(x, y) -> WilcoxonResult:
 
 def pair_scores(x, y, higher_is_better: bool = True) -> np.ndarray:
     """Per-pair improvement score: 1 if ``x_i`` beats ``y_i``, ½ if equal, 0 otherwise."""
-    x = np.asarray(x, dtype=np.float64).reshape(-1)
-    y = np.asarray(y, dtype=np.float64).reshape(-1)
-    if x.shape != y.shape:
-        raise ValueError(f"paired samples differ in size: {x.shape} vs {y.shape}")
+    x, y = _paired(x, y)
     better = x > y if higher_is_better else x < y
     return better.astype(np.float64) + 0.5 * (x == y)
 
@@ -406,10 +398,7 @@ def probability_of_improvement_paired(x, y, higher_is_better: bool = True) -> fl
 
 def _paired_counts(x, y) -> tuple[int, int, int, int]:
     """``(a, b, c, d)`` of paired booleans: both true, only x, only y, neither."""
-    x = np.asarray(x, dtype=bool).reshape(-1)
-    y = np.asarray(y, dtype=bool).reshape(-1)
-    if x.shape != y.shape:
-        raise ValueError(f"paired samples differ in size: {x.shape} vs {y.shape}")
+    x, y = _paired(x, y, bool)
     a = int(np.sum(x & y))
     b = int(np.sum(x & ~y))
     c = int(np.sum(~x & y))
@@ -418,10 +407,7 @@ def _paired_counts(x, y) -> tuple[int, int, int, int]:
 
 def _paired_differences(x, y, who: str) -> np.ndarray:
     """Finite ``x - y`` of paired samples (a shape mismatch or a non-finite value is an error)."""
-    x = np.asarray(x, dtype=np.float64).reshape(-1)
-    y = np.asarray(y, dtype=np.float64).reshape(-1)
-    if x.shape != y.shape:
-        raise ValueError(f"paired samples differ in size: {x.shape} vs {y.shape}")
+    x, y = _paired(x, y)
     d = x - y
     if np.any(~np.isfinite(d)):
         raise ValueError(f"{who} needs finite values; filter the pairs first")
