@@ -205,10 +205,7 @@ def relevance() -> str:
 
 
 def main() -> None:
-    args = study.parser(__doc__).parse_args()
-    study.setup_jax()
-    out = args.out or study.RESULTS / STUDY
-    out.mkdir(parents=True, exist_ok=True)
+    args, out = study.begin(__doc__, STUDY)
     strength_path = study.run_spec("strength", args.fields)
     variants_path = study.run_spec("family-variants", args.fields)
     variants = _rows(variants_path)

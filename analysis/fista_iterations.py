@@ -151,10 +151,7 @@ def findings(n: study.Numbers, table: pd.DataFrame) -> str:
 
 
 def main() -> None:
-    args = study.parser(__doc__).parse_args()
-    study.setup_jax()
-    out = args.out or study.RESULTS / STUDY
-    out.mkdir(parents=True, exist_ok=True)
+    args, out = study.begin(__doc__, STUDY)
     parquet = study.run_spec(SPEC, args.fields)
     result = study.report(parquet, out, resamples=args.resamples, baseline=f"iters={REFERENCE}", heatmap=None,
                           gallery=0)

@@ -82,10 +82,7 @@ def findings(numbers: dict[str, study.Numbers]) -> str:
 
 
 def main() -> None:
-    args = study.parser(__doc__).parse_args()
-    study.setup_jax()
-    out = args.out or study.RESULTS / STUDY
-    out.mkdir(parents=True, exist_ok=True)
+    args, out = study.begin(__doc__, STUDY)
     parquet = study.run_spec("family-variants", args.fields)
     numbers = {}
     for case, (base, dv) in PAIRS.items():

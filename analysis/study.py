@@ -45,6 +45,16 @@ def setup_jax() -> None:
     configure_jax(cache_dir=default_cache_dir(), cpu_devices=len(os.sched_getaffinity(0)))
 
 
+def begin(doc: str, name: str) -> tuple[argparse.Namespace, pathlib.Path]:
+    """What every study does first: parse the shared flags, set up JAX, and make the results
+    folder (``--out``, default ``analysis/results/<name>``); returns the flags and the folder."""
+    args = parser(doc).parse_args()
+    setup_jax()
+    out = args.out or RESULTS / name
+    out.mkdir(parents=True, exist_ok=True)
+    return args, out
+
+
 def run_spec(name: str, fields: int | None = None) -> pathlib.Path:
     """Run ``sweeps/<name>.toml`` (optionally with another field count) into ``runs/``; finished
     chunks already there are kept, so a rerun only computes what is missing. Returns the dataset."""
@@ -83,10 +93,7 @@ def run_study(doc: str, *, name: str, spec: str, title: str, findings: Callable[
     """What every study's ``main`` is: parse the shared flags, run ``sweeps/<spec>.toml``, write its
     report with ``report_options``, and ``README.md`` with ``before(out)``'s sections (work that does
     not come from the sweep, e.g. single runs), then ``findings(Numbers)`` and the figures."""
-    args = parser(doc).parse_args()
-    setup_jax()
-    out = args.out or RESULTS / name
-    out.mkdir(parents=True, exist_ok=True)
+    args, out = begin(doc, name)
     sections = before(out) if before is not None else []
     parquet = run_spec(spec, args.fields)
     result = report(parquet, out, resamples=args.resamples, **report_options)

@@ -96,10 +96,7 @@ def findings(spec, summary: pd.DataFrame, comparisons: pd.DataFrame) -> str:
 def main() -> None:
     from jaxapf.compare import load_compare_spec, run_compare_spec
 
-    args = study.parser(__doc__).parse_args()
-    study.setup_jax()
-    out = args.out or study.RESULTS / STUDY
-    out.mkdir(parents=True, exist_ok=True)
+    args, out = study.begin(__doc__, STUDY)
     spec, text = load_compare_spec(study.ROOT / "sweeps" / "tuned-comparison.toml")
     suffix = ""
     if args.fields:
