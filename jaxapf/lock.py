@@ -11,6 +11,7 @@ host cannot be checked from here; the refusal then gives the command that clears
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import os
@@ -18,11 +19,11 @@ import pathlib
 import socket
 import sys
 import time
-from typing import IO, Any, Callable
+from typing import IO, Any, Callable, Iterator
 
-from .validation import ConfigError, first_line
+from .validation import ConfigError, Interrupted, first_line
 
-__all__ = ["LOCK_NAME", "OutputLock", "LockInfo", "check_writable", "write_atomic"]
+__all__ = ["LOCK_NAME", "OutputLock", "LockInfo", "check_writable", "write_atomic", "writing"]
 
 #: Name of the lock file inside the output folder.
 LOCK_NAME = ".lock"
@@ -170,3 +171,17 @@ class OutputLock:
 
     def __exit__(self, *exc: Any) -> None:
         self.release()
+
+
+@contextlib.contextmanager
+def writing(folder: str | os.PathLike, what: str, kept: str, note: Callable[[str], None] | None = None
+            ) -> Iterator[None]:
+    """The block as the one writer of ``folder``: checked writable first (:func:`check_writable`),
+    the lock held (:class:`OutputLock`), and Ctrl-C turned into :class:`Interrupted` saying what
+    was ``kept`` there and how to resume."""
+    check_writable(folder)
+    with OutputLock(folder, what, note):
+        try:
+            yield
+        except KeyboardInterrupt:
+            raise Interrupted(f"interrupted; {kept} in {folder}; rerun the same command to resume") from None

@@ -28,8 +28,8 @@ from typing import Any, Sequence
 import numpy as np
 import pandas as pd
 
-from ..lock import OutputLock, check_writable
-from ..validation import ConfigError, Interrupted
+from ..lock import writing
+from ..validation import ConfigError
 from ..versions import versions
 from .select import Selection, select, spec_digest
 from .spec import CompareSpec, load_compare_spec
@@ -86,13 +86,9 @@ def run_compare_spec(spec: CompareSpec, text: str, out: str | pathlib.Path, *, q
                      resamples: int = 2000, gallery: int = 0) -> dict[str, Any]:
     """:func:`run_compare` on a validated spec; ``text`` is recorded as the spec file."""
     out = pathlib.Path(out)
-    check_writable(out)
-    with OutputLock(out, "jaxapf compare", lambda line: _say(quiet, f"note: {line}")):
-        try:
-            return _run(spec, text, out, quiet=quiet, resamples=resamples, gallery=gallery)
-        except KeyboardInterrupt:
-            raise Interrupted(f"interrupted; finished selections and test parts are kept in {out}; rerun the same "
-                              "command to resume") from None
+    note = lambda line: _say(quiet, f"note: {line}")  # noqa: E731
+    with writing(out, "jaxapf compare", "finished selections and test parts are kept", note):
+        return _run(spec, text, out, quiet=quiet, resamples=resamples, gallery=gallery)
 
 
 def _run(spec: CompareSpec, text: str, out: pathlib.Path, *, quiet: bool, resamples: int, gallery: int

@@ -32,8 +32,7 @@ from typing import Any
 import pandas as pd
 
 from ..gains import Gains
-from ..lock import OutputLock, check_writable, write_atomic
-from ..validation import Interrupted
+from ..lock import write_atomic, writing
 from ..versions import versions
 from .proof import (
     SETTINGS,
@@ -146,13 +145,9 @@ def _search(tuner: Tuner, label: str, settings: list[Gains], budget: int, out: p
 def run_tune_spec(spec: TuneSpec, text: str, out: str | pathlib.Path, *, quiet: bool = False) -> dict[str, Any]:
     """:func:`run_tune` on a validated spec; ``text`` is recorded as the spec file."""
     out = pathlib.Path(out)
-    check_writable(out)
-    with OutputLock(out, "jaxapf tune", lambda line: _say(quiet, f"note: {line}")):
-        try:
-            return _run(spec, text, out, quiet)
-        except KeyboardInterrupt:
-            raise Interrupted(f"interrupted; the last training checkpoint and finished searches are kept in {out}; "
-                              "rerun the same command to resume") from None
+    note = lambda line: _say(quiet, f"note: {line}")  # noqa: E731
+    with writing(out, "jaxapf tune", "the last training checkpoint and finished searches are kept", note):
+        return _run(spec, text, out, quiet)
 
 
 def _run(spec: TuneSpec, text: str, out: pathlib.Path, quiet: bool) -> dict[str, Any]:
