@@ -25,7 +25,7 @@ import numpy as np
 from ..lock import LOCK_NAME, write_atomic
 from ..validation import ConfigError, first_line
 from .plan import Chunk
-from .schema import META_KEY, identity, read_meta
+from .schema import LEGACY_FORMAT, META_KEY, identity, read_meta
 
 __all__ = ["PART_KEY", "prepare_output", "write_part", "part_files", "content_hash", "verify_part",
            "read_part"]
@@ -66,9 +66,10 @@ def write_part(out: pathlib.Path, name: str, table) -> None:
     write_atomic(out / name, lambda fh: pq.write_table(table, fh, write_page_checksum=True))
 
 
-def read_part(path: pathlib.Path, *, hashed: bool = True):
-    """The table of one part, checked: page CRCs and (``hashed``: every part of the current format)
-    its content hash. Raises :class:`ConfigError` naming the part and what is wrong with it."""
+def read_part(path: pathlib.Path):
+    """The table of one part, checked: page CRCs and its content hash (a part of the legacy format,
+    which carries none, is checked for readability only). Raises :class:`ConfigError` naming the
+    part and what is wrong with it."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -77,6 +78,10 @@ def read_part(path: pathlib.Path, *, hashed: bool = True):
     except (OSError, pa.ArrowException, ValueError) as err:
         raise ConfigError(f"{path.name}: unreadable ({first_line(err)})") from None
     metadata = dict(table.schema.metadata or {})
+    try:
+        hashed = json.loads(metadata.get(META_KEY, b"{}")).get("format") != LEGACY_FORMAT
+    except (ValueError, AttributeError):
+        hashed = True  # unreadable jaxapf metadata: the hash decides
     raw = metadata.pop(PART_KEY, None)
     try:
         record = json.loads(raw) if raw else None
@@ -93,15 +98,11 @@ def read_part(path: pathlib.Path, *, hashed: bool = True):
 
 
 def verify_part(path: pathlib.Path) -> str | None:
-    """None if the part reads back intact, else one line saying what is wrong with it (a part of
-    the legacy format, which carries no hash, is checked for readability only)."""
-    from .schema import LEGACY_FORMAT
-
+    """None if the part reads back intact (:func:`read_part`), else one line saying what is wrong."""
     try:
-        legacy = read_meta(path).get("format") == LEGACY_FORMAT
-        read_part(path, hashed=not legacy)
+        read_part(path)
     except ConfigError as err:
-        return str(err) if str(err).startswith(path.name) else f"{path.name}: {err}"
+        return str(err)
     return None
 
 

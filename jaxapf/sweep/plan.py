@@ -342,6 +342,7 @@ def describe_plan(plan: Plan) -> str:
     spec = plan.spec
     run_s, compile_s = plan.estimate_seconds()
     remaining = plan.episodes_of(plan.chunks)
+    padding = plan.padding_note()
     lines = [
         f"sweep {spec.name} (spec_hash {spec.hash[:12]})",
         f"  settings:          {plan.settings}, in {len(plan.variants)} static variant(s)"
@@ -372,7 +373,7 @@ def describe_plan(plan: Plan) -> str:
         "(~0 with a warm compilation cache)",
         "                     from a per-step cost model fitted on a 2-core x86-64 CPU (jaxapf.sweep.STEP_COST_US, "
         "±50 %; benchmarks/fit_cost.py refits it here); on accelerators it is only an upper bound",
-        *([f"  padding:           {plan.padding_note()}"] if plan.padding_note() else []),
+        *([f"  padding:           {padding}"] if padding else []),
         f"  memory estimate:   {format_bytes(plan.peak_bytes)} per chunk + ~{format_bytes(PROCESS_BASELINE)} for the "
         "process (up to ~1 GiB more while XLA compiles); docs/sweep.md",
     ]

@@ -13,7 +13,7 @@ from ..gains import Gains
 from ..scenarios import FamilyParams
 from ..validation import ConfigError, first_line
 from .output import read_part
-from .schema import LEGACY_FORMAT, identity, read_meta
+from .schema import identity, read_meta
 from .spec import SweepSpec
 
 __all__ = ["read_sweep", "RowConfig", "row_config"]
@@ -42,7 +42,7 @@ def read_sweep(path: str | os.PathLike) -> tuple["pd.DataFrame", dict[str, Any]]
     for p in parts:  # every part verified before the parts are compared with each other
         metas.append(read_meta(p))
         try:
-            tables.append(read_part(p, hashed=metas[-1].get("format") != LEGACY_FORMAT))
+            tables.append(read_part(p))
         except ConfigError as err:
             raise ConfigError(f"{path}: damaged part {err}; rerun the sweep with --repair to recompute it") from None
     if len({json.dumps(identity(m), sort_keys=True) for m in metas}) > 1:

@@ -187,8 +187,6 @@ def run_sweep(
     note = (lambda line: None) if quiet else (lambda line: print(f"note: {line}", file=sys.stderr, flush=True))
     lock = OutputLock(out, "jaxapf sweep", note)
     if process == 0:
-        if out.exists() and not out.is_dir():
-            raise ConfigError(f"--out {out} is a file; a sweep writes a directory of Parquet parts")
         check_writable(out)
         lock.acquire()
     try:
@@ -214,8 +212,9 @@ def _run(spec: SweepSpec, out: pathlib.Path, meta: Mapping[str, Any], start: flo
     plan = plan_sweep(spec, done=done, memory_budget=memory_budget, chunk_fields=chunk_fields, devices=devices,
                       processes=processes)
     mine = plan.chunks[process::processes]
-    if process == 0 and plan.padding_note():
-        note(plan.padding_note())
+    padding = plan.padding_note() if process == 0 else None
+    if padding:
+        note(padding)
     out.mkdir(parents=True, exist_ok=True)
     layout = schema(plan, meta)
     total = plan.episodes_of(mine)
