@@ -312,6 +312,7 @@ def _compare(args: argparse.Namespace) -> int:
 
 
 def _report(args: argparse.Namespace) -> int:
+    from .lock import check_writable
     from .report import ReportOptions, build_report
     from .sweep import configure_jax, default_cache_dir
 
@@ -326,8 +327,6 @@ def _report(args: argparse.Namespace) -> int:
                             pair_on=tuple(c.strip() for c in args.pair_on.split(",") if c.strip()))
     name = args.sweep.name.removesuffix(".parquet") or "report"
     out = args.out if args.out is not None else pathlib.Path("reports") / name
-    from .lock import check_writable
-
     check_writable(out)
     start = time.perf_counter()
     result = build_report(args.sweep, out, options)

@@ -29,6 +29,7 @@ Everything is returned in a JSON-serialisable dict (``jaxapf bench engine --json
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from importlib import metadata
 from typing import Any, Callable
@@ -198,18 +199,16 @@ def run_benchmark(
         def run(s, _):
             return batch.evaluate(s, per_device, sim, mpc, width, METRICS.names())
     n_base = min(oracle_fields, fields)
+    n_vec = 3 if vectorised_steps > 0 else 0
+    if n_base > 0 or n_vec:
+        host = jax.device_get(scenarios)  # the numpy peers read the fields from the host
     if n_base > 0:
         from .oracle import oracle_rollout, require_osqp
 
         require_osqp()
-        host = jax.device_get(scenarios)
-    n_vec = 3 if vectorised_steps > 0 else 0
     if n_vec:
-        import dataclasses
-
         from .vectorised import vectorised_rollout
 
-        host = jax.device_get(scenarios)
         vec_sim = dataclasses.replace(sim, episode=dataclasses.replace(
             sim.episode, t_max=min(vectorised_steps, sim.episode.steps) * sim.episode.dt))
         vec_steps = vec_sim.episode.steps
