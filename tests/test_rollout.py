@@ -10,6 +10,7 @@ from jaxapf.datatypes import Obstacles, Scenario
 from jaxapf.dynamics import step
 from jaxapf.gains import Gains
 from jaxapf.metrics import episode_metrics
+from jaxapf.planners import PLANNERS
 from jaxapf.rollout import evaluate, evaluate_program, rollout
 
 SIM = SimConfig.from_flat(t_max=8.0)
@@ -140,7 +141,7 @@ def test_apf_reference_follows_the_saturated_flow_in_either_obstacle_layout():
     np.testing.assert_array_equal(ref[0], x)
 
 
-@pytest.mark.parametrize("method", ["basic", "direction", "direction_velocity"])
+@pytest.mark.parametrize("method", PLANNERS.names())
 def test_a_rollout_reads_only_the_gains_its_planner_declares(method):
     """The contract a sweep's deduplication of identical settings rests on (jaxapf.rollout.gains_read):
     changing every gain outside gains_read changes no number; changing one inside does."""
