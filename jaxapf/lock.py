@@ -45,15 +45,20 @@ def check_writable(folder: str | os.PathLike, option: str = "--out") -> None:
 
 def write_atomic(path: str | os.PathLike, write: Callable[[IO[bytes]], Any]) -> None:
     """Write ``path`` completely or not at all: ``write(fh)`` fills the hidden temporary file
-    ``.NAME.tmp-PID`` beside it, which is fsynced and renamed over ``path``. A killed writer leaves
-    at most its temporary file, never a partial ``path``."""
+    ``.NAME.tmp-PID`` beside it, which is fsynced and renamed over ``path``. An exception or Ctrl-C
+    on the way removes the temporary file; a killed writer leaves at most it, never a partial
+    ``path``."""
     path = pathlib.Path(path)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    with open(tmp, "wb") as fh:
-        write(fh)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as fh:
+            write(fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def _start_time(pid: int) -> str | None:
