@@ -185,10 +185,15 @@ def build_parser() -> argparse.ArgumentParser:
                      help="split the fields over N devices (on CPU the host is split into N devices, as "
                           "`jaxapf sweep --devices` does; default 1)")
     eng.add_argument("--json", action="store_true", help="print one JSON object")
-    bsw = bsub.add_parser("sweep", help="the whole sweep path against bare engine calls, and on 2 CPU devices",
-                          description="Time a sweep end to end against bare engine calls on the same work.")
+    bsw = bsub.add_parser("sweep", help="streaming vs fixed-length engine, the whole sweep path, 2 CPU devices",
+                          description="Time a sweep's episodes with the streaming and the fixed-length engine (bare "
+                                      "evaluate calls, interleaved), the whole sweep end to end, and the sweep on "
+                                      "several CPU devices.")
     bsw.add_argument("spec", nargs="?", type=pathlib.Path,
                      help="a sweep spec TOML (default: a built-in 2,048-episode study)")
+    bsw.add_argument("--repeats", type=int, default=3, help="timed runs of each, interleaved (default 3)")
+    bsw.add_argument("--sharded-devices", type=int, default=2,
+                     help="also time the sweep with the host split into N CPU devices (default 2; 0: skip)")
     bsw.add_argument("--json", action="store_true", help="print one JSON object")
 
     lst = sub.add_parser("list", help="what is registered: " + ", ".join(_LISTS),
@@ -269,7 +274,10 @@ def _bench(args: argparse.Namespace) -> int:
         from .bench.sweep import format_sweep_benchmark, run_sweep_benchmark
         from .sweep import read_toml
 
-        result = run_sweep_benchmark(read_toml(args.spec) if args.spec else None)
+        check_int("--repeats", args.repeats, 1)
+        check_int("--sharded-devices", args.sharded_devices, 0)
+        result = run_sweep_benchmark(read_toml(args.spec) if args.spec else None,
+                                     sharded_devices=args.sharded_devices, repeats=args.repeats)
         print(json.dumps(result, indent=2) if args.json else format_sweep_benchmark(result))
         return 0
     from .bench.engine import format_benchmark, run_benchmark

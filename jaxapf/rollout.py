@@ -25,7 +25,7 @@ metrics' masks, not by the loop, so every episode of a batch has the same shape.
 from __future__ import annotations
 
 from functools import partial
-from typing import Sequence
+from typing import Any, NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -53,6 +53,52 @@ def gains_read(sim: SimConfig) -> frozenset[str]:
     return frozenset(read)
 
 
+class ClosedLoop(NamedTuple):
+    """The components one ``sim`` names and the MPC's condensed problem: what every control step
+    of :func:`rollout` and of the streaming engine (:mod:`jaxapf.stream`) runs."""
+
+    planner: Any
+    safety: Any
+    plant: Any
+    prob: Any
+
+
+def closed_loop(sim: SimConfig, mpc: MPCConfig, dtype: Any) -> ClosedLoop:
+    """The registered planner, safety filter and plant of ``sim`` and the MPC problem on the plant's
+    linear model."""
+    plant = PLANTS.get(sim.vehicle.plant, "sim.plant")
+    return ClosedLoop(PLANNERS.get(sim.planner.method, "sim.method"), FILTERS.get(sim.planner.filter, "sim.filter"),
+                      plant, axis_problem(mpc, *plant.linear_model(sim.episode.dt, dtype)))
+
+
+def loop_init(loop: ClosedLoop, scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig) -> tuple:
+    """The carry of an episode at rest at ``scenario.start``: (plant state, warm start, planner
+    state, filter state)."""
+    dtype = scenario.start.dtype
+    return (loop.plant.init(scenario.start, gains, sim), jnp.zeros((3, mpc.horizon), dtype),
+            loop.planner.init(scenario, gains, sim, mpc.horizon), loop.safety.init(scenario, gains, sim))
+
+
+def loop_step(loop: ClosedLoop, carry: tuple, k: Array, scenario: Scenario, obstacles: Any, gains: Gains,
+              sim: SimConfig, mpc: MPCConfig) -> tuple[tuple, tuple[Array, Array, dict[str, Array]]]:
+    """Control step ``k`` (a float: ``t_k = k Δt``) of the module docstring; returns the new carry
+    and the step's record: the plant's ``[p, v]`` after it, the applied acceleration and the
+    components' diagnostics. ``obstacles`` is ``scenario.obstacles.columns()``."""
+    state, warm, plan, guard = carry
+    t = k * sim.episode.dt
+    x = loop.plant.kinematics(state)
+    x_ref, plan = loop.planner.reference(plan, x, t, scenario.goal, obstacles, gains, sim, mpc.horizon)
+    u = solve_axes(loop.prob, x, x_ref, warm, a_max=sim.vehicle.a_max, v_max=sim.vehicle.v_max, iters=mpc.iters)
+    accel, guard, filtered = loop.safety(guard, u[:, 0], x, t, obstacles, gains, sim)
+    state, integrated = loop.plant.step(state, accel, gains, sim)
+    return (state, shift_warm_start(u), plan, guard), (loop.plant.kinematics(state), accel, filtered | integrated)
+
+
+def as_dtype(gains: Gains, dtype: Any) -> Gains:
+    """Every gain leaf as an array of the scenario's floating ``dtype``."""
+    return jax.tree_util.tree_map(lambda g: jnp.asarray(g, dtype), gains)
+
+
 def rollout(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, *, remat: bool = False
             ) -> Trajectory:
     """Simulate one episode from rest at ``scenario.start``; returns its :class:`Trajectory`.
@@ -65,33 +111,20 @@ def rollout(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, *,
     docs/tune.md).
     """
     dtype = scenario.start.dtype
-    gains = jax.tree_util.tree_map(lambda g: jnp.asarray(g, dtype), gains)
-    planner = PLANNERS.get(sim.planner.method, "sim.method")
-    safety = FILTERS.get(sim.planner.filter, "sim.filter")
-    plant = PLANTS.get(sim.vehicle.plant, "sim.plant")
-    dt = sim.episode.dt
-    prob = axis_problem(mpc, *plant.linear_model(dt, dtype))
+    gains = as_dtype(gains, dtype)
+    loop = closed_loop(sim, mpc, dtype)
     obstacles = scenario.obstacles.columns()  # once per episode, not once per control step
 
     def control_step(carry, k):
-        state, warm, plan, guard = carry
-        t = k * dt
-        x = plant.kinematics(state)
-        x_ref, plan = planner.reference(plan, x, t, scenario.goal, obstacles, gains, sim, mpc.horizon)
-        u = solve_axes(prob, x, x_ref, warm, a_max=sim.vehicle.a_max, v_max=sim.vehicle.v_max, iters=mpc.iters)
-        accel, guard, filtered = safety(guard, u[:, 0], x, t, obstacles, gains, sim)
-        state, integrated = plant.step(state, accel, gains, sim)
-        return (state, shift_warm_start(u), plan, guard), (plant.kinematics(state), accel, filtered | integrated)
+        return loop_step(loop, carry, k, scenario, obstacles, gains, sim, mpc)
 
-    state0 = plant.init(scenario.start, gains, sim)
-    carry0 = (state0, jnp.zeros((3, mpc.horizon), dtype), planner.init(scenario, gains, sim, mpc.horizon),
-              safety.init(scenario, gains, sim))
+    carry0 = loop_init(loop, scenario, gains, sim, mpc)
     ks = jnp.arange(sim.episode.steps, dtype=dtype)
     body = jax.checkpoint(control_step, prevent_cse=False) if remat else control_step
     _, (states, controls, extras) = jax.lax.scan(body, carry0, ks)
-    states = jnp.concatenate([plant.kinematics(state0)[None], states], axis=0)
+    states = jnp.concatenate([loop.plant.kinematics(carry0[0])[None], states], axis=0)
     return Trajectory(
-        time=jnp.arange(sim.episode.steps + 1, dtype=dtype) * dt,
+        time=jnp.arange(sim.episode.steps + 1, dtype=dtype) * sim.episode.dt,
         position=states[:, :3],
         velocity=states[:, 3:],
         control=controls,
@@ -152,15 +185,19 @@ def episode_index(total: int, width: int) -> np.ndarray:
     return index
 
 
-@partial(jax.jit, static_argnames=("sim", "mpc", "width", "metrics"), compiler_options=XLA_OPTIONS)
+@partial(jax.jit, static_argnames=("sim", "mpc", "width", "metrics", "streaming"), compiler_options=XLA_OPTIONS)
 def evaluate_program(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, width: int,
-                     metrics: tuple[str, ...]) -> dict[str, Array]:
+                     metrics: tuple[str, ...], streaming: bool = True) -> dict[str, Array]:
     """The compiled program behind :func:`evaluate`, every static argument explicit (for
     ``evaluate_program.lower(...)``)."""
+    from .stream import stream_metrics, stream_slots
+
     n_gains = max((jnp.shape(x)[0] for x in jax.tree_util.tree_leaves(gains) if jnp.ndim(x)), default=1)
     gains = jax.tree_util.tree_map(lambda x: x if jnp.ndim(x) else jnp.full((n_gains,), x), gains)
     n_fields = scenarios.start.shape[0]
     total = n_gains * n_fields
+    if streaming:
+        return stream_metrics(scenarios, gains, sim, mpc, stream_slots(total, width), metrics)
     width = min(width, total)
     index = episode_index(total, width)
     padded = index.shape[0]
@@ -176,20 +213,24 @@ def evaluate_program(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPC
 
 
 def evaluate(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, width: int | None = None,
-             metrics: Sequence[str] | None = None) -> dict[str, Array]:
+             metrics: Sequence[str] | None = None, *, streaming: bool = True) -> dict[str, Array]:
     """Metrics of every (gain setting, field) pair: arrays of shape (G, F), in one compiled call.
 
-    The G·F episodes form one flat batch, padded to a multiple of ``width`` and run as a
-    ``lax.map`` over batches of ``width`` vmapped episodes. Every episode is therefore computed by
-    the same kernels at the same width whatever G and F are, so an episode's numbers do not depend
-    on the batch it was run in.
+    The G·F episodes ``e = g·F + f`` form one queue. By default they are streamed
+    (:mod:`jaxapf.stream`): a few hundred slots fly them side by side and each slot takes the next
+    episode when its own ends, so no step is simulated after an episode is over. With
+    ``streaming=False`` (the fixed-length engine) the queue is padded to a multiple of ``width``
+    and run as a ``lax.map`` over batches of ``width`` vmapped episodes of ``T`` steps each. Both
+    give the same numbers, and neither depends on G, F or the batch an episode ran in.
 
     Args:
       scenarios: a batch of F fields (leading axis F on every leaf).
       gains: a batch of G gain settings (leading axis G on every array leaf; a scalar leaf, e.g. a
         gain left at its default, is shared by all G settings).
-      width: episodes vmapped together (static; ``None``: :func:`default_width`).
+      width: the vmap width (static; ``None``: :func:`default_width`); the streaming engine flies
+        at most this many episodes side by side.
       metrics: the metrics to compute (default: every registered one, :data:`~jaxapf.metrics.METRICS`).
+      streaming: stop each episode when it ends (default) instead of flying all ``T`` steps.
     """
     names = METRICS.names() if metrics is None else tuple(metrics)
-    return evaluate_program(scenarios, gains, sim, mpc, default_width() if width is None else width, names)
+    return evaluate_program(scenarios, gains, sim, mpc, default_width() if width is None else width, names, streaming)

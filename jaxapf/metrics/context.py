@@ -16,8 +16,8 @@ from jax import Array
 from ..config import SimConfig
 from ..datatypes import Obstacles, Scenario, Trajectory, clearance, obstacles_at, project, segment_clearance
 
-__all__ = ["EpisodeContext", "episode_end", "clearance_history", "interval_clearance", "time_to_collision",
-           "masked_min", "longest_run", "stall_samples", "ratio"]
+__all__ = ["EpisodeContext", "episode_end", "END_MARGIN", "certainly_ended", "certainly_at_goal", "clearance_history",
+           "interval_clearance", "time_to_collision", "masked_min", "longest_run", "stall_samples", "ratio"]
 
 
 # --------------------------------------------------------------------------------------------
@@ -90,6 +90,26 @@ def episode_end(traj: Trajectory, scenario: Scenario, sim: SimConfig) -> dict[st
     """``goal_index``, ``collision_index`` and ``end_index`` (int32 sample indices; ``T + 1`` = never)."""
     min_c = jnp.min(interval_clearance(traj, scenario, sim), axis=-1)
     return _end(min_c, _goal_distance(traj, scenario), sim)
+
+
+#: How far past an end rule a sample must be for :func:`certainly_ended` [m]: far above the few
+#: ulps by which two compiled programs may round the same clearance or goal distance apart.
+END_MARGIN = 1e-3
+
+
+def certainly_at_goal(p: Array, scenario: Scenario, sim: SimConfig) -> Array:
+    """Whether the sample ``p`` is within ``r_goal - END_MARGIN`` of the goal (see :func:`certainly_ended`)."""
+    return jnp.linalg.norm(p - scenario.goal) <= sim.episode.r_goal - END_MARGIN
+
+
+def certainly_ended(p0: Array, p1: Array, t0: Array, scenario: Scenario, sim: SimConfig) -> Array:
+    """Whether the interval from sample ``p0`` (time ``t0``) to the next sample ``p1`` certainly ends
+    the episode: its swept clearance is below ``-END_MARGIN`` (a collision) or ``p1`` is within
+    ``r_goal - END_MARGIN`` of the goal. The episode-end rules of :func:`episode_end` then hold at
+    this sample or an earlier one whatever program rounds them, so the samples flown so far decide
+    every metric. The streaming engine (:mod:`jaxapf.stream`) evaluates it after each step."""
+    swept = jnp.min(segment_clearance(p0, p1, scenario.obstacles, t0, t0 + sim.episode.dt, sim.vehicle.r_uav))
+    return (swept < -END_MARGIN) | certainly_at_goal(p1, scenario, sim)
 
 
 def masked_min(x: Array, mask: Array) -> Array:

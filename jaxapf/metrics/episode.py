@@ -185,4 +185,7 @@ def episode_metrics(traj: Trajectory, scenario: Scenario, sim: SimConfig,
       ``{name: scalar}`` in the order of ``names``.
     """
     names = METRICS.names() if names is None else names
+    # the metrics compile alike whatever program produced the trajectory (the fixed-length and the
+    # streaming engine agree bit for bit): XLA fuses nothing across this barrier
+    traj, scenario = jax.lax.optimization_barrier((traj, scenario))
     return compute_metrics(EpisodeContext(traj, scenario, sim), names, traj.position.dtype)

@@ -59,8 +59,8 @@ PROCESS_BASELINE = 450 * 2**20
 #: with the classic loop emitters of ``rollout.XLA_OPTIONS``; the fit is within 0.77–1.46× of
 #: every measurement (two fits in a row agreed within 3 % at N = 20, I = 30, M = 16).
 STEP_COST_US = (3.002, 0.009114, 0.006484, 0.09848)
-#: Cold XLA compile of one evaluate program on that machine [s] (2.5–8 s measured).
-COMPILE_S = 4.0
+#: Cold XLA compile of one (streaming) evaluate program on that machine [s] (5–7 s measured).
+COMPILE_S = 6.0
 
 _PART = re.compile(r"^part-v(\d{3,})-([a-z_][a-z0-9_]*)-f(\d{8,})-(\d{8,})\.parquet$")
 
@@ -157,8 +157,10 @@ def _program(block: Block) -> tuple:
 
 
 def working_set_bytes(width: int, steps: int, obstacles: int, itemsize: int) -> int:
-    """``W``: one vmapped batch inside ``evaluate`` (trajectory, clearances, metric temporaries)."""
-    return width * (steps + 1) * (20 + 3 * obstacles) * itemsize
+    """``W``: ``width`` episodes inside ``evaluate``: the streaming engine's record ring and store of
+    finished episodes (about 2.3 trajectories of 9 numbers per sample each) and the metrics'
+    temporaries (clearances to every obstacle slot)."""
+    return width * (steps + 1) * (41 + 3 * obstacles) * itemsize
 
 
 def episode_bytes(obstacles: int, itemsize: int) -> int:
@@ -265,7 +267,8 @@ class Plan:
         return len({(b.sim, b.mpc) for b in self.blocks.values()})
 
     def estimate_seconds(self) -> tuple[float, float]:
-        """(run, cold compile) seconds from the cost model, for the chunks still to run."""
+        """(run, cold compile) seconds from the cost model, for the chunks still to run; the run is an
+        upper bound: every episode flying its whole ``t_max``."""
         run = 0.0
         for c in self.chunks:
             b = self.blocks[(c.variant, c.family)]
@@ -368,9 +371,10 @@ def describe_plan(plan: Plan) -> str:
                          f"chunk (padded {b.padded}), {b.sim.episode.steps} steps, N={b.mpc.horizon}, I={b.mpc.iters}, "
                          f"M={b.obstacles}" + (f", vmap width {b.width}" if b.width != plan.width else ""))
     lines += [
-        f"  time estimate:     {format_seconds(run_s)} of simulation + up to {format_seconds(compile_s)} of "
-        "compilation "
-        "(~0 with a warm compilation cache)",
+        f"  time estimate:     up to {format_seconds(run_s)} of simulation + up to {format_seconds(compile_s)} of "
+        "compilation (~0 with a warm compilation cache)",
+        "                     simulation: every episode flying its whole t_max; the engine stops each episode when it "
+        "ends (goal, collision), which in the quick start's sweep cut the time to 0.62 of this (docs/performance.md)",
         "                     from a per-step cost model fitted on a 2-core x86-64 CPU (jaxapf.sweep.STEP_COST_US, "
         "±50 %; benchmarks/fit_cost.py refits it here); on accelerators it is only an upper bound",
         *([f"  padding:           {padding}"] if padding else []),

@@ -76,5 +76,9 @@ def test_sweep_benchmark_times_the_sweep_against_bare_calls_on_the_same_work():
     assert result["config"]["episodes"] == 8 and result["config"]["scenario_steps"] == 8 * 5
     assert result["bare"]["run_s"] > 0 and result["sweep"]["run_s"] > 0 and result["sharded"] is None
     assert result["overhead"] == pytest.approx(result["sweep"]["run_s"] / result["bare"]["run_s"] - 1.0)
-    assert "sweep overhead" in format_sweep_benchmark(result)
+    assert result["streaming_speedup"] == pytest.approx(result["fixed"]["run_s"] / result["bare"]["run_s"])
+    assert result["engine_agreement"]["episodes"] == result["config"]["episodes"]
+    assert 0.9 <= result["engine_agreement"]["outcomes_equal"] <= 1.0
+    text = format_sweep_benchmark(result)
+    assert "sweep overhead" in text and "streaming engine:" in text and "engines agree" in text
     json.dumps(result)

@@ -1,0 +1,222 @@
+r"""Episode streaming: a batch of slots, each taking the next episode of the queue when its own ends.
+
+The fixed-length engine (``evaluate(..., streaming=False)``) flies every episode for the whole
+``t_max`` and applies termination by masks, so a batch keeps simulating episodes that are over (in
+the quick start's sweep the episodes end after 293 of 600 steps on average). The streaming engine
+flies the same episodes with the same control step (:func:`~jaxapf.rollout.loop_step`) and
+computes the same metrics, but stops each one when it is over:
+
+* ``slots`` episodes fly side by side (a ``vmap``), in **segments** of :data:`SEGMENT` control
+  steps (a ``lax.scan``); every slot records its episode's samples in a trajectory buffer;
+* after each step a slot checks whether its episode has *certainly* ended
+  (:func:`~jaxapf.metrics.context.certainly_ended`: a swept clearance below ``-END_MARGIN`` or the
+  goal within ``r_goal - END_MARGIN``); at ``T`` steps it is over anyway. The margin makes the check
+  conservative: when it fires, the episode-end rules of the metrics hold at that sample or an
+  earlier one however a compiler rounds them, so the samples flown so far decide every metric;
+* at each segment boundary the finished slots (up to half of them) hand their buffers to a
+  **store** and take the next episodes of the queue. Whenever the store holds ``slots`` finished
+  episodes, their metrics are computed in one vmapped call (:func:`~jaxapf.metrics.episode_metrics`
+  on the buffered trajectories, exactly as the fixed engine computes them on its own);
+* when the queue is empty, the slots still flying are moved to the front and later segments run
+  on a narrower vmap (``slots/2``, ``slots/4``: one ``lax.switch`` branch each), so the last long
+  episodes do not keep the whole batch busy.
+
+Samples after an episode's end are never read by a metric (:mod:`jaxapf.metrics.episode`: every
+metric masks them), so the metrics are those of the fixed engine. They are equal bit for bit when
+both programs round the control step alike, which XLA does on CPU (``tests/test_stream.py``
+compares every metric of every registered planner's episodes; an episode's numbers do not depend on
+the vmap width either). The queue is every (setting, field) episode ``e = g·F + f`` in order, and
+which slot flies an episode changes nothing in its numbers.
+
+The loop is one ``lax.while_loop`` inside the caller's compiled program; its cost is the steps
+that matter plus at most :data:`SEGMENT` steps per episode (the segment in which it ends), the
+buffer copies at the boundaries and the narrower vmaps of the tail.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import jax
+import jax.numpy as jnp
+from jax import Array
+
+from .config import MPCConfig, SimConfig
+from .datatypes import Scenario, Trajectory
+from .gains import Gains
+from .metrics import episode_metrics
+from .metrics.context import certainly_at_goal, certainly_ended
+from .rollout import as_dtype, closed_loop, loop_init, loop_step
+
+__all__ = ["SEGMENT", "stream_slots", "stream_metrics"]
+
+#: Control steps between two refills of the slots.
+SEGMENT = 10
+#: The narrowest vmap of the engine: the tail of a queue shrinks to it, a short queue flies at it.
+#: Below it XLA:CPU rounds a few episodes differently (``tests/test_stream.py``).
+NARROWEST = 64
+
+
+def stream_slots(episodes: int, width: int) -> int:
+    """The slot count for a queue of ``episodes``: about a quarter of them (so that each slot flies
+    several and slots freed early are refilled), a power of two, at least :data:`NARROWEST` and at
+    most ``width``."""
+    return min(width, max(NARROWEST, 1 << (max(episodes // 4, 1).bit_length() - 1)))
+
+
+def _rows(tree: Any, index: Any) -> Any:
+    return jax.tree_util.tree_map(lambda x: x[index], tree)
+
+
+def _put(tree: Any, index: Array, rows: Any) -> Any:
+    """``tree[index] = rows`` leaf by leaf; indices out of range are dropped."""
+    return jax.tree_util.tree_map(lambda x, r: x.at[index].set(r, mode="drop"), tree, rows)
+
+
+def _columns(tree: Any, index: Any) -> Any:
+    """Episodes ``index`` of time-major arrays (episodes on axis 1)."""
+    return jax.tree_util.tree_map(lambda x: x[:, index], tree)
+
+
+def _write(tree: Any, block: Any, row: Array, column: Array | int) -> Any:
+    """``block`` into the time-major ``tree`` at (``row``, ``column``), leaf by leaf."""
+    return jax.tree_util.tree_map(
+        lambda x, b: jax.lax.dynamic_update_slice(x, b, (row, column) + (0,) * (x.ndim - 2)), tree, block)
+
+
+def stream_metrics(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, slots: int,
+                   metrics: Sequence[str]) -> dict[str, Array]:
+    """The ``metrics`` of every (setting, field) episode, arrays (G, F), by episode streaming.
+
+    Args:
+      scenarios: F fields (leading axis F).
+      gains: G settings, every leaf with leading axis G.
+      slots: episodes flown side by side (:func:`stream_slots`).
+    """
+    dtype = scenarios.start.dtype
+    gains = as_dtype(gains, dtype)
+    loop = closed_loop(sim, mpc, dtype)
+    n_fields = scenarios.start.shape[0]
+    n_gains = jax.tree_util.tree_leaves(gains)[0].shape[0]
+    total, steps, dt = n_gains * n_fields, sim.episode.steps, sim.episode.dt
+    levels = tuple(sorted({max(slots >> i, min(slots, NARROWEST)) for i in range(3)}, reverse=True))
+    moves = max(slots // 4, 1)  # finished episodes handed to the store per boundary, oldest first
+    # the record ring: a finished episode waits at most ceil(slots / moves) boundaries for its move,
+    # so its T records are still in the ring (R a whole number of segments)
+    ring = SEGMENT * -(-(steps + SEGMENT * (2 + -(-slots // moves))) // SEGMENT)
+
+    def episode(e: Array) -> dict[str, Any]:
+        """A slot at the start of episode ``e``: its field, gains, carry and first sample."""
+        scenario = _rows(scenarios, e % n_fields)
+        g = _rows(gains, e // n_fields)
+        carry = loop_init(loop, scenario, g, sim, mpc)
+        return {"scenario": scenario, "obstacles": scenario.obstacles.columns(), "gains": g, "carry": carry,
+                "k": jnp.zeros((), jnp.int32), "ended": certainly_at_goal(scenario.start, scenario, sim),
+                "x0": loop.plant.kinematics(carry[0])}
+
+    def step(slot: dict[str, Any], _) -> tuple[dict[str, Any], tuple]:
+        """One control step of one slot and its record (the plant's ``[p, v]`` after it, the
+        applied acceleration, the components' diagnostics)."""
+        k = slot["k"]
+        p0 = loop.plant.kinematics(slot["carry"][0])[:3]
+        carry, record = loop_step(loop, slot["carry"], k.astype(dtype), slot["scenario"], slot["obstacles"],
+                                  slot["gains"], sim, mpc)
+        ended = slot["ended"] | certainly_ended(p0, record[0][:3], k.astype(dtype) * dt, slot["scenario"], sim)
+        return {**slot, "carry": carry, "k": k + 1, "ended": ended}, record
+
+    def segment(width: int):
+        """``SEGMENT`` steps of the first ``width`` slots; their records go to the ring."""
+        def run(st: dict[str, Any]) -> dict[str, Any]:
+            part, records = jax.lax.scan(jax.vmap(step), _rows(st["fly"], slice(0, width)), None, length=SEGMENT)
+            fly = jax.tree_util.tree_map(lambda x, p: x.at[:width].set(p), st["fly"], part)
+            return {**st, "fly": fly, "ring": _write(st["ring"], records, st["clock"] % ring, 0)}
+        return run
+
+    record = jax.eval_shape(lambda: step(episode(jnp.zeros((), jnp.int32)), None))[1]
+
+    def records(length: int, episodes: int) -> tuple:
+        """Zeroed time-major records (``length``, ``episodes``, ...) of the steps' outputs."""
+        return jax.tree_util.tree_map(lambda r: jnp.zeros((length, episodes) + r.shape, r.dtype), record)
+
+    def measure(start: Array, flown: tuple, ids: Array) -> dict[str, Array]:
+        """:func:`~jaxapf.metrics.episode_metrics` of ``slots`` stored episodes: their first samples
+        ``start`` (slots, 6) and records ``flown`` (T, slots, ...)."""
+        fields = _rows(scenarios, jnp.clip(ids, 0, total - 1) % n_fields)
+        time = jnp.arange(steps + 1, dtype=dtype) * dt
+
+        def one(x0, x, accel, extras, field):
+            states = jnp.concatenate([x0[None], x], axis=0)
+            traj = Trajectory(time=time, position=states[:, :3], velocity=states[:, 3:], control=accel, extras=extras)
+            return episode_metrics(traj, field, sim, metrics)
+        return jax.vmap(one, in_axes=(0, 1, 1, 1, 0))(start, *flown, fields)
+
+    out_shape = jax.eval_shape(measure, jnp.zeros((slots, 6), dtype), records(steps, slots),
+                               jnp.zeros((slots,), jnp.int32))
+    first = jnp.arange(slots)
+    fly = jax.vmap(episode)(jnp.minimum(first, total - 1))
+    fly["id"] = jnp.where(first < total, first, -1).astype(jnp.int32)
+    fly["born"] = jnp.zeros((slots,), jnp.int32)  # the clock at the episode's first step
+    state = {
+        "fly": fly,
+        "clock": jnp.zeros((), jnp.int32),  # control steps flown by the slots so far
+        "ring": records(ring, slots),
+        "store": (jnp.zeros((slots + moves, 6), dtype), records(steps, slots + moves)),
+        "store_id": jnp.full((slots + moves,), total, jnp.int32),  # ``total``: no episode (dropped on output)
+        "stored": jnp.zeros((), jnp.int32),
+        "next": jnp.asarray(min(slots, total), jnp.int32),
+        "out": {m: jnp.zeros((total,), r.dtype) for m, r in out_shape.items()},
+    }
+
+    def flush(st: dict[str, Any]) -> dict[str, Any]:
+        """Metrics of the store's first ``slots`` episodes; the rest move up."""
+        (start, flown), ids = st["store"], st["store_id"][:slots]
+        values = measure(start[:slots], _columns(flown, slice(0, slots)), ids)
+        out = {m: st["out"][m].at[ids].set(values[m], mode="drop") for m in st["out"]}
+        rest = (start[slots:], _columns(flown, slice(slots, None)))
+        store = (start.at[:moves].set(rest[0]), _write(flown, rest[1], 0, 0))
+        store_id = jnp.concatenate([st["store_id"][slots:], jnp.full((slots,), total, jnp.int32)])
+        return {**st, "out": out, "store": store, "store_id": store_id, "stored": jnp.maximum(st["stored"] - slots, 0)}
+
+    def level(n: Array) -> Array:
+        """Index of the narrowest level that holds ``n`` slots."""
+        return jnp.sum(jnp.asarray(levels[1:]) >= n).astype(jnp.int32)
+
+    def span(fly: dict[str, Any]) -> Array:
+        """One past the last slot still flying."""
+        return jnp.max(jnp.where(fly["id"] >= 0, jnp.arange(slots) + 1, 0))
+
+    def boundary(st: dict[str, Any]) -> dict[str, Any]:
+        fly = st["fly"]
+        done = (fly["id"] >= 0) & (fly["ended"] | (fly["k"] >= steps))
+        # the oldest finished episodes (their records leave the ring first) go to the store
+        index = jnp.argsort(jnp.where(done, fly["born"], jnp.iinfo(jnp.int32).max), stable=True)[:moves]
+        moved = done[index]
+        n_moved = jnp.sum(moved).astype(jnp.int32)
+        rows = (fly["born"][index][None, :] + jnp.arange(steps)[:, None]) % ring  # (T, moves)
+        flown = jax.tree_util.tree_map(lambda r: r[rows, index[None, :]], st["ring"])
+        (start, stored_records), at = st["store"], st["stored"]
+        store = (jax.lax.dynamic_update_slice(start, fly["x0"][index], (at, 0)), _write(stored_records, flown, 0, at))
+        store_id = jax.lax.dynamic_update_slice(st["store_id"], jnp.where(moved, fly["id"][index], total), (at,))
+        st = {**st, "store": store, "store_id": store_id, "stored": at + n_moved}
+        last = (st["next"] >= total) & ~jnp.any((fly["id"] >= 0) & ~done)  # nothing left to fly
+        st = jax.lax.cond((st["stored"] >= slots) | (last & (st["stored"] > 0)), flush, lambda s: s, st)
+        # the moved slots take the next episodes of the queue
+        new = st["next"] + jnp.cumsum(moved) - 1
+        fresh = jax.vmap(episode)(jnp.clip(new, 0, total - 1))
+        fresh["id"] = jnp.where(new < total, new, -1).astype(jnp.int32)
+        fresh["born"] = jnp.broadcast_to(st["clock"], (moves,))
+        fly = _put(fly, jnp.where(moved, index, slots), fresh)
+        st = {**st, "fly": fly, "next": jnp.minimum(st["next"] + n_moved, total)}
+        # an empty queue: the slots still flying move to the front once a narrower level holds them
+        active = fly["id"] >= 0
+        shrink = (st["next"] >= total) & (level(jnp.sum(active)) > level(span(fly)))
+        order = jnp.argsort(~active, stable=True)
+        return jax.lax.cond(shrink, lambda s: {**s, "fly": _rows(s["fly"], order), "ring": _columns(s["ring"], order)},
+                            lambda s: s, st)
+
+    def body(st: dict[str, Any]) -> dict[str, Any]:
+        st = jax.lax.switch(level(span(st["fly"])), [segment(w) for w in levels], st)
+        return boundary({**st, "clock": st["clock"] + SEGMENT})
+
+    state = jax.lax.while_loop(lambda st: jnp.any(st["fly"]["id"] >= 0) | (st["stored"] > 0), body, state)
+    return {m: v.reshape(n_gains, n_fields) for m, v in state["out"].items()}

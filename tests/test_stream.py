@@ -1,0 +1,107 @@
+"""The streaming engine (jaxapf.stream) against the fixed-length one, and the metric contract it rests on."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxapf.config import MPCConfig, PlannerConfig, SimConfig
+from jaxapf.gains import Gains
+from jaxapf.metrics import METRICS, episode_end, episode_metrics
+from jaxapf.planners import PLANNERS
+from jaxapf.rollout import evaluate, rollout
+from jaxapf.scenarios import family_params, make_scenarios
+from jaxapf.stream import NARROWEST, stream_slots
+
+OUTCOMES = ("success", "collision", "stalled", "steps")
+MPC = MPCConfig(horizon=10, iters=15)
+
+
+def _sim(method: str, t_max: float = 25.0) -> SimConfig:
+    sim = SimConfig(planner=PlannerConfig(method=method))
+    return dataclasses.replace(sim, episode=dataclasses.replace(sim.episode, t_max=t_max))
+
+
+def _close(fixed: dict, streamed: dict) -> None:
+    """Outcomes equal; continuous metrics within the differences that grow along an episode from
+    the last bits in which two compiled programs round a step apart (docs/performance.md)."""
+    for name in fixed:
+        a, b = np.asarray(fixed[name]), np.asarray(streamed[name])
+        if name in OUTCOMES or a.dtype == bool:
+            np.testing.assert_array_equal(a, b, err_msg=name)
+        else:
+            np.testing.assert_allclose(a, b, rtol=1e-2, atol=1e-2, err_msg=name)
+
+
+@pytest.mark.parametrize("method, family", [(m, "crossing") for m in sorted(PLANNERS.names())]
+                         + [("direction_velocity", "trap")])
+def test_every_planner_streams_the_fixed_engines_episodes(method, family):
+    """Moving obstacles (crossing; a static trap too) and two gain settings: the same outcomes and
+    metrics whichever engine flies them, for every registered planner (the stall escape's keyed
+    state included)."""
+    fields = make_scenarios(3, family_params(family), 24)
+    two = [Gains(), Gains(gamma=0.5, k_rep=2.0)]
+    gains = Gains.unchecked({n: np.array([float(g[n]) for g in two], np.float32) for n in Gains.names()})
+    sim = _sim(method)
+    fixed = evaluate(fields, gains, sim, MPC, width=64, streaming=False)
+    streamed = evaluate(fields, gains, sim, MPC, width=64)
+    _close(fixed, streamed)
+    assert np.asarray(streamed["steps"]).min() < sim.episode.steps, "some episode must end early for the test to bite"
+
+
+def test_an_episodes_streamed_numbers_do_not_depend_on_its_queue():
+    """The first 64 fields alone (64 slots) and inside a queue of 520 (128 slots, refills, a tail
+    on a narrower vmap): bit for bit the same numbers."""
+    fields = make_scenarios(1, family_params("overtake"), 520)
+    sim = _sim("direction_velocity", 10.0)
+    assert stream_slots(520, 1024) == 128 and stream_slots(64, 1024) == NARROWEST
+    whole = evaluate(fields, Gains(), sim, MPC, width=1024)
+    part = evaluate(jax.tree_util.tree_map(lambda x: x[:64], fields), Gains(), sim, MPC, width=1024)
+    for name in whole:
+        np.testing.assert_array_equal(np.asarray(whole[name])[:, :64], np.asarray(part[name]), err_msg=name)
+
+
+@pytest.mark.parametrize("episodes, width, slots", [(1, 1024, 64), (64, 1024, 64), (300, 1024, 64), (512, 1024, 128),
+                                                    (4096, 1024, 1024), (10**6, 512, 512), (100, 16, 16)])
+def test_stream_slots(episodes, width, slots):
+    assert stream_slots(episodes, width) == slots
+
+
+def test_metrics_never_read_samples_after_the_end():
+    """The contract streaming rests on: every registered metric is a function of the samples up to
+    the episode's end (``end_index``) and the controls before it; garbage after it changes nothing."""
+    fields = make_scenarios(2, family_params("crossing"), 16)
+    sim = _sim("direction_velocity")
+    trajs = jax.vmap(lambda s: rollout(s, Gains(), sim, MPC))(fields)
+    ends = np.asarray(jax.vmap(lambda t, s: episode_end(t, s, sim)["end_index"])(trajs, fields))
+    assert ends.min() < sim.episode.steps
+    rng = np.random.default_rng(0)
+    sample = np.arange(sim.episode.steps + 1)[None, :, None] > ends[:, None, None]
+    interval = np.arange(sim.episode.steps)[None, :, None] >= ends[:, None, None]
+    garbage = dataclasses.replace(
+        trajs,
+        position=jnp.where(sample, rng.normal(0, 50, trajs.position.shape), trajs.position).astype(jnp.float32),
+        velocity=jnp.where(sample, rng.normal(0, 50, trajs.velocity.shape), trajs.velocity).astype(jnp.float32),
+        control=jnp.where(interval, rng.normal(0, 50, trajs.control.shape), trajs.control).astype(jnp.float32))
+    measure = jax.jit(jax.vmap(lambda t, s: episode_metrics(t, s, sim)))
+    clean, dirty = measure(trajs, fields), measure(garbage, fields)
+    assert set(clean) == set(METRICS.names())
+    for name in clean:
+        np.testing.assert_array_equal(np.asarray(clean[name]), np.asarray(dirty[name]), err_msg=name)
+
+
+def test_engine_agreement_by_hand():
+    from jaxapf.bench.sweep import engine_agreement
+
+    fixed = [{"success": [True, False], "collision": [False, False], "stalled": [False, True], "steps": [10, 20],
+              "min_clearance": [1.0, 2.0], "time_to_goal": [1.0, np.nan]}]
+    streamed = [{"success": [True, False], "collision": [False, False], "stalled": [False, True], "steps": [10, 21],
+                 "min_clearance": [1.0005, 2.5], "time_to_goal": [1.0, np.nan]}]
+    out = engine_agreement(fixed, streamed)
+    assert out["episodes"] == 2 and out["outcomes_equal"] == 0.5
+    assert out["continuous"]["min_clearance"] == {"max_abs_diff": pytest.approx(0.5), "within_1e-3": 0.5}
+    assert out["continuous"]["time_to_goal"] == {"max_abs_diff": 0.0, "within_1e-3": 1.0}
