@@ -54,6 +54,9 @@ Metrics (one scalar each, in registration order)
   understate an agent's efficiency). In [0, 1]; 1 for a straight successful flight, 0 for a failure;
   degenerate ``L = 0``: ``success`` if the path length is 0, else 0.
 - ``steps``: ``e`` (int32).
+- ``cbf_infeasible_steps``: valid intervals at which the CBF safety filter (:mod:`jaxapf.control.cbf`)
+  found its constraints and the acceleration box incompatible (``traj.extras["cbf_infeasible"]``);
+  0 without that filter (int32).
 
 Efficiency metrics (``time_to_goal``, ``path_ratio``, ``control_effort``, ``jerk_rms``, ``min_ttc``)
 are registered as meaningful only on successful episodes (``Metric.on_success``): a collision cuts a
@@ -133,6 +136,13 @@ def _spl(ctx: EpisodeContext) -> Array:
     return jnp.where(ctx.success, efficiency, 0.0)
 
 
+def _cbf_infeasible_steps(ctx: EpisodeContext) -> Array:
+    flags = ctx.traj.extras.get("cbf_infeasible")
+    if flags is None:
+        return jnp.zeros((), jnp.int32)
+    return jnp.sum(ctx.interval_valid & flags).astype(jnp.int32)
+
+
 def _time_near(ctx: EpisodeContext) -> Array:
     nearest = jnp.min(clearance_history(ctx.traj, ctx.scenario, ctx.sim), axis=-1)  # (T+1,)
     closing = (nearest[1:] < nearest[:-1]) | (ctx.swept < jnp.minimum(nearest[1:], nearest[:-1]))
@@ -168,6 +178,8 @@ for _metric in (
     Metric("spl", _spl, higher_is_better=True, report=True, margin=0.02,
            doc="success weighted by path length, S·L/max(path, L) (Anderson et al. 2018)"),
     Metric("steps", lambda ctx: ctx.end_index, dtype="int32", kind="count", doc="steps until the episode ended"),
+    Metric("cbf_infeasible_steps", _cbf_infeasible_steps, dtype="int32", kind="count", higher_is_better=False,
+           doc="control steps at which the CBF filter's constraints and the acceleration box could not all hold"),
 ):
     register_metric(_metric)
 

@@ -6,6 +6,7 @@ unused), so the jitted metric function compiles once and is reused (float32 thro
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import jax
@@ -111,12 +112,23 @@ def test_columns_and_dtypes():
     assert tuple(order) == METRICS.names()
     for name, v in m.items():
         assert v.shape == (), name
-        if name in ("success", "collision", "stalled"):
-            assert v.dtype == jnp.bool_, name
-        elif name == "steps":
-            assert v.dtype == jnp.int32
-        else:
-            assert v.dtype == jnp.float32, name
+        expected = {"bool": jnp.bool_, "int32": jnp.int32, "float": jnp.float32}[METRICS.get(name, "metric").dtype]
+        assert v.dtype == expected, name
+    counts = {n for n in METRICS.names() if METRICS.get(n, "metric").dtype == "int32"}
+    assert counts >= {"steps", "cbf_infeasible_steps"}
+
+
+def test_cbf_infeasible_steps_counts_flagged_steps_before_the_end():
+    """Goal reached at sample 8 (end e = 8): flags on intervals 3 and 7 count, those on 9, 10 and 20
+    (after the end) do not; without the filter's flags the count is 0."""
+    sc = scenario([0, 0, 1], [2, 0, 1])
+    traj = trajectory(line([0, 0, 1], [2, 0, 0]), [2, 0, 0])  # 0.2 m per step: within r_goal at sample 8
+    flags = np.zeros(T, bool)
+    flags[[3, 7, 9, 10, 20]] = True
+    flagged = dataclasses.replace(traj, extras={"cbf_infeasible": jnp.asarray(flags)})
+    m = values(_metrics(flagged, sc, SIM))
+    assert int(m["steps"]) == 8 and int(m["cbf_infeasible_steps"]) == 2
+    assert int(values(_metrics(traj, sc, SIM))["cbf_infeasible_steps"]) == 0
 
 
 # --------------------------------------------------------------------------------------------
