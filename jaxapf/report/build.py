@@ -28,7 +28,7 @@ import pandas as pd
 from .. import stats
 from ..metrics import METRICS
 from .document import Document, render_html, render_markdown
-from .figures import report_figures
+from .figures import DEFAULT_HEATMAP, report_figures
 from .gallery import gallery
 from .latex import latex_tables
 from .load import ReportError, load_sweep, report_metrics
@@ -73,7 +73,7 @@ class ReportOptions:
 
     baseline: str = "method=basic"
     where: tuple[str, ...] = ()
-    heatmap: tuple[str, str] | None = ("gamma", "k")
+    heatmap: tuple[str, str] | None = DEFAULT_HEATMAP
     gallery: int = 3
     resamples: int = stats.DEFAULT_RESAMPLES
     confidence: float = 0.95

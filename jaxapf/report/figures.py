@@ -36,7 +36,11 @@ __all__ = [
     "plot_differences",
     "plot_performance_profile",
     "report_figures",
+    "DEFAULT_HEATMAP",
 ]
+
+#: The heatmaps' gains unless ``--heatmap`` names others; a sweep without them gets a note instead.
+DEFAULT_HEATMAP = ("gamma", "k")
 
 _GROUP_MARKERS = ("o", "s", "^", "D", "v", "P", "X", "<", ">", "h")
 
@@ -306,6 +310,8 @@ def _heatmap_figures(sel: Selection, options: Any, figdir: pathlib.Path) -> tupl
         return [], ["heatmaps skipped (--heatmap none)"]
     x, y = options.heatmap
     for c in (x, y):
+        if c not in sel.table.columns and tuple(options.heatmap) == DEFAULT_HEATMAP:
+            return [], [f"heatmaps skipped: the sweep has no {c} column (--heatmap X,Y names two swept gains)"]
         if c not in sel.table.columns:
             raise ReportError(f"--heatmap {x},{y}: no setting column {c!r}; use two of "
                               f"{', '.join(sel.swept) or 'the swept gains (none here)'}")

@@ -224,6 +224,18 @@ def test_heatmap_skipped_with_fewer_than_two_swept_gains(sweep, tmp_path):
     assert figures == [] and "fewer than 2 swept gains" in notes[0]
 
 
+def test_default_heatmap_of_a_sweep_without_its_gains_is_a_note(sweep, tmp_path):
+    """A sweep without a gamma column (e.g. only `basic`, which reads neither gain) gets a note
+    from the default --heatmap gamma,k; a column the user names that does not exist is an error."""
+    path, _ = sweep
+    df, _ = load_sweep(path)
+    sel = select(df.drop(columns=["gamma"]), ReportOptions())
+    figures, notes = _heatmap_figures(sel, ReportOptions(), tmp_path)
+    assert figures == [] and "no gamma column" in notes[0]
+    with pytest.raises(ReportError, match="no setting column 'gamma'"):
+        _heatmap_figures(sel, ReportOptions(heatmap=("k", "gamma")), tmp_path)
+
+
 # --------------------------------------------------------------------------------------------
 # bad input: one line on stderr, exit status 2
 # --------------------------------------------------------------------------------------------
