@@ -129,9 +129,9 @@ def cbf_qp(a0: Array, g: Array, b: Array, a_max: float) -> tuple[Array, Array]:
 
 @dataclasses.dataclass(frozen=True)
 class CBF(SafetyFilter):
-    """Exponential CBF filter: the acceleration nearest the MPC's that keeps ``ḧ + k₁ḣ + k₀h ≥ 0``
-    for every obstacle within the acceleration box (module docstring).
+    """Exponential CBF filter: the nearest acceleration keeping h'' + k1 h' + k0 h >= 0 per obstacle.
 
+    The acceleration nearest the MPC's within the box; the module docstring has the maths.
     """
 
     gains = (CBF_K0, CBF_K1)
