@@ -13,20 +13,23 @@ computes the same metrics, but stops each one when it is over:
   goal within ``r_goal - END_MARGIN``); at ``T`` steps it is over anyway. The margin makes the check
   conservative: when it fires, the episode-end rules of the metrics hold at that sample or an
   earlier one however a compiler rounds them, so the samples flown so far decide every metric;
-* at each segment boundary the finished slots (up to half of them) hand their buffers to a
-  **store** and take the next episodes of the queue. Whenever the store holds ``slots`` finished
+* at each segment boundary the finished slots (the oldest, up to a quarter of the slots) hand their
+  records to a **store** and take the next episodes of the queue. Whenever the store holds ``slots`` finished
   episodes, their metrics are computed in one vmapped call (:func:`~jaxapf.metrics.episode_metrics`
   on the buffered trajectories, exactly as the fixed engine computes them on its own);
 * when the queue is empty, the slots still flying are moved to the front and later segments run
-  on a narrower vmap (``slots/2``, ``slots/4``: one ``lax.switch`` branch each), so the last long
+  on a narrower vmap (``slots/2``, ``slots/4``, never below :data:`NARROWEST`: one ``lax.switch``
+  branch each), so the last long
   episodes do not keep the whole batch busy.
 
 Samples after an episode's end are never read by a metric (:mod:`jaxapf.metrics.episode`: every
-metric masks them), so the metrics are those of the fixed engine. They are equal bit for bit when
-both programs round the control step alike, which XLA does on CPU (``tests/test_stream.py``
-compares every metric of every registered planner's episodes; an episode's numbers do not depend on
-the vmap width either). The queue is every (setting, field) episode ``e = g·F + f`` in order, and
-which slot flies an episode changes nothing in its numbers.
+metric masks them), so the metrics are those of the fixed engine up to rounding: XLA compiles the
+control step inside a different program and rounds some operations apart in the last bit, which
+the closed loop can amplify along an episode (``jaxapf bench sweep`` measures the agreement:
+identical outcomes on 99.9 % of episodes, docs/performance.md). Within the streaming engine an
+episode's numbers do not depend on the queue it ran in, bit for bit (``tests/test_stream.py``):
+the queue is every (setting, field) episode ``e = g·F + f`` in order, and which slot flies an
+episode, or when, changes nothing in its numbers.
 
 The loop is one ``lax.while_loop`` inside the caller's compiled program; its cost is the steps
 that matter plus at most :data:`SEGMENT` steps per episode (the segment in which it ends), the
@@ -80,8 +83,9 @@ def _columns(tree: Any, index: Any) -> Any:
 
 def _write(tree: Any, block: Any, row: Array, column: Array | int) -> Any:
     """``block`` into the time-major ``tree`` at (``row``, ``column``), leaf by leaf."""
-    return jax.tree_util.tree_map(
-        lambda x, b: jax.lax.dynamic_update_slice(x, b, (row, column) + (0,) * (x.ndim - 2)), tree, block)
+    start = (row, column)
+    return jax.tree_util.tree_map(lambda x, b: jax.lax.dynamic_update_slice(
+        x, b, tuple(jnp.asarray(i, jnp.int32) for i in start + (0,) * (x.ndim - 2))), tree, block)
 
 
 def stream_metrics(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, slots: int,
@@ -195,7 +199,7 @@ def stream_metrics(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCCo
         rows = (fly["born"][index][None, :] + jnp.arange(steps)[:, None]) % ring  # (T, moves)
         flown = jax.tree_util.tree_map(lambda r: r[rows, index[None, :]], st["ring"])
         (start, stored_records), at = st["store"], st["stored"]
-        store = (jax.lax.dynamic_update_slice(start, fly["x0"][index], (at, 0)), _write(stored_records, flown, 0, at))
+        store = (_write(start[None], fly["x0"][index][None], 0, at)[0], _write(stored_records, flown, 0, at))
         store_id = jax.lax.dynamic_update_slice(st["store_id"], jnp.where(moved, fly["id"][index], total), (at,))
         st = {**st, "store": store, "store_id": store_id, "stored": at + n_moved}
         last = (st["next"] >= total) & ~jnp.any((fly["id"] >= 0) & ~done)  # nothing left to fly

@@ -65,6 +65,18 @@ def test_an_episodes_streamed_numbers_do_not_depend_on_its_queue():
         np.testing.assert_array_equal(np.asarray(whole[name])[:, :64], np.asarray(part[name]), err_msg=name)
 
 
+def test_streaming_runs_in_float64():
+    """``jaxapf sweep --x64``: the same outcomes as the fixed-length engine, float64 metrics."""
+    with jax.enable_x64(True):
+        fields = jax.tree_util.tree_map(lambda x: x.astype(jnp.float64) if x.dtype == jnp.float32 else x,
+                                        make_scenarios(4, family_params("crossing"), 8))
+        sim = _sim("basic")
+        fixed = evaluate(fields, Gains(), sim, MPC, width=64, streaming=False)
+        streamed = evaluate(fields, Gains(), sim, MPC, width=64)
+        assert streamed["min_clearance"].dtype == jnp.float64
+        _close(fixed, streamed)
+
+
 @pytest.mark.parametrize("episodes, width, slots", [(1, 1024, 64), (64, 1024, 64), (300, 1024, 64), (512, 1024, 128),
                                                     (4096, 1024, 1024), (10**6, 512, 512), (100, 16, 16)])
 def test_stream_slots(episodes, width, slots):
