@@ -18,8 +18,9 @@ Each control step ``k`` (time ``t_k = k Δt``), with the components named by ``s
 4. the plant (``sim.vehicle.plant``, :data:`~jaxapf.dynamics.PLANTS`; the exact double integrator
    by default) integrates it.
 
-Episodes run for the fixed ``EpisodeConfig.steps``; termination (goal, collision) is applied by the
-metrics' masks, not by the loop, so every episode of a batch has the same shape.
+:func:`rollout` flies one episode for the fixed ``EpisodeConfig.steps``; termination (goal,
+collision) is applied by the metrics' masks, not by the loop. :func:`evaluate` streams a batch's
+episodes with the same control step (:mod:`jaxapf.stream`), stopping each one when it ends.
 """
 
 from __future__ import annotations
@@ -94,9 +95,13 @@ def loop_step(loop: ClosedLoop, carry: tuple, k: Array, scenario: Scenario, obst
     return (state, shift_warm_start(u), plan, guard), (loop.plant.kinematics(state), accel, filtered | integrated)
 
 
-def as_dtype(gains: Gains, dtype: Any) -> Gains:
-    """Every gain leaf as an array of the scenario's floating ``dtype``."""
-    return jax.tree_util.tree_map(lambda g: jnp.asarray(g, dtype), gains)
+def record_trajectory(x0: Array, records: tuple, sim: SimConfig) -> Trajectory:
+    """The :class:`Trajectory` of an episode from its first sample ``x0 = [p, v]`` (6,) and the
+    records (:func:`loop_step`'s, stacked over its ``T`` steps) of its control steps."""
+    x, control, extras = records
+    states = jnp.concatenate([x0[None], x], axis=0)
+    return Trajectory(time=jnp.arange(sim.episode.steps + 1, dtype=x0.dtype) * sim.episode.dt,
+                      position=states[:, :3], velocity=states[:, 3:], control=control, extras=extras)
 
 
 def rollout(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, *, remat: bool = False
@@ -111,7 +116,7 @@ def rollout(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, *,
     docs/tune.md).
     """
     dtype = scenario.start.dtype
-    gains = as_dtype(gains, dtype)
+    gains = gains.as_arrays(dtype)
     loop = closed_loop(sim, mpc, dtype)
     obstacles = scenario.obstacles.columns()  # once per episode, not once per control step
 
@@ -121,15 +126,8 @@ def rollout(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, *,
     carry0 = loop_init(loop, scenario, gains, sim, mpc)
     ks = jnp.arange(sim.episode.steps, dtype=dtype)
     body = jax.checkpoint(control_step, prevent_cse=False) if remat else control_step
-    _, (states, controls, extras) = jax.lax.scan(body, carry0, ks)
-    states = jnp.concatenate([loop.plant.kinematics(carry0[0])[None], states], axis=0)
-    return Trajectory(
-        time=jnp.arange(sim.episode.steps + 1, dtype=dtype) * sim.episode.dt,
-        position=states[:, :3],
-        velocity=states[:, 3:],
-        control=controls,
-        extras=extras,
-    )
+    _, records = jax.lax.scan(body, carry0, ks)
+    return record_trajectory(loop.plant.kinematics(carry0[0]), records, sim)
 
 
 def rollout_metrics(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig,

@@ -45,11 +45,11 @@ import jax.numpy as jnp
 from jax import Array
 
 from .config import MPCConfig, SimConfig
-from .datatypes import Scenario, Trajectory
+from .datatypes import Scenario
 from .gains import Gains
 from .metrics import episode_metrics
 from .metrics.context import certainly_at_goal, certainly_ended
-from .rollout import as_dtype, closed_loop, loop_init, loop_step
+from .rollout import closed_loop, loop_init, loop_step, record_trajectory
 
 __all__ = ["SEGMENT", "stream_slots", "stream_metrics"]
 
@@ -98,7 +98,7 @@ def stream_metrics(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCCo
       slots: episodes flown side by side (:func:`stream_slots`).
     """
     dtype = scenarios.start.dtype
-    gains = as_dtype(gains, dtype)
+    gains = gains.as_arrays(dtype)
     loop = closed_loop(sim, mpc, dtype)
     n_fields = scenarios.start.shape[0]
     n_gains = jax.tree_util.tree_leaves(gains)[0].shape[0]
@@ -146,13 +146,10 @@ def stream_metrics(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCCo
         """:func:`~jaxapf.metrics.episode_metrics` of ``slots`` stored episodes: their first samples
         ``start`` (slots, 6) and records ``flown`` (T, slots, ...)."""
         fields = _rows(scenarios, jnp.clip(ids, 0, total - 1) % n_fields)
-        time = jnp.arange(steps + 1, dtype=dtype) * dt
 
-        def one(x0, x, accel, extras, field):
-            states = jnp.concatenate([x0[None], x], axis=0)
-            traj = Trajectory(time=time, position=states[:, :3], velocity=states[:, 3:], control=accel, extras=extras)
-            return episode_metrics(traj, field, sim, metrics)
-        return jax.vmap(one, in_axes=(0, 1, 1, 1, 0))(start, *flown, fields)
+        def one(x0, record, field):
+            return episode_metrics(record_trajectory(x0, record, sim), field, sim, metrics)
+        return jax.vmap(one, in_axes=(0, 1, 0))(start, flown, fields)
 
     out_shape = jax.eval_shape(measure, jnp.zeros((slots, 6), dtype), records(steps, slots),
                                jnp.zeros((slots,), jnp.int32))

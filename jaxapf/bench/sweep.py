@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..metrics import METRICS
 from ..text import format_seconds
 from .engine import _block, environment, interleaved
 
@@ -68,14 +69,13 @@ def _bare_run(spec: Any, streaming: bool) -> Any:
 
 def engine_agreement(fixed: list[dict[str, Any]], streamed: list[dict[str, Any]]) -> dict[str, Any]:
     """How far the streaming engine's metrics are from the fixed-length engine's on the same
-    episodes: the fraction of episodes with every outcome (``success``, ``collision``,
-    ``stalled``, ``steps``) equal, and per continuous metric the largest absolute difference and
-    the fraction of episodes that agree within 1e-3 (absolute or relative)."""
-
+    episodes: the fraction of episodes with every outcome (the rate and count metrics: success,
+    collision, stall, steps, ...) equal, and per continuous metric the largest absolute difference
+    and the fraction of episodes that agree within 1e-3 (absolute or relative)."""
     def stack(results, name):
         return np.concatenate([np.asarray(r[name], np.float64).ravel() for r in results])
 
-    outcomes = ("success", "collision", "stalled", "steps")
+    outcomes = [m for m in fixed[0] if METRICS.get(m, "metric").kind != "continuous"]
     same = np.logical_and.reduce([stack(fixed, m) == stack(streamed, m) for m in outcomes])
     continuous = {}
     for name in fixed[0]:

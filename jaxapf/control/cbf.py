@@ -45,7 +45,7 @@ import numpy as np
 from jax import Array
 
 from ..gains import GainSpec
-from ..planners.sight import dot
+from ..planners.sight import dot, line_of_sight
 from .filters import SafetyFilter, register_filter
 
 if TYPE_CHECKING:
@@ -69,17 +69,15 @@ def cbf_constraints(x: Array, t: Array, obstacles: "ObstacleColumns", gains: "Ga
                     sim: "SimConfig") -> tuple[Array, Array]:
     """The rows ``g_o`` (M, 3) and bounds ``b_o`` (M,) of ``g_o·a >= b_o`` (module docstring), each
     row scaled to unit length; padded slots get ``g = 0, b = -1`` (always satisfied)."""
-    p, v = x[:3], x[3:]
-    cyl = obstacles.cylinder
-    r = p[:, None] - (obstacles.position + obstacles.velocity * t)  # (3, M)
-    w = v[:, None] - obstacles.velocity
-    r = jnp.concatenate([r[:2], jnp.where(cyl, 0.0, r[2:])])
-    w = jnp.concatenate([w[:2], jnp.where(cyl, 0.0, w[2:])])
+    # the line of sight s = P(c_o(t) - p) and the relative velocity P(v_o - v) are -r and -w:
+    # h, h' and b read only products of two of them, g = 2r / |2r| = -s / |s|
+    s = line_of_sight(x[:3], obstacles.position + obstacles.velocity * t, obstacles.cylinder)
+    u = line_of_sight(x[3:], obstacles.velocity, obstacles.cylinder)
     big_r = obstacles.radius + sim.vehicle.r_uav
-    h = dot(r, r) - big_r * big_r
-    b = -2.0 * dot(w, w) - 2.0 * gains.cbf_k1 * dot(r, w) - gains.cbf_k0 * h
-    length = 2.0 * jnp.sqrt(jnp.maximum(dot(r, r), 1e-12))
-    g = (2.0 * r / length).T
+    h = dot(s, s) - big_r * big_r
+    b = -2.0 * dot(u, u) - 2.0 * gains.cbf_k1 * dot(s, u) - gains.cbf_k0 * h
+    length = 2.0 * jnp.sqrt(jnp.maximum(dot(s, s), 1e-12))
+    g = -2.0 * jnp.stack(s, axis=-1) / length[:, None]
     valid = obstacles.valid
     return jnp.where(valid[:, None], g, 0.0), jnp.where(valid, b / length, -1.0)
 

@@ -197,7 +197,8 @@ def episode_metrics(traj: Trajectory, scenario: Scenario, sim: SimConfig,
       ``{name: scalar}`` in the order of ``names``.
     """
     names = METRICS.names() if names is None else names
-    # the metrics compile alike whatever program produced the trajectory (the fixed-length and the
-    # streaming engine agree bit for bit): XLA fuses nothing across this barrier
+    # XLA fuses nothing across this barrier, so the metrics' arithmetic is not merged into that of
+    # the program which produced the trajectory (the rounding of a whole program can still differ
+    # between the fixed-length and the streaming engine, docs/performance.md)
     traj, scenario = jax.lax.optimization_barrier((traj, scenario))
     return compute_metrics(EpisodeContext(traj, scenario, sim), names, traj.position.dtype)
