@@ -22,12 +22,11 @@ one linear constraint per valid obstacle (gains ``cbf_k0``, ``cbf_k1``; ``k_0 = 
 .. math:: a^* = \arg\min_a \tfrac12 |a - a_\mathrm{mpc}|^2 \;\text{s.t.}\; g_o\cdot a \ge b_o\;\forall o,
           \quad |a_i| \le a_\mathrm{max},
 
-solved exactly by :func:`cbf_qp` (each row of ``G`` scaled to unit length): in R³ at most three
-constraints are active, so the solution is the nearest feasible one of the candidates that every
-set of up to three active constraints gives -- a fixed amount of work that vmaps and
-differentiates (first-order dual methods and ADMM needed hundreds to thousands of iterations on
-narrow feasible wedges). When the constraints and the box cannot all hold, the step is counted as
-infeasible (diagnostic ``cbf_infeasible``, metric ``cbf_infeasible_steps``) and the box-feasible
+solved exactly by :func:`jaxapf.projection.nearest_feasible` (each row of ``G`` scaled to unit
+length): in R³ at most three constraints are active, so the solution is the nearest feasible one
+of the candidates that every set of up to three active constraints gives -- a fixed amount of work
+that vmaps and differentiates. When the constraints and the box cannot all hold, the step is
+counted as infeasible (diagnostic ``cbf_infeasible``, metric ``cbf_infeasible_steps``) and the box-feasible
 candidate with the smallest violation is applied.
 
 The condition is the continuous-time one, applied with the control held for ``dt``: it guarantees
@@ -37,15 +36,14 @@ nothing between samples, which the swept clearance of the metrics measures.
 from __future__ import annotations
 
 import dataclasses
-import itertools
 from typing import TYPE_CHECKING, Any
 
 import jax.numpy as jnp
-import numpy as np
 from jax import Array
 
 from ..gains import GainSpec
 from ..planners.sight import dot, line_of_sight
+from ..projection import nearest_feasible
 from .filters import SafetyFilter, register_filter
 
 if TYPE_CHECKING:
@@ -53,7 +51,7 @@ if TYPE_CHECKING:
     from ..datatypes import ObstacleColumns
     from ..gains import Gains
 
-__all__ = ["CBF", "CBF_K0", "CBF_K1", "cbf_constraints", "cbf_qp", "INFEASIBLE_TOL"]
+__all__ = ["CBF", "CBF_K0", "CBF_K1", "cbf_constraints", "INFEASIBLE_TOL"]
 
 CBF_K0 = GainSpec("cbf_k0", 1.0, low=0.0, unit="1/s²", symbol="k_0",
                   doc="CBF filter: weight of h in the condition h'' + k_1 h' + k_0 h >= 0")
@@ -82,49 +80,6 @@ def cbf_constraints(x: Array, t: Array, obstacles: "ObstacleColumns", gains: "Ga
     return jnp.where(valid[:, None], g, 0.0), jnp.where(valid, b / length, -1.0)
 
 
-def _subsets(count: int) -> tuple[np.ndarray, ...]:
-    """Index arrays of every subset of 1, 2 and 3 of ``count`` rows."""
-    return tuple(np.asarray(list(itertools.combinations(range(count), k)), np.int32).reshape(-1, k) for k in (1, 2, 3))
-
-
-def cbf_qp(a0: Array, g: Array, b: Array, a_max: float) -> tuple[Array, Array]:
-    """``argmin ½|a - a0|²`` s.t. ``g a >= b`` (rows (M, 3), zero rows ignored) and ``|a_i| <= a_max``;
-    returns ``(a, largest violation of the rows)``.
-
-    The minimiser is the projection of ``a0`` onto a polytope in R³, so at most three linearly
-    independent constraints are active: every set of 0-3 of the M + 6 constraints (rows and box
-    faces) gives a candidate ``a = a0 + G_Sᵀ (G_S G_Sᵀ)⁻¹ (b_S - G_S a0)``, and the solution is the
-    feasible candidate nearest ``a0`` -- exact, with a fixed amount of work (vmaps, differentiates
-    almost everywhere). When no candidate is feasible, the constraints and the box cannot all
-    hold: the box-feasible candidate with the smallest violation of the rows (nearest ``a0`` among
-    equals) is returned with that violation.
-    """
-    eye = jnp.eye(3, dtype=a0.dtype)
-    rows = jnp.concatenate([g, eye, -eye])  # (K, 3): the rows, then a_i >= -a_max and -a_i >= -a_max
-    bounds = jnp.concatenate([b, jnp.full((6,), -a_max, a0.dtype)])
-    usable = jnp.concatenate([jnp.any(g != 0, axis=1), jnp.ones((6,), bool)])
-    candidates, ok = [a0[None]], [jnp.ones((1,), bool)]
-    for index in _subsets(rows.shape[0]):
-        gs, bs = rows[index], bounds[index]  # (C, k, 3), (C, k)
-        gram = gs @ jnp.swapaxes(gs, 1, 2)
-        det = jnp.linalg.det(gram)
-        regular = (jnp.abs(det) > 1e-9) & jnp.all(usable[index], axis=1)
-        safe = jnp.where(regular[:, None, None], gram, jnp.eye(index.shape[1], dtype=a0.dtype))
-        mu = jnp.linalg.solve(safe, (bs - gs @ a0)[..., None])[..., 0]
-        candidates.append(a0 + jnp.einsum("ckd,ck->cd", gs, mu))
-        ok.append(regular)
-    cand, ok = jnp.concatenate(candidates), jnp.concatenate(ok)
-    slack = 1e-6 * (1.0 + a_max)
-    in_box = ok & jnp.all(jnp.abs(cand) <= a_max + slack, axis=1)
-    violation = jnp.max(jnp.where(usable[None, : g.shape[0]], b[None] - cand @ g.T, 0.0), axis=1, initial=0.0)
-    distance = jnp.sum((cand - a0) ** 2, axis=1)
-    feasible = in_box & (violation <= slack)
-    # feasible candidates first, nearest a0; otherwise the least violating box-feasible one
-    key = jnp.where(feasible, distance, jnp.where(in_box, 1e6 + 1e3 * violation + distance, jnp.inf))
-    best = jnp.argmin(key)
-    return jnp.clip(cand[best], -a_max, a_max), violation[best]
-
-
 @dataclasses.dataclass(frozen=True)
 class CBF(SafetyFilter):
     """Exponential CBF filter: the nearest acceleration keeping h'' + k1 h' + k0 h >= 0 per obstacle.
@@ -137,7 +92,7 @@ class CBF(SafetyFilter):
     def __call__(self, state: Any, accel: Array, x: Array, t: Array, obstacles: "ObstacleColumns", gains: "Gains",
                  sim: "SimConfig") -> tuple[Array, Any, dict[str, Array]]:
         g, b = cbf_constraints(x, t, obstacles, gains, sim)
-        applied, worst = cbf_qp(accel, g, b, sim.vehicle.a_max)
+        applied, worst = nearest_feasible(accel, g, b, sim.vehicle.a_max, "box")
         return applied, state, {"cbf_infeasible": worst > INFEASIBLE_TOL}
 
 

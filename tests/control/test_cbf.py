@@ -1,11 +1,10 @@
-"""The CBF safety filter: its constraints against an independent numpy computation, its QP against
-OSQP, infeasibility detection, gradients, and the closed loop it protects."""
+"""The CBF safety filter: its constraints against an independent numpy computation and the closed
+loop it protects (its QP: tests/test_projection.py)."""
 
 from __future__ import annotations
 
 import dataclasses
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -14,21 +13,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from jaxapf.config import MPCConfig, SimConfig
-from jaxapf.control import FILTERS, cbf_constraints, cbf_qp
-from jaxapf.control.cbf import INFEASIBLE_TOL
+from jaxapf.control import FILTERS, cbf_constraints
 from jaxapf.datatypes import Obstacles
 from jaxapf.gains import Gains
 from jaxapf.rollout import rollout_metrics
-
-A_MAX = 3.0
-ROWS = 16  # problems padded to 16 rows (zero rows are ignored): one compiled solver for all
-QP = jax.jit(cbf_qp, static_argnums=3)
-
-
-def _padded(g: np.ndarray, b: np.ndarray) -> tuple[jax.Array, jax.Array]:
-    m = g.shape[0]
-    return (jnp.asarray(np.vstack([g, np.zeros((ROWS - m, 3))]), jnp.float32),
-            jnp.asarray(np.concatenate([b, -np.ones(ROWS - m)]), jnp.float32))
 
 
 def _obstacles(rng: np.random.Generator, m: int, valid: int) -> Obstacles:
@@ -60,67 +48,6 @@ def test_constraints_are_the_exponential_cbf_condition(seed, k0, k1):
         assert (g[o] @ a - b[o]) * scale == pytest.approx(hdd + k1 * hd + k0 * h, rel=1e-4, abs=1e-3)
         assert np.linalg.norm(g[o]) == pytest.approx(1.0, abs=1e-5)
     assert np.all(g[3] == 0) and b[3] == -1.0  # padded slot: 0 >= -1 always holds
-
-
-def _osqp(a0, g, b, a_max):
-    osqp = pytest.importorskip("osqp")
-    from scipy import sparse
-
-    n = a0.size
-    A = sparse.csc_matrix(np.vstack([g, np.eye(n)]))
-    lo = np.concatenate([b, -a_max * np.ones(n)])
-    hi = np.concatenate([np.full(b.size, np.inf), a_max * np.ones(n)])
-    solver = osqp.OSQP()
-    solver.setup(P=sparse.csc_matrix(np.eye(n)), q=-a0, A=A, l=lo, u=hi, eps_abs=1e-9, eps_rel=1e-9, max_iter=200000,
-                 polishing=True, verbose=False)
-    res = solver.solve()
-    assert res.info.status == "solved"
-    return res.x
-
-
-@pytest.mark.parametrize("seed", range(40))
-def test_qp_matches_osqp_on_feasible_problems(seed):
-    """Random problems with a known feasible point: the filter's acceleration is OSQP's, and every
-    constraint holds within the tolerance that counts a step infeasible."""
-    rng = np.random.default_rng(seed)
-    m = int(rng.integers(1, ROWS + 1))
-    g = rng.normal(size=(m, 3))
-    g /= np.linalg.norm(g, axis=1, keepdims=True)
-    feasible = rng.uniform(-A_MAX, A_MAX, 3) * 0.8
-    b = g @ feasible - rng.uniform(0, 0.5, m)
-    a0 = rng.uniform(-2 * A_MAX, 2 * A_MAX, 3)
-    a, worst = QP(jnp.asarray(a0, jnp.float32), *_padded(g, b), A_MAX)
-    expected = _osqp(a0, g, b, A_MAX)
-    np.testing.assert_allclose(np.asarray(a), expected, atol=1e-4)
-    assert float(worst) <= INFEASIBLE_TOL
-    assert np.all(np.abs(np.asarray(a)) <= A_MAX + 1e-6)
-
-
-def test_an_unconstrained_acceleration_passes_unchanged():
-    g = jnp.asarray([[1.0, 0.0, 0.0]])
-    a, worst = QP(jnp.asarray([1.0, 2.0, -1.0]), *_padded(np.asarray(g), np.asarray([0.5])), A_MAX)
-    np.testing.assert_array_equal(np.asarray(a), [1.0, 2.0, -1.0])
-    assert float(worst) == 0.0
-
-
-def test_incompatible_constraints_are_reported():
-    """``a_x >= 1`` and ``-a_x >= 1`` cannot both hold; nor can ``a_x >= 5`` within the box."""
-    for g, b in [([[1.0, 0, 0], [-1.0, 0, 0]], [1.0, 1.0]), ([[1.0, 0, 0]], [5.0])]:
-        _, worst = QP(jnp.zeros(3), *_padded(np.asarray(g), np.asarray(b)), A_MAX)
-        assert float(worst) > INFEASIBLE_TOL
-
-
-def test_qp_gradient_matches_finite_differences():
-    """d a*/d a_mpc through the selected candidate, in float64, against central differences."""
-    with jax.enable_x64(True):
-        g = jnp.asarray([[0.6, 0.8, 0.0], [0.0, -1.0, 0.0]], jnp.float64)
-        b = jnp.asarray([0.5, -2.0], jnp.float64)
-        f = jax.jit(lambda a0: jnp.sum(cbf_qp(a0, g, b, A_MAX)[0] * jnp.asarray([1.0, 2.0, 3.0])))
-        a0 = jnp.asarray([-1.0, 0.3, 0.7], jnp.float64)
-        grad = np.asarray(jax.jit(jax.grad(f))(a0))
-        eps = 1e-6
-        fd = [(f(a0.at[i].add(eps)) - f(a0.at[i].add(-eps))) / (2 * eps) for i in range(3)]
-        np.testing.assert_allclose(grad, np.asarray(fd), rtol=1e-4, atol=1e-6)
 
 
 def test_the_filter_keeps_a_repulsion_free_flight_off_the_obstacle():

@@ -1,0 +1,125 @@
+"""The nearest feasible point (jaxapf.projection): against OSQP (box; ball through its multiplier)
+on random feasible problems, infeasibility reported, gradients against finite differences."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxapf.control.cbf import INFEASIBLE_TOL
+from jaxapf.projection import nearest_feasible
+
+LIMIT = 3.0
+ROWS = 16  # problems padded to 16 rows (zero rows are ignored): one compiled solver for all
+PROJECT = jax.jit(nearest_feasible, static_argnums=(3, 4))
+
+
+def _padded(g: np.ndarray, b: np.ndarray) -> tuple[jax.Array, jax.Array]:
+    m = g.shape[0]
+    return (jnp.asarray(np.vstack([g, np.zeros((ROWS - m, 3))]), jnp.float32),
+            jnp.asarray(np.concatenate([b, -np.ones(ROWS - m)]), jnp.float32))
+
+
+def _osqp(x0, g, b, limit=None, weight=1.0):
+    """``argmin ½ weight |x|² - x0·x`` s.t. ``g x >= b`` (and the box ``|x_i| <= limit``) by OSQP."""
+    osqp = pytest.importorskip("osqp")
+    from scipy import sparse
+
+    n = x0.size
+    box = limit is not None
+    A = sparse.csc_matrix(np.vstack([g, np.eye(n)]) if box else g)
+    lo = np.concatenate([b, -limit * np.ones(n)]) if box else b
+    hi = np.concatenate([np.full(b.size, np.inf), limit * np.ones(n)]) if box else np.full(b.size, np.inf)
+    solver = osqp.OSQP()
+    solver.setup(P=sparse.csc_matrix(weight * np.eye(n)), q=-x0, A=A, l=lo, u=hi, eps_abs=1e-10, eps_rel=1e-10,
+                 max_iter=400000, polishing=True, verbose=False)
+    res = solver.solve()
+    assert res.info.status == "solved"
+    return res.x
+
+
+def _ball_by_duality(x0, g, b, limit):
+    """The ball problem through its multiplier λ of ``|x|² <= L²``: for fixed λ the minimiser is
+    OSQP's projection with weight 1 + λ, and ``|x(λ)|`` falls with λ (the dual's derivative), so
+    bisection finds the λ where the ball is just met."""
+    x = _osqp(x0, g, b)
+    if x @ x <= limit**2:
+        return x
+    lo, hi = 0.0, 1.0
+    while np.linalg.norm(_osqp(x0, g, b, weight=1.0 + hi)) > limit:
+        lo, hi = hi, 2.0 * hi
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if np.linalg.norm(_osqp(x0, g, b, weight=1.0 + mid)) > limit else (lo, mid)
+    return _osqp(x0, g, b, weight=1.0 + hi)
+
+
+def _problem(seed: int, region: str):
+    """Random unit rows with a known feasible point inside the region."""
+    rng = np.random.default_rng(seed)
+    m = int(rng.integers(1, ROWS + 1))
+    g = rng.normal(size=(m, 3))
+    g /= np.linalg.norm(g, axis=1, keepdims=True)
+    inside = rng.uniform(-LIMIT, LIMIT, 3) * 0.8
+    if region == "ball":
+        inside *= 0.8 * LIMIT / max(np.linalg.norm(inside), LIMIT)
+    b = g @ inside - rng.uniform(0, 0.5, m)
+    x0 = rng.uniform(-2 * LIMIT, 2 * LIMIT, 3)
+    return x0, g, b, inside
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_box_matches_osqp_on_feasible_problems(seed):
+    """The box problem (the CBF filter's): OSQP's solution, every constraint within the tolerance
+    that counts a step infeasible."""
+    x0, g, b, _ = _problem(seed, "box")
+    x, worst = PROJECT(jnp.asarray(x0, jnp.float32), *_padded(g, b), LIMIT, "box")
+    np.testing.assert_allclose(np.asarray(x), _osqp(x0, g, b, LIMIT), atol=1e-4)
+    assert float(worst) <= INFEASIBLE_TOL
+    assert np.all(np.abs(np.asarray(x)) <= LIMIT + 1e-6)
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_ball_matches_the_dual_solution_on_feasible_problems(seed):
+    """The ball problem (the velocity-obstacle planner's): the solution by duality and OSQP, within
+    the ball."""
+    x0, g, b, _ = _problem(seed, "ball")
+    x, worst = PROJECT(jnp.asarray(x0, jnp.float32), *_padded(g, b), LIMIT, "ball")
+    np.testing.assert_allclose(np.asarray(x), _ball_by_duality(x0, g, b, LIMIT), atol=2e-4)
+    assert float(worst) <= INFEASIBLE_TOL
+    assert np.linalg.norm(np.asarray(x)) <= LIMIT * (1 + 1e-6)
+
+
+@pytest.mark.parametrize("region", ["box", "ball"])
+def test_a_feasible_point_passes_unchanged(region):
+    g = jnp.asarray([[1.0, 0.0, 0.0]])
+    x, worst = PROJECT(jnp.asarray([1.0, 1.5, -1.0]), *_padded(np.asarray(g), np.asarray([0.5])), LIMIT, region)
+    np.testing.assert_array_equal(np.asarray(x), [1.0, 1.5, -1.0])
+    assert float(worst) == 0.0
+
+
+@pytest.mark.parametrize("region", ["box", "ball"])
+def test_incompatible_constraints_are_reported(region):
+    """``x_1 >= 1`` and ``-x_1 >= 1`` cannot both hold; nor can ``x_1 >= 5`` within the region."""
+    for g, b in [([[1.0, 0, 0], [-1.0, 0, 0]], [1.0, 1.0]), ([[1.0, 0, 0]], [5.0])]:
+        _, worst = PROJECT(jnp.zeros(3), *_padded(np.asarray(g), np.asarray(b)), LIMIT, region)
+        assert float(worst) > INFEASIBLE_TOL
+
+
+@pytest.mark.parametrize("region, x0", [("box", [-1.0, 0.3, 0.7]), ("ball", [-1.0, 0.3, 0.7]),
+                                        ("ball", [2.0, -4.0, 1.0]), ("ball", [-3.0, 4.0, 2.0])])
+def test_gradient_matches_finite_differences(region, x0):
+    """d x*/d x0 through the selected candidate (planes only, the sphere with one and with two
+    planes active), in float64, against central differences."""
+    with jax.enable_x64(True):
+        g = jnp.asarray([[0.6, 0.8, 0.0], [0.0, -1.0, 0.0]], jnp.float64)
+        b = jnp.asarray([0.5, -2.0], jnp.float64)
+        f = jax.jit(lambda x: jnp.sum(nearest_feasible(x, g, b, LIMIT, region)[0] * jnp.asarray([1.0, 2.0, 3.0])))
+        x0 = jnp.asarray(x0, jnp.float64)
+        grad = np.asarray(jax.jit(jax.grad(f))(x0))
+        eps = 1e-6
+        fd = [(f(x0.at[i].add(eps)) - f(x0.at[i].add(-eps))) / (2 * eps) for i in range(3)]
+        np.testing.assert_allclose(grad, np.asarray(fd), rtol=1e-4, atol=1e-6)
+        assert np.all(np.isfinite(grad))
