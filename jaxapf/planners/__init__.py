@@ -9,17 +9,19 @@
 :mod:`.vortex`            a vortex force term (:class:`Vortex`) and the ``vortex`` planner
 :mod:`.goal_distance`     Ge–Cui's goal-distance weight (:class:`GoalDistance`), planner ``ge_cui``
 :mod:`.escape`            stall escape toward a virtual goal (:class:`StallEscape`), planner ``basic_escape``
+:mod:`.velocity_obstacle` velocity obstacles, ORCA (:class:`VelocityObstacle`), planner ``velocity_obstacle``
 ========================  =================================================================
 """
 
 from .apf import APF, ForceTerm, register_weight, saturate
-from .base import PLANNERS, Planner, register_planner
+from .base import PLANNERS, Planner, reference_states, register_planner
 from .escape import StallEscape
 from .goal_distance import GoalDistance
 from .sight import Sight
+from .velocity_obstacle import VelocityObstacle
 from .vortex import Vortex
 from .weights import WEIGHTS, Basic, Direction, DirectionVelocity, Weight
 
-__all__ = ["Planner", "PLANNERS", "register_planner", "APF", "ForceTerm", "saturate", "Weight", "WEIGHTS",
-           "register_weight", "Sight", "Basic", "Direction", "DirectionVelocity", "Vortex",
-           "GoalDistance", "StallEscape"]
+__all__ = ["Planner", "PLANNERS", "register_planner", "reference_states", "APF", "ForceTerm", "saturate", "Weight",
+           "WEIGHTS", "register_weight", "Sight", "Basic", "Direction", "DirectionVelocity", "Vortex",
+           "GoalDistance", "StallEscape", "VelocityObstacle"]

@@ -30,7 +30,7 @@ from jax import Array
 
 from ..datatypes import ObstacleColumns, Obstacles, safe_norm
 from ..gains import GainSpec, declare_gains
-from .base import Planner, register_planner
+from .base import Planner, reference_states, register_planner
 from .potentials import total_force
 from .weights import GAMMA, WEIGHTS, Basic, Direction, DirectionVelocity, K, Normalised, Weight
 
@@ -125,14 +125,8 @@ class APF(Planner):
             u = saturate(gains.eta * self.force(p, v, t + i * dt, goal, obstacles, gains, sim), sim.vehicle.v_max)
             return (p + dt * u, u), (p + dt * u, u)
 
-        p0, v0 = x[:3], x[3:]
-        _, (points, flows) = jax.lax.scan(flow, (p0, v0), jnp.arange(horizon, dtype=x.dtype))
-        positions = jnp.concatenate([p0[None], points], axis=0)
-        if sim.planner.reference_velocity:
-            velocities = jnp.concatenate([v0[None], flows], axis=0)
-        else:
-            velocities = jnp.zeros_like(positions)
-        return jnp.concatenate([positions, velocities], axis=1), state
+        _, (points, flows) = jax.lax.scan(flow, (x[:3], x[3:]), jnp.arange(horizon, dtype=x.dtype))
+        return reference_states(x, points, flows, sim), state
 
 
 def register_weight(name: str, weight: Weight, *, planner: bool = True, replace: bool = False, **style: Any) -> Weight:

@@ -21,6 +21,7 @@ from __future__ import annotations
 import abc
 from typing import TYPE_CHECKING, Any
 
+import jax.numpy as jnp
 from jax import Array
 
 from ..gains import GainSpec, declare_gains
@@ -31,7 +32,7 @@ if TYPE_CHECKING:
     from ..datatypes import ObstacleColumns, Scenario
     from ..gains import Gains
 
-__all__ = ["Planner", "PLANNERS", "register_planner"]
+__all__ = ["Planner", "PLANNERS", "register_planner", "reference_states"]
 
 
 class Planner(abc.ABC):
@@ -71,6 +72,18 @@ class Planner(abc.ABC):
                   gains: "Gains", sim: "SimConfig", horizon: int) -> tuple[Array, Any]:
         """The MPC reference (horizon+1, 6) for ``x(k..k+N)`` from the state ``x = [p, v]`` (6,) at
         time ``t`` and the obstacles (component-first), and the planner's next state."""
+
+
+def reference_states(x: Array, points: Array, velocities: Array, sim: "SimConfig") -> Array:
+    """The MPC reference (N + 1, 6) from the state ``x = [p, v]`` and a planner's ``N`` points
+    ``p_1..p_N`` with their velocities: ``(p_i, 0)``, the paper's zero velocity reference, or with
+    ``PlannerConfig.reference_velocity`` ``(p_i, v_i)``; ``i = 0`` is ``x`` itself."""
+    positions = jnp.concatenate([x[None, :3], points], axis=0)
+    if sim.planner.reference_velocity:
+        velocities = jnp.concatenate([x[None, 3:], velocities], axis=0)
+    else:
+        velocities = jnp.zeros_like(positions)
+    return jnp.concatenate([positions, velocities], axis=1)
 
 
 def _describe(planner: Planner) -> str:

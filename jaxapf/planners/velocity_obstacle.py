@@ -1,0 +1,153 @@
+r"""Velocity obstacles: the preferred velocity, corrected out of the obstacles' ORCA half-spaces.
+
+Van den Berg, Guy, Lin and Manocha ("Reciprocal n-body collision avoidance", ISRR 2009; the RVO2
+library) turn each obstacle into a half-space of permitted velocities, ORCA; for an agent facing
+obstacles that do not react, the agent takes the whole avoidance on itself. Per obstacle ``o`` at
+time ``t``, with the line of sight :math:`s = P(c_o(t) - p)`, the relative velocity
+:math:`w = P(v - v_o)` (``P`` drops z for a cylinder, so a cylinder's constraint is horizontal)
+and the combined radius :math:`R = ρ_o + r_{uav} + m` (gain ``vo_margin`` = m):
+
+- The **velocity obstacle** truncated at the time horizon τ (gain ``vo_tau``) is the set of
+  relative velocities that collide within τ, :math:`\{w : \exists\,t' \in (0, τ],\ |t' w - s| < R\}`:
+  a cone from the origin around ``s`` with half-angle :math:`\arcsin(R/|s|)`, cut off by the disc of
+  centre :math:`s/τ` and radius :math:`R/τ`. (Already overlapping, :math:`|s| \le R`, the cut-off
+  disc uses τ = ``dt``, as RVO2 does, so the step pushes the UAV out.)
+- ``u`` is the smallest change of ``w`` to the boundary of that set and ``n`` the boundary's
+  outward normal there: on the cut-off disc :math:`n = \widehat{w - s/τ}`,
+  :math:`u = (R/τ - |w - s/τ|)\,n`; on the cone, whose leg on the side of ``w`` is
+  :math:`l = \cos α\,\hat s + \sin α\,e` (``e`` the unit part of ``w`` perpendicular to ``s``;
+  for ``w`` along ``s``, the horizontal left normal of ``s``), :math:`u = (w\cdot l)\,l - w` and
+  :math:`n = -\sin α\,\hat s + \cos α\,e`. In the horizontal plane this is RVO2's two-dimensional
+  construction; for spheres it is the same construction in the plane of ``s`` and ``w``.
+- The obstacle's **ORCA half-space** for a non-reactive obstacle is
+  :math:`\{v' : (v' - (v + u))\cdot n \ge 0\}`.
+
+The new velocity is the one nearest the preferred velocity that lies in every half-space and the
+speed ball,
+
+.. math:: v^* = \arg\min_{v'} |v' - v_{pref}|^2 \ \text{s.t.}\ (v' - v - u_o)\cdot n_o \ge 0\ \forall o,
+          \quad |v'| \le v_{max}, \qquad v_{pref} = \mathrm{sat}_{v_{max}}(η F_{att}(p)),
+
+solved exactly by :func:`jaxapf.projection.nearest_feasible` (fixed work: vmaps and differentiates;
+RVO2 uses an incremental linear program instead). ``v_pref`` is the potential-field planners'
+attractive flow (paper eq. 13's ``U_att``, gains ``k_att`` and ``η``, conic beyond ``att_cap``), so
+without obstacles ``velocity_obstacle`` and ``basic`` fly the same reference. When the half-spaces
+and the ball have no common point (crowded, or already inside an obstacle) the velocity in the ball
+that violates them least is used (RVO2 instead minimises the largest violation).
+
+The reference for the MPC holds ``v*`` over the horizon, ``p_i = p + i Δt v*``, assembled like the
+potential-field planners' (:func:`~jaxapf.planners.base.reference_states`); the receding horizon
+re-solves every control step. Every valid obstacle counts, static or moving, at its true position
+and velocity; a static obstacle is an agent of velocity zero.
+
+Registered planner: ``velocity_obstacle`` (gains ``vo_tau``, ``vo_margin``, ``k_att``, ``eta``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import TYPE_CHECKING, Any
+
+import jax
+import jax.numpy as jnp
+from jax import Array
+
+from ..datatypes import ObstacleColumns, Obstacles
+from ..gains import GainSpec
+from ..projection import nearest_feasible
+from .apf import ETA, K_ATT, saturate
+from .base import Planner, reference_states, register_planner
+from .potentials import attractive_potential
+from .sight import line_of_sight
+
+if TYPE_CHECKING:
+    from ..config import SimConfig
+    from ..gains import Gains
+
+__all__ = ["VO_TAU", "VO_MARGIN", "VelocityObstacle", "orca_half_spaces"]
+
+VO_TAU = GainSpec("vo_tau", 3.0, low=0.0, low_open=True, unit="s", symbol="τ",
+                  doc="velocity obstacles: time horizon; only collisions within τ seconds constrain the velocity")
+VO_MARGIN = GainSpec("vo_margin", 0.25, low=0.0, unit="m",
+                     doc="velocity obstacles: margin added to the combined radius ρ_o + r_uav")
+
+_TINY = 1e-12
+
+
+def _unit(a: Array) -> tuple[Array, Array]:
+    """``(a / |a|, |a|)`` along the last axis, finite with a zero gradient at ``a = 0``."""
+    length = jnp.sqrt(jnp.maximum(jnp.sum(a * a, axis=-1, keepdims=True), _TINY))
+    return a / length, length[..., 0]
+
+
+def orca_half_spaces(x: Array, t: Array, obstacles: ObstacleColumns, gains: "Gains",
+                     sim: "SimConfig") -> tuple[Array, Array]:
+    """Rows ``n_o`` (M, 3, unit length) and bounds ``n_o·(v + u_o)`` (M,) of the ORCA half-spaces
+    ``n_o·v' >= bound`` (module docstring); invalid slots give ``n = 0, bound = -1`` (always met)."""
+    p, v = x[:3], x[3:]
+    s = jnp.stack(line_of_sight(p, obstacles.position + obstacles.velocity * t, obstacles.cylinder), axis=-1)
+    w = -jnp.stack(line_of_sight(v, obstacles.velocity, obstacles.cylinder), axis=-1)  # P(v - v_o)
+    big_r = obstacles.radius + sim.vehicle.r_uav + gains.vo_margin
+    s_hat, dist = _unit(s)
+    overlapping = dist <= big_r
+    tau = jnp.where(overlapping, sim.episode.dt, gains.vo_tau)
+    # the cut-off disc: centre s/τ, radius R/τ
+    cut = w - s / tau[:, None]
+    cut_hat, cut_len = _unit(cut)
+    along = jnp.sum(cut * s, axis=-1)
+    on_disc = overlapping | ((along < 0.0) & (along * along > big_r * big_r * cut_len * cut_len))
+    u_disc = (big_r / tau - cut_len)[:, None] * cut_hat
+    # the cone's leg on the side of w
+    perp = w - jnp.sum(w * s_hat, axis=-1, keepdims=True) * s_hat
+    left = jnp.stack([-s_hat[:, 1], s_hat[:, 0], jnp.zeros_like(dist)], axis=-1)
+    left = jnp.where(jnp.sum(left * left, axis=-1, keepdims=True) > 1e-12, left, jnp.asarray([1.0, 0.0, 0.0]))
+    e = _unit(jnp.where(jnp.sum(perp * perp, axis=-1, keepdims=True) > 1e-12, perp, left))[0]
+    sin_a = jnp.clip(big_r / dist, 0.0, 1.0)
+    cos_a = jnp.sqrt(jnp.maximum(1.0 - sin_a * sin_a, _TINY))
+    leg = cos_a[:, None] * s_hat + sin_a[:, None] * e
+    u_leg = jnp.sum(w * leg, axis=-1, keepdims=True) * leg - w
+    n_leg = -sin_a[:, None] * s_hat + cos_a[:, None] * e
+    u = jnp.where(on_disc[:, None], u_disc, u_leg)
+    n = jnp.where(on_disc[:, None], cut_hat, n_leg)
+    bound = jnp.sum(n * (v + u), axis=-1)
+    valid = obstacles.valid
+    return jnp.where(valid[:, None], n, 0.0), jnp.where(valid, bound, -1.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class VelocityObstacle(Planner):
+    """velocity obstacles (ORCA, van den Berg et al. 2009): the goal-seeking velocity avoiding every collision within τ
+
+    The velocity nearest the preferred one in every obstacle's ORCA half-space and the speed ball
+    (module docstring).
+    """
+
+    color: str | None = "tab:brown"
+    linestyle: str | None = "-"
+
+    @property
+    def gains(self) -> tuple[GainSpec, ...]:
+        return (VO_TAU, VO_MARGIN, K_ATT, ETA)
+
+    @property
+    def reads(self) -> tuple[str, ...]:
+        return ("att_cap", "reference_velocity")
+
+    def velocity(self, x: Array, t: Array, goal: Array, obstacles: ObstacleColumns, gains: "Gains",
+                 sim: "SimConfig") -> tuple[Array, Array]:
+        """``(v*, largest violation of the half-spaces)`` at the state ``x`` and time ``t``."""
+        attraction = -jax.grad(attractive_potential)(x[:3], goal, gains.k_att, sim.planner.att_cap)
+        preferred = saturate(gains.eta * attraction, sim.vehicle.v_max)
+        n, bound = orca_half_spaces(x, t, obstacles, gains, sim)
+        return nearest_feasible(preferred, n, bound, sim.vehicle.v_max, "ball")
+
+    def reference(self, state: Any, x: Array, t: Array, goal: Array, obstacles: Obstacles | ObstacleColumns,
+                  gains: "Gains", sim: "SimConfig", horizon: int) -> tuple[Array, Any]:
+        """``v*`` held over the horizon (module docstring); no state."""
+        velocity, _ = self.velocity(x, t, goal, obstacles.columns(), gains, sim)
+        steps = jnp.arange(1, horizon + 1, dtype=x.dtype)[:, None]
+        points = x[:3] + steps * sim.episode.dt * velocity
+        return reference_states(x, points, jnp.broadcast_to(velocity, points.shape), sim), state
+
+
+register_planner("velocity_obstacle", VelocityObstacle())
