@@ -34,7 +34,7 @@ from ..versions import versions
 from .select import Selection, select, spec_digest
 from .spec import CompareSpec, load_compare_spec
 
-__all__ = ["run_compare", "run_compare_spec", "test_sweep_spec", "DEFAULT"]
+__all__ = ["run_compare", "run_compare_spec", "test_sweep_spec", "baseline_filter", "rows_of", "DEFAULT"]
 
 #: The ``selection`` tag of a method at its default gains.
 DEFAULT = "default"
@@ -55,13 +55,14 @@ def test_sweep_spec(spec: CompareSpec, selections: Sequence[Selection]):
     """The held-out test as a sweep spec: one ``[[setting]]`` per (selection, method), defaults first."""
     from ..sweep.spec import parse_spec
 
-    settings = [{"method": m, "tags": {"selection": DEFAULT}} for m in spec.methods]
+    settings = [{**spec.settings(m), "tags": {"selection": DEFAULT}} for m in spec.methods]
     by = {(s.method, s.seed): s for s in selections}
     for seed in spec.selection.seeds:
         for m in spec.methods:
             chosen = by[(m, seed)].gains
             searched = spec.method_gains(m)
-            settings.append({"method": m, **{g: chosen[g] for g in searched}, "tags": {"selection": _tag(seed)}})
+            settings.append({**spec.settings(m), **{g: chosen[g] for g in searched},
+                             "tags": {"selection": _tag(seed)}})
     data = {
         "name": f"{spec.name}-test",
         "plugins": list(spec.plugins),
@@ -118,7 +119,7 @@ def _run(spec: CompareSpec, text: str, out: pathlib.Path, *, quiet: bool, resamp
     result = run_sweep(test, out / "test.parquet", quiet=quiet)
     _say(quiet, result.summary(test.name))
     report = build_report(out / "test.parquet", out / "report",
-                          ReportOptions(baseline=f"method={spec.baseline}", pair_on=("selection",), heatmap=None,
+                          ReportOptions(baseline=baseline_filter(spec), pair_on=("selection",), heatmap=None,
                                         gallery=gallery, resamples=resamples))
     markdown = compare_markdown(spec, selections, report.summary, report.comparisons)
     (out / "compare.md").write_text(markdown, encoding="utf-8")
@@ -152,9 +153,22 @@ def _pct(x: float) -> str:
     return "–" if not math.isfinite(float(x)) else f"{100 * float(x):.1f}"
 
 
-def _setting_of(summary: pd.DataFrame, method: str, selection: str) -> int:
-    rows = summary[(summary["method"] == method) & (summary["selection"] == selection)]
-    return int(rows["setting"].iloc[0])
+def baseline_filter(spec: CompareSpec) -> str:
+    """The report's ``--baseline`` for the spec's baseline method (``method=basic[,filter=...]``)."""
+    return ",".join(f"{k}={v}" for k, v in spec.settings(spec.baseline).items())
+
+
+def rows_of(summary: pd.DataFrame, spec: CompareSpec, method: str) -> pd.DataFrame:
+    """The rows of a report table that belong to the compared ``method`` (planner and filter)."""
+    mask = np.ones(len(summary), bool)
+    for column, value in spec.settings(method).items():
+        mask &= (summary[column] == value).to_numpy()
+    return summary[mask]
+
+
+def _setting_of(summary: pd.DataFrame, spec: CompareSpec, method: str, selection: str) -> int:
+    rows = rows_of(summary, spec, method)
+    return int(rows.loc[rows["selection"] == selection, "setting"].iloc[0])
 
 
 def compare_markdown(spec: CompareSpec, selections: Sequence[Selection], summary: pd.DataFrame,
@@ -194,7 +208,7 @@ def compare_markdown(spec: CompareSpec, selections: Sequence[Selection], summary
         rows = []
         for group in groups:
             for m in spec.methods:
-                sub = summary[(summary["family"] == group) & (summary["method"] == m)].set_index("selection")
+                sub = rows_of(summary[summary["family"] == group], spec, m).set_index("selection")
                 values = [float(sub.at[t, f"{metric}_rate"]) for t in tags]
                 rows.append({"group": group, "method": m, DEFAULT: _pct(sub.at[DEFAULT, f"{metric}_rate"]),
                              **{t: _pct(v) for t, v in zip(tags, values)},
@@ -214,7 +228,7 @@ def compare_markdown(spec: CompareSpec, selections: Sequence[Selection], summary
             for metric in _VERDICT_METRICS:
                 cells, verdicts = {}, []
                 for t in (DEFAULT, *tags):
-                    sid = _setting_of(summary, m, t)
+                    sid = _setting_of(summary, spec, m, t)
                     r = comparisons[(comparisons["setting"] == sid) & (comparisons["family"] == group)
                                     & (comparisons["metric"] == metric)]
                     if not len(r):

@@ -94,13 +94,13 @@ def tune_spec(spec: CompareSpec, method: str, seed: int, steps: int = 1):
     if not names:
         raise TuneError(f"{method} reads none of selection.gains ({', '.join(sel.gains)}): nothing to select")
     data = {
-        "name": f"{spec.name}-{method}-seed{seed}",
+        "name": f"{spec.name}-{method.replace('+', '-')}-seed{seed}",
         "plugins": list(spec.plugins),
         "train": {"families": list(sel.families), "seed": seed, "steps": steps,
                   "fields_per_step": options.pop("fields_per_step", max(16, len(sel.families))), **options},
         "validation": {"fields": validation_fields, "seed": validation_seed},
         "test": {"families": [sel.families[0]], "fields": 1, "seed": test_seed},
-        "sim": {**{k: list(v) if isinstance(v, tuple) else v for k, v in spec.sim.items()}, "method": method},
+        "sim": {**{k: list(v) if isinstance(v, tuple) else v for k, v in spec.sim.items()}, **spec.settings(method)},
         "scenario": {"params": {f: dict(p) for f, p in spec.params.items() if f in sel.families}},
         "objective": dict(spec.objective),
         "tune": {"params": list(names)},

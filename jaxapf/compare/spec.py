@@ -114,15 +114,55 @@ class CompareSpec:
     objective: Mapping[str, float]
     plugins: tuple[str, ...] = ()
 
+    def settings(self, method: str) -> dict[str, str]:
+        """The static settings of the compared ``method`` (``PLANNER`` or ``PLANNER+FILTER``):
+        ``method``, and ``filter`` wherever some compared method names one (``none`` for the others,
+        so the test sweep has a ``filter`` column to tell them apart)."""
+        return _settings(method, any("+" in m for m in self.methods))
+
     def method_gains(self, method: str) -> tuple[str, ...]:
         """The searched gains ``method`` reads (its planner's, plus the filter's and plant's:
         :func:`jaxapf.rollout.gains_read`)."""
-        from ..config import SIM_KEYS, SimConfig
-        from ..rollout import gains_read
-
-        sim = SimConfig.from_flat({**{k: v for k, v in self.sim.items() if k in SIM_KEYS}, "method": method})
-        read = gains_read(sim)
+        read = _gains_read(self.sim, self.settings(method))
         return tuple(g for g in self.selection.gains if g in read)
+
+
+def _settings(method: str, with_filter: bool) -> dict[str, str]:
+    planner, _, safety_filter = method.partition("+")
+    return {"method": planner, **({"filter": safety_filter or "none"} if with_filter else {})}
+
+
+def _gains_read(sim: Mapping[str, Any], settings: Mapping[str, str]) -> set[str]:
+    from ..config import SIM_KEYS, SimConfig
+    from ..rollout import gains_read
+
+    return set(gains_read(SimConfig.from_flat({**{k: v for k, v in sim.items() if k in SIM_KEYS}, **settings})))
+
+
+def _methods(value: Any, sim: Mapping[str, Any]) -> tuple[str, ...]:
+    """``methods``: registered planners, each optionally ``+FILTER`` (a registered safety filter)."""
+    from ..control import FILTERS
+
+    if not isinstance(value, list) or not all(isinstance(m, str) for m in value):
+        raise ConfigError(f"methods = {value!r} must be a list of planner names (PLANNER or PLANNER+FILTER)")
+    filters = tuple(f for f in FILTERS.names() if f != "none")
+    for i, m in enumerate(value):
+        planner, plus, safety_filter = m.partition("+")
+        if planner not in PLANNERS.names():
+            raise ConfigError(f"methods[{i}] = {m!r} is not a registered planner; allowed: "
+                              f"{', '.join(PLANNERS.names())}, each optionally +FILTER ({', '.join(filters)})")
+        if plus:
+            if safety_filter not in filters:
+                raise ConfigError(f"methods[{i}] = {m!r}: {safety_filter!r} is not a registered safety filter; "
+                                  f"allowed after +: {', '.join(filters)}")
+            if "filter" in sim:
+                raise ConfigError(f"methods[{i}] = {m!r} names a filter and [sim] sets filter = {sim['filter']!r}; "
+                                  "name filters in one place")
+    if len(set(value)) != len(value):
+        raise ConfigError(f"methods = {value!r} lists a method twice")
+    if len(value) < 2:
+        raise ConfigError(f"methods = {value!r} must list at least two planners")
+    return tuple(value)
 
 
 def _seeds(value: Any) -> tuple[int, ...]:
@@ -135,7 +175,7 @@ def _seeds(value: Any) -> tuple[int, ...]:
     return seeds
 
 
-def _selection(data: Any, choices: tuple[str, ...], methods: tuple[str, ...]) -> SelectionSpec:
+def _selection(data: Any, choices: tuple[str, ...], read: set[str]) -> SelectionSpec:
     d = check_table("selection", data, _SELECTION)
     for key in ("families", "seeds", "budget"):
         if key not in d:
@@ -145,7 +185,6 @@ def _selection(data: Any, choices: tuple[str, ...], methods: tuple[str, ...]) ->
     budget = check_int("selection.budget", d["budget"], 1, MAX_HELD_FIELDS)
     search = check_choice("selection.search", d.get("search", "random"), SEARCHES)
     candidates = check_int("selection.candidates", d.get("candidates", 32), 1, MAX_SETTINGS)
-    read = {g.name for m in methods for g in PLANNERS.get(m).gains}
     tunable = tuple(n for n, g in GAINS.items() if g.tunable and n in read)
     gains = check_names("selection.gains", d.get("gains", list(tunable)), tunable, what="tunable gain read by "
                         "one of the methods", canonical=True)
@@ -203,9 +242,9 @@ def parse_compare_spec(data: Mapping[str, Any]) -> CompareSpec:
     if "methods" not in data:
         raise ConfigError("methods is missing; list the planners to compare, e.g. methods = [\"basic\", "
                           "\"direction_velocity\"]")
-    methods = check_names("methods", data["methods"], PLANNERS.names(), what="registered planner")
-    if len(methods) < 2:
-        raise ConfigError(f"methods = {data['methods']!r} must list at least two planners")
+    sim = check_table("sim", data.get("sim", {}), tuple(k for k in STATIC_KEYS if k != "method"))
+    sim = {k: check_value(f"sim.{k}", k, v) for k, v in sim.items()}
+    methods = _methods(data["methods"], sim)
     baseline = check_choice("baseline", data.get("baseline", methods[0]), methods)
     scenario = check_table("scenario", data.get("scenario", {}), ("params",))
     tables = check_table("scenario.params", scenario.get("params", {}))
@@ -214,7 +253,9 @@ def parse_compare_spec(data: Mapping[str, Any]) -> CompareSpec:
     choices = FAMILIES.names() + variant_names(tables)
     if "selection" not in data:
         raise ConfigError("selection is missing; add [selection] with families, seeds and budget")
-    selection = _selection(data["selection"], choices, methods)
+    with_filter = any("+" in m for m in methods)
+    read = set().union(*(_gains_read(sim, _settings(m, with_filter)) for m in methods))
+    selection = _selection(data["selection"], choices, read)
     if "test" not in data:
         raise ConfigError("test is missing; add [test] with families and fields")
     test = _test(data["test"], choices, selection.seeds)
@@ -225,8 +266,6 @@ def parse_compare_spec(data: Mapping[str, Any]) -> CompareSpec:
     params = {label: dict(tables.get(label, {})) for label in sorted(used)}
     for label, table in params.items():
         spec_family_params(label, table)
-    sim = check_table("sim", data.get("sim", {}), tuple(k for k in STATIC_KEYS if k != "method"))
-    sim = {k: check_value(f"sim.{k}", k, v) for k, v in sim.items()}
     from ..tune.objective import Objective
 
     keys = tuple(f.name for f in dataclasses.fields(Objective))

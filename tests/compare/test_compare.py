@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import copy
 import json
+import re
 
 import numpy as np
 import pandas as pd
@@ -156,6 +157,10 @@ def test_gradient_steps_fill_the_budget(budget, per_step, val, every, steps):
     ({"test.seed": 2}, "test.seed = 2 is also a selection seed"),
     ({"methods": ["basic"]}, "must list at least two planners"),
     ({"methods": ["basic", "magic"]}, "methods[1] = 'magic' is not a registered planner"),
+    ({"methods": ["basic", "basic+magic"]}, "methods[1] = 'basic+magic': 'magic' is not a registered safety filter"),
+    ({"methods": ["basic", "basic+cbf"], "sim.filter": "cbf"}, "methods[1] = 'basic+cbf' names a filter and [sim] "
+                                                                "sets filter = 'cbf'"),
+    ({"methods": ["basic", "basic"]}, "lists a method twice"),
     ({"baseline": "direction"}, "baseline = 'direction' is not allowed"),
     ({"selection.budget": 0}, "selection.budget = 0 is out of range"),
     ({"selection.search": "bayes"}, "selection.search = 'bayes' is not allowed"),
@@ -174,7 +179,7 @@ def test_gradient_steps_fill_the_budget(budget, per_step, val, every, steps):
 ])
 def test_bad_specs_name_the_key(change, message):
     data = copy.deepcopy(TINY)
-    with pytest.raises(ConfigError, match=message.replace("[", r"\[").replace("]", r"\]").replace("(", r"\(")):
+    with pytest.raises(ConfigError, match=re.escape(message)):
         for dotted, value in change.items():
             *path, key = dotted.split(".")
             table = data
@@ -191,3 +196,29 @@ def test_cli_reports_a_bad_spec_in_one_line(tmp_path, capsys):
     assert main(["compare", str(spec), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("jaxapf compare: error: selection.seeds")
+
+
+def test_a_method_with_a_safety_filter_is_its_own_contender():
+    """``PLANNER+FILTER``: the filter's gains are searched for it alone, every test setting carries a
+    ``filter`` column (``none`` for the others) and the report's baseline names planner and filter."""
+    from jaxapf.compare.protocol import baseline_filter, rows_of, test_sweep_spec
+    from jaxapf.compare.select import Selection, tune_spec
+
+    spec = _spec(methods=["basic+cbf", "basic", "velocity_obstacle"])
+    assert "cbf_k0" in spec.method_gains("basic+cbf") and "cbf_k0" not in spec.method_gains("basic")
+    assert "vo_tau" in spec.method_gains("velocity_obstacle") and "vo_tau" not in spec.method_gains("basic")
+    assert tune_spec(spec, "basic+cbf", 1).sim.planner.filter == "cbf"
+    assert baseline_filter(spec) == "method=basic,filter=cbf"
+    selections = [Selection(m, seed, "random", Gains().floats() | {"cbf_k0": 0.5 + seed}, 4, 6, 24, 24, 0.0, 0.0,
+                            0.0, "defaults") for seed in (1, 2, 3) for m in spec.methods]
+    test = test_sweep_spec(spec, selections)
+    settings = test.settings()
+    assert [(dict(s.static)["method"], dict(s.static)["filter"]) for s in settings[:3]] == [
+        ("basic", "cbf"), ("basic", "none"), ("velocity_obstacle", "none")]
+    by = {(dict(s.static)["method"], dict(s.static)["filter"], dict(s.tags)["selection"]): dict(s.gains)
+          for s in settings}
+    assert by[("basic", "cbf", "seed2")]["cbf_k0"] == 2.5
+    assert by[("basic", "none", "seed2")].get("cbf_k0", 1.0) == 1.0  # not searched: its default
+    table = pd.DataFrame({"method": ["basic", "basic", "velocity_obstacle"], "filter": ["cbf", "none", "none"]})
+    assert list(rows_of(table, spec, "basic").index) == [1]
+    assert list(rows_of(table, spec, "basic+cbf").index) == [0]
