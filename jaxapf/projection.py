@@ -43,18 +43,45 @@ def _subsets(count: int, largest: int) -> tuple[np.ndarray, ...]:
                  for k in range(1, largest + 1))
 
 
+def _step(gs: Array, rhs: Array) -> tuple[Array, Array]:
+    """The least-norm ``d`` with ``G d = rhs``, ``d = Gᵀ (G Gᵀ)⁻¹ rhs``, for a batch of ``k`` <= 3
+    rows ``G`` (C, k, 3), and whether they are independent (``det(G Gᵀ) > 1e-9``; the others get
+    a finite dummy). Written out rather than by LAPACK, which inside a wide vmap is slow and, on
+    XLA:CPU at 512 episodes, stalled: ``det(G Gᵀ) = |g_0 × g_1|²`` for two rows (no cancellation)
+    and ``d = G⁻¹ rhs`` by the cross products of the rows for three."""
+    k = gs.shape[1]
+    if k == 1:
+        det = jnp.sum(gs[:, 0] * gs[:, 0], axis=1)
+    elif k == 2:
+        normal = jnp.cross(gs[:, 0], gs[:, 1])
+        det = jnp.sum(normal * normal, axis=1)
+    else:
+        columns = jnp.stack([jnp.cross(gs[:, 1], gs[:, 2]), jnp.cross(gs[:, 2], gs[:, 0]),
+                             jnp.cross(gs[:, 0], gs[:, 1])], axis=1)  # column j of det(G) G⁻¹, as row j
+        det_g = jnp.sum(gs[:, 0] * columns[:, 0], axis=1)
+        det = det_g * det_g
+    regular = det > 1e-9
+    if k == 1:
+        mu = rhs / jnp.where(regular, det, 1.0)[:, None]
+    elif k == 2:
+        a = gs @ jnp.swapaxes(gs, 1, 2)
+        adjugate_rhs = jnp.stack([a[:, 1, 1] * rhs[:, 0] - a[:, 0, 1] * rhs[:, 1],
+                                  a[:, 0, 0] * rhs[:, 1] - a[:, 1, 0] * rhs[:, 0]], axis=1)
+        mu = adjugate_rhs / jnp.where(regular, det, 1.0)[:, None]
+    else:
+        return jnp.einsum("cjd,cj->cd", columns, rhs) / jnp.where(regular, det_g, 1.0)[:, None], regular
+    return jnp.einsum("ckd,ck->cd", gs, mu), regular
+
+
 def _plane_candidates(x0: Array, rows: Array, bounds: Array, usable: Array, largest: int) -> tuple[Array, Array]:
     """Projections of ``x0`` onto every intersection of 1 .. ``largest`` of the planes
     ``rows·x = bounds`` (``C, 3``), and whether each is regular."""
     candidates, ok = [], []
     for index in _subsets(rows.shape[0], largest):
         gs, bs = rows[index], bounds[index]  # (C, k, 3), (C, k)
-        gram = gs @ jnp.swapaxes(gs, 1, 2)
-        regular = (jnp.abs(jnp.linalg.det(gram)) > 1e-9) & jnp.all(usable[index], axis=1)
-        safe = jnp.where(regular[:, None, None], gram, jnp.eye(index.shape[1], dtype=x0.dtype))
-        mu = jnp.linalg.solve(safe, (bs - gs @ x0)[..., None])[..., 0]
-        candidates.append(x0 + jnp.einsum("ckd,ck->cd", gs, mu))
-        ok.append(regular)
+        step, regular = _step(gs, bs - gs @ x0)
+        candidates.append(x0 + step)
+        ok.append(regular & jnp.all(usable[index], axis=1))
     return jnp.concatenate(candidates), jnp.concatenate(ok)
 
 
@@ -79,9 +106,7 @@ def _sphere_candidates(x0: Array, rows: Array, bounds: Array, usable: Array, rad
     e2 = jnp.sum(e * e, axis=1)
     regular = (e2 > 1e-9) & usable[pairs[:, 0]] & usable[pairs[:, 1]]
     gs = rows[pairs]
-    gram = gs @ jnp.swapaxes(gs, 1, 2)
-    safe = jnp.where(regular[:, None, None], gram, jnp.eye(2, dtype=x0.dtype))
-    c = jnp.einsum("ckd,ck->cd", gs, jnp.linalg.solve(safe, bounds[pairs][..., None])[..., 0])
+    c = _step(gs, bounds[pairs])[0]
     disc = r2 - jnp.sum(c * c, axis=1)
     step = jnp.sqrt(jnp.maximum(disc, _TINY) / jnp.maximum(e2, _TINY))[:, None] * e
     two_ok = regular & (disc > 0.0)
