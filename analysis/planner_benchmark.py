@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import shutil
 
 import numpy as np
 import pandas as pd
@@ -197,31 +196,14 @@ def trajectory_figures(spec, runs, out) -> list[tuple[str, str]]:
 
 
 def main() -> None:
-    from jaxapf.compare import load_compare_spec, run_compare_spec
     from jaxapf.compare.protocol import baseline_filter
 
-    args, out = study.begin(__doc__, STUDY)
-    spec, text = load_compare_spec(study.ROOT / "sweeps" / "planner-benchmark.toml")
-    suffix = ""
-    if args.fields:
-        spec = dataclasses.replace(spec, test=dataclasses.replace(spec.test, fields=args.fields))
-        suffix = f"-f{args.fields}"
-    runs = study.ROOT / "runs" / f"compare-{spec.name}{suffix}"
-    run_compare_spec(spec, text, runs, quiet=True, resamples=args.resamples)
-    target = out / "report"
-    if target.exists():
-        shutil.rmtree(target)
-    shutil.copytree(runs / "report", target)
-    (target / "report.html").unlink(missing_ok=True)
-    for svg in (target / "figures").glob("*.svg"):
-        svg.unlink()
-    shutil.copy(runs / "compare.md", out / "compare.md")
-    shutil.copy(runs / "selection.csv", out / "selection.csv")
+    args, out, spec, runs = study.run_compare_study(__doc__, STUDY, "planner-benchmark.toml")
     paper = dataclasses.replace(spec, baseline=PAPER)
     vs_paper = study.report(runs / "test.parquet", out, resamples=args.resamples, folder="report_vs_paper",
                             baseline=baseline_filter(paper), pair_on=("selection",), heatmap=None).comparisons
-    summary = pd.read_csv(target / "summary.csv")
-    vs_basic = pd.read_csv(target / "comparisons.csv")
+    summary = pd.read_csv(out / "report" / "summary.csv")
+    vs_basic = pd.read_csv(out / "report" / "comparisons.csv")
     sections = ["Budgets, selected gains and every verdict against `basic` seed by seed: [`compare.md`](compare.md); "
                 "the full reports: [`report/report.md`](report/report.md) (against `basic`) and "
                 "[`report_vs_paper/report.md`](report_vs_paper/report.md) (against `direction_velocity`).",

@@ -87,6 +87,33 @@ def report(parquet: pathlib.Path, out: pathlib.Path, *, resamples: int, folder: 
     return result
 
 
+def run_compare_study(doc: str, name: str, spec_file: str):
+    """What a ``jaxapf compare`` study does first: parse the shared flags, run the comparison of
+    ``sweeps/<spec_file>`` into ``runs/compare-NAME[-fN]`` (resuming what is finished), and copy its
+    report (without HTML and SVGs), ``compare.md`` and ``selection.csv`` into the results folder.
+    Returns ``(flags, results folder, spec, runs folder)``."""
+    from jaxapf.compare import load_compare_spec, run_compare_spec
+
+    args, out = begin(doc, name)
+    spec, text = load_compare_spec(ROOT / "sweeps" / spec_file)
+    suffix = ""
+    if args.fields:
+        spec = dataclasses.replace(spec, test=dataclasses.replace(spec.test, fields=args.fields))
+        suffix = f"-f{args.fields}"
+    runs = ROOT / "runs" / f"compare-{spec.name}{suffix}"
+    run_compare_spec(spec, text, runs, quiet=True, resamples=args.resamples)
+    target = out / "report"
+    if target.exists():
+        shutil.rmtree(target)
+    shutil.copytree(runs / "report", target)
+    (target / "report.html").unlink(missing_ok=True)
+    for svg in (target / "figures").glob("*.svg"):
+        svg.unlink()
+    shutil.copy(runs / "compare.md", out / "compare.md")
+    shutil.copy(runs / "selection.csv", out / "selection.csv")
+    return args, out, spec, runs
+
+
 def run_study(doc: str, *, name: str, spec: str, title: str, findings: Callable[["Numbers"], str],
               figures: Callable[[pathlib.Path], list[tuple[str, str]]] | list[tuple[str, str]],
               before: Callable[[pathlib.Path], list[str]] | None = None, **report_options: Any) -> None:

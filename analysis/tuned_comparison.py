@@ -12,9 +12,6 @@ same selection. docs/compare.md describes the protocol.
 
 from __future__ import annotations
 
-import dataclasses
-import shutil
-
 import numpy as np
 import pandas as pd
 import study
@@ -94,27 +91,9 @@ def findings(spec, summary: pd.DataFrame, comparisons: pd.DataFrame) -> str:
 
 
 def main() -> None:
-    from jaxapf.compare import load_compare_spec, run_compare_spec
-
-    args, out = study.begin(__doc__, STUDY)
-    spec, text = load_compare_spec(study.ROOT / "sweeps" / "tuned-comparison.toml")
-    suffix = ""
-    if args.fields:
-        spec = dataclasses.replace(spec, test=dataclasses.replace(spec.test, fields=args.fields))
-        suffix = f"-f{args.fields}"
-    runs = study.ROOT / "runs" / f"compare-{spec.name}{suffix}"
-    run_compare_spec(spec, text, runs, quiet=True, resamples=args.resamples)
-    target = out / "report"
-    if target.exists():
-        shutil.rmtree(target)
-    shutil.copytree(runs / "report", target)
-    (target / "report.html").unlink(missing_ok=True)
-    for svg in (target / "figures").glob("*.svg"):
-        svg.unlink()
-    shutil.copy(runs / "compare.md", out / "compare.md")
-    shutil.copy(runs / "selection.csv", out / "selection.csv")
-    summary = pd.read_csv(target / "summary.csv")
-    comparisons = pd.read_csv(target / "comparisons.csv")
+    args, out, spec, runs = study.run_compare_study(__doc__, STUDY, "tuned-comparison.toml")
+    summary = pd.read_csv(out / "report" / "summary.csv")
+    comparisons = pd.read_csv(out / "report" / "comparisons.csv")
     sections = ["Budgets, selected gains, the test rates of every selection and every verdict seed by seed: "
                 "[`compare.md`](compare.md); the full report of the test: [`report/report.md`](report/report.md).",
                 findings(spec, summary, comparisons)]
