@@ -31,10 +31,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from .datatypes import safe_norm
+from .datatypes.obstacles import TINY
+
 __all__ = ["nearest_feasible"]
-
-_TINY = 1e-12
-
 
 @cache
 def _subsets(count: int, largest: int) -> tuple[np.ndarray, ...]:
@@ -89,14 +89,14 @@ def _sphere_candidates(x0: Array, rows: Array, bounds: Array, usable: Array, rad
     """Candidates with the sphere ``|x| = radius`` active: alone, with one plane (the nearest point
     of their circle), with two planes (both points of their line on the sphere)."""
     r2 = radius * radius
-    scale = radius / jnp.sqrt(jnp.maximum(x0 @ x0, _TINY))
+    scale = radius / safe_norm(x0)
     alone = (x0 * scale)[None]
     # one plane n·x = b (|n| = 1): circle centre b n, radius sqrt(L² - b²)
     n, b = rows, bounds
     centre = b[:, None] * n
     along = x0[None] - (n @ x0)[:, None] * n  # x0 projected into the plane, from the centre b n
-    along_len = jnp.sqrt(jnp.maximum(jnp.sum(along * along, axis=1), _TINY))
-    circle_r = jnp.sqrt(jnp.maximum(r2 - b * b, _TINY))
+    along_len = safe_norm(along)
+    circle_r = jnp.sqrt(jnp.maximum(r2 - b * b, TINY))
     one = centre + (circle_r / along_len)[:, None] * along
     one_ok = usable & (b * b < r2)
     # two planes: the line c + s e, c its point nearest the origin, e = n1 × n2
@@ -108,7 +108,7 @@ def _sphere_candidates(x0: Array, rows: Array, bounds: Array, usable: Array, rad
     gs = rows[pairs]
     c = _step(gs, bounds[pairs])[0]
     disc = r2 - jnp.sum(c * c, axis=1)
-    step = jnp.sqrt(jnp.maximum(disc, _TINY) / jnp.maximum(e2, _TINY))[:, None] * e
+    step = jnp.sqrt(jnp.maximum(disc, TINY) / jnp.maximum(e2, TINY))[:, None] * e
     two_ok = regular & (disc > 0.0)
     candidates = jnp.concatenate([alone, one, c + step, c - step])
     ok = jnp.concatenate([jnp.ones((1,), bool), one_ok, two_ok, two_ok])
@@ -149,5 +149,5 @@ def nearest_feasible(x0: Array, g: Array, b: Array, limit: float | Array,
     if region == "box":
         x = jnp.clip(x, -limit, limit)
     else:
-        x = x * jnp.minimum(1.0, limit / jnp.sqrt(jnp.maximum(x @ x, _TINY)))
+        x = x * jnp.minimum(1.0, limit / safe_norm(x))
     return x, violation[best]

@@ -118,7 +118,7 @@ class CompareSpec:
         """The static settings of the compared ``method`` (``PLANNER`` or ``PLANNER+FILTER``):
         ``method``, and ``filter`` wherever some compared method names one (``none`` for the others,
         so the test sweep has a ``filter`` column to tell them apart)."""
-        return _settings(method, any("+" in m for m in self.methods))
+        return _settings(method, self.methods)
 
     def method_gains(self, method: str) -> tuple[str, ...]:
         """The searched gains ``method`` reads (its planner's, plus the filter's and plant's:
@@ -127,8 +127,10 @@ class CompareSpec:
         return tuple(g for g in self.selection.gains if g in read)
 
 
-def _settings(method: str, with_filter: bool) -> dict[str, str]:
+def _settings(method: str, methods: tuple[str, ...]) -> dict[str, str]:
+    """:meth:`CompareSpec.settings` of ``method`` among the compared ``methods``."""
     planner, _, safety_filter = method.partition("+")
+    with_filter = any("+" in m for m in methods)
     return {"method": planner, **({"filter": safety_filter or "none"} if with_filter else {})}
 
 
@@ -253,8 +255,7 @@ def parse_compare_spec(data: Mapping[str, Any]) -> CompareSpec:
     choices = FAMILIES.names() + variant_names(tables)
     if "selection" not in data:
         raise ConfigError("selection is missing; add [selection] with families, seeds and budget")
-    with_filter = any("+" in m for m in methods)
-    read = set().union(*(_gains_read(sim, _settings(m, with_filter)) for m in methods))
+    read = set().union(*(_gains_read(sim, _settings(m, methods)) for m in methods))
     selection = _selection(data["selection"], choices, read)
     if "test" not in data:
         raise ConfigError("test is missing; add [test] with families and fields")

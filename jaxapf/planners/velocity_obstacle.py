@@ -52,7 +52,8 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from ..datatypes import ObstacleColumns, Obstacles
+from ..datatypes import ObstacleColumns, Obstacles, safe_norm
+from ..datatypes.obstacles import TINY
 from ..gains import GainSpec
 from ..projection import nearest_feasible
 from .apf import ETA, K_ATT, saturate
@@ -71,13 +72,10 @@ VO_TAU = GainSpec("vo_tau", 3.0, low=0.0, low_open=True, unit="s", symbol="τ",
 VO_MARGIN = GainSpec("vo_margin", 0.25, low=0.0, unit="m",
                      doc="velocity obstacles: margin added to the combined radius ρ_o + r_uav")
 
-_TINY = 1e-12
-
-
 def _unit(a: Array) -> tuple[Array, Array]:
     """``(a / |a|, |a|)`` along the last axis, finite with a zero gradient at ``a = 0``."""
-    length = jnp.sqrt(jnp.maximum(jnp.sum(a * a, axis=-1, keepdims=True), _TINY))
-    return a / length, length[..., 0]
+    length = safe_norm(a)
+    return a / length[..., None], length
 
 
 def orca_half_spaces(x: Array, t: Array, obstacles: ObstacleColumns, gains: "Gains",
@@ -103,7 +101,7 @@ def orca_half_spaces(x: Array, t: Array, obstacles: ObstacleColumns, gains: "Gai
     left = jnp.where(jnp.sum(left * left, axis=-1, keepdims=True) > 1e-12, left, jnp.asarray([1.0, 0.0, 0.0]))
     e = _unit(jnp.where(jnp.sum(perp * perp, axis=-1, keepdims=True) > 1e-12, perp, left))[0]
     sin_a = jnp.clip(big_r / dist, 0.0, 1.0)
-    cos_a = jnp.sqrt(jnp.maximum(1.0 - sin_a * sin_a, _TINY))
+    cos_a = jnp.sqrt(jnp.maximum(1.0 - sin_a * sin_a, TINY))
     leg = cos_a[:, None] * s_hat + sin_a[:, None] * e
     u_leg = jnp.sum(w * leg, axis=-1, keepdims=True) * leg - w
     n_leg = -sin_a[:, None] * s_hat + cos_a[:, None] * e
