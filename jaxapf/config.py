@@ -3,11 +3,12 @@
 Every class here is frozen and hashable and is passed to ``jit`` as a static argument. Numbers
 that vary across a grid of settings are gains (:mod:`jaxapf.gains`), not configuration.
 
-:class:`SimConfig` gathers four concerns, each its own class:
+:class:`SimConfig` gathers five concerns, each its own class:
 
 ==================  ===========================================================================
 :class:`PlannerConfig`  which planner (``method``) and safety filter, and the potential's settings
 :class:`VehicleConfig`  which plant, its limits and size
+:class:`WorldConfig`    what stands between the world and the stack: sensing model, disturbance
 :class:`EpisodeConfig`  time step, episode length, goal tolerance
 :class:`MetricConfig`   thresholds of the metrics (stall, near miss)
 ==================  ===========================================================================
@@ -35,6 +36,8 @@ __all__ = [
     "CONVENTIONS",
     "PlannerConfig",
     "VehicleConfig",
+    "WorldConfig",
+    "VELOCITY_ESTIMATES",
     "EpisodeConfig",
     "MetricConfig",
     "SimConfig",
@@ -112,17 +115,56 @@ class VehicleConfig:
       a_max: per-axis acceleration limit [m/s²] > 0 (hard box of the MPC).
       v_max: per-axis velocity limit [m/s] > 0 (MPC penalty; also the norm cap of the reference).
       r_uav: UAV sphere radius [m] >= 0.
+      substeps: inner integration steps per control step of a plant with an inner loop (the
+        quadrotor's attitude controller and rigid body run at ``substeps / dt``); the double
+        integrator, exact, ignores it.
     """
 
     plant: str = "double_integrator"
     a_max: float = 3.0
     v_max: float = 2.0
     r_uav: float = 0.3
+    substeps: int = 10
 
     def __post_init__(self) -> None:
         _name("sim.plant", self.plant)
         _positive(self, ("a_max", "v_max"), "sim")
         _nonnegative(self, ("r_uav",), "sim")
+        check_int("sim.substeps", self.substeps, 1, 10_000)
+
+
+#: How the noisy sensor estimates an obstacle's velocity (:mod:`jaxapf.sensing`).
+VELOCITY_ESTIMATES = ("measured", "differenced")
+
+
+@dataclasses.dataclass(frozen=True)
+class WorldConfig:
+    """What stands between the world and the avoidance stack (:mod:`jaxapf.sensing`,
+    :mod:`jaxapf.dynamics.wind`); the plant and the metrics always see the truth.
+
+    Attributes:
+      sensor: how the planner, MPC and filter see the UAV and the obstacles, a name of
+        :data:`jaxapf.sensing.SENSORS` (``ideal``: the truth, instantly; ``noisy``: noise, range,
+        latency and dropout, each set by a traced gain).
+      disturbance: what acts on the plant besides the command, a name of
+        :data:`jaxapf.dynamics.DISTURBANCES` (``none``; ``wind``: a constant wind with
+        Ornstein-Uhlenbeck gusts).
+      velocity_estimate: the noisy sensor's obstacle velocity: ``measured`` (truth plus noise of
+        ``sigma_obs_v``) or ``differenced`` (finite difference of two consecutive noisy positions).
+      max_latency: the largest latency [control steps] the noisy sensor can apply (the length of its
+        history; the gain ``latency`` is clipped to it).
+    """
+
+    sensor: str = "ideal"
+    disturbance: str = "none"
+    velocity_estimate: Literal["measured", "differenced"] = "measured"
+    max_latency: int = 10
+
+    def __post_init__(self) -> None:
+        _name("sim.sensor", self.sensor)
+        _name("sim.disturbance", self.disturbance)
+        check_choice("sim.velocity_estimate", self.velocity_estimate, VELOCITY_ESTIMATES)
+        check_int("sim.max_latency", self.max_latency, 0, 1000)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -159,27 +201,30 @@ class MetricConfig:
       v_stall, t_stall: stall = speed below ``v_stall`` [m/s] for at least ``t_stall`` [s] while
         farther than ``r_goal`` from the goal.
       d_safe: clearance [m] below which time counts as ``time_near``.
+      d_sense: clearance [m] within which an obstacle the sensor did not detect counts in
+        ``unseen_steps`` (default the paper's influence distance ``d_s``, 4 m).
     """
 
     v_stall: float = 0.1
     t_stall: float = 3.0
     d_safe: float = 1.0
+    d_sense: float = 4.0
 
     def __post_init__(self) -> None:
         _positive(self, ("v_stall", "t_stall"), "sim")
-        _nonnegative(self, ("d_safe",), "sim")
+        _nonnegative(self, ("d_safe", "d_sense"), "sim")
 
 
-_PARTS: Mapping[str, type] = {"planner": PlannerConfig, "vehicle": VehicleConfig, "episode": EpisodeConfig,
-                              "metrics": MetricConfig}
-#: Every field of the four parts by its flat name (sweep specs, ``[sim]`` tables, CLI).
+_PARTS: Mapping[str, type] = {"planner": PlannerConfig, "vehicle": VehicleConfig, "world": WorldConfig,
+                              "episode": EpisodeConfig, "metrics": MetricConfig}
+#: Every field of the five parts by its flat name (sweep specs, ``[sim]`` tables, CLI).
 SIM_KEYS: tuple[str, ...] = tuple(f.name for cls in _PARTS.values() for f in dataclasses.fields(cls))
 _OWNER: Mapping[str, str] = {f.name: part for part, cls in _PARTS.items() for f in dataclasses.fields(cls)}
 
 
 @dataclasses.dataclass(frozen=True)
 class SimConfig:
-    """Everything static about an episode but the MPC: four parts by concern (module docstring).
+    """Everything static about an episode but the MPC: five parts by concern (module docstring).
 
     ``SimConfig.from_flat(method="basic", t_max=30.0)`` builds one from flat names;
     :meth:`flat` and :meth:`replace` work with flat names too.
@@ -187,6 +232,7 @@ class SimConfig:
 
     planner: PlannerConfig = PlannerConfig()
     vehicle: VehicleConfig = VehicleConfig()
+    world: WorldConfig = WorldConfig()
     episode: EpisodeConfig = EpisodeConfig()
     metrics: MetricConfig = MetricConfig()
 

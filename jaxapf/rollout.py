@@ -6,8 +6,12 @@ of fields is a ``vmap`` over scenarios; a population of gain settings is a ``vma
 :class:`MPCConfig`) is compiled in; gains are traced, so a whole gain grid over many fields is
 one compiled call.
 
-Each control step ``k`` (time ``t_k = k Δt``), with the components named by ``sim``:
+Each control step ``k`` (time ``t_k = k Δt``), with the components named by ``sim``
+(:data:`~jaxapf.components.COMPONENTS`):
 
+0. the sensor (``sim.world.sensor``, :data:`~jaxapf.sensing.SENSORS`; ``ideal`` by default) turns
+   the truth into what the stack sees: an estimate of ``[p, v]`` and the obstacles as observed.
+   Steps 1-3 work with that observation; the plant and the metrics with the truth;
 1. the planner (``sim.planner.method``, :data:`~jaxapf.planners.PLANNERS`) maps its state and the
    UAV's ``[p, v]`` to the MPC reference for ``x(k..k+N)``; a potential-field planner rolls its
    saturated gradient flow N steps ahead with the obstacles extrapolated at constant velocity;
@@ -16,7 +20,8 @@ Each control step ``k`` (time ``t_k = k Δt``), with the components named by ``s
 3. the safety filter (``sim.planner.filter``, :data:`~jaxapf.control.FILTERS`; ``none`` by default)
    maps the first acceleration to the applied one;
 4. the plant (``sim.vehicle.plant``, :data:`~jaxapf.dynamics.PLANTS`; the exact double integrator
-   by default) integrates it.
+   by default) integrates it, under the disturbance (``sim.world.disturbance``,
+   :data:`~jaxapf.dynamics.DISTURBANCES`; ``none`` by default) of the step.
 
 :func:`rollout` flies one episode for the fixed ``EpisodeConfig.steps``; termination (goal,
 collision) is applied by the metrics' masks, not by the loop. :func:`evaluate` streams a batch's
@@ -33,25 +38,28 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from .components import COMPONENTS, components_read_gains
 from .config import MPCConfig, SimConfig
-from .control import FILTERS, axis_problem, shift_warm_start, solve_axes
+from .control import axis_problem, shift_warm_start, solve_axes
 from .datatypes import Scenario, Trajectory
-from .dynamics import PLANTS
 from .gains import Gains
 from .metrics import METRICS, episode_metrics
-from .planners import PLANNERS
 
 __all__ = ["rollout", "gains_read", "rollout_metrics", "evaluate", "evaluate_program", "episode_index", "default_width",
            "CPU_WIDTH", "ACCELERATOR_WIDTH", "XLA_OPTIONS"]
 
 
+def component_names(sim: SimConfig) -> dict[str, str]:
+    """``{key: name}`` of the components ``sim`` names (:data:`~jaxapf.components.COMPONENTS`)."""
+    flat = sim.flat()
+    return {key: flat[key] for key in COMPONENTS}
+
+
 def gains_read(sim: SimConfig) -> frozenset[str]:
-    """The gains a :func:`rollout` with ``sim`` reads: those its planner, safety filter and plant
-    declare. Settings that agree on these fly the same episodes (a sweep runs them once)."""
-    read = {g.name for g in PLANNERS.get(sim.planner.method, "sim.method").gains}
-    read |= {g.name for g in FILTERS.get(sim.planner.filter, "sim.filter").gains}
-    read |= {g.name for g in PLANTS.get(sim.vehicle.plant, "sim.plant").gains}
-    return frozenset(read)
+    """The gains a :func:`rollout` with ``sim`` reads: those its planner, safety filter, plant, sensor
+    and disturbance declare. Settings that agree on these fly the same episodes (a sweep runs them
+    once)."""
+    return components_read_gains(component_names(sim))
 
 
 class ClosedLoop(NamedTuple):
@@ -61,38 +69,43 @@ class ClosedLoop(NamedTuple):
     planner: Any
     safety: Any
     plant: Any
+    sensor: Any
+    disturbance: Any
     prob: Any
 
 
 def closed_loop(sim: SimConfig, mpc: MPCConfig, dtype: Any) -> ClosedLoop:
-    """The registered planner, safety filter and plant of ``sim`` and the MPC problem on the plant's
-    linear model."""
-    plant = PLANTS.get(sim.vehicle.plant, "sim.plant")
-    return ClosedLoop(PLANNERS.get(sim.planner.method, "sim.method"), FILTERS.get(sim.planner.filter, "sim.filter"),
-                      plant, axis_problem(mpc, *plant.linear_model(sim.episode.dt, dtype)))
+    """The registered components of ``sim`` and the MPC problem on the plant's linear model."""
+    parts = {key: COMPONENTS[key].get(name, f"sim.{key}") for key, name in component_names(sim).items()}
+    return ClosedLoop(parts["method"], parts["filter"], parts["plant"], parts["sensor"], parts["disturbance"],
+                      axis_problem(mpc, *parts["plant"].linear_model(sim.episode.dt, dtype)))
 
 
 def loop_init(loop: ClosedLoop, scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig) -> tuple:
     """The carry of an episode at rest at ``scenario.start``: (plant state, warm start, planner
-    state, filter state)."""
+    state, filter state, sensor state, disturbance state)."""
     dtype = scenario.start.dtype
     return (loop.plant.init(scenario.start, gains, sim), jnp.zeros((3, mpc.horizon), dtype),
-            loop.planner.init(scenario, gains, sim, mpc.horizon), loop.safety.init(scenario, gains, sim))
+            loop.planner.init(scenario, gains, sim, mpc.horizon), loop.safety.init(scenario, gains, sim),
+            loop.sensor.init(scenario, gains, sim), loop.disturbance.init(scenario, gains, sim))
 
 
 def loop_step(loop: ClosedLoop, carry: tuple, k: Array, scenario: Scenario, obstacles: Any, gains: Gains,
               sim: SimConfig, mpc: MPCConfig) -> tuple[tuple, tuple[Array, Array, dict[str, Array]]]:
     """Control step ``k`` (a float: ``t_k = k Δt``) of the module docstring; returns the new carry
     and the step's record: the plant's ``[p, v]`` after it, the applied acceleration and the
-    components' diagnostics. ``obstacles`` is ``scenario.obstacles.columns()``."""
-    state, warm, plan, guard = carry
+    components' diagnostics. ``obstacles`` is ``scenario.obstacles.columns()`` (the truth)."""
+    state, warm, plan, guard, seen, gust = carry
     t = k * sim.episode.dt
-    x = loop.plant.kinematics(state)
-    x_ref, plan = loop.planner.reference(plan, x, t, scenario.goal, obstacles, gains, sim, mpc.horizon)
+    step = jnp.round(k).astype(jnp.int32)
+    x, observed, seen, sensed = loop.sensor(seen, loop.plant.kinematics(state), step, scenario, obstacles, gains, sim)
+    x_ref, plan = loop.planner.reference(plan, x, t, scenario.goal, observed, gains, sim, mpc.horizon)
     u = solve_axes(loop.prob, x, x_ref, warm, a_max=sim.vehicle.a_max, v_max=sim.vehicle.v_max, iters=mpc.iters)
-    accel, guard, filtered = loop.safety(guard, u[:, 0], x, t, obstacles, gains, sim)
-    state, integrated = loop.plant.step(state, accel, gains, sim)
-    return (state, shift_warm_start(u), plan, guard), (loop.plant.kinematics(state), accel, filtered | integrated)
+    accel, guard, filtered = loop.safety(guard, u[:, 0], x, t, observed, gains, sim)
+    push, gust = loop.disturbance(gust, step, scenario, gains, sim)
+    state, integrated = loop.plant.step(state, accel, push, gains, sim)
+    return ((state, shift_warm_start(u), plan, guard, seen, gust),
+            (loop.plant.kinematics(state), accel, sensed | filtered | integrated))
 
 
 def record_trajectory(x0: Array, records: tuple, sim: SimConfig) -> Trajectory:
@@ -109,11 +122,11 @@ def rollout(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, *,
     """Simulate one episode from rest at ``scenario.start``; returns its :class:`Trajectory`.
 
     With ``remat`` the control step is wrapped in :func:`jax.checkpoint`: reverse-mode
-    differentiation then stores only the scan carry (plant state, warm start, planner and filter
-    states) of each step and recomputes the step's reference and FISTA iterations on the way back,
-    so the memory of a gradient grows with ``T·(6 + 3N)`` numbers instead of ``T·(residuals of one
-    step)``. The forward values are the same either way (``jaxapf tune`` measures the trade-off,
-    docs/tune.md).
+    differentiation then stores only the scan carry (plant state, warm start, planner, filter,
+    sensor and disturbance states) of each step and recomputes the step's reference and FISTA
+    iterations on the way back, so the memory of a gradient grows with ``T·(6 + 3N)`` numbers
+    instead of ``T·(residuals of one step)``. The forward values are the same either way
+    (``jaxapf tune`` measures the trade-off, docs/tune.md).
     """
     dtype = scenario.start.dtype
     gains = gains.as_arrays(dtype)

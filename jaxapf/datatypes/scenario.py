@@ -5,11 +5,12 @@ from __future__ import annotations
 import dataclasses
 
 import jax
+import jax.numpy as jnp
 from jax import Array
 
 from .obstacles import Obstacles
 
-__all__ = ["Scenario"]
+__all__ = ["Scenario", "episode_key"]
 
 
 @jax.tree_util.register_dataclass
@@ -23,9 +24,24 @@ class Scenario:
       obstacles: the padded obstacle set.
       kind: int32 index of the field's kind in its family's ``kinds`` (``make_scenarios`` sets it;
         ``None`` for a hand-made field, which then has no such leaf).
+      key: uint32 (2,) data of the field's PRNG key, ``field_key(seed, i)`` (``make_scenarios``
+        sets it): the episode's randomness (sensing noise, wind gusts) is drawn from it folded
+        with a purpose and the control step, so it depends on the field only, never on the method
+        or the gains (settings stay paired on common random numbers). ``None`` for a hand-made
+        field: :func:`episode_key` then uses ``jax.random.key(0)``.
     """
 
     start: Array
     goal: Array
     obstacles: Obstacles
     kind: Array | None = None
+    key: Array | None = None
+
+
+def episode_key(scenario: Scenario, purpose: int, step: Array | int) -> Array:
+    """The PRNG key of ``purpose`` (one constant per consumer, e.g. sensing, wind) at control step
+    ``step`` (an integer, negative allowed) of an episode in ``scenario``:
+    ``fold_in(fold_in(field key, purpose), step)``."""
+    data = jax.random.key_data(jax.random.key(0)) if scenario.key is None else scenario.key
+    key = jax.random.fold_in(jax.random.wrap_key_data(data), purpose)
+    return jax.random.fold_in(key, jax.lax.bitcast_convert_type(jnp.asarray(step, jnp.int32), jnp.uint32))

@@ -46,9 +46,12 @@ class Plant(abc.ABC):
         """``[p, v]`` (6,) in the world frame: what the MPC plans from and the metrics record."""
 
     @abc.abstractmethod
-    def step(self, state: Any, accel: Array, gains: "Gains", sim: "SimConfig") -> tuple[Any, dict[str, Array]]:
+    def step(self, state: Any, accel: Array, disturbance: Array, gains: "Gains", sim: "SimConfig"
+             ) -> tuple[Any, dict[str, Array]]:
         """The state one control step ``sim.episode.dt`` later under the acceleration command
-        ``accel`` (3,), and the step's diagnostics (``{}`` if none; each becomes a per-step entry of
+        ``accel`` (3,) and the ``disturbance`` (3,), an acceleration [m/s²] in the world frame held
+        over the step (:mod:`jaxapf.dynamics.wind`; zeros in a calm world), and the step's
+        diagnostics (``{}`` if none; each becomes a per-step entry of
         :attr:`~jaxapf.datatypes.Trajectory.extras`)."""
 
     @abc.abstractmethod

@@ -52,8 +52,8 @@ class DoubleIntegrator(Plant):
     def kinematics(self, state: Array) -> Array:
         return state
 
-    def step(self, state: Array, accel: Array, gains: Any, sim: Any) -> tuple[Array, dict]:
-        return step(state, accel, sim.episode.dt), {}
+    def step(self, state: Array, accel: Array, disturbance: Array, gains: Any, sim: Any) -> tuple[Array, dict]:
+        return step(state, accel + disturbance, sim.episode.dt), {}
 
     def linear_model(self, dt: float, dtype: Any) -> tuple[Array, Array]:
         return discrete_matrices(dt, 1, dtype)

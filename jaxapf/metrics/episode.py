@@ -57,6 +57,19 @@ Metrics (one scalar each, in registration order)
 - ``cbf_infeasible_steps``: valid intervals at which the CBF safety filter (:mod:`jaxapf.control.cbf`)
   found its constraints and the acceleration box incompatible (``traj.extras["cbf_infeasible"]``);
   0 without that filter (int32).
+- ``max_tilt``: the largest tilt [deg] of the body's thrust axis over valid intervals
+  (``traj.extras["tilt"]``, a plant with attitude such as :mod:`jaxapf.dynamics.quadrotor`); 0 for a
+  plant without attitude.
+- ``saturation_time``: time [s] during valid intervals in which some rotor's command was clipped
+  (``traj.extras["saturated_time"]``); 0 for a plant without rotors.
+- ``accel_error_rms``: ``sqrt(mean_i |(v_{i+1} - v_i)/dt - a_i|²)`` over valid intervals: the applied
+  command against the acceleration the plant realised (a plant's lag, a disturbance); 0 with no
+  valid interval. The double integrator in calm air realises its command (up to rounding).
+- ``position_error_max``: ``max_i |p_{i+1} - (p_i + v_i dt + a_i dt²/2)|`` over valid intervals: how
+  far one step of the plant lands from where the MPC's model puts it; 0 with no valid interval.
+- ``unseen_steps``: over valid intervals, the number of (step, obstacle) pairs in which an obstacle
+  within ``d_sense`` of the UAV (true clearance) was not detected by the sensor
+  (``traj.extras["unseen_near"]``, :mod:`jaxapf.sensing`); 0 with the ideal sensor (int32).
 
 Efficiency metrics (``time_to_goal``, ``path_ratio``, ``control_effort``, ``jerk_rms``, ``min_ttc``)
 are registered as meaningful only on successful episodes (``Metric.on_success``): a collision cuts a
@@ -143,6 +156,39 @@ def _cbf_infeasible_steps(ctx: EpisodeContext) -> Array:
     return jnp.sum(ctx.interval_valid & flags).astype(jnp.int32)
 
 
+def _extra_sum(ctx: EpisodeContext, name: str) -> Array:
+    """Sum of the per-step diagnostic ``name`` over valid intervals; 0 if no component records it."""
+    values = ctx.traj.extras.get(name)
+    if values is None:
+        return jnp.zeros((), ctx.traj.position.dtype)
+    return jnp.sum(jnp.where(ctx.interval_valid, values, 0))
+
+
+def _max_tilt(ctx: EpisodeContext) -> Array:
+    tilt = ctx.traj.extras.get("tilt")
+    if tilt is None:
+        return jnp.zeros((), ctx.traj.position.dtype)
+    return jnp.rad2deg(jnp.max(jnp.where(ctx.interval_valid, tilt, 0.0)))
+
+
+def _step_errors(ctx: EpisodeContext) -> tuple[Array, Array]:
+    """Per interval: the realised minus the applied acceleration (T, 3), and where one step lands
+    against the double integrator's prediction (T, 3)."""
+    p, v, a, dt = ctx.traj.position, ctx.traj.velocity, ctx.traj.control, ctx.dt
+    return (v[1:] - v[:-1]) / dt - a, p[1:] - (p[:-1] + v[:-1] * dt + 0.5 * dt * dt * a)
+
+
+def _accel_error_rms(ctx: EpisodeContext) -> Array:
+    error = jnp.sum(_step_errors(ctx)[0] ** 2, axis=-1)
+    count = jnp.sum(ctx.interval_valid)
+    return jnp.sqrt(jnp.sum(jnp.where(ctx.interval_valid, error, 0.0)) / jnp.maximum(count, 1))
+
+
+def _position_error_max(ctx: EpisodeContext) -> Array:
+    error = jnp.linalg.norm(_step_errors(ctx)[1], axis=-1)
+    return jnp.max(jnp.where(ctx.interval_valid, error, 0.0))
+
+
 def _time_near(ctx: EpisodeContext) -> Array:
     nearest = jnp.min(clearance_history(ctx.traj, ctx.scenario, ctx.sim), axis=-1)  # (T+1,)
     closing = (nearest[1:] < nearest[:-1]) | (ctx.swept < jnp.minimum(nearest[1:], nearest[:-1]))
@@ -180,6 +226,16 @@ for _metric in (
     Metric("steps", lambda ctx: ctx.end_index, dtype="int32", kind="count", doc="steps until the episode ended"),
     Metric("cbf_infeasible_steps", _cbf_infeasible_steps, dtype="int32", kind="count", higher_is_better=False,
            doc="control steps at which the CBF filter's constraints and the acceleration box could not all hold"),
+    Metric("max_tilt", _max_tilt, unit="deg", higher_is_better=False, margin=2.0,
+           doc="largest tilt of the thrust axis (a plant with attitude; 0 otherwise)"),
+    Metric("saturation_time", lambda ctx: _extra_sum(ctx, "saturated_time"), unit="s", higher_is_better=False,
+           margin=0.1, doc="time during which a rotor command was clipped (a plant with rotors; 0 otherwise)"),
+    Metric("accel_error_rms", _accel_error_rms, unit="m/s²", higher_is_better=False, margin=0.1,
+           doc="RMS of the realised minus the applied acceleration"),
+    Metric("position_error_max", _position_error_max, unit="m", higher_is_better=False, margin=0.01,
+           doc="largest one-step miss of the plant against the MPC's double-integrator prediction"),
+    Metric("unseen_steps", lambda ctx: _extra_sum(ctx, "unseen_near"), dtype="int32", kind="count",
+           higher_is_better=False, doc="obstacle-steps with an obstacle within d_sense not detected by the sensor"),
 ):
     register_metric(_metric)
 

@@ -9,9 +9,8 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 import pandas as pd
 
+from ..components import COMPONENTS
 from ..config import PlannerConfig, SimConfig
-from ..control import FILTERS
-from ..dynamics import PLANTS
 from ..gains import GAINS
 from ..metrics import METRICS
 from ..planners import PLANNERS
@@ -30,18 +29,16 @@ def symbol(column: str) -> str:
 
 
 def ignored_columns(row: Any) -> tuple[str, ...]:
-    """Setting columns the components of a setting do not read (``row``: its method, filter and
-    plant, absent ones at their defaults): settings that differ only there fly the same episodes.
+    """Setting columns the components of a setting do not read (``row``: its method, filter, plant,
+    sensor and disturbance, absent ones at their defaults): settings that differ only there fly the same episodes.
     Nothing is ignored for a planner that is not registered in this process."""
     defaults = SimConfig().flat()
     name = lambda key: str(row.get(key, defaults[key]) if hasattr(row, "get") else defaults[key])  # noqa: E731
     if name("method") not in PLANNERS:
         return ()
     planner = PLANNERS.get(name("method"))
-    read = {g.name for g in planner.gains}
-    for key, registry in (("filter", FILTERS), ("plant", PLANTS)):
-        if name(key) in registry:
-            read |= {g.name for g in registry.get(name(key)).gains}
+    read = {g.name for key, registry in COMPONENTS.items() if name(key) in registry
+            for g in registry.get(name(key)).gains}
     return tuple(g for g in GAINS.names() if g not in read) + tuple(o for o in _PLANNER_OPTIONS
                                                                         if o not in planner.reads)
 

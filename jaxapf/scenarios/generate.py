@@ -108,9 +108,9 @@ def _local_field(u: Array, params: FamilyParams) -> tuple[Array, Array, Layout, 
     return length, heading, fit(layout, params.max_obstacles), jnp.asarray(kind, jnp.int32)
 
 
-def _place(length: Array, heading: Array, layout: Layout, kind: Array, altitude: Array, r_uav: Array,
+def _place(key: Array, length: Array, heading: Array, layout: Layout, kind: Array, altitude: Array, r_uav: Array,
            start_margin: Array, goal_margin: Array, cylinder: Array) -> Scenario:
-    """The field in the world frame, with clear endpoints."""
+    """The field in the world frame, with clear endpoints; ``key`` is the field key's data."""
     zero = jnp.zeros_like(length)
     start = jnp.stack([zero, zero, zero + altitude])
     goal = _to_world(jnp.stack([length, zero]), heading, altitude)
@@ -122,7 +122,7 @@ def _place(length: Array, heading: Array, layout: Layout, kind: Array, altitude:
         valid=layout.valid,
     )
     return Scenario(start, goal, clear_endpoints(obstacles, start, goal, r_uav, start_margin, goal_margin),
-                    kind)
+                    kind, key)
 
 
 def _placement(params: FamilyParams) -> tuple[float, float, float, float, bool]:
@@ -156,7 +156,7 @@ def make_scenario(key: Array, params: FamilyParams) -> Scenario:
     obstacle set has exactly ``params.max_obstacles`` slots.
     """
     local, placement = _stage_boundary(_local_field(_uniforms(key, _draw_count(params)), params), params)
-    return _place(*local, *placement)
+    return _place(jax.random.key_data(key), *local, *placement)
 
 
 # make_scenarios runs make_scenario as three compiled, batched stages so that the parts that do
@@ -165,8 +165,10 @@ def make_scenario(key: Array, params: FamilyParams) -> Scenario:
 
 
 @partial(jax.jit, static_argnames="size")
-def _draw_batch(base_key: Array, indices: Array, size: int) -> Array:
-    return jax.vmap(lambda i: _uniforms(jax.random.fold_in(base_key, i), size))(indices)
+def _draw_batch(base_key: Array, indices: Array, size: int) -> tuple[Array, Array]:
+    """The fields' key data and blocks of uniforms."""
+    keys = jax.vmap(lambda i: jax.random.fold_in(base_key, i))(indices)
+    return jax.random.key_data(keys), jax.vmap(lambda k: _uniforms(k, size))(keys)
 
 
 @partial(jax.jit, static_argnames="params")
@@ -174,7 +176,7 @@ def _local_batch(u: Array, params: FamilyParams) -> tuple[Array, Array, Layout, 
     return jax.vmap(lambda row: _local_field(row, params))(u)
 
 
-_place_batch = jax.jit(jax.vmap(_place, in_axes=(0, 0, 0, 0, None, None, None, None, None)))
+_place_batch = jax.jit(jax.vmap(_place, in_axes=(0, 0, 0, 0, 0, None, None, None, None, None)))
 
 
 def make_scenarios(seed: int | Array, params: FamilyParams, fields: int | Array) -> Scenario:
@@ -195,6 +197,6 @@ def make_scenarios(seed: int | Array, params: FamilyParams, fields: int | Array)
         if indices.ndim != 1 or not jnp.issubdtype(indices.dtype, jnp.integer):
             raise ConfigError(f"scenario.fields must be a count or a 1-D integer array of field indices; "
                               f"got {indices.dtype} of shape {indices.shape}")
-    u = _draw_batch(jax.random.key(seed), indices, _draw_count(params))
+    keys, u = _draw_batch(jax.random.key(seed), indices, _draw_count(params))
     local, placement = _stage_boundary(_local_batch(u, params), params)
-    return _place_batch(*local, *placement)
+    return _place_batch(keys, *local, *placement)

@@ -49,12 +49,10 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
+from ..components import COMPONENTS
 from ..config import MPC_KEYS, SIM_KEYS, STATIC_KEYS, MPCConfig, SimConfig
-from ..control import FILTERS
-from ..dynamics import PLANTS
 from ..gains import GAINS, Gains, read_gains_file
 from ..metrics import METRICS
-from ..planners import PLANNERS
 from ..plugins import check_plugins, load_plugins
 from ..scenarios import FAMILIES, FamilyParams, family_params
 from ..validation import (
@@ -89,7 +87,7 @@ __all__ = [
 ]
 
 #: Static keys that name a registered component, and the registry that knows them.
-COMPONENT_KEYS = {"method": PLANNERS, "filter": FILTERS, "plant": PLANTS}
+COMPONENT_KEYS = COMPONENTS
 #: MPC weights that take a number (same on x, y, z) or 3 numbers.
 AXIS_WEIGHT_KEYS: frozenset[str] = frozenset({"q_pos", "q_vel", "f_pos", "f_vel", "r"})
 
@@ -349,13 +347,13 @@ class SweepSpec:
         return spec_family_params(family, self.params.get(family, {}))
 
     def components(self, key: str) -> tuple[str, ...]:
-        """The names the spec's settings give ``method``, ``filter`` or ``plant`` (their defaults if unnamed)."""
+        """The names the spec's settings give a component key (:data:`COMPONENT_KEYS`; its default if unnamed)."""
         default = SimConfig().flat()[key]
         return tuple(dict.fromkeys(dict(s.static).get(key, default) for s in self.settings()))
 
     def gain_columns(self) -> tuple[str, ...]:
-        """The gains that get a column: those the spec's planners, filters and plants read, and any the
-        spec names, in declaration order."""
+        """The gains that get a column: those the spec's components (planners, filters, plants, sensors,
+        disturbances) read, and any the spec names, in declaration order."""
         read = {g.name for key, registry in COMPONENT_KEYS.items() for name in self.components(key)
                 for g in registry.get(name).gains}
         named = (set(self.gains) | {k for k, _ in self.grid} | {k for k, _ in self.random}

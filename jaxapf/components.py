@@ -1,0 +1,38 @@
+"""The components a simulation setting names: one static key and one registry each.
+
+================  ==========================================  =====================================
+key               registry                                    what it is
+================  ==========================================  =====================================
+``method``        :data:`jaxapf.planners.PLANNERS`            the planner (reference for the MPC)
+``filter``        :data:`jaxapf.control.FILTERS`              the safety filter after the MPC
+``plant``         :data:`jaxapf.dynamics.PLANTS`              the vehicle model integrated
+``sensor``        :data:`jaxapf.sensing.SENSORS`              what the stack sees of the world
+``disturbance``   :data:`jaxapf.dynamics.DISTURBANCES`        what acts on the plant besides the command
+================  ==========================================  =====================================
+
+Every tool reads this table (which gains a setting reads, which names a spec may give, what
+``jaxapf list`` shows), so a new kind of component is one row here.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+from .control import FILTERS
+from .dynamics import DISTURBANCES, PLANTS
+from .planners import PLANNERS
+from .registry import Registry
+from .sensing import SENSORS
+
+__all__ = ["COMPONENTS", "components_read_gains"]
+
+#: Static key of a simulation setting -> the registry of the components it names.
+COMPONENTS: Mapping[str, Registry[Any]] = {"method": PLANNERS, "filter": FILTERS, "plant": PLANTS,
+                                           "sensor": SENSORS, "disturbance": DISTURBANCES}
+
+
+def components_read_gains(names: Mapping[str, str], where: str = "sim") -> frozenset[str]:
+    """The gains the components ``names`` (``{key: name}`` for every key of :data:`COMPONENTS`)
+    declare; an unknown name raises :class:`~jaxapf.validation.ConfigError` naming ``where.key``."""
+    return frozenset(g.name for key, registry in COMPONENTS.items()
+                     for g in registry.get(names[key], f"{where}.{key}").gains)

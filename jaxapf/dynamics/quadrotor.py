@@ -1,0 +1,205 @@
+r"""The quadrotor of the paper's section 2.1 (eq. 1–3) as a plant, with its inner attitude loop.
+
+The MPC keeps planning with the double integrator (paper eq. 4–7); this plant realises its
+acceleration command ``a`` through a rigid body with four rotors, at ``sim.vehicle.substeps`` inner
+steps of ``h = Δt / substeps`` per control step:
+
+1. **thrust vector** (outer to inner loop): the body's z axis must point along
+   ``w = g e_z - a`` (eq. 1 with ``p̈ = a``); ``w_z`` is kept at least ``g/5`` (a rotor cannot pull
+   down) and the horizontal part of ``w`` is shortened until ``w`` lies within ``tilt_max`` of
+   ``e_z``. The attitude setpoint ``R_d`` has ``b3 = w/|w|`` and zero yaw; the collective thrust is
+   ``F_T = m w·b3`` (the projection onto the current body axis, as Lee et al. 2010);
+2. **attitude controller**: the geometric SO(3) controller of Lee, Leok and McClamroch (CDC 2010,
+   "Geometric tracking control of a quadrotor UAV on SE(3)"),
+   ``τ = J(-ω_n² e_R - 2ζω_n ω) + ω × Jω`` with ``e_R = ½ vee(R_dᵀR - RᵀR_d)``: near hover every
+   axis is a second-order loop of natural frequency ``att_omega`` and damping ``att_zeta``;
+3. **rotors**: ``(F_T, τ)`` are mapped to the four rotor forces by the inverse of eq. 3's
+   allocation, clipped to ``[0, f_max]`` (saturation), and each rotor follows its command with a
+   first-order lag ``motor_tau`` (exact over a sub-step; 0: no lag);
+4. **rigid body**: eq. 1 for the translation (plus the disturbance), eq. 3 (Euler's equation)
+   ``J ω̇ = τ - ω × Jω`` for the body rates, the attitude as a unit quaternion ``q`` with
+   ``q̇ = ½ q ⊗ (0, ω)``. Over a sub-step the body rates take an Euler step, the attitude turns by
+   the exact rotation of the new rates (re-normalised, so ``R(q)`` stays orthonormal) and position
+   and velocity integrate the sub-step's acceleration exactly.
+
+Frames (SPEC 1): the paper's eq. 1 puts gravity ``+G`` on z and the thrust along the body's ``-z``:
+its world frame is z down, its body frame forward-right-down. jaxapf's world frame is z up, so the
+plant works in the paper's frame ``W_p``, jaxapf's turned by π about x (``S = diag(1, -1, -1)``,
+``p_p = S p``), and reports ``[p, v]`` in jaxapf's frame. ``R = R(q)`` maps body to ``W_p``; it is a
+proper rotation, unlike the paper's printed eq. 2 (docs/spec.md, section 7). Rotors are numbered
+as eq. 3: 1 front (+x_b), 2 left (-y_b), 3 back, 4 right, so that
+
+.. math::  τ = \begin{pmatrix} L(F_2 - F_4) \\ L(F_1 - F_3) \\ c_τ(F_2 + F_4 - F_1 - F_3)\end{pmatrix}
+
+**Reference vehicle** (:data:`HUMMINGBIRD`): the AscTec Hummingbird as RotorS models it
+(``rotors_description/urdf/hummingbird.xacro``, Furrer et al. 2016): m = 0.68 kg,
+J = diag(0.007, 0.007, 0.012) kg m², L = 0.17 m, c_τ = 0.016 m, f_max = 8.54858e-6 N s² ·
+(838 rad/s)² = 6.0 N per rotor (thrust-to-weight 3.6), motor time constant 0.0125 s (RotorS's
+spin-up; its spin-down is 0.025 s).
+
+Diagnostics per control step: ``tilt`` [rad], the largest angle between the body's z axis and the
+vertical over the step's sub-steps, and ``saturated_time`` [s], the time during which some rotor's
+command was clipped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, ClassVar, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from ..datatypes import safe_norm
+from ..gains import GainSpec
+from .base import Plant, register_plant
+from .double_integrator import discrete_matrices
+
+__all__ = ["QuadrotorState", "Vehicle", "HUMMINGBIRD", "Quadrotor", "rotation", "quaternion_product", "FRAME"]
+
+#: jaxapf's world frame (z up) to the paper's (z down): a turn by π about x.
+FRAME = np.array([1.0, -1.0, -1.0])
+
+
+@dataclasses.dataclass(frozen=True)
+class Vehicle:
+    """Physical parameters of a quadrotor (SI units)."""
+
+    name: str
+    mass: float
+    inertia: tuple[float, float, float]
+    arm: float
+    torque_coefficient: float
+    f_max: float
+    gravity: float = 9.81
+
+    def allocation(self) -> np.ndarray:
+        """Eq. 3's map (4, 4) from rotor forces to ``(F_T, τ_x, τ_y, τ_z)``."""
+        length, c = self.arm, self.torque_coefficient
+        return np.array([[1.0, 1.0, 1.0, 1.0], [0.0, length, 0.0, -length], [length, 0.0, -length, 0.0],
+                         [-c, c, -c, c]])
+
+
+HUMMINGBIRD = Vehicle("AscTec Hummingbird (RotorS)", mass=0.68, inertia=(0.007, 0.007, 0.012), arm=0.17,
+                      torque_coefficient=0.016, f_max=8.54858e-6 * 838.0**2)
+
+
+class QuadrotorState(NamedTuple):
+    """Position and velocity in the paper's frame, attitude quaternion ``(w, x, y, z)`` (body to
+    world), body rates and the four rotor forces."""
+
+    position: Array
+    velocity: Array
+    attitude: Array
+    rates: Array
+    rotors: Array
+
+
+def rotation(q: Array) -> Array:
+    """The rotation matrix (3, 3) of a unit quaternion ``q = (w, x, y, z)`` (Hamilton convention)."""
+    w, x, y, z = q
+    return jnp.stack([
+        jnp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)]),
+        jnp.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)]),
+        jnp.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]),
+    ])
+
+
+def quaternion_product(a: Array, b: Array) -> Array:
+    """Hamilton product ``a ⊗ b``."""
+    return jnp.concatenate([a[:1] * b[:1] - jnp.dot(a[1:], b[1:]),
+                            a[0] * b[1:] + b[0] * a[1:] + jnp.cross(a[1:], b[1:])])
+
+
+def _vee(m: Array) -> Array:
+    return jnp.stack([m[2, 1], m[0, 2], m[1, 0]])
+
+
+@dataclasses.dataclass(frozen=True)
+class Quadrotor(Plant):
+    """A quadrotor with a geometric attitude controller and rotor limits (paper eq. 1–3; module docstring)."""
+
+    vehicle: Vehicle = HUMMINGBIRD
+
+    gains: ClassVar[tuple[GainSpec, ...]] = (
+        GainSpec("att_omega", 15.0, low=0.0, low_open=True, unit="rad/s", symbol="ω_n", tunable=False,
+                 doc="natural frequency of the attitude loop"),
+        GainSpec("att_zeta", 0.9, low=0.0, low_open=True, symbol="ζ", tunable=False,
+                 doc="damping ratio of the attitude loop"),
+        GainSpec("motor_tau", 0.0125, low=0.0, unit="s", symbol="τ_m", tunable=False,
+                 doc="time constant of the rotors' first-order lag (0: none)"),
+        GainSpec("tilt_max", 35.0, low=0.0, high=90.0, low_open=True, high_open=True, unit="deg", symbol="θ_max",
+                 tunable=False, doc="largest tilt of the thrust axis the attitude setpoint may ask for"),
+    )
+
+    def init(self, start: Array, gains: Any, sim: Any) -> QuadrotorState:
+        dtype = start.dtype
+        hover = self.vehicle.mass * self.vehicle.gravity / 4
+        return QuadrotorState(start * FRAME.astype(dtype), jnp.zeros(3, dtype), jnp.array([1.0, 0.0, 0.0, 0.0], dtype),
+                              jnp.zeros(3, dtype), jnp.full((4,), hover, dtype))
+
+    def kinematics(self, state: QuadrotorState) -> Array:
+        frame = FRAME.astype(state.position.dtype)
+        return jnp.concatenate([state.position * frame, state.velocity * frame])
+
+    def linear_model(self, dt: float, dtype: Any) -> tuple[Array, Array]:
+        return discrete_matrices(dt, 1, dtype)
+
+    def thrust_setpoint(self, accel: Array, gains: Any) -> Array:
+        """``w``, the thrust per unit mass the body should produce along its ``-z`` for ``accel``
+        (paper frame), after the vertical floor and the tilt limit (module docstring, step 1)."""
+        g = self.vehicle.gravity
+        w = jnp.array([0.0, 0.0, g], accel.dtype) - accel
+        w_z = jnp.maximum(w[2], 0.2 * g)
+        horizontal = safe_norm(w[:2])
+        scale = jnp.minimum(1.0, jnp.tan(jnp.deg2rad(gains.tilt_max)) * w_z / horizontal)
+        return jnp.concatenate([w[:2] * scale, w_z[None]])
+
+    def step(self, state: QuadrotorState, accel: Array, disturbance: Array, gains: Any, sim: Any
+             ) -> tuple[QuadrotorState, dict[str, Array]]:
+        vehicle, dtype = self.vehicle, accel.dtype
+        frame = FRAME.astype(dtype)
+        h = sim.episode.dt / sim.vehicle.substeps
+        inertia = jnp.asarray(vehicle.inertia, dtype)
+        mix = jnp.asarray(vehicle.allocation(), dtype)
+        unmix = jnp.asarray(np.linalg.inv(vehicle.allocation()), dtype)
+        gravity = jnp.array([0.0, 0.0, vehicle.gravity], dtype)
+        push = disturbance * frame
+        w = self.thrust_setpoint(accel * frame, gains)
+        b3 = w / safe_norm(w)
+        b2 = jnp.cross(b3, jnp.array([1.0, 0.0, 0.0], dtype))
+        b2 = b2 / safe_norm(b2)
+        target = jnp.stack([jnp.cross(b2, b3), b2, b3], axis=1)  # R_d, zero yaw
+        k_r = inertia * gains.att_omega**2
+        k_w = inertia * 2 * gains.att_zeta * gains.att_omega
+        lag = jnp.where(gains.motor_tau > 0, jnp.exp(-h / jnp.maximum(gains.motor_tau, 1e-9)), 0.0)
+
+        def substep(s: QuadrotorState, _) -> tuple[QuadrotorState, tuple[Array, Array]]:
+            r = rotation(s.attitude)
+            e_r = 0.5 * _vee(target.T @ r - r.T @ target)
+            torque = -k_r * e_r - k_w * s.rates + jnp.cross(s.rates, inertia * s.rates)
+            thrust = vehicle.mass * jnp.dot(w, r[:, 2])
+            command = unmix @ jnp.concatenate([thrust[None], torque])
+            clipped = jnp.clip(command, 0.0, vehicle.f_max)
+            rotors = clipped + (s.rotors - clipped) * lag
+            wrench = mix @ rotors
+            rates = s.rates + h * (wrench[1:] - jnp.cross(s.rates, inertia * s.rates)) / inertia
+            half = 0.5 * h * rates
+            angle = safe_norm(half)
+            turn = jnp.concatenate([jnp.cos(angle)[None], half * (jnp.sin(angle) / angle)])
+            attitude = quaternion_product(s.attitude, turn)
+            attitude = attitude / safe_norm(attitude)
+            acc = gravity - (wrench[0] / vehicle.mass) * r[:, 2] + push
+            position = s.position + h * s.velocity + 0.5 * h * h * acc
+            velocity = s.velocity + h * acc
+            tilt = jnp.arctan2(safe_norm(r[:2, 2]), r[2, 2])
+            saturated = jnp.any(clipped != command)
+            return QuadrotorState(position, velocity, attitude, rates, rotors), (tilt, saturated)
+
+        state, (tilt, saturated) = jax.lax.scan(substep, state, None, length=sim.vehicle.substeps)
+        return state, {"tilt": jnp.max(tilt), "saturated_time": h * jnp.sum(saturated).astype(dtype)}
+
+
+register_plant("quadrotor", Quadrotor())
