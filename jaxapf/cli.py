@@ -1,6 +1,6 @@
 """The jaxapf command line: simulate, sweep, report, tune, compare, bench and list.
 
-Choices, gain flags and their help texts come from the registries (planners, filters, plants,
+Choices, gain flags and their help texts come from the registries (planners, filters, plants, sensors, disturbances,
 families, metrics, gains), so a registered component appears here with no edit. Configuration
 errors are reported as one line naming the field and its allowed range, with exit status 2.
 """
@@ -16,7 +16,7 @@ from typing import Sequence
 
 __all__ = ["main", "build_parser"]
 
-_LISTS = ("planners", "filters", "plants", "families", "metrics", "gains")
+_LISTS = ("planners", "filters", "plants", "sensors", "disturbances", "families", "metrics", "gains")
 #: What an interrupted command leaves behind, for the one line Ctrl-C prints.
 _KEPT = {
     "simulate": "no output was written (the files are written after the runs)",
@@ -66,9 +66,10 @@ def _gains(args: argparse.Namespace):
 def build_parser() -> argparse.ArgumentParser:
     from .config import CONVENTIONS, MPCConfig, SimConfig
     from .control import FILTERS
-    from .dynamics import PLANTS
+    from .dynamics import DISTURBANCES, PLANTS
     from .planners import PLANNERS
     from .scenarios import FAMILIES
+    from .sensing import SENSORS
 
     parser = argparse.ArgumentParser(prog="jaxapf", description=__doc__.splitlines()[0])
     parser.add_argument("--plugin", action="append", default=[], metavar="MODULE",
@@ -95,6 +96,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"safety filter between the MPC and the plant (default {defaults['filter']})")
     s.add_argument("--plant", default=defaults["plant"], choices=PLANTS.names(),
                    help=f"vehicle model (default {defaults['plant']})")
+    s.add_argument("--sensor", default=defaults["sensor"], choices=SENSORS.names(),
+                   help=f"what the stack sees of the world (default {defaults['sensor']})")
+    s.add_argument("--disturbance", default=defaults["disturbance"], choices=DISTURBANCES.names(),
+                   help=f"what acts on the plant besides the command (default {defaults['disturbance']})")
     s.add_argument("--convention", choices=CONVENTIONS, default=defaults["convention"],
                    help="sign convention of the direction and velocity weights (default intent)")
     s.add_argument("--dt", type=float, default=defaults["dt"], help=f"control step [s] (default {defaults['dt']:g})")
@@ -185,6 +190,15 @@ def build_parser() -> argparse.ArgumentParser:
                      help="split the fields over N devices (on CPU the host is split into N devices, as "
                           "`jaxapf sweep --devices` does; default 1)")
     eng.add_argument("--json", action="store_true", help="print one JSON object")
+    bwo = bsub.add_parser("world", help="what sensing, wind and the quadrotor cost per scenario-step, against the "
+                                        "ideal double integrator",
+                          description="Time the closed loop with each realistic-world component (noisy sensor, "
+                                      "wind, quadrotor plant) against the ideal world, interleaved in one run.")
+    bwo.add_argument("--fields", type=int, default=256, help="fields in the batch (default 256)")
+    bwo.add_argument("--steps", type=int, default=200, help="control steps per episode (default 200)")
+    bwo.add_argument("--substeps", type=int, default=10, help="quadrotor sub-steps per control step (default 10)")
+    bwo.add_argument("--repeats", type=int, default=3, help="timed runs of each variant, interleaved (default 3)")
+    bwo.add_argument("--json", action="store_true", help="print one JSON object")
     bsw = bsub.add_parser("sweep", help="streaming vs fixed-length engine, the whole sweep path, 2 CPU devices",
                           description="Time a sweep's episodes with the streaming and the fixed-length engine (bare "
                                       "evaluate calls, interleaved), the whole sweep end to end, and the sweep on "
@@ -251,8 +265,8 @@ def _simulate(args: argparse.Namespace) -> int:
     gains = _gains(args)
     check_writable(args.out)
     t_max = args.t_max if args.t_max is not None else family_params(args.family).t_max
-    sim = SimConfig.from_flat(method=args.methods[0], filter=args.filter, plant=args.plant,
-                              convention=args.convention, dt=args.dt, t_max=t_max)
+    sim = SimConfig.from_flat(method=args.methods[0], filter=args.filter, plant=args.plant, sensor=args.sensor,
+                              disturbance=args.disturbance, convention=args.convention, dt=args.dt, t_max=t_max)
     mpc = MPCConfig(horizon=args.horizon, iters=args.iters)
     start = time.perf_counter()
     field, runs, table = simulate_runs(args.family, args.seed, args.field, args.methods, gains, sim, mpc)
@@ -270,6 +284,13 @@ def _simulate(args: argparse.Namespace) -> int:
 def _bench(args: argparse.Namespace) -> int:
     from .validation import check_int
 
+    if args.bench == "world":
+        from .bench.world import format_world_benchmark, run_world_benchmark
+
+        result = run_world_benchmark(fields=args.fields, steps=args.steps, substeps=args.substeps,
+                                     repeats=args.repeats)
+        print(json.dumps(result, indent=2) if args.json else format_world_benchmark(result))
+        return 0
     if args.bench == "sweep":
         from .bench.sweep import format_sweep_benchmark, run_sweep_benchmark
         from .sweep import read_toml
@@ -398,19 +419,19 @@ def _sweep(args: argparse.Namespace) -> int:
 
 
 def _list(args: argparse.Namespace) -> int:
-    from .control import FILTERS
-    from .dynamics import PLANTS
+    from .components import COMPONENTS
     from .gains import GAINS
     from .metrics import METRICS
-    from .planners import PLANNERS
     from .scenarios import FAMILIES
 
-    registry = {"planners": PLANNERS, "filters": FILTERS, "plants": PLANTS, "families": FAMILIES, "metrics": METRICS,
-                "gains": GAINS}[args.what]
+    components = {"planners": "method", "filters": "filter", "plants": "plant", "sensors": "sensor",
+                  "disturbances": "disturbance"}
+    registry = ({name: COMPONENTS[key] for name, key in components.items()}
+                | {"families": FAMILIES, "metrics": METRICS, "gains": GAINS})[args.what]
     width = max(len(n) for n in registry.names())
     for name in registry.names():
         print(f"{name:<{width}}  {registry.describe(name)}")
-        if args.what in ("planners", "filters", "plants"):
+        if args.what in components:
             for gain in registry.get(name).gains:
                 print(f"{'':<{width}}    {gain.name}: {gain.doc}; default {gain.default:g}; {gain.range_text()}")
     return 0

@@ -19,6 +19,8 @@ CHECK = textwrap.dedent("""
     listing = io.StringIO()
     with contextlib.redirect_stdout(listing):
         assert main(["--plugin", plugin, "list", "planners"]) == 0
+        assert main(["--plugin", plugin, "list", "sensors"]) == 0
+        assert main(["--plugin", plugin, "list", "disturbances"]) == 0
     (root / "spec.toml").write_text(f'''
     name = "doc-example"
     plugins = ["{plugin}"]
@@ -28,12 +30,17 @@ CHECK = textwrap.dedent("""
     [sim]
     plant = "lagged"
     filter = "governor"
+    sensor = "flicker"
+    disturbance = "downdraft"
     t_max = 2.0
     horizon = 3
     iters = 3
     [grid]
     method = ["closing", "closing_damped", "smoothed_dv"]
     tau = [0.05, 0.2]
+    [gains]
+    flicker = 0.3
+    downdraft = 0.5
     ''')
     assert main(["sweep", str(root / "spec.toml"), "--out", str(root / "out.parquet"), "--quiet", "--no-cache"]) == 0
     rows = pd.concat([pd.read_parquet(p) for p in sorted((root / "out.parquet").glob("part-*.parquet"))])
@@ -57,10 +64,11 @@ def test_extending_examples_run_as_documented(tmp_path, repo_root):
                           text=True, timeout=540)
     assert proc.returncode == 0, proc.stderr[-3000:]
     out = json.loads(next(line for line in proc.stdout.splitlines() if line.startswith("RESULT "))[7:])
-    assert {"closing", "closing_damped", "smoothed_dv"} <= set(out["listing"].split())
+    assert {"closing", "closing_damped", "smoothed_dv", "flicker", "downdraft"} <= set(out["listing"].split())
     assert out["rows"] == 3 * 2 * 4 and out["finite"]
     assert out["methods"] == ["closing", "closing_damped", "smoothed_dv"]
-    for column in ("k_c", "b_damp", "alpha", "tau", "plant", "filter", "mean_speed"):
+    for column in ("k_c", "b_damp", "alpha", "tau", "plant", "filter", "sensor", "disturbance", "flicker",
+                   "downdraft", "mean_speed"):
         assert column in out["columns"], column
     assert out["lag_matters"]  # the plant's traced time constant reaches the episodes
 

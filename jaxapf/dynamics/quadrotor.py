@@ -119,7 +119,7 @@ def _vee(m: Array) -> Array:
 
 @dataclasses.dataclass(frozen=True)
 class Quadrotor(Plant):
-    """A quadrotor with a geometric attitude controller and rotor limits (paper eq. 1–3; module docstring)."""
+    """The paper's quadrotor (eq. 1–3): geometric attitude loop, rotor limits and lag, inner sub-steps."""
 
     vehicle: Vehicle = HUMMINGBIRD
 

@@ -72,7 +72,7 @@ class Calm(Disturbance):
 
 @dataclasses.dataclass(frozen=True)
 class Wind(Disturbance):
-    """A constant horizontal wind with Ornstein-Uhlenbeck gusts on every axis (module docstring)."""
+    """A constant horizontal wind with Ornstein-Uhlenbeck gusts on every axis, pushing through a linear drag."""
 
     gains: ClassVar[tuple[GainSpec, ...]] = (
         GainSpec("wind_speed", 0.0, low=0.0, unit="m/s", symbol="w̄", tunable=False,

@@ -82,3 +82,15 @@ def test_sweep_benchmark_times_the_sweep_against_bare_calls_on_the_same_work():
     text = format_sweep_benchmark(result)
     assert "sweep overhead" in text and "streaming engine:" in text and "engines agree" in text
     json.dumps(result)
+
+
+def test_world_benchmark_times_every_component_against_the_ideal_world(capsys):
+    """``jaxapf bench world`` at a tiny size: every variant compiled and timed, ratios against ``ideal``."""
+    from jaxapf.bench.world import VARIANTS, format_world_benchmark, run_world_benchmark
+
+    result = run_world_benchmark(fields=4, steps=3, horizon=3, iters=2, substeps=2, repeats=1)
+    assert set(result["variants"]) == set(VARIANTS)
+    assert result["variants"]["ideal"]["ratio"] == 1.0
+    for name, v in result["variants"].items():
+        assert v["run_s"] > 0 and v["us_per_scenario_step"] == pytest.approx(1e6 * v["run_s"] / 12), name
+    assert "quadrotor" in format_world_benchmark(result)

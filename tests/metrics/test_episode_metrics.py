@@ -115,7 +115,7 @@ def test_columns_and_dtypes():
         expected = {"bool": jnp.bool_, "int32": jnp.int32, "float": jnp.float32}[METRICS.get(name, "metric").dtype]
         assert v.dtype == expected, name
     counts = {n for n in METRICS.names() if METRICS.get(n, "metric").dtype == "int32"}
-    assert counts >= {"steps", "cbf_infeasible_steps"}
+    assert counts >= {"steps", "cbf_infeasible_steps", "unseen_steps"}
 
 
 def test_cbf_infeasible_steps_counts_flagged_steps_before_the_end():
@@ -129,6 +129,41 @@ def test_cbf_infeasible_steps_counts_flagged_steps_before_the_end():
     m = values(_metrics(flagged, sc, SIM))
     assert int(m["steps"]) == 8 and int(m["cbf_infeasible_steps"]) == 2
     assert int(values(_metrics(traj, sc, SIM))["cbf_infeasible_steps"]) == 0
+
+
+def test_world_diagnostics_count_only_before_the_end():
+    """Goal reached at sample 8: tilt, saturation and unseen obstacles after it do not count; with no
+    such diagnostics (the double integrator, the ideal sensor) the metrics are 0."""
+    sc = scenario([0, 0, 1], [2, 0, 1])
+    traj = trajectory(line([0, 0, 1], [2, 0, 0]), [2, 0, 0])
+    tilt, saturated, unseen = np.zeros(T), np.zeros(T), np.zeros(T, np.int32)
+    tilt[[2, 6, 20]] = np.deg2rad([10.0, 25.0, 60.0])
+    saturated[[1, 7, 9]] = [0.03, 0.02, 0.1]
+    unseen[[0, 5, 30]] = [2, 1, 3]
+    world = dataclasses.replace(traj, extras={"tilt": jnp.asarray(tilt, jnp.float32),
+                                              "saturated_time": jnp.asarray(saturated, jnp.float32),
+                                              "unseen_near": jnp.asarray(unseen)})
+    m = values(_metrics(world, sc, SIM))
+    np.testing.assert_allclose(m["max_tilt"], 25.0, **F32)
+    np.testing.assert_allclose(m["saturation_time"], 0.05, **F32)
+    assert int(m["unseen_steps"]) == 3
+    bare = values(_metrics(traj, sc, SIM))
+    assert bare["max_tilt"] == 0 and bare["saturation_time"] == 0 and int(bare["unseen_steps"]) == 0
+
+
+def test_tracking_errors_measure_the_realised_against_the_applied_acceleration():
+    """The applied control is 1 m/s² on x but the plant realised 1.5 m/s² on x and 0.2 m/s² on y:
+    the acceleration error is |(0.5, 0.2, 0)| on every step, one step misses by |(0.5, 0.2)| dt²/2; an
+    exact double integrator realises its command (both ~0)."""
+    sc = scenario([0, 0, 1], [100, 0, 1])
+    applied = np.tile([1.0, 0.0, 0.0], (T, 1))
+    exact = integrate([0, 0, 1], [0, 0, 0], applied)
+    m = values(_metrics(exact, sc, SIM))
+    assert m["accel_error_rms"] < 1e-3 and m["position_error_max"] < 1e-5
+    pushed = integrate([0, 0, 1], [0, 0, 0], applied + np.array([0.5, 0.2, 0.0]))
+    m = values(_metrics(dataclasses.replace(pushed, control=jnp.asarray(applied, jnp.float32)), sc, SIM))
+    np.testing.assert_allclose(m["accel_error_rms"], math.hypot(0.5, 0.2), rtol=1e-3)
+    np.testing.assert_allclose(m["position_error_max"], math.hypot(0.5, 0.2) * DT**2 / 2, rtol=2e-2)
 
 
 # --------------------------------------------------------------------------------------------
