@@ -32,11 +32,7 @@ if TYPE_CHECKING:
     from .datatypes import Scenario
     from .gains import Gains
 
-__all__ = ["Sensor", "Ideal", "NoisySensor", "SENSORS", "register_sensor", "SENSING", "SELF_SENSING"]
-
-#: Purposes folded into the field key (:func:`~jaxapf.datatypes.episode_key`): obstacle measurements
-#: and the UAV's own state estimate.
-SENSING, SELF_SENSING = 1, 2
+__all__ = ["Sensor", "Ideal", "NoisySensor", "SENSORS", "register_sensor"]
 
 
 class Sensor(abc.ABC):
@@ -128,7 +124,7 @@ class NoisySensor(Sensor):
     @staticmethod
     def _noise(scenario: "Scenario", j: Array, shape: tuple[int, int]) -> tuple[Array, Array, Array]:
         """Position noise, velocity noise (3, M) and the dropout uniforms (M,) of measurement ``j``."""
-        key = episode_key(scenario, SENSING, j)
+        key = episode_key(scenario, "sensing", j)
         normal_key, drop_key = jax.random.split(key)
         noise = jax.random.normal(normal_key, (2,) + shape, scenario.start.dtype)
         return noise[0], noise[1], jax.random.uniform(drop_key, shape[1:], scenario.start.dtype)
@@ -161,7 +157,7 @@ class NoisySensor(Sensor):
         position = jnp.where(detected, position, state["position"])
         velocity = jnp.where(detected, velocity, state["velocity"])
         seen = state["seen"] | detected
-        own = jax.random.normal(episode_key(scenario, SELF_SENSING, k), (6,), x.dtype)
+        own = jax.random.normal(episode_key(scenario, "self_sensing", k), (6,), x.dtype)
         estimate = x + own * jnp.repeat(jnp.stack([gains.sigma_self_p, gains.sigma_self_v]), 3).astype(x.dtype)
         truth_now = obstacles.position + obstacles.velocity * t_k
         near = _surface_distance(x[:3], truth_now, obstacles, sim.vehicle.r_uav) <= sim.metrics.d_sense

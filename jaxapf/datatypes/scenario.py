@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import zlib
 
 import jax
 import jax.numpy as jnp
@@ -38,10 +39,10 @@ class Scenario:
     key: Array | None = None
 
 
-def episode_key(scenario: Scenario, purpose: int, step: Array | int) -> Array:
-    """The PRNG key of ``purpose`` (one constant per consumer, e.g. sensing, wind) at control step
-    ``step`` (an integer, negative allowed) of an episode in ``scenario``:
-    ``fold_in(fold_in(field key, purpose), step)``."""
+def episode_key(scenario: Scenario, purpose: str, step: Array | int = 0) -> Array:
+    """The PRNG key of ``purpose`` (a name per consumer: ``"sensing"``, ``"wind"``, ...) at control
+    step ``step`` (an integer, negative allowed) of an episode in ``scenario``:
+    ``fold_in(fold_in(field key, crc32(purpose)), step)``. Distinct names give independent streams."""
     data = jax.random.key_data(jax.random.key(0)) if scenario.key is None else scenario.key
-    key = jax.random.fold_in(jax.random.wrap_key_data(data), purpose)
+    key = jax.random.fold_in(jax.random.wrap_key_data(data), zlib.crc32(purpose.encode()))
     return jax.random.fold_in(key, jax.lax.bitcast_convert_type(jnp.asarray(step, jnp.int32), jnp.uint32))

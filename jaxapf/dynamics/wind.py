@@ -37,10 +37,7 @@ if TYPE_CHECKING:
     from ..datatypes import Scenario
     from ..gains import Gains
 
-__all__ = ["Disturbance", "Calm", "Wind", "DISTURBANCES", "register_disturbance", "WIND"]
-
-#: The purpose folded into the field key for the gusts.
-WIND = 3
+__all__ = ["Disturbance", "Calm", "Wind", "DISTURBANCES", "register_disturbance"]
 
 
 class Disturbance(abc.ABC):
@@ -88,7 +85,7 @@ class Wind(Disturbance):
     )
 
     def _draw(self, scenario: "Scenario", k: Array) -> Array:
-        return jax.random.normal(episode_key(scenario, WIND, k), (3,), scenario.start.dtype)
+        return jax.random.normal(episode_key(scenario, "wind", k), (3,), scenario.start.dtype)
 
     def init(self, scenario: "Scenario", gains: "Gains", sim: "SimConfig") -> Array:
         return gains.gust_sigma * self._draw(scenario, -1)  # g_0 from the stationary law

@@ -10,15 +10,17 @@ through the episode, how long the UAV has been slow and what it is doing about i
   (and not escaping), an escape starts.
 - **Escape.** For ``t_escape`` seconds the wrapped planner is given a *virtual goal* instead of
   the real one: the point ``d_escape`` metres to the side of the UAV, perpendicular to the
-  horizontal direction to the goal, fixed when the escape starts. Escapes alternate sides, left
-  of the goal direction first, then right, and so on (a stall that survives one side tries the
-  other). Afterwards the real goal is restored, and detection starts afresh.
+  horizontal direction to the goal, fixed when the escape starts. The first escape's side (left
+  or right of the goal direction) is drawn at random, once per episode, from the field's key
+  (:func:`~jaxapf.datatypes.episode_key`, purpose ``"escape"``); later escapes alternate (a stall
+  that survives one side tries the other). Afterwards the real goal is restored, and detection
+  starts afresh.
 
-Virtual-goal escapes are a classical remedy for local minima of potential fields; the side is
-chosen deterministically (alternating) rather than at random, so an episode needs no random key
-and the same field always flies the same episode. Every quantity is a ``jnp.where`` of the state,
-so the planner jit-compiles, vmaps and differentiates (the switching times themselves carry no
-gradient).
+Virtual-goal escapes are a classical remedy for local minima of potential fields. The random
+first side keeps a symmetric trap from always being left the same way, and since it comes from the
+field's key, the same field always flies the same episode, whatever the gains or the batch (same
+seed, same numbers). Every quantity is a ``jnp.where`` of the state, so the planner jit-compiles,
+vmaps and differentiates (the switching times themselves carry no gradient).
 
 Registered planner: ``basic_escape`` = ``StallEscape(APF(Basic()))`` (gains ``t_detect``,
 ``t_escape``, ``d_escape`` and the basic potential's).
@@ -29,9 +31,11 @@ from __future__ import annotations
 import dataclasses
 from typing import TYPE_CHECKING, Any, NamedTuple
 
+import jax
 import jax.numpy as jnp
 from jax import Array
 
+from ..datatypes import episode_key
 from ..gains import GainSpec
 from .apf import APF
 from .base import Planner, register_planner
@@ -54,13 +58,15 @@ D_ESCAPE = GainSpec("d_escape", 4.0, low=0.0, low_open=True, unit="m",
 
 class EscapeState(NamedTuple):
     """What :class:`StallEscape` carries: the wrapped planner's state, seconds slow so far, seconds
-    of escape left, the virtual goal (3,) and the number of escapes started."""
+    of escape left, the virtual goal (3,), the number of escapes started and the first escape's
+    side (+1 left of the goal direction, -1 right)."""
 
     inner: Any
     slow: Array
     left: Array
     virtual_goal: Array
     escapes: Array
+    first_side: Array
 
 
 @dataclasses.dataclass(frozen=True)
@@ -83,8 +89,9 @@ class StallEscape(Planner):
 
     def init(self, scenario: "Scenario", gains: "Gains", sim: "SimConfig", horizon: int) -> EscapeState:
         zero = jnp.zeros((), scenario.start.dtype)
+        left_first = jax.random.bernoulli(episode_key(scenario, "escape"))
         return EscapeState(self.inner.init(scenario, gains, sim, horizon), zero, zero, scenario.goal,
-                           jnp.zeros((), jnp.int32))
+                           jnp.zeros((), jnp.int32), jnp.where(left_first, 1.0, -1.0).astype(zero.dtype))
 
     def reference(self, state: EscapeState, x: Array, t: Array, goal: Array, obstacles: "ObstacleColumns",
                   gains: "Gains", sim: "SimConfig", horizon: int) -> tuple[Array, EscapeState]:
@@ -94,22 +101,23 @@ class StallEscape(Planner):
         slow_now = (jnp.sum(v * v) < sim.metrics.v_stall ** 2) & far & (state.left <= 0.0)
         slow = jnp.where(slow_now, state.slow + dt, 0.0)
         start = slow >= gains.t_detect
-        # the virtual goal: d_escape to the left (even escapes) or right (odd) of the goal direction
+        # the virtual goal: d_escape to the first side (even escapes) or the other (odd) of the goal direction
         heading = jnp.stack([goal[0] - p[0], goal[1] - p[1]])
         length = jnp.sqrt(jnp.sum(heading * heading))
         heading = jnp.where(length > 1e-9, heading / jnp.where(length > 1e-9, length, 1.0),
                             jnp.asarray([1.0, 0.0], x.dtype))
-        side = jnp.where(state.escapes % 2 == 0, 1.0, -1.0).astype(x.dtype)
+        side = jnp.where(state.escapes % 2 == 0, 1.0, -1.0).astype(x.dtype) * state.first_side
         lateral = side * jnp.stack([-heading[1], heading[0], jnp.zeros((), x.dtype)])
         virtual_goal = jnp.where(start, p + gains.d_escape * lateral, state.virtual_goal)
         left = jnp.where(start, gains.t_escape, jnp.maximum(state.left - dt, 0.0))
         target = jnp.where(left > 0.0, virtual_goal, goal)
         ref, inner = self.inner.reference(state.inner, x, t, target, obstacles, gains, sim, horizon)
         return ref, EscapeState(inner, jnp.where(start, 0.0, slow), left, virtual_goal,
-                                state.escapes + start.astype(jnp.int32))
+                                state.escapes + start.astype(jnp.int32), state.first_side)
 
 
 register_planner("basic_escape", StallEscape(APF(Basic()), color="tab:olive", linestyle="--",
                                              description="basic potential field with stall escape: after t_detect "
                                                          "s slow far from the goal, a virtual goal d_escape to the "
-                                                         "side for t_escape s, sides alternating"))
+                                                         "side for t_escape s, the first side at random from "
+                                                         "the field's key, then alternating"))
