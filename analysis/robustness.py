@@ -15,12 +15,16 @@ padded to one count) in the ideal world and with one imperfection at a time:
   the linear drag 0.3 1/s (``disturbance = "wind"``);
 * the quadrotor plant (AscTec Hummingbird, geometric attitude loop, ``plant = "quadrotor"``).
 
+The ideal world and every sensing and wind level are one compiled program per method (the noisy
+sensor and the wind at the level's gains, zero for the others: at zero they pass the truth on and
+push with exactly 0); the quadrotor is a second.
+
 Every episode draws its noise and gusts from the field's key, so all methods and levels see the
 same draws (common random numbers). Rates come with Wilson intervals (95 %), clearance with a
 bootstrap interval of the mean; the verdict per method and condition against the same method in the
 ideal world is the exact McNemar test on the paired fields with the report's 2-point margin.
 
-    python analysis/robustness.py     # ~20 min on 2 cores (36 compiled programs, 36,288 episodes)
+    python analysis/robustness.py     # ~N min on 2 cores (36 compiled programs, 36,288 episodes)
 """
 
 from __future__ import annotations
@@ -38,16 +42,18 @@ SPEC = study.ROOT / "sweeps" / "planner-benchmark.toml"
 FIELDS, SEED = 48, 200
 #: The relevance margin of a change in success (the ``success`` metric's, 2 points).
 MARGIN = 0.02
-#: (axis, level, static settings, gains) of every world; levels of one static variant form one vmap.
-WORLDS = ([("ideal", "ideal", {}, {})]
-          + [("noise", f"σ = {s:g}", {"sensor": "noisy"}, {"sigma_obs_p": s, "sigma_obs_v": s})
-             for s in (0.1, 0.25, 0.5)]
-          + [("latency", f"{d:g} s", {"sensor": "noisy"}, {"latency": d}) for d in (0.1, 0.3, 0.6)]
-          + [("range", f"{r:g} m", {"sensor": "noisy"}, {"sense_range": r}) for r in (8.0, 4.0, 2.0)]
-          + [("wind", f"{w:g} m/s", {"disturbance": "wind"},
-              {"wind_speed": w, "wind_heading": 90.0, "gust_sigma": w / 2}) for w in (2.0, 4.0, 6.0)]
+#: The world of every level but the quadrotor: the noisy sensor and the wind, each at the level's
+#: gains (zero for the others). At zero levels both pass the truth on and push with exactly 0, so one
+#: compiled program flies the ideal world and every sensing and wind level as one vmap.
+WORLD = {"sensor": "noisy", "disturbance": "wind"}
+#: (axis, level, static settings, gains) of every world.
+WORLDS = ([("ideal", "ideal", WORLD, {})]
+          + [("noise", f"σ = {s:g}", WORLD, {"sigma_obs_p": s, "sigma_obs_v": s}) for s in (0.1, 0.25, 0.5)]
+          + [("latency", f"{d:g} s", WORLD, {"latency": d}) for d in (0.1, 0.3, 0.6)]
+          + [("range", f"{r:g} m", WORLD, {"sense_range": r}) for r in (8.0, 4.0, 2.0)]
+          + [("wind", f"{w:g} m/s", WORLD, {"wind_speed": w, "wind_heading": 90.0, "gust_sigma": w / 2})
+             for w in (2.0, 4.0, 6.0)]
           + [("quadrotor", "quadrotor", {"plant": "quadrotor"}, {})])
-
 
 def tuned_gains(method: str) -> dict[str, float]:
     """The gains study 11's seed-1 selection chose for ``method``."""
@@ -58,18 +64,26 @@ def tuned_gains(method: str) -> dict[str, float]:
     return {g: float(row[g]) for g in GAINS.names() if g in row and np.isfinite(row[g])}
 
 
-def fields(spec, count: int) -> tuple[object, np.ndarray]:
-    """The held-out fields of every test family, padded to one obstacle count, and each field's family."""
+def fields(spec, count: int) -> list[tuple[object, np.ndarray]]:
+    """The held-out fields of every test family and each field's family, in two groups: the families
+    with few obstacle slots, padded to their largest count, and the rest (the exact solvers' cost grows
+    steeply with the slots, so few-obstacle fields are not padded to many)."""
     from jaxapf.scenarios import make_scenarios
     from jaxapf.sweep.spec import spec_family_params
     from jaxapf.tune.train import pad_obstacles
 
-    batches = [make_scenarios(SEED, spec_family_params(f, spec.params.get(f, {})), count)
-               for f in spec.test.families]
-    slots = max(b.obstacles.size for b in batches)
-    batches = [pad_obstacles(b, slots) for b in batches]
-    merged = jax.tree_util.tree_map(lambda *x: np.concatenate(x), *batches)
-    return merged, np.repeat(np.asarray(spec.test.families), count)
+    batches = {f: make_scenarios(SEED, spec_family_params(f, spec.params.get(f, {})), count)
+               for f in spec.test.families}
+    groups = {}
+    for f, b in batches.items():
+        groups.setdefault(b.obstacles.size <= 5, []).append(f)
+    out = []
+    for members in groups.values():
+        slots = max(batches[f].obstacles.size for f in members)
+        merged = jax.tree_util.tree_map(lambda *x: np.concatenate(x),
+                                        *[pad_obstacles(batches[f], slots) for f in members])
+        out.append((merged, np.repeat(np.asarray(members), count)))
+    return out
 
 
 def run(spec, count: int) -> pd.DataFrame:
@@ -78,28 +92,28 @@ def run(spec, count: int) -> pd.DataFrame:
     from jaxapf.config import MPCConfig, SimConfig
     from jaxapf.rollout import evaluate
 
-    scenarios, family = fields(spec, count)
+    groups = fields(spec, count)
     mpc = MPCConfig()
     t_max = max(spec_t_max(spec, f) for f in spec.test.families)
+    variants: dict[tuple, list] = {}
+    for world in WORLDS:
+        variants.setdefault(tuple(sorted(world[2].items())), []).append(world)
     rows = []
     for method in spec.methods:
         planner, _, safety = method.partition("+")
         base = SimConfig.from_flat(method=planner, filter=safety or "none", t_max=t_max)
         tuned = tuned_gains(method)
-        variants: dict[tuple, list] = {}
-        for world in WORLDS:
-            variants.setdefault(tuple(sorted(world[2].items())), []).append(world)
         for static, worlds in variants.items():
             batch = jax.tree_util.tree_map(lambda *x: np.asarray(x, np.float32),
                                            *[Gains(**tuned, **w[3]) for w in worlds])
-            metrics = evaluate(scenarios, batch, base.replace(**dict(static)), mpc,
-                               metrics=("success", "collision", "stalled", "min_clearance", "time_to_goal",
-                                        "max_tilt", "accel_error_rms", "unseen_steps"))
-            metrics = jax.device_get(metrics)
-            for i, (axis, level, _, _) in enumerate(worlds):
-                frame = pd.DataFrame({k: np.asarray(v[i]) for k, v in metrics.items()})
-                rows.append(frame.assign(method=method, axis=axis, level=level, family=family,
-                                         field=np.arange(len(family))))
+            for scenarios, family in groups:
+                metrics = jax.device_get(evaluate(scenarios, batch, base.replace(**dict(static)), mpc, metrics=(
+                    "success", "collision", "stalled", "min_clearance", "time_to_goal", "final_distance", "max_tilt",
+                    "accel_error_rms", "unseen_steps")))
+                for i, (axis, level, _, _) in enumerate(worlds):
+                    frame = pd.DataFrame({k: np.asarray(v[i]) for k, v in metrics.items()})
+                    rows.append(frame.assign(method=method, axis=axis, level=level, family=family,
+                                             field=[f"{f}/{j % count}" for j, f in enumerate(family)]))
         print(f"  {method}: done", flush=True)
     return pd.concat(rows, ignore_index=True)
 
@@ -136,6 +150,7 @@ def summarise(df: pd.DataFrame, resamples: int) -> pd.DataFrame:
         row["max_tilt"] = float(g["max_tilt"].mean())
         row["accel_error_rms"] = float(g["accel_error_rms"].mean())
         row["unseen_steps"] = float(g["unseen_steps"].mean())
+        row["final_distance"] = float(g["final_distance"].median())
         base = ideal.loc[method].loc[g["field"]]["success"].to_numpy(bool)
         now = g["success"].to_numpy(bool)
         diff, lo, hi = paired_proportion_difference(now, base)
@@ -148,7 +163,8 @@ def summarise(df: pd.DataFrame, resamples: int) -> pd.DataFrame:
 
 
 def figure(summary: pd.DataFrame, path: pathlib.Path) -> None:
-    """Success and collision against each imperfection's level, one panel per axis, with Wilson intervals."""
+    """Success, collision and mean minimum clearance against each imperfection's level, one column per
+    axis, with Wilson (rates) and bootstrap (clearance) intervals; methods side by side at each level."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -156,42 +172,80 @@ def figure(summary: pd.DataFrame, path: pathlib.Path) -> None:
 
     axes_names = ["noise", "latency", "range", "wind", "quadrotor"]
     palette = plt.get_cmap("tab10").colors
-    colors = {m: palette[i % len(palette)] for i, m in enumerate(summary["method"].unique())}
-    fig, axes = plt.subplots(2, len(axes_names), figsize=(4.2 * len(axes_names), 7.5), sharey="row")
+    methods = list(summary["method"].unique())
+    colors = {m: palette[i % len(palette)] for i, m in enumerate(methods)}
+    rows = (("success", "success [%]", 100.0), ("collision", "collision [%]", 100.0),
+            ("min_clearance", "mean min. clearance [m]", 1.0))
+    fig, axes = plt.subplots(len(rows), len(axes_names), figsize=(4.2 * len(axes_names), 10), sharey="row")
     for col, axis in enumerate(axes_names):
-        for method, g in summary.groupby("method", sort=False):
-            ideal = g[g["axis"] == "ideal"]
-            part = pd.concat([ideal, g[g["axis"] == axis]])
-            x = np.arange(len(part))
-            for row, rate in enumerate(("success", "collision")):
+        for i, (method, g) in enumerate(summary.groupby("method", sort=False)):
+            part = pd.concat([g[g["axis"] == "ideal"], g[g["axis"] == axis]])
+            x = np.arange(len(part)) + 0.05 * (i - (len(methods) - 1) / 2)
+            for row, (name, label, scale) in enumerate(rows):
                 ax = axes[row, col]
-                ax.errorbar(x, 100 * part[rate], yerr=100 * np.abs(part[[f"{rate}_lo", f"{rate}_hi"]].to_numpy().T
-                                                                   - part[rate].to_numpy()),
-                            label=method, capsize=2, marker="o", ms=3, linestyle="--" if "+" in method else "-",
-                            color=colors[method])
-                ax.set_xticks(x, part["level"], rotation=20)
+                value = scale * part[name].to_numpy()
+                band = np.abs(scale * part[[f"{name}_lo", f"{name}_hi"]].to_numpy().T - value)
+                ax.errorbar(x, value, yerr=band, label=method, capsize=1.5, marker="o", ms=3, lw=1,
+                            linestyle="--" if "+" in method else "-", color=colors[method])
+                ax.set_xticks(np.arange(len(part)), part["level"], rotation=20)
+                ax.set_ylabel(label if col == 0 else "")
         axes[0, col].set_title(axis)
-    axes[0, 0].set_ylabel("success [%]")
-    axes[1, 0].set_ylabel("collision [%]")
     axes[0, -1].legend(fontsize=7, loc="lower left")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=100)
     plt.close(fig)
 
 
-def table(summary: pd.DataFrame) -> str:
-    """Markdown: success [Wilson] per method (rows) and world (columns), the verdict's mark."""
+def table(summary: pd.DataFrame, metric: str = "success") -> str:
+    """Markdown: ``metric`` in % per method (rows) and world (columns); for success the verdict's mark
+    against the same method in the ideal world (↓ worse, ↑ better, = equivalent within 2 points)."""
     mark = {"worse": " ↓", "better": " ↑", "equivalent": " =", "inconclusive": "", "—": ""}
     worlds = [f"{a}: {lv}" if a not in ("ideal", "quadrotor") else a for a, lv, _, _ in WORLDS]
-    head = "| method | " + " | ".join(worlds) + " |\n|---|" + "---|" * len(worlds)
-    lines = [head]
+    lines = ["| method | " + " | ".join(worlds) + " |", "|---|" + "---|" * len(worlds)]
     for method, g in summary.groupby("method", sort=False):
         cells = []
         for axis, level, _, _ in WORLDS:
             r = g[(g["axis"] == axis) & (g["level"] == level)].iloc[0]
-            cells.append(f"{100 * r['success']:.1f}{mark[r['verdict']]}")
+            cells.append(f"{100 * r[metric]:.1f}" + (mark[r["verdict"]] if metric == "success" else ""))
         lines.append(f"| {method} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def findings(summary: pd.DataFrame) -> list[str]:
+    """One sentence per imperfection at its strongest level, built from the summary: the change in
+    success of every method against its ideal world, the verdicts, the most and least affected."""
+    out = []
+    ideal = summary[summary["axis"] == "ideal"].set_index("method")
+    for axis, level in (("noise", WORLDS[3][1]), ("latency", WORLDS[6][1]), ("range", WORLDS[9][1]),
+                        ("wind", WORLDS[12][1]), ("quadrotor", "quadrotor")):
+        at = summary[(summary["axis"] == axis) & (summary["level"] == level)].set_index("method")
+        change = 100 * (at["success"] - ideal["success"])
+        collide = 100 * (at["collision"] - ideal["collision"])
+        worse = int((at["verdict"] == "worse").sum())
+        same = int((at["verdict"] == "equivalent").sum())
+        out.append(f"**{axis} ({level})**: success changes by {change.min():+.1f} to {change.max():+.1f} points "
+                   f"(most: `{change.idxmin()}`, least: `{change.idxmax()}`), collisions by {collide.min():+.1f} to "
+                   f"{collide.max():+.1f} points; *worse* than the ideal world for {worse} of {len(at)} methods, "
+                   f"*equivalent* for {same}.")
+    return out
+
+
+def write_readme(summary: pd.DataFrame, out: pathlib.Path, count: int) -> None:
+    n = int(summary["n"].iloc[0])
+    text = [f"# Study 12: robustness ({n} held-out fields per method and world)", "",
+            "`python analysis/robustness.py` (" + __doc__.split("\n")[0] + ")", "",
+            "Protocol: every method at the gains its seed-1 random search chose in study 11 (equal budgets), "
+            f"{count} fields of each of study 11's six test families (seed {SEED}), one imperfection at a time, "
+            "common random numbers. Verdicts: paired success against the same method in the ideal world, exact "
+            f"McNemar test and a {100 * MARGIN:g}-point equivalence margin.", "", "## Findings", ""]
+    text += [f"- {line}" for line in findings(summary)]
+    text += ["", "## Success [%] (↓ worse, ↑ better, = equivalent to the ideal world)", "", table(summary), "",
+             "## Collision [%]", "", table(summary, "collision"), "",
+             "![success, collision and clearance against each imperfection](robustness.png)", "",
+             "`summary.csv` has every rate with its Wilson interval, the mean minimum clearance with its "
+             "bootstrap interval, the paired change in success with its interval and p-value, and the mean "
+             "`unseen_steps`, `max_tilt` and `accel_error_rms` of every method and world."]
+    (out / "README.md").write_text("\n".join(text) + "\n")
 
 
 def main() -> None:
@@ -210,8 +264,8 @@ def main() -> None:
     summary = summarise(df, args.resamples)
     summary.to_csv(out / "summary.csv", index=False)
     figure(summary, out / "robustness.png")
-    (out / "table.md").write_text(table(summary) + "\n")
-    print(table(summary))
+    write_readme(summary, out, count)
+    print("\n".join(findings(summary)))
 
 
 if __name__ == "__main__":

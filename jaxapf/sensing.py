@@ -24,8 +24,9 @@ import jax.numpy as jnp
 from jax import Array
 
 from .datatypes import ObstacleColumns, episode_key, safe_norm
-from .gains import GainSpec, declare_gains
+from .gains import GainSpec
 from .registry import Registry
+from .stage import Stage, register_stage
 
 if TYPE_CHECKING:
     from .config import SimConfig
@@ -35,18 +36,8 @@ if TYPE_CHECKING:
 __all__ = ["Sensor", "Ideal", "NoisySensor", "SENSORS", "register_sensor"]
 
 
-class Sensor(abc.ABC):
-    """Maps the truth to what the stack sees. Subclasses are frozen dataclasses.
-
-    Attributes:
-      gains: the gains it reads (declared when it is registered).
-    """
-
-    gains: ClassVar[tuple[GainSpec, ...]] = ()
-
-    def init(self, scenario: "Scenario", gains: "Gains", sim: "SimConfig") -> Any:
-        """The sensor's state at the start of an episode (default: none)."""
-        return ()
+class Sensor(Stage, abc.ABC):
+    """Maps the truth to what the stack sees (a :class:`~jaxapf.stage.Stage`: gains, ``init``)."""
 
     @abc.abstractmethod
     def __call__(self, state: Any, x: Array, k: Array, scenario: "Scenario", obstacles: ObstacleColumns,
@@ -173,8 +164,7 @@ SENSORS: Registry[Sensor] = Registry("sensor")
 
 def register_sensor(name: str, sensor: Sensor, *, replace: bool = False) -> Sensor:
     """Register ``sensor`` as ``sensor = name`` and declare its gains."""
-    declare_gains(*sensor.gains)
-    return SENSORS.register(name, sensor, replace=replace)
+    return register_stage(SENSORS, name, sensor, replace=replace)
 
 
 register_sensor("ideal", Ideal())

@@ -14,33 +14,23 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any
 
 from jax import Array
 
-from ..gains import GainSpec, declare_gains
 from ..registry import Registry
+from ..stage import Stage, register_stage
 
 if TYPE_CHECKING:
     from ..config import SimConfig
-    from ..datatypes import ObstacleColumns, Scenario
+    from ..datatypes import ObstacleColumns
     from ..gains import Gains
 
 __all__ = ["SafetyFilter", "Passthrough", "FILTERS", "register_filter"]
 
 
-class SafetyFilter(abc.ABC):
-    """Maps the MPC's acceleration to the applied one. Subclasses are frozen dataclasses.
-
-    Attributes:
-      gains: the gains it reads (declared when it is registered).
-    """
-
-    gains: ClassVar[tuple[GainSpec, ...]] = ()
-
-    def init(self, scenario: "Scenario", gains: "Gains", sim: "SimConfig") -> Any:
-        """The filter's state at the start of an episode (default: none)."""
-        return ()
+class SafetyFilter(Stage, abc.ABC):
+    """Maps the MPC's acceleration to the applied one (a :class:`~jaxapf.stage.Stage`: gains, ``init``)."""
 
     @abc.abstractmethod
     def __call__(self, state: Any, accel: Array, x: Array, t: Array, obstacles: "ObstacleColumns", gains: "Gains",
@@ -64,8 +54,7 @@ FILTERS: Registry[SafetyFilter] = Registry("safety filter")
 
 def register_filter(name: str, safety_filter: SafetyFilter, *, replace: bool = False) -> SafetyFilter:
     """Register ``safety_filter`` as ``filter = name`` and declare its gains."""
-    declare_gains(*safety_filter.gains)
-    return FILTERS.register(name, safety_filter, replace=replace)
+    return register_stage(FILTERS, name, safety_filter, replace=replace)
 
 
 register_filter("none", Passthrough())

@@ -29,8 +29,9 @@ import jax.numpy as jnp
 from jax import Array
 
 from ..datatypes import episode_key
-from ..gains import GainSpec, declare_gains
+from ..gains import GainSpec
 from ..registry import Registry
+from ..stage import Stage, register_stage
 
 if TYPE_CHECKING:
     from ..config import SimConfig
@@ -40,18 +41,8 @@ if TYPE_CHECKING:
 __all__ = ["Disturbance", "Calm", "Wind", "DISTURBANCES", "register_disturbance"]
 
 
-class Disturbance(abc.ABC):
-    """An acceleration acting on the plant. Subclasses are frozen dataclasses.
-
-    Attributes:
-      gains: the gains it reads (declared when it is registered).
-    """
-
-    gains: ClassVar[tuple[GainSpec, ...]] = ()
-
-    def init(self, scenario: "Scenario", gains: "Gains", sim: "SimConfig") -> Any:
-        """The state at the start of an episode (default: none)."""
-        return ()
+class Disturbance(Stage, abc.ABC):
+    """An acceleration acting on the plant (a :class:`~jaxapf.stage.Stage`: gains, ``init``)."""
 
     @abc.abstractmethod
     def __call__(self, state: Any, k: Array, scenario: "Scenario", gains: "Gains",
@@ -105,8 +96,7 @@ DISTURBANCES: Registry[Disturbance] = Registry("disturbance")
 
 def register_disturbance(name: str, disturbance: Disturbance, *, replace: bool = False) -> Disturbance:
     """Register ``disturbance`` as ``disturbance = name`` and declare its gains."""
-    declare_gains(*disturbance.gains)
-    return DISTURBANCES.register(name, disturbance, replace=replace)
+    return register_stage(DISTURBANCES, name, disturbance, replace=replace)
 
 
 register_disturbance("none", Calm())
