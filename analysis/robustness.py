@@ -24,7 +24,7 @@ same draws (common random numbers). Rates come with Wilson intervals (95 %), cle
 bootstrap interval of the mean; the verdict per method and condition against the same method in the
 ideal world is the exact McNemar test on the paired fields with the report's 2-point margin.
 
-    python analysis/robustness.py     # ~N min on 2 cores (36 compiled programs, 36,288 episodes)
+    python analysis/robustness.py     # ~10.5 min on 2 cores (36 compiled programs, 36,288 episodes)
 """
 
 from __future__ import annotations
