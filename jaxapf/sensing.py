@@ -109,8 +109,19 @@ class NoisySensor(Sensor):
     def init(self, scenario: "Scenario", gains: "Gains", sim: "SimConfig") -> dict[str, Array]:
         obstacles = scenario.obstacles.columns()
         history = jnp.broadcast_to(scenario.start, (sim.world.max_latency + 1, 3))
-        return {"history": history, "position": obstacles.position, "velocity": jnp.zeros_like(obstacles.velocity),
-                "seen": jnp.zeros_like(obstacles.valid)}
+        state = {"history": history, "position": obstacles.position, "velocity": jnp.zeros_like(obstacles.velocity),
+                 "seen": jnp.zeros_like(obstacles.valid)}
+        if sim.world.velocity_estimate == "differenced":
+            # the latency is fixed for an episode, so step k measures j = k - d and the previous raw
+            # position noise is carried from step to step (one draw per step); before step 0: j = -d - 1
+            first = -self._delay(gains, sim) - 1
+            state["last_noise"] = self._noise(scenario, first, obstacles.position.shape)[0]
+        return state
+
+    @staticmethod
+    def _delay(gains: "Gains", sim: "SimConfig") -> Array:
+        """The latency in control steps, ``clip(round(latency/dt), 0, max_latency)``."""
+        return jnp.clip(jnp.round(gains.latency / sim.episode.dt), 0, sim.world.max_latency).astype(jnp.int32)
 
     @staticmethod
     def _noise(scenario: "Scenario", j: Array, shape: tuple[int, int]) -> tuple[Array, Array, Array]:
@@ -125,14 +136,16 @@ class NoisySensor(Sensor):
                  ) -> tuple[Array, ObstacleColumns, dict[str, Array], dict[str, Array]]:
         dt, longest = sim.episode.dt, sim.world.max_latency
         history = jnp.concatenate([state["history"][1:], x[None, :3]], axis=0)  # positions of steps k-L..k
-        d = jnp.clip(jnp.round(gains.latency / dt), 0, longest).astype(jnp.int32)
+        d = self._delay(gains, sim)
         j = k - d
         t_k = k.astype(x.dtype) * dt
         lag = -d.astype(x.dtype) * dt  # t_j - t_k
         shape = obstacles.position.shape
         noise_p, noise_v, drop = self._noise(scenario, j, shape)
+        carried = {}
         if sim.world.velocity_estimate == "differenced":
-            noise_v = (noise_p - self._noise(scenario, j - 1, shape)[0]) * (gains.sigma_obs_p / dt)
+            noise_v = (noise_p - state["last_noise"]) * (gains.sigma_obs_p / dt)
+            carried = {"last_noise": noise_p}
         else:
             noise_v = noise_v * gains.sigma_obs_v
         noise_p = noise_p * gains.sigma_obs_p
@@ -154,7 +167,7 @@ class NoisySensor(Sensor):
         near = _surface_distance(x[:3], truth_now, obstacles, sim.vehicle.r_uav) <= sim.metrics.d_sense
         unseen = jnp.sum(obstacles.valid & near & ~detected).astype(jnp.int32)
         observed = dataclasses.replace(obstacles, position=position, velocity=velocity, valid=obstacles.valid & seen)
-        next_state = {"history": history, "position": position, "velocity": velocity, "seen": seen}
+        next_state = {"history": history, "position": position, "velocity": velocity, "seen": seen, **carried}
         return estimate, observed, next_state, {"unseen_near": unseen}
 
 

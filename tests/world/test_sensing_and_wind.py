@@ -93,11 +93,12 @@ def test_position_and_velocity_noise_have_their_laws_and_are_independent_of_the_
     assert abs(errors_v.mean()) < 4 * sigma_v / np.sqrt(n) and abs(errors_v.std() / sigma_v - 1) < 0.05
 
 
-def test_a_differenced_velocity_is_the_finite_difference_of_consecutive_noisy_positions():
+@pytest.mark.parametrize("latency", [0.0, 0.3])
+def test_a_differenced_velocity_is_the_finite_difference_of_consecutive_noisy_positions(latency):
     sc = field()
     sigma = 0.05
     sim = SimConfig.from_flat(sensor="noisy", velocity_estimate="differenced")
-    _, seen, _ = observe(sc, Gains(sigma_obs_p=sigma), sim, 30)
+    _, seen, _ = observe(sc, Gains(sigma_obs_p=sigma, latency=latency), sim, 30)
     valid = np.asarray(sc.obstacles.valid)
     z = np.stack([np.asarray(centres(seen, k)) for k in range(30)])
     difference = (z[1:] - z[:-1]) / DT
