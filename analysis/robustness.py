@@ -222,8 +222,7 @@ def findings(summary: pd.DataFrame) -> list[str]:
     success of every method against its ideal world, the verdicts, the most and least affected."""
     out = []
     ideal = summary[summary["axis"] == "ideal"].set_index("method")
-    for axis, level in (("noise", WORLDS[3][1]), ("latency", WORLDS[6][1]), ("range", WORLDS[9][1]),
-                        ("wind", WORLDS[12][1]), ("quadrotor", "quadrotor")):
+    for axis, level in STRONGEST:
         at = summary[(summary["axis"] == axis) & (summary["level"] == level)].set_index("method")
         change = 100 * (at["success"] - ideal["success"])
         collide = 100 * (at["collision"] - ideal["collision"])
@@ -245,7 +244,28 @@ def findings(summary: pd.DataFrame) -> list[str]:
     return out
 
 
-def write_readme(summary: pd.DataFrame, out: pathlib.Path, count: int) -> None:
+#: The strongest level of every imperfection (the columns of the per-family table).
+STRONGEST = (("noise", WORLDS[3][1]), ("latency", WORLDS[6][1]), ("range", WORLDS[9][1]),
+             ("wind", WORLDS[12][1]), ("quadrotor", "quadrotor"))
+
+
+def family_table(df: pd.DataFrame) -> str:
+    """Markdown: per method and family, the change in success [points] against the same method in
+    the ideal world at each imperfection's strongest level (the pooled numbers hide opposite signs)."""
+    ideal = df[df["axis"] == "ideal"].groupby(["method", "family"], sort=False)["success"].mean()
+    families = list(dict.fromkeys(df["family"]))
+    lines = ["| method | " + " | ".join(families) + " |", "|---|" + "---|" * len(families)]
+    blocks = []
+    for axis, level in STRONGEST:
+        at = df[(df["axis"] == axis) & (df["level"] == level)].groupby(["method", "family"], sort=False)["success"]
+        change = 100 * (at.mean() - ideal)
+        rows = [f"| {m} | " + " | ".join(f"{change[(m, f)]:+.1f}" for f in families) + " |"
+                for m in dict.fromkeys(df["method"])]
+        blocks.append("\n".join([f"### {axis} ({level})", "", *lines, *rows]))
+    return "\n\n".join(blocks)
+
+
+def write_readme(summary: pd.DataFrame, df: pd.DataFrame, out: pathlib.Path, count: int) -> None:
     n = int(summary["n"].iloc[0])
     text = [f"# Study 12: robustness ({n} held-out fields per method and world)", "",
             "`python analysis/robustness.py` (" + __doc__.split("\n")[0] + ")", "",
@@ -256,6 +276,8 @@ def write_readme(summary: pd.DataFrame, out: pathlib.Path, count: int) -> None:
     text += [f"- {line}" for line in findings(summary)]
     text += ["", "## Success [%] (↓ worse, ↑ better, = equivalent to the ideal world)", "", table(summary), "",
              "## Collision [%]", "", table(summary, "collision"), "",
+             f"## Change in success per family [points] at each imperfection's strongest level ({count} fields per "
+             "family; the pooled numbers above hide changes of opposite sign)", "", family_table(df), "",
              "![success, collision and clearance against each imperfection](robustness.png)", "",
              "`summary.csv` has every rate with its Wilson interval, the mean minimum clearance with its "
              "bootstrap interval, the paired change in success with its interval and p-value, and the mean "
@@ -279,7 +301,7 @@ def main() -> None:
     summary = summarise(df, args.resamples)
     summary.to_csv(out / "summary.csv", index=False)
     figure(summary, out / "robustness.png")
-    write_readme(summary, out, count)
+    write_readme(summary, df, out, count)
     print("\n".join(findings(summary)))
 
 
