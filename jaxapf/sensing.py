@@ -23,8 +23,9 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from .datatypes import ObstacleColumns, episode_key, safe_norm
+from .datatypes import ObstacleColumns, episode_key
 from .gains import GainSpec
+from .planners.sight import line_of_sight, norm
 from .registry import Registry
 from .stage import Stage, register_stage
 
@@ -59,9 +60,7 @@ class Ideal(Sensor):
 
 def _surface_distance(p: Array, centres: Array, obstacles: ObstacleColumns, r_uav: float) -> Array:
     """Clearance (M,) of the UAV at ``p`` (3,) to the obstacles centred at ``centres`` (3, M) (SPEC 2)."""
-    rel = p[:, None] - centres
-    rel = rel.at[2].multiply(jnp.where(obstacles.cylinder, 0.0, 1.0).astype(rel.dtype))
-    return safe_norm(rel, axis=0) - obstacles.radius - r_uav
+    return norm(line_of_sight(p, centres, obstacles.cylinder)) - obstacles.radius - r_uav
 
 
 @dataclasses.dataclass(frozen=True)
