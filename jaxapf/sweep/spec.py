@@ -86,8 +86,6 @@ __all__ = [
     "read_toml",
 ]
 
-#: Static keys that name a registered component, and the registry that knows them.
-COMPONENT_KEYS = COMPONENTS
 #: MPC weights that take a number (same on x, y, z) or 3 numbers.
 AXIS_WEIGHT_KEYS: frozenset[str] = frozenset({"q_pos", "q_vel", "f_pos", "f_vel", "r"})
 
@@ -156,8 +154,8 @@ def check_value(where: str, key: str, value: Any) -> Any:
         value = float(value)
     elif kind == "weight":
         value = tuple(float(v) for v in value) if isinstance(value, list) else float(value)
-    if key in COMPONENT_KEYS:
-        COMPONENT_KEYS[key].get(value, where)
+    if key in COMPONENTS:
+        COMPONENTS[key].get(value, where)
     owner, prefix = ((Gains, "gains") if key in GAINS
                      else (SimConfig.from_flat, "sim") if key in SIM_KEYS else (MPCConfig, "mpc"))
     with warnings.catch_warnings(record=True) as caught:
@@ -347,14 +345,14 @@ class SweepSpec:
         return spec_family_params(family, self.params.get(family, {}))
 
     def components(self, key: str) -> tuple[str, ...]:
-        """The names the spec's settings give a component key (:data:`COMPONENT_KEYS`; its default if unnamed)."""
+        """The names the spec's settings give a component key (:data:`COMPONENTS`; its default if unnamed)."""
         default = SimConfig().flat()[key]
         return tuple(dict.fromkeys(dict(s.static).get(key, default) for s in self.settings()))
 
     def gain_columns(self) -> tuple[str, ...]:
         """The gains that get a column: those the spec's components (planners, filters, plants, sensors,
         disturbances) read, and any the spec names, in declaration order."""
-        read = {g.name for key, registry in COMPONENT_KEYS.items() for name in self.components(key)
+        read = {g.name for key, registry in COMPONENTS.items() for name in self.components(key)
                 for g in registry.get(name).gains}
         named = (set(self.gains) | {k for k, _ in self.grid} | {k for k, _ in self.random}
                  | {k for entry in self.explicit for k, _ in entry})
