@@ -149,13 +149,6 @@ def _spl(ctx: EpisodeContext) -> Array:
     return jnp.where(ctx.success, efficiency, 0.0)
 
 
-def _cbf_infeasible_steps(ctx: EpisodeContext) -> Array:
-    flags = ctx.traj.extras.get("cbf_infeasible")
-    if flags is None:
-        return jnp.zeros((), jnp.int32)
-    return jnp.sum(ctx.interval_valid & flags).astype(jnp.int32)
-
-
 def _extra_sum(ctx: EpisodeContext, name: str) -> Array:
     """Sum of the per-step diagnostic ``name`` over valid intervals; 0 if no component records it."""
     values = ctx.traj.extras.get(name)
@@ -224,7 +217,8 @@ for _metric in (
     Metric("spl", _spl, higher_is_better=True, report=True, margin=0.02,
            doc="success weighted by path length, S·L/max(path, L) (Anderson et al. 2018)"),
     Metric("steps", lambda ctx: ctx.end_index, dtype="int32", kind="count", doc="steps until the episode ended"),
-    Metric("cbf_infeasible_steps", _cbf_infeasible_steps, dtype="int32", kind="count", higher_is_better=False,
+    Metric("cbf_infeasible_steps", lambda ctx: _extra_sum(ctx, "cbf_infeasible"), dtype="int32", kind="count",
+           higher_is_better=False,
            doc="control steps at which the CBF filter's constraints and the acceleration box could not all hold"),
     Metric("max_tilt", _max_tilt, unit="deg", higher_is_better=False, margin=2.0,
            doc="largest tilt of the thrust axis (a plant with attitude; 0 otherwise)"),
