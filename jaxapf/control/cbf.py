@@ -42,7 +42,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from ..gains import GainSpec
-from ..planners.sight import dot, line_of_sight
+from ..planners.sight import dot, line_of_sight, norm
 from ..projection import nearest_feasible
 from .filters import SafetyFilter, register_filter
 
@@ -74,7 +74,7 @@ def cbf_constraints(x: Array, t: Array, obstacles: "ObstacleColumns", gains: "Ga
     big_r = obstacles.radius + sim.vehicle.r_uav
     h = dot(s, s) - big_r * big_r
     b = -2.0 * dot(u, u) - 2.0 * gains.cbf_k1 * dot(s, u) - gains.cbf_k0 * h
-    length = 2.0 * jnp.sqrt(jnp.maximum(dot(s, s), 1e-12))
+    length = 2.0 * norm(s)
     g = -2.0 * jnp.stack(s, axis=-1) / length[:, None]
     valid = obstacles.valid
     return jnp.where(valid[:, None], g, 0.0), jnp.where(valid, b / length, -1.0)
