@@ -9,18 +9,24 @@ of sight :math:`s_o = P(p_o - p)_{xy}` and basic repulsive force
 
 .. math::
    T_{vortex} = k_v \sum_o \sigma_o\, R(-90°)\, F_{o,xy}, \qquad
-   \sigma_o = \begin{cases} +1 & (s_o \times (g - p))_z \ge 0 \\ -1 & \text{otherwise} \end{cases}
+   \sigma_o = \begin{cases} +1 & (s_o \times w_o)_z \ge 0 \\ -1 & \text{otherwise} \end{cases},
+   \qquad w_o = v_{max} \frac{g - p}{|g - p|} - v_o
 
 so each term has the repulsion's magnitude times ``k_v``, is perpendicular to it, and turns the
-UAV toward the side of the line of sight on which the goal lies (``σ = +1``: the goal is to the
-left of ``s_o``, the term points along :math:`R(+90°)\hat s_o`, counter-clockwise around the
-obstacle). **Side rule:** the side is a function of the current geometry only (no memory): it
-changes exactly when the goal crosses the line of sight to that obstacle, and a goal exactly on
-the line counts as left. A UAV that has started to pass on one side keeps seeing the goal on that
-side, so the rule does not chatter away from the line itself. The term has no z component, so it
-acts in the plane the paper's scenarios fly in; it is added to the flow's force at every
-prediction point (:class:`~jaxapf.planners.apf.ForceTerm`), obstacles extrapolated like the
-repulsion's.
+UAV toward the side of the line of sight on which its preferred relative motion ``w_o`` passes
+(``σ = +1``: ``w_o`` points left of ``s_o``, the term points along :math:`R(+90°)\hat s_o`,
+counter-clockwise around the obstacle). ``w_o`` is the velocity the UAV wants (``v_max`` toward
+the goal, the flow's saturated speed) seen from the obstacle, so **the side rule** is the goal's
+side of the line of sight in the obstacle's frame: for a static obstacle it is exactly the goal's
+side (De Luca and Oriolo's rule), for a moving one the side on which the relative motion already
+passes, as the dynamic-obstacle vortex fields choose it (the rotation follows the relative
+velocity). Taking the goal's side in the world frame instead sends the UAV *into* an obstacle
+that comes from behind: its line of sight points away from the goal, so the goal's side of it is
+the obstacle's own lateral side. The side is a function of the current geometry only (no
+memory) and does not depend on the UAV's own velocity, so it does not chatter as the UAV turns;
+``w_o`` exactly on the line counts as left. The term has no z component, so it acts in the plane
+the paper's scenarios fly in; it is added to the flow's force at every prediction point
+(:class:`~jaxapf.planners.apf.ForceTerm`), obstacles extrapolated like the repulsion's.
 
 Registered planner: ``vortex`` = ``APF(Basic(), terms=(Vortex(),))`` (gains ``k_v`` and the basic
 potential's).
@@ -53,16 +59,16 @@ K_V = GainSpec("k_v", 1.0, low=0.0, symbol="k_v",
                doc="vortex gain: the tangential force is k_v times the repulsion's horizontal magnitude")
 
 
-def vortex_side(s_x: Array, s_y: Array, to_goal: Array) -> Array:
-    """σ per obstacle: +1 where the goal lies left of (or on) the horizontal line of sight
-    ``(s_x, s_y)``, -1 where it lies right (module docstring)."""
-    cross = s_x * to_goal[1] - s_y * to_goal[0]
+def vortex_side(s_x: Array, s_y: Array, w_x: Array, w_y: Array) -> Array:
+    """σ per obstacle: +1 where the preferred relative velocity ``(w_x, w_y)`` points left of (or
+    along) the horizontal line of sight ``(s_x, s_y)``, -1 where it points right (module docstring)."""
+    cross = s_x * w_y - s_y * w_x
     return jnp.where(cross >= 0.0, 1.0, -1.0).astype(s_x.dtype)
 
 
 @dataclasses.dataclass(frozen=True)
 class Vortex(ForceTerm):
-    """The repulsion turned by 90° toward the goal's side of each obstacle (module docstring)."""
+    """The repulsion turned by 90° toward the side the preferred relative motion passes (module docstring)."""
 
     gains: ClassVar[tuple[GainSpec, ...]] = (K_V,)
 
@@ -76,7 +82,10 @@ class Vortex(ForceTerm):
         slope = jax.grad(lambda d: jnp.sum(repulsive_potential(d, gains.k_rep, gains.d_s, sim.planner.d_min)))(
             clearance)
         magnitude = jnp.where(obstacles.valid, -slope, 0.0) / dist  # |F_o| / |s|, >= 0
-        side = vortex_side(s[0], s[1], goal - p)
+        to_goal = goal - p
+        preferred = sim.vehicle.v_max * to_goal / norm(to_goal)
+        w = preferred[:2, None] - obstacles.velocity[:2]  # the preferred velocity seen from each obstacle
+        side = vortex_side(s[0], s[1], w[0], w[1])
         # σ R(-90°) F_xy = σ |F| R(+90°) ŝ_xy = σ |F| (-ŝ_y, ŝ_x)
         fx = jnp.sum(side * magnitude * -s[1])
         fy = jnp.sum(side * magnitude * s[0])
@@ -85,4 +94,4 @@ class Vortex(ForceTerm):
 
 register_planner("vortex", APF(Basic(), terms=(Vortex(),), color="tab:green", linestyle="-.",
                                description="basic potential field plus a vortex: the repulsion turned 90° toward "
-                                           "the goal's side of each obstacle (De Luca & Oriolo 1994)"))
+                                           "the side the preferred relative motion passes each obstacle (De Luca & Oriolo 1994)"))
