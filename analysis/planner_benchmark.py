@@ -1,7 +1,7 @@
 """Study 11: every planner, and the CBF safety filter, at its tuned best on the same held-out fields.
 
 ``jaxapf compare sweeps/planner-benchmark.toml``: the paper's three weightings, ``vortex``,
-``ge_cui``, ``basic_escape``, ``velocity_obstacle``, and ``basic`` and ``direction_velocity`` under
+``ge_cui_bounded``, ``basic_escape``, ``velocity_obstacle``, and ``basic`` and ``direction_velocity`` under
 the CBF filter (``+cbf``). For each of three selection seeds every method's gains (those it reads,
 the filter's included) are chosen by a random search with the same budget (16 candidates × 32
 training fields = 512 episode rollouts per method and seed); then every method at its defaults and

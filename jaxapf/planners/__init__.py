@@ -7,7 +7,7 @@
 :mod:`.potentials`        attractive and weighted repulsive potentials and their forces
 :mod:`.sight`             the line of sight, component by component
 :mod:`.vortex`            a vortex force term (:class:`Vortex`) and the ``vortex`` planner
-:mod:`.goal_distance`     Ge–Cui's goal-distance weight (:class:`GoalDistance`), planner ``ge_cui``
+:mod:`.goal_distance`     Ge–Cui's goal-distance weight (:class:`GoalDistance`), planner ``ge_cui_bounded``
 :mod:`.escape`            stall escape toward a virtual goal (:class:`StallEscape`), planner ``basic_escape``
 :mod:`.velocity_obstacle` velocity obstacles, ORCA (:class:`VelocityObstacle`), planner ``velocity_obstacle``
 ========================  =================================================================

@@ -20,7 +20,8 @@ altogether. As for every weight, the force is :math:`-\nabla_p(\omega U_{rep})` 
 so it has Ge and Cui's second component (pointing at the goal, from :math:`U_{rep}\nabla\omega`).
 ``n = 0`` gives the basic planner's episodes (to float rounding: the program differs).
 
-Registered planner: ``ge_cui`` (gains ``n_g`` and the basic potential's).
+Registered planner: ``ge_cui_bounded`` (gains ``n_g`` and the basic potential's): a *variant* of Ge
+and Cui's planner, and named so, because ω is not their :math:`\rho_g^n`.
 """
 
 from __future__ import annotations
@@ -67,6 +68,6 @@ class GoalDistance(Weight):
         return jnp.ones((), jnp.result_type(float))
 
 
-register_weight("ge_cui", GoalDistance(), color="tab:brown", linestyle="--",
-                description="Ge–Cui: the basic repulsion scaled by (ρ_g²/(ρ_g² + d_s²))^(n/2), vanishing at the "
-                            "goal (Ge & Cui 2000)")
+register_weight("ge_cui_bounded", GoalDistance(), color="tab:brown", linestyle="--",
+                description="bounded variant of Ge–Cui: the basic repulsion scaled by (ρ_g²/(ρ_g² + d_s²))^(n/2), "
+                            "vanishing at the goal (after Ge & Cui 2000)")

@@ -93,5 +93,6 @@ class Vortex(ForceTerm):
 
 
 register_planner("vortex", APF(Basic(), terms=(Vortex(),), color="tab:green", linestyle="-.",
-                               description="basic potential field plus a vortex: the repulsion turned 90° toward "
-                                           "the side the preferred relative motion passes each obstacle (De Luca & Oriolo 1994)"))
+                               description="basic potential field plus a vortex: the repulsion turned 90° toward the "
+                                           "side the preferred relative motion passes each obstacle (De Luca & Oriolo "
+                                           "1994)"))

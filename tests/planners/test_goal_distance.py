@@ -1,4 +1,4 @@
-"""Ge–Cui's goal-distance weight and the ``ge_cui`` planner (jaxapf.planners.goal_distance)."""
+"""Ge–Cui's goal-distance weight and the ``ge_cui_bounded`` planner (jaxapf.planners.goal_distance)."""
 
 import jax
 import jax.numpy as jnp
@@ -16,10 +16,10 @@ from jaxapf.planners.potentials import total_force
 from jaxapf.rollout import rollout
 
 GAINS = Gains(n_g=1.5, k_rep=8.0, d_s=3.5, k_att=1.2)
-SIM = SimConfig.from_flat(method="ge_cui")
+SIM = SimConfig.from_flat(method="ge_cui_bounded")
 
 
-def _force(p, goal, field, gains, method="ge_cui"):
+def _force(p, goal, field, gains, method="ge_cui_bounded"):
     sim = SimConfig.from_flat(method=method)
     return total_force(p, jnp.zeros(3), 0.0, goal, field.obstacles, gains, method=method, convention="intent",
                        r_uav=sim.vehicle.r_uav, d_min=sim.planner.d_min, eps_v=sim.planner.eps_v)
@@ -71,7 +71,7 @@ def test_the_repulsion_vanishes_at_the_goal():
 def test_omega_lies_in_its_bounds_and_tends_to_one_far_away(rho, n_g):
     from jaxapf.planners.sight import Sight
 
-    weight = WEIGHTS.get("ge_cui")
+    weight = WEIGHTS.get("ge_cui_bounded")
     gains = Gains(n_g=n_g)
     sight = Sight(s=(jnp.ones(()),) * 3, v=jnp.zeros(3), v_o=jnp.zeros(3), p=jnp.asarray([rho, 0.0, 0.0]),
                   goal=jnp.zeros(3))
@@ -83,8 +83,8 @@ def test_omega_lies_in_its_bounds_and_tends_to_one_far_away(rho, n_g):
 
 
 def test_n_zero_is_the_basic_planner_to_rounding():
-    sim, basic, mpc = (SimConfig.from_flat(method="ge_cui", t_max=3.0), SimConfig.from_flat(method="basic", t_max=3.0),
-                       MPCConfig(horizon=6, iters=10))
+    sim, basic, mpc = (SimConfig.from_flat(method="ge_cui_bounded", t_max=3.0),
+                       SimConfig.from_flat(method="basic", t_max=3.0), MPCConfig(horizon=6, iters=10))
     field = three_obstacle_field(jnp, jnp.float32)
     run = jax.jit(rollout, static_argnums=(2, 3))
     np.testing.assert_allclose(np.asarray(run(field, Gains(n_g=0.0), sim, mpc).position),
@@ -95,11 +95,11 @@ def test_n_zero_is_the_basic_planner_to_rounding():
 
 def test_the_ge_cui_planner_reaches_a_goal_next_to_an_obstacle():
     """GNRON: a goal 1 m in front of a cylinder. The basic field settles short of it; Ge–Cui arrives."""
-    outcome = outcomes(one_obstacle_scenario(10.0, 12.0, 1.0), ("basic", "ge_cui"))
+    outcome = outcomes(one_obstacle_scenario(10.0, 12.0, 1.0), ("basic", "ge_cui_bounded"))
     assert outcome["basic"] == {"success": False, "collision": False, "stalled": True}
-    assert outcome["ge_cui"] == {"success": True, "collision": False, "stalled": False}
+    assert outcome["ge_cui_bounded"] == {"success": True, "collision": False, "stalled": False}
 
 
 def test_registered_with_its_gain():
-    assert [g.name for g in PLANNERS.get("ge_cui").gains] == ["n_g", "k_rep", "d_s", "k_att", "eta"]
+    assert [g.name for g in PLANNERS.get("ge_cui_bounded").gains] == ["n_g", "k_rep", "d_s", "k_att", "eta"]
     assert Gains().n_g == 2.0
