@@ -131,10 +131,8 @@ def paired(episodes: pd.DataFrame, a: str, b: str, families: list[str]) -> pd.Da
                      "difference": diff, "lo": lo, "hi": hi, "wins": test.b, "losses": test.c, "p": test.pvalue,
                      "p_equivalence": stats.equivalence_test(x, y, MARGIN, kind="rate").p})
     table = pd.DataFrame(rows)
-    table["p_holm"] = stats.holm(table.p.to_numpy())
-    table["p_equivalence_holm"] = stats.holm(table.p_equivalence.to_numpy())
-    table["verdict"] = [stats.verdict(r.lo, r.hi, r.p_holm, r.p_equivalence_holm, MARGIN, True)
-                        for r in table.itertuples()]
+    table["p_holm"], table["p_equivalence_holm"], table["verdict"] = stats.verdicts(
+        table.lo, table.hi, table.p, table.p_equivalence, MARGIN, True)
     return table
 
 

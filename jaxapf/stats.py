@@ -18,6 +18,7 @@ function                               what
 :func:`hodges_lehmann_paired`          Hodges–Lehmann paired shift, signed-rank (Walsh average) CI
 :func:`equivalence_test`               two one-sided tests (TOST) of ``|Δ| < margin``, rates or shifts
 :func:`verdict`                        better / worse / equivalent / inconclusive, weighing relevance
+:func:`verdicts`                       a study's verdicts: Holm on both tests, then :func:`verdict`
 :func:`minimum_detectable_difference`  smallest difference the paired test detects (power 0.8)
 :func:`holm`                           Holm step-down adjusted p-values
 :func:`performance_profile`            fraction of values above each threshold τ
@@ -53,7 +54,9 @@ __all__ = [
     "EquivalenceResult",
     "equivalence_test",
     "VERDICTS",
+    "VERDICT_RULE",
     "verdict",
+    "verdicts",
     "minimum_detectable_difference",
     "holm",
     "performance_profile",
@@ -701,6 +704,13 @@ def equivalence_test(x, y, margin: float, *, kind: str, confidence: float = 0.95
 #: The four verdicts of :func:`verdict`.
 VERDICTS = ("better", "worse", "equivalent", "inconclusive")
 
+#: The rule of :func:`verdict` in one sentence, for every report and study that prints verdicts.
+VERDICT_RULE = ("verdict: equivalent when the Holm-adjusted equivalence test (TOST within the margin) rejects; "
+                "otherwise better or worse when the Holm-adjusted difference test is significant and the "
+                "difference's 95 % interval excludes 0 on that side (the estimate may still be smaller than the "
+                "margin: relevance is then not shown either way); inconclusive otherwise. Holm runs over every "
+                "comparison of the study, separately for the difference and the equivalence tests")
+
 
 def verdict(lo: float, hi: float, p_difference: float, p_equivalence: float, margin: float,
             higher_is_better: bool, alpha: float = 0.05) -> str:
@@ -709,34 +719,37 @@ def verdict(lo: float, hi: float, p_difference: float, p_equivalence: float, mar
     Args:
       lo, hi: confidence interval of the difference ``Δ = x - y`` (e.g. of
         :func:`paired_proportion_difference` or :func:`hodges_lehmann_paired`).
-      p_difference: p-value of the test of ``Δ = 0`` (McNemar / Wilcoxon), after whatever
-        multiplicity adjustment the caller applies (e.g. :func:`holm`).
-      p_equivalence: TOST p-value of ``|Δ| < margin`` (:func:`equivalence_test`).
+      p_difference: p-value of the test of ``Δ = 0`` (McNemar / Wilcoxon), *adjusted* for the
+        study's multiplicity (:func:`verdicts` does both adjustments).
+      p_equivalence: TOST p-value of ``|Δ| < margin`` (:func:`equivalence_test`), adjusted alike.
       margin: the smallest difference that matters (>= 0; 0 switches relevance off).
       higher_is_better: direction of the metric (``collision``: False).
       alpha: level of both tests.
 
-    Rule, with "up" meaning better for x (the interval is mirrored when lower is better):
+    Rule (:data:`VERDICT_RULE`), with "up" meaning better for x (the interval is mirrored when
+    lower is better):
 
-    * **irrelevant** when the equivalence test rejects (``p_equivalence <= alpha``) or the
-      whole interval lies inside ``(-margin, margin)``;
-    * **"better"** / **"worse"** when the difference test is significant
-      (``p_difference <= alpha``) *and* the whole interval lies beyond 0 in that direction,
-      unless irrelevant: a significant but irrelevant difference is **"equivalent"**;
-    * otherwise **"equivalent"** when irrelevant, and **"inconclusive"** when neither.
+    * **"equivalent"** when the equivalence test rejects (``p_equivalence <= alpha``), whether or
+      not the difference test is significant: a real but irrelevant difference is equivalent;
+    * otherwise **"better"** / **"worse"** when the difference test is significant
+      (``p_difference <= alpha``) *and* the whole interval lies beyond 0 in that direction;
+    * otherwise **"inconclusive"**.
+
+    Both relevance and direction rest on multiplicity-adjusted tests, so "equivalent" carries the
+    same family-wise error control as "better" and "worse". An interval inside the margin is *not*
+    taken as equivalence by itself: the interval is unadjusted, and at the study's multiplicity
+    it would claim equivalence more easily than the adjusted tests claim a difference.
 
     Why "better" needs the interval beyond 0 and not beyond the margin: the verdict states the
-    *direction* the data establish; relevance only overrides it when the data establish that
-    the difference is too small to matter (the confidence-interval criterion of equivalence
-    trials, e.g. ICH E9 / Schuirmann: the interval within the margin). Requiring the whole
-    interval beyond the margin would test superiority *by* the margin, a stronger question
-    that leaves most real improvements "inconclusive"; requiring only the point estimate beyond
-    the margin would let noise decide. A significant difference whose interval straddles the
-    margin is therefore "better" (established direction, relevance not excluded), and the
-    interval in the report shows how large it may be. Both the p-value and the interval are
-    required so that the verdict never contradicts the interval shown next to it (the exact
-    McNemar test and the score interval can disagree at the edge). NaN inputs count as "not
-    significant" / "not inside", so a comparison without pairs is "inconclusive".
+    *direction* the data establish; relevance overrides it only when the data establish that
+    the difference is too small to matter (the equivalence-trial criterion, Schuirmann 1987).
+    Requiring the whole interval beyond the margin would test superiority *by* the margin, a
+    stronger question that leaves most real improvements "inconclusive". A "better" difference
+    may therefore be smaller than the margin; the interval in the report shows how large it may
+    be. Both the p-value and the interval are required so that the verdict never contradicts
+    the interval shown next to it (the exact McNemar test and the score interval can disagree at
+    the edge). NaN inputs count as "not significant", so a comparison without pairs is
+    "inconclusive".
     """
     if not 0.0 < alpha < 1.0:
         raise ValueError(f"alpha = {alpha!r} must lie strictly between 0 and 1")
@@ -746,12 +759,31 @@ def verdict(lo: float, hi: float, p_difference: float, p_equivalence: float, mar
         raise ValueError(f"interval ({lo!r}, {hi!r}) has lower > upper")
     if not higher_is_better:
         lo, hi = -hi, -lo
-    irrelevant = bool(p_equivalence <= alpha) or bool(-margin < lo and hi < margin)
+    if margin > 0 and p_equivalence <= alpha:
+        return "equivalent"
     if p_difference <= alpha and (lo > 0 or hi < 0):
-        if irrelevant:
-            return "equivalent"
         return "better" if lo > 0 else "worse"
-    return "equivalent" if irrelevant else "inconclusive"
+    return "inconclusive"
+
+
+def verdicts(lo, hi, p_difference, p_equivalence, margin, higher_is_better,
+             alpha: float = 0.05) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """The verdicts of a whole study: Holm over all its comparisons, then :func:`verdict` per row.
+
+    Every study and report calls this one function, so every claim (better, worse and equivalent
+    alike) gets the same correction. The arguments are sequences over the study's comparisons
+    (``margin`` and ``higher_is_better`` may be scalars); NaN p-values do not count in Holm's
+    ``m`` and give "inconclusive". Returns ``(p_holm, p_equivalence_holm, verdicts)``.
+    """
+    p_holm = holm(np.asarray(p_difference, np.float64))
+    p_eq_holm = holm(np.asarray(p_equivalence, np.float64))
+    n = p_holm.size
+    lo, hi = np.broadcast_to(np.asarray(lo, np.float64), (n,)), np.broadcast_to(np.asarray(hi, np.float64), (n,))
+    margin = np.broadcast_to(np.nan_to_num(np.asarray(margin, np.float64), nan=0.0), (n,))
+    up = np.broadcast_to(np.asarray(higher_is_better, bool), (n,))
+    out = [verdict(float(a), float(b), float(p), float(q), float(m), bool(u), alpha)
+           for a, b, p, q, m, u in zip(lo, hi, p_holm, p_eq_holm, margin, up)]
+    return p_holm, p_eq_holm, out
 
 
 def minimum_detectable_difference(x, y, *, kind: str, alpha: float = 0.05, power: float = 0.8) -> float:

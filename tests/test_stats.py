@@ -528,6 +528,24 @@ def test_equivalence_continuous_agrees_with_hodges_lehmann_interval():
         assert res.equivalent == (-margin < lo and hi < margin)
 
 
+def test_verdicts_adjust_both_tests_alike_over_the_study():
+    """Three comparisons: a clear difference, one whose equivalence p = 0.03 is significant alone but
+    not after Holm over three (0.03 x 2 = 0.06, the second smallest), and a null. Holm must move
+    the equivalence p-values exactly as it moves the difference p-values; NaN rows stay out of m."""
+    lo, hi = [0.10, -0.01, -0.2], [0.30, 0.01, 0.3]
+    p, p_eq = [0.001, 0.5, 0.9], [0.9, 0.03, 0.001]
+    p_holm, p_eq_holm, out = stats.verdicts(lo, hi, p, p_eq, 0.05, True)
+    np.testing.assert_allclose(p_holm, stats.holm(p))
+    np.testing.assert_allclose(p_eq_holm, [0.9, 0.06, 0.003])
+    assert out == ["better", "inconclusive", "equivalent"]
+    assert stats.verdict(-0.01, 0.01, 0.5, 0.03, 0.05, True) == "equivalent"  # the same row alone
+    # lower is better per row; a NaN row is inconclusive and leaves m = 2 for the others
+    p_holm, _, out = stats.verdicts([0.1, 0.1, np.nan], [0.3, 0.3, np.nan], [0.02, 0.02, np.nan],
+                                    [0.9, 0.9, np.nan], 0.05, [True, False, True])
+    np.testing.assert_allclose(p_holm[:2], [0.04, 0.04])
+    assert out == ["better", "worse", "inconclusive"]
+
+
 def test_verdict_every_branch():
     v = stats.verdict
     # significant, interval beyond 0, reaching past the margin: better / worse
@@ -536,24 +554,28 @@ def test_verdict_every_branch():
     # significant and the interval beyond 0 but straddling the margin: still better (direction shown,
     # relevance not excluded)
     assert v(0.02, 0.15, 0.01, 0.2, 0.1, True) == "better"
+    # significant, interval inside the margin, equivalence not shown: better (a direction, shown; its
+    # irrelevance is not): the unadjusted interval alone never makes "equivalent"
+    assert v(0.01, 0.04, 0.001, 0.2, 0.1, True) == "better"
     # lower is better (collisions): a negative difference is an improvement
     assert v(-0.30, -0.05, 0.001, 0.9, 0.1, False) == "better"
     assert v(0.05, 0.30, 0.001, 0.9, 0.1, False) == "worse"
-    # significant but irrelevant: the interval inside (-margin, margin), or the equivalence test rejects
-    assert v(0.01, 0.04, 0.001, 0.2, 0.1, True) == "equivalent"
-    assert v(-0.04, -0.01, 0.001, 0.2, 0.1, False) == "equivalent"
-    assert v(0.01, 0.12, 0.001, 0.03, 0.1, True) == "equivalent"
-    # not significant: equivalent when the equivalence test rejects or the interval is inside the margin
+    # the equivalence test rejects: equivalent, significant or not
+    assert v(0.01, 0.04, 0.001, 0.03, 0.1, True) == "equivalent"
+    assert v(-0.04, -0.01, 0.001, 0.01, 0.1, False) == "equivalent"
     assert v(-0.03, 0.04, 0.6, 0.01, 0.1, True) == "equivalent"
-    assert v(-0.03, 0.04, 0.6, 0.2, 0.1, True) == "equivalent"
+    # not significant, interval inside the margin but the equivalence test does not reject: inconclusive
+    assert v(-0.03, 0.04, 0.6, 0.2, 0.1, True) == "inconclusive"
     # otherwise inconclusive: wide interval; significant p but interval touching 0 (methods disagree)
     assert v(-0.2, 0.3, 0.4, 0.6, 0.1, True) == "inconclusive"
     assert v(0.0, 0.3, 0.04, 0.6, 0.1, True) == "inconclusive"
     assert v(0.05, 0.3, 0.06, 0.6, 0.1, True) == "inconclusive"  # interval beyond 0, test not significant
     # alpha is the caller's (e.g. compare the Holm-adjusted p with it)
     assert v(0.05, 0.30, 0.02, 0.9, 0.1, True, alpha=0.01) == "inconclusive"
+    assert v(-0.01, 0.01, 0.5, 0.02, 0.1, True, alpha=0.01) == "inconclusive"
     # margin 0 switches relevance off; NaN (no pairs) is inconclusive
     assert v(0.001, 0.002, 0.001, math.nan, 0.0, True) == "better"
+    assert v(-0.001, 0.002, 0.5, 0.0, 0.0, True) == "inconclusive"
     assert v(math.nan, math.nan, math.nan, math.nan, 0.1, True) == "inconclusive"
     assert set(stats.VERDICTS) == {"better", "worse", "equivalent", "inconclusive"}
     with pytest.raises(ValueError, match="alpha"):

@@ -195,9 +195,7 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
         + "; other non-finite values (e.g. min_clearance = +inf in a field without obstacles) are left out",
         "relevance margins: " + ", ".join(f"{m} {v:g}" for m, v in margins(options).items()
                                           if v is not None and m in rates + continuous)
-        + " (rates as proportions); verdict: better or worse when the Holm-adjusted difference is significant and "
-          "its interval excludes 0 on that side, unless the difference is shown to lie within the margin "
-          "(equivalent); equivalent when the equivalence test rejects; inconclusive otherwise",
+        + " (rates as proportions); " + stats.VERDICT_RULE,
         "generated " + datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
     ])
     doc.h(2, "Key findings")

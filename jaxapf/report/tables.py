@@ -222,13 +222,11 @@ def compare(data: pd.DataFrame, pairs: Mapping[int, int], labels: Mapping[int, s
                 records.append(rec)
     frame = pd.DataFrame.from_records(records)
     if len(frame):
-        frame["p_holm"] = stats.holm(frame["p"].to_numpy(dtype=np.float64))
-        frame["p_equivalence_holm"] = stats.holm(frame["p_equivalence"].to_numpy(dtype=np.float64))
+        margin = frame["margin"].to_numpy(np.float64)
+        frame["p_holm"], frame["p_equivalence_holm"], frame["verdict"] = stats.verdicts(
+            frame["delta_lo"], frame["delta_hi"], frame["p"], frame["p_equivalence"], margin,
+            frame["higher_is_better"].to_numpy(bool), options.alpha)
         frame["significant"] = frame["p_holm"] <= options.alpha
-        frame["verdict"] = [
-            stats.verdict(r.delta_lo, r.delta_hi, r.p_holm, r.p_equivalence_holm,
-                          0.0 if math.isnan(r.margin) else r.margin, bool(r.higher_is_better), options.alpha)
-            for r in frame.itertuples()]
     return frame
 
 

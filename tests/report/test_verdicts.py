@@ -46,6 +46,7 @@ def test_significant_shift_inside_the_margin_is_equivalent_not_better():
     row = comp.loc["min_clearance"]
     assert row["significant"]  # 400 pairs all shifted by +0.01 m: the signed-rank test sees it
     assert row["delta_hi"] < 0.05
+    assert row["p_equivalence_holm"] <= 0.05  # and the adjusted equivalence test sees it is small
     assert row["verdict"] == "equivalent"
 
 
