@@ -198,8 +198,9 @@ class MetricConfig:
     """Thresholds of the metrics (SPEC 6).
 
     Attributes:
-      v_stall, t_stall: stall = speed below ``v_stall`` [m/s] for at least ``t_stall`` [s] while
-        farther than ``r_goal`` from the goal.
+      v_stall, t_stall, d_progress: stall = speed below ``v_stall`` [m/s] for at least ``t_stall``
+        [s] while farther than ``r_goal`` from the goal, getting less than ``d_progress`` [m] closer
+        to it over that time (a slow final approach that still closes in is not a stall).
       d_safe: clearance [m] below which time counts as ``time_near``.
       d_sense: clearance [m] within which an obstacle the sensor did not detect counts in
         ``unseen_steps`` (default the paper's influence distance ``d_s``, 4 m).
@@ -207,12 +208,13 @@ class MetricConfig:
 
     v_stall: float = 0.1
     t_stall: float = 3.0
+    d_progress: float = 0.1
     d_safe: float = 1.0
     d_sense: float = 4.0
 
     def __post_init__(self) -> None:
         _positive(self, ("v_stall", "t_stall"), "sim")
-        _nonnegative(self, ("d_safe", "d_sense"), "sim")
+        _nonnegative(self, ("d_progress", "d_safe", "d_sense"), "sim")
 
 
 _PARTS: Mapping[str, type] = {"planner": PlannerConfig, "vehicle": VehicleConfig, "world": WorldConfig,

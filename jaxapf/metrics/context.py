@@ -17,7 +17,7 @@ from ..config import SimConfig
 from ..datatypes import Obstacles, Scenario, Trajectory, clearance, obstacles_at, project, segment_clearance
 
 __all__ = ["EpisodeContext", "episode_end", "END_MARGIN", "certainly_ended", "certainly_at_goal", "clearance_history",
-           "interval_clearance", "time_to_collision", "masked_min", "longest_run", "stall_samples", "ratio"]
+           "interval_clearance", "time_to_collision", "masked_min", "stall_samples", "ratio"]
 
 
 # --------------------------------------------------------------------------------------------
@@ -114,13 +114,6 @@ def certainly_ended(p0: Array, p1: Array, t0: Array, scenario: Scenario, sim: Si
 
 def masked_min(x: Array, mask: Array) -> Array:
     return jnp.min(jnp.where(mask, x, jnp.inf))
-
-
-def longest_run(mask: Array) -> Array:
-    """Length (int32) of the longest run of consecutive True entries of a 1-D ``mask``."""
-    idx = jnp.arange(mask.shape[-1], dtype=jnp.int32)
-    last_false = jax.lax.cummax(jnp.where(mask, -1, idx), axis=0)
-    return jnp.max(idx - last_false)
 
 
 def stall_samples(sim: SimConfig) -> int:

@@ -33,9 +33,12 @@ Metrics (one scalar each, in registration order)
 - ``path_length``: ``Σ_{valid i} |p_{i+1} - p_i|``.
 - ``path_ratio``: ``path_length / |g - start|`` (``start`` = ``scenario.start``). Degenerate
   ``start == goal``: ``0/0 := 1`` and ``x/0 := +inf`` for ``x > 0`` (never NaN).
-- ``stalled``: some run of ``n`` consecutive valid samples, each with speed ``|v_i| < v_stall`` and
-  ``|p_i - g| > r_goal``, has ``n·dt >= t_stall``. Evaluated as ``n >= ceil(t_stall/dt)`` with a
-  relative tolerance of 1e-9 on the quotient, so ``t_stall = 3, dt = 0.1`` needs exactly 30 samples.
+- ``stalled``: some run of ``n`` consecutive valid samples ``i .. i+n-1``, each with speed
+  ``|v| < v_stall`` and ``|p - g| > r_goal``, has ``n·dt >= t_stall`` and makes no progress:
+  ``|p_i - g| - |p_{i+n-1} - g| < d_progress``. ``n = ceil(t_stall/dt)`` with a relative tolerance
+  of 1e-9 on the quotient, so ``t_stall = 3, dt = 0.1`` needs exactly 30 samples. The progress
+  condition keeps a slow final approach that still closes in (a small attraction gain near the
+  goal) from counting as the local-minimum signature.
 - ``final_distance``: ``|p_e - g|``.
 - ``control_effort``: ``Σ_{valid i} |a_i|²·dt`` (the rectangle rule of ``∫|a|² dt``, exact for
   piecewise-constant control).
@@ -94,7 +97,7 @@ from jax import Array
 from ..config import SimConfig
 from ..datatypes import Scenario, Trajectory, clearance
 from .base import METRICS, Metric, compute_metrics, register_metric
-from .context import EpisodeContext, clearance_history, longest_run, masked_min, ratio, stall_samples, time_to_collision
+from .context import EpisodeContext, clearance_history, masked_min, ratio, stall_samples, time_to_collision
 
 __all__ = ["episode_metrics"]
 
@@ -113,7 +116,13 @@ def _min_clearance(ctx: EpisodeContext) -> Array:
 def _stalled(ctx: EpisodeContext) -> Array:
     speed = jnp.linalg.norm(ctx.traj.velocity, axis=-1)
     mask = ctx.sample_valid & (speed < ctx.sim.metrics.v_stall) & (ctx.goal_distance > ctx.sim.episode.r_goal)
-    return longest_run(mask) >= stall_samples(ctx.sim)
+    n, samples = stall_samples(ctx.sim), mask.shape[-1]
+    if n > samples:
+        return jnp.zeros((), bool)
+    count = jnp.cumsum(jnp.concatenate([jnp.zeros(1, jnp.int32), mask.astype(jnp.int32)]))
+    slow = count[n:] - count[:-n] == n  # the n samples from each start are all slow and away
+    progress = ctx.goal_distance[: samples - n + 1] - ctx.goal_distance[n - 1:]
+    return jnp.any(slow & (progress < ctx.sim.metrics.d_progress))
 
 
 def _control_effort(ctx: EpisodeContext) -> Array:
@@ -201,7 +210,7 @@ for _metric in (
     Metric("path_ratio", lambda ctx: ratio(ctx.path_length, ctx.straight), higher_is_better=False,
            on_success=True, report=True, margin=0.02, doc="path length over the straight start-goal distance"),
     Metric("stalled", _stalled, dtype="bool", kind="rate", higher_is_better=False, report=True, margin=0.02,
-           doc="slower than v_stall for t_stall while away from the goal: the local-minimum signature"),
+           doc="slower than v_stall for t_stall, away from the goal and not closing in: a local minimum"),
     Metric("final_distance", lambda ctx: ctx.goal_distance[ctx.end_index], unit="m", higher_is_better=False,
            margin=0.1, doc="distance to the goal at the episode's end"),
     Metric("control_effort", _control_effort, unit="m²/s³", higher_is_better=False, on_success=True, report=True,

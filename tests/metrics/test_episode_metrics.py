@@ -251,6 +251,31 @@ def test_hovering_at_the_goal_is_not_a_stall_and_split_runs_do_not_add_up():
     assert m["success"] and not m["stalled"] and m["steps"] == 0
 
 
+@pytest.mark.parametrize("speed, stalled", [(0.05, False), (0.02, True), (0.0, True)])
+def test_a_slow_approach_that_closes_in_is_not_a_stall(speed, stalled):
+    """Slower than v_stall = 0.1 m/s for the whole 5 s, toward a goal 50 m away: at 0.05 m/s it gets
+    0.145 m closer over any 30-sample run (>= d_progress = 0.1 m: approaching), at 0.02 m/s only
+    0.058 m (no progress: a stall), at rest nothing."""
+    x = np.arange(T + 1) * DT * speed
+    position = np.stack([x, np.zeros(T + 1), np.zeros(T + 1)], axis=1)
+    m = values(_metrics(trajectory(position, [speed, 0.0, 0.0]), scenario([0, 0, 0], [50, 0, 0]), SIM))
+    assert bool(m["stalled"]) is stalled
+
+
+def test_slow_motion_away_or_around_is_a_stall_and_d_progress_sets_the_bar():
+    """Creeping sideways at 0.05 m/s (no progress toward the goal) is a stall; with d_progress = 0
+    even a 0.058 m approach is progress, with d_progress = 0.2 m a 0.145 m one is not."""
+    y = np.arange(T + 1) * DT * 0.05
+    side = np.stack([np.zeros(T + 1), y, np.zeros(T + 1)], axis=1)
+    assert values(_metrics(trajectory(side, [0.0, 0.05, 0.0]), scenario([0, 0, 0], [50, 0, 0]), SIM))["stalled"]
+    for speed, d_progress, stalled in ((0.02, 0.0, False), (0.05, 0.2, True)):
+        x = np.arange(T + 1) * DT * speed
+        position = np.stack([x, np.zeros(T + 1), np.zeros(T + 1)], axis=1)
+        sim = dataclasses.replace(SIM, metrics=dataclasses.replace(SIM.metrics, d_progress=d_progress))
+        m = values(_metrics(trajectory(position, [speed, 0.0, 0.0]), scenario([0, 0, 0], [50, 0, 0]), sim))
+        assert bool(m["stalled"]) is stalled
+
+
 def test_tunnelling_through_an_obstacle_between_samples_is_a_collision():
     # 20 m/s: samples at x = 0, 2, 4, 6, ...; sphere at x = 5 with R = 0.5 + 0.3 = 0.8.
     sc = scenario([0, 0, 0], [50, 0, 0], dict(position=[5, 0, 0], radius=0.5))
