@@ -29,6 +29,7 @@ ideal world is the exact McNemar test on the paired fields with the report's 2-p
 
 from __future__ import annotations
 
+import dataclasses
 import pathlib
 
 import jax
@@ -57,9 +58,17 @@ WORLDS = ([("ideal", "ideal", WORLD, {})]
 
 def tuned_gains(method: str) -> dict[str, float]:
     """The gains study 11's seed-1 selection chose for ``method``."""
+    from jaxapf.compare.select import Selection
     from jaxapf.gains import GAINS
 
     table = pd.read_csv(SELECTION)
+    # a gain column that is no longer declared (cbf_k0/cbf_k1 before the CBF filter took the rates
+    # cbf_p1/cbf_p2) would be dropped silently and the method fly its defaults: rerun study 11 first
+    fixed = {f.name for f in dataclasses.fields(Selection)} - {"gains"}
+    stale = sorted(set(table.columns) - fixed - set(GAINS.names()))
+    if stale:
+        raise SystemExit(f"{SELECTION}: columns {', '.join(stale)} are not declared gains; rerun "
+                         "analysis/planner_benchmark.py to select with the current gains")
     row = table[(table["method"] == method) & (table["seed"] == 1)].iloc[0]
     return {g: float(row[g]) for g in GAINS.names() if g in row and np.isfinite(row[g])}
 

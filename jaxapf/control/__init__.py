@@ -1,6 +1,6 @@
 """Control: the tracking MPC (paper eq. 8–12) and the safety filters between it and the plant."""
 
-from .cbf import CBF, cbf_constraints
+from .cbf import CBF, cbf_coefficients, cbf_constraints
 from .filters import FILTERS, Passthrough, SafetyFilter, register_filter
 from .mpc import (
                   AxisProblem,
@@ -16,6 +16,6 @@ from .mpc import (
                   solve_box_qp,
 )
 
-__all__ = ["SafetyFilter", "Passthrough", "FILTERS", "register_filter", "CBF", "cbf_constraints",
+__all__ = ["SafetyFilter", "Passthrough", "FILTERS", "register_filter", "CBF", "cbf_coefficients", "cbf_constraints",
            "AxisProblem", "axis_problem", "solve_axes", "shift_warm_start", "condensed_qp", "condensed_hessian",
            "condensed_linear", "prediction_matrices", "augmented_weights", "fista", "solve_box_qp"]

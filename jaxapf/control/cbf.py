@@ -16,8 +16,20 @@ relative degree", CDC):
 .. math:: \ddot h_o + k_1 \dot h_o + k_0 h_o \ge 0
           \iff g_o\cdot a \ge b_o,\quad g_o = 2r,\quad b_o = -2|w|^2 - 2 k_1\, r\cdot w - k_0 h_o,
 
-one linear constraint per valid obstacle (gains ``cbf_k0``, ``cbf_k1``; ``k_0 = λ^2``,
-``k_1 = 2λ`` places both roots of ``s^2 + k_1 s + k_0`` at ``-λ``). The applied acceleration is
+one linear constraint per valid obstacle. The gains are two positive rates ``p_1`` (``cbf_p1``) and
+``p_2`` (``cbf_p2``), and the filter computes
+
+.. math:: k_1 = p_1 + p_2, \qquad k_0 = p_1 p_2, \qquad s^2 + k_1 s + k_0 = (s + p_1)(s + p_2),
+
+so the characteristic polynomial always has the real negative roots ``-p_1, -p_2``. The
+condition reads ``(d/dt + p_1)(d/dt + p_2) h >= 0``; ``ψ_1 = ḣ + p_2 h`` then
+satisfies ``ψ̇_1 >= -p_1 ψ_1``, so ``ψ_1(t) >= ψ_1(0) e^{-p_1 t} >= 0`` when ``ψ_1(0) >= 0``, and
+``ḣ >= -p_2 h`` keeps ``h(t) >= h(0) e^{-p_2 t} >= 0``: in continuous time, and while the condition
+can be met, the safe set is forward invariant from every
+start with ``h(0) >= 0`` and ``ḣ(0) + p_2 h(0) >= 0`` (Nguyen & Sreenath's condition, which needs
+real negative roots; searching ``k_0, k_1`` independently left it whenever ``k_1^2 < 4 k_0``). The
+defaults ``p_1 = p_2 = 1`` are the former ``k_0 = 1, k_1 = 2`` (both roots at -1). The applied
+acceleration is
 
 .. math:: a^* = \arg\min_a \tfrac12 |a - a_\mathrm{mpc}|^2 \;\text{s.t.}\; g_o\cdot a \ge b_o\;\forall o,
           \quad |a_i| \le a_\mathrm{max},
@@ -51,16 +63,22 @@ if TYPE_CHECKING:
     from ..datatypes import ObstacleColumns
     from ..gains import Gains
 
-__all__ = ["CBF", "CBF_K0", "CBF_K1", "cbf_constraints", "INFEASIBLE_TOL"]
+__all__ = ["CBF", "CBF_P1", "CBF_P2", "cbf_coefficients", "cbf_constraints", "INFEASIBLE_TOL"]
 
-CBF_K0 = GainSpec("cbf_k0", 1.0, low=0.0, unit="1/s²", symbol="k_0",
-                  doc="CBF filter: weight of h in the condition h'' + k_1 h' + k_0 h >= 0")
-CBF_K1 = GainSpec("cbf_k1", 2.0, low=0.0, unit="1/s", symbol="k_1",
-                  doc="CBF filter: weight of h' in the condition h'' + k_1 h' + k_0 h >= 0")
+CBF_P1 = GainSpec("cbf_p1", 1.0, low=0.0, low_open=True, unit="1/s", symbol="p_1",
+                  doc="CBF filter: first root rate, h'' + (p_1 + p_2) h' + p_1 p_2 h >= 0")
+CBF_P2 = GainSpec("cbf_p2", 1.0, low=0.0, low_open=True, unit="1/s", symbol="p_2",
+                  doc="CBF filter: second root rate, h'' + (p_1 + p_2) h' + p_1 p_2 h >= 0")
 
 #: A step is infeasible when the filtered acceleration misses some unit-scaled row by more than
 #: this [m/s²].
 INFEASIBLE_TOL = 1e-3
+
+
+def cbf_coefficients(gains: "Gains") -> tuple[Array, Array]:
+    """``(k_0, k_1) = (p_1 p_2, p_1 + p_2)``: the condition's coefficients from the two rates, so the
+    roots of ``s^2 + k_1 s + k_0`` are ``-p_1`` and ``-p_2``, real and negative."""
+    return gains.cbf_p1 * gains.cbf_p2, gains.cbf_p1 + gains.cbf_p2
 
 
 def cbf_constraints(x: Array, t: Array, obstacles: "ObstacleColumns", gains: "Gains",
@@ -73,7 +91,8 @@ def cbf_constraints(x: Array, t: Array, obstacles: "ObstacleColumns", gains: "Ga
     u = line_of_sight(x[3:], obstacles.velocity, obstacles.cylinder)
     big_r = obstacles.radius + sim.vehicle.r_uav
     h = dot(s, s) - big_r * big_r
-    b = -2.0 * dot(u, u) - 2.0 * gains.cbf_k1 * dot(s, u) - gains.cbf_k0 * h
+    k0, k1 = cbf_coefficients(gains)
+    b = -2.0 * dot(u, u) - 2.0 * k1 * dot(s, u) - k0 * h
     length = 2.0 * norm(s)
     g = -2.0 * jnp.stack(s, axis=-1) / length[:, None]
     valid = obstacles.valid
@@ -82,12 +101,13 @@ def cbf_constraints(x: Array, t: Array, obstacles: "ObstacleColumns", gains: "Ga
 
 @dataclasses.dataclass(frozen=True)
 class CBF(SafetyFilter):
-    """Exponential CBF filter: the nearest acceleration keeping h'' + k1 h' + k0 h >= 0 per obstacle.
+    """Exponential CBF filter: the nearest acceleration keeping h'' + k1 h' + k0 h >= 0 per obstacle,
+    with k1 = p1 + p2, k0 = p1 p2 (``cbf_p1``, ``cbf_p2`` > 0).
 
     The acceleration nearest the MPC's within the box; the module docstring has the maths.
     """
 
-    gains = (CBF_K0, CBF_K1)
+    gains = (CBF_P1, CBF_P2)
 
     def __call__(self, state: Any, accel: Array, x: Array, t: Array, obstacles: "ObstacleColumns", gains: "Gains",
                  sim: "SimConfig") -> tuple[Array, Any, dict[str, Array]]:

@@ -205,11 +205,11 @@ def test_a_method_with_a_safety_filter_is_its_own_contender():
     from jaxapf.compare.select import Selection, tune_spec
 
     spec = _spec(methods=["basic+cbf", "basic", "velocity_obstacle"])
-    assert "cbf_k0" in spec.method_gains("basic+cbf") and "cbf_k0" not in spec.method_gains("basic")
+    assert "cbf_p1" in spec.method_gains("basic+cbf") and "cbf_p1" not in spec.method_gains("basic")
     assert "vo_tau" in spec.method_gains("velocity_obstacle") and "vo_tau" not in spec.method_gains("basic")
     assert tune_spec(spec, "basic+cbf", 1).sim.planner.filter == "cbf"
     assert baseline_filter(spec) == "method=basic,filter=cbf"
-    selections = [Selection(m, seed, "random", Gains().floats() | {"cbf_k0": 0.5 + seed}, 4, 6, 24, 24, 0.0, 0.0,
+    selections = [Selection(m, seed, "random", Gains().floats() | {"cbf_p1": 0.5 + seed}, 4, 6, 24, 24, 0.0, 0.0,
                             0.0, "defaults") for seed in (1, 2, 3) for m in spec.methods]
     test = test_sweep_spec(spec, selections)
     settings = test.settings()
@@ -217,8 +217,8 @@ def test_a_method_with_a_safety_filter_is_its_own_contender():
         ("basic", "cbf"), ("basic", "none"), ("velocity_obstacle", "none")]
     by = {(dict(s.static)["method"], dict(s.static)["filter"], dict(s.tags)["selection"]): dict(s.gains)
           for s in settings}
-    assert by[("basic", "cbf", "seed2")]["cbf_k0"] == 2.5
-    assert by[("basic", "none", "seed2")].get("cbf_k0", 1.0) == 1.0  # not searched: its default
+    assert by[("basic", "cbf", "seed2")]["cbf_p1"] == 2.5
+    assert by[("basic", "none", "seed2")].get("cbf_p1", 1.0) == 1.0  # not searched: its default
     table = pd.DataFrame({"method": ["basic", "basic", "velocity_obstacle"], "filter": ["cbf", "none", "none"]})
     assert list(rows_of(table, spec, "basic").index) == [1]
     assert list(rows_of(table, spec, "basic+cbf").index) == [0]

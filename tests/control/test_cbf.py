@@ -13,10 +13,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from jaxapf.config import MPCConfig, SimConfig
-from jaxapf.control import FILTERS, cbf_constraints
+from jaxapf.control import FILTERS, cbf_coefficients, cbf_constraints
 from jaxapf.datatypes import Obstacles
-from jaxapf.gains import Gains
+from jaxapf.gains import Gains, gains_from_mapping
 from jaxapf.rollout import rollout_metrics
+from jaxapf.validation import ConfigError
 
 
 def _obstacles(rng: np.random.Generator, m: int, valid: int) -> Obstacles:
@@ -27,16 +28,18 @@ def _obstacles(rng: np.random.Generator, m: int, valid: int) -> Obstacles:
                      valid=jnp.arange(m) < valid)
 
 
-@given(seed=st.integers(0, 2**31 - 1), k0=st.floats(0.0, 4.0), k1=st.floats(0.0, 4.0))
+@given(seed=st.integers(0, 2**31 - 1), p1=st.floats(0.05, 4.0), p2=st.floats(0.05, 4.0))
 @settings(max_examples=25, deadline=None)
-def test_constraints_are_the_exponential_cbf_condition(seed, k0, k1):
-    """``g·a - b`` (unscaled) equals ``ḧ + k1 ḣ + k0 h`` computed in float64 numpy, for any ``a``."""
+def test_constraints_are_the_exponential_cbf_condition(seed, p1, p2):
+    """``g·a - b`` (unscaled) equals ``ḧ + k1 ḣ + k0 h`` with ``k1 = p1 + p2``, ``k0 = p1 p2``, computed
+    in float64 numpy, for any ``a``."""
+    k0, k1 = p1 * p2, p1 + p2
     rng = np.random.default_rng(seed)
     obs = _obstacles(rng, 4, 3)
     x = rng.uniform(-3, 3, 6).astype(np.float32)
     t, a = np.float32(rng.uniform(0, 5)), rng.uniform(-3, 3, 3)
     sim = SimConfig()
-    g, b = cbf_constraints(jnp.asarray(x), t, obs.columns(), Gains(cbf_k0=k0, cbf_k1=k1), sim)
+    g, b = cbf_constraints(jnp.asarray(x), t, obs.columns(), Gains(cbf_p1=p1, cbf_p2=p2), sim)
     g, b = np.asarray(g, np.float64), np.asarray(b, np.float64)
     for o in range(3):
         keep = np.array([1.0, 1.0, 0.0 if bool(obs.cylinder[o]) else 1.0])
@@ -63,4 +66,36 @@ def test_the_filter_keeps_a_repulsion_free_flight_off_the_obstacle():
     assert bool(bare["collision"])
     assert not bool(safe["collision"]) and float(safe["min_clearance"]) > 0.0
     assert int(safe["cbf_infeasible_steps"]) == 0 and int(bare["cbf_infeasible_steps"]) == 0
-    assert FILTERS.get("cbf", "filter").gains[0].name == "cbf_k0"
+    assert [g.name for g in FILTERS.get("cbf", "filter").gains] == ["cbf_p1", "cbf_p2"]
+
+
+def test_the_coefficients_are_the_sum_and_product_of_the_rates():
+    """Hand-made: p1 = 2, p2 = 3 give k1 = 5, k0 = 6; the defaults p1 = p2 = 1 are the former
+    k0 = 1, k1 = 2."""
+    k0, k1 = cbf_coefficients(Gains(cbf_p1=2.0, cbf_p2=3.0))
+    assert (float(k0), float(k1)) == (6.0, 5.0)
+    k0, k1 = cbf_coefficients(Gains())
+    assert (float(k0), float(k1)) == (1.0, 2.0)
+
+
+@given(p1=st.floats(1e-3, 1e3), p2=st.floats(1e-3, 1e3))
+@settings(max_examples=200, deadline=None)
+def test_any_positive_rates_give_real_negative_roots(p1, p2):
+    """Every setting is inside the exponential-CBF guarantee: s² + k1 s + k0 has the real negative
+    roots -p1, -p2 (the discriminant (p1 - p2)² >= 0 up to rounding)."""
+    k0, k1 = cbf_coefficients(Gains.unchecked({"cbf_p1": p1, "cbf_p2": p2}))
+    roots = np.roots([1.0, k1, k0])
+    assert np.all(np.abs(roots.imag) <= 1e-6 * k1)
+    assert np.all(roots.real < 0)
+    assert np.sort(roots.real) == pytest.approx(np.sort([-p1, -p2]), rel=1e-6, abs=1e-9 * k1)
+    assert k1 * k1 - 4.0 * k0 >= -1e-12 * k1 * k1
+
+
+@pytest.mark.parametrize("name", ["cbf_p1", "cbf_p2"])
+@pytest.mark.parametrize("value", [0.0, -0.5])
+def test_non_positive_rates_are_rejected_naming_the_field(name, value):
+    with pytest.raises(ConfigError) as err:
+        Gains(**{name: value})
+    assert str(err.value) == f"gains.{name} = {value!r} is out of range; allowed: a finite number > 0"
+    with pytest.raises(ConfigError, match=f"^run.toml:gains.{name} = "):
+        gains_from_mapping({name: value}, where="run.toml:gains")
