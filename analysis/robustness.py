@@ -1,30 +1,33 @@
-"""Study 12: how much of each planner's safety survives noisy sensing, latency, limited range, wind
-and the paper's quadrotor.
+"""Study 12: how much of each planner's safety survives noise, latency, short range, wind, a quadrotor.
 
-Every method of study 11 (the planner benchmark) flies at its tuned best: the gains its seed-1
-random search chose there (the same budget for every method, ``analysis/results/planner_benchmark/
-selection.csv``), so the comparison keeps study 11's protocol and changes only the world. Each
-method then flies the same held-out fields (48 per family of study 11's six, seed 200, obstacle slots
-padded to one count) in the ideal world and with one imperfection at a time:
+Every method of study 11 (the planner benchmark) flies at its tuned best: the gains each of its
+three random searches (selection seeds 1, 2, 3, the same budget for every method,
+``analysis/results/planner_benchmark/selection.csv``) chose there, so the comparison keeps study
+11's protocol and changes only the world; one selection is an anecdote, three show the spread.
+Each (method, selection) then flies the same held-out fields (48 per family of study 11's six,
+seed 200, obstacle slots padded to one count) in the ideal world and with one imperfection at a time:
 
-* obstacle noise σ ∈ {0.1, 0.25, 0.5}: each measured centre coordinate [m] and velocity
-  component [m/s] with that standard deviation (``sensor = "noisy"``);
+* obstacle position noise σ_p ∈ {0.1, 0.25, 0.5} m on each measured centre coordinate, and
+  separately velocity noise σ_v ∈ {0.1, 0.25, 0.5} m/s on each measured velocity component
+  (``sensor = "noisy"``): the two act differently and are reported apart;
 * latency ∈ {0.1, 0.3, 0.6} s: the stack sees the obstacles as they were;
 * sensing range ∈ {8, 4, 2} m of clearance;
 * wind of {2, 4, 6} m/s (heading 90°) with gusts of half that standard deviation (τ = 2 s), through
   the linear drag 0.3 1/s (``disturbance = "wind"``);
 * the quadrotor plant (AscTec Hummingbird, geometric attitude loop, ``plant = "quadrotor"``).
 
-The ideal world and every sensing and wind level are one compiled program per method (the noisy
-sensor and the wind at the level's gains, zero for the others: at zero they pass the truth on and
-push with exactly 0); the quadrotor is a second.
+The ideal world and every sensing and wind level of the three selections are one compiled program
+per method (the noisy sensor and the wind at the level's gains, zero for the others: at zero they
+pass the truth on and push with exactly 0); the quadrotor is a second.
 
-Every episode draws its noise and gusts from the field's key, so all methods and levels see the
-same draws (common random numbers). Rates come with Wilson intervals (95 %), clearance with a
-bootstrap interval of the mean; the verdict per method and condition against the same method in the
-ideal world is the exact McNemar test on the paired fields with the report's 2-point margin.
+Every episode draws its noise and gusts from the field's key, so all methods, selections and levels
+see the same draws (common random numbers). Rates come with Wilson intervals (95 %), clearance with
+a bootstrap interval of the mean. The verdict of each (method, selection, world) on success against
+the same selection in the ideal world is :func:`jaxapf.stats.verdicts` over all of the study's
+comparisons at once (exact McNemar and TOST within the 2-point margin, both Holm-adjusted), the
+verdict function every study uses.
 
-    python analysis/robustness.py     # ~10.5 min on 2 cores (36 compiled programs, 36,288 episodes)
+    python analysis/robustness.py     # ~35 min on 2 cores (18 compiled programs, 132,192 episodes)
 """
 
 from __future__ import annotations
@@ -49,33 +52,52 @@ MARGIN = 0.02
 WORLD = {"sensor": "noisy", "disturbance": "wind"}
 #: (axis, level, static settings, gains) of every world.
 WORLDS = ([("ideal", "ideal", WORLD, {})]
-          + [("noise", f"σ = {s:g}", WORLD, {"sigma_obs_p": s, "sigma_obs_v": s}) for s in (0.1, 0.25, 0.5)]
+          + [("position noise", f"σ_p = {s:g} m", WORLD, {"sigma_obs_p": s}) for s in (0.1, 0.25, 0.5)]
+          + [("velocity noise", f"σ_v = {s:g} m/s", WORLD, {"sigma_obs_v": s}) for s in (0.1, 0.25, 0.5)]
           + [("latency", f"{d:g} s", WORLD, {"latency": d}) for d in (0.1, 0.3, 0.6)]
           + [("range", f"{r:g} m", WORLD, {"sense_range": r}) for r in (8.0, 4.0, 2.0)]
           + [("wind", f"{w:g} m/s", WORLD, {"wind_speed": w, "wind_heading": 90.0, "gust_sigma": w / 2})
              for w in (2.0, 4.0, 6.0)]
           + [("quadrotor", "quadrotor", {"plant": "quadrotor"}, {})])
+#: The imperfections in table order, and the strongest level of each (the last one listed).
+AXES = tuple(dict.fromkeys(axis for axis, _, _, _ in WORLDS if axis != "ideal"))
+STRONGEST = tuple((axis, [lv for a, lv, _, _ in WORLDS if a == axis][-1]) for axis in AXES)
+#: A verdict's mark in the tables (· inconclusive).
+MARK = {"worse": "↓", "better": "↑", "equivalent": "=", "inconclusive": "·"}
 
-def tuned_gains(method: str) -> dict[str, float]:
-    """The gains study 11's seed-1 selection chose for ``method``."""
+
+def selections() -> pd.DataFrame:
+    """Study 11's selected gains, one row per (method, seed); refuses gain columns that are no
+    longer declared (they would be dropped silently and the method fly its defaults)."""
     from jaxapf.compare.select import Selection
     from jaxapf.gains import GAINS
 
     table = pd.read_csv(SELECTION)
-    # a gain column that is no longer declared (cbf_k0/cbf_k1 before the CBF filter took the rates
-    # cbf_p1/cbf_p2) would be dropped silently and the method fly its defaults: rerun study 11 first
     fixed = {f.name for f in dataclasses.fields(Selection)} - {"gains"}
     stale = sorted(set(table.columns) - fixed - set(GAINS.names()))
     if stale:
         raise SystemExit(f"{SELECTION}: columns {', '.join(stale)} are not declared gains; rerun "
                          "analysis/planner_benchmark.py to select with the current gains")
-    row = table[(table["method"] == method) & (table["seed"] == 1)].iloc[0]
+    return table
+
+
+def seeds() -> list[int]:
+    """The selection seeds of study 11 (three)."""
+    return sorted(int(s) for s in selections()["seed"].unique())
+
+
+def tuned_gains(method: str, seed: int) -> dict[str, float]:
+    """The gains study 11's selection with ``seed`` chose for ``method``."""
+    from jaxapf.gains import GAINS
+
+    table = selections()
+    row = table[(table["method"] == method) & (table["seed"] == seed)].iloc[0]
     return {g: float(row[g]) for g in GAINS.names() if g in row and np.isfinite(row[g])}
 
 
-def flow_gain(method: str) -> float:
-    """η·k_att of ``method``'s selected gains: how hard the reference pulls toward the goal."""
-    gains = tuned_gains(method)
+def flow_gain(method: str, seed: int) -> float:
+    """η·k_att of a selection: how hard its reference pulls toward the goal."""
+    gains = tuned_gains(method, seed)
     return gains["eta"] * gains["k_att"]
 
 
@@ -102,7 +124,8 @@ def fields(spec, count: int) -> list[tuple[object, np.ndarray]]:
 
 
 def run(spec, count: int) -> pd.DataFrame:
-    """One row per (method, world, field) with the outcome metrics."""
+    """One row per (method, selection seed, world, field) with the outcome metrics; the selections
+    and worlds of one static setting are one vmap over gain settings."""
     from jaxapf import Gains
     from jaxapf.config import MPCConfig, SimConfig
     from jaxapf.rollout import evaluate
@@ -117,17 +140,18 @@ def run(spec, count: int) -> pd.DataFrame:
     for method in spec.methods:
         planner, _, safety = method.partition("+")
         base = SimConfig.from_flat(method=planner, filter=safety or "none", t_max=t_max)
-        tuned = tuned_gains(method)
+        tuned = {s: tuned_gains(method, s) for s in seeds()}
         for static, worlds in variants.items():
+            settings = [(s, w) for s in tuned for w in worlds]
             batch = jax.tree_util.tree_map(lambda *x: np.asarray(x, np.float32),
-                                           *[Gains(**tuned, **w[3]) for w in worlds])
+                                           *[Gains(**tuned[s], **w[3]) for s, w in settings])
             for scenarios, family in groups:
                 metrics = jax.device_get(evaluate(scenarios, batch, base.replace(**dict(static)), mpc, metrics=(
                     "success", "collision", "stalled", "min_clearance", "time_to_goal", "final_distance", "max_tilt",
                     "accel_error_rms", "unseen_steps")))
-                for i, (axis, level, _, _) in enumerate(worlds):
+                for i, (seed, (axis, level, _, _)) in enumerate(settings):
                     frame = pd.DataFrame({k: np.asarray(v[i]) for k, v in metrics.items()})
-                    rows.append(frame.assign(method=method, axis=axis, level=level, family=family,
+                    rows.append(frame.assign(method=method, seed=seed, axis=axis, level=level, family=family,
                                              field=[f"{f}/{j % count}" for j, f in enumerate(family)]))
         print(f"  {method}: done", flush=True)
     return pd.concat(rows, ignore_index=True)
@@ -140,21 +164,22 @@ def spec_t_max(spec, family: str) -> float:
 
 
 def summarise(df: pd.DataFrame, resamples: int) -> pd.DataFrame:
-    """Per (method, axis, level): rates with Wilson intervals, mean clearance with a bootstrap
-    interval, and the paired verdict on success against the same method in the ideal world."""
+    """Per (method, seed, axis, level): rates with Wilson intervals, mean clearance with a bootstrap
+    interval, and the paired change in success against the same selection in the ideal world with
+    the study's verdict (:func:`jaxapf.stats.verdicts` over every such comparison at once)."""
     from jaxapf.stats import (
         bootstrap_ci,
         equivalence_test,
         mcnemar_exact,
         paired_proportion_difference,
-        verdict,
+        verdicts,
         wilson_interval,
     )
 
-    ideal = df[df["axis"] == "ideal"].set_index(["method", "field"])
+    ideal = df[df["axis"] == "ideal"].set_index(["method", "seed", "field"])
     out = []
-    for (method, axis, level), g in df.groupby(["method", "axis", "level"], sort=False):
-        row = {"method": method, "axis": axis, "level": level, "n": len(g)}
+    for (method, seed, axis, level), g in df.groupby(["method", "seed", "axis", "level"], sort=False):
+        row = {"method": method, "seed": seed, "axis": axis, "level": level, "n": len(g)}
         for rate in ("success", "collision", "stalled"):
             k = int(g[rate].sum())
             lo, hi = wilson_interval(k, len(g))
@@ -166,45 +191,65 @@ def summarise(df: pd.DataFrame, resamples: int) -> pd.DataFrame:
         row["accel_error_rms"] = float(g["accel_error_rms"].mean())
         row["unseen_steps"] = float(g["unseen_steps"].mean())
         row["final_distance"] = float(g["final_distance"].median())
-        base = ideal.loc[method].loc[g["field"]]["success"].to_numpy(bool)
+        base = ideal.loc[(method, seed)].loc[g["field"]]["success"].to_numpy(bool)
         now = g["success"].to_numpy(bool)
         diff, lo, hi = paired_proportion_difference(now, base)
-        p = mcnemar_exact(now, base).pvalue
-        p_equivalent = equivalence_test(now, base, MARGIN, kind="rate").p
-        row |= {"success_change": diff, "change_lo": lo, "change_hi": hi, "p": p,
-                "verdict": "—" if axis == "ideal" else verdict(lo, hi, p, p_equivalent, MARGIN, True)}
+        row |= {"success_change": diff, "change_lo": lo, "change_hi": hi,
+                "p": mcnemar_exact(now, base).pvalue if axis != "ideal" else np.nan,
+                "p_equivalent": equivalence_test(now, base, MARGIN, kind="rate").p if axis != "ideal" else np.nan}
         out.append(row)
-    return pd.DataFrame(out)
+    summary = pd.DataFrame(out)
+    tested = summary["axis"] != "ideal"
+    part = summary[tested]
+    p_holm, p_eq_holm, verdict = verdicts(part["change_lo"], part["change_hi"], part["p"], part["p_equivalent"],
+                                          MARGIN, True)
+    summary.loc[tested, "p_holm"], summary.loc[tested, "p_equivalent_holm"] = p_holm, p_eq_holm
+    summary["verdict"] = "—"
+    summary.loc[tested, "verdict"] = verdict
+    return summary
+
+
+def over_seeds(summary: pd.DataFrame, metric: str) -> pd.DataFrame:
+    """Per (method, axis, level): ``metric``'s mean, min and max over the selection seeds and the
+    seeds' verdict marks in seed order."""
+    key = ["method", "axis", "level"]
+    g = summary.sort_values("seed").groupby(key, sort=False)
+    out = g[metric].agg(["mean", "min", "max"])
+    out["marks"] = g["verdict"].agg(lambda v: "".join(MARK.get(x, "") for x in v))
+    return out
 
 
 def figure(summary: pd.DataFrame, path: pathlib.Path) -> None:
     """Success, collision and mean minimum clearance against each imperfection's level, one column per
-    axis, with Wilson (rates) and bootstrap (clearance) intervals; methods side by side at each level."""
+    axis: the mean over the three selections, the bar spanning the selections' min to max; methods side
+    by side at each level."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    axes_names = ["noise", "latency", "range", "wind", "quadrotor"]
     palette = plt.get_cmap("tab10").colors
     methods = list(summary["method"].unique())
     colors = {m: palette[i % len(palette)] for i, m in enumerate(methods)}
     rows = (("success", "success [%]", 100.0), ("collision", "collision [%]", 100.0),
             ("min_clearance", "mean min. clearance [m]", 1.0))
-    fig, axes = plt.subplots(len(rows), len(axes_names), figsize=(4.2 * len(axes_names), 10), sharey="row")
-    for col, axis in enumerate(axes_names):
-        for i, (method, g) in enumerate(summary.groupby("method", sort=False)):
-            part = pd.concat([g[g["axis"] == "ideal"], g[g["axis"] == axis]])
-            x = np.arange(len(part)) + 0.05 * (i - (len(methods) - 1) / 2)
-            for row, (name, label, scale) in enumerate(rows):
-                ax = axes[row, col]
-                value = scale * part[name].to_numpy()
-                band = np.abs(scale * part[[f"{name}_lo", f"{name}_hi"]].to_numpy().T - value)
+    fig, axes = plt.subplots(len(rows), len(AXES), figsize=(3.6 * len(AXES), 10), sharey="row")
+    for row, (name, label, scale) in enumerate(rows):
+        seeds_ = over_seeds(summary, name).to_dict("index")
+        for col, axis in enumerate(AXES):
+            ax = axes[row, col]
+            worlds = [("ideal", "ideal")] + [(a, lv) for a, lv, _, _ in WORLDS if a == axis]
+            for i, method in enumerate(methods):
+                part = [seeds_[(method, *w)] for w in worlds]
+                x = np.arange(len(part)) + 0.06 * (i - (len(methods) - 1) / 2)
+                value = scale * np.array([r["mean"] for r in part])
+                band = np.abs(scale * np.array([[r["min"] for r in part], [r["max"] for r in part]]) - value)
                 ax.errorbar(x, value, yerr=band, label=method, capsize=1.5, marker="o", ms=3, lw=1,
                             linestyle="--" if "+" in method else "-", color=colors[method])
-                ax.set_xticks(np.arange(len(part)), part["level"], rotation=20)
-                ax.set_ylabel(label if col == 0 else "")
-        axes[0, col].set_title(axis)
+            ax.set_xticks(np.arange(len(worlds)), [lv for _, lv in worlds], rotation=20, fontsize=8)
+            ax.set_ylabel(label if col == 0 else "")
+            if row == 0:
+                ax.set_title(axis)
     axes[0, -1].legend(fontsize=7, loc="lower left")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
@@ -212,55 +257,74 @@ def figure(summary: pd.DataFrame, path: pathlib.Path) -> None:
 
 
 def table(summary: pd.DataFrame, metric: str = "success") -> str:
-    """Markdown: ``metric`` in % per method (rows) and world (columns); for success the verdict's mark
-    against the same method in the ideal world (↓ worse, ↑ better, = equivalent within 2 points)."""
-    mark = {"worse": " ↓", "better": " ↑", "equivalent": " =", "inconclusive": "", "—": ""}
-    worlds = [f"{a}: {lv}" if a not in ("ideal", "quadrotor") else a for a, lv, _, _ in WORLDS]
-    lines = ["| method | " + " | ".join(worlds) + " |", "|---|" + "---|" * len(worlds)]
-    for method, g in summary.groupby("method", sort=False):
+    """Markdown: ``metric`` in % per method (rows) and world (columns) as the mean over the selection
+    seeds with their [min, max]; for success the seeds' verdict marks against their ideal world."""
+    seeds_ = over_seeds(summary, metric)
+    worlds = [(a, lv) for a, lv, _, _ in WORLDS]
+    names = [a if a in ("ideal", "quadrotor") else f"{a}: {lv}" for a, lv in worlds]
+    lines = ["| method | " + " | ".join(names) + " |", "|---|" + "---|" * len(worlds)]
+    for method in dict.fromkeys(summary["method"]):
         cells = []
-        for axis, level, _, _ in WORLDS:
-            r = g[(g["axis"] == axis) & (g["level"] == level)].iloc[0]
-            cells.append(f"{100 * r[metric]:.1f}" + (mark[r["verdict"]] if metric == "success" else ""))
+        for axis, level in worlds:
+            r = seeds_.loc[(method, axis, level)]
+            mark = f" {r['marks']}" if metric == "success" and axis != "ideal" else ""
+            cells.append(f"{100 * r['mean']:.1f} [{100 * r['min']:.1f}, {100 * r['max']:.1f}]{mark}")
         lines.append(f"| {method} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
+def counts(summary: pd.DataFrame, axis: str, level: str) -> dict[str, int]:
+    """How many (method, selection) comparisons at one world got each verdict."""
+    at = summary[(summary["axis"] == axis) & (summary["level"] == level)]
+    return {v: int((at["verdict"] == v).sum()) for v in ("worse", "equivalent", "better", "inconclusive")}
+
+
 def findings(summary: pd.DataFrame) -> list[str]:
     """One sentence per imperfection at its strongest level, built from the summary: the change in
-    success of every method against its ideal world, the verdicts, the most and least affected."""
+    success of every method (mean over its three selections) against its ideal world, the verdicts
+    of all (method, selection) pairs, the most and least affected."""
     out = []
-    ideal = summary[summary["axis"] == "ideal"].set_index("method")
+    mean = summary.groupby(["method", "axis", "level"], sort=False)[["success", "collision", "final_distance"]].mean()
+    ideal = mean.xs(("ideal", "ideal"), level=("axis", "level"))
     for axis, level in STRONGEST:
-        at = summary[(summary["axis"] == axis) & (summary["level"] == level)].set_index("method")
+        at = mean.xs((axis, level), level=("axis", "level"))
         change = 100 * (at["success"] - ideal["success"])
         collide = 100 * (at["collision"] - ideal["collision"])
-        worse = int((at["verdict"] == "worse").sum())
-        same = int((at["verdict"] == "equivalent").sum())
+        n = counts(summary, axis, level)
+        total = sum(n.values())
         line = (f"**{axis} ({level})**: success changes by {change.min():+.1f} to {change.max():+.1f} points "
-                f"(most: `{change.idxmin()}`, least: `{change.idxmax()}`), collisions by {collide.min():+.1f} to "
-                f"{collide.max():+.1f} points; *worse* than the ideal world for {worse} of {len(at)} methods, "
-                f"*equivalent* for {same}.")
+                f"(mean over the three selections; most: `{change.idxmin()}`, least: `{change.idxmax()}`), "
+                f"collisions by {collide.min():+.1f} to {collide.max():+.1f} points; of the {total} (method, "
+                f"selection) pairs *worse* than the ideal world {n['worse']}, *equivalent* {n['equivalent']}, "
+                f"*better* {n['better']}, inconclusive {n['inconclusive']}.")
         if axis == "wind":
             line += (f" Median final distance to the goal {ideal['final_distance'].min():.2f}–"
                      f"{ideal['final_distance'].max():.2f} m in calm air, {at['final_distance'].min():.2f}–"
-                     f"{at['final_distance'].max():.2f} m in this wind (goal tolerance 0.5 m), as expected of an "
-                     "MPC that plans without a disturbance estimate: a steady push leaves a steady offset. "
-                     "Per method, final distance against the selected attraction flow gain η·k_att: "
-                     + ", ".join(f"`{m}` {d:.2f} m ({flow_gain(m):.2f})"
-                                 for m, d in at["final_distance"].sort_values(ascending=False).items()) + ".")
+                     f"{at['final_distance'].max():.2f} m in this wind (goal tolerance 0.5 m): an MPC that plans "
+                     "without a disturbance estimate keeps a steady offset under a steady push, the larger the "
+                     "weaker its pull toward the goal (the table below, per selection).")
         out.append(line)
     return out
 
 
-#: The strongest level of every imperfection (the columns of the per-family table).
-STRONGEST = (("noise", WORLDS[3][1]), ("latency", WORLDS[6][1]), ("range", WORLDS[9][1]),
-             ("wind", WORLDS[12][1]), ("quadrotor", "quadrotor"))
+def wind_table(summary: pd.DataFrame) -> str:
+    """Markdown: per method and selection seed at the strongest wind, success, the median final
+    distance and the selection's flow gain η·k_att (the seed-to-seed spread of the wind finding)."""
+    axis, level = STRONGEST[AXES.index("wind")]
+    at = summary[(summary["axis"] == axis) & (summary["level"] == level)].set_index(["method", "seed"])
+    lines = ["| method | " + " | ".join(f"seed {s}: success, final distance, η·k_att" for s in seeds()) + " |",
+             "|---|" + "---|" * len(seeds())]
+    for method in dict.fromkeys(summary["method"]):
+        cells = [f"{100 * at.loc[(method, s), 'success']:.1f} %, {at.loc[(method, s), 'final_distance']:.2f} m, "
+                 f"{flow_gain(method, s):.2f}" for s in seeds()]
+        lines.append(f"| {method} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
 
 
 def family_table(df: pd.DataFrame) -> str:
-    """Markdown: per method and family, the change in success [points] against the same method in
-    the ideal world at each imperfection's strongest level (the pooled numbers hide opposite signs)."""
+    """Markdown: per method and family, the change in success [points] against the same selection in
+    the ideal world at each imperfection's strongest level, mean over the three selections (the pooled
+    numbers hide opposite signs)."""
     ideal = df[df["axis"] == "ideal"].groupby(["method", "family"], sort=False)["success"].mean()
     families = list(dict.fromkeys(df["family"]))
     lines = ["| method | " + " | ".join(families) + " |", "|---|" + "---|" * len(families)]
@@ -275,22 +339,32 @@ def family_table(df: pd.DataFrame) -> str:
 
 
 def write_readme(summary: pd.DataFrame, df: pd.DataFrame, out: pathlib.Path, count: int) -> None:
+    from jaxapf.stats import VERDICT_RULE
+
     n = int(summary["n"].iloc[0])
-    text = [f"# Study 12: robustness ({n} held-out fields per method and world)", "",
+    s = seeds()
+    tests = int((summary["axis"] != "ideal").sum())
+    text = [f"# Study 12: robustness ({n} held-out fields per method, selection and world)", "",
             "`python analysis/robustness.py` (" + __doc__.split("\n")[0] + ")", "",
-            "Protocol: every method at the gains its seed-1 random search chose in study 11 (equal budgets), "
-            f"{count} fields of each of study 11's six test families (seed {SEED}), one imperfection at a time, "
-            "common random numbers. Verdicts: paired success against the same method in the ideal world, exact "
-            f"McNemar test and a {100 * MARGIN:g}-point equivalence margin.", "", "## Findings", ""]
+            f"Protocol: every method at the gains each of its {len(s)} random searches (selection seeds "
+            f"{', '.join(map(str, s))}) chose in study 11 (equal budgets), {count} fields of each of study 11's six "
+            f"test families (seed {SEED}), one imperfection at a time, common random numbers. Verdicts: paired "
+            "success of each (method, selection) against the same selection in the ideal world, exact McNemar "
+            f"test and TOST within a {100 * MARGIN:g}-point margin, Holm over all {tests} "
+            f"comparisons of the study ({VERDICT_RULE}).", "", "## Findings", ""]
     text += [f"- {line}" for line in findings(summary)]
-    text += ["", "## Success [%] (↓ worse, ↑ better, = equivalent to the ideal world)", "", table(summary), "",
-             "## Collision [%]", "", table(summary, "collision"), "",
+    text += ["", "## Success [%]: mean over the selections [min, max]; the selections' verdicts in seed order "
+             "(↓ worse, ↑ better, = equivalent, · inconclusive against the ideal world)", "", table(summary), "",
+             "## Collision [%]: mean over the selections [min, max]", "", table(summary, "collision"), "",
+             "## Strongest wind, per selection", "", wind_table(summary), "",
              f"## Change in success per family [points] at each imperfection's strongest level ({count} fields per "
-             "family; the pooled numbers above hide changes of opposite sign)", "", family_table(df), "",
+             "family, mean over the selections; the pooled numbers above hide changes of opposite sign)", "",
+             family_table(df), "",
              "![success, collision and clearance against each imperfection](robustness.png)", "",
-             "`summary.csv` has every rate with its Wilson interval, the mean minimum clearance with its "
-             "bootstrap interval, the paired change in success with its interval and p-value, and the mean "
-             "`unseen_steps`, `max_tilt` and `accel_error_rms` of every method and world."]
+             "`summary.csv` has, per method, selection seed and world, every rate with its Wilson interval, the "
+             "mean minimum clearance with its bootstrap interval, the paired change in success with its interval, "
+             "raw and Holm-adjusted p-values and the verdict, and the mean `unseen_steps`, `max_tilt` and "
+             "`accel_error_rms`."]
     (out / "README.md").write_text("\n".join(text) + "\n")
 
 
@@ -300,7 +374,7 @@ def main() -> None:
 
     spec, _ = load_compare_spec(SPEC)
     count = args.fields or FIELDS
-    data = study.ROOT / "runs" / f"robustness-f{count}.parquet"  # git-ignored; a rerun only redraws
+    data = study.ROOT / "runs" / f"robustness-s{len(seeds())}-f{count}.parquet"  # git-ignored; a rerun only redraws
     if data.exists():
         df = pd.read_parquet(data)
     else:
