@@ -34,6 +34,8 @@ def _separates(n: study.Numbers, group: str, method: str) -> list[str]:
 
 
 def findings(n: study.Numbers) -> str:
+    from jaxapf.stats import VERDICT_RULE
+
     groups = _groups(n)
     lines = ["## Outcomes per family, variant and kind", "",
              "Success rate in % (Wilson 95 % interval in the report) of each method on the same fields; "
@@ -49,8 +51,8 @@ def findings(n: study.Numbers) -> str:
                      + f" | {spread:.1f} | {collision:.1f} | {stalled:.1f} |")
         (flat if all(r <= FLOOR for r in rates) or all(r >= 1 - FLOOR for r in rates) else open_).append(g)
     lines += ["", "## Against `basic`: at the paper's gains, and at matched strength", "",
-              "Rates on which a method is relevantly **better** or **worse** than `basic` (the report's verdict: "
-              "Holm-significant and outside the metric's 2 pp margin); empty: equivalent or inconclusive on "
+              "Rates on which a method is relevantly **better** or **worse** than `basic` (the report's "
+              + VERDICT_RULE + "); empty: equivalent or inconclusive on "
               "success, collision and stall rates.", "",
               "| group | " + " | ".join(f"{m} | {NORMALISED[m]}" for m in PAPER) + " |",
               "|---|" + "---|" * (2 * len(PAPER))]

@@ -95,8 +95,9 @@ def statistics_text(n: study.Numbers) -> str:
         f"- **Scenario 2, smoothness** ({claim3}): jerk RMS (Hodges-Lehmann shift, on the {dy_j.n_pairs} fields "
         f"where both arrive) {dy_j.text()}.",
         "",
-        "A claim is *supported* when the report's verdict is *better* (Holm-significant and beyond the metric's "
-        "relevance margin), *contradicted* when it is *worse*. These runs use the paper's default gains, at which "
+        "A claim is *supported* when the report's verdict is *better* (the Holm-adjusted difference test "
+        "rejects and the interval lies above 0; not *equivalent* within the metric's margin), "
+        "*contradicted* when it is *worse*. These runs use the paper's default gains, at which "
         "`direction_velocity` also repels about three times as hard as `basic` at hover: study 7 compares the "
         "weightings at matched strength, study 8 each method at its tuned best.",
     ]

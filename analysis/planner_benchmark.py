@@ -69,14 +69,16 @@ def _unanimous(comparisons, summary, spec, method, group, metric) -> str | None:
 
 
 def leaderboard(spec, summary: pd.DataFrame, vs_basic: pd.DataFrame, vs_paper: pd.DataFrame) -> str:
+    from jaxapf.stats import VERDICT_RULE
+
     groups = [g for g in dict.fromkeys(summary["family"])]
     lines = ["## Leaderboard", "",
              "Per group (family, trap kind, and `all` pooled): each method's held-out rates in % at its tuned "
              "selections, mean over the three selection seeds [lowest, highest]; clearance is the median minimum "
              "clearance [m], time the median time to goal among successes [s] (each method's own successes; the "
              "paired verdicts compare it on the fields where both succeed). *vs basic* and *vs paper*: the three "
-             "tuned seeds' verdicts on success (better / worse: Holm-significant and outside the 2 pp margin; "
-             "equivalent: within it), each against `basic` resp. `direction_velocity` of the same selection. "
+             "tuned seeds' verdicts on success (equivalent within the 2 pp margin; " + VERDICT_RULE + "), "
+             "each against `basic` resp. `direction_velocity` of the same selection. "
              "Rows are sorted by the mean tuned success.", ""]
     for group in groups:
         rows = []

@@ -27,6 +27,8 @@ def _tuned(summary: pd.DataFrame, group: str, method: str, metric: str) -> tuple
 
 
 def findings(spec, summary: pd.DataFrame, comparisons: pd.DataFrame) -> str:
+    from jaxapf.stats import VERDICT_RULE
+
     methods, base = spec.methods, spec.baseline
     groups = [g for g in dict.fromkeys(summary["family"]) if "/" not in g]
     lines = ["## Does tuning help, and does it change the ranking?", "",
@@ -48,8 +50,8 @@ def findings(spec, summary: pd.DataFrame, comparisons: pd.DataFrame) -> str:
     by_tuned = sorted(methods, key=lambda m: -np.mean(gains[m][1]))
     lines += ["", "## Verdicts against `basic`, seed by seed", "",
               "For every test family (and pooled), the verdicts of each method against `basic` of the same "
-              "selection on success, collision and stall rates: *better* / *worse* (Holm-significant and outside "
-              "the 2 pp margin), *equivalent* (within it), *inconclusive*. A cell lists the defaults' verdict, then "
+              "selection on success, collision and stall rates: *better*, *worse*, *equivalent* within the "
+              "2 pp margin, *inconclusive* (" + VERDICT_RULE + "). A cell lists the defaults' verdict, then "
               "the three tuned seeds'.", "",
               "| group | " + " | ".join(f"{m}: {metric}" for m in methods if m != base for metric in METRICS) + " |",
               "|---|" + "---|" * (len(METRICS) * (len(methods) - 1))]
