@@ -1,0 +1,80 @@
+"""Every number in README's "What the data says" comes from the committed results of the studies its row
+names, and every number of "Speed" from the committed benchmark results: a rerun that changes a number
+fails here until the text follows."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+
+from conftest import ROOT
+
+NUMBER = re.compile(r"\d[\d,]*(?:\.\d+)?")
+#: A study of analysis/README.md's table: its number, script stem and results folder.
+STUDY_ROW = re.compile(r"^\| (\d+) \| .*`python analysis/(\w+)\.py`.*\]\(results/(\w+)/README\.md\) \|$")
+
+
+def numbers(text: str) -> set[str]:
+    """Every number in ``text`` as written (thousands separators dropped, signs ignored)."""
+    return {n.replace(",", "") for n in NUMBER.findall(text)}
+
+
+def unmatched(cited: set[str], source: set[str]) -> list[str]:
+    """The numbers of ``cited`` that no number of ``source`` rounds to at the cited precision (the
+    README may round a results page's -5.08 to 5.1, never change it)."""
+    values = sorted(float(n) for n in source)
+    out = []
+    for n in cited:
+        half = 0.5 * 10.0 ** -len(n.partition(".")[2])
+        if not any(abs(v - float(n)) <= half * (1 + 1e-9) for v in values):
+            out.append(n)
+    return sorted(out, key=float)
+
+
+def section(text: str, title: str) -> str:
+    """The body of the ``## title`` section of a markdown page."""
+    body = text.split(f"\n## {title}\n", 1)[1]
+    return body.split("\n## ", 1)[0]
+
+
+def studies() -> dict[str, tuple[str, str]]:
+    """Script stem -> (study number, results folder), from analysis/README.md's table."""
+    out = {}
+    for line in (ROOT / "analysis" / "README.md").read_text().splitlines():
+        if m := STUDY_ROW.match(line):
+            out[m.group(2)] = (m.group(1), m.group(3))
+    return out
+
+
+def results_text(folder: str) -> str:
+    """A study's conclusion page (``analysis/results/<folder>/README.md``, written by its script from
+    its report); not the full report, whose thousands of numbers would match almost anything."""
+    return (ROOT / "analysis" / "results" / folder / "README.md").read_text()
+
+
+def data_rows() -> list[tuple[str, str]]:
+    """(question, finding) of every row of README's "What the data says" table."""
+    rows = []
+    for line in section((ROOT / "README.md").read_text(), "What the data says").splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split(" | ")]
+        if line.startswith("| ") and len(cells) == 2 and cells[0] not in ("question (script)", "---"):
+            rows.append((cells[0], cells[1]))
+    return rows
+
+
+def test_the_table_has_a_row_per_study():
+    named = {m for q, _ in data_rows() for m in re.findall(r"`(\w+)\.py`", q)}
+    assert named == set(studies()), "every study has a row in README's 'What the data says', and only studies"
+
+
+@pytest.mark.parametrize("question, finding", data_rows(), ids=[re.findall(r"`(\w+)\.py`", q)[0] for q, _ in data_rows()])
+def test_every_number_of_a_finding_is_in_its_studies_results(question, finding):
+    """A row's numbers must each appear in the committed results of the study its question names, or
+    of a study its text cites ("study 11"); question cells may also state the protocol."""
+    table = studies()
+    by_number = {n: folder for n, folder in table.values()}
+    folders = [table[s][1] for s in re.findall(r"`(\w+)\.py`", question)]
+    folders += [by_number[n] for n in re.findall(r"study (\d+)", question + finding)]
+    missing = unmatched(numbers(question + " " + finding), numbers("\n".join(results_text(f) for f in folders)))
+    assert not missing, f"README numbers not in analysis/results/{{{','.join(folders)}}}: {missing}"
