@@ -16,9 +16,26 @@ it vmaps, and it differentiates almost everywhere (through the selected candidat
 alternatives measured before this one (a first-order dual method with 60-400 iterations, ADMM with
 30-100) missed an independent QP solver by up to 0.5 on narrow feasible wedges.
 
-When no candidate is feasible, the constraints and ``S`` cannot all hold: the candidate in ``S``
-with the smallest violation of the rows (nearest ``x_0`` among equals) is returned with that
-violation.
+When the constraints and ``S`` cannot all hold, the point returned is the one of least violation,
+as RVO2's fallback (its linear program one dimension up) chooses it:
+
+.. math:: t^* = \min_{x \in S} \max_j (b_j - g_j\cdot x), \qquad
+          x^* = \arg\min_x \tfrac12 |x - x_0|^2 \;\text{s.t.}\; g_j\cdot x \ge b_j - t^*,\; x \in S,
+
+the largest violation made as small as ``S`` allows, then the point nearest ``x_0`` among those.
+``t^*`` is found exactly, with fixed work too. In ``(x, t)`` the first problem is ``min t`` s.t.
+``g_j·x + t >= b_j``, ``x ∈ S``. For the box it is a linear program whose optimum is a vertex: four
+active constraints, three of which fix ``x`` as an affine function of ``t`` on a line
+``x_T(t) = G_T⁻¹ (b_T - t r_T)`` (``r = 1`` for a row, 0 for a face of the box), and on that line
+the optimum is the smallest ``t`` the other constraints allow, a ratio test. For the ball the
+optimum is such a vertex inside the ball or lies on the sphere with one to three rows active at
+equal violation: ``L g_j`` (one row), the point of the circle of the plane
+``(g_i - g_j)·x = b_i - b_j`` farthest along ``g_i`` (two), the two points where the line of
+``(g_i - g_j)·x = b_i - b_j, (g_i - g_k)·x = b_i - b_k`` meets the sphere (three). Every such
+candidate is scored by its actual largest violation and ``t^*`` is the least score of those in
+``S``. A feasible problem has ``t^* <= 0`` and is solved exactly as before (``b`` unshifted); an
+infeasible one is solved with ``b - t^*`` (plus a rounding margin of ``4e-6 (1 + L)``). The
+violation returned is the largest of the rows at the returned point.
 """
 
 from __future__ import annotations
@@ -34,7 +51,11 @@ from jax import Array
 from .datatypes import safe_norm
 from .datatypes.obstacles import TINY
 
-__all__ = ["nearest_feasible"]
+__all__ = ["nearest_feasible", "INFEASIBLE_TOL"]
+
+#: A problem counts as infeasible (the CBF filter's ``cbf_infeasible``, the velocity obstacles'
+#: ``vo_infeasible``) when the returned point misses some unit-scaled row by more than this.
+INFEASIBLE_TOL = 1e-3
 
 @cache
 def _subsets(count: int, largest: int) -> tuple[np.ndarray, ...]:
@@ -115,24 +136,99 @@ def _sphere_candidates(x0: Array, rows: Array, bounds: Array, usable: Array, rad
     return candidates, ok
 
 
-def nearest_feasible(x0: Array, g: Array, b: Array, limit: float | Array,
-                     region: Literal["box", "ball"]) -> tuple[Array, Array]:
-    """``argmin ½|x - x0|²`` s.t. ``g x >= b`` (rows (M, 3) of unit length; zero rows ignored) and
-    ``x`` in the box ``|x_i| <= limit`` or the ball ``|x| <= limit``; returns ``(x, largest
-    violation of the rows)`` (module docstring)."""
-    usable_rows = jnp.any(g != 0, axis=1)
+def _least_violation(g: Array, b: Array, usable_rows: Array, limit: float | Array,
+                     region: Literal["box", "ball"]) -> Array:
+    """``t* = min over x in S of max_j (b_j - g_j·x)`` over the usable rows (module docstring), exactly;
+    ``-inf`` without usable rows."""
+    dtype = g.dtype
+    if region == "box":
+        eye = jnp.eye(3, dtype=dtype)
+        rows = jnp.concatenate([g, eye, -eye])
+        bounds = jnp.concatenate([b, jnp.full((6,), -limit, dtype)])
+        usable = jnp.concatenate([usable_rows, jnp.ones((6,), bool)])
+        shifts = jnp.concatenate([jnp.ones_like(b), jnp.zeros((6,), dtype)])  # r: 1 for a row, 0 for a face
+    else:
+        rows, bounds, usable, shifts = g, b, usable_rows, jnp.ones_like(b)
+    candidates, scored = [], []
+    (triples,) = _subsets(rows.shape[0], 3)[2:]
+    if triples.shape[0]:
+        # the line x_T(t) = p + t d of every independent triple T, its lowest t by the ratio test
+        gs = rows[triples]
+        p, regular = _step(gs, bounds[triples])
+        d = -_step(gs, shifts[triples])[0]
+        alpha = p @ rows.T - bounds[None]  # slack of every constraint at t = 0
+        beta = d @ rows.T + shifts[None]  # its rate in t
+        member = np.zeros((triples.shape[0], rows.shape[0]), bool)
+        member[np.arange(triples.shape[0])[:, None], triples] = True
+        bounding = (beta > 1e-6) & usable[None] & ~member
+        lowest = jnp.where(bounding, -alpha / jnp.where(bounding, beta, 1.0), -jnp.inf)
+        t_line = jnp.max(lowest, axis=1)
+        t_line = jnp.where(jnp.isfinite(t_line), t_line, 0.0)
+        line = p + t_line[:, None] * d
+        # its largest violation b_j - g_j·x = -alpha_j - t (beta_j - 1) over the usable rows
+        score = jnp.max(jnp.where(usable_rows[None], -alpha[:, :g.shape[0]] - t_line[:, None]
+                                  * (beta[:, :g.shape[0]] - 1.0), -jnp.inf), axis=1)
+        scored.append((line, score, regular & jnp.all(usable[triples], axis=1)))
+    if region == "ball":
+        n_rows = g.shape[0]
+        candidates.append((limit * _unit(g)[0], usable_rows))  # one row active: L g_j
+        (pairs,) = _subsets(n_rows, 2)[1:]
+        if pairs.shape[0]:
+            # two rows at equal violation: the plane (g_i - g_j)·x = b_i - b_j, farthest along g_i on the sphere
+            gi = g[pairs[:, 0]]
+            n, length = _unit(gi - g[pairs[:, 1]])
+            c = (b[pairs[:, 0]] - b[pairs[:, 1]]) / length
+            along = gi - jnp.sum(gi * n, axis=1, keepdims=True) * n
+            circle = jnp.sqrt(jnp.maximum(limit * limit - c * c, TINY))
+            point = c[:, None] * n + (circle / safe_norm(along))[:, None] * along
+            candidates.append((point, (length > 1e-6) & (c * c < limit * limit)
+                               & usable_rows[pairs[:, 0]] & usable_rows[pairs[:, 1]]))
+        (triples,) = _subsets(n_rows, 3)[2:]
+        if triples.shape[0]:
+            # three rows at equal violation: the line of two difference planes, where it meets the sphere
+            gi, bi = g[triples[:, :1]], b[triples[:, :1]]
+            planes, offsets = gi - g[triples[:, 1:]], bi - b[triples[:, 1:]]  # (C, 2, 3), (C, 2)
+            e = jnp.cross(planes[:, 0], planes[:, 1])
+            e2 = jnp.sum(e * e, axis=1)
+            c, regular = _step(planes, offsets)
+            disc = limit * limit - jnp.sum(c * c, axis=1)
+            step = jnp.sqrt(jnp.maximum(disc, TINY) / jnp.maximum(e2, TINY))[:, None] * e
+            ok = regular & (disc > 0.0) & jnp.all(usable_rows[triples], axis=1)
+            candidates += [(c + step, ok), (c - step, ok)]
+    scored += [(x, jnp.max(jnp.where(usable_rows[None], b[None] - x @ g.T, -jnp.inf), axis=1), ok)
+               for x, ok in candidates]
+    if not scored:
+        return jnp.asarray(-jnp.inf, dtype)
+    points = jnp.concatenate([x for x, _, _ in scored])
+    score = jnp.concatenate([v for _, v, _ in scored])
+    ok = jnp.concatenate([k for _, _, k in scored])
+    slack = 1e-6 * (1.0 + limit)
+    if region == "box":
+        ok &= jnp.all(jnp.abs(points) <= limit + slack, axis=1)
+    else:
+        ok &= jnp.sum(points * points, axis=1) <= (limit + slack) ** 2
+    return jnp.min(jnp.where(ok, score, jnp.inf))
+
+
+def _unit(a: Array) -> tuple[Array, Array]:
+    """``(a / |a|, |a|)`` along the last axis, finite at ``a = 0``."""
+    length = safe_norm(a)
+    return a / length[..., None], length
+
+
+def _nearest(x0: Array, g: Array, b: Array, usable_rows: Array, limit: float | Array,
+             region: Literal["box", "ball"]) -> Array:
+    """The feasible candidate nearest ``x0``; the least violating one in the region if none is."""
     if region == "box":
         eye = jnp.eye(3, dtype=x0.dtype)
         rows = jnp.concatenate([g, eye, -eye])  # the rows, then x_i >= -L and -x_i >= -L
         bounds = jnp.concatenate([b, jnp.full((6,), -limit, x0.dtype)])
         usable = jnp.concatenate([usable_rows, jnp.ones((6,), bool)])
         cand, ok = _plane_candidates(x0, rows, bounds, usable, 3)
-    elif region == "ball":
+    else:
         planes, planes_ok = _plane_candidates(x0, g, b, usable_rows, 3)
         sphere, sphere_ok = _sphere_candidates(x0, g, b, usable_rows, limit)
         cand, ok = jnp.concatenate([planes, sphere]), jnp.concatenate([planes_ok, sphere_ok])
-    else:
-        raise ValueError(f"region must be 'box' or 'ball', not {region!r}")
     cand, ok = jnp.concatenate([x0[None], cand]), jnp.concatenate([jnp.ones((1,), bool), ok])
     slack = 1e-6 * (1.0 + limit)
     if region == "box":
@@ -142,12 +238,26 @@ def nearest_feasible(x0: Array, g: Array, b: Array, limit: float | Array,
     violation = jnp.max(jnp.where(usable_rows[None], b[None] - cand @ g.T, 0.0), axis=1, initial=0.0)
     distance = jnp.sum((cand - x0) ** 2, axis=1)
     feasible = inside & (violation <= slack)
-    # feasible candidates first, nearest x0; otherwise the least violating one inside the region
+    # feasible candidates first, nearest x0; otherwise (rounding only) the least violating one inside
     key = jnp.where(feasible, distance, jnp.where(inside, 1e6 + 1e3 * violation + distance, jnp.inf))
-    best = jnp.argmin(key)
-    x = cand[best]
+    x = cand[jnp.argmin(key)]
     if region == "box":
-        x = jnp.clip(x, -limit, limit)
-    else:
-        x = x * jnp.minimum(1.0, limit / safe_norm(x))
-    return x, violation[best]
+        return jnp.clip(x, -limit, limit)
+    return x * jnp.minimum(1.0, limit / safe_norm(x))
+
+
+def nearest_feasible(x0: Array, g: Array, b: Array, limit: float | Array,
+                     region: Literal["box", "ball"]) -> tuple[Array, Array]:
+    """``argmin ½|x - x0|²`` s.t. ``g x >= b`` (rows (M, 3) of unit length; zero rows ignored) and
+    ``x`` in the box ``|x_i| <= limit`` or the ball ``|x| <= limit``; if they cannot all hold, the
+    point nearest ``x0`` among those of least largest violation. Returns ``(x, largest violation of
+    the rows at x)`` (module docstring)."""
+    if region not in ("box", "ball"):
+        raise ValueError(f"region must be 'box' or 'ball', not {region!r}")
+    usable_rows = jnp.any(g != 0, axis=1)
+    least = _least_violation(g, b, usable_rows, limit, region)
+    infeasible = least > 0.0
+    level = jnp.where(infeasible, least + 4e-6 * (1.0 + limit), 0.0)
+    x = _nearest(x0, g, jnp.where(usable_rows, b - level, b), usable_rows, limit, region)
+    violation = jnp.max(jnp.where(usable_rows, b - g @ x, 0.0), initial=0.0)
+    return x, violation

@@ -14,7 +14,8 @@ Each control step ``k`` (time ``t_k = k Δt``), with the components named by ``s
    Steps 1-3 work with that observation; the plant and the metrics with the truth;
 1. the planner (``sim.planner.method``, :data:`~jaxapf.planners.PLANNERS`) maps its state and the
    UAV's ``[p, v]`` to the MPC reference for ``x(k..k+N)``; a potential-field planner rolls its
-   saturated gradient flow N steps ahead with the obstacles extrapolated at constant velocity;
+   saturated gradient flow N steps ahead with the obstacles extrapolated at constant velocity
+   (its diagnostics, :meth:`~jaxapf.planners.Planner.diagnostics`, are recorded);
 2. :func:`~jaxapf.control.mpc.solve_axes` solves the three per-axis condensed box QPs by FISTA,
    warm started from the previous solution shifted by one step, on the plant's linear model;
 3. the safety filter (``sim.planner.filter``, :data:`~jaxapf.control.FILTERS`; ``none`` by default)
@@ -100,12 +101,13 @@ def loop_step(loop: ClosedLoop, carry: tuple, k: Array, scenario: Scenario, obst
     step = jnp.round(k).astype(jnp.int32)
     x, observed, seen, sensed = loop.sensor(seen, loop.plant.kinematics(state), step, scenario, obstacles, gains, sim)
     x_ref, plan = loop.planner.reference(plan, x, t, scenario.goal, observed, gains, sim, mpc.horizon)
+    planned = loop.planner.diagnostics(plan)
     u = solve_axes(loop.prob, x, x_ref, warm, a_max=sim.vehicle.a_max, v_max=sim.vehicle.v_max, iters=mpc.iters)
     accel, guard, filtered = loop.safety(guard, u[:, 0], x, t, observed, gains, sim)
     push, gust = loop.disturbance(gust, step, scenario, gains, sim)
     state, integrated = loop.plant.step(state, accel, push, gains, sim)
     return ((state, shift_warm_start(u), plan, guard, seen, gust),
-            (loop.plant.kinematics(state), accel, sensed | filtered | integrated))
+            (loop.plant.kinematics(state), accel, sensed | planned | filtered | integrated))
 
 
 def record_trajectory(x0: Array, records: tuple, sim: SimConfig) -> Trajectory:

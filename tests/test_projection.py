@@ -1,5 +1,7 @@
 """The nearest feasible point (jaxapf.projection): against OSQP (box; ball through its multiplier)
-on random feasible problems, infeasibility reported, gradients against finite differences."""
+on random feasible problems; on random infeasible ones the least largest violation, against
+scipy's linprog (box) and SLSQP (ball); infeasibility reported, gradients against finite
+differences."""
 
 from __future__ import annotations
 
@@ -106,6 +108,75 @@ def test_incompatible_constraints_are_reported(region):
     for g, b in [([[1.0, 0, 0], [-1.0, 0, 0]], [1.0, 1.0]), ([[1.0, 0, 0]], [5.0])]:
         _, worst = PROJECT(jnp.zeros(3), *_padded(np.asarray(g), np.asarray(b)), LIMIT, region)
         assert float(worst) > INFEASIBLE_TOL
+
+
+def _infeasible(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Random unit rows asking for more than the region allows (``b`` in [0.3 L, 1.5 L])."""
+    rng = np.random.default_rng(seed)
+    m = int(rng.integers(2, ROWS + 1))
+    g = rng.normal(size=(m, 3))
+    g /= np.linalg.norm(g, axis=1, keepdims=True)
+    return rng.uniform(-2 * LIMIT, 2 * LIMIT, 3), g, rng.uniform(0.3 * LIMIT, 1.5 * LIMIT, m)
+
+
+def _least_violation_box(g, b):
+    """``min t`` s.t. ``b_j - g_j·x <= t``, ``|x_i| <= L`` by scipy's linprog (HiGHS), float64."""
+    from scipy.optimize import linprog
+
+    m = g.shape[0]
+    res = linprog(np.r_[0.0, 0.0, 0.0, 1.0], A_ub=np.hstack([-g, -np.ones((m, 1))]), b_ub=-b,
+                  bounds=[(-LIMIT, LIMIT)] * 3 + [(None, None)], method="highs")
+    assert res.status == 0
+    return res.fun
+
+
+def _least_violation_ball(g, b, seed):
+    """The same within the ball by SLSQP (convex: the best of a few starts), float64."""
+    from scipy.optimize import minimize
+
+    rng = np.random.default_rng(seed)
+    best = np.inf
+    for _ in range(4):
+        z0 = np.r_[rng.uniform(-1, 1, 3), 2 * LIMIT]
+        res = minimize(lambda z: z[3], z0, method="SLSQP", options={"ftol": 1e-12, "maxiter": 500},
+                       constraints=[{"type": "ineq", "fun": lambda z: g @ z[:3] + z[3] - b},
+                                    {"type": "ineq", "fun": lambda z: LIMIT**2 - z[:3] @ z[:3]}])
+        if res.success and np.all(g @ res.x[:3] + res.x[3] - b >= -1e-8):
+            best = min(best, res.fun)
+    return best
+
+
+@pytest.mark.parametrize("region", ["box", "ball"])
+def test_infeasible_problems_get_the_least_largest_violation(region):
+    """On 60 random infeasible problems the largest violation at the returned point is the least the
+    region allows (linprog's minimax LP for the box, SLSQP for the ball) within 5e-5 (1 + L); the
+    point lies in the region. (The former rule, the candidate of least violation, was a median 1.27x
+    the optimum on these.)"""
+    problems = [p for p in map(_infeasible, range(1000, 1100)) if _least_violation_box(p[1], p[2]) > 0.05][:60]
+    assert len(problems) == 60  # (the ball lies in the box: infeasible in the box, infeasible in the ball)
+    solve = jax.jit(jax.vmap(nearest_feasible, in_axes=(0, 0, 0, None, None)), static_argnums=(3, 4))
+    padded = [_padded(g, b) for _, g, b in problems]
+    x, worst = solve(jnp.asarray(np.array([x0 for x0, _, _ in problems]), jnp.float32),
+                     jnp.stack([g for g, _ in padded]), jnp.stack([b for _, b in padded]), LIMIT, region)
+    x, worst = np.asarray(x, np.float64), np.asarray(worst, np.float64)
+    for i, (_, g, b) in enumerate(problems):
+        best = _least_violation_box(g, b) if region == "box" else _least_violation_ball(g, b, i)
+        assert worst[i] == pytest.approx(np.max(b - g @ x[i]), abs=1e-5)
+        assert abs(worst[i] - best) <= 5e-5 * (1 + LIMIT), (i, worst[i], best)
+        if region == "box":
+            assert np.all(np.abs(x[i]) <= LIMIT)
+        else:
+            assert np.linalg.norm(x[i]) <= LIMIT * (1 + 1e-6)
+
+
+@pytest.mark.parametrize("region", ["box", "ball"])
+def test_among_the_least_violating_points_the_nearest_is_returned(region):
+    """Hand-made: ``x_1 >= 1`` and ``-x_1 >= 1`` are violated by 1 at best, on the whole plane
+    ``x_1 = 0``; from ``x0 = (2, 1, -1)`` the point returned is its projection ``(0, 1, -1)``."""
+    g, b = np.asarray([[1.0, 0, 0], [-1.0, 0, 0]]), np.asarray([1.0, 1.0])
+    x, worst = PROJECT(jnp.asarray([2.0, 1.0, -1.0]), *_padded(g, b), LIMIT, region)
+    np.testing.assert_allclose(np.asarray(x), [0.0, 1.0, -1.0], atol=1e-4)
+    assert float(worst) == pytest.approx(1.0, abs=1e-4)
 
 
 @pytest.mark.parametrize("region, x0", [("box", [-1.0, 0.3, 0.7]), ("ball", [-1.0, 0.3, 0.7]),

@@ -38,8 +38,8 @@ solved exactly by :func:`jaxapf.projection.nearest_feasible` (each row of ``G`` 
 length): in R³ at most three constraints are active, so the solution is the nearest feasible one
 of the candidates that every set of up to three active constraints gives -- a fixed amount of work
 that vmaps and differentiates. When the constraints and the box cannot all hold, the step is
-counted as infeasible (diagnostic ``cbf_infeasible``, metric ``cbf_infeasible_steps``) and the box-feasible
-candidate with the smallest violation is applied.
+counted as infeasible (diagnostic ``cbf_infeasible``, metric ``cbf_infeasible_steps``) and the acceleration
+in the box with the least largest violation (nearest ``a_mpc`` among those) is applied.
 
 The condition is the continuous-time one, applied with the control held for ``dt``: it guarantees
 nothing between samples, which the swept clearance of the metrics measures.
@@ -55,7 +55,7 @@ from jax import Array
 
 from ..gains import GainSpec
 from ..planners.sight import dot, line_of_sight, norm
-from ..projection import nearest_feasible
+from ..projection import INFEASIBLE_TOL, nearest_feasible
 from .filters import SafetyFilter, register_filter
 
 if TYPE_CHECKING:
@@ -70,9 +70,6 @@ CBF_P1 = GainSpec("cbf_p1", 1.0, low=0.0, low_open=True, unit="1/s", symbol="p_1
 CBF_P2 = GainSpec("cbf_p2", 1.0, low=0.0, low_open=True, unit="1/s", symbol="p_2",
                   doc="CBF filter: second root rate, h'' + (p_1 + p_2) h' + p_1 p_2 h >= 0")
 
-#: A step is infeasible when the filtered acceleration misses some unit-scaled row by more than
-#: this [m/s²].
-INFEASIBLE_TOL = 1e-3
 
 
 def cbf_coefficients(gains: "Gains") -> tuple[Array, Array]:

@@ -60,6 +60,10 @@ Metrics (one scalar each, in registration order)
 - ``cbf_infeasible_steps``: valid intervals at which the CBF safety filter (:mod:`jaxapf.control.cbf`)
   found its constraints and the acceleration box incompatible (``traj.extras["cbf_infeasible"]``);
   0 without that filter (int32).
+- ``vo_infeasible_steps``: valid intervals at which the ``velocity_obstacle`` planner
+  (:mod:`jaxapf.planners.velocity_obstacle`) found its ORCA half-spaces and the speed ball
+  incompatible and flew the least-violating velocity (``traj.extras["vo_infeasible"]``); 0 for
+  the other planners (int32).
 - ``max_tilt``: the largest tilt [deg] of the body's thrust axis over valid intervals
   (``traj.extras["tilt"]``, a plant with attitude such as :mod:`jaxapf.dynamics.quadrotor`); 0 for a
   plant without attitude.
@@ -229,6 +233,9 @@ for _metric in (
     Metric("cbf_infeasible_steps", lambda ctx: _extra_sum(ctx, "cbf_infeasible"), dtype="int32", kind="count",
            higher_is_better=False,
            doc="control steps at which the CBF filter's constraints and the acceleration box could not all hold"),
+    Metric("vo_infeasible_steps", lambda ctx: _extra_sum(ctx, "vo_infeasible"), dtype="int32", kind="count",
+           higher_is_better=False,
+           doc="control steps at which the velocity obstacles' half-spaces and the speed ball could not all hold"),
     Metric("max_tilt", _max_tilt, unit="deg", higher_is_better=False, margin=2.0,
            doc="largest tilt of the thrust axis (a plant with attitude; 0 otherwise)"),
     Metric("saturation_time", lambda ctx: _extra_sum(ctx, "saturated_time"), unit="s", higher_is_better=False,

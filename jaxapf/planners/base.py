@@ -4,7 +4,8 @@ A planner turns the UAV's state and what it knows of the obstacles into the MPC'
 trajectory, ``N + 1`` states for ``x(k..k+N)`` (paper section 2.2), every control step. It is a pair
 of pure functions in the spirit of optax's ``init``/``update``: :meth:`Planner.init` makes the
 state it carries through an episode (``()`` for a memoryless planner), :meth:`Planner.reference`
-maps ``(state, observation)`` to ``(reference, new state)``. Both are traced under ``jit``,
+maps ``(state, observation)`` to ``(reference, new state)``, and :meth:`Planner.diagnostics` reads
+the step's diagnostics (``traj.extras``, e.g. ``vo_infeasible``) from that new state. Both are traced under ``jit``,
 ``vmap`` and ``grad``; the planner object itself is static (a frozen dataclass).
 
 Every planner declares the gains it reads (:attr:`Planner.gains`, traced) and the static
@@ -72,6 +73,11 @@ class Planner(abc.ABC):
                   gains: "Gains", sim: "SimConfig", horizon: int) -> tuple[Array, Any]:
         """The MPC reference (horizon+1, 6) for ``x(k..k+N)`` from the state ``x = [p, v]`` (6,) at
         time ``t`` and the obstacles (component-first), and the planner's next state."""
+
+    def diagnostics(self, state: Any) -> dict[str, Array]:
+        """Per-step diagnostics the closed loop records (``traj.extras``), read from the state
+        :meth:`reference` just returned (default: none), as a safety filter returns its own."""
+        return {}
 
 
 def reference_states(x: Array, points: Array, velocities: Array, sim: "SimConfig") -> Array:

@@ -32,12 +32,16 @@ solved exactly by :func:`jaxapf.projection.nearest_feasible` (fixed work: vmaps 
 RVO2 uses an incremental linear program instead). ``v_pref`` is the potential-field planners'
 attractive flow (paper eq. 13's ``U_att``, gains ``k_att`` and ``η``, conic beyond ``att_cap``), so
 without obstacles ``velocity_obstacle`` and ``basic`` fly the same reference. When the half-spaces
-and the ball have no common point (crowded, or already inside an obstacle) the velocity in the ball
-that violates them least is used (RVO2 instead minimises the largest violation).
+and the ball have no common point (crowded, or already inside an obstacle) the velocity used is the one
+in the ball whose largest violation is least (nearest ``v_pref`` among those), as RVO2's fallback;
+the step is counted as infeasible (its largest violation above
+:data:`~jaxapf.projection.INFEASIBLE_TOL`; diagnostic ``vo_infeasible``, metric
+``vo_infeasible_steps``), as the CBF filter counts its own.
 
 The reference for the MPC holds ``v*`` over the horizon, ``p_i = p + i Δt v*``, assembled like the
 potential-field planners' (:func:`~jaxapf.planners.base.reference_states`); the receding horizon
-re-solves every control step. Every valid obstacle counts, static or moving, at its true position
+re-solves every control step. The planner's state is the last step's ``vo_infeasible`` flag (read
+by :meth:`VelocityObstacle.diagnostics`). Every valid obstacle counts, static or moving, at its true position
 and velocity; a static obstacle is an agent of velocity zero.
 
 Registered planner: ``velocity_obstacle`` (gains ``vo_tau``, ``vo_margin``, ``k_att``, ``eta``).
@@ -55,7 +59,7 @@ from jax import Array
 from ..datatypes import ObstacleColumns, Obstacles, safe_norm
 from ..datatypes.obstacles import TINY
 from ..gains import GainSpec
-from ..projection import nearest_feasible
+from ..projection import INFEASIBLE_TOL, nearest_feasible
 from .apf import ETA, K_ATT, saturate
 from .base import Planner, reference_states, register_planner
 from .potentials import attractive_potential
@@ -131,6 +135,13 @@ class VelocityObstacle(Planner):
     def reads(self) -> tuple[str, ...]:
         return ("att_cap", "reference_velocity")
 
+    def init(self, scenario: Any, gains: "Gains", sim: "SimConfig", horizon: int) -> Array:
+        """The state: whether the last step's half-spaces and speed ball had no common point."""
+        return jnp.zeros((), bool)
+
+    def diagnostics(self, state: Array) -> dict[str, Array]:
+        return {"vo_infeasible": state}
+
     def velocity(self, x: Array, t: Array, goal: Array, obstacles: ObstacleColumns, gains: "Gains",
                  sim: "SimConfig") -> tuple[Array, Array]:
         """``(v*, largest violation of the half-spaces)`` at the state ``x`` and time ``t``."""
@@ -141,11 +152,11 @@ class VelocityObstacle(Planner):
 
     def reference(self, state: Any, x: Array, t: Array, goal: Array, obstacles: Obstacles | ObstacleColumns,
                   gains: "Gains", sim: "SimConfig", horizon: int) -> tuple[Array, Any]:
-        """``v*`` held over the horizon (module docstring); no state."""
-        velocity, _ = self.velocity(x, t, goal, obstacles.columns(), gains, sim)
+        """``v*`` held over the horizon (module docstring); the state is whether this step was infeasible."""
+        velocity, worst = self.velocity(x, t, goal, obstacles.columns(), gains, sim)
         steps = jnp.arange(1, horizon + 1, dtype=x.dtype)[:, None]
         points = x[:3] + steps * sim.episode.dt * velocity
-        return reference_states(x, points, jnp.broadcast_to(velocity, points.shape), sim), state
+        return reference_states(x, points, jnp.broadcast_to(velocity, points.shape), sim), worst > INFEASIBLE_TOL
 
 
 register_planner("velocity_obstacle", VelocityObstacle())

@@ -1,7 +1,8 @@
 """The velocity-obstacle planner (jaxapf.planners.velocity_obstacle): its ORCA half-spaces against
 an independent numpy transcription of RVO2's planar construction and against the definition of a
 velocity obstacle, collision-free velocities on random encounters, the closed loop on hand-made
-encounters, and gradients."""
+encounters, an infeasible pincer (least violation, counted in ``vo_infeasible_steps``), and
+gradients."""
 
 from __future__ import annotations
 
@@ -16,11 +17,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from jaxapf.config import MPCConfig, SimConfig
-from jaxapf.control.cbf import INFEASIBLE_TOL
 from jaxapf.datatypes import Obstacles, Scenario
 from jaxapf.gains import Gains
 from jaxapf.planners import PLANNERS, VelocityObstacle
 from jaxapf.planners.velocity_obstacle import orca_half_spaces
+from jaxapf.projection import INFEASIBLE_TOL
 from jaxapf.rollout import rollout, rollout_metrics
 
 SIM = SimConfig.from_flat(method="velocity_obstacle")
@@ -196,6 +197,7 @@ def test_the_closed_loop_avoids_what_a_short_horizon_hits(scenario, name):
     assert bool(blind["collision"]), name
     assert bool(seeing["success"]) and not bool(seeing["collision"]), name
     assert float(seeing["min_clearance"]) > 0.2, name
+    assert int(seeing["vo_infeasible_steps"]) == 0, name
 
 
 def test_a_cylinder_exactly_on_the_line_stops_it_short():
@@ -205,6 +207,41 @@ def test_a_cylinder_exactly_on_the_line_stops_it_short():
     out = rollout_metrics(_cylinder_near_the_line(0.0), Gains(), _SIM_LOOP, _MPC_LOOP)
     assert bool(out["stalled"]) and not bool(out["collision"])
     assert float(out["min_clearance"]) == pytest.approx(0.25, abs=0.02)
+
+
+def _pincer() -> Scenario:
+    """Two spheres rushing at the UAV from either side along x at 6 m/s each: avoiding either one
+    within τ needs a sideways speed above v_max, and they ask for opposite sides."""
+    obstacles = _obstacles([[-3.0, 0.0, 2.0], [3.0, 0.0, 2.0]], [[6.0, 0.0, 0.0], [-6.0, 0.0, 0.0]], [0.75, 0.75],
+                           [False, False])
+    return Scenario(start=jnp.asarray([0.0, 0.0, 2.0]), goal=jnp.asarray([0.0, 20.0, 2.0]), obstacles=obstacles)
+
+
+def test_a_pincer_is_infeasible_flown_at_least_violation_and_counted():
+    """Hand-made infeasible step: the half-spaces and the speed ball have no common point; the
+    velocity flown violates them least (SLSQP's minimax over the ball, float64), and every step of
+    the episode until the collision counts in ``vo_infeasible_steps``."""
+    from scipy.optimize import minimize
+
+    scenario = _pincer()
+    x = jnp.asarray([0.0, 0.0, 2.0, 0.0, 0.0, 0.0])
+    obstacles = scenario.obstacles.columns()
+    v_star, worst = _velocity(x, scenario.goal, obstacles, Gains())
+    n, bound = (np.asarray(a, np.float64) for a in _half_spaces(x, 0.0, obstacles, Gains()))
+    assert float(worst) > INFEASIBLE_TOL
+    assert float(worst) == pytest.approx(np.max(bound - n @ np.asarray(v_star, np.float64)), abs=1e-5)
+    v_max = SIM.vehicle.v_max
+    best = min(minimize(lambda z: z[3], np.r_[start, 10.0], method="SLSQP", options={"ftol": 1e-12},
+                        constraints=[{"type": "ineq", "fun": lambda z: n @ z[:3] + z[3] - bound},
+                                     {"type": "ineq", "fun": lambda z: v_max**2 - z[:3] @ z[:3]}]).fun
+               for start in ([0.0, 0.0, 0.0], [1.0, 1.0, 0.0], [-1.0, -1.0, 0.5]))
+    assert float(worst) == pytest.approx(best, abs=1e-4)
+    out = rollout_metrics(scenario, Gains(), SimConfig.from_flat(method="velocity_obstacle", t_max=3.0), _MPC_LOOP)
+    assert bool(out["collision"]) and int(out["steps"]) >= 1
+    assert int(out["vo_infeasible_steps"]) == int(out["steps"])
+    assert int(out["cbf_infeasible_steps"]) == 0
+    basic = rollout_metrics(scenario, Gains(), SimConfig.from_flat(method="basic", t_max=3.0), _MPC_LOOP)
+    assert int(basic["vo_infeasible_steps"]) == 0  # no velocity obstacles, nothing recorded
 
 
 def test_gradient_matches_finite_differences():
