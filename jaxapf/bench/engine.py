@@ -12,7 +12,11 @@ r"""Engine speed: the batched JAX evaluator against the numpy + OSQP oracle on t
   fields, each right after a steady engine run (engine, field 0, engine, field 1, ...), so a drift
   of a shared machine's speed hits both sides alike: seconds per field and scenario-steps per
   second;
-* the **speed-up** = engine scenario-steps/s ÷ oracle scenario-steps/s, both from this run.
+* the **vectorised numpy peer** (:func:`jaxapf.bench.vectorised.vectorised_rollout`: the same
+  closed loop in numpy over all fields at once) for ``vectorised_steps`` steps after each of the
+  first three steady engine runs, after one untimed warm-up, with BLAS pinned to one thread
+  (:func:`blas_one_thread`; the result records how);
+* the **speed-up** = engine scenario-steps/s ÷ each peer's scenario-steps/s, both from this run.
 
 Wall-clock times are what is reported; the process CPU time of the timed sections is recorded too
 (``run_cpu_s``, ``cpu_s``), so a run on a shared machine can be recognised (CPU time well below
@@ -29,7 +33,9 @@ Everything is returned in a JSON-serialisable dict (``jaxapf bench engine --json
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import os
 import time
 from importlib import metadata
 from typing import Any, Callable
@@ -45,7 +51,7 @@ from ..text import format_seconds
 from ..validation import ConfigError, check_int
 
 __all__ = ["run_benchmark", "format_benchmark", "bench_case", "lower_case", "interleaved", "environment",
-           "rates_summary"]
+           "rates_summary", "blas_one_thread"]
 
 
 def environment(dtype: Any) -> dict[str, Any]:
@@ -57,6 +63,23 @@ def environment(dtype: Any) -> dict[str, Any]:
     except metadata.PackageNotFoundError:
         osqp = "not installed"
     return {**versions(), "osqp": osqp, "dtype": str(jnp.dtype(dtype))}
+
+
+def blas_one_thread() -> tuple[Any, str]:
+    """A context that pins BLAS to one thread, and how: the vectorised numpy peer's matrix
+    products are small (N x 2N by N x 3F), where BLAS threads cost more than they give on a CPU the
+    engine already keeps busy. Uses threadpoolctl when it is installed; without it the threads can
+    only be set before numpy loads BLAS (``OPENBLAS_NUM_THREADS=1``, ``OMP_NUM_THREADS=1`` or
+    ``MKL_NUM_THREADS=1`` in the environment of ``jaxapf bench engine``), which is checked."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:
+        for name in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
+            if os.environ.get(name, "").strip() == "1":
+                return contextlib.nullcontext(), f"1 ({name}=1)"
+        return contextlib.nullcontext(), ("not pinned (pip install threadpoolctl, or run with "
+                                          "OPENBLAS_NUM_THREADS=1)")
+    return threadpool_limits(limits=1, user_api="blas"), "1 (threadpoolctl)"
 
 
 def _block(tree: Any) -> Any:
@@ -212,7 +235,11 @@ def run_benchmark(
         vec_sim = dataclasses.replace(sim, episode=dataclasses.replace(
             sim.episode, t_max=min(vectorised_steps, sim.episode.steps) * sim.episode.dt))
         vec_steps = vec_sim.episode.steps
-    runs, cpus, per_field, base_cpu, vec_runs = [], [], [], 0.0, []
+        blas, blas_threads = blas_one_thread()
+        with blas:  # untimed warm-up: the peer's one-off set-up (its MPC matrices) and first touches
+            vectorised_rollout(host, gains, dataclasses.replace(sim, episode=dataclasses.replace(
+                sim.episode, t_max=sim.episode.dt)), mpc, dtype=np.dtype(dtype))
+    runs, cpus, per_field, base_cpu, vec_runs, vec_cpu = [], [], [], 0.0, [], 0.0
     try:
         t0 = time.perf_counter()
         _block(run(scenarios, gains_batch))
@@ -231,9 +258,11 @@ def run_benchmark(
                 per_field.append(time.perf_counter() - t0)
                 base_cpu += time.process_time() - c0
             if i < n_vec:
-                t0 = time.perf_counter()
-                vectorised_rollout(host, gains, vec_sim, mpc, dtype=np.dtype(dtype))
-                vec_runs.append(time.perf_counter() - t0)
+                with blas:
+                    t0, c0 = time.perf_counter(), time.process_time()
+                    vectorised_rollout(host, gains, vec_sim, mpc, dtype=np.dtype(dtype))
+                    vec_runs.append(time.perf_counter() - t0)
+                    vec_cpu += time.process_time() - c0
     finally:
         if devices > 1:
             batch.close()
@@ -270,7 +299,8 @@ def run_benchmark(
     if n_vec:
         t_vec = float(np.median(vec_runs))
         vectorised = {"steps": vec_steps, "run_s": t_vec, "run_all_s": vec_runs,
-                      "steps_per_s": fields * vec_steps / t_vec}
+                      "steps_per_s": fields * vec_steps / t_vec, "cpu_s": vec_cpu / n_vec,
+                      "blas_threads": blas_threads}
         speedup_vectorised = engine["steps_per_s"] / vectorised["steps_per_s"]
 
     return {
@@ -334,7 +364,8 @@ def format_benchmark(result: dict[str, Any]) -> str:
     if vec is not None:
         lines += [
             f"  {'vectorised numpy, all fields':34s}{format_seconds(vec['run_s']):>12s}{vec['steps_per_s']:>20,.0f}",
-            f"  {'  (' + str(vec['steps']) + ' steps, median of ' + str(len(vec['run_all_s'])) + ')':34s}",
+            f"  {'  (' + str(vec['steps']) + ' steps, median of ' + str(len(vec['run_all_s'])) + ')':34s}"
+            f"  BLAS threads: {vec.get('blas_threads', '?')}",
             f"  speed-up (engine / vectorised numpy steps/s): {result['speedup_vectorised']:,.1f}x",
         ]
     rates = [f"{k[:-5]} {v:.1%}" for k, v in eng.items() if k.endswith("_rate")]

@@ -79,8 +79,56 @@ def test_bench_times_the_vectorised_peer_and_prints_its_ratio():
     result = run_benchmark(fields=8, obstacles=4, horizon=4, iters=3, steps=6, oracle_fields=0, vectorised_steps=4)
     vec = result["vectorised"]
     assert vec["steps"] == 4 and len(vec["run_all_s"]) == 3
+    assert vec["blas_threads"].startswith(("1 (", "not pinned"))
     assert vec["steps_per_s"] == pytest.approx(8 * 4 / vec["run_s"])
     assert result["speedup_vectorised"] == pytest.approx(result["engine"]["steps_per_s"] / vec["steps_per_s"])
     assert "speed-up (engine / vectorised numpy steps/s)" in format_benchmark(result)
     assert run_benchmark(fields=8, obstacles=4, horizon=4, iters=3, steps=6, oracle_fields=0,
                          vectorised_steps=0)["vectorised"] is None
+
+
+@pytest.mark.parametrize("method", ["basic", "direction", "direction_velocity"])
+@pytest.mark.parametrize("convention", ["intent", "literal"])
+def test_repulsion_matches_the_oracle_force_inside_and_outside_obstacles(method, convention):
+    """The peer's rewritten force (one pass per coefficient) against the oracle's formulas, per field,
+    at states scattered through the fields: inside obstacles (the clearance floor), moving obstacles,
+    cylinders and padded slots."""
+    from jaxapf.bench import vectorised
+    from jaxapf.bench.oracle import _attractive, _gain_values, total_force
+
+    sim = SimConfig.from_flat(method=method, convention=convention)
+    gains = _gain_values(Gains(**GAINS))
+    host = jax.tree_util.tree_map(lambda a: np.repeat(np.asarray(a), 40, axis=0), _batch(jnp.float32))
+    field = vectorised._Field(host, gains, sim, np.float64)
+    rng = np.random.default_rng(1)
+    p = field.start + rng.normal(0, 4, (3, 200))
+    v = rng.normal(0, 1.5, (3, 200))
+    got = vectorised._repulsion(field, p, v, 1.3)
+    obs = host.obstacles
+    for i in range(p.shape[1]):
+        proj = np.ones((obs.radius.shape[1], 3))
+        proj[np.asarray(obs.cylinder[i], bool), 2] = 0.0
+        f64 = lambda a, i=i: np.asarray(a[i], np.float64)  # noqa: E731
+        arrays = dict(position=f64(obs.position), velocity=f64(obs.velocity), radius=f64(obs.radius),
+                      valid=np.asarray(obs.valid[i], bool), proj=proj, goal=f64(host.goal))
+        want = -total_force(p[:, i], v[:, i], 1.3, arrays, gains, sim) - _attractive(p[:, i], arrays["goal"],
+                                                                                    gains["k_att"], None)[1]
+        np.testing.assert_allclose(got[:, i], want, rtol=1e-10, atol=1e-9 * max(1.0, np.abs(want).max()))
+    d = np.linalg.norm((p[:, None] - field.pos) * np.stack([np.ones_like(field.pz)] * 2 + [field.pz]), axis=0)
+    assert np.any((d - field.reach < sim.planner.d_min) & (field.neg_k < 0))  # some states inside an obstacle
+
+
+def test_blas_pinning_without_threadpoolctl_reads_the_environment(monkeypatch):
+    import sys
+
+    from jaxapf.bench.engine import blas_one_thread
+
+    monkeypatch.setitem(sys.modules, "threadpoolctl", None)  # as if not installed
+    for name in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
+        monkeypatch.delenv(name, raising=False)
+    assert blas_one_thread()[1].startswith("not pinned")
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "1")
+    context, how = blas_one_thread()
+    assert how == "1 (OPENBLAS_NUM_THREADS=1)"
+    with context:
+        pass
