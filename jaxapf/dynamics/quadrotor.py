@@ -15,12 +15,18 @@ steps of ``h = Δt / substeps`` per control step:
    axis is a second-order loop of natural frequency ``att_omega`` and damping ``att_zeta``;
 3. **rotors**: ``(F_T, τ)`` are mapped to the four rotor forces by the inverse of eq. 3's
    allocation, clipped to ``[0, f_max]`` (saturation), and each rotor follows its command with a
-   first-order lag ``motor_tau`` (exact over a sub-step; 0: no lag);
+   first-order lag ``motor_tau`` (0: no lag), integrated exactly over a sub-step with the command
+   held: ``F(s) = c + (F_0 - c) e^{-s/τ}``. The state takes the end value; the body feels the
+   force's exact mean over the sub-step, ``c + (F_0 - c)(τ/h)(1 - e^{-h/τ})`` (rates and velocity),
+   and for the position its exact weight ``(2/h²)∫_0^h (h - s) F(s) ds``
+   ``= c + (F_0 - c)(2τ/h)(1 - (τ/h)(1 - e^{-h/τ}))``. (Applying the end value over the whole
+   sub-step, as before, made the lag act about ``h/2`` shorter than ``τ``.)
 4. **rigid body**: eq. 1 for the translation (plus the disturbance), eq. 3 (Euler's equation)
    ``J ω̇ = τ - ω × Jω`` for the body rates, the attitude as a unit quaternion ``q`` with
    ``q̇ = ½ q ⊗ (0, ω)``. Over a sub-step the body rates take an Euler step, the attitude turns by
    the exact rotation of the new rates (re-normalised, so ``R(q)`` stays orthonormal) and position
-   and velocity integrate the sub-step's acceleration exactly.
+   and velocity integrate the sub-step's rotor force exactly (the thrust axis held at its
+   start-of-sub-step direction).
 
 Frames (SPEC 1): the paper's eq. 1 puts gravity ``+G`` on z and the thrust along the body's ``-z``:
 its world frame is z down, its body frame forward-right-down. jaxapf's world frame is z up, so the
@@ -174,7 +180,14 @@ class Quadrotor(Plant):
         target = jnp.stack([jnp.cross(b2, b3), b2, b3], axis=1)  # R_d, zero yaw
         k_r = inertia * gains.att_omega**2
         k_w = inertia * 2 * gains.att_zeta * gains.att_omega
-        lag = jnp.where(gains.motor_tau > 0, jnp.exp(-h / jnp.maximum(gains.motor_tau, 1e-9)), 0.0)
+        # first-order lag F' = (c - F)/τ under a command c held over the sub-step: F(s) = c + (F_0 - c) e^{-s/τ}.
+        # The end value takes `lag`; the body feels the force's exact mean over the sub-step (`mean`, for the
+        # rates and the velocity) and its weighted mean 2/h² ∫(h - s) F ds (`ramp`, for the position).
+        positive = gains.motor_tau > 0
+        tau = jnp.maximum(gains.motor_tau, 1e-9)
+        lag = jnp.where(positive, jnp.exp(-h / tau), 0.0)
+        mean = jnp.where(positive, -(tau / h) * jnp.expm1(-h / tau), 0.0)
+        ramp = jnp.where(positive, 2.0 * (tau / h) * (1.0 - mean), 0.0)
 
         def substep(s: QuadrotorState, _) -> tuple[QuadrotorState, tuple[Array, Array]]:
             r = rotation(s.attitude)
@@ -184,7 +197,7 @@ class Quadrotor(Plant):
             command = unmix @ jnp.concatenate([thrust[None], torque])
             clipped = jnp.clip(command, 0.0, vehicle.f_max)
             rotors = clipped + (s.rotors - clipped) * lag
-            wrench = mix @ rotors
+            wrench = mix @ (clipped + (s.rotors - clipped) * mean)
             rates = s.rates + h * (wrench[1:] - jnp.cross(s.rates, inertia * s.rates)) / inertia
             half = 0.5 * h * rates
             angle = safe_norm(half)
@@ -192,7 +205,9 @@ class Quadrotor(Plant):
             attitude = quaternion_product(s.attitude, turn)
             attitude = attitude / safe_norm(attitude)
             acc = gravity - (wrench[0] / vehicle.mass) * r[:, 2] + push
-            position = s.position + h * s.velocity + 0.5 * h * h * acc
+            thrust_ramp = jnp.sum(clipped + (s.rotors - clipped) * ramp)
+            acc_ramp = gravity - (thrust_ramp / vehicle.mass) * r[:, 2] + push
+            position = s.position + h * s.velocity + 0.5 * h * h * acc_ramp
             velocity = s.velocity + h * acc
             tilt = jnp.arctan2(safe_norm(r[:2, 2]), r[2, 2])
             saturated = jnp.any(clipped != command)

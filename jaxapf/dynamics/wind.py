@@ -9,11 +9,13 @@ Wind pushes through a linear drag: the acceleration is ``c_w (w̄ + g(t))``, the
 drag ``c_w (w - v)`` on a vehicle moving at ``v`` in air moving at ``w``. The vehicle's own part
 ``-c_w v`` belongs to the plant, and the paper's double integrator leaves it out; so does every
 plant here, so that a calm world is today's. The gusts ``g`` are three independent stationary OU
-processes, ``dg = -g/τ dt + σ sqrt(2/τ) dW``, sampled exactly at the control steps:
+processes, ``dg = -g/τ dt + σ sqrt(2/τ) dW``, with ``σ = σ_g`` (``gust_sigma``) on x and y and
+``σ_z = r_z σ_g`` on z (``gust_vertical`` = r_z, default 1: isotropic, as before; near the ground
+vertical gusts are weaker than horizontal ones), sampled exactly at the control steps:
 
-.. math::  g_{k+1} = e^{-Δt/τ} g_k + σ \sqrt{1 - e^{-2Δt/τ}}\, ξ_k,\qquad g_0 \sim N(0, σ^2 I)
+.. math::  g_{k+1} = e^{-Δt/τ} g_k + σ \sqrt{1 - e^{-2Δt/τ}}\, ξ_k,\qquad g_0 \sim N(0, \mathrm{diag}(σ^2))
 
-so ``E[g] = 0``, ``Var g = σ²`` and ``corr(g_k, g_{k+l}) = e^{-l Δt/τ}`` at every step. The draws
+(σ per axis) so ``E[g] = 0``, ``Var g = σ²`` per axis and ``corr(g_k, g_{k+l}) = e^{-l Δt/τ}`` at every step. The draws
 ``ξ_k`` come from the field's key (:func:`~jaxapf.datatypes.episode_key`), independent of the method
 and gains.
 """
@@ -69,6 +71,8 @@ class Wind(Disturbance):
                  doc="direction the wind blows toward, from +x toward +y"),
         GainSpec("gust_sigma", 0.0, low=0.0, unit="m/s", symbol="σ_g", tunable=False,
                  doc="standard deviation of the gusts on each axis"),
+        GainSpec("gust_vertical", 1.0, low=0.0, symbol="σ_z/σ_g", tunable=False,
+                 doc="standard deviation of the vertical gusts as a multiple of gust_sigma (1: isotropic)"),
         GainSpec("gust_tau", 2.0, low=0.0, low_open=True, unit="s", symbol="τ_g", tunable=False,
                  doc="correlation time of the gusts"),
         GainSpec("wind_drag", 0.3, low=0.0, unit="1/s", symbol="c_w", tunable=False,
@@ -78,15 +82,21 @@ class Wind(Disturbance):
     def _draw(self, scenario: "Scenario", k: Array) -> Array:
         return jax.random.normal(episode_key(scenario, "wind", k), (3,), scenario.start.dtype)
 
+    @staticmethod
+    def _sigma(gains: "Gains") -> Array:
+        """σ per axis: ``gust_sigma`` on x and y, ``gust_vertical · gust_sigma`` on z."""
+        return gains.gust_sigma * jnp.stack([jnp.ones_like(gains.gust_vertical), jnp.ones_like(gains.gust_vertical),
+                                             gains.gust_vertical])
+
     def init(self, scenario: "Scenario", gains: "Gains", sim: "SimConfig") -> Array:
-        return gains.gust_sigma * self._draw(scenario, -1)  # g_0 from the stationary law
+        return self._sigma(gains) * self._draw(scenario, -1)  # g_0 from the stationary law
 
     def __call__(self, state: Array, k: Array, scenario: "Scenario", gains: "Gains",
                  sim: "SimConfig") -> tuple[Array, Array]:
         heading = jnp.deg2rad(gains.wind_heading)
         mean = gains.wind_speed * jnp.stack([jnp.cos(heading), jnp.sin(heading), jnp.zeros_like(heading)])
         decay = jnp.exp(-sim.episode.dt / gains.gust_tau)
-        gust = decay * state + gains.gust_sigma * jnp.sqrt(1.0 - decay * decay) * self._draw(scenario, k)
+        gust = decay * state + self._sigma(gains) * jnp.sqrt(1.0 - decay * decay) * self._draw(scenario, k)
         return (gains.wind_drag * (mean + state)).astype(scenario.start.dtype), gust
 
 

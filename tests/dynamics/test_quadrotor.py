@@ -53,6 +53,32 @@ def test_a_command_along_each_world_axis_moves_the_vehicle_that_way():
     np.testing.assert_allclose(xx[:, 0], xy[:, 1], atol=1e-4)
 
 
+@pytest.mark.parametrize("substeps", [5, 20, 50])
+def test_the_rotor_lag_is_the_exact_first_order_response_to_a_step(substeps):
+    """A vertical step command from hover (level, so all four rotors alike): the total thrust is
+    ``m(g + a) - m a e^{-t/τ}``. The mean thrust over every control step (from the velocity) matches
+    it to 1e-5 relative, position and velocity match its integrals, and the time constant measured
+    from the simulated step, ``∫(F_c - F) dt / (F_c - F_0)``, is the stated ``motor_tau``, whatever
+    the number of sub-steps. (The end-of-sub-step force over the whole sub-step gave about τ - h/2.)"""
+    a, tau, steps, dt = 3.0, 0.0125, 10, 0.1
+    sim = SimConfig.from_flat(plant="quadrotor", substeps=substeps)
+    m = HUMMINGBIRD.mass
+    with jax.enable_x64(True):
+        _, (x, states, _) = fly(np.tile([0.0, 0.0, a], (steps, 1)), Gains(motor_tau=tau), sim, dtype=jnp.float64)
+        x = np.asarray(x)
+    t = dt * np.arange(steps + 1)
+    v = np.concatenate([[0.0], x[:, 5]])
+    mean_thrust = m * (np.diff(v) / dt + G)
+    exact = m * (G + a) - m * a * tau / dt * (np.exp(-t[:-1] / tau) - np.exp(-t[1:] / tau))
+    np.testing.assert_allclose(mean_thrust, exact, rtol=1e-5)
+    np.testing.assert_allclose(x[:, 5], a * (t[1:] - tau * (1 - np.exp(-t[1:] / tau))), rtol=1e-9)
+    np.testing.assert_allclose(x[:, 2] - 2.0, a * (t[1:] ** 2 / 2 - tau * t[1:] + tau**2 * (1 - np.exp(-t[1:] / tau))),
+                               rtol=1e-9)
+    measured_tau = (a * t[-1] - v[-1]) / a  # ∫(F_c - F) dt / (F_c - F_0), F_c - F_0 = m a; e^{-80} ≈ 0
+    assert measured_tau == pytest.approx(tau, rel=1e-6)
+    np.testing.assert_allclose(np.asarray(states.rotors[-1]), m * (G + a) / 4, rtol=1e-12)
+
+
 def test_the_small_angle_response_matches_the_linearised_model():
     """Pitch θ: θ'' = -ω_n²(θ - θ_d) - 2ζω_n θ', θ_d = -a/g, ẍ = -g θ (no rotor lag), by an ODE solver."""
     a, omega, zeta = 0.05, 12.0, 0.7

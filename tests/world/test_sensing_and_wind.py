@@ -168,6 +168,42 @@ def test_ou_gusts_have_zero_mean_their_variance_and_exponential_correlation():
     np.testing.assert_allclose(g[:, 0].var(), sigma**2, rtol=0.15)
 
 
+def test_gust_vertical_scales_only_the_vertical_gusts_and_its_default_is_the_isotropic_world():
+    """``gust_vertical`` = r multiplies the z gusts by r and leaves x and y bit for bit; at its
+    default 1 every push equals the former isotropic law (one σ on every axis), to rounding."""
+    sim = SimConfig.from_flat(disturbance="wind")
+    sc, steps = field(3), 50
+
+    def pushes(gains):
+        gains = gains.as_arrays(jnp.float32)
+
+        def step(state, k):
+            push, state = WIND(state, k, sc, gains, sim)
+            return state, push
+        return np.asarray(jax.lax.scan(step, WIND.init(sc, gains, sim), jnp.arange(steps))[1])
+
+    base = dict(wind_speed=3.0, wind_heading=30.0, gust_sigma=1.2, gust_tau=0.7, wind_drag=0.4)
+    iso, low, none = (pushes(Gains(**base, gust_vertical=r)) for r in (1.0, 0.25, 0.0))
+    np.testing.assert_array_equal(low[:, :2], iso[:, :2])
+    np.testing.assert_array_equal(none[:, :2], iso[:, :2])
+    np.testing.assert_allclose(low[:, 2], 0.25 * iso[:, 2], rtol=1e-5, atol=1e-7)
+    np.testing.assert_array_equal(none[:, 2], 0.0)  # no vertical mean wind, no vertical gusts
+    assert np.std(iso[:, 2]) > 0.1
+
+    # the former law, one σ on every axis, written out and flown the same way
+    g = Gains(**base).as_arrays(jnp.float32)
+
+    def former(gust, k):
+        heading = jnp.deg2rad(g.wind_heading)
+        mean = g.wind_speed * jnp.stack([jnp.cos(heading), jnp.sin(heading), jnp.zeros_like(heading)])
+        decay = jnp.exp(-sim.episode.dt / g.gust_tau)
+        push = (g.wind_drag * (mean + gust)).astype(sc.start.dtype)
+        return decay * gust + g.gust_sigma * jnp.sqrt(1.0 - decay * decay) * WIND._draw(sc, k), push
+    expected = np.asarray(jax.lax.scan(former, g.gust_sigma * WIND._draw(sc, -1), jnp.arange(steps))[1])
+    np.testing.assert_allclose(pushes(Gains(**base)), expected, rtol=1e-6, atol=1e-7)
+    assert Gains().gust_vertical == 1.0
+
+
 def test_a_constant_wind_pushes_the_double_integrator_by_drag_times_speed():
     sc = jax.tree_util.tree_map(lambda x: x[None], field())
     sim = SimConfig.from_flat(method="basic", disturbance="wind", t_max=5.0)
