@@ -65,3 +65,48 @@ def outcomes(scenario: Scenario, methods, t_max: float = 40.0) -> dict[str, dict
         metrics = episode_metrics(traj, scenario, sim, ("success", "collision", "stalled"))
         out[method] = {k: bool(v) for k, v in metrics.items()}
     return out
+
+
+def assert_same_episodes(a, b, dt: float, *, flips: int = 0, rtol: float = 1e-2, atol: float = 1e-2) -> None:
+    """The metrics of the same episodes from two compiled programs (two engines, batch widths, device
+    counts, CPUs) agree up to what rounding can move, and no more.
+
+    Two programs that fuse, vectorise or shard differently round some operations apart, and the closed
+    loop carries a last-bit difference along the episode (docs/testing.md). So: every outcome (a rate
+    metric) is equal except on at most ``flips`` episodes, which the caller must justify (an episode on
+    a knife edge); a metric counted in control steps (``Metric.per_step``) differs by at most one step
+    (``dt`` for a time); any other float metric agrees to ``rtol``/``atol`` (NaN where NaN) on the
+    episodes that end at the same step with the same outcomes (one step more of flight moves a path
+    length by a whole step). ``a`` and ``b``: dicts of metric arrays or DataFrames of sweep rows;
+    columns that are not metrics (ids, gains) must be equal.
+    """
+    import numpy as np
+
+    from jaxapf.metrics import METRICS
+
+    names = list(a.keys()) if isinstance(a, dict) else list(a.columns)
+    assert sorted(names) == sorted(b.keys() if isinstance(b, dict) else b.columns), "the same columns"
+    col = lambda t, n: np.asarray(t[n])  # noqa: E731
+    metrics = {n: METRICS.get(n) for n in names if n in METRICS.names()}
+    rates = [n for n, m in metrics.items() if m.kind == "rate"]
+    differ = np.zeros(np.shape(col(a, names[0])), bool)
+    for n in rates:
+        differ |= col(a, n) != col(b, n)
+    assert differ.sum() <= flips, f"outcomes differ on {int(differ.sum())} episodes (allowed: {flips}): " + ", ".join(
+        f"{n} {int((col(a, n) != col(b, n)).sum())}" for n in rates)
+    same_end = ~differ
+    if "steps" in names:
+        same_end &= col(a, "steps") == col(b, "steps")
+    for n in names:
+        x, y = col(a, n), col(b, n)
+        if n not in metrics:
+            np.testing.assert_array_equal(x, y, err_msg=n)
+        elif metrics[n].per_step:
+            step = dt if metrics[n].unit == "s" else 1
+            both = ~differ & np.isfinite(x.astype(float)) & np.isfinite(y.astype(float))
+            gap = np.abs(x.astype(float) - y.astype(float))[both]
+            assert np.all(gap <= step * (1 + 1e-6)), f"{n}: {gap.max()} apart, more than one step"
+            np.testing.assert_array_equal(np.isnan(x[~differ].astype(float)), np.isnan(y[~differ].astype(float)),
+                                          err_msg=n)
+        elif metrics[n].kind != "rate":
+            np.testing.assert_allclose(x[same_end], y[same_end], rtol=rtol, atol=atol, err_msg=n)

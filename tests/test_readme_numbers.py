@@ -7,7 +7,6 @@ from __future__ import annotations
 import re
 
 import pytest
-
 from conftest import ROOT
 
 NUMBER = re.compile(r"\d[\d,]*(?:\.\d+)?")
@@ -68,7 +67,8 @@ def test_the_table_has_a_row_per_study():
     assert named == set(studies()), "every study has a row in README's 'What the data says', and only studies"
 
 
-@pytest.mark.parametrize("question, finding", data_rows(), ids=[re.findall(r"`(\w+)\.py`", q)[0] for q, _ in data_rows()])
+@pytest.mark.parametrize("question, finding", data_rows(),
+                         ids=[re.findall(r"`(\w+)\.py`", q)[0] for q, _ in data_rows()])
 def test_every_number_of_a_finding_is_in_its_studies_results(question, finding):
     """A row's numbers must each appear in the committed results of the study its question names, or
     of a study its text cites ("study 11"); question cells may also state the protocol."""

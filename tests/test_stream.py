@@ -8,6 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import assert_same_episodes
 
 from jaxapf.config import MPCConfig, PlannerConfig, SimConfig
 from jaxapf.gains import Gains
@@ -17,24 +18,12 @@ from jaxapf.rollout import evaluate, rollout
 from jaxapf.scenarios import family_params, make_scenarios
 from jaxapf.stream import NARROWEST, stream_slots
 
-OUTCOMES = ("success", "collision", "stalled", "steps")
 MPC = MPCConfig(horizon=10, iters=15)
 
 
 def _sim(method: str, t_max: float = 25.0) -> SimConfig:
     sim = SimConfig(planner=PlannerConfig(method=method))
     return dataclasses.replace(sim, episode=dataclasses.replace(sim.episode, t_max=t_max))
-
-
-def _close(fixed: dict, streamed: dict) -> None:
-    """Outcomes equal; continuous metrics within the differences that grow along an episode from
-    the last bits in which two compiled programs round a step apart (docs/performance.md)."""
-    for name in fixed:
-        a, b = np.asarray(fixed[name]), np.asarray(streamed[name])
-        if name in OUTCOMES or a.dtype == bool:
-            np.testing.assert_array_equal(a, b, err_msg=name)
-        else:
-            np.testing.assert_allclose(a, b, rtol=1e-2, atol=1e-2, err_msg=name)
 
 
 @pytest.mark.parametrize("method, family", [(m, "crossing") for m in sorted(PLANNERS.names())]
@@ -49,7 +38,7 @@ def test_every_planner_streams_the_fixed_engines_episodes(method, family):
     sim = _sim(method)
     fixed = evaluate(fields, gains, sim, MPC, width=64, streaming=False)
     streamed = evaluate(fields, gains, sim, MPC, width=64)
-    _close(fixed, streamed)
+    assert_same_episodes(fixed, streamed, sim.episode.dt)
     assert np.asarray(streamed["steps"]).min() < sim.episode.steps, "some episode must end early for the test to bite"
 
 
@@ -74,7 +63,7 @@ def test_streaming_runs_in_float64():
         fixed = evaluate(fields, Gains(), sim, MPC, width=64, streaming=False)
         streamed = evaluate(fields, Gains(), sim, MPC, width=64)
         assert streamed["min_clearance"].dtype == jnp.float64
-        _close(fixed, streamed)
+        assert_same_episodes(fixed, streamed, sim.episode.dt)
 
 
 @pytest.mark.parametrize("episodes, width, slots", [(1, 1024, 64), (64, 1024, 64), (300, 1024, 64), (512, 1024, 128),

@@ -48,6 +48,8 @@ class Metric:
         rate's in proportion: 0.02 = 2 percentage points); a smaller difference does not matter.
         Reports judge equivalence against it and may override it (``--margin NAME=VALUE``).
         ``None``: no verdict of relevance.
+      per_step: the value moves in whole control steps (a count of steps, or a time ``dt`` × a count):
+        two programs that round a step's comparison apart may differ by one step in it.
       doc: one line of what it measures (its exact definition belongs in ``fn``'s docstring).
     """
 
@@ -60,6 +62,7 @@ class Metric:
     on_success: bool = False
     report: bool = False
     margin: float | None = None
+    per_step: bool = False
     doc: str = ""
 
     def __post_init__(self) -> None:

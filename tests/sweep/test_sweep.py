@@ -15,6 +15,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+from conftest import assert_same_episodes
 
 from jaxapf.cli import main
 from jaxapf.config import MPCConfig, SimConfig
@@ -502,7 +503,8 @@ def test_four_devices_give_the_rows_of_one(tmp_path):
     a, meta_a = read_sweep(single)
     b, meta_b = read_sweep(sharded)
     assert meta_b["versions"]["device_count"] == "4" and meta_a["versions"]["device_count"] == "1"
-    pd.testing.assert_frame_equal(a, b)
+    # four devices shard the batch into other vmap widths, which XLA may round apart
+    assert_same_episodes(a, b, SimConfig().episode.dt)  # TINY flies the default dt
 
 
 def _free_port() -> int:
