@@ -1,22 +1,25 @@
 """Every number in README's "What the data says" comes from the committed results of the studies its row
-names, and every number of "Speed" from the committed benchmark results: a rerun that changes a number
-fails here until the text follows."""
+names, and every number of its "Speed" section and of docs/performance.md's peer comparison from the
+committed benchmark runs: a rerun that changes a number fails here until the text follows."""
 
 from __future__ import annotations
 
+import json
 import re
 
 import pytest
 from conftest import ROOT
 
-NUMBER = re.compile(r"\d[\d,]*(?:\.\d+)?")
+#: A number in prose: not part of a name (float32), an exponent (1e-14) or a date (dropped first).
+NUMBER = re.compile(r"(?<![\w.])(?<!e-)\d[\d,]*(?:\.\d+)?")
+DATE = re.compile(r"\d{4}-\d{2}-\d{2}")
 #: A study of analysis/README.md's table: its number, script stem and results folder.
 STUDY_ROW = re.compile(r"^\| (\d+) \| .*`python analysis/(\w+)\.py`.*\]\(results/(\w+)/README\.md\) \|$")
 
 
 def numbers(text: str) -> set[str]:
     """Every number in ``text`` as written (thousands separators dropped, signs ignored)."""
-    return {n.replace(",", "") for n in NUMBER.findall(text)}
+    return {n.replace(",", "") for n in NUMBER.findall(DATE.sub("", text))}
 
 
 def unmatched(cited: set[str], source: set[str]) -> list[str]:
@@ -78,3 +81,32 @@ def test_every_number_of_a_finding_is_in_its_studies_results(question, finding):
     folders += [by_number[n] for n in re.findall(r"study (\d+)", question + finding)]
     missing = unmatched(numbers(question + " " + finding), numbers("\n".join(results_text(f) for f in folders)))
     assert not missing, f"README numbers not in analysis/results/{{{','.join(folders)}}}: {missing}"
+
+
+def _leaves(value) -> list[float]:
+    if isinstance(value, dict):
+        return [x for v in value.values() for x in _leaves(v)]
+    if isinstance(value, list):
+        return [x for v in value for x in _leaves(v)]
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return [float(value)]
+    return []
+
+
+def benchmark_numbers() -> set[str]:
+    """Every number of the committed benchmark runs (``benchmarks/results/*.json``), also as a
+    percentage (a fraction 0.9998 is quoted as 99.98 %)."""
+    values = [x for p in sorted((ROOT / "benchmarks" / "results").glob("*.json"))
+              for x in _leaves(json.loads(p.read_text()))]
+    return {repr(abs(v)) for v in values} | {repr(abs(100 * v)) for v in values}
+
+
+@pytest.mark.parametrize("page, title, first", [
+    ("README.md", "Speed", None),
+    ("docs/performance.md", None, "**Against the strongest peer.**"),
+])
+def test_speed_numbers_come_from_the_committed_benchmark_runs(page, title, first):
+    text = (ROOT / page).read_text()
+    body = section(text, title) if title else text[text.index(first):].split("\n\n", 1)[0]
+    missing = unmatched(numbers(body), benchmark_numbers())
+    assert not missing, f"{page}: numbers not in benchmarks/results/*.json: {missing}"
