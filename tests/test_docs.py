@@ -10,6 +10,8 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
+
 CHECK = textwrap.dedent("""
     import contextlib, io, json, pathlib, sys
     import jax, jax.numpy as jnp, pandas as pd
@@ -53,6 +55,7 @@ CHECK = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_extending_examples_run_as_documented(tmp_path, repo_root):
     page = (repo_root / "docs" / "extending.md").read_text(encoding="utf-8")
     blocks = re.findall(r"```python\n(.*?)```", page, flags=re.S)

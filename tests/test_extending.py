@@ -14,6 +14,7 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
 from conftest import ROOT
 
 PLUGIN = ROOT / "tests" / "plugins" / "sideways.py"
@@ -102,6 +103,7 @@ SCRIPT = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_out_of_package_components_run_through_sweep_report_and_tune(tmp_path):
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"} | {"JAX_PLATFORMS": "cpu"}
     proc = subprocess.run([sys.executable, "-c", SCRIPT, str(tmp_path), str(PLUGIN)], env=env, capture_output=True,

@@ -179,6 +179,7 @@ def test_among_the_least_violating_points_the_nearest_is_returned(region):
     assert float(worst) == pytest.approx(1.0, abs=1e-4)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("region, x0", [("box", [-1.0, 0.3, 0.7]), ("ball", [-1.0, 0.3, 0.7]),
                                         ("ball", [2.0, -4.0, 1.0]), ("ball", [-3.0, 4.0, 2.0])])
 def test_gradient_matches_finite_differences(region, x0):

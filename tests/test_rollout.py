@@ -73,6 +73,7 @@ def test_padded_slots_change_nothing_in_the_closed_loop(traj):
     np.testing.assert_array_equal(padded.control, traj.control)
 
 
+@pytest.mark.slow
 def test_gain_grid_is_one_compiled_call_matching_single_runs():
     scenarios = jax.tree_util.tree_map(lambda *x: jnp.stack(x), _scenario(), _scenario())
     scenarios = Scenario(start=scenarios.start.at[1, 1].set(-1.0), goal=scenarios.goal,
@@ -94,6 +95,7 @@ def test_gain_grid_is_one_compiled_call_matching_single_runs():
                              {n: np.asarray(v)[None] for n, v in single.items()}, SIM.episode.dt)
 
 
+@pytest.mark.slow
 def test_float64_rollout():
     with jax.enable_x64(True):
         sc = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float64) if x.dtype == jnp.float32 else x,
@@ -103,6 +105,7 @@ def test_float64_rollout():
         assert np.all(np.isfinite(np.asarray(out.position)))
 
 
+@pytest.mark.slow
 def test_episode_numbers_do_not_depend_on_the_batch():
     """Field f gives bit-identical metrics whether run in a batch of 5 or of 3 (width 2, padded)."""
     fields = [_scenario(), _scenario(), _scenario(), _scenario(), _scenario()]
@@ -117,6 +120,7 @@ def test_episode_numbers_do_not_depend_on_the_batch():
         np.testing.assert_array_equal(np.asarray(five[name])[:, 2:], three[name])
 
 
+@pytest.mark.slow
 def test_apf_reference_follows_the_saturated_flow_in_either_obstacle_layout():
     """SPEC 4: p_{i+1} = p_i + Δt·sat(η F(p_i, v_i, t + iΔt)), v_{i+1} = that step's velocity;
     the closed loop hands the reference the field's columns once per episode, a direct caller

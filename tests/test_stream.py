@@ -26,6 +26,7 @@ def _sim(method: str, t_max: float = 25.0) -> SimConfig:
     return dataclasses.replace(sim, episode=dataclasses.replace(sim.episode, t_max=t_max))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method, family", [(m, "crossing") for m in sorted(PLANNERS.names())]
                          + [("direction_velocity", "trap")])
 def test_every_planner_streams_the_fixed_engines_episodes(method, family):
@@ -42,6 +43,7 @@ def test_every_planner_streams_the_fixed_engines_episodes(method, family):
     assert np.asarray(streamed["steps"]).min() < sim.episode.steps, "some episode must end early for the test to bite"
 
 
+@pytest.mark.slow
 def test_an_episodes_streamed_numbers_do_not_depend_on_its_queue():
     """The first 64 fields alone (64 slots) and inside a queue of 520 (128 slots, refills, a tail
     on a narrower vmap): bit for bit the same numbers."""
@@ -54,6 +56,7 @@ def test_an_episodes_streamed_numbers_do_not_depend_on_its_queue():
         np.testing.assert_array_equal(np.asarray(whole[name])[:, :64], np.asarray(part[name]), err_msg=name)
 
 
+@pytest.mark.slow
 def test_streaming_runs_in_float64():
     """``jaxapf sweep --x64``: the same outcomes as the fixed-length engine, float64 metrics."""
     with jax.enable_x64(True):
@@ -72,6 +75,7 @@ def test_stream_slots(episodes, width, slots):
     assert stream_slots(episodes, width) == slots
 
 
+@pytest.mark.slow
 def test_metrics_never_read_samples_after_the_end():
     """The contract streaming rests on: every registered metric is a function of the samples up to
     the episode's end (``end_index``) and the controls before it; garbage after it changes nothing."""

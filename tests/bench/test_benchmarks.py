@@ -43,6 +43,7 @@ def test_xla_option_parsing_names_the_flag():
             parse_xla_option(bad)
 
 
+@pytest.mark.slow
 def test_compare_xla_options_times_both_compilations_of_one_lowering():
     """benchmarks/xla_options.py: the shipped options against an override, from one lowering.
     An override that restates a shipped option compiles the same program: same episodes."""
@@ -65,6 +66,7 @@ def test_compare_xla_options_times_both_compilations_of_one_lowering():
                             iters=2)
 
 
+@pytest.mark.slow
 def test_cost_split_attributes_the_step_to_obstacles_iterations_and_the_rest():
     """benchmarks/split.py: four compiled cases, and the attribution is their differences."""
     from split import cost_split, format_cost_split

@@ -37,6 +37,7 @@ def test_bench_devices_are_checked_before_running():
         run_benchmark(fields=18, steps=2, oracle_fields=0, devices=9)  # more than this process has
 
 
+@pytest.mark.slow
 def test_bench_on_two_devices_gives_the_metrics_of_one(tmp_path):
     # `jaxapf bench engine --devices 2` (host split into 2 CPU devices) and --devices 1 on the same fields
     import os
@@ -67,6 +68,7 @@ def test_bench_cli_has_subcommands_not_instead_flags(capsys):
         main(["bench", "--split"])
 
 
+@pytest.mark.slow
 def test_sweep_benchmark_times_the_sweep_against_bare_calls_on_the_same_work():
     from jaxapf.bench.sweep import format_sweep_benchmark, run_sweep_benchmark
 
@@ -84,6 +86,7 @@ def test_sweep_benchmark_times_the_sweep_against_bare_calls_on_the_same_work():
     json.dumps(result)
 
 
+@pytest.mark.slow
 def test_world_benchmark_times_every_component_against_the_ideal_world(capsys):
     """``jaxapf bench world`` at a tiny size: every variant compiled and timed, ratios against ``ideal``."""
     from jaxapf.bench.world import VARIANTS, format_world_benchmark, run_world_benchmark

@@ -75,6 +75,7 @@ def test_unknown_components_are_refused():
                            MPCConfig())
 
 
+@pytest.mark.slow
 def test_bench_times_the_vectorised_peer_and_prints_its_ratio():
     result = run_benchmark(fields=8, obstacles=4, horizon=4, iters=3, steps=6, oracle_fields=0, vectorised_steps=4)
     vec = result["vectorised"]

@@ -24,6 +24,8 @@ from jaxapf.tune.spec import split_count
 from jaxapf.tune.train import stack_gains
 from jaxapf.validation import ConfigError
 
+pytestmark = pytest.mark.slow  # module fixtures train and compare for tens of seconds
+
 SHORT = {"distance": [5.0, 6.0]}
 TINY = {
     "name": "tiny",

@@ -53,6 +53,7 @@ def test_constraints_are_the_exponential_cbf_condition(seed, p1, p2):
     assert np.all(g[3] == 0) and b[3] == -1.0  # padded slot: 0 >= -1 always holds
 
 
+@pytest.mark.slow
 def test_the_filter_keeps_a_repulsion_free_flight_off_the_obstacle():
     """Without repulsion (k_rep = 0) the MPC flies straight through the cylinder on the start–goal
     line; with ``filter = "cbf"`` the same flight stays clear of it, and no step is infeasible."""

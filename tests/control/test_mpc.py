@@ -90,6 +90,7 @@ def test_solve_box_qp_matches_scipy_float64(seed):
     np.testing.assert_allclose(got, want, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_float32_default_iterations_cost_within_tolerance():
     """At the default 30 iterations in float32, the MPC QP is solved to within 1 % of the optimal
     decrease (relative to U = 0), on MPC problems from the default weights."""

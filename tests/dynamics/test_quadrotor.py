@@ -142,6 +142,7 @@ def test_the_rotation_stays_orthonormal_over_a_long_manoeuvring_flight():
     np.testing.assert_allclose(float(jnp.linalg.det(r)), 1.0, atol=2e-6)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["att_omega", "att_zeta", "motor_tau", "tilt_max"])
 def test_gradients_through_the_plant_match_central_differences(name):
     commands = np.stack([2.0 * np.sin(0.4 * np.arange(15)), 1.5 * np.cos(0.3 * np.arange(15)),
@@ -160,6 +161,7 @@ def test_gradients_through_the_plant_match_central_differences(name):
     np.testing.assert_allclose(grad, fd, rtol=1e-4, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_a_closed_loop_gradient_through_the_quadrotor_matches_central_differences():
     """What ``jaxapf tune`` differentiates: a planner gain through MPC and quadrotor (float64)."""
     with jax.enable_x64(True):

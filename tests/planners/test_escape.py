@@ -4,6 +4,7 @@ alternation, closed loop."""
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from conftest import one_obstacle_scenario, outcomes
 
 from jaxapf.config import MPCConfig, SimConfig
@@ -74,6 +75,7 @@ def test_no_escape_near_the_goal_or_while_moving():
     assert all(int(s.escapes) == 0 for s in _run(moving, GOAL, 20))
 
 
+@pytest.mark.slow
 def test_same_field_same_episode_and_gradients_flow():
     """Deterministic per field key, jit/vmap-compatible, and differentiable in d_escape."""
     scenario = one_obstacle_scenario(16.0, 8.0, 1.5)
@@ -89,6 +91,7 @@ def test_same_field_same_episode_and_gradients_flow():
     assert np.isfinite(float(grad)) and float(grad) != 0.0
 
 
+@pytest.mark.slow
 def test_the_escape_passes_an_obstacle_on_the_line_to_the_goal():
     outcome = outcomes(one_obstacle_scenario(16.0, 8.0, 1.5), ("basic", "basic_escape"))
     assert outcome["basic"] == {"success": False, "collision": False, "stalled": True}

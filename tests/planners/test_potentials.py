@@ -166,6 +166,7 @@ def _field(valid_extra: bool):
     )
 
 
+@pytest.mark.slow
 def test_padded_slots_contribute_exactly_nothing():
     p, v, goal = jnp.zeros(3), jnp.array([1.0, 0.0, 0.0]), jnp.array([10.0, 0.0, 0.0])
     kw = dict(method="direction_velocity", convention="intent", r_uav=0.3)

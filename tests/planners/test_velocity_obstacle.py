@@ -128,6 +128,7 @@ def test_spheres_half_space_touches_the_velocity_obstacle(seed):
 
 @settings(max_examples=60, deadline=None)
 @given(st.integers(0, 2**31 - 1))
+@pytest.mark.slow
 def test_a_feasible_velocity_collides_with_no_obstacle_within_tau(seed):
     """Random encounters with up to five spheres and cylinders around the UAV: when the half-spaces
     and the speed ball admit a velocity, ``v*`` meets no obstacle within τ, and |v*| <= v_max."""
@@ -187,6 +188,7 @@ def _cylinder_near_the_line(offset: float) -> Scenario:
 _SIM_LOOP, _MPC_LOOP = SimConfig.from_flat(method="velocity_obstacle", t_max=30.0), MPCConfig(horizon=10, iters=20)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scenario, name", [(_crossing(), "crossing sphere"),
                                             (_cylinder_near_the_line(0.1), "cylinder 0.1 m off the line")])
 def test_the_closed_loop_avoids_what_a_short_horizon_hits(scenario, name):
@@ -244,6 +246,7 @@ def test_a_pincer_is_infeasible_flown_at_least_violation_and_counted():
     assert int(basic["vo_infeasible_steps"]) == 0  # no velocity obstacles, nothing recorded
 
 
+@pytest.mark.slow
 def test_gradient_matches_finite_differences():
     """d(final position)/d(vo_margin, vo_tau) through a short closed loop, float64, against central
     differences."""

@@ -289,6 +289,7 @@ def test_report_error_is_a_config_error():
 # --------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_gallery_resimulates_a_failed_episode(tmp_path):
     # a spec whose settings match the rows (basic, direction_velocity with the default gains), so
     # the real jaxapf.sweep.row_config rebuilds each row; one tiny episode is re-simulated
@@ -314,6 +315,7 @@ def test_gallery_resimulates_a_failed_episode(tmp_path):
     assert f"{first_failure['family']} field {first_failure['field']}" in md
 
 
+@pytest.mark.slow
 def test_sweep_to_report_end_to_end(tmp_path):
     # a real `jaxapf sweep` on a tiny spec, then `jaxapf report` on its output: the report's counts
     # are the Parquet's, every field is paired, and the gallery's re-simulation reproduces its row
@@ -384,6 +386,7 @@ def test_study_numbers_read_the_report(report):
         n.row({"method": "nonexistent"}, "trap")
 
 
+@pytest.mark.slow
 def test_an_incomplete_sweep_says_so_in_the_title_and_first_lines(tmp_path, capsys):
     from jaxapf.sweep import parse_spec, run_sweep
 
@@ -411,6 +414,7 @@ def test_an_incomplete_sweep_says_so_in_the_title_and_first_lines(tmp_path, caps
     assert first_item.startswith("- **The sweep is incomplete: 4 of 8 episodes are present")
 
 
+@pytest.mark.slow
 def test_pooling_families_of_unequal_sizes_is_said(tmp_path):
     df = pd.concat([make_rows(families=("trap",), fields=12), make_rows(families=("clutter",), fields=6, seed=8)])
     path = write_sweep(tmp_path / "unequal.parquet", df)

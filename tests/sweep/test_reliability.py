@@ -88,6 +88,7 @@ def _one_line(stderr: str) -> str:
 # one writer per output
 # --------------------------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_a_second_sweep_on_the_same_output_refuses_and_the_first_finishes(reference, tmp_path):
     out = tmp_path / "shared.parquet"
     first = _cli(["--out", str(out), "--chunk-fields", "3"], tmp_path)
@@ -234,6 +235,7 @@ def test_output_paths_that_are_files_are_refused(tmp_path, capsys):
     assert taken.read_text() == "mine"
 
 
+@pytest.mark.slow
 def test_sigint_ends_a_sweep_with_one_line_and_the_rerun_completes_it(reference, tmp_path):
     out = tmp_path / "sigint.parquet"
     run = _cli(["--out", str(out), "--chunk-fields", "1"], tmp_path)

@@ -488,6 +488,7 @@ _SHARDED = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_four_devices_give_the_rows_of_one(tmp_path):
     data = copy.deepcopy(TINY)
     data["grid"] = {"gamma": [0.0, 1.0]}  # one static variant: one program per device
@@ -515,6 +516,7 @@ def _free_port() -> int:
         return sock.getsockname()[1]
 
 
+@pytest.mark.slow
 def test_two_processes_give_the_rows_of_one(tmp_path, reference):
     # `jaxapf sweep --distributed` with two local processes (jax.distributed over localhost):
     # each runs every other chunk and writes its own parts; together exactly the reference rows

@@ -19,6 +19,8 @@ from jaxapf.tune.spec import parse_tune_spec
 from jaxapf.tune.train import CHECKPOINT, TrainState, Tuner, episode_loss
 from jaxapf.validation import BoundWarning, ConfigError
 
+pytestmark = pytest.mark.slow  # module fixtures train and compare for tens of seconds
+
 #: Every tunable gain (the paper's six and those of the planners beyond it).
 TUNABLE = tuple(n for n in Gains.names() if GAINS.get(n).tunable)
 

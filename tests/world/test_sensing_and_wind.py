@@ -60,6 +60,7 @@ def test_at_zero_levels_the_noisy_sensor_passes_the_truth_on_bit_for_bit():
     np.testing.assert_array_equal(est[:, :3], np.broadcast_to(sc.start, (40, 3)))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("steps_late", [0, 1, 3, 7])
 def test_latency_delays_observations_by_exactly_d_steps(steps_late):
     sc = field()
@@ -72,6 +73,7 @@ def test_latency_delays_observations_by_exactly_d_steps(steps_late):
                                    atol=2e-5)
 
 
+@pytest.mark.slow
 def test_position_and_velocity_noise_have_their_laws_and_are_independent_of_the_planners_gains():
     sigma_p, sigma_v = 0.4, 0.2
     sim = SimConfig.from_flat(sensor="noisy")
@@ -93,6 +95,7 @@ def test_position_and_velocity_noise_have_their_laws_and_are_independent_of_the_
     assert abs(errors_v.mean()) < 4 * sigma_v / np.sqrt(n) and abs(errors_v.std() / sigma_v - 1) < 0.05
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("latency", [0.0, 0.3])
 def test_a_differenced_velocity_is_the_finite_difference_of_consecutive_noisy_positions(latency):
     sc = field()
@@ -122,6 +125,7 @@ def test_an_obstacle_beyond_range_is_unknown_until_it_comes_within_range_then_is
     assert int(np.asarray(diag["unseen_near"])[:first].min()) >= 1
 
 
+@pytest.mark.slow
 def test_dropout_loses_the_stated_share_of_measurements_and_tracks_coast():
     sc = field()
     sim = SimConfig.from_flat(sensor="noisy")
@@ -146,6 +150,7 @@ def test_the_own_state_estimate_has_the_stated_noise():
     assert np.all(np.abs(error.mean(axis=0)) < 4 * np.array([0.3] * 3 + [0.1] * 3) / np.sqrt(2000))
 
 
+@pytest.mark.slow
 def test_ou_gusts_have_zero_mean_their_variance_and_exponential_correlation():
     sigma, tau, steps = 1.5, 0.8, 400
     sim = SimConfig.from_flat(disturbance="wind")
@@ -204,6 +209,7 @@ def test_gust_vertical_scales_only_the_vertical_gusts_and_its_default_is_the_iso
     assert Gains().gust_vertical == 1.0
 
 
+@pytest.mark.slow
 def test_a_constant_wind_pushes_the_double_integrator_by_drag_times_speed():
     sc = jax.tree_util.tree_map(lambda x: x[None], field())
     sim = SimConfig.from_flat(method="basic", disturbance="wind", t_max=5.0)
@@ -213,6 +219,7 @@ def test_a_constant_wind_pushes_the_double_integrator_by_drag_times_speed():
     np.testing.assert_allclose(float(m["accel_error_rms"][0, 0]), 1.0, rtol=1e-4)
 
 
+@pytest.mark.slow
 def test_a_grid_over_noise_levels_is_one_program_and_zero_noise_matches_the_ideal_sensor():
     scenarios = make_scenarios(1, family_params("dynamic"), 16)
     mpc = MPCConfig(horizon=8, iters=15)
