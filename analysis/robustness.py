@@ -27,7 +27,7 @@ the same selection in the ideal world is :func:`jaxapf.stats.verdicts` over all 
 comparisons at once (exact McNemar and TOST within the 2-point margin, both Holm-adjusted), the
 verdict function every study uses.
 
-    python analysis/robustness.py     # ~35 min on 2 cores (18 compiled programs, 132,192 episodes)
+    python analysis/robustness.py     # ~40 min on 2 cores (36 evaluate calls, 132,192 episodes)
 """
 
 from __future__ import annotations
