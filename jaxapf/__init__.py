@@ -2,8 +2,9 @@
 avoidance of UAVs with MPC tracking.
 
 The engine (this namespace): fields of a scenario family (:func:`make_scenarios`) × settings of
-gains (:class:`Gains`) → every registered metric, in one compiled call (:func:`evaluate`); one
-episode's trajectory with :func:`rollout`. The tools on top are subpackages: :mod:`jaxapf.sweep`,
+gains (:class:`Gains`) → every registered metric, in one compiled call (:func:`evaluate`), or the
+same as a table with a sweep's columns (:func:`evaluate_frame`); one episode's trajectory with
+:func:`rollout`. The tools on top are subpackages: :mod:`jaxapf.sweep`,
 :mod:`jaxapf.report`, :mod:`jaxapf.tune`, :mod:`jaxapf.simulate`, :mod:`jaxapf.bench`.
 
 Extension points (``docs/extending.md``): planners and their weights ω, force terms, safety
@@ -25,6 +26,7 @@ from .dynamics import (
     register_disturbance,
     register_plant,
 )
+from .frame import evaluate_frame
 from .gains import GAINS, Gains, GainSpec, declare_gains, load_gains
 from .metrics import METRICS, EpisodeContext, Metric, episode_metrics, register_metric
 from .planners import APF, PLANNERS, WEIGHTS, ForceTerm, Planner, Weight, register_planner, register_weight
@@ -35,7 +37,7 @@ from .validation import BoundWarning, ConfigError
 
 __all__ = [
     # the engine
-    "rollout", "rollout_metrics", "evaluate", "make_scenarios", "family_params", "episode_metrics",
+    "rollout", "rollout_metrics", "evaluate", "evaluate_frame", "make_scenarios", "family_params", "episode_metrics",
     # configuration and data
     "Gains", "GainSpec", "load_gains", "SimConfig", "PlannerConfig", "VehicleConfig", "WorldConfig", "EpisodeConfig",
     "MetricConfig", "MPCConfig", "Scenario", "Obstacles", "ObstacleColumns", "Trajectory",

@@ -27,7 +27,7 @@ from .registry import Registry
 from .validation import BoundWarning, ConfigError, check_range, check_table, describe_range, read_toml_file
 
 __all__ = ["GainSpec", "GAINS", "declare_gains", "Gains", "validate_gains", "gains_from_mapping", "load_gains",
-           "read_gains_file", "check_gain_name"]
+           "read_gains_file", "check_gain_name", "setting_count"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -139,6 +139,12 @@ def validate_gains(values: Mapping[str, Any], *, prefix: str = "gains") -> None:
             spec.check(gain_key(prefix, name), value)
 
 
+def _lists_as_arrays(values: Mapping[str, Any]) -> dict[str, Any]:
+    """Lists and tuples of numbers as float64 arrays: a list would be a pytree node, not a leaf, and
+    a batch of settings must be one leaf per gain."""
+    return {k: np.asarray(v, np.float64) if isinstance(v, (list, tuple)) else v for k, v in values.items()}
+
+
 @jax.tree_util.register_pytree_node_class
 class Gains(Mapping[str, Any]):
     """A value (scalar or batched array) for every declared gain: ``Gains(gamma=2.0)`` takes the
@@ -153,6 +159,7 @@ class Gains(Mapping[str, Any]):
 
     def __init__(self, **values: Any) -> None:
         validate_gains(values)
+        values = _lists_as_arrays(values)
         merged = {name: values[name] if name in values else spec.default for name, spec in GAINS.items()}
         object.__setattr__(self, "_values", merged)
 
@@ -208,11 +215,41 @@ class Gains(Mapping[str, Any]):
         object.__setattr__(gains, "_values", dict(values))
         return gains
 
+    # --- batches of settings -----------------------------------------------------------------
+
+    @classmethod
+    def grid(cls, **axes: Any) -> "Gains":
+        """Every combination of ``axes`` (the cartesian product, last key varying fastest, as a
+        sweep spec's ``[grid]``): ``Gains.grid(gamma=[0, 1, 2], k=[0, 0.5])`` is 6 settings,
+        ``(0, 0), (0, 0.5), (1, 0), ...``. Gains not named keep their defaults."""
+        import itertools
+
+        arrays = {}
+        for name, values in axes.items():
+            spec = check_gain_name("Gains.grid", name)
+            arr = np.asarray(values, dtype=np.float64) if _is_user_value(values) else None
+            if arr is None or arr.ndim != 1 or arr.size == 0:
+                raise ConfigError(f"Gains.grid: {name} = {values!r} must be a non-empty list of numbers")
+            spec.check(gain_key("Gains.grid", name), arr)
+            arrays[name] = arr
+        columns = dict(zip(arrays, np.array(list(itertools.product(*arrays.values())), np.float64).T))
+        return cls.unchecked({name: columns.get(name, spec.default) for name, spec in GAINS.items()})
+
+    @classmethod
+    def paired(cls, **values: Any) -> "Gains":
+        """Settings whose ``i``-th takes the ``i``-th value of every list (no product):
+        ``Gains.paired(gamma=[0, 3], k=[0, 1])`` is 2 settings, ``(0, 0)`` and ``(3, 1)``: the same as
+        ``Gains(gamma=[0, 3], k=[0, 1])``, which also pairs, but checked here for lists of equal lengths."""
+        gains = cls(**values)
+        setting_count(gains, "Gains.paired")
+        return gains
+
     # --- helpers ------------------------------------------------------------------------------
 
     def replace(self, **changes: Any) -> "Gains":
         """The same gains with ``changes`` (validated where they are user values)."""
         validate_gains(changes)
+        changes = _lists_as_arrays(changes)
         return Gains.unchecked({k: changes.get(k, v) for k, v in self._values.items()})
 
     def as_arrays(self, dtype: Any = None) -> "Gains":
@@ -225,6 +262,26 @@ class Gains(Mapping[str, Any]):
     def floats(self) -> dict[str, float]:
         """Scalar gains as plain floats."""
         return {k: float(np.asarray(v)) for k, v in self._values.items()}
+
+
+def setting_count(gains: Gains, where: str = "gains") -> int:
+    """The number of settings ``G`` a (batched) :class:`Gains` holds: the common length of its 1-D
+    leaves (1 if every leaf is a scalar). Leaves of other lengths or shapes raise
+    :class:`ConfigError` (one line): values are paired, not combined (:meth:`Gains.grid` combines)."""
+    lengths: dict[str, int] = {}
+    for name, value in gains.items():
+        shape = np.shape(value)
+        if len(shape) > 1:
+            raise ConfigError(f"{where}: {name} has shape {shape}; a gain is a number or a 1-D list of settings")
+        if shape:
+            lengths[name] = shape[0]
+    if len(set(lengths.values())) > 1:
+        listed = ", ".join(f"{k} {n}" for k, n in lengths.items())
+        raise ConfigError(f"{where}: the gains have different numbers of values ({listed}); settings pair the i-th "
+                          "values, so give every list the same length, or use Gains.grid(...) for every combination")
+    if 0 in lengths.values():
+        raise ConfigError(f"{where}: {next(k for k, n in lengths.items() if n == 0)} is empty; give at least one value")
+    return next(iter(lengths.values()), 1)
 
 
 def gains_from_mapping(mapping: Mapping[str, Any], where: str = "gains", base: Gains | None = None) -> Gains:

@@ -43,7 +43,7 @@ from .components import COMPONENTS, components_read_gains
 from .config import MPCConfig, SimConfig
 from .control import axis_problem, shift_warm_start, solve_axes
 from .datatypes import Scenario, Trajectory
-from .gains import Gains
+from .gains import Gains, setting_count
 from .metrics import METRICS, episode_metrics
 
 __all__ = ["rollout", "gains_read", "rollout_metrics", "evaluate", "evaluate_program", "episode_index", "default_width",
@@ -239,11 +239,14 @@ def evaluate(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, 
     Args:
       scenarios: a batch of F fields (leading axis F on every leaf).
       gains: a batch of G gain settings (leading axis G on every array leaf; a scalar leaf, e.g. a
-        gain left at its default, is shared by all G settings).
+        gain left at its default, is shared by all G settings): ``Gains(gamma=[...], k=[...])`` or
+        :meth:`~jaxapf.gains.Gains.paired` pairs the lists, :meth:`~jaxapf.gains.Gains.grid` takes
+        every combination. Lists of different lengths raise :class:`~jaxapf.validation.ConfigError`.
       width: the vmap width (static; ``None``: :func:`default_width`); the streaming engine flies
         at most this many episodes side by side.
       metrics: the metrics to compute (default: every registered one, :data:`~jaxapf.metrics.METRICS`).
       streaming: stop each episode when it ends (default) instead of flying all ``T`` steps.
     """
+    setting_count(gains, "evaluate: gains")  # one line for lists of different lengths, which would not pair
     names = METRICS.names() if metrics is None else tuple(metrics)
     return evaluate_program(scenarios, gains, sim, mpc, default_width() if width is None else width, names, streaming)

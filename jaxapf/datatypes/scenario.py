@@ -7,8 +7,10 @@ import zlib
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import Array
 
+from ..validation import ConfigError
 from .obstacles import Obstacles
 
 __all__ = ["Scenario", "episode_key"]
@@ -37,6 +39,19 @@ class Scenario:
     obstacles: Obstacles
     kind: Array | None = None
     key: Array | None = None
+
+    def take(self, i: int | slice | Array) -> "Scenario":
+        """Field ``i`` of a batch (leading axis on every leaf) as one :class:`Scenario`, for
+        :func:`~jaxapf.rollout.rollout`; a slice or an index array gives a smaller batch. The same as
+        ``jax.tree_util.tree_map(lambda x: x[i], batch)``; ``make_scenarios(seed, params, [i])`` is
+        the same field again (bit-identical, as a batch of one)."""
+        if jnp.ndim(self.start) != 2:
+            raise ConfigError(f"Scenario.take: this is one field (start has shape {jnp.shape(self.start)}), "
+                              "not a batch; take() picks fields out of a batch from make_scenarios")
+        n = jnp.shape(self.start)[0]
+        if isinstance(i, (int, np.integer)) and not isinstance(i, bool) and not -n <= i < n:
+            raise ConfigError(f"Scenario.take: field {i} is out of range for a batch of {n} fields")
+        return jax.tree_util.tree_map(lambda x: x[i], self)
 
 
 def episode_key(scenario: Scenario, purpose: str, step: Array | int = 0) -> Array:
