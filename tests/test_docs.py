@@ -38,7 +38,7 @@ CHECK = textwrap.dedent("""
     horizon = 3
     iters = 3
     [grid]
-    method = ["closing", "closing_damped", "smoothed_dv"]
+    method = ["closing", "closing_damped", "smoothed_dv", "closing_goal_normalised"]
     tau = [0.05, 0.2]
     [gains]
     flicker = 0.3
@@ -47,7 +47,18 @@ CHECK = textwrap.dedent("""
     assert main(["sweep", str(root / "spec.toml"), "--out", str(root / "out.parquet"), "--quiet", "--no-cache"]) == 0
     rows = pd.concat([pd.read_parquet(p) for p in sorted((root / "out.parquet").glob("part-*.parquet"))])
     lag = rows.groupby("tau")["mean_speed"].mean()
+    # a weight is also called with no goal (sight.goal None): its reference value, the functional API
+    import jaxapf
+    from jaxapf.potentials import weight
+    gains = jaxapf.Gains()
+    p, v, p_o = jnp.array([0.0, 0.0, 2.0]), jnp.array([1.0, 0.0, 0.0]), jnp.array([3.0, 0.5, 2.0])
+    no_goal = [float(weight(p, v, p_o, jnp.zeros(3), method=m, convention="intent", **gains.floats()))
+               for m in ("closing_goal", "closing_goal_normalised")]
+    at_goal = float(weight(p, v, p_o, jnp.zeros(3), method="closing_goal", convention="intent", goal=p,
+                           **gains.floats()))
     print("RESULT " + json.dumps({
+        "no_goal": no_goal, "at_goal": at_goal,
+        "reference": float(jaxapf.WEIGHTS.get("closing_goal").reference(gains)),
         "listing": listing.getvalue(), "rows": len(rows), "columns": list(rows.columns),
         "finite": bool(rows[["mean_speed", "final_distance"]].notna().all().all()),
         "methods": sorted(set(rows["method"])), "lag_matters": bool(lag.loc[0.05] != lag.loc[0.2]),
@@ -67,9 +78,13 @@ def test_extending_examples_run_as_documented(tmp_path, repo_root):
                           text=True, timeout=540)
     assert proc.returncode == 0, proc.stderr[-3000:]
     out = json.loads(next(line for line in proc.stdout.splitlines() if line.startswith("RESULT "))[7:])
-    assert {"closing", "closing_damped", "smoothed_dv", "flicker", "downdraft"} <= set(out["listing"].split())
-    assert out["rows"] == 3 * 2 * 4 and out["finite"]
-    assert out["methods"] == ["closing", "closing_damped", "smoothed_dv"]
+    assert {"closing", "closing_damped", "smoothed_dv", "closing_goal", "closing_goal_normalised", "flicker",
+            "downdraft"} <= set(out["listing"].split())
+    assert out["rows"] == 4 * 2 * 4 and out["finite"]
+    assert out["methods"] == ["closing", "closing_damped", "closing_goal_normalised", "smoothed_dv"]
+    # sight.goal None: the weight is the closing one (> 1: the obstacle closes in); at the goal it fades to 1
+    assert out["no_goal"][0] > 1.0 and out["at_goal"] == 1.0 and out["reference"] == 1.0
+    assert out["no_goal"][1] == out["no_goal"][0]  # normalised by its reference value 1
     for column in ("k_c", "b_damp", "alpha", "tau", "plant", "filter", "sensor", "disturbance", "flicker",
                    "downdraft", "mean_speed"):
         assert column in out["columns"], column
