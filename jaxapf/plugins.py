@@ -3,13 +3,16 @@
 A plugin is a Python module that registers planners, weights, filters, plants, families or metrics
 when imported (``docs/extending.md``). Sweep and tune specs name theirs (``plugins = [...]``, so
 a spec is self-contained and its output records what it needs); the CLI's ``--plugin`` imports one
-for any command. A plugin is a module name (``mypackage.planners``) or a path to a ``.py`` file.
+for any command. A plugin is a module name (``mypackage.planners``) or a path to a ``.py`` file;
+a spec's relative paths are read from the spec file's folder (``base``), ``--plugin``'s from the
+current directory.
 """
 
 from __future__ import annotations
 
 import importlib
 import importlib.util
+import os
 import pathlib
 import sys
 from types import ModuleType
@@ -17,16 +20,27 @@ from typing import Any, Sequence
 
 from .validation import ConfigError, first_line
 
-__all__ = ["load_plugin", "load_plugins", "check_plugins"]
+__all__ = ["load_plugin", "load_plugins", "check_plugins", "plugin_path"]
 
 
-def load_plugin(name: str, where: str = "plugin") -> ModuleType:
-    """Import the plugin ``name`` (a module name or a ``.py`` path); a module imports once."""
+def plugin_path(name: str, base: str | os.PathLike | None = None) -> str:
+    """What plugin ``name`` imports: a ``.py`` path made absolute (a relative one from ``base``,
+    default the current directory), a module name as it is."""
+    if not name.endswith(".py"):
+        return name
+    path = pathlib.Path(name).expanduser()
+    return str((path if path.is_absolute() else pathlib.Path(base or ".") / path).resolve())
+
+
+def load_plugin(name: str, where: str = "plugin", path: str | os.PathLike | None = None) -> ModuleType:
+    """Import the plugin ``name`` (a module name or a ``.py`` path); a module imports once.
+    ``path``: the file to import for a ``.py`` plugin (default :func:`plugin_path` of ``name``)."""
     try:
         if name.endswith(".py"):
-            path = pathlib.Path(name).resolve()
+            path = pathlib.Path(path if path is not None else plugin_path(name))
             if not path.is_file():
-                raise ConfigError(f"{where} = {name!r}: no such file")
+                shown = "" if str(path) == name else f" ({path})"
+                raise ConfigError(f"{where} = {name!r}: no such file{shown}")
             module_name = f"jaxapf_plugin_{path.stem}_{abs(hash(str(path))):x}"
             if module_name in sys.modules:
                 return sys.modules[module_name]
@@ -56,7 +70,11 @@ def check_plugins(where: str, value: Any) -> tuple[str, ...]:
     return tuple(value)
 
 
-def load_plugins(names: Sequence[str], where: str = "plugins") -> None:
-    """Import every plugin of ``names``."""
-    for i, name in enumerate(names):
-        load_plugin(name, f"{where}[{i}]")
+def load_plugins(names: Sequence[str], where: str = "plugins", base: str | os.PathLike | None = None,
+                 paths: Sequence[str] | None = None) -> tuple[str, ...]:
+    """Import every plugin of ``names`` (relative ``.py`` paths from ``base``, default the current
+    directory, or from ``paths``, one per name); returns what each imported (:func:`plugin_path`)."""
+    paths = tuple(paths) if paths is not None else tuple(plugin_path(name, base) for name in names)
+    for i, (name, path) in enumerate(zip(names, paths)):
+        load_plugin(name, f"{where}[{i}]", path)
+    return paths

@@ -71,7 +71,7 @@ def test_sweep_spec(spec: CompareSpec, selections: Sequence[Selection]):
         "sim": {k: list(v) if isinstance(v, tuple) else v for k, v in spec.sim.items()},
         "setting": settings,
     }
-    return parse_spec(data)
+    return parse_spec(data, plugin_paths=spec.plugin_paths or None)
 
 
 def run_compare(spec_path: str | pathlib.Path, out: str | pathlib.Path | None = None, *, quiet: bool = False,

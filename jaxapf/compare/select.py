@@ -105,7 +105,7 @@ def tune_spec(spec: CompareSpec, method: str, seed: int, steps: int = 1):
         "objective": dict(spec.objective),
         "tune": {"params": list(names)},
     }
-    return parse_tune_spec(data)
+    return parse_tune_spec(data, plugin_paths=spec.plugin_paths or None)
 
 
 def random_candidates(spec: CompareSpec, method: str, seed: int) -> list[Gains]:

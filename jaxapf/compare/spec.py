@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import pathlib
 import re
 from typing import Any, Mapping
 
@@ -113,6 +114,8 @@ class CompareSpec:
     params: Mapping[str, Mapping[str, Any]]
     objective: Mapping[str, float]
     plugins: tuple[str, ...] = ()
+    #: what each plugin imported (a ``.py`` file's absolute path; relative ones from the spec file's folder)
+    plugin_paths: tuple[str, ...] = dataclasses.field(default=(), compare=False)
 
     def settings(self, method: str) -> dict[str, str]:
         """The static settings of the compared ``method`` (``PLANNER`` or ``PLANNER+FILTER``):
@@ -233,11 +236,12 @@ def _test(data: Any, choices: tuple[str, ...], seeds: tuple[int, ...]) -> TestSp
     return TestSpec(families=families, fields=fields, seed=seed)
 
 
-def parse_compare_spec(data: Mapping[str, Any]) -> CompareSpec:
-    """A :class:`CompareSpec` from a parsed TOML mapping (every key checked; docs/compare.md)."""
+def parse_compare_spec(data: Mapping[str, Any], *, base: str | os.PathLike | None = None) -> CompareSpec:
+    """A :class:`CompareSpec` from a parsed TOML mapping (every key checked; docs/compare.md);
+    ``base``: the folder relative ``.py`` plugin paths are read from (default the current directory)."""
     data = check_table("", dict(data), _TOP)
     plugins = check_plugins("plugins", data.get("plugins", []))
-    load_plugins(plugins)
+    paths = load_plugins(plugins, base=base)
     name = data.get("name", "compare")
     if not isinstance(name, str) or not _NAME.match(name):
         raise ConfigError(f"name = {name!r} must be a string of letters, digits, '_', '.', '-'")
@@ -276,10 +280,11 @@ def parse_compare_spec(data: Mapping[str, Any]) -> CompareSpec:
             raise ConfigError(f"objective.{key} = {value!r} must be a number")
     Objective(**{k: float(v) for k, v in objective.items()})
     return CompareSpec(name=name, methods=methods, baseline=baseline, selection=selection, test=test, sim=sim,
-                       params=params, objective={k: float(v) for k, v in objective.items()}, plugins=plugins)
+                       params=params, objective={k: float(v) for k, v in objective.items()}, plugins=plugins,
+                       plugin_paths=paths)
 
 
 def load_compare_spec(path: str | os.PathLike) -> tuple[CompareSpec, str]:
     """The validated spec of the TOML file at ``path`` and the file's text."""
     data, text = read_toml_file(path)
-    return parse_compare_spec(data), text
+    return parse_compare_spec(data, base=pathlib.Path(path).parent), text

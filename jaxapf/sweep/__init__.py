@@ -64,7 +64,7 @@ from .plan import (
                    plan_sweep,
                    variants,
 )
-from .read import RowConfig, read_sweep, row_config
+from .read import RowConfig, read_sweep, row_config, sweep_spec
 from .run import SweepResult, configure_jax, default_cache_dir, dry_run, parse_size, run_sweep
 from .schema import FORMAT, sweep_meta
 from .spec import STATIC_KEYS, RandomRange, Setting, SweepSpec, load_spec, parse_spec, read_toml
@@ -73,5 +73,5 @@ __all__ = [
     "SweepSpec", "Setting", "RandomRange", "load_spec", "parse_spec", "read_toml", "STATIC_KEYS", "MAX_SEED",
     "Plan", "Chunk", "Variant", "variants", "plan_sweep", "describe_plan", "DEFAULT_MEMORY_BUDGET", "CALLS_PER_PART",
     "STEP_COST_US", "FORMAT", "sweep_meta", "prepare_output", "run_sweep", "dry_run", "SweepResult",
-    "configure_jax", "default_cache_dir", "parse_size", "read_sweep", "row_config", "RowConfig",
+    "configure_jax", "default_cache_dir", "parse_size", "read_sweep", "row_config", "sweep_spec", "RowConfig",
 ]

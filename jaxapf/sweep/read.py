@@ -16,7 +16,7 @@ from .output import read_part
 from .schema import identity, read_meta
 from .spec import SweepSpec
 
-__all__ = ["read_sweep", "RowConfig", "row_config"]
+__all__ = ["read_sweep", "RowConfig", "row_config", "sweep_spec"]
 
 
 def read_sweep(path: str | os.PathLike) -> tuple["pd.DataFrame", dict[str, Any]]:  # noqa: F821
@@ -24,8 +24,9 @@ def read_sweep(path: str | os.PathLike) -> tuple["pd.DataFrame", dict[str, Any]]
 
     ``path`` is the output directory (every visible ``*.parquet`` in it is a part) or one part file.
     The metadata is the parts' ``jaxapf`` object (docs/sweep-format.md) plus ``parts`` (number of
-    part files), ``rows_expected`` (from the spec; None if the spec cannot be expanded) and
-    ``complete`` (every (setting, family, field) present). Every part is verified (its page CRCs
+    part files), ``rows_expected`` (from the spec; None if the spec cannot be expanded),
+    ``complete`` (every (setting, family, field) present) and ``location`` (the output folder,
+    absolute: a ``.py`` plugin is looked for there first, :func:`sweep_spec`). Every part is verified (its page CRCs
     and content hash, :func:`~jaxapf.sweep.output.read_part`). Raises :class:`ConfigError` for a
     path that is not a sweep output, a damaged part, or parts of different sweeps.
     """
@@ -52,14 +53,14 @@ def read_sweep(path: str | os.PathLike) -> tuple["pd.DataFrame", dict[str, Any]]
         df = pa.concat_tables(tables).to_pandas()
     except (OSError, pa.ArrowException) as err:
         raise ConfigError(f"{path} is not a readable sweep output (Parquet): {first_line(err)}") from None
-    meta = metas[0]
+    meta = {**metas[0], "location": str((path if path.is_dir() else path.parent).resolve())}
     if {"setting", "family", "field"} <= set(df.columns):
         families = list(meta.get("spec", {}).get("scenario", {}).get("families", []))
         rank = {f: i for i, f in enumerate(families + sorted(set(df["family"]) - set(families)))}
         df = (df.assign(_rank=df["family"].map(rank)).sort_values(["setting", "_rank", "field"], kind="stable")
               .drop(columns="_rank").reset_index(drop=True))
     try:
-        spec = SweepSpec.from_json(meta["spec"])
+        spec = sweep_spec(meta)
         expected = len(spec.settings()) * len(spec.families) * spec.fields
     except (KeyError, TypeError, ConfigError):
         expected = None
@@ -85,9 +86,30 @@ class RowConfig:
     dtype: str
 
 
+def sweep_spec(meta: Mapping[str, Any]) -> SweepSpec:
+    """The spec of a sweep's metadata (``meta`` from :func:`read_sweep`), its plugins imported: a
+    ``.py`` plugin from its path relative to the output folder (``location``) if it is there (a
+    dataset moved together with its plugin), else from the absolute path recorded by the sweep;
+    metadata without ``plugin_files`` (older sweeps) reads relative paths from the current directory."""
+    files = meta.get("plugin_files") or []
+    names = list(meta["spec"].get("plugins", []))
+    if not files or len(files) != len(names):
+        return SweepSpec.from_json(meta["spec"])
+    location = meta.get("location")
+    paths = []
+    for name, rec in zip(names, files):
+        if not isinstance(rec, Mapping) or "path" not in rec:
+            paths.append(name)
+            continue
+        near = ([str((pathlib.Path(location) / rec["from_output"]).resolve())]
+                if location and rec.get("from_output") else [])
+        paths.append(next((c for c in near if pathlib.Path(c).is_file()), str(rec["path"])))
+    return SweepSpec.from_json(meta["spec"], plugin_paths=paths)
+
+
 def row_config(meta: Mapping[str, Any], row: Mapping[str, Any]) -> RowConfig:
     """The configuration of one output row (``meta`` from :func:`read_sweep`)."""
-    spec = SweepSpec.from_json(meta["spec"])
+    spec = sweep_spec(meta)
     setting = spec.settings()[int(row["setting"])]
     label = str(row["family"])
     sim, mpc = spec.configs(setting.static, label)

@@ -151,7 +151,7 @@ def dry_run(spec: SweepSpec, out: str | os.PathLike, *, overwrite: bool = False,
     """:func:`describe_plan` of what :func:`run_sweep` would do with ``out`` as it is now
     (refusing, like the run, an output of a different sweep or with damaged parts, unless
     ``repair``); ``plan``: :func:`plan_sweep` options."""
-    done = prepare_output(pathlib.Path(out), sweep_meta(spec, plan_sweep(spec, **plan)), overwrite=overwrite,
+    done = prepare_output(pathlib.Path(out), sweep_meta(spec, plan_sweep(spec, **plan), out), overwrite=overwrite,
                           clean=False, repair=repair)
     return describe_plan(plan_sweep(spec, done=done, **plan))
 
@@ -183,7 +183,7 @@ def run_sweep(
     process, processes = jax.process_index(), jax.process_count()
     probe = plan_sweep(spec, memory_budget=memory_budget, chunk_fields=chunk_fields, devices=devices,
                        processes=processes)
-    meta = sweep_meta(spec, probe)
+    meta = sweep_meta(spec, probe, out)
     note = (lambda line: None) if quiet else (lambda line: print(f"note: {line}", file=sys.stderr, flush=True))
     lock = OutputLock(out, "jaxapf sweep", note)
     if process == 0:

@@ -149,11 +149,29 @@ def identity(meta: Mapping[str, Any]) -> dict[str, Any]:
     return {k: meta.get(k) for k in ("format", "spec_hash", "dtype", "vmap_width", "metrics")}
 
 
-def sweep_meta(spec: SweepSpec, plan: Plan) -> dict[str, Any]:
-    """The ``jaxapf`` metadata of every part (docs/sweep-format.md)."""
+def sweep_meta(spec: SweepSpec, plan: Plan, out: str | pathlib.Path | None = None) -> dict[str, Any]:
+    """The ``jaxapf`` metadata of every part (docs/sweep-format.md); with ``.py`` plugins and the
+    output folder ``out``, ``plugin_files`` records where each was imported from."""
     from ..versions import versions
 
-    return {"format": FORMAT, "spec": spec.to_json(), "spec_hash": spec.hash, "versions": versions(),
+    meta = {"format": FORMAT, "spec": spec.to_json(), "spec_hash": spec.hash, "versions": versions(),
             "prng": PRNG, "dtype": plan.dtype, "vmap_width": plan.width, "metrics": list(plan.metrics)}
+    files = plugin_files(spec, out)
+    return meta | ({"plugin_files": files} if files else {})
+
+
+def plugin_files(spec: SweepSpec, out: str | pathlib.Path | None) -> list[dict[str, str] | None]:
+    """Per plugin of ``spec``: a ``.py`` file's absolute path and its path relative to the output
+    folder ``out`` (so a dataset moved together with its plugin still finds it), None for a module;
+    empty without ``.py`` plugins."""
+    if not any(name.endswith(".py") for name in spec.plugins):
+        return []
+    import os
+
+    out = pathlib.Path(out).resolve() if out is not None else None
+    paths = spec.plugin_paths or spec.plugins
+    return [None if not name.endswith(".py") else
+            {"path": str(path), **({"from_output": os.path.relpath(path, out)} if out is not None else {})}
+            for name, path in zip(spec.plugins, paths)]
 
 

@@ -16,7 +16,8 @@ Keys ("setting keys") live in one flat namespace:
   *variant* with its own program. ``method``, ``filter`` and ``plant`` take registered names.
 
 ``plugins = [...]`` at the top level names modules (or ``.py`` files) that register components;
-they are imported before anything else is checked (:mod:`jaxapf.plugins`).
+they are imported before anything else is checked (:mod:`jaxapf.plugins`). A relative ``.py`` path
+is read from the spec file's folder, so a spec runs from any directory.
 
 Expansion order (the ``setting`` index of the output): the grid product with the keys in the
 order the spec writes them, the last key varying fastest; with ``[random]``, every grid point is
@@ -43,9 +44,10 @@ import itertools
 import json
 import math
 import os
+import pathlib
 import re
 import warnings
-from typing import Any, Iterable, Mapping
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -215,7 +217,10 @@ class SweepSpec:
 
     Attributes:
       name: the study's name (letters, digits, ``_ . -``).
-      plugins: modules registering components the spec uses (imported by :func:`parse_spec`).
+      plugins: modules registering components the spec uses (imported by :func:`parse_spec`), as
+        written (so the hash does not depend on where the spec lies).
+      plugin_paths: what each plugin imported: a ``.py`` file's absolute path (a relative one read
+        from the spec file's folder), a module's name; not part of the spec's JSON or hash.
       families: scenario families (SPEC 5), in the spec's order.
       fields: randomized fields per family.
       seed: scenario seed; field ``i`` has key ``fold_in(key(seed), i)``.
@@ -248,6 +253,7 @@ class SweepSpec:
     oracle: bool = True
     explicit: tuple[tuple[tuple[str, Any], ...], ...] = ()
     tags: tuple[tuple[tuple[str, Any], ...], ...] = ()
+    plugin_paths: tuple[str, ...] = dataclasses.field(default=(), compare=False)
 
     # ---- canonical form -----------------------------------------------------------------
 
@@ -280,8 +286,9 @@ class SweepSpec:
         return hashlib.sha256(text.encode()).hexdigest()
 
     @classmethod
-    def from_json(cls, data: Mapping[str, Any]) -> "SweepSpec":
-        """Inverse of :meth:`to_json` (re-validates)."""
+    def from_json(cls, data: Mapping[str, Any], plugin_paths: Sequence[str] | None = None) -> "SweepSpec":
+        """Inverse of :meth:`to_json` (re-validates); ``plugin_paths``: what each plugin imports
+        (default: relative ``.py`` paths from the current directory)."""
         table: dict[str, Any] = {"name": data["name"], "scenario": dict(data["scenario"]), "sim": data["sim"],
                                  "gains": data["gains"]}
         if data.get("plugins"):
@@ -293,7 +300,7 @@ class SweepSpec:
                                **{key: r for key, r in data["random"]["ranges"]}}
         if data.get("setting"):
             table["setting"] = [dict(entry) for entry in data["setting"]]
-        return parse_spec(table)
+        return parse_spec(table, plugin_paths=plugin_paths)
 
     # ---- expansion ----------------------------------------------------------------------
 
@@ -546,8 +553,12 @@ def _random(table: Any, fixed: Mapping[str, str], grid: Iterable[str]) -> tuple[
     return n, seed, tuple(ranges)
 
 
-def parse_spec(data: Mapping[str, Any], gains_file: str | os.PathLike | None = None) -> SweepSpec:
+def parse_spec(data: Mapping[str, Any], gains_file: str | os.PathLike | None = None, *,
+               base: str | os.PathLike | None = None, plugin_paths: Sequence[str] | None = None) -> SweepSpec:
     """Validate a spec given as a mapping (parsed TOML) and return it as a :class:`SweepSpec`.
+
+    ``base``: the folder relative ``.py`` plugin paths are read from (the spec file's;
+    default the current directory); ``plugin_paths``: what each plugin imports, instead.
 
     ``gains_file`` (``--gains FILE``, read by :func:`~jaxapf.gains.read_gains_file`) overrides the
     spec's ``[gains]``: the file's values on top of the spec's, every gain either names then fixed,
@@ -556,7 +567,9 @@ def parse_spec(data: Mapping[str, Any], gains_file: str | os.PathLike | None = N
     """
     data = check_table("", dict(data), _TOP_KEYS)
     plugins = check_plugins("plugins", data.get("plugins", []))
-    load_plugins(plugins)
+    if plugin_paths is not None and len(plugin_paths) != len(plugins):
+        raise ConfigError(f"plugins: {len(plugin_paths)} paths given for {len(plugins)} plugins")
+    paths = load_plugins(plugins, base=base, paths=plugin_paths)
     name = data.get("name")
     if not isinstance(name, str) or not _NAME.match(name):
         raise ConfigError(f"name = {name!r} must be a string of letters, digits, '_', '.', '-' "
@@ -583,7 +596,7 @@ def parse_spec(data: Mapping[str, Any], gains_file: str | os.PathLike | None = N
                           f"{MAX_SETTINGS:,} are allowed: fewer grid values or samples")
     spec = SweepSpec(name=name, families=families, fields=fields, seed=seed, params=params, sim=sim, gains=gains,
                      grid=grid, random_n=random_n, random_seed=random_seed, random=ranges, plugins=plugins,
-                     oracle=oracle, explicit=explicit, tags=tags)
+                     oracle=oracle, explicit=explicit, tags=tags, plugin_paths=paths)
     for static in {s.static for s in spec.settings()}:
         for family in families:
             spec.configs(static, family)
@@ -596,5 +609,6 @@ def read_toml(path: str | os.PathLike) -> dict[str, Any]:
 
 
 def load_spec(path: str | os.PathLike, gains_file: str | os.PathLike | None = None) -> SweepSpec:
-    """Read and validate a TOML spec file (see :func:`parse_spec`)."""
-    return parse_spec(read_toml(path), gains_file)
+    """Read and validate a TOML spec file (see :func:`parse_spec`; its plugins' relative paths are
+    read from the file's folder)."""
+    return parse_spec(read_toml(path), gains_file, base=pathlib.Path(path).parent)

@@ -15,7 +15,8 @@ import itertools
 import json
 import math
 import os
-from typing import Any, Mapping
+import pathlib
+from typing import Any, Mapping, Sequence
 
 import jax.numpy as jnp
 import optax
@@ -374,11 +375,14 @@ def _search(data: dict[str, Any], reparam: Reparam) -> SearchSpec:
     )
 
 
-def parse_tune_spec(data: Mapping[str, Any]) -> TuneSpec:
-    """A :class:`TuneSpec` from a parsed TOML mapping (see docs/tune.md for every key)."""
+def parse_tune_spec(data: Mapping[str, Any], *, base: str | os.PathLike | None = None,
+                    plugin_paths: Sequence[str] | None = None) -> TuneSpec:
+    """A :class:`TuneSpec` from a parsed TOML mapping (see docs/tune.md for every key); ``base``:
+    the folder relative ``.py`` plugin paths are read from (default the current directory), or
+    ``plugin_paths``: what each plugin imports."""
     data = _table(dict(data), "")
     plugins = check_plugins("plugins", data.get("plugins", []))
-    load_plugins(plugins)
+    load_plugins(plugins, base=base, paths=plugin_paths)
     name = data.get("name", "tune")
     if not isinstance(name, str) or not name:
         raise ConfigError(f"name = {name!r} must be a non-empty string")
@@ -407,4 +411,4 @@ def parse_tune_spec(data: Mapping[str, Any]) -> TuneSpec:
 def load_tune_spec(path: str | os.PathLike) -> tuple[TuneSpec, str]:
     """The validated spec of the TOML file at ``path`` and the file's text."""
     data, text = read_toml_file(path)
-    return parse_tune_spec(data), text
+    return parse_tune_spec(data, base=pathlib.Path(path).parent), text

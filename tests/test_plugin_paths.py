@@ -1,0 +1,100 @@
+"""A spec's ``.py`` plugins are read from the spec file's folder, and a sweep's dataset finds them
+again from any working directory, also after the dataset and its plugin moved together."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import textwrap
+
+import pytest
+from conftest import ROOT
+
+from jaxapf.sweep import load_spec, parse_spec
+from jaxapf.validation import ConfigError
+
+PLUGIN = ROOT / "tests" / "plugins" / "sideways.py"
+
+SPEC = textwrap.dedent("""
+    name = "ext"
+    plugins = ["plugins/sideways.py"]
+    [scenario]
+    families = ["pillar"]
+    fields = 2
+    oracle = false
+    [sim]
+    t_max = 2.0
+    horizon = 3
+    iters = 3
+    [grid]
+    method = ["basic", "sideways_drift"]
+""")
+
+# run in a fresh process (registries are process-wide), in the working directory it is given
+SCRIPT = textwrap.dedent("""
+    import contextlib, io, json, sys
+    from jaxapf.cli import main
+
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        rc = main(sys.argv[1:])
+    print("RESULT " + json.dumps({"rc": rc, "stdout": out.getvalue()}))
+""")
+
+
+def _run(cwd, *argv):
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"} | {"JAX_PLATFORMS": "cpu"}
+    proc = subprocess.run([sys.executable, "-c", SCRIPT, *map(str, argv)], cwd=cwd, env=env, capture_output=True,
+                          text=True, timeout=400)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    result = json.loads(next(line for line in proc.stdout.splitlines() if line.startswith("RESULT "))[7:])
+    assert result["rc"] == 0, proc.stderr[-3000:]
+    return result["stdout"], proc.stderr
+
+
+@pytest.mark.slow
+def test_spec_plugins_sweep_and_report_from_any_directory(tmp_path):
+    study = tmp_path / "study"
+    (study / "plugins").mkdir(parents=True)
+    shutil.copy(PLUGIN, study / "plugins" / "sideways.py")
+    (study / "spec.toml").write_text(SPEC)
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    # the spec from another directory: its plugin path is the spec folder's
+    _run(elsewhere, "sweep", study / "spec.toml", "--out", study / "runs" / "ext.parquet", "--quiet", "--no-cache")
+    meta = json.loads(__import__("pyarrow.parquet", fromlist=["x"]).read_schema(
+        next((study / "runs" / "ext.parquet").glob("part-*.parquet"))).metadata[b"jaxapf"])
+    assert meta["spec"]["plugins"] == ["plugins/sideways.py"]  # as written: the hash does not depend on where
+    assert meta["plugin_files"] == [{"path": str((study / "plugins" / "sideways.py").resolve()),
+                                     "from_output": os.path.join("..", "..", "plugins", "sideways.py")}]
+    # the study folder moved (the recorded absolute path is gone): the report finds the plugin next to the
+    # dataset, from yet another directory, and re-simulates the gallery
+    moved = tmp_path / "moved"
+    study.rename(moved)
+    stdout, _ = _run(elsewhere, "report", moved / "runs" / "ext.parquet", "--out", tmp_path / "report",
+                     "--resamples", "100", "--gallery", "1", "--heatmap", "none", "--no-cache")
+    assert "could not re-simulate" not in stdout, stdout
+    assert (tmp_path / "report" / "figures" / "gallery_1.png").is_file(), stdout
+
+
+def test_spec_plugin_paths_are_the_spec_folders(tmp_path, monkeypatch):
+    (tmp_path / "specs").mkdir()
+    (tmp_path / "specs" / "noop_plugin.py").write_text("LOADED = True\n")
+    (tmp_path / "specs" / "s.toml").write_text('name = "s"\nplugins = ["noop_plugin.py"]\n'
+                                               '[scenario]\nfamilies = ["clutter"]\nfields = 1\n')
+    other = tmp_path / "other"
+    other.mkdir()
+    monkeypatch.chdir(other)
+    spec = load_spec(tmp_path / "specs" / "s.toml")
+    assert spec.plugins == ("noop_plugin.py",)
+    assert spec.plugin_paths == (str((tmp_path / "specs" / "noop_plugin.py").resolve()),)
+    # a bad path: one line naming the field and where it looked
+    table = {"name": "s", "plugins": ["missing.py"], "scenario": {"families": ["clutter"], "fields": 1}}
+    with pytest.raises(ConfigError) as err:
+        parse_spec(table, base=tmp_path / "specs")
+    message = str(err.value)
+    assert message.startswith("plugins[0] = 'missing.py': no such file") and "\n" not in message
+    assert str(tmp_path / "specs" / "missing.py") in message
