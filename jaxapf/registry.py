@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from typing import Callable, Generic, Iterator, TypeVar
 
+from .text import plain_text
 from .validation import ConfigError
 
 __all__ = ["Registry"]
@@ -63,12 +64,13 @@ class Registry(Generic[T]):
         return tuple(self._entries.items())
 
     def describe(self, name: str) -> str:
-        """One line about entry ``name``."""
+        """One line about entry ``name``, plain text (reST markup removed): the ``describe`` given to
+        the registry, else the first paragraph of the entry's docstring."""
         entry = self.get(name)
         if self._describe is not None:
-            return self._describe(entry)
+            return plain_text(self._describe(entry))
         doc = (type(entry).__doc__ if not isinstance(entry, type) else entry.__doc__) or ""
-        return doc.strip().splitlines()[0] if doc.strip() else ""
+        return plain_text(doc.strip().split("\n\n")[0])
 
     def __contains__(self, name: object) -> bool:
         return name in self._entries

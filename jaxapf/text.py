@@ -1,10 +1,11 @@
-"""Numbers for people: durations and sizes as the CLI and the reports print them."""
+"""Text for people: durations, sizes and docstrings as the CLI and the reports print them."""
 
 from __future__ import annotations
 
 import math
+import re
 
-__all__ = ["format_seconds", "format_bytes"]
+__all__ = ["format_seconds", "format_bytes", "plain_text"]
 
 
 def format_seconds(s: float) -> str:
@@ -24,3 +25,13 @@ def format_bytes(n: float) -> str:
     """``512.0 B``, ``1.5 KiB``, ``256.0 MiB``, ``2.0 GiB``."""
     power = min(3, int(math.log(max(n, 1), 1024)))
     return f"{n / 1024 ** power:.1f} {('B', 'KiB', 'MiB', 'GiB')[power]}"
+
+
+_ROLE = re.compile(r":[a-z]+(?::[a-z]+)?:`(~?)([^`<]*?)(?:\s*<[^>]*>)?`")
+
+
+def plain_text(text: str) -> str:
+    """reST markup of a docstring as plain text, as Sphinx shows it: ``:class:`~a.b.C``` → ``C``,
+    ``:func:`a.f``` → ``a.f``, ````x```` → ``x``; whitespace runs (line breaks) → one space."""
+    text = _ROLE.sub(lambda m: m.group(2).rsplit(".", 1)[-1] if m.group(1) else m.group(2), text)
+    return " ".join(text.replace("``", "").split())
