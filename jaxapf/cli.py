@@ -3,6 +3,9 @@
 Choices, gain flags and their help texts come from the registries (planners, filters, plants, sensors, disturbances,
 families, metrics, gains), so a registered component appears here with no edit. Configuration
 errors are reported as one line naming the field and its allowed range, with exit status 2.
+
+Help, ``list`` and argument errors import no JAX: they read the registries' catalogue
+(:mod:`jaxapf.catalog`); a command imports the engine when it runs.
 """
 
 from __future__ import annotations
@@ -17,6 +20,8 @@ from typing import Sequence
 __all__ = ["main", "build_parser"]
 
 _LISTS = ("planners", "filters", "plants", "sensors", "disturbances", "families", "metrics", "gains")
+#: The registries' catalogue the parser is built from (:func:`jaxapf.catalog.catalog`); set by :func:`main`.
+_CATALOG: dict | None = None
 #: What an interrupted command leaves behind, for the one line Ctrl-C prints.
 _KEPT = {
     "simulate": "no output was written (the files are written after the runs)",
@@ -29,14 +34,27 @@ _KEPT = {
 }
 
 
+def _catalog() -> dict:
+    if _CATALOG is not None:
+        return _CATALOG
+    from .catalog import catalog
+
+    return catalog(fresh="jaxapf.components" in sys.modules)
+
+
+def _names(what: str) -> tuple[str, ...]:
+    from .catalog import names
+
+    return names(_catalog(), what)
+
+
 def _planners(text: str) -> list[str]:
     """An argparse type: comma-separated registered planners."""
-    from .planners import PLANNERS
-
+    planners = _names("planners")
     names = [m.strip() for m in text.split(",") if m.strip()]
     for name in names:
-        if name not in PLANNERS:
-            raise argparse.ArgumentTypeError(f"unknown planner {name!r}; choose from {', '.join(PLANNERS.names())}")
+        if name not in planners:
+            raise argparse.ArgumentTypeError(f"unknown planner {name!r}; choose from {', '.join(planners)}")
     if not names:
         raise argparse.ArgumentTypeError("give at least one planner")
     return names
@@ -44,15 +62,14 @@ def _planners(text: str) -> list[str]:
 
 def _gain_flags(p: argparse.ArgumentParser) -> None:
     """``--gains FILE`` and one ``--NAME`` flag per declared gain (help from its declaration)."""
-    from .gains import GAINS
-
     g = p.add_argument_group("gains (default: each gain's declared default; `jaxapf list gains`)")
     g.add_argument("--gains", type=pathlib.Path, metavar="FILE",
                    help="TOML file of gain values (a [gains] table or keys at the top level)")
-    for name, spec in GAINS.items():
-        unit = f" [{spec.unit}]" if spec.unit else ""
+    for spec in _catalog()["gains"]:
+        name = spec["name"]
+        unit = f" [{spec['unit']}]" if spec["unit"] else ""
         g.add_argument(f"--{name.replace('_', '-')}", dest=f"gain_{name}", type=float, metavar="X",
-                       help=f"{spec.doc}{unit}; default {spec.default:g}")
+                       help=f"{spec['doc']}{unit}; default {spec['default']:g}")
 
 
 def _gains(args: argparse.Namespace):
@@ -64,12 +81,9 @@ def _gains(args: argparse.Namespace):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .config import CONVENTIONS, MPCConfig, SimConfig
-    from .control import FILTERS
-    from .dynamics import DISTURBANCES, PLANTS
-    from .planners import PLANNERS
-    from .scenarios import FAMILIES
-    from .sensing import SENSORS
+    """The command line's parser, from the registries' catalogue (no JAX import)."""
+    cat = _catalog()
+    families, planners = _names("families"), _names("planners")
 
     parser = argparse.ArgumentParser(prog="jaxapf", description=__doc__.splitlines()[0])
     parser.add_argument("--plugin", action="append", default=[], metavar="MODULE",
@@ -80,34 +94,34 @@ def build_parser() -> argparse.ArgumentParser:
     sim = sub.add_parser("simulate", help="one field, several planners side by side, figures and trajectories",
                          description="Run planners on one field and write trajectories, metrics and the paper's "
                                      "figures.")
-    sim.add_argument("--family", default="paper_static", choices=FAMILIES.names(), metavar="NAME",
-                     help=f"scenario family: {', '.join(FAMILIES.names())} (default paper_static)")
+    sim.add_argument("--family", default="paper_static", choices=families, metavar="NAME",
+                     help=f"scenario family: {', '.join(families)} (default paper_static)")
     sim.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
     sim.add_argument("--field", type=int, default=0, help="field index within the seed (default 0)")
     sim.add_argument("--methods", type=_planners, default=["basic", "direction_velocity"],
-                     help=f"comma-separated planners of {', '.join(PLANNERS.names())} "
+                     help=f"comma-separated planners of {', '.join(planners)} "
                           "(default basic,direction_velocity)")
     sim.add_argument("--out", type=pathlib.Path, default=pathlib.Path("out/simulate"),
                      help="output folder (default out/simulate)")
     _gain_flags(sim)
     s = sim.add_argument_group("simulation and MPC")
-    defaults = SimConfig().flat()
-    s.add_argument("--filter", default=defaults["filter"], choices=FILTERS.names(),
+    defaults = cat["defaults"]
+    s.add_argument("--filter", default=defaults["filter"], choices=_names("filters"),
                    help=f"safety filter between the MPC and the plant (default {defaults['filter']})")
-    s.add_argument("--plant", default=defaults["plant"], choices=PLANTS.names(),
+    s.add_argument("--plant", default=defaults["plant"], choices=_names("plants"),
                    help=f"vehicle model (default {defaults['plant']})")
-    s.add_argument("--sensor", default=defaults["sensor"], choices=SENSORS.names(),
+    s.add_argument("--sensor", default=defaults["sensor"], choices=_names("sensors"),
                    help=f"what the stack sees of the world (default {defaults['sensor']})")
-    s.add_argument("--disturbance", default=defaults["disturbance"], choices=DISTURBANCES.names(),
+    s.add_argument("--disturbance", default=defaults["disturbance"], choices=_names("disturbances"),
                    help=f"what acts on the plant besides the command (default {defaults['disturbance']})")
-    s.add_argument("--convention", choices=CONVENTIONS, default=defaults["convention"],
+    s.add_argument("--convention", choices=cat["conventions"], default=defaults["convention"],
                    help="sign convention of the direction and velocity weights (default intent)")
     s.add_argument("--dt", type=float, default=defaults["dt"], help=f"control step [s] (default {defaults['dt']:g})")
     s.add_argument("--t-max", type=float, help="episode length [s] (default: the family's)")
-    s.add_argument("--horizon", type=int, default=MPCConfig.horizon,
-                   help=f"MPC horizon N (default {MPCConfig.horizon})")
-    s.add_argument("--iters", type=int, default=MPCConfig.iters,
-                   help=f"FISTA iterations per step (default {MPCConfig.iters})")
+    s.add_argument("--horizon", type=int, default=cat["mpc"]["horizon"],
+                   help=f"MPC horizon N (default {cat['mpc']['horizon']})")
+    s.add_argument("--iters", type=int, default=cat["mpc"]["iters"],
+                   help=f"FISTA iterations per step (default {cat['mpc']['iters']})")
     s.add_argument("--x64", action="store_true", help="run in float64")
 
     _add_sweep_parser(sub)
@@ -183,7 +197,7 @@ def build_parser() -> argparse.ArgumentParser:
     eng.add_argument("--vectorised-steps", type=int, default=30,
                      help="control steps of the vectorised numpy peer on all fields, per timed round (default 30; "
                           "0: skip it)")
-    eng.add_argument("--family", default="clutter", choices=FAMILIES.names(), metavar="NAME",
+    eng.add_argument("--family", default="clutter", choices=families, metavar="NAME",
                      help="scenario family (default clutter)")
     eng.add_argument("--width", type=int, help="vmap width (default: 1024 on CPU, 4096 on accelerators)")
     eng.add_argument("--devices", type=int, default=1,
@@ -419,25 +433,20 @@ def _sweep(args: argparse.Namespace) -> int:
 
 
 def _list(args: argparse.Namespace) -> int:
-    from .components import COMPONENTS
-    from .gains import GAINS
-    from .metrics import METRICS
-    from .scenarios import FAMILIES
-
-    components = {"planners": "method", "filters": "filter", "plants": "plant", "sensors": "sensor",
-                  "disturbances": "disturbance"}
-    registry = ({name: COMPONENTS[key] for name, key in components.items()}
-                | {"families": FAMILIES, "metrics": METRICS, "gains": GAINS})[args.what]
-    width = max(len(n) for n in registry.names())
-    for name in registry.names():
-        print(f"{name:<{width}}  {registry.describe(name)}")
-        if args.what in components:
-            for gain in registry.get(name).gains:
-                print(f"{'':<{width}}    {gain.name}: {gain.doc}; default {gain.default:g}; {gain.range_text()}")
+    """One line per entry; under a component, one line per gain it reads, worded as ``list gains``."""
+    cat = _catalog()
+    entries = cat["lists"][args.what]
+    gains = {e["name"]: e["describe"] for e in cat["lists"]["gains"]}
+    width = max(len(e["name"]) for e in entries)
+    for entry in entries:
+        print(f"{entry['name']:<{width}}  {entry['describe']}")
+        for gain in entry.get("gains", ()):
+            print(f"{'':<{width}}    {gain}: {gains.get(gain, '')}")
     return 0
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    global _CATALOG
     from .plugins import load_plugin
     from .validation import ConfigError
 
@@ -452,6 +461,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as err:
         print(f"jaxapf: error: {err}", file=sys.stderr)
         return 2
+    from .catalog import catalog
+
+    # with plugins, or with the registries imported already (their entries may have changed in this process),
+    # read them live: that costs nothing more then
+    _CATALOG = catalog(fresh=bool(known.plugin) or "jaxapf.components" in sys.modules)
     args = build_parser().parse_args(argv)
     import warnings
 

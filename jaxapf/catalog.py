@@ -1,0 +1,110 @@
+"""What the command line shows before anything runs, without importing JAX.
+
+``jaxapf --help``, ``jaxapf CMD --help``, ``jaxapf list ...`` and argument errors need the
+registries' names, descriptions and declared gains, but the registries live in the modules that
+define the components, which import JAX (a few seconds on a small machine). The first command
+reads them live and writes this *catalogue* of what it read, as JSON, under
+``$XDG_CACHE_HOME/jaxapf/cli/`` (default ``~/.cache``); later commands read the catalogue instead.
+
+The file's name carries a fingerprint of the package's sources (every ``.py`` file's path, size and
+modification time) and of the Python version, so an edited or upgraded jaxapf reads the registries
+live again and writes a new catalogue: a catalogue never disagrees with the registries it was read
+from. Plugins (``--plugin``) register components at import, so with a plugin the registries are read
+live. Nothing here imports JAX; :func:`live` imports the registries.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import pathlib
+import sys
+import tempfile
+from typing import Any
+
+__all__ = ["catalog", "live", "fingerprint", "catalog_path"]
+
+#: ``jaxapf list`` targets and the component key (:data:`jaxapf.components.COMPONENTS`) of each component.
+COMPONENT_LISTS = {"planners": "method", "filters": "filter", "plants": "plant", "sensors": "sensor",
+                   "disturbances": "disturbance"}
+LISTS = (*COMPONENT_LISTS, "families", "metrics", "gains")
+_VERSION = 1  # of the catalogue's layout
+
+
+def fingerprint() -> str:
+    """sha256 of every package source file's path, size and mtime, the Python version and the layout."""
+    root = pathlib.Path(__file__).resolve().parent
+    h = hashlib.sha256(f"{_VERSION}\0{sys.version}\0{root}".encode())
+    for dirpath, dirnames, filenames in os.walk(root):
+        dirnames[:] = sorted(d for d in dirnames if d != "__pycache__")
+        for name in sorted(filenames):
+            if name.endswith(".py"):
+                st = os.stat(os.path.join(dirpath, name))
+                h.update(f"{os.path.relpath(os.path.join(dirpath, name), root)}\0{st.st_size}\0{st.st_mtime_ns}\n"
+                         .encode())
+    return h.hexdigest()
+
+
+def catalog_path() -> pathlib.Path:
+    """Where the catalogue of these sources is kept."""
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return pathlib.Path(base) / "jaxapf" / "cli" / f"catalog-{fingerprint()[:20]}.json"
+
+
+def live() -> dict[str, Any]:
+    """The catalogue read from the registries as they are in this process (imports them, and JAX)."""
+    from .components import COMPONENTS
+    from .config import CONVENTIONS, MPCConfig, SimConfig
+    from .gains import GAINS
+    from .metrics import METRICS
+    from .scenarios import FAMILIES
+
+    registries = {name: COMPONENTS[key] for name, key in COMPONENT_LISTS.items()} | {
+        "families": FAMILIES, "metrics": METRICS, "gains": GAINS}
+    lists = {}
+    for what, registry in registries.items():
+        entries = []
+        for name in registry.names():
+            entry = {"name": name, "describe": registry.describe(name)}
+            if what in COMPONENT_LISTS:
+                entry["gains"] = [g.name for g in registry.get(name).gains]
+            entries.append(entry)
+        lists[what] = entries
+    defaults = SimConfig().flat()
+    return {
+        "lists": lists,
+        "gains": [{"name": n, "doc": s.doc, "unit": s.unit, "default": float(s.default)} for n, s in GAINS.items()],
+        "defaults": {k: defaults[k] for k in ("filter", "plant", "sensor", "disturbance", "convention", "dt")},
+        "conventions": list(CONVENTIONS),
+        "mpc": {"horizon": MPCConfig.horizon, "iters": MPCConfig.iters},
+    }
+
+
+def catalog(*, fresh: bool = False) -> dict[str, Any]:
+    """The catalogue: read from the cache when there is one for these sources, else read live and
+    cached (an unwritable cache is skipped). ``fresh``: read live, cache nothing (after plugins)."""
+    if fresh:
+        return live()
+    path = catalog_path()
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        if isinstance(data, dict) and data.get("lists"):
+            return data
+    except (OSError, ValueError):
+        pass
+    data = live()
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile("w", dir=path.parent, prefix=".catalog-", suffix=".tmp", delete=False,
+                                         encoding="utf-8") as f:
+            json.dump(data, f)
+        os.replace(f.name, path)
+    except OSError:
+        pass
+    return data
+
+
+def names(cat: dict[str, Any], what: str) -> tuple[str, ...]:
+    """The registered names of ``jaxapf list`` target ``what``."""
+    return tuple(e["name"] for e in cat["lists"][what])
