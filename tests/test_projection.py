@@ -37,7 +37,8 @@ def _osqp(x0, g, b, limit=None, weight=1.0):
     solver = osqp.OSQP()
     solver.setup(P=sparse.csc_matrix(weight * np.eye(n)), q=-x0, A=A, l=lo, u=hi, eps_abs=1e-10, eps_rel=1e-10,
                  max_iter=400000, polishing=True, verbose=False)
-    res = solver.solve()
+    # OSQP >= 1.0 warns (PendingDeprecationWarning, once per solve) unless told whether to raise; 0.6 has no switch
+    res = solver.solve(**({"raise_error": False} if int(str(osqp.__version__).split(".")[0]) >= 1 else {}))
     assert res.info.status == "solved"
     return res.x
 
