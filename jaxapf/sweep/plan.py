@@ -291,9 +291,14 @@ class Plan:
                 worst = b
         if padded == 0 or (padded - real) / padded <= 0.1:
             return None
-        return (f"{100 * (padded - real) / padded:.0f} % of the episodes to simulate are padding: chunks of "
-                f"{worst.fields} fields are padded to {worst.padded} to fill whole vmapped batches; --chunk-fields "
-                f"{worst.padded} (or a multiple) avoids it")
+        share = f"{100 * (padded - real) / padded:.0f} % of the episodes to simulate are padding"
+        if worst.padded > self.spec.fields:  # the spec's fields do not fill one batch: no chunk size helps
+            settings = f"{worst.settings} setting{'s' if worst.settings > 1 else ''}"
+            return (f"{share}: the spec's {self.spec.fields} fields × {settings} fill less than one vmapped batch "
+                    f"of {worst.width} episodes (padded to {worst.padded} fields), so up to {worst.padded} fields "
+                    "per family would take about the same time")
+        return (f"{share}: chunks of {worst.fields} fields are padded to {worst.padded} to fill whole vmapped "
+                f"batches; --chunk-fields {worst.padded} (or a multiple) avoids it")
 
     @property
     def peak_bytes(self) -> int:

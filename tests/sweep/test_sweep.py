@@ -441,8 +441,9 @@ def test_dry_run_prints_the_plan(reference, tmp_path, capsys):
     for line in ("settings:          4, in 2 static variant(s)", f"episodes:          {ROWS}",
                  "compiled variants: 2 distinct (SimConfig, MPCConfig)", "chunks:            8 to run",
                  "time estimate:", "cost model", "memory estimate:",
-                 "are padding: chunks of 4 fields are padded to 16", "--chunk-fields 16 (or a multiple) avoids it"):
+                 "are padding: the spec's 6 fields", "(padded to 16 fields)"):
         assert line in text, line
+    assert "--chunk-fields 16" not in text  # more chunk fields than the spec has would not help
     # against a finished output: nothing left to run
     rc = main(["sweep", str(spec_path), "--dry-run", "--no-cache", "--devices", "1", "--out", str(reference[0])])
     assert rc == 0 and f"({ROWS} already in the output, 0 to run)" in capsys.readouterr().out
@@ -458,6 +459,15 @@ def test_plan_gives_every_device_a_whole_vmapped_batch():
     # more fields than one batch: no padding to whole batches (evaluate pads its last batch)
     wide = plan_sweep(_spec(**{"scenario.fields": 40}), chunk_fields=40, devices=1, width=32).blocks[(0, "trap")]
     assert wide.per_device == wide.padded == 40
+
+
+def test_padding_note_advises_no_more_chunk_fields_than_the_spec_has():
+    few = plan_sweep(_spec(**{"scenario.fields": 2}), devices=1, width=32)
+    note = few.padding_note()
+    assert note is not None and "--chunk-fields" not in note, note
+    assert "the spec's 2 fields" in note and "less than one vmapped batch of 32 episodes" in note, note
+    odd = plan_sweep(_spec(**{"scenario.fields": 40}), chunk_fields=3, devices=1, width=32).padding_note()
+    assert odd is not None and "--chunk-fields" in odd, odd
 
 
 def test_long_episodes_narrow_their_vmap_width_to_fit_the_default_budget():
