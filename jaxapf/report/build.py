@@ -219,6 +219,10 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
                 + " fields" if sizes.nunique() > 1 else "") + ")." if ALL in names else ".")
           + (" 'among solvable' counts only the fields where a collision-free path exists "
              "(jaxapf.scenarios.solvable, the solvability oracle)." if "n_solvable" in summary.columns else ""))
+    if {"success", "stalled"} <= set(rates):
+        both = int((sel.data["success"].astype(bool) & sel.data["stalled"].astype(bool)).sum())
+        doc.p("The rates are not exclusive and need not sum to 100 %: an episode that stalls and then escapes to "
+              f"the goal counts as both stalled and successful ({both} episode{'s' if both != 1 else ''} here).")
     doc.table(rates_table(summary, rates))
     doc.h(2, "Continuous metrics")
     doc.p("Median and interquartile mean (IQM, mean of the middle 50 %) with percentile bootstrap intervals "

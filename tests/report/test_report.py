@@ -138,6 +138,13 @@ def test_header_states_spec_versions_and_statistics(report, sweep):
             f"[{100 * lo:.1f}, {100 * hi:.1f}].") in md
 
 
+def test_rates_say_why_they_may_sum_past_100_percent(report, sweep):
+    _, df = sweep
+    md = (report / "report.md").read_text(encoding="utf-8")
+    both = int((df["success"] & df["stalled"]).sum())
+    assert (f"counts as both stalled and successful ({both} episode{'s' if both != 1 else ''} here)") in md
+
+
 def test_summary_matches_direct_pandas_computation(report, sweep):
     _, df = sweep
     summary = pd.read_csv(report / "summary.csv")
