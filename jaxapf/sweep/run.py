@@ -139,11 +139,32 @@ class SweepResult:
                 f"{rate:,.1f} episodes/s -> {self.out}{same}")
 
 
+_CONNECTED = False
+
+
 def _sync(name: str) -> None:
+    """A barrier of all processes (nothing with one). The first one connects the processes' CPU
+    collectives (Gloo), which print ``[Gloo] Rank r is connected to n peer ranks ...`` on the C++
+    standard output with no setting to turn it off; that line is dropped (file descriptor 1 goes to
+    /dev/null during the first barrier, when nothing else writes there)."""
+    global _CONNECTED
     if jax.process_count() > 1:
         from jax.experimental import multihost_utils
 
-        multihost_utils.sync_global_devices(name)
+        if _CONNECTED:
+            multihost_utils.sync_global_devices(name)
+            return
+        sys.stdout.flush()
+        saved = os.dup(1)
+        try:
+            null = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(null, 1)
+            os.close(null)
+            multihost_utils.sync_global_devices(name)
+            _CONNECTED = True
+        finally:
+            os.dup2(saved, 1)
+            os.close(saved)
 
 
 def dry_run(spec: SweepSpec, out: str | os.PathLike, *, overwrite: bool = False, repair: bool = False,
