@@ -158,6 +158,7 @@ def test_a_feasible_velocity_collides_with_no_obstacle_within_tau(seed):
         assert closest >= big_r - 2e-3
 
 
+@pytest.mark.slow
 def test_without_obstacles_it_flies_the_basic_planners_reference():
     """No valid obstacle, far from the goal (the attraction saturated): ``v_pref`` held over the
     horizon is the basic flow's reference."""
@@ -202,6 +203,7 @@ def test_the_closed_loop_avoids_what_a_short_horizon_hits(scenario, name):
     assert int(seeing["vo_infeasible_steps"]) == 0, name
 
 
+@pytest.mark.slow
 def test_a_cylinder_exactly_on_the_line_stops_it_short():
     """ORCA's symmetric deadlock: with the obstacle exactly on the start–goal line and nothing
     else, every half-space only limits the speed along the line, so the UAV stops ``vo_margin``
@@ -219,6 +221,7 @@ def _pincer() -> Scenario:
     return Scenario(start=jnp.asarray([0.0, 0.0, 2.0]), goal=jnp.asarray([0.0, 20.0, 2.0]), obstacles=obstacles)
 
 
+@pytest.mark.slow
 def test_a_pincer_is_infeasible_flown_at_least_violation_and_counted():
     """Hand-made infeasible step: the half-spaces and the speed ball have no common point; the
     velocity flown violates them least (SLSQP's minimax over the ball, float64), and every step of
