@@ -33,6 +33,7 @@ verdict function every study uses.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import pathlib
 
 import jax
@@ -66,6 +67,7 @@ STRONGEST = tuple((axis, [lv for a, lv, _, _ in WORLDS if a == axis][-1]) for ax
 MARK = {"worse": "↓", "better": "↑", "equivalent": "=", "inconclusive": "·"}
 
 
+@functools.cache
 def selections() -> pd.DataFrame:
     """Study 11's selected gains, one row per (method, seed); refuses gain columns that are no
     longer declared (they would be dropped silently and the method fly its defaults)."""
