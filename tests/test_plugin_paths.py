@@ -98,3 +98,33 @@ def test_spec_plugin_paths_are_the_spec_folders(tmp_path, monkeypatch):
     message = str(err.value)
     assert message.startswith("plugins[0] = 'missing.py': no such file") and "\n" not in message
     assert str(tmp_path / "specs" / "missing.py") in message
+
+
+def test_compare_spec_digest_does_not_depend_on_where_the_spec_lies(tmp_path):
+    """A comparison's finished selections are kept by its spec's digest: the same spec read from two
+    folders (its plugin with it) has one digest, so a moved study resumes instead of refusing."""
+    from jaxapf.compare.select import spec_digest
+    from jaxapf.compare.spec import load_compare_spec
+
+    text = textwrap.dedent("""
+        name = "moved"
+        plugins = ["noop_plugin.py"]
+        methods = ["basic", "direction"]
+        [selection]
+        families = ["trap"]
+        seeds = [1, 2, 3]
+        budget = 8
+        candidates = 2
+        [test]
+        families = ["trap"]
+        fields = 2
+    """)
+    digests = []
+    for folder in ("a", "b"):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "noop_plugin.py").write_text("LOADED = True\n")
+        (tmp_path / folder / "spec.toml").write_text(text)
+        spec, _ = load_compare_spec(tmp_path / folder / "spec.toml")
+        assert spec.plugin_paths == (str((tmp_path / folder / "noop_plugin.py").resolve()),)
+        digests.append(spec_digest(spec))
+    assert digests[0] == digests[1]

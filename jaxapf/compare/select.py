@@ -65,10 +65,12 @@ class Selection:
 
 
 def spec_digest(spec: CompareSpec) -> str:
-    """sha256 of the spec's canonical JSON: a selection file belongs to one spec."""
+    """sha256 of the spec's canonical JSON: a selection file belongs to one spec. Where the
+    plugins were read from (``plugin_paths``) is not part of it, so a moved spec keeps its runs."""
     import hashlib
 
-    text = json.dumps(dataclasses.asdict(spec), sort_keys=True, default=str)
+    fields = {k: v for k, v in dataclasses.asdict(spec).items() if k != "plugin_paths"}
+    text = json.dumps(fields, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()
 
 
