@@ -26,15 +26,42 @@ RESULTS = ROOT / "analysis" / "results"
 RATES_FIGURE = ("report/figures/rates.png", "Success, collision and stall rates with Wilson intervals")
 
 
+def positive(text: str) -> int:
+    """An argparse type: a whole number >= 1 (``--fields``, ``--resamples``)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{value} must be at least 1")
+    return value
+
+
 def parser(doc: str) -> argparse.ArgumentParser:
     """The command line every study shares."""
     p = argparse.ArgumentParser(description=doc.splitlines()[0], epilog="\n".join(doc.splitlines()[1:]),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--fields", type=int, help="fields per family instead of the spec's (smaller: faster, "
+    p.add_argument("--fields", type=positive, help="fields per family instead of the spec's (smaller: faster, "
                                                "wider intervals); the sweep then goes to runs/NAME-fN.parquet")
-    p.add_argument("--resamples", type=int, default=2000, help="bootstrap resamples of the report (default 2000)")
+    p.add_argument("--resamples", type=positive, default=2000, help="bootstrap resamples of the report (default 2000)")
     p.add_argument("--out", type=pathlib.Path, help="results folder (default analysis/results/<study>)")
     return p
+
+
+def entry(main: Callable[[], int | None]) -> None:
+    """Run a study's ``main`` as the CLI runs a command: a bad spec, a held lock or an interruption is
+    one line on stderr (what was kept: every finished part under ``runs/``), never a traceback."""
+    from jaxapf.validation import ConfigError, Interrupted
+
+    name = pathlib.Path(sys.argv[0]).name
+    try:
+        sys.exit(main())
+    except ConfigError as err:
+        print(f"{name}: error: {err}", file=sys.stderr)
+        sys.exit(2)
+    except (Interrupted, KeyboardInterrupt):
+        print(f"{name}: interrupted; finished parts under runs/ are kept, and a rerun resumes them", file=sys.stderr)
+        sys.exit(130)
 
 
 def setup_jax() -> None:

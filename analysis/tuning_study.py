@@ -26,6 +26,7 @@ import tomllib
 import jax
 import numpy as np
 import pandas as pd
+import study
 
 from jaxapf import stats
 from jaxapf.tune import run_tune_spec
@@ -353,4 +354,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    study.entry(main)

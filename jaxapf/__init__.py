@@ -13,40 +13,56 @@ components declare their gains (:class:`GainSpec`), which become sweep keys, CLI
 parameters.
 """
 
-from .config import EpisodeConfig, MetricConfig, MPCConfig, PlannerConfig, SimConfig, VehicleConfig, WorldConfig
-from .control import FILTERS, Passthrough, SafetyFilter, register_filter
-from .datatypes import ObstacleColumns, Obstacles, Scenario, Trajectory
-from .dynamics import (
-    DISTURBANCES,
-    PLANTS,
-    Disturbance,
-    DoubleIntegrator,
-    Plant,
-    Quadrotor,
-    register_disturbance,
-    register_plant,
-)
-from .frame import evaluate_frame
-from .gains import GAINS, Gains, GainSpec, declare_gains, load_gains
-from .metrics import METRICS, EpisodeContext, Metric, episode_metrics, register_metric
-from .planners import APF, PLANNERS, WEIGHTS, ForceTerm, Planner, Weight, register_planner, register_weight
-from .rollout import evaluate, rollout, rollout_metrics
-from .scenarios import FAMILIES, FamilyParams, family_params, make_scenarios, register_family
-from .sensing import SENSORS, Sensor, register_sensor
-from .validation import BoundWarning, ConfigError
+import sys
+import types
+from importlib import import_module
 
-__all__ = [
-    # the engine
-    "rollout", "rollout_metrics", "evaluate", "evaluate_frame", "make_scenarios", "family_params", "episode_metrics",
-    # configuration and data
-    "Gains", "GainSpec", "load_gains", "SimConfig", "PlannerConfig", "VehicleConfig", "WorldConfig", "EpisodeConfig",
-    "MetricConfig", "MPCConfig", "Scenario", "Obstacles", "ObstacleColumns", "Trajectory",
-    # extension points
-    "Planner", "APF", "Weight", "ForceTerm", "SafetyFilter", "Passthrough", "Plant", "DoubleIntegrator", "Quadrotor",
-    "Sensor", "Disturbance", "FamilyParams", "Metric", "EpisodeContext",
-    "register_planner", "register_weight", "register_filter", "register_plant", "register_sensor",
-    "register_disturbance", "register_family", "register_metric", "declare_gains",
-    "PLANNERS", "WEIGHTS", "FILTERS", "PLANTS", "SENSORS", "DISTURBANCES", "FAMILIES", "METRICS", "GAINS",
-    # errors
-    "ConfigError", "BoundWarning",
-]
+#: public name -> the module it lives in, imported on first use (PEP 562): ``import jaxapf`` and the
+#: command line's help, list and argument errors import no JAX
+_LAZY = {
+    "EpisodeConfig": ".config", "MetricConfig": ".config", "MPCConfig": ".config", "PlannerConfig": ".config",
+    "SimConfig": ".config", "VehicleConfig": ".config", "WorldConfig": ".config",
+    "FILTERS": ".control", "Passthrough": ".control", "SafetyFilter": ".control", "register_filter": ".control",
+    "ObstacleColumns": ".datatypes", "Obstacles": ".datatypes", "Scenario": ".datatypes", "Trajectory": ".datatypes",
+    "DISTURBANCES": ".dynamics", "PLANTS": ".dynamics", "Disturbance": ".dynamics", "DoubleIntegrator": ".dynamics",
+    "Plant": ".dynamics", "Quadrotor": ".dynamics", "register_disturbance": ".dynamics",
+    "register_plant": ".dynamics",
+    "evaluate_frame": ".frame",
+    "GAINS": ".gains", "Gains": ".gains", "GainSpec": ".gains", "declare_gains": ".gains", "load_gains": ".gains",
+    "METRICS": ".metrics", "EpisodeContext": ".metrics", "Metric": ".metrics", "episode_metrics": ".metrics",
+    "register_metric": ".metrics",
+    "APF": ".planners", "PLANNERS": ".planners", "WEIGHTS": ".planners", "ForceTerm": ".planners",
+    "Planner": ".planners", "Weight": ".planners", "register_planner": ".planners", "register_weight": ".planners",
+    "evaluate": ".rollout", "rollout": ".rollout", "rollout_metrics": ".rollout",
+    "FAMILIES": ".scenarios", "FamilyParams": ".scenarios", "family_params": ".scenarios",
+    "make_scenarios": ".scenarios", "register_family": ".scenarios",
+    "SENSORS": ".sensing", "Sensor": ".sensing", "register_sensor": ".sensing",
+    "BoundWarning": ".validation", "ConfigError": ".validation",
+}
+
+__all__ = list(_LAZY)
+
+
+def __getattr__(name: str):
+    if name not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(import_module(_LAZY[name], __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
+
+
+class _Package(types.ModuleType):
+    """``jaxapf.rollout`` is the function: importing the submodule of the same name (which the import
+    system then sets as the package's attribute) must not replace it; the module stays in ``sys.modules``."""
+
+    def __setattr__(self, name: str, value) -> None:
+        if name in _LAZY and isinstance(value, types.ModuleType):
+            return
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package
