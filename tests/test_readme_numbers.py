@@ -110,3 +110,14 @@ def test_speed_numbers_come_from_the_committed_benchmark_runs(page, title, first
     body = section(text, title) if title else text[text.index(first):].split("\n\n", 1)[0]
     missing = unmatched(numbers(body), benchmark_numbers())
     assert not missing, f"{page}: numbers not in benchmarks/results/*.json: {missing}"
+
+
+def test_the_studies_summary_cites_their_results():
+    """analysis/README.md's "In short" paragraph: each number is in the results of a study it cites
+    ("study 11"), or of any study when the sentence cites none."""
+    text = (ROOT / "analysis" / "README.md").read_text()
+    paragraph = text[text.index("In short"):].split("\n\n", 1)[0]
+    folders = [folder for _, folder in studies().values()]
+    cited = numbers(re.sub(r"(study|studies|scenario) \d+", "", paragraph))
+    missing = unmatched(cited, numbers("\n".join(results_text(f) for f in folders)))
+    assert not missing, f"analysis/README.md 'In short': numbers in no study's results: {missing}"
