@@ -169,7 +169,16 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
     doc = Document()
     title = f"jaxapf report — {spec_name}" + (" (INCOMPLETE SWEEP)" if incomplete else "")
     doc.h(1, title)
-    doc.items(([f"**{incomplete[0].upper() + incomplete[1:]}.**"] if incomplete else []) + [
+    if incomplete:
+        doc.p(f"**{incomplete[0].upper() + incomplete[1:]}.**")
+    # the conclusion and the figure that carries it come first, on the reader's first screen
+    doc.h(2, "Key findings")
+    doc.items(findings(summary, comparisons, pooled, options) or ["nothing to summarise"])
+    key = next((f for f in figures if f.name == ("differences" if len(comparisons) else "rates")), None)
+    if key is not None:
+        doc.figure(key)
+    doc.h(2, "How this report was made")
+    doc.items([
         f"sweep: {path} ({len(df)} episodes in the file; {len(sel.data)} reported)",
         f"spec: {spec_name}, spec_hash {meta.get('spec_hash', '–')}, format {meta.get('format')}, "
         f"dtype {meta.get('dtype', '–')}, PRNG {json.dumps(meta.get('prng', {}))}",
@@ -198,8 +207,6 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
         + " (rates as proportions); " + stats.VERDICT_RULE,
         "generated " + datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
     ])
-    doc.h(2, "Key findings")
-    doc.items(findings(summary, comparisons, pooled, options) or ["nothing to summarise"])
     doc.h(2, "Versions (from the sweep's metadata)")
     doc.table(pd.DataFrame({"package": list(versions), "version": [str(v) for v in versions.values()]})
               if versions else pd.DataFrame({"package": ["–"], "version": ["not recorded"]}))
@@ -255,7 +262,8 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
 
     doc.h(2, "Figures")
     for fig in figures:
-        doc.figure(fig)
+        if fig is not key:
+            doc.figure(fig)
     doc.h(2, "Worst episodes (re-simulated from their seeds)")
     if shown:
         doc.p("Failed episodes re-simulated with jaxapf.sweep.row_config and jaxapf.simulate.simulate_runs: "

@@ -41,6 +41,9 @@ __all__ = [
 
 #: The heatmaps' gains unless ``--heatmap`` names others; a sweep without them gets a note instead.
 DEFAULT_HEATMAP = ("gamma", "k")
+#: Panels per row of a multi-panel figure, and the widest figure in pixels (readable at page width).
+COLUMNS = 3
+MAX_WIDTH = 2400
 
 _GROUP_MARKERS = ("o", "s", "^", "D", "v", "P", "X", "<", ">", "h")
 
@@ -131,10 +134,28 @@ def plot_heatmaps(cells: pd.DataFrame, x: str, y: str, value: str, title: str) -
 # --------------------------------------------------------------------------------------------
 
 
+def _figsize(width: float, height: float) -> tuple[float, float]:
+    """A figure size in inches that fits a page: at most :data:`MAX_WIDTH` px wide at the reports'
+    110 dpi, and at most 3:1 wide (a wide figure is given height, never squeezed)."""
+    width = min(width, MAX_WIDTH / 110)
+    return width, max(height, width / 2.9)
+
+
+def _grid(fig: Figure, n: int, **kwargs) -> np.ndarray:
+    """``n`` panels in rows of at most :data:`COLUMNS`, the unused cells removed; returned flat."""
+    ncols = min(n, COLUMNS)
+    axes = fig.subplots(math.ceil(n / ncols), ncols, squeeze=False, **kwargs)
+    for ax in axes.reshape(-1)[n:]:
+        ax.remove()
+    return axes
+
+
 def _group_panels(n: int) -> tuple[Figure, np.ndarray]:
-    """A row of ``n`` panels, one per family group."""
-    fig = Figure(figsize=(4.2 * n + 0.4, 4.2), layout="constrained")
-    return fig, fig.subplots(1, n, squeeze=False)[0]
+    """``n`` panels, one per family group, in rows of at most :data:`COLUMNS`."""
+    ncols, nrows = min(n, COLUMNS), math.ceil(n / COLUMNS)
+    fig = Figure(figsize=_figsize(4.0 * ncols + 0.4, 3.3 * nrows + 1.0), layout="constrained")
+    axes = _grid(fig, n)
+    return fig, axes.reshape(-1)[:n]
 
 
 def plot_ecdf(values: Mapping[str, Mapping[int, np.ndarray]], labels: Mapping[int, str],
@@ -209,9 +230,11 @@ def _point_panels(summary: pd.DataFrame, columns: Sequence[tuple[str, str, str, 
     settings = list(labels)
     groups = list(dict.fromkeys(summary["family"]))
     gcolors = _group_colors(groups)
-    height = 1.6 + 0.32 * len(settings) * max(1.0, len(groups) / 3)
-    fig = Figure(figsize=(3.6 * len(columns) + 2.6, min(height, 40.0)), layout="constrained")
-    axes = fig.subplots(1, len(columns), sharey=True, squeeze=False)[0]
+    ncols, nrows = min(len(columns), COLUMNS), math.ceil(len(columns) / COLUMNS)
+    height = 0.8 + 0.32 * len(settings) * max(1.0, len(groups) / 3)
+    fig = Figure(figsize=_figsize(3.6 * ncols + 2.6, min(height * nrows + 1.0, 40.0)), layout="constrained")
+    grid = _grid(fig, len(columns), sharey=True)
+    axes = grid.reshape(-1)
     offsets = np.linspace(-0.3, 0.3, len(groups)) if len(groups) > 1 else np.zeros(1)
     scale = 100.0 if percent else 1.0
     for ax, (est, lo, hi, name) in zip(axes, columns):
@@ -231,7 +254,8 @@ def _point_panels(summary: pd.DataFrame, columns: Sequence[tuple[str, str, str, 
                         elinewidth=1, capsize=2, label=group)
         ax.set_xlabel(name)
         ax.grid(True, axis="x", linewidth=0.4, alpha=0.5)
-    axes[0].set_yticks(range(len(settings)), [labels[s] for s in settings], fontsize=7)
+    for row in grid:
+        row[0].set_yticks(range(len(settings)), [labels[s] for s in settings], fontsize=7)
     axes[0].invert_yaxis()
     handles = [Line2D([], [], marker=m, color=gcolors[g], linestyle="", label=g)
                for g, m in zip(groups, _GROUP_MARKERS * 10)]
@@ -257,26 +281,27 @@ def plot_continuous(summary: pd.DataFrame, labels: Mapping[int, str], metrics: S
 
 
 def plot_differences(comparisons: pd.DataFrame, labels: Mapping[int, str], metrics: Sequence[str],
-                     alpha: float) -> Figure:
-    """Forest plot: paired difference (setting − baseline) with its CI, one panel per metric.
-
-    Filled markers: Holm-adjusted p <= ``alpha``; open markers: not significant.
-    """
+                     alpha: float, baseline: str) -> Figure:
+    """Forest plot: paired difference (setting − ``baseline``) with its CI, one panel per metric; rates
+    in percentage points as in the tables, continuous metrics in their units; grey band: the relevance
+    margin. Filled markers: Holm-adjusted p <= ``alpha``; open markers: not significant."""
     settings = [s for s in labels if s in set(comparisons["setting"])]
-    ncols = min(len(metrics), 4)
-    nrows = math.ceil(len(metrics) / ncols)
-    fig = Figure(figsize=(3.2 * ncols + 2.6, (1.0 + 0.3 * max(len(settings), 1)) * nrows + 0.6), layout="constrained")
-    grid = fig.subplots(nrows, ncols, sharey=True, squeeze=False)
-    axes = list(grid.reshape(-1))
-    for ax in axes[len(metrics):]:
-        ax.set_visible(False)
-    for ax, metric in zip(axes, metrics):
+    ncols, nrows = min(len(metrics), COLUMNS), math.ceil(len(metrics) / COLUMNS)
+    fig = Figure(figsize=_figsize(3.4 * ncols + 2.6, (0.8 + 0.3 * max(len(settings), 1)) * nrows + 1.0),
+                 layout="constrained")
+    grid = _grid(fig, len(metrics), sharey=True)
+    for ax, metric in zip(grid.reshape(-1), metrics):
         sub = comparisons[comparisons["metric"] == metric].set_index("setting")
+        rate = METRICS.get(metric).kind == "rate"
+        scale = 100.0 if rate else 1.0
+        if len(sub) and math.isfinite(float(sub["margin"].iloc[0])):
+            margin = scale * float(sub["margin"].iloc[0])
+            ax.axvspan(-margin, margin, color="0.85", zorder=0, linewidth=0)
         for i, s in enumerate(settings):
             if s not in sub.index:
                 continue
             r = sub.loc[s]
-            d, lo, hi = float(r["delta"]), float(r["delta_lo"]), float(r["delta_hi"])
+            d, lo, hi = (scale * float(r[c]) for c in ("delta", "delta_lo", "delta_hi"))
             if not math.isfinite(d):
                 continue
             better = (d > 0) == bool(r["higher_is_better"]) and d != 0
@@ -285,18 +310,20 @@ def plot_differences(comparisons: pd.DataFrame, labels: Mapping[int, str], metri
             ax.errorbar([d], [i], xerr=[[max(d - lo, 0.0)], [max(hi - d, 0.0)]] if math.isfinite(lo) else None,
                         fmt="o", color=color, markerfacecolor=color if sig else "white", capsize=2)
         ax.axvline(0.0, color="black", linewidth=0.8)
+        unit = "pp" if rate else METRICS.get(metric).unit
+        name = f"Δ {metric}" if rate else f"HL shift {metric}"
+        name += f" [{unit}]" if unit else ""
         if len(sub):
-            arrow = "↑ better" if bool(sub["higher_is_better"].iloc[0]) else "↓ better"
-            kind = "Δ rate" if sub["test"].iloc[0] == "mcnemar" else "HL shift"
-            ax.set_xlabel(f"{kind} {metric} ({arrow})", fontsize=8)
+            name += " (↑ better)" if bool(sub["higher_is_better"].iloc[0]) else " (↓ better)"
         else:
-            ax.set_xlabel(f"Δ {metric} (no pairs)", fontsize=8)
+            name += " (no pairs)"
+        ax.set_xlabel(name, fontsize=8)
         ax.grid(True, axis="x", linewidth=0.4, alpha=0.5)
     for row in grid:
         row[0].set_yticks(range(len(settings)), [labels[s] for s in settings], fontsize=7)
     grid[0][0].invert_yaxis()
-    fig.suptitle(f"Paired differences vs baseline (green: better, red: worse; filled: Holm p ≤ {alpha:g})",
-                 fontsize=10)
+    fig.suptitle(f"Paired differences, setting − baseline ({baseline}); green: better, red: worse, filled: "
+                 f"Holm p ≤ {alpha:g}, grey band: relevance margin", fontsize=9)
     return fig
 
 
@@ -399,11 +426,13 @@ def report_figures(sel: Selection, summary: pd.DataFrame, comparisons: pd.DataFr
     if len(comparisons):
         group = headline(names)
         pooled = comparisons[comparisons["family"] == group]
-        figures.append(save_figure(plot_differences(pooled, labels, rates + continuous, options.alpha),
-                                   "differences", f"Paired differences to the baseline ({group}): rates as the "
-                                   "difference in proportions (Newcombe interval), continuous metrics as the "
-                                   "Hodges-Lehmann shift (signed-rank interval); filled = Holm-significant",
-                                   figdir))
+        bases = pd.unique(pooled["baseline_label"])
+        baseline = bases[0] if len(bases) == 1 else f"{options.baseline}, each setting's own"
+        figures.append(save_figure(plot_differences(pooled, labels, rates + continuous, options.alpha, baseline),
+                                   "differences", f"Paired differences to the baseline {baseline} ({group}): rates "
+                                   "as the difference in proportions in percentage points (Newcombe interval), "
+                                   "continuous metrics as the Hodges-Lehmann shift in their units (signed-rank "
+                                   "interval); filled = Holm-significant, grey band = relevance margin", figdir))
     metric = options.profile_metric
     values = sel.data[metric].to_numpy(np.float64)
     taus = _profile_taus(values)

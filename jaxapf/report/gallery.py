@@ -87,8 +87,7 @@ def gallery(sel: Selection, meta: Mapping, options: Any, figdir: pathlib.Path) -
             "re-simulation differs from the recorded row: recorded "
             + ", ".join(f"{m}={recorded[m]}" for m in rates) + "; re-simulated "
             + ", ".join(f"{m}={resim[m]}" for m in rates))
-        fig = plot_trajectories(runs, field)
-        fig.suptitle(f"Worst episode #{i} ({kind}): {what}", fontsize=10)
+        fig = plot_trajectories(runs, field, title=f"Worst episode #{i} ({kind}): {what}")
         caption = (f"{kind}: {what} (seed {cfg.seed}); recorded min clearance "
                    f"{_num(row['min_clearance'])} m, final distance {_num(row.get('final_distance', math.nan))} m; "
                    f"re-simulated min clearance {_num(run.metrics['min_clearance'])} m; {check}")

@@ -268,6 +268,19 @@ def _aspect(xlim: tuple[float, float], ylim: tuple[float, float]) -> float:
     return float(np.clip((ylim[1] - ylim[0]) / (xlim[1] - xlim[0]), 0.6, 1.6))
 
 
+#: Panels per row of a figure with one panel per run (rows of three stay readable at page width).
+PANELS_PER_ROW = 3
+
+
+def _panel_grid(fig: Figure, n: int, **kwargs) -> np.ndarray:
+    """``n`` axes in rows of at most :data:`PANELS_PER_ROW` (unused cells removed), returned flat."""
+    ncols = min(n, PANELS_PER_ROW)
+    axes = fig.subplots(math.ceil(n / ncols), ncols, squeeze=False, **kwargs).reshape(-1)
+    for ax in axes[n:]:
+        ax.remove()
+    return axes[:n]
+
+
 def _suptitle(fig, text: str, **kwargs) -> None:
     """Figure title, wrapped to the figure's width."""
     inches = fig.figure.get_figwidth() * (fig.bbox.width / fig.figure.bbox.width)
@@ -387,8 +400,9 @@ def _no_runs_guard(runs: Sequence[Run]) -> None:
 # --------------------------------------------------------------------------------------------
 
 
-def plot_trajectories(runs: Sequence[Run], field: Field) -> Figure:
-    """Top view (x–y), one panel per run (paper Fig. 1: basic APF stalls, weighted APF goes round).
+def plot_trajectories(runs: Sequence[Run], field: Field, title: str | None = None) -> Figure:
+    """Top view (x–y), one panel per run (paper Fig. 1: basic APF stalls, weighted APF goes round);
+    ``title`` replaces the default figure title (wrapped to the width either way).
 
     Obstacles are drawn at t = 0 and numbered as in :func:`plot_obstacle_distance`; a moving
     obstacle also gets a dashed outline where it is at the run's final time and a velocity arrow.
@@ -397,8 +411,9 @@ def plot_trajectories(runs: Sequence[Run], field: Field) -> Figure:
     colors = run_colors(runs)
     n = len(runs)
     xlim, ylim = _xy_bounds(runs, field, [r.t_end for r in runs])
-    fig = Figure(figsize=(5.2 * n + 0.4, 4.9 * _aspect(xlim, ylim) + 1.6), layout="constrained")
-    axes = fig.subplots(1, n, sharex=True, sharey=True, squeeze=False)[0]
+    ncols, nrows = min(n, PANELS_PER_ROW), math.ceil(n / PANELS_PER_ROW)
+    fig = Figure(figsize=(4.6 * ncols + 0.4, (4.3 * _aspect(xlim, ylim) + 0.5) * nrows + 1.4), layout="constrained")
+    axes = _panel_grid(fig, n, sharex=True, sharey=True)
     for ax, run in zip(axes, runs):
         color = colors[run.label]
         _draw_obstacles_xy(ax, field, 0.0, numbers=True)
@@ -417,7 +432,7 @@ def plot_trajectories(runs: Sequence[Run], field: Field) -> Figure:
         _label_xy(ax)
     handles = _legend_handles(runs, field, colors, moving_ghost=True)
     _legend_below(fig, handles)
-    _suptitle(fig, _title("Trajectories (top view, obstacles at t = 0)", field))
+    _suptitle(fig, title or _title("Trajectories (top view, obstacles at t = 0)", field))
     return fig
 
 
@@ -518,8 +533,9 @@ def plot_obstacle_distance(runs: Sequence[Run], field: Field, near: float | None
     _no_runs_guard(runs)
     near = 2.0 * field.d_safe + 3.0 if near is None else float(near)
     n = len(runs)
-    fig = Figure(figsize=(5.6 * n + 0.4, 4.4), layout="constrained")
-    axes = fig.subplots(1, n, sharex=True, sharey=True, squeeze=False)[0]
+    ncols, nrows = min(n, PANELS_PER_ROW), math.ceil(n / PANELS_PER_ROW)
+    fig = Figure(figsize=(5.2 * ncols + 0.4, 3.6 * nrows + 0.8), layout="constrained")
+    axes = _panel_grid(fig, n, sharex=True, sharey=True)
     # obstacle colours: a palette apart from the run colours and the red collision line
     palette = list(colormaps["Dark2"].colors)
     for ax, run in zip(axes, runs):

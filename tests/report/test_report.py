@@ -119,6 +119,75 @@ def test_outputs_exist_and_html_is_self_contained(report):
     assert linked and all((report / f).is_file() for f in linked)
 
 
+def test_the_conclusion_and_its_figure_come_first(report):
+    md = (report / "report.md").read_text(encoding="utf-8")
+    heads = [line for line in md.splitlines() if line.startswith("## ")]
+    assert heads[:2] == ["## Key findings", "## How this report was made"]
+    key = md.index("## Key findings")
+    assert key < md.index("(figures/differences.png)") < md.index("## How this report was made")
+    assert md.count("(figures/differences.png)") == 1
+
+
+def _png_size(path: pathlib.Path) -> tuple[int, int]:
+    from matplotlib.image import imread
+
+    height, width = imread(path).shape[:2]
+    return width, height
+
+
+def test_every_report_figure_fits_a_page(report):
+    for png in (report / "figures").glob("*.png"):
+        width, height = _png_size(png)
+        assert width <= 2400 and width <= 3 * height, (png.name, width, height)
+
+
+@pytest.mark.parametrize("groups, settings", [(1, 2), (9, 12)])
+def test_figures_of_many_groups_and_metrics_are_grids_that_fit_a_page(groups, settings, tmp_path):
+    """One family or nine, two settings or twelve, every metric the registry has: each figure at most
+    2,400 px wide and at most 3:1 (panels go into rows of three, not one long row)."""
+    from jaxapf.report.document import save_figure
+    from jaxapf.report.figures import (
+        plot_continuous,
+        plot_differences,
+        plot_ecdf,
+        plot_performance_profile,
+        plot_rates,
+    )
+
+    rng = np.random.default_rng(0)
+    names = [f"family{g}" for g in range(groups)]
+    labels = {s: f"#{s} direction_velocity γ={s}" for s in range(settings)}
+    methods = {s: "direction_velocity" for s in range(settings)}
+    rows = []
+    for g in names:
+        for s in range(settings):
+            row = {"family": g, "setting": s}
+            for m in RATES + CONTINUOUS:
+                for suffix in ("_rate", "_iqm"):
+                    v = rng.uniform()
+                    row[m + suffix], row[m + suffix.replace("rate", "lo").replace("iqm", "iqm_lo")] = v, v - 0.1
+                    row[m + suffix.replace("rate", "hi").replace("iqm", "iqm_hi")] = v + 0.1
+                row[f"{m}_lo"], row[f"{m}_hi"] = row[f"{m}_rate"] - 0.1, row[f"{m}_rate"] + 0.1
+            rows.append(row)
+    summary = pd.DataFrame(rows)
+    comparisons = pd.DataFrame([{"setting": s, "metric": m, "delta": 0.01, "delta_lo": -0.02, "delta_hi": 0.04,
+                                 "p_holm": 0.5, "higher_is_better": True, "margin": 0.02,
+                                 "test": "mcnemar" if m in RATES else "wilcoxon"}
+                                for s in range(settings) for m in RATES + CONTINUOUS])
+    values = {g: {s: rng.normal(size=50) for s in range(settings)} for g in names}
+    taus = np.linspace(0, 1, 20)
+    curves = {g: {s: (np.linspace(1, 0, 20),) * 3 for s in range(settings)} for g in names}
+    figures = [plot_ecdf(values, labels, methods, "min_clearance", "m"),
+               plot_performance_profile(taus, curves, labels, methods, "spl", True),
+               plot_rates(summary, labels, RATES, 0.95),
+               plot_continuous(summary, labels, CONTINUOUS, {m: METRICS.get(m).unit for m in CONTINUOUS}, 0.95),
+               plot_differences(comparisons, labels, RATES + CONTINUOUS, 0.05, "#0 basic")]
+    for i, fig in enumerate(figures):
+        save_figure(fig, f"f{i}", "", tmp_path)
+        width, height = _png_size(tmp_path / f"f{i}.png")
+        assert width <= 2400 and width <= 3 * height, (i, width, height)
+
+
 def test_header_states_spec_versions_and_statistics(report, sweep):
     _, df = sweep
     md = (report / "report.md").read_text(encoding="utf-8")
@@ -417,8 +486,8 @@ def test_an_incomplete_sweep_says_so_in_the_title_and_first_lines(tmp_path, caps
                           "run?); only rows present in both settings are paired")
     md = (out / "report.md").read_text(encoding="utf-8").splitlines()
     assert md[0] == "# jaxapf report — cut (INCOMPLETE SWEEP)"
-    first_item = next(line for line in md[1:] if line.startswith("- "))
-    assert first_item.startswith("- **The sweep is incomplete: 4 of 8 episodes are present")
+    first_text = next(line for line in md[1:] if line.strip())
+    assert first_text.startswith("**The sweep is incomplete: 4 of 8 episodes are present")
 
 
 @pytest.mark.slow

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import math
 import re
@@ -227,3 +228,22 @@ def test_legends_fit_inside_the_figure(example, name, n_runs):
     for legend in legends:
         box = legend.get_window_extent(renderer)
         assert box.x0 >= -1 and box.x1 <= fig.bbox.width + 1, (name, box, fig.bbox.width)
+
+
+@pytest.mark.parametrize("count", [1, 4, 9])
+def test_one_panel_per_run_figures_are_rows_of_three_that_fit_a_page(example, count, tmp_path):
+    """Nine planners side by side (study 11's figure) used to make a 5,200 px strip: panels go into rows
+    of three, every figure stays at most 2,400 px wide at plot_all's 130 dpi and at most 3:1."""
+    from matplotlib.image import imread
+
+    from jaxapf.simulate.figures import plot_obstacle_distance, plot_trajectories
+
+    field, runs = example
+    many = [dataclasses.replace(runs[i % 2], label=f"planner{i}") for i in range(count)]
+    for plot in (plot_trajectories, plot_obstacle_distance):
+        fig = plot(many, field)
+        check_figure(fig)
+        assert len(fig.get_axes()) == count
+        fig.savefig(tmp_path / "f.png", dpi=130)
+        height, width = imread(tmp_path / "f.png").shape[:2]
+        assert width <= 2400 and width <= 3 * height, (plot.__name__, count, width, height)
