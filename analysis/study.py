@@ -101,7 +101,7 @@ def run_spec(name: str, fields: int | None = None) -> pathlib.Path:
 def report(parquet: pathlib.Path, out: pathlib.Path, *, resamples: int, folder: str = "report", **options: Any):
     """:func:`jaxapf.report.build_report` into ``out/<folder>``, keeping what a reader of the repository
     needs (``report.md`` with its PNG figures, ``summary.csv``, ``comparisons.csv``, ``table.tex``);
-    the self-contained HTML and the SVGs are dropped here (``jaxapf report`` writes them)."""
+    the self-contained HTML is dropped here (``jaxapf report`` writes it)."""
     from jaxapf.report import ReportOptions, build_report
 
     target = out / folder
@@ -109,15 +109,13 @@ def report(parquet: pathlib.Path, out: pathlib.Path, *, resamples: int, folder: 
         shutil.rmtree(target)
     result = build_report(parquet, target, ReportOptions(resamples=resamples, **options))
     (target / "report.html").unlink(missing_ok=True)
-    for svg in (target / "figures").glob("*.svg"):
-        svg.unlink()
     return result
 
 
 def run_compare_study(doc: str, name: str, spec_file: str):
     """What a ``jaxapf compare`` study does first: parse the shared flags, run the comparison of
     ``sweeps/<spec_file>`` into ``runs/compare-NAME[-fN]`` (resuming what is finished), and copy its
-    report (without HTML and SVGs), ``compare.md`` and ``selection.csv`` into the results folder.
+    report (without its HTML), ``compare.md`` and ``selection.csv`` into the results folder.
     Returns ``(flags, results folder, spec, runs folder)``."""
     from jaxapf.compare import load_compare_spec, run_compare_spec
 
@@ -134,8 +132,6 @@ def run_compare_study(doc: str, name: str, spec_file: str):
         shutil.rmtree(target)
     shutil.copytree(runs / "report", target)
     (target / "report.html").unlink(missing_ok=True)
-    for svg in (target / "figures").glob("*.svg"):
-        svg.unlink()
     shutil.copy(runs / "compare.md", out / "compare.md")
     shutil.copy(runs / "selection.csv", out / "selection.csv")
     return args, out, spec, runs

@@ -143,6 +143,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="the two swept gains of the heatmaps (default gamma,k; 'none' to skip)")
     rep.add_argument("--gallery", type=int, default=3, metavar="N",
                      help="worst episodes re-simulated and drawn (default 3; 0 to skip)")
+    rep.add_argument("--svg", action="store_true", help="also write every figure as SVG (vector graphics for a paper)")
     rep.add_argument("--resamples", type=int, default=2000, help="bootstrap resamples (default 2000)")
     rep.add_argument("--confidence", type=float, default=0.95, help="interval level (default 0.95)")
     rep.add_argument("--seed", type=int, default=0, help="bootstrap seed (default 0)")
@@ -366,7 +367,7 @@ def _report(args: argparse.Namespace) -> int:
     options = ReportOptions(baseline=args.baseline, where=tuple(args.where), heatmap=heatmap,
                             gallery=args.gallery, resamples=args.resamples, confidence=args.confidence,
                             seed=args.seed, profile_metric=args.profile_metric, margins=_margins(args.margin),
-                            efficiency=args.efficiency,
+                            efficiency=args.efficiency, svg=args.svg,
                             pair_on=tuple(c.strip() for c in args.pair_on.split(",") if c.strip()))
     name = args.sweep.name.removesuffix(".parquet") or "report"
     out = args.out if args.out is not None else pathlib.Path("reports") / name

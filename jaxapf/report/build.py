@@ -8,7 +8,7 @@ the definitions of the statistics are in :mod:`jaxapf.stats` and ``docs/report.m
 Outputs (in ``--out``): ``report.html`` (self-contained, figures embedded as base64 PNG),
 ``report.md`` (figures as relative files), ``summary.csv`` (per setting × family),
 ``comparisons.csv`` (paired tests against the baseline), ``table.tex`` (booktabs) and
-``figures/*.png|svg``.
+``figures/*.png`` (and ``*.svg`` with ``svg``).
 
 Bad input raises :class:`~jaxapf.report.load.ReportError` (a
 :class:`~jaxapf.validation.ConfigError`) with one line.
@@ -69,6 +69,7 @@ class ReportOptions:
       pair_on: with several baseline settings, the setting columns on which a setting and its
         baseline must agree (``--pair-on``; e.g. ``selection`` in ``jaxapf compare``'s test); empty:
         every swept column except those the baseline filter fixes or the baseline method ignores.
+      svg: also write every figure as SVG (``--svg``; a second draw of each figure).
     """
 
     baseline: str = "method=basic"
@@ -82,6 +83,7 @@ class ReportOptions:
     margins: tuple[tuple[str, float], ...] = ()
     efficiency: str = "both-success"
     pair_on: tuple[str, ...] = ()
+    svg: bool = False
 
     def __post_init__(self) -> None:
         if self.efficiency not in ("both-success", "all-pairs"):
@@ -288,5 +290,5 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
     html_path = out / "report.html"
     html_path.write_text(render_html(doc, title), encoding="utf-8")
     paths += [html_path, md_path, summary_path, comp_path, tex_path]
-    paths += [figdir / f"{f.name}.{ext}" for f in figures + shown for ext in ("png", "svg")]
+    paths += [figdir / f"{f.name}.{ext}" for f in figures + shown for ext in ("png", "svg")[: 1 + f.svg]]
     return ReportResult(out, paths, summary, comparisons, notes, incomplete)

@@ -17,11 +17,12 @@ __all__ = ["FigureFile", "Document", "render_markdown", "render_html", "save_fig
 
 @dataclasses.dataclass
 class FigureFile:
-    """A rendered figure: file stem, caption and PNG bytes."""
+    """A rendered figure: file stem, caption, PNG bytes, and whether an SVG was written beside it."""
 
     name: str
     caption: str
     png: bytes
+    svg: bool = False
 
 
 @dataclasses.dataclass
@@ -66,8 +67,8 @@ def render_markdown(doc: Document) -> str:
             lines += ["| " + " | ".join(_md_cell(v) for v in row) + " |" for row in value.itertuples(index=False)]
             out.append("\n".join(lines) + "\n")
         elif kind == "figure":
-            out.append(f"![{value.caption}](figures/{value.name}.png)\n\n*{value.caption}* "
-                       f"(vector: `figures/{value.name}.svg`)\n")
+            vector = f" (vector: `figures/{value.name}.svg`)" if value.svg else ""
+            out.append(f"![{value.caption}](figures/{value.name}.png)\n\n*{value.caption}*{vector}\n")
     return "\n".join(out)
 
 
@@ -110,8 +111,9 @@ def render_html(doc: Document, title: str) -> str:
 
 
 
-def save_figure(fig: Any, name: str, caption: str, figdir: pathlib.Path) -> FigureFile:
-    """Write ``fig`` to ``figdir/name.png`` and ``.svg`` (deterministic SVG ids, no date) and clear it."""
+def save_figure(fig: Any, name: str, caption: str, figdir: pathlib.Path, svg: bool = False) -> FigureFile:
+    """Write ``fig`` to ``figdir/name.png`` and, with ``svg``, ``.svg`` (deterministic ids, no date; a
+    second full draw, so only on request) and clear it."""
     import matplotlib
 
     figdir.mkdir(parents=True, exist_ok=True)
@@ -119,7 +121,8 @@ def save_figure(fig: Any, name: str, caption: str, figdir: pathlib.Path) -> Figu
     fig.savefig(buf, format="png", dpi=110)
     png = buf.getvalue()
     (figdir / f"{name}.png").write_bytes(png)
-    with matplotlib.rc_context({"svg.hashsalt": "jaxapf-report"}):
-        fig.savefig(figdir / f"{name}.svg", format="svg", metadata={"Date": None})
+    if svg:
+        with matplotlib.rc_context({"svg.hashsalt": "jaxapf-report"}):
+            fig.savefig(figdir / f"{name}.svg", format="svg", metadata={"Date": None})
     fig.clear()
-    return FigureFile(name, caption, png)
+    return FigureFile(name, caption, png, svg)

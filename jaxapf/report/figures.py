@@ -385,7 +385,7 @@ def _heatmap_figures(sel: Selection, options: Any, figdir: pathlib.Path) -> tupl
             fig = plot_heatmaps(pd.DataFrame(cells), x, y, f"{rate} rate",
                                 f"{rate} rate [%] of {method} over {x} × {y}")
             figures.append(save_figure(fig, f"heatmap_{rate}_{method}", f"{rate.capitalize()} rate of {method} "
-                                       f"over {x} × {y}, per family", figdir))
+                                       f"over {x} × {y}, per family", figdir, options.svg))
     if not figures and not notes:
         notes.append(f"heatmaps skipped: no method varies both {x} and {y}")
     return figures, notes
@@ -416,13 +416,14 @@ def report_figures(sel: Selection, summary: pd.DataFrame, comparisons: pd.DataFr
     clearance = {g: {s: group_rows(sel.data[sel.data["setting"] == s], g)["min_clearance"].to_numpy(np.float64)
                      for s in sel.settings} for g in names}
     figures.append(save_figure(plot_ecdf(clearance, labels, methods, "min_clearance", "m"), "ecdf_min_clearance",
-                               "Empirical CDF of the minimum clearance per setting (left of 0: collision)", figdir))
+                               "Empirical CDF of the minimum clearance per setting (left of 0: collision)", figdir,
+                               options.svg))
     figures.append(save_figure(plot_rates(summary, labels, rates, options.confidence), "rates",
                                f"{', '.join(rates).capitalize()} rates with {100 * options.confidence:g} % Wilson "
-                               "intervals", figdir))
+                               "intervals", figdir, options.svg))
     figures.append(save_figure(plot_continuous(summary, labels, continuous, units, options.confidence), "continuous",
                                "Interquartile means of the continuous metrics with stratified bootstrap intervals "
-                               "(metrics meaningful only on successes: successful episodes)", figdir))
+                               "(metrics meaningful only on successes: successful episodes)", figdir, options.svg))
     if len(comparisons):
         group = headline(names)
         pooled = comparisons[comparisons["family"] == group]
@@ -432,7 +433,8 @@ def report_figures(sel: Selection, summary: pd.DataFrame, comparisons: pd.DataFr
                                    "differences", f"Paired differences to the baseline {baseline} ({group}): rates "
                                    "as the difference in proportions in percentage points (Newcombe interval), "
                                    "continuous metrics as the Hodges-Lehmann shift in their units (signed-rank "
-                                   "interval); filled = Holm-significant, grey band = relevance margin", figdir))
+                                   "interval); filled = Holm-significant, grey band = relevance margin", figdir,
+                                   options.svg))
     metric = options.profile_metric
     values = sel.data[metric].to_numpy(np.float64)
     taus = _profile_taus(values)
@@ -450,7 +452,7 @@ def report_figures(sel: Selection, summary: pd.DataFrame, comparisons: pd.DataFr
     bands = len(sel.settings) <= 6
     figures.append(save_figure(plot_performance_profile(taus, curves, labels, methods, metric, bands),
                                f"profile_{metric}", f"Performance profile: fraction of episodes with {metric} > τ"
-                               + (" (bands: pointwise Wilson intervals)" if bands else ""), figdir))
+                               + (" (bands: pointwise Wilson intervals)" if bands else ""), figdir, options.svg))
     return figures, notes
 
 

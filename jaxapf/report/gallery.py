@@ -91,5 +91,5 @@ def gallery(sel: Selection, meta: Mapping, options: Any, figdir: pathlib.Path) -
         caption = (f"{kind}: {what} (seed {cfg.seed}); recorded min clearance "
                    f"{_num(row['min_clearance'])} m, final distance {_num(row.get('final_distance', math.nan))} m; "
                    f"re-simulated min clearance {_num(run.metrics['min_clearance'])} m; {check}")
-        figures.append(save_figure(fig, f"gallery_{i}", caption, figdir))
+        figures.append(save_figure(fig, f"gallery_{i}", caption, figdir, options.svg))
     return figures, notes
