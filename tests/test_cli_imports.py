@@ -11,7 +11,6 @@ import subprocess
 import sys
 import textwrap
 
-import pytest
 from conftest import ROOT
 
 from jaxapf.catalog import LISTS

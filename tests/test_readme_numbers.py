@@ -104,6 +104,7 @@ def benchmark_numbers() -> set[str]:
 @pytest.mark.parametrize("page, title, first", [
     ("README.md", "Speed", None),
     ("docs/performance.md", None, "**Against the strongest peer.**"),
+    ("docs/performance.md", None, "**The quick start**"),
 ])
 def test_speed_numbers_come_from_the_committed_benchmark_runs(page, title, first):
     text = (ROOT / page).read_text()
@@ -121,3 +122,24 @@ def test_the_studies_summary_cites_their_results():
     cited = numbers(re.sub(r"(study|studies|scenario) \d+", "", paragraph))
     missing = unmatched(cited, numbers("\n".join(results_text(f) for f in folders)))
     assert not missing, f"analysis/README.md 'In short': numbers in no study's results: {missing}"
+
+
+def test_the_quick_start_states_what_its_committed_run_measured():
+    """README's quick-start paragraph: its times come from benchmarks/results/quickstart.json (written by
+    benchmarks/quickstart.py, which runs the README's own commands), its sizes from the spec it runs,
+    its Python version from pyproject.toml."""
+    import tomllib
+
+    from jaxapf.sweep import load_spec
+
+    text = (ROOT / "README.md").read_text()
+    paragraph = section(text, "Quick start").split("```", 1)[0]
+    run = json.loads((ROOT / "benchmarks" / "results" / "quickstart.json").read_text())
+    spec = load_spec(ROOT / run["sweep"][2])
+    methods = len(dict(spec.grid)["method"]) if "method" in dict(spec.grid) else 1
+    python = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["requires-python"]
+    source = {repr(float(x)) for x in _leaves(run)} | {
+        str(spec.fields), str(spec.fields * len(spec.families) * methods), python.lstrip(">="),
+        run["environment"]["cpu_count"], str(len(spec.families))}
+    missing = unmatched(numbers(paragraph), source)
+    assert not missing, f"README quick start: numbers not from quickstart.json, the spec or pyproject: {missing}"

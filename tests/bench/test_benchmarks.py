@@ -104,3 +104,16 @@ def test_kernels_script_rejects_a_bad_size_by_name(capsys):
 
     assert kernels.main(["--fields", "0"]) == 2
     assert "bench.fields = 0" in capsys.readouterr().err
+
+
+def test_quickstart_times_the_readmes_own_commands(tmp_path):
+    """benchmarks/quickstart.py reads the sweep and report commands from README.md's quick start and
+    only moves their outputs to its own folder."""
+    from quickstart import _with_out, quickstart_commands
+
+    sweep, report = quickstart_commands((ROOT / "README.md").read_text())
+    assert sweep[:3] == ["jaxapf", "sweep", "sweeps/compare-small.toml"]
+    assert report[:2] == ["jaxapf", "report"] and report[2] == sweep[sweep.index("--out") + 1]
+    moved = _with_out(report, tmp_path / "r", tmp_path / "d.parquet")
+    assert moved[2] == str(tmp_path / "d.parquet") and moved[moved.index("--out") + 1] == str(tmp_path / "r")
+    assert len(moved) == len(report)
