@@ -44,11 +44,14 @@ __all__ = list(_LAZY)
 
 
 def __getattr__(name: str):
+    """The first public name imports the whole engine, as ``import jaxapf`` did before it was lazy: the
+    registries (gains, planners, metrics, ...) fill as their modules are imported, so ``jaxapf.Gains``
+    must find every component's gains declared."""
     if name not in _LAZY:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(import_module(_LAZY[name], __name__), name)
-    globals()[name] = value
-    return value
+    modules = {module: import_module(module, __name__) for module in dict.fromkeys(_LAZY.values())}
+    globals().update({public: getattr(modules[module], public) for public, module in _LAZY.items()})
+    return globals()[name]
 
 
 def __dir__() -> list[str]:

@@ -100,6 +100,8 @@ def test_the_lazy_package_gives_every_public_name_and_rollout_stays_the_function
         import sys, types
         import jaxapf
         assert "jax" not in sys.modules
+        # the first public name loads the engine: every component's gains are declared (docs/api.md's start)
+        assert jaxapf.Gains.grid(gamma=[0.5, 1.0], k=[1.0]).gamma.shape == (2,)
         import jaxapf.rollout  # the submodule named like the function: the attribute stays the function
         assert isinstance(sys.modules["jaxapf.rollout"], types.ModuleType)
         assert callable(jaxapf.rollout) and jaxapf.rollout is sys.modules["jaxapf.rollout"].rollout
