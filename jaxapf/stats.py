@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from scipy import stats as _st
@@ -42,6 +42,7 @@ __all__ = [
     "median",
     "mean",
     "bootstrap_ci",
+    "bootstrap_cis",
     "paired_bootstrap_ci",
     "McNemarResult",
     "mcnemar_exact",
@@ -180,6 +181,7 @@ def _percentile(values: np.ndarray, confidence: float) -> tuple[float, float]:
 
 def _bootstrap(arrays: tuple[np.ndarray, ...], replicate: Callable[..., np.ndarray], strata, n_resamples: int,
                seed: int) -> np.ndarray:
+    """(k, n_resamples) replicates: ``replicate`` maps a block of resampled rows to k values per resample."""
     n = arrays[0].shape[0]
     groups = _strata_index(n, strata)
     rng = np.random.default_rng(seed)
@@ -189,9 +191,9 @@ def _bootstrap(arrays: tuple[np.ndarray, ...], replicate: Callable[..., np.ndarr
     while done < n_resamples:
         count = min(chunk, n_resamples - done)
         idx = _resample_index(rng, groups, count)
-        out.append(np.asarray(replicate(*(a[idx] for a in arrays)), dtype=np.float64).reshape(count))
+        out.append(np.asarray(replicate(*(a[idx] for a in arrays)), dtype=np.float64).reshape(-1, count))
         done += count
-    return np.concatenate(out)
+    return np.concatenate(out, axis=1)
 
 
 #: A sample with at most this many distinct values (0/1 outcomes, per-pair scores 0/½/1) has the
@@ -236,13 +238,25 @@ def bootstrap_ci(x, statistic: Statistic = np.mean, *, strata=None, n_resamples:
 
     Returns ``(lower, upper)``; ``(nan, nan)`` for an empty sample.
     """
+    return bootstrap_cis(x, (statistic,), strata=strata, n_resamples=n_resamples, confidence=confidence,
+                         seed=seed)[0]
+
+
+def bootstrap_cis(x, statistics: Sequence[Statistic], *, strata=None, n_resamples: int = DEFAULT_RESAMPLES,
+                  confidence: float = 0.95, seed: int = 0) -> list[tuple[float, float]]:
+    """:func:`bootstrap_ci` of each of ``statistics`` (e.g. the median and the IQM), every one from
+    the same resamples, drawn once: each interval is the one :func:`bootstrap_ci` gives with ``seed``."""
     x = np.asarray(x, dtype=np.float64).reshape(-1)
     if x.size == 0:
-        return math.nan, math.nan
-    reps = _mean_few_values(x, strata, n_resamples, seed) if statistic in (np.mean, mean) else None
-    if reps is None:
-        reps = _bootstrap((x,), lambda xb: statistic(xb, axis=-1), strata, n_resamples, seed)
-    return _percentile(reps, confidence)
+        return [(math.nan, math.nan)] * len(statistics)
+    reps: list = [_mean_few_values(x, strata, n_resamples, seed) if s in (np.mean, mean) else None
+                  for s in statistics]
+    rest = [s for s, r in zip(statistics, reps) if r is None]
+    if rest:
+        drawn = iter(_bootstrap((x,), lambda xb: np.stack([s(xb, axis=-1) for s in rest]), strata, n_resamples,
+                                seed))
+        reps = [next(drawn) if r is None else r for r in reps]
+    return [_percentile(r, confidence) for r in reps]
 
 
 def _paired(x, y, dtype: Any = np.float64) -> tuple[np.ndarray, np.ndarray]:
@@ -274,7 +288,7 @@ def paired_bootstrap_ci(x, y, statistic: Statistic = np.mean, *, strata=None,
         return (estimate, *bootstrap_ci(x - y, mean, strata=strata, n_resamples=n_resamples,
                                         confidence=confidence, seed=seed))
     reps = _bootstrap((x, y), lambda xb, yb: statistic(xb, axis=-1) - statistic(yb, axis=-1),
-                      strata, n_resamples, seed)
+                      strata, n_resamples, seed)[0]
     return (estimate, *_percentile(reps, confidence))
 
 

@@ -618,3 +618,18 @@ def test_minimum_detectable_difference_hand_computed():
         mdd(d, d, kind="continuous", alpha=0.0)
     with pytest.raises(ValueError, match="differ in size"):
         mdd(d, d[:3], kind="continuous")
+
+
+@pytest.mark.parametrize("n, strata", [(40, None), (300, 3), (5000, 2)])
+def test_bootstrap_cis_gives_each_statistics_bootstrap_ci(n, strata):
+    """Several statistics from one set of resamples (the report's median and IQM): each interval is
+    exactly the one bootstrap_ci gives alone with the same seed, also when the draws come in chunks."""
+    rng = np.random.default_rng(n)
+    x = rng.normal(size=n)
+    labels = rng.integers(0, strata, n) if strata else None
+    together = stats.bootstrap_cis(x, [stats.median, stats.iqm, stats.mean], strata=labels, n_resamples=900, seed=5)
+    alone = [stats.bootstrap_ci(x, f, strata=labels, n_resamples=900, seed=5) for f in (stats.median, stats.iqm,
+                                                                                       stats.mean)]
+    assert together == alone
+    empty = stats.bootstrap_cis(np.empty(0), [stats.median, stats.iqm])
+    assert len(empty) == 2 and all(math.isnan(v) for pair in empty for v in pair)

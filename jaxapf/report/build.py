@@ -16,6 +16,7 @@ Bad input raises :class:`~jaxapf.report.load.ReportError` (a
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import datetime
 import json
@@ -29,7 +30,7 @@ from .. import stats
 from ..metrics import METRICS
 from .document import Document, render_html, render_markdown
 from .figures import DEFAULT_HEATMAP, report_figures
-from .gallery import gallery
+from .gallery import gallery, resimulate
 from .latex import latex_tables
 from .load import ReportError, load_sweep, report_metrics
 from .select import format_value, select
@@ -144,12 +145,15 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
         raise ReportError(f"--profile-metric {options.profile_metric!r} is not a metric column of {path}")
     sel = select(df, options)
     rates, continuous = report_metrics(sel.data.columns)
-    summary = summarize(sel.data, sel.settings, sel.table, sel.labels, options)
-    comparisons = compare(sel.data, sel.pairs, sel.labels, options)
     out.mkdir(parents=True, exist_ok=True)
     figdir = out / "figures"
-    figures, fig_notes = report_figures(sel, summary, comparisons, options, figdir)
-    shown, gallery_notes = gallery(sel, meta, options, figdir)
+    # the gallery's re-simulations (JAX, which releases the GIL) run while the statistics and figures are made
+    with concurrent.futures.ThreadPoolExecutor(1) as pool:
+        episodes = pool.submit(resimulate, sel, meta, options)
+        summary = summarize(sel.data, sel.settings, sel.table, sel.labels, options)
+        comparisons = compare(sel.data, sel.pairs, sel.labels, options)
+        figures, fig_notes = report_figures(sel, summary, comparisons, options, figdir)
+        shown, gallery_notes = gallery(sel, episodes.result(), options, figdir)
     notes = sel.notes + fig_notes + gallery_notes
     incomplete = None
     if meta.get("complete") is False and meta.get("rows_expected"):

@@ -14,7 +14,7 @@ from .load import report_metrics
 from .select import Selection
 from .tables import _num
 
-__all__ = ["worst_episodes", "gallery"]
+__all__ = ["worst_episodes", "resimulate", "gallery"]
 
 
 def worst_episodes(data: pd.DataFrame, count: int) -> list[tuple[str, pd.Series]]:
@@ -54,32 +54,49 @@ def worst_episodes(data: pd.DataFrame, count: int) -> list[tuple[str, pd.Series]
     return picked
 
 
-def gallery(sel: Selection, meta: Mapping, options: Any, figdir: pathlib.Path) -> tuple[list[FigureFile], list[str]]:
-    """The ``options.gallery`` worst episodes (:func:`worst_episodes`) re-simulated with
-    :func:`jaxapf.sweep.row_config` and :func:`jaxapf.simulate.simulate_runs`, drawn, and notes."""
+def resimulate(sel: Selection, meta: Mapping, options: Any) -> list[tuple[str, pd.Series, Any]]:
+    """The ``options.gallery`` worst episodes (:func:`worst_episodes`), each re-simulated with
+    :func:`jaxapf.sweep.row_config` and :func:`jaxapf.simulate.simulate_runs`: ``(kind, row, result)``
+    with ``result`` either ``(cfg, field, runs)`` or the :class:`ConfigError` that prevented it. Only
+    JAX work (which releases the GIL), so a report runs it on a thread while it draws its figures."""
     if options.gallery == 0:
-        return [], ["gallery skipped (--gallery 0)"]
-    picks = worst_episodes(sel.data, options.gallery)
-    if not picks:
-        return [], ["gallery: no failed episode among the reported settings"]
-    from ..simulate import plot_trajectories, simulate_runs
+        return []
+    from ..simulate import simulate_runs
     from ..sweep import row_config
 
     if str(meta.get("dtype", "float32")) == "float64":
         import jax
 
         jax.config.update("jax_enable_x64", True)
-    rates = report_metrics(sel.data.columns)[0]
-    figures, notes = [], []
-    for i, (kind, row) in enumerate(picks, 1):
-        what = f"{sel.labels[int(row['setting'])]}, {row['family']} field {int(row['field'])}"
+    out = []
+    for kind, row in worst_episodes(sel.data, options.gallery):
         try:
             cfg = row_config(meta, row.to_dict())
             field, runs, _ = simulate_runs(cfg.family, cfg.seed, cfg.field, [cfg.sim.planner.method], cfg.gains,
                                            cfg.sim, cfg.mpc, cfg.overrides)
+            out.append((kind, row, (cfg, field, runs)))
         except ConfigError as err:  # e.g. a planner of a plugin this process cannot import
-            notes.append(f"gallery: could not re-simulate {what}: {first_line(err)}")
+            out.append((kind, row, err))
+    return out
+
+
+def gallery(sel: Selection, episodes: list[tuple[str, pd.Series, Any]], options: Any,
+            figdir: pathlib.Path) -> tuple[list[FigureFile], list[str]]:
+    """The figures of the re-simulated ``episodes`` (:func:`resimulate`) and notes."""
+    if options.gallery == 0:
+        return [], ["gallery skipped (--gallery 0)"]
+    if not episodes:
+        return [], ["gallery: no failed episode among the reported settings"]
+    from ..simulate import plot_trajectories
+
+    rates = report_metrics(sel.data.columns)[0]
+    figures, notes = [], []
+    for i, (kind, row, result) in enumerate(episodes, 1):
+        what = f"{sel.labels[int(row['setting'])]}, {row['family']} field {int(row['field'])}"
+        if isinstance(result, ConfigError):
+            notes.append(f"gallery: could not re-simulate {what}: {first_line(result)}")
             continue
+        cfg, field, runs = result
         run = runs[0]
         recorded = {m: bool(row[m]) for m in rates}
         resim = {m: bool(run.metrics[m]) for m in rates}

@@ -139,8 +139,9 @@ def summarize(data: pd.DataFrame, settings: Sequence[int], table: pd.DataFrame, 
                 x = v[keep]
                 st = strata[keep] if strata is not None else None
                 rec[f"{m}_n"] = int(keep.sum())
-                for name, fn in (("median", stats.median), ("iqm", stats.iqm)):
-                    lo, hi = stats.bootstrap_ci(x, fn, strata=st, **boot)
+                locations = (("median", stats.median), ("iqm", stats.iqm))
+                intervals = stats.bootstrap_cis(x, [fn for _, fn in locations], strata=st, **boot)
+                for (name, fn), (lo, hi) in zip(locations, intervals):
                     rec.update({f"{m}_{name}": float(fn(x)), f"{m}_{name}_lo": lo, f"{m}_{name}_hi": hi})
             records.append(rec)
     return pd.DataFrame.from_records(records)

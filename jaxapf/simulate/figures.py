@@ -353,9 +353,12 @@ def _legend_below(fig: Figure, handles: list) -> None:
 
 
 def _legend_handles(runs: Sequence[Run], field: Field, colors: Mapping[str, str], *, moving_ghost: bool,
-                    uav: bool = False, track: bool = False) -> list:
-    """Proxy artists for a legend: one path per run, then start, goal, obstacle kinds, collision."""
-    handles = [Line2D([], [], color=colors[r.label], linewidth=2, label=f"{r.label} path") for r in runs]
+                    uav: bool = False, track: bool = False, end: bool = False) -> list:
+    """Proxy artists for a legend: one path per run (with ``end``, its final position as a dot), then
+    start, goal, obstacle kinds, collision."""
+    handles = [Line2D([], [], color=colors[r.label], linewidth=2, marker="o" if end else None,
+                      markeredgecolor="black", markersize=6, label=f"{r.label} path" + (" (dot: end)" if end else ""))
+               for r in runs]
     if uav:
         handles += [Line2D([], [], marker="o", linestyle="", color=colors[r.label], markeredgecolor="black",
                            label=f"{r.label} UAV") for r in runs]
@@ -422,7 +425,9 @@ def plot_trajectories(runs: Sequence[Run], field: Field, title: str | None = Non
             _draw_velocity_arrows(ax, field, run.t_end)
         _draw_start_goal_xy(ax, field)
         ax.plot(run.position[:, 0], run.position[:, 1], "-", color=color, linewidth=2, zorder=4,
-                marker="o" if len(run.time) == 1 else None, label=f"{run.label} path")
+                label=f"{run.label} path")
+        # the final position, so that a path that hardly left the start is still seen
+        ax.plot(*run.position[-1, :2], "o", color=color, markeredgecolor="black", markersize=6, zorder=5.5)
         hit = _collision_index(run)
         if hit is not None:
             ax.plot(*run.position[hit, :2], "X", color="red", markeredgecolor="black", markersize=12, zorder=6)
@@ -430,7 +435,7 @@ def plot_trajectories(runs: Sequence[Run], field: Field, title: str | None = Non
         ax.set_ylim(*ylim)
         ax.set_title(f"{run.label} — {outcome(run, field)}")
         _label_xy(ax)
-    handles = _legend_handles(runs, field, colors, moving_ghost=True)
+    handles = _legend_handles(runs, field, colors, moving_ghost=True, end=True)
     _legend_below(fig, handles)
     _suptitle(fig, title or _title("Trajectories (top view, obstacles at t = 0)", field))
     return fig

@@ -247,3 +247,21 @@ def test_one_panel_per_run_figures_are_rows_of_three_that_fit_a_page(example, co
         fig.savefig(tmp_path / "f.png", dpi=130)
         height, width = imread(tmp_path / "f.png").shape[:2]
         assert width <= 2400 and width <= 3 * height, (plot.__name__, count, width, height)
+
+
+def test_a_run_that_never_leaves_the_start_is_still_drawn(example):
+    """A stall at the start (seen in a report's gallery) drew its path under the start marker, while
+    the legend named it: the final position is a dot in the run's colour, above the start marker."""
+    from matplotlib.colors import to_rgba
+
+    from jaxapf.simulate.figures import plot_trajectories
+
+    field, _ = example
+    still = make_run("basic", field, np.repeat(field.start[None], 30, axis=0), success=0.0, collision=0.0,
+                     stalled=1.0, time_to_goal=math.nan, final_distance=30.0)
+    fig = plot_trajectories([still], field)
+    color = to_rgba(run_colors([still])["basic"])
+    dots = [line for line in fig.get_axes()[0].get_lines() if line.get_marker() == "o"
+            and to_rgba(line.get_color()) == color and np.allclose(line.get_xydata()[-1], field.start[:2])]
+    start_z = max(line.get_zorder() for line in fig.get_axes()[0].get_lines() if line.get_marker() == "s")
+    assert dots and dots[0].get_zorder() > start_z
