@@ -9,6 +9,7 @@ import pytest
 from jaxapf.validation import ConfigError
 
 
+@pytest.mark.slow
 def test_run_benchmark_small_custom_batch(field_factory):
     from jaxapf.bench import format_benchmark, run_benchmark
 

@@ -60,6 +60,7 @@ def test_float64_agrees_with_the_engine_to_rounding(method, convention, sim_kw, 
         assert np.any(np.abs(peer["control"]) >= sim.vehicle.a_max - 1e-9)  # the box was active
 
 
+@pytest.mark.slow
 def test_float32_agrees_with_the_engine_on_a_short_episode():
     sim, mpc = SimConfig.from_flat(t_max=2.0), MPCConfig(horizon=10, iters=30)
     scenarios = make_scenarios(2, family_params("clutter", max_obstacles=8), jnp.arange(16))

@@ -38,6 +38,7 @@ def test_it_hovers_at_the_weight_shared_by_four_rotors():
     assert float(jnp.max(diag["tilt"])) < 1e-5 and float(jnp.sum(diag["saturated_time"])) == 0.0
 
 
+@pytest.mark.slow
 def test_a_command_along_each_world_axis_moves_the_vehicle_that_way():
     """Frames: jaxapf's z-up world, the paper's z-down frame inside. x and y respond alike (J_xx = J_yy)."""
     a = 0.5
@@ -98,6 +99,7 @@ def test_the_small_angle_response_matches_the_linearised_model():
     np.testing.assert_allclose(np.asarray(x[:, 3]), ref[3], rtol=0.01, atol=1e-5)
 
 
+@pytest.mark.slow
 def test_with_a_stiff_attitude_loop_its_trajectory_approaches_the_double_integrator():
     """The commands of a closed-loop double-integrator episode, replayed on quadrotors with ever stiffer
     attitude loops (a body of a thousandth of the inertia on rotors that never saturate, no lag):

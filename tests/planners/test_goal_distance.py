@@ -93,6 +93,7 @@ def test_n_zero_is_the_basic_planner_to_rounding():
                               np.asarray(run(field, Gains(), basic, mpc).position))
 
 
+@pytest.mark.slow
 def test_the_ge_cui_planner_reaches_a_goal_next_to_an_obstacle():
     """GNRON: a goal 1 m in front of a cylinder. The basic field settles short of it; Ge–Cui arrives."""
     outcome = outcomes(one_obstacle_scenario(10.0, 12.0, 1.0), ("basic", "ge_cui_bounded"))

@@ -142,7 +142,7 @@ def test_every_report_figure_fits_a_page(report):
         assert width <= 2400 and width <= 3 * height, (png.name, width, height)
 
 
-@pytest.mark.parametrize("groups, settings", [(1, 2), (9, 12)])
+@pytest.mark.parametrize("groups, settings", [(1, 2), pytest.param(9, 12, marks=pytest.mark.slow)])
 def test_figures_of_many_groups_and_metrics_are_grids_that_fit_a_page(groups, settings, tmp_path):
     """One family or nine, two settings or twelve, every metric the registry has: each figure at most
     2,400 px wide and at most 3:1 (panels go into rows of three, not one long row)."""

@@ -240,6 +240,7 @@ def family_answers():
     return out
 
 
+@pytest.mark.slow
 def test_every_built_in_family_gets_an_answer_per_field(family_answers):
     for name, (_, _, answers) in family_answers.items():
         assert answers.shape == (_FIELDS,) and answers.dtype == bool, name

@@ -230,7 +230,7 @@ def test_legends_fit_inside_the_figure(example, name, n_runs):
         assert box.x0 >= -1 and box.x1 <= fig.bbox.width + 1, (name, box, fig.bbox.width)
 
 
-@pytest.mark.parametrize("count", [1, 4, 9])
+@pytest.mark.parametrize("count", [1, 4, pytest.param(9, marks=pytest.mark.slow)])
 def test_one_panel_per_run_figures_are_rows_of_three_that_fit_a_page(example, count, tmp_path):
     """Nine planners side by side (study 11's figure) used to make a 5,200 px strip: panels go into rows
     of three, every figure stays at most 2,400 px wide at plot_all's 130 dpi and at most 3:1."""
