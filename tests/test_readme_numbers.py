@@ -105,6 +105,7 @@ def benchmark_numbers() -> set[str]:
     ("README.md", "Speed", None),
     ("docs/performance.md", None, "**Against the strongest peer.**"),
     ("docs/performance.md", None, "**The quick start**"),
+    ("docs/testing.md", "Cost", None),
 ])
 def test_speed_numbers_come_from_the_committed_benchmark_runs(page, title, first):
     text = (ROOT / page).read_text()
