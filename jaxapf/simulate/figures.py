@@ -174,16 +174,19 @@ class Field:
 
 
 def run_colors(runs: Sequence[Run]) -> dict[str, str]:
-    """Colour per run label: a registered planner's colour, the next spare colour otherwise."""
+    """Colour per run label: a registered planner's colour unless an earlier run has it, the next
+    unused spare colour otherwise (nine planners side by side shared one brown)."""
     from ..planners import PLANNERS
 
     colors: dict[str, str] = {}
-    spare = list(_SPARE_COLORS)
     for run in runs:
         if run.label in colors:
             continue
         own = PLANNERS.get(run.label).color if run.label in PLANNERS else None
-        colors[run.label] = own or (spare.pop(0) if spare else "black")
+        used = set(colors.values())
+        if own is None or own in used:
+            own = next((c for c in _SPARE_COLORS if c not in used), "black")
+        colors[run.label] = own
     return colors
 
 

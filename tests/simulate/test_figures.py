@@ -265,3 +265,12 @@ def test_a_run_that_never_leaves_the_start_is_still_drawn(example):
             and to_rgba(line.get_color()) == color and np.allclose(line.get_xydata()[-1], field.start[:2])]
     start_z = max(line.get_zorder() for line in fig.get_axes()[0].get_lines() if line.get_marker() == "s")
     assert dots and dots[0].get_zorder() > start_z
+
+
+def test_nine_planners_side_by_side_get_nine_colours(example):
+    from jaxapf.planners import PLANNERS
+
+    field, runs = example
+    labels = [*PLANNERS.names(), "basic+cbf", "direction_velocity+cbf"][:9]
+    colors = run_colors([dataclasses.replace(runs[0], label=label) for label in labels])
+    assert len(set(colors.values())) == len(labels), colors
