@@ -3,14 +3,13 @@ they read the registries' catalogue (jaxapf/catalog.py), which says what the reg
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import os
 import subprocess
 import sys
 import textwrap
 
+from cli_capture import capture
 from conftest import ROOT
 
 from jaxapf.catalog import LISTS
@@ -24,7 +23,9 @@ CALLS = ([["--help"]] + [[c, "--help"] for c in COMMANDS] + [["bench", "engine",
 # ``jaxapf`` stands in for the package's __init__ (which imports the whole engine for the Python API),
 # so that what is measured is the command line's own imports
 SCRIPT = textwrap.dedent("""
-    import contextlib, io, json, sys, types
+    import json, sys, types
+    sys.path.insert(0, sys.argv[4])
+    from cli_capture import capture
     stub = bool(int(sys.argv[2]))
     if stub:
         package = types.ModuleType("jaxapf")
@@ -34,14 +35,8 @@ SCRIPT = textwrap.dedent("""
 
     results = []
     for argv in json.loads(sys.argv[3]):
-        out, err = io.StringIO(), io.StringIO()
-        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-            try:
-                rc = main(argv)
-            except SystemExit as exit:
-                rc = exit.code
-        results.append({"argv": argv, "rc": rc, "out": out.getvalue(), "err": err.getvalue(),
-                        "jax": "jax" in sys.modules})
+        rc, out, err = capture(main, argv)
+        results.append({"argv": argv, "rc": rc, "out": out, "err": err, "jax": "jax" in sys.modules})
     print("RESULT " + json.dumps(results))
 """)
 
@@ -51,20 +46,15 @@ def _calls(tmp_path, calls, stub=True):
                                                                          "JAX_PLATFORMS": "cpu"}
     work = tmp_path / "work"  # not the cache's folder: its jaxapf/ would shadow the installed package
     work.mkdir(exist_ok=True)
-    proc = subprocess.run([sys.executable, "-c", SCRIPT, str(ROOT / "jaxapf"), str(int(stub)), json.dumps(calls)],
+    proc = subprocess.run([sys.executable, "-c", SCRIPT, str(ROOT / "jaxapf"), str(int(stub)), json.dumps(calls),
+                           str(ROOT / "tests")],
                           env=env, capture_output=True, text=True, timeout=300, cwd=work)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return json.loads(next(line for line in proc.stdout.splitlines() if line.startswith("RESULT "))[7:])
 
 
 def _live(argv):
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            rc = main(argv)
-        except SystemExit as exit:
-            rc = exit.code
-    return rc, out.getvalue(), err.getvalue()
+    return capture(main, argv)
 
 
 def test_help_list_and_argument_errors_import_no_jax_and_say_what_the_registries_say(tmp_path):
