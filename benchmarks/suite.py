@@ -1,5 +1,6 @@
 """The test suite's cost, as docs/testing.md states it: wall time, outcome line and the peak memory
-of the largest process (pytest and the programs it starts), for a tier of the suite.
+of the whole process tree (pytest, its workers and the programs they start, sampled every 0.2 s),
+for a tier of the suite.
 
     python benchmarks/suite.py --tier fast --json benchmarks/results/suite-fast.json
     python benchmarks/suite.py --tier all --json benchmarks/results/suite-all.json
@@ -12,22 +13,47 @@ import datetime
 import json
 import os
 import pathlib
-import resource
 import subprocess
 import sys
+import tempfile
 import time
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 TIERS = {"fast": ["-m", "not slow"], "all": []}
 
 
+def _tree_rss_kib(pid: int) -> int:
+    """Resident memory of ``pid`` and all its descendants (Linux /proc), in KiB."""
+    parents, rss = {}, {}
+    for status in pathlib.Path("/proc").glob("[0-9]*/status"):
+        try:
+            fields = dict(line.split(":", 1) for line in status.read_text().splitlines() if ":" in line)
+        except OSError:  # the process ended while being read
+            continue
+        p = int(status.parent.name)
+        parents[p] = int(fields["PPid"])
+        rss[p] = int(fields.get("VmRSS", "0 kB").split()[0])
+    tree, grew = {pid}, True
+    while grew:
+        new = {p for p, parent in parents.items() if parent in tree} - tree
+        tree |= new
+        grew = bool(new)
+    return sum(rss.get(p, 0) for p in tree)
+
+
 def measure(tier: str) -> dict:
     command = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *TIERS[tier]]
     start = time.perf_counter()
-    proc = subprocess.run(command, cwd=ROOT, capture_output=True, text=True)
-    seconds = time.perf_counter() - start
-    peak_kib = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss  # Linux: KiB, the largest child
-    outcome = next((line.strip("= ") for line in reversed(proc.stdout.splitlines()) if " in " in line), "")
+    with tempfile.TemporaryFile("w+") as out:
+        proc = subprocess.Popen(command, cwd=ROOT, stdout=out, stderr=subprocess.STDOUT, text=True)
+        peak_kib = 0
+        while proc.poll() is None:
+            peak_kib = max(peak_kib, _tree_rss_kib(proc.pid))
+            time.sleep(0.2)
+        seconds = time.perf_counter() - start
+        out.seek(0)
+        stdout = out.read()
+    outcome = next((line.strip("= ") for line in reversed(stdout.splitlines()) if " in " in line), "")
     return {"command": f"python benchmarks/suite.py --tier {tier}", "date": datetime.date.today().isoformat(),
             "pytest": command[1:], "cpu_count": len(os.sched_getaffinity(0)), "returncode": proc.returncode,
             "outcome": outcome, "wall_min": round(seconds / 60, 1), "peak_memory_gb": round(peak_kib / 2**20, 1)}
