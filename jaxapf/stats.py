@@ -253,10 +253,35 @@ def bootstrap_cis(x, statistics: Sequence[Statistic], *, strata=None, n_resample
                   for s in statistics]
     rest = [s for s, r in zip(statistics, reps) if r is None]
     if rest:
-        drawn = iter(_bootstrap((x,), lambda xb: np.stack([s(xb, axis=-1) for s in rest]), strata, n_resamples,
-                                seed))
+        drawn = iter(_bootstrap((x,), _replicates(rest), strata, n_resamples, seed))
         reps = [next(drawn) if r is None else r for r in reps]
     return [_percentile(r, confidence) for r in reps]
+
+
+def _sorted_median(s: np.ndarray) -> np.ndarray:
+    """:func:`median` of rows already sorted along the last axis."""
+    n = s.shape[-1]
+    return s[..., n // 2] if n % 2 else np.mean(s[..., n // 2 - 1:n // 2 + 1], axis=-1)
+
+
+def _sorted_iqm(s: np.ndarray) -> np.ndarray:
+    """:func:`iqm` of rows already sorted along the last axis (``floor(n/4)`` cut at each end)."""
+    cut = s.shape[-1] // 4
+    return np.mean(s[..., cut:s.shape[-1] - cut], axis=-1)
+
+
+#: Order statistics computed from one sort of a block of resamples: numpy's vectorised sort is several
+#: times faster than the two partitions and copies of ``np.median`` and ``trim_mean`` (the IQM's
+#: replicates then sum the same values in sorted order: equal to rounding).
+_FROM_SORTED = {median: _sorted_median, np.median: _sorted_median, iqm: _sorted_iqm}
+
+
+def _replicates(statistics: Sequence[Statistic]) -> Callable[[np.ndarray], np.ndarray]:
+    """A block of resamples -> the stacked replicates of each statistic (one sort for the order statistics)."""
+    def replicate(xb):
+        s = np.sort(xb, axis=-1) if any(f in _FROM_SORTED for f in statistics) else None
+        return np.stack([_FROM_SORTED[f](s) if f in _FROM_SORTED else f(xb, axis=-1) for f in statistics])
+    return replicate
 
 
 def _paired(x, y, dtype: Any = np.float64) -> tuple[np.ndarray, np.ndarray]:
