@@ -16,7 +16,6 @@ Bad input raises :class:`~jaxapf.report.load.ReportError` (a
 
 from __future__ import annotations
 
-import concurrent.futures
 import dataclasses
 import datetime
 import json
@@ -30,7 +29,7 @@ from .. import stats
 from ..metrics import METRICS
 from .document import Document, render_html, render_markdown
 from .figures import DEFAULT_HEATMAP, report_figures
-from .gallery import gallery, resimulate
+from .gallery import GalleryWorker
 from .latex import latex_tables
 from .load import ReportError, load_sweep, report_metrics
 from .select import format_value, select
@@ -147,13 +146,12 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
     rates, continuous = report_metrics(sel.data.columns)
     out.mkdir(parents=True, exist_ok=True)
     figdir = out / "figures"
-    # the gallery's re-simulations (JAX, which releases the GIL) run while the statistics and figures are made
-    with concurrent.futures.ThreadPoolExecutor(1) as pool:
-        episodes = pool.submit(resimulate, sel, meta, options)
+    # the gallery (re-simulations and their figures) is made in a second process meanwhile
+    with GalleryWorker(sel, meta, options, figdir) as worker:
         summary = summarize(sel.data, sel.settings, sel.table, sel.labels, options)
         comparisons = compare(sel.data, sel.pairs, sel.labels, options)
         figures, fig_notes = report_figures(sel, summary, comparisons, options, figdir)
-        shown, gallery_notes = gallery(sel, episodes.result(), options, figdir)
+        shown, gallery_notes = worker.result()
     notes = sel.notes + fig_notes + gallery_notes
     incomplete = None
     if meta.get("complete") is False and meta.get("rows_expected"):

@@ -150,12 +150,16 @@ def _grid(fig: Figure, n: int, **kwargs) -> np.ndarray:
     return axes
 
 
-def _group_panels(n: int) -> tuple[Figure, np.ndarray]:
-    """``n`` panels, one per family group, in rows of at most :data:`COLUMNS`."""
+def _group_panels(n: int, ylabel: str) -> tuple[Figure, np.ndarray]:
+    """``n`` panels, one per family group, in rows of at most :data:`COLUMNS`, sharing a fraction
+    axis (0 to 1) whose label and ticks only the first column carries."""
     ncols, nrows = min(n, COLUMNS), math.ceil(n / COLUMNS)
     fig = Figure(figsize=_figsize(4.0 * ncols + 0.4, 3.3 * nrows + 1.0), layout="constrained")
-    axes = _grid(fig, n)
-    return fig, axes.reshape(-1)[:n]
+    axes = _grid(fig, n, sharey=True).reshape(-1)[:n]
+    for ax in axes:
+        if ax.get_subplotspec().is_first_col():
+            ax.set_ylabel(ylabel)
+    return fig, axes
 
 
 def plot_ecdf(values: Mapping[str, Mapping[int, np.ndarray]], labels: Mapping[int, str],
@@ -164,7 +168,7 @@ def plot_ecdf(values: Mapping[str, Mapping[int, np.ndarray]], labels: Mapping[in
     groups = list(values)
     settings = list(labels)
     colors = setting_colors(settings)
-    fig, axes = _group_panels(len(groups))
+    fig, axes = _group_panels(len(groups), "fraction of episodes ≤ x")
     for ax, group in zip(axes, groups):
         for s in settings:
             x, f = stats.ecdf(values[group].get(s, np.empty(0)))
@@ -178,7 +182,6 @@ def plot_ecdf(values: Mapping[str, Mapping[int, np.ndarray]], labels: Mapping[in
             ax.axvline(vline, color="red", linewidth=0.8, alpha=0.6)
         ax.set_title(group)
         ax.set_xlabel(f"{metric} [{unit}]" if unit else metric)
-        ax.set_ylabel("fraction of episodes ≤ x")
         ax.set_ylim(0, 1.02)
         ax.grid(True, linewidth=0.4, alpha=0.5)
     handles = [Line2D([], [], color=colors[s], linestyle=_linestyle(methods[s]), label=labels[s])
@@ -196,7 +199,7 @@ def plot_performance_profile(taus: np.ndarray, curves: Mapping[str, Mapping[int,
     groups = list(curves)
     settings = list(labels)
     colors = setting_colors(settings)
-    fig, axes = _group_panels(len(groups))
+    fig, axes = _group_panels(len(groups), f"fraction of episodes with {metric} > τ")
     for ax, group in zip(axes, groups):
         for s in settings:
             if s not in curves[group]:
@@ -208,7 +211,6 @@ def plot_performance_profile(taus: np.ndarray, curves: Mapping[str, Mapping[int,
                 ax.fill_between(taus, lo, hi, color=colors[s], alpha=0.15, linewidth=0, step="post")
         ax.set_title(group)
         ax.set_xlabel(f"threshold τ on {metric}")
-        ax.set_ylabel(f"fraction of episodes with {metric} > τ")
         ax.set_ylim(-0.02, 1.02)
         ax.grid(True, linewidth=0.4, alpha=0.5)
     handles = [Line2D([], [], color=colors[s], linestyle=_linestyle(methods[s]), label=labels[s])

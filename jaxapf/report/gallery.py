@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import concurrent.futures
 import math
+import multiprocessing
 import pathlib
 from typing import Any, Mapping
 
@@ -14,7 +16,7 @@ from .load import report_metrics
 from .select import Selection
 from .tables import _num
 
-__all__ = ["worst_episodes", "resimulate", "gallery"]
+__all__ = ["worst_episodes", "resimulate", "gallery", "GalleryWorker"]
 
 
 def worst_episodes(data: pd.DataFrame, count: int) -> list[tuple[str, pd.Series]]:
@@ -58,7 +60,7 @@ def resimulate(sel: Selection, meta: Mapping, options: Any) -> list[tuple[str, p
     """The ``options.gallery`` worst episodes (:func:`worst_episodes`), each re-simulated with
     :func:`jaxapf.sweep.row_config` and :func:`jaxapf.simulate.simulate_runs`: ``(kind, row, result)``
     with ``result`` either ``(cfg, field, runs)`` or the :class:`ConfigError` that prevented it. Only
-    JAX work (which releases the GIL), so a report runs it on a thread while it draws its figures."""
+    JAX work: :func:`GalleryWorker` runs it in a second process while the report is made."""
     if options.gallery == 0:
         return []
     from ..simulate import simulate_runs
@@ -110,3 +112,54 @@ def gallery(sel: Selection, episodes: list[tuple[str, pd.Series, Any]], options:
                    f"re-simulated min clearance {_num(run.metrics['min_clearance'])} m; {check}")
         figures.append(save_figure(fig, f"gallery_{i}", caption, figdir, options.svg))
     return figures, notes
+
+
+#: The JAX settings a worker copies from the report's process (compilation cache, precision).
+_JAX_SETTINGS = ("jax_enable_x64", "jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs",
+                 "jax_persistent_cache_min_entry_size_bytes")
+
+
+def _gallery_job(sel: Selection, meta: Mapping, options: Any, figdir: pathlib.Path,
+                 jax_settings: Mapping[str, Any]) -> tuple[list[FigureFile], list[str]]:
+    import jax
+
+    for key, value in jax_settings.items():
+        jax.config.update(key, value)
+    return gallery(sel, resimulate(sel, meta, options), options, figdir)
+
+
+class GalleryWorker:
+    """:func:`resimulate` and :func:`gallery` in a second (spawned) process, started on entering:
+    tracing the re-simulations is Python work, which a thread would take from the report's
+    statistics and figures. ``result()`` gives ``gallery``'s figures and notes; where no process
+    can be started, the gallery is made in this process. Nothing is started for ``--gallery 0``."""
+
+    def __init__(self, sel: Selection, meta: Mapping, options: Any, figdir: pathlib.Path):
+        self._args = (sel, meta, options, figdir)
+        self._pool = self._future = None
+
+    def __enter__(self) -> GalleryWorker:
+        if self._args[2].gallery == 0:
+            return self
+        import jax
+
+        settings = {key: getattr(jax.config, key) for key in _JAX_SETTINGS}
+        try:
+            self._pool = concurrent.futures.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+            self._future = self._pool.submit(_gallery_job, *self._args, settings)
+        except OSError:  # no process can be started here: result() makes it in this process
+            self._pool = self._future = None
+        return self
+
+    def result(self) -> tuple[list[FigureFile], list[str]]:
+        if self._future is not None:
+            try:
+                return self._future.result()
+            except concurrent.futures.process.BrokenProcessPool:
+                pass
+        sel, meta, options, figdir = self._args
+        return gallery(sel, resimulate(sel, meta, options), options, figdir)
+
+    def __exit__(self, *exc) -> None:
+        if self._pool is not None:  # on an error or Ctrl-C here, the worker's job is cancelled, not awaited
+            self._pool.shutdown(wait=exc[0] is None, cancel_futures=True)
