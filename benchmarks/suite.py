@@ -4,6 +4,12 @@ for a tier of the suite.
 
     python benchmarks/suite.py --tier fast --json benchmarks/results/suite-fast.json
     python benchmarks/suite.py --tier all --json benchmarks/results/suite-all.json
+    python benchmarks/suite.py --tier all --xla-flags=--xla_cpu_max_isa=AVX2 \
+        --json benchmarks/results/suite-all-avx2.json
+    python benchmarks/suite.py --tier fast --cores 1 --json benchmarks/results/suite-fast-1-core.json
+
+``--xla-flags`` runs the suite with XLA:CPU code generation for another CPU (docs/testing.md);
+``--cores 1`` pins it to one core in one process (``-n 0``): other thread partitions.
 """
 
 from __future__ import annotations
@@ -41,11 +47,16 @@ def _tree_rss_kib(pid: int) -> int:
     return sum(rss.get(p, 0) for p in tree)
 
 
-def measure(tier: str) -> dict:
+def measure(tier: str, xla_flags: str = "", cores: int | None = None) -> dict:
     command = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *TIERS[tier]]
+    if cores is not None:
+        command += ["-n", "0"] if cores == 1 else ["-n", str(cores)]
+    env = os.environ | ({"XLA_FLAGS": xla_flags} if xla_flags else {})
     start = time.perf_counter()
     with tempfile.TemporaryFile("w+") as out:
-        proc = subprocess.Popen(command, cwd=ROOT, stdout=out, stderr=subprocess.STDOUT, text=True)
+        proc = subprocess.Popen(command, cwd=ROOT, stdout=out, stderr=subprocess.STDOUT, text=True, env=env,
+                                preexec_fn=None if cores is None else lambda: os.sched_setaffinity(
+                                    0, sorted(os.sched_getaffinity(0))[:cores]))
         peak_kib = 0
         while proc.poll() is None:
             peak_kib = max(peak_kib, _tree_rss_kib(proc.pid))
@@ -54,17 +65,21 @@ def measure(tier: str) -> dict:
         out.seek(0)
         stdout = out.read()
     outcome = next((line.strip("= ") for line in reversed(stdout.splitlines()) if " in " in line), "")
-    return {"command": f"python benchmarks/suite.py --tier {tier}", "date": datetime.date.today().isoformat(),
-            "pytest": command[1:], "cpu_count": len(os.sched_getaffinity(0)), "returncode": proc.returncode,
+    options = (f" --xla-flags={xla_flags}" if xla_flags else "") + (f" --cores {cores}" if cores else "")
+    return {"command": f"python benchmarks/suite.py --tier {tier}{options}", "date": datetime.date.today().isoformat(),
+            "pytest": command[1:], "xla_flags": xla_flags,
+            "cpu_count": cores or len(os.sched_getaffinity(0)), "returncode": proc.returncode,
             "outcome": outcome, "wall_min": round(seconds / 60, 1), "peak_memory_gb": round(peak_kib / 2**20, 1)}
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--tier", choices=sorted(TIERS), default="fast")
+    p.add_argument("--xla-flags", default="", help="XLA_FLAGS for the suite (e.g. --xla_cpu_max_isa=AVX2)")
+    p.add_argument("--cores", type=int, help="pin the suite to this many cores (1: one process, -n 0)")
     p.add_argument("--json", type=pathlib.Path, help="also write the result to this file")
     args = p.parse_args(argv)
-    result = measure(args.tier)
+    result = measure(args.tier, args.xla_flags, args.cores)
     print(f"{args.tier}: {result['outcome']}; {result['wall_min']} min, peak {result['peak_memory_gb']} GB")
     if args.json:
         args.json.write_text(json.dumps(result, indent=1) + "\n")

@@ -4,12 +4,21 @@ from __future__ import annotations
 
 import pathlib
 
+import jax
 import jax.numpy as jnp
 import pytest
 
 from jaxapf import Obstacles, Scenario
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _free_compiled_programs():
+    """Free a module's compiled programs after it: a worker process runs a hundred modules, and
+    keeping every program they compiled made the suite's memory grow with their number."""
+    yield
+    jax.clear_caches()
 
 
 @pytest.fixture(scope="session")

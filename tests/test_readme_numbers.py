@@ -1,6 +1,7 @@
 """Every number in README's "What the data says" comes from the committed results of the studies its row
-names, and every number of its "Speed" section and of docs/performance.md's peer comparison from the
-committed benchmark runs: a rerun that changes a number fails here until the text follows."""
+names, and every number of its "Speed" section, of docs/performance.md and of docs/testing.md's cost from
+the committed benchmark runs (benchmarks/results/, written by benchmarks/record.py, quickstart.py and
+suite.py): a rerun that changes a number fails here until the text follows."""
 
 from __future__ import annotations
 
@@ -84,34 +85,70 @@ def test_every_number_of_a_finding_is_in_its_studies_results(question, finding):
 
 
 def _leaves(value) -> list[float]:
+    """Every number in a JSON value, numeric strings ("cpu_count": "2") included."""
     if isinstance(value, dict):
         return [x for v in value.values() for x in _leaves(v)]
     if isinstance(value, list):
         return [x for v in value for x in _leaves(v)]
     if isinstance(value, (int, float)) and not isinstance(value, bool):
         return [float(value)]
+    if isinstance(value, str) and re.fullmatch(r"\d+(\.\d+)?", value):
+        return [float(value)]
     return []
 
 
-def benchmark_numbers() -> set[str]:
-    """Every number of the committed benchmark runs (``benchmarks/results/*.json``), also as a
-    percentage (a fraction 0.9998 is quoted as 99.98 %)."""
-    values = [x for p in sorted((ROOT / "benchmarks" / "results").glob("*.json"))
-              for x in _leaves(json.loads(p.read_text()))]
+def prose(text: str) -> str:
+    """``text`` without code blocks and inline code (commands, option values, identifiers): the claims."""
+    return re.sub(r"`[^`\n]*`", "", re.sub(r"```.*?```", "", text, flags=re.S))
+
+
+RESULTS = ROOT / "benchmarks" / "results"
+#: A committed run named in the text: ``engine.json`` or ``benchmarks/results/engine.json``.
+RUN = re.compile(r"\b([a-z0-9][a-z0-9_-]*)\.json\b")
+
+
+def benchmark_numbers(names: set[str] | None = None) -> set[str]:
+    """Every number of the committed benchmark runs ``benchmarks/results/<name>.json`` (all of them
+    when ``names`` is None), also as a percentage (a fraction 0.9998 is quoted as 99.98 %)."""
+    paths = sorted(RESULTS.glob("*.json")) if names is None else [RESULTS / f"{n}.json" for n in sorted(names)]
+    values = [x for p in paths for x in _leaves(json.loads(p.read_text()))]
     return {repr(abs(v)) for v in values} | {repr(abs(100 * v)) for v in values}
 
 
-@pytest.mark.parametrize("page, title, first", [
-    ("README.md", "Speed", None),
-    ("docs/performance.md", None, "**Against the strongest peer.**"),
-    ("docs/performance.md", None, "**The quick start**"),
-    ("docs/testing.md", "Cost", None),
-])
-def test_speed_numbers_come_from_the_committed_benchmark_runs(page, title, first):
-    text = (ROOT / page).read_text()
-    body = section(text, title) if title else text[text.index(first):].split("\n\n", 1)[0]
-    missing = unmatched(numbers(body), benchmark_numbers())
-    assert not missing, f"{page}: numbers not in benchmarks/results/*.json: {missing}"
+def cited_runs(text: str) -> set[str]:
+    """The committed runs a text names (each must exist)."""
+    names = set(RUN.findall(text))
+    missing = [n for n in names if not (RESULTS / f"{n}.json").exists()]
+    assert not missing, f"the text names runs that are not committed: {missing}"
+    return names
+
+
+def sections(text: str) -> list[tuple[str, str]]:
+    """(title, body) of the ``## `` sections of a markdown page; the part before the first is ``""``."""
+    parts = re.split(r"^## (.+)$", text, flags=re.M)
+    return [("", parts[0])] + list(zip(parts[1::2], parts[2::2]))
+
+
+@pytest.mark.parametrize("page, title", [("README.md", "Speed"), ("docs/testing.md", "Cost")])
+def test_speed_numbers_come_from_the_runs_they_cite(page, title):
+    body = section((ROOT / page).read_text(), title)
+    missing = unmatched(numbers(prose(body)), benchmark_numbers(cited_runs(body)))
+    assert not missing, f"{page} '{title}': numbers not in the runs it names ({cited_runs(body)}): {missing}"
+
+
+PERFORMANCE = sections((ROOT / "docs" / "performance.md").read_text())
+
+
+@pytest.mark.parametrize("title, body", PERFORMANCE, ids=[title or "intro" for title, _ in PERFORMANCE])
+def test_every_number_of_the_performance_page_comes_from_the_runs_its_section_cites(title, body):
+    """docs/performance.md, section by section: every number in its prose is in the committed runs the
+    section names (``engine.json``), those of the section on FISTA iterations also in study 10's results;
+    code and commands are not claims and are left out. A section that names no run states no number."""
+    source = benchmark_numbers(cited_runs(body))
+    if title == "How many FISTA iterations":
+        source |= numbers(results_text("fista_iterations"))
+    missing = unmatched(numbers(prose(body)), source)
+    assert not missing, f"docs/performance.md '{title}': numbers in none of {sorted(cited_runs(body))}: {missing}"
 
 
 def test_the_studies_summary_cites_their_results():

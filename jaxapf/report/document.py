@@ -12,6 +12,8 @@ from typing import Any, Sequence
 
 import pandas as pd
 
+from ..simulate.figures import DPI
+
 __all__ = ["FigureFile", "Document", "render_markdown", "render_html", "save_figure"]
 
 
@@ -118,7 +120,7 @@ def save_figure(fig: Any, name: str, caption: str, figdir: pathlib.Path, svg: bo
 
     figdir.mkdir(parents=True, exist_ok=True)
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
+    fig.savefig(buf, format="png", dpi=DPI)
     png = buf.getvalue()
     (figdir / f"{name}.png").write_bytes(png)
     if svg:

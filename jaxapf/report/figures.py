@@ -22,6 +22,7 @@ from matplotlib.lines import Line2D
 from .. import stats
 from ..metrics import METRICS
 from ..planners import PLANNERS
+from ..simulate.figures import panel_grid
 from .document import FigureFile, save_figure
 from .load import ReportError, report_metrics
 from .select import Selection, format_value, ignored_columns, swept_columns, symbol
@@ -41,9 +42,6 @@ __all__ = [
 
 #: The heatmaps' gains unless ``--heatmap`` names others; a sweep without them gets a note instead.
 DEFAULT_HEATMAP = ("gamma", "k")
-#: Panels per row of a multi-panel figure, and the widest figure in pixels (readable at page width).
-COLUMNS = 3
-MAX_WIDTH = 2400
 
 _GROUP_MARKERS = ("o", "s", "^", "D", "v", "P", "X", "<", ">", "h")
 
@@ -134,28 +132,10 @@ def plot_heatmaps(cells: pd.DataFrame, x: str, y: str, value: str, title: str) -
 # --------------------------------------------------------------------------------------------
 
 
-def _figsize(width: float, height: float) -> tuple[float, float]:
-    """A figure size in inches that fits a page: at most :data:`MAX_WIDTH` px wide at the reports'
-    110 dpi, and at most 3:1 wide (a wide figure is given height, never squeezed)."""
-    width = min(width, MAX_WIDTH / 110)
-    return width, max(height, width / 2.9)
-
-
-def _grid(fig: Figure, n: int, **kwargs) -> np.ndarray:
-    """``n`` panels in rows of at most :data:`COLUMNS`, the unused cells removed; returned flat."""
-    ncols = min(n, COLUMNS)
-    axes = fig.subplots(math.ceil(n / ncols), ncols, squeeze=False, **kwargs)
-    for ax in axes.reshape(-1)[n:]:
-        ax.remove()
-    return axes
-
-
 def _group_panels(n: int, ylabel: str) -> tuple[Figure, np.ndarray]:
-    """``n`` panels, one per family group, in rows of at most :data:`COLUMNS`, sharing a fraction
-    axis (0 to 1) whose label and ticks only the first column carries."""
-    ncols, nrows = min(n, COLUMNS), math.ceil(n / COLUMNS)
-    fig = Figure(figsize=_figsize(4.0 * ncols + 0.4, 3.3 * nrows + 1.0), layout="constrained")
-    axes = _grid(fig, n, sharey=True).reshape(-1)[:n]
+    """``n`` panels, one per family group, sharing a fraction axis (0 to 1) whose label and ticks
+    only the first column carries."""
+    fig, axes = panel_grid(n, (4.0, 3.3), (0.4, 1.0), sharey=True)
     for ax in axes:
         if ax.get_subplotspec().is_first_col():
             ax.set_ylabel(ylabel)
@@ -226,17 +206,22 @@ def plot_performance_profile(taus: np.ndarray, curves: Mapping[str, Mapping[int,
 # --------------------------------------------------------------------------------------------
 
 
+def _setting_ticks(axes: np.ndarray, names: Sequence[str]) -> None:
+    """The settings' names down the first column of panels that share their y axis, first on top."""
+    for ax in axes:
+        if ax.get_subplotspec().is_first_col():
+            ax.set_yticks(range(len(names)), names, fontsize=7)
+    axes[0].invert_yaxis()
+
+
 def _point_panels(summary: pd.DataFrame, columns: Sequence[tuple[str, str, str, str]], labels: Mapping[int, str],
                   title: str, percent: bool) -> Figure:
     """One panel per (estimate, lower, upper, axis label); settings on y, family groups offset."""
     settings = list(labels)
     groups = list(dict.fromkeys(summary["family"]))
     gcolors = _group_colors(groups)
-    ncols, nrows = min(len(columns), COLUMNS), math.ceil(len(columns) / COLUMNS)
     height = 0.8 + 0.32 * len(settings) * max(1.0, len(groups) / 3)
-    fig = Figure(figsize=_figsize(3.6 * ncols + 2.6, min(height * nrows + 1.0, 40.0)), layout="constrained")
-    grid = _grid(fig, len(columns), sharey=True)
-    axes = grid.reshape(-1)
+    fig, axes = panel_grid(len(columns), (3.6, height), (2.6, 1.0), max_height=40.0, sharey=True)
     offsets = np.linspace(-0.3, 0.3, len(groups)) if len(groups) > 1 else np.zeros(1)
     scale = 100.0 if percent else 1.0
     for ax, (est, lo, hi, name) in zip(axes, columns):
@@ -256,9 +241,7 @@ def _point_panels(summary: pd.DataFrame, columns: Sequence[tuple[str, str, str, 
                         elinewidth=1, capsize=2, label=group)
         ax.set_xlabel(name)
         ax.grid(True, axis="x", linewidth=0.4, alpha=0.5)
-    for row in grid:
-        row[0].set_yticks(range(len(settings)), [labels[s] for s in settings], fontsize=7)
-    axes[0].invert_yaxis()
+    _setting_ticks(axes, [labels[s] for s in settings])
     handles = [Line2D([], [], marker=m, color=gcolors[g], linestyle="", label=g)
                for g, m in zip(groups, _GROUP_MARKERS * 10)]
     _legend_below(fig, handles, ncol=min(len(handles), 6))
@@ -288,11 +271,8 @@ def plot_differences(comparisons: pd.DataFrame, labels: Mapping[int, str], metri
     in percentage points as in the tables, continuous metrics in their units; grey band: the relevance
     margin. Filled markers: Holm-adjusted p <= ``alpha``; open markers: not significant."""
     settings = [s for s in labels if s in set(comparisons["setting"])]
-    ncols, nrows = min(len(metrics), COLUMNS), math.ceil(len(metrics) / COLUMNS)
-    fig = Figure(figsize=_figsize(3.4 * ncols + 2.6, (0.8 + 0.3 * max(len(settings), 1)) * nrows + 1.0),
-                 layout="constrained")
-    grid = _grid(fig, len(metrics), sharey=True)
-    for ax, metric in zip(grid.reshape(-1), metrics):
+    fig, axes = panel_grid(len(metrics), (3.4, 0.8 + 0.3 * max(len(settings), 1)), (2.6, 1.0), sharey=True)
+    for ax, metric in zip(axes, metrics):
         sub = comparisons[comparisons["metric"] == metric].set_index("setting")
         rate = METRICS.get(metric).kind == "rate"
         scale = 100.0 if rate else 1.0
@@ -321,9 +301,7 @@ def plot_differences(comparisons: pd.DataFrame, labels: Mapping[int, str], metri
             name += " (no pairs)"
         ax.set_xlabel(name, fontsize=8)
         ax.grid(True, axis="x", linewidth=0.4, alpha=0.5)
-    for row in grid:
-        row[0].set_yticks(range(len(settings)), [labels[s] for s in settings], fontsize=7)
-    grid[0][0].invert_yaxis()
+    _setting_ticks(axes, [labels[s] for s in settings])
     fig.suptitle(f"Paired differences, setting − baseline ({baseline}); green: better, red: worse, filled: "
                  f"Holm p ≤ {alpha:g}, grey band: relevance margin", fontsize=9)
     return fig

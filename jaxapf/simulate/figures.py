@@ -273,15 +273,27 @@ def _aspect(xlim: tuple[float, float], ylim: tuple[float, float]) -> float:
 
 #: Panels per row of a figure with one panel per run (rows of three stay readable at page width).
 PANELS_PER_ROW = 3
+#: The figures' resolution (``simulate`` and ``report``), and the widest figure in pixels at it
+#: (readable at a page's width).
+DPI = 110
+MAX_WIDTH = 2400
 
 
-def _panel_grid(fig: Figure, n: int, **kwargs) -> np.ndarray:
-    """``n`` axes in rows of at most :data:`PANELS_PER_ROW` (unused cells removed), returned flat."""
-    ncols = min(n, PANELS_PER_ROW)
-    axes = fig.subplots(math.ceil(n / ncols), ncols, squeeze=False, **kwargs).reshape(-1)
+def panel_grid(n: int, panel: tuple[float, float], margin: tuple[float, float],
+               max_height: float | None = None, **subplot_kw) -> tuple[Figure, np.ndarray]:
+    """A constrained-layout figure of ``n`` panels of ``panel`` inches (plus ``margin`` inches for
+    titles, labels and legend) in rows of at most :data:`PANELS_PER_ROW`, unused cells removed; at
+    most :data:`MAX_WIDTH` px wide at :data:`DPI` and at most 3:1 (a wide figure is given height,
+    never squeezed). Returns the figure and its ``n`` axes, flat, in reading order."""
+    ncols, nrows = min(n, PANELS_PER_ROW), math.ceil(n / PANELS_PER_ROW)
+    width = min(panel[0] * ncols + margin[0], MAX_WIDTH / DPI)
+    height = panel[1] * nrows + margin[1]
+    height = max(min(height, max_height) if max_height else height, width / 2.9)
+    fig = Figure(figsize=(width, height), layout="constrained")
+    axes = fig.subplots(nrows, ncols, squeeze=False, **subplot_kw).reshape(-1)
     for ax in axes[n:]:
         ax.remove()
-    return axes[:n]
+    return fig, axes[:n]
 
 
 def _suptitle(fig, text: str, **kwargs) -> None:
@@ -417,9 +429,7 @@ def plot_trajectories(runs: Sequence[Run], field: Field, title: str | None = Non
     colors = run_colors(runs)
     n = len(runs)
     xlim, ylim = _xy_bounds(runs, field, [r.t_end for r in runs])
-    ncols, nrows = min(n, PANELS_PER_ROW), math.ceil(n / PANELS_PER_ROW)
-    fig = Figure(figsize=(4.6 * ncols + 0.4, (4.3 * _aspect(xlim, ylim) + 0.5) * nrows + 1.4), layout="constrained")
-    axes = _panel_grid(fig, n, sharex=True, sharey=True)
+    fig, axes = panel_grid(n, (4.6, 4.3 * _aspect(xlim, ylim) + 0.5), (0.4, 1.4), sharex=True, sharey=True)
     for ax, run in zip(axes, runs):
         color = colors[run.label]
         _draw_obstacles_xy(ax, field, 0.0, numbers=True)
@@ -541,9 +551,7 @@ def plot_obstacle_distance(runs: Sequence[Run], field: Field, near: float | None
     _no_runs_guard(runs)
     near = 2.0 * field.d_safe + 3.0 if near is None else float(near)
     n = len(runs)
-    ncols, nrows = min(n, PANELS_PER_ROW), math.ceil(n / PANELS_PER_ROW)
-    fig = Figure(figsize=(5.2 * ncols + 0.4, 3.6 * nrows + 0.8), layout="constrained")
-    axes = _panel_grid(fig, n, sharex=True, sharey=True)
+    fig, axes = panel_grid(n, (5.2, 3.6), (0.4, 0.8), sharex=True, sharey=True)
     # obstacle colours: a palette apart from the run colours and the red collision line
     palette = list(colormaps["Dark2"].colors)
     for ax, run in zip(axes, runs):
@@ -693,7 +701,7 @@ FIGURES: dict[str, Callable[[Sequence[Run], Field], Figure]] = {
 }
 
 
-def plot_all(runs: Sequence[Run], field: Field, out_dir: pathlib.Path | str, dpi: int = 130) -> list[pathlib.Path]:
+def plot_all(runs: Sequence[Run], field: Field, out_dir: pathlib.Path | str, dpi: int = DPI) -> list[pathlib.Path]:
     """Write every figure of :data:`FIGURES` as PNG into ``out_dir`` (created); returns the paths."""
     _no_runs_guard(runs)
     out_dir = pathlib.Path(out_dir)
