@@ -28,8 +28,8 @@ import pandas as pd
 from .. import stats
 from ..metrics import METRICS
 from .document import Document, render_html, render_markdown
-from .figures import DEFAULT_HEATMAP, report_figures
-from .gallery import GalleryWorker
+from .figures import DEFAULT_HEATMAP, table_figures
+from .gallery import RowWorker
 from .latex import latex_tables
 from .load import ReportError, load_sweep, report_metrics
 from .select import format_value, select
@@ -146,13 +146,14 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
     rates, continuous = report_metrics(sel.data.columns)
     out.mkdir(parents=True, exist_ok=True)
     figdir = out / "figures"
-    # the gallery (re-simulations and their figures) is made in a second process meanwhile
-    with GalleryWorker(sel, meta, options, figdir) as worker:
+    # the figures drawn from the rows alone and the gallery are made in a second process meanwhile
+    with RowWorker(sel, meta, options, figdir) as worker:
         summary = summarize(sel.data, sel.settings, sel.table, sel.labels, options)
         comparisons = compare(sel.data, sel.pairs, sel.labels, options)
-        figures, fig_notes = report_figures(sel, summary, comparisons, options, figdir)
-        shown, gallery_notes = worker.result()
-    notes = sel.notes + fig_notes + gallery_notes
+        figures = table_figures(sel, summary, comparisons, options, figdir)
+        row_figs, shown, worker_notes = worker.result()
+    figures += row_figs
+    notes = sel.notes + worker_notes
     incomplete = None
     if meta.get("complete") is False and meta.get("rows_expected"):
         incomplete = (f"the sweep is incomplete: {len(df)} of {meta['rows_expected']} episodes are present "

@@ -3,8 +3,8 @@
 Every ``plot_*`` function returns a :class:`matplotlib.figure.Figure` (rendered through the Agg
 canvas that ``Figure.savefig`` attaches), so nothing here selects or depends on a GUI backend. The
 numbers come from the summary and comparison tables (:mod:`jaxapf.report.tables`) or from the
-episode rows directly; :func:`report_figures` draws every figure of a report. Line styles come from
-the registered planners.
+episode rows directly (:func:`table_figures`, :func:`row_figures`: together every figure of a
+report). Line styles come from the registered planners.
 """
 
 from __future__ import annotations
@@ -36,7 +36,8 @@ __all__ = [
     "plot_continuous",
     "plot_differences",
     "plot_performance_profile",
-    "report_figures",
+    "row_figures",
+    "table_figures",
     "DEFAULT_HEATMAP",
 ]
 
@@ -382,39 +383,19 @@ def _profile_taus(values: np.ndarray) -> np.ndarray:
     return np.linspace(lo - pad, hi + pad, 200)
 
 
-def report_figures(sel: Selection, summary: pd.DataFrame, comparisons: pd.DataFrame, options: Any,
-                   figdir: pathlib.Path) -> tuple[list[FigureFile], list[str]]:
-    """Every figure of a report (heatmaps, ECDF, rates, continuous metrics, differences, profile),
-    written to ``figdir``, and notes on what was skipped."""
+def row_figures(sel: Selection, options: Any, figdir: pathlib.Path) -> tuple[list[FigureFile], list[str]]:
+    """The figures drawn from the episode rows alone (heatmaps, ECDF of the clearance, performance
+    profile), written to ``figdir``, and notes on what was skipped. They need no statistics, so a
+    report draws them in its second process (:class:`jaxapf.report.gallery.RowWorker`)."""
     labels = {s: sel.labels[s] for s in sel.settings}
     methods = {s: str(sel.table.at[s, "method"]) for s in sel.settings}
     names = groups(sel.data)
-    rates, continuous = report_metrics(sel.data.columns)
-    units = {m: METRICS.get(m).unit for m in continuous}
     figures, notes = _heatmap_figures(sel, options, figdir)
-
     clearance = {g: {s: group_rows(sel.data[sel.data["setting"] == s], g)["min_clearance"].to_numpy(np.float64)
                      for s in sel.settings} for g in names}
     figures.append(save_figure(plot_ecdf(clearance, labels, methods, "min_clearance", "m"), "ecdf_min_clearance",
                                "Empirical CDF of the minimum clearance per setting (left of 0: collision)", figdir,
                                options.svg))
-    figures.append(save_figure(plot_rates(summary, labels, rates, options.confidence), "rates",
-                               f"{', '.join(rates).capitalize()} rates with {100 * options.confidence:g} % Wilson "
-                               "intervals", figdir, options.svg))
-    figures.append(save_figure(plot_continuous(summary, labels, continuous, units, options.confidence), "continuous",
-                               "Interquartile means of the continuous metrics with stratified bootstrap intervals "
-                               "(metrics meaningful only on successes: successful episodes)", figdir, options.svg))
-    if len(comparisons):
-        group = headline(names)
-        pooled = comparisons[comparisons["family"] == group]
-        bases = pd.unique(pooled["baseline_label"])
-        baseline = bases[0] if len(bases) == 1 else f"{options.baseline}, each setting's own"
-        figures.append(save_figure(plot_differences(pooled, labels, rates + continuous, options.alpha, baseline),
-                                   "differences", f"Paired differences to the baseline {baseline} ({group}): rates "
-                                   "as the difference in proportions in percentage points (Newcombe interval), "
-                                   "continuous metrics as the Hodges-Lehmann shift in their units (signed-rank "
-                                   "interval); filled = Holm-significant, grey band = relevance margin", figdir,
-                                   options.svg))
     metric = options.profile_metric
     values = sel.data[metric].to_numpy(np.float64)
     taus = _profile_taus(values)
@@ -436,3 +417,29 @@ def report_figures(sel: Selection, summary: pd.DataFrame, comparisons: pd.DataFr
     return figures, notes
 
 
+def table_figures(sel: Selection, summary: pd.DataFrame, comparisons: pd.DataFrame, options: Any,
+                  figdir: pathlib.Path) -> list[FigureFile]:
+    """The figures drawn from the report's tables (rates, continuous metrics, paired differences),
+    written to ``figdir``."""
+    labels = {s: sel.labels[s] for s in sel.settings}
+    names = groups(sel.data)
+    rates, continuous = report_metrics(sel.data.columns)
+    units = {m: METRICS.get(m).unit for m in continuous}
+    figures = [save_figure(plot_rates(summary, labels, rates, options.confidence), "rates",
+                           f"{', '.join(rates).capitalize()} rates with {100 * options.confidence:g} % Wilson "
+                           "intervals", figdir, options.svg),
+               save_figure(plot_continuous(summary, labels, continuous, units, options.confidence), "continuous",
+                           "Interquartile means of the continuous metrics with stratified bootstrap intervals "
+                           "(metrics meaningful only on successes: successful episodes)", figdir, options.svg)]
+    if len(comparisons):
+        group = headline(names)
+        pooled = comparisons[comparisons["family"] == group]
+        bases = pd.unique(pooled["baseline_label"])
+        baseline = bases[0] if len(bases) == 1 else f"{options.baseline}, each setting's own"
+        figures.append(save_figure(plot_differences(pooled, labels, rates + continuous, options.alpha, baseline),
+                                   "differences", f"Paired differences to the baseline {baseline} ({group}): rates "
+                                   "as the difference in proportions in percentage points (Newcombe interval), "
+                                   "continuous metrics as the Hodges-Lehmann shift in their units (signed-rank "
+                                   "interval); filled = Holm-significant, grey band = relevance margin", figdir,
+                                   options.svg))
+    return figures
