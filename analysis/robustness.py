@@ -130,7 +130,7 @@ def run(spec, count: int) -> pd.DataFrame:
     and worlds of one static setting are one vmap over gain settings."""
     from jaxapf import Gains
     from jaxapf.config import MPCConfig, SimConfig
-    from jaxapf.rollout import evaluate
+    from jaxapf.engine import evaluate
 
     groups = fields(spec, count)
     mpc = MPCConfig()

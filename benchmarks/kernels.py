@@ -42,13 +42,13 @@ def kernel_cost(fields: int = 1024, obstacles: int = 16, iterations: int = 2000,
     Each of :data:`KERNEL_OPS` is applied ``iterations`` times in a ``lax.scan`` (as the APF flow and
     FISTA apply theirs) to a float32 array in the engine's vmapped layout, ``(fields, obstacles)``
     (batch-major: the obstacle axis is the contiguous one), and transposed, ``(obstacles,
-    fields)``; each is compiled with :data:`~jaxapf.rollout.XLA_OPTIONS` ("shipped": XLA's classic
+    fields)``; each is compiled with :data:`~jaxapf.engine.XLA_OPTIONS` ("shipped": XLA's classic
     loop emitter) and with ``xla_cpu_use_fusion_emitters = True`` ("fusion emitters"). Reported:
     wall picoseconds per element and iteration, the fastest of ``repeats`` interleaved runs. An
     operation that runs one element at a time costs about a nanosecond or more per element; a
     vectorised one a fraction of that.
     """
-    from jaxapf.rollout import XLA_OPTIONS
+    from jaxapf.engine import XLA_OPTIONS
 
     fields = check_int("bench.fields", fields, 1)
     obstacles = check_int("bench.obstacles", obstacles, 1)

@@ -1,4 +1,4 @@
-"""Time the engine compiled with ``jaxapf.rollout.XLA_OPTIONS`` against the same with other XLA options.
+"""Time the engine compiled with ``jaxapf.engine.XLA_OPTIONS`` against the same with other XLA options.
 
     python benchmarks/xla_options.py --xla-option xla_cpu_use_fusion_emitters=true [--json]
 
@@ -53,7 +53,7 @@ def _max_abs_diff(a: Any, b: Any) -> float:
 def compare_xla_options(overrides: dict[str, Any], fields: int = 1024, obstacles: int = 16, horizon: int = 20,
                         iters: int = 30, steps: int = 300, family: str = "clutter", width: int | None = None,
                         repeats: int = 5) -> dict[str, Any]:
-    """The engine compiled with :data:`~jaxapf.rollout.XLA_OPTIONS` ("shipped") and with
+    """The engine compiled with :data:`~jaxapf.engine.XLA_OPTIONS` ("shipped") and with
     ``XLA_OPTIONS | overrides`` ("override"), both from one lowering of the benchmark case
     (the work as in :func:`run_benchmark`), timed in this
     process: the fastest of ``repeats`` interleaved steady runs of each (so the ratio of the two is
@@ -66,7 +66,7 @@ def compare_xla_options(overrides: dict[str, Any], fields: int = 1024, obstacles
     send a few episodes down another path), each variant's ``rates`` and ``max_abs_diff`` of every
     metric.
     """
-    from jaxapf.rollout import XLA_OPTIONS
+    from jaxapf.engine import XLA_OPTIONS
 
     repeats = check_int("bench.repeats", repeats, 1)
     c = bench_case(fields, obstacles, horizon, iters, steps, family, width=width)

@@ -13,8 +13,6 @@ components declare their gains (:class:`GainSpec`), which become sweep keys, CLI
 parameters.
 """
 
-import sys
-import types
 from importlib import import_module
 
 #: public name -> the module it lives in, imported on first use (PEP 562): ``import jaxapf`` and the
@@ -24,19 +22,18 @@ _LAZY = {
     "SimConfig": ".config", "VehicleConfig": ".config", "WorldConfig": ".config",
     "FILTERS": ".control", "Passthrough": ".control", "SafetyFilter": ".control", "register_filter": ".control",
     "ObstacleColumns": ".datatypes", "Obstacles": ".datatypes", "Scenario": ".datatypes", "Trajectory": ".datatypes",
-    "DISTURBANCES": ".dynamics", "PLANTS": ".dynamics", "Disturbance": ".dynamics", "DoubleIntegrator": ".dynamics",
-    "Plant": ".dynamics", "Quadrotor": ".dynamics", "register_disturbance": ".dynamics",
-    "register_plant": ".dynamics",
+    "DISTURBANCES": ".world", "PLANTS": ".world", "Disturbance": ".world", "DoubleIntegrator": ".world",
+    "Plant": ".world", "Quadrotor": ".world", "register_disturbance": ".world", "register_plant": ".world",
+    "SENSORS": ".world", "Sensor": ".world", "register_sensor": ".world",
     "evaluate_frame": ".frame",
     "GAINS": ".gains", "Gains": ".gains", "GainSpec": ".gains", "declare_gains": ".gains", "load_gains": ".gains",
     "METRICS": ".metrics", "EpisodeContext": ".metrics", "Metric": ".metrics", "episode_metrics": ".metrics",
     "register_metric": ".metrics",
     "APF": ".planners", "PLANNERS": ".planners", "WEIGHTS": ".planners", "ForceTerm": ".planners",
     "Planner": ".planners", "Weight": ".planners", "register_planner": ".planners", "register_weight": ".planners",
-    "evaluate": ".rollout", "rollout": ".rollout", "rollout_metrics": ".rollout",
+    "evaluate": ".engine", "rollout": ".engine", "rollout_metrics": ".engine",
     "FAMILIES": ".scenarios", "FamilyParams": ".scenarios", "family_params": ".scenarios",
     "make_scenarios": ".scenarios", "register_family": ".scenarios",
-    "SENSORS": ".sensing", "Sensor": ".sensing", "register_sensor": ".sensing",
     "BoundWarning": ".validation", "ConfigError": ".validation",
 }
 
@@ -56,16 +53,3 @@ def __getattr__(name: str):
 
 def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_LAZY))
-
-
-class _Package(types.ModuleType):
-    """``jaxapf.rollout`` is the function: importing the submodule of the same name (which the import
-    system then sets as the package's attribute) must not replace it; the module stays in ``sys.modules``."""
-
-    def __setattr__(self, name: str, value) -> None:
-        if name in _LAZY and isinstance(value, types.ModuleType):
-            return
-        super().__setattr__(name, value)
-
-
-sys.modules[__name__].__class__ = _Package

@@ -25,7 +25,7 @@ from typing import Any
 
 __all__ = ["catalog", "live", "fingerprint", "catalog_path"]
 
-#: ``jaxapf list`` targets and the component key (:data:`jaxapf.components.COMPONENTS`) of each component.
+#: ``jaxapf list`` targets and the component key (:data:`jaxapf.engine.components.COMPONENTS`) of each component.
 COMPONENT_LISTS = {"planners": "method", "filters": "filter", "plants": "plant", "sensors": "sensor",
                    "disturbances": "disturbance"}
 LISTS = (*COMPONENT_LISTS, "families", "metrics", "gains")
@@ -54,8 +54,8 @@ def catalog_path() -> pathlib.Path:
 
 def live() -> dict[str, Any]:
     """The catalogue read from the registries as they are in this process (imports them, and JAX)."""
-    from .components import COMPONENTS
     from .config import CONVENTIONS, MPCConfig, SimConfig
+    from .engine.components import COMPONENTS
     from .gains import GAINS
     from .metrics import METRICS
     from .scenarios import FAMILIES

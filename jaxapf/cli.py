@@ -39,7 +39,7 @@ def _catalog() -> dict:
         return _CATALOG
     from .catalog import catalog
 
-    return catalog(fresh="jaxapf.components" in sys.modules)
+    return catalog(fresh="jaxapf.engine.components" in sys.modules)
 
 
 def _names(what: str) -> tuple[str, ...]:
@@ -466,7 +466,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     # with plugins, or with the registries imported already (their entries may have changed in this process),
     # read them live: that costs nothing more then
-    _CATALOG = catalog(fresh=bool(known.plugin) or "jaxapf.components" in sys.modules)
+    _CATALOG = catalog(fresh=bool(known.plugin) or "jaxapf.engine.components" in sys.modules)
     args = build_parser().parse_args(argv)
     import warnings
 

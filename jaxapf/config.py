@@ -111,7 +111,7 @@ class VehicleConfig:
     """The vehicle: plant model, limits and size (SPEC 1).
 
     Attributes:
-      plant: a name of :data:`jaxapf.dynamics.PLANTS` (``double_integrator``: the MPC's own model).
+      plant: a name of :data:`jaxapf.world.PLANTS` (``double_integrator``: the MPC's own model).
       a_max: per-axis acceleration limit [m/s²] > 0 (hard box of the MPC).
       v_max: per-axis velocity limit [m/s] > 0 (MPC penalty; also the norm cap of the reference).
       r_uav: UAV sphere radius [m] >= 0.
@@ -133,21 +133,21 @@ class VehicleConfig:
         check_int("sim.substeps", self.substeps, 1, 10_000)
 
 
-#: How the noisy sensor estimates an obstacle's velocity (:mod:`jaxapf.sensing`).
+#: How the noisy sensor estimates an obstacle's velocity (:mod:`jaxapf.world.sensing`).
 VELOCITY_ESTIMATES = ("measured", "differenced")
 
 
 @dataclasses.dataclass(frozen=True)
 class WorldConfig:
-    """What stands between the world and the avoidance stack (:mod:`jaxapf.sensing`,
-    :mod:`jaxapf.dynamics.wind`); the plant and the metrics always see the truth.
+    """What stands between the world and the avoidance stack (:mod:`jaxapf.world.sensing`,
+    :mod:`jaxapf.world.wind`); the plant and the metrics always see the truth.
 
     Attributes:
       sensor: how the planner, MPC and filter see the UAV and the obstacles, a name of
-        :data:`jaxapf.sensing.SENSORS` (``ideal``: the truth, instantly; ``noisy``: noise, range,
+        :data:`jaxapf.world.sensing.SENSORS` (``ideal``: the truth, instantly; ``noisy``: noise, range,
         latency and dropout, each set by a traced gain).
       disturbance: what acts on the plant besides the command, a name of
-        :data:`jaxapf.dynamics.DISTURBANCES` (``none``; ``wind``: a constant wind with
+        :data:`jaxapf.world.DISTURBANCES` (``none``; ``wind``: a constant wind with
         Ornstein-Uhlenbeck gusts).
       velocity_estimate: the noisy sensor's obstacle velocity: ``measured`` (truth plus noise of
         ``sigma_obs_v``) or ``differenced`` (finite difference of two consecutive noisy positions).

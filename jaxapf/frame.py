@@ -1,6 +1,6 @@
 """One call from a notebook to a table: fields × gain settings → the rows a sweep would write.
 
-:func:`evaluate_frame` runs :func:`~jaxapf.rollout.evaluate` on fields ``0 … F-1`` of a family and
+:func:`evaluate_frame` runs :func:`~jaxapf.engine.evaluate` on fields ``0 … F-1`` of a family and
 returns its (G, F) metric arrays as a :class:`pandas.DataFrame` with a sweep's columns
 (docs/sweep-format.md): it states the call as a sweep spec (:func:`jaxapf.sweep.parse_spec`, one
 ``[[setting]]`` table per gain setting) and builds the rows with the sweep's own code
@@ -49,7 +49,7 @@ def evaluate_frame(family: str | FamilyParams, gains: Gains | None = None, sim: 
       sim, mpc: static settings (default: :class:`SimConfig` with the family's ``t_max``, :class:`MPCConfig`).
       fields: the number of fields F; field ``i`` is ``make_scenarios(seed, params, [i])``, the same
         field a sweep with this seed flies.
-      metrics, width, streaming: as :func:`~jaxapf.rollout.evaluate` (default: every metric).
+      metrics, width, streaming: as :func:`~jaxapf.engine.evaluate` (default: every metric).
       solvable: add the ``solvable`` column (:func:`~jaxapf.scenarios.solvable`, a sweep's ``oracle``).
 
     Returns:
@@ -66,8 +66,8 @@ def evaluate_frame(family: str | FamilyParams, gains: Gains | None = None, sim: 
     """
     import jax
 
+    from .engine import default_width, evaluate
     from .metrics import METRICS
-    from .rollout import default_width, evaluate
     from .scenarios import make_scenarios
     from .scenarios import solvable as solvable_fields
     from .sweep import parse_spec, plan_sweep, sweep_meta

@@ -2,7 +2,7 @@
 
 Every component a user can add -- planners, safety filters, plants, scenario families, metrics,
 declared gains -- lives in a :class:`Registry` owned by the module of its concept
-(:data:`jaxapf.planners.PLANNERS`, :data:`jaxapf.control.FILTERS`, :data:`jaxapf.dynamics.PLANTS`,
+(:data:`jaxapf.planners.PLANNERS`, :data:`jaxapf.control.FILTERS`, :data:`jaxapf.world.PLANTS`,
 :data:`jaxapf.scenarios.FAMILIES`, :data:`jaxapf.metrics.METRICS`, :data:`jaxapf.gains.GAINS`).
 Registering is the only step: sweep specs, CLI flags and help texts, reports, ``jaxapf list`` and
 ``jaxapf tune`` read the registries, so nothing else is edited (``docs/extending.md``).

@@ -1,7 +1,7 @@
 """What the closed loop's stateful stages share: declared gains, a state through the episode, a registry.
 
-A safety filter (:mod:`jaxapf.control.filters`), a sensing model (:mod:`jaxapf.sensing`) and a
-disturbance (:mod:`jaxapf.dynamics.wind`) are each a :class:`Stage`: a frozen dataclass that declares
+A safety filter (:mod:`jaxapf.control.filters`), a sensing model (:mod:`jaxapf.world.sensing`) and a
+disturbance (:mod:`jaxapf.world.wind`) are each a :class:`Stage`: a frozen dataclass that declares
 the gains it reads and makes its state at the start of an episode with :meth:`Stage.init` (optax's
 ``init``; each kind adds its own call). :func:`register_stage` declares a stage's gains and enters it
 in its kind's registry.

@@ -64,8 +64,8 @@ def outcomes(scenario: Scenario, methods, t_max: float = 40.0) -> dict[str, dict
 
     from jaxapf import Gains
     from jaxapf.config import MPCConfig, SimConfig
+    from jaxapf.engine import rollout
     from jaxapf.metrics import episode_metrics
-    from jaxapf.rollout import rollout
 
     mpc, out = MPCConfig(horizon=10, iters=20), {}
     for method in methods:

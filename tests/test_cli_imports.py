@@ -85,16 +85,18 @@ def test_the_installed_command_imports_no_jax(tmp_path):
     assert not any(r["jax"] for r in _calls(tmp_path, [["--help"], ["list", "planners"]], stub=False))
 
 
-def test_the_lazy_package_gives_every_public_name_and_rollout_stays_the_function():
+def test_the_lazy_package_gives_every_public_name_and_no_name_shadows_a_module():
     code = textwrap.dedent("""
-        import sys, types
+        import importlib.util, pkgutil, sys
         import jaxapf
         assert "jax" not in sys.modules
         # the first public name loads the engine: every component's gains are declared (docs/api.md's start)
         assert jaxapf.Gains.grid(gamma=[0.5, 1.0], k=[1.0]).gamma.shape == (2,)
-        import jaxapf.rollout  # the submodule named like the function: the attribute stays the function
-        assert isinstance(sys.modules["jaxapf.rollout"], types.ModuleType)
-        assert callable(jaxapf.rollout) and jaxapf.rollout is sys.modules["jaxapf.rollout"].rollout
+        # no public name is also a submodule: `import jaxapf.<module>` always gives the module
+        modules = {m.name for m in pkgutil.iter_modules(jaxapf.__path__)}
+        assert not modules & set(jaxapf.__all__), modules & set(jaxapf.__all__)
+        import jaxapf.engine
+        assert callable(jaxapf.rollout) and jaxapf.rollout is jaxapf.engine.rollout
         namespace = {}
         exec("from jaxapf import *", namespace)
         missing = set(jaxapf.__all__) - set(namespace)

@@ -49,7 +49,7 @@ CHECK = textwrap.dedent("""
     lag = rows.groupby("tau")["mean_speed"].mean()
     # a weight is also called with no goal (sight.goal None): its reference value, the functional API
     import jaxapf
-    from jaxapf.potentials import weight
+    from jaxapf.planners.potentials import weight
     gains = jaxapf.Gains()
     p, v, p_o = jnp.array([0.0, 0.0, 2.0]), jnp.array([1.0, 0.0, 0.0]), jnp.array([3.0, 0.5, 2.0])
     no_goal = [float(weight(p, v, p_o, jnp.zeros(3), method=m, convention="intent", **gains.floats()))

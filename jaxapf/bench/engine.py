@@ -2,7 +2,7 @@ r"""Engine speed: the batched JAX evaluator against the numpy + OSQP oracle on t
 
 :func:`run_benchmark` measures, in one process and on the same fields,
 
-* the **engine** (:func:`jaxapf.rollout.evaluate`, one compiled call over all fields): trace +
+* the **engine** (:func:`jaxapf.engine.evaluate`, one compiled call over all fields): trace +
   lowering time, XLA compile time (``jit(...).lower(...).compile()``, so no run is mixed in), the
   first run of the compiled executable (includes any one-off transfer/allocation) and steady runs
   (``block_until_ready``), one before each oracle field, their median reported; throughput =
@@ -99,7 +99,7 @@ def bench_case(fields: int, obstacles: int, horizon: int, iters: int, steps: int
                method: str = "direction_velocity", width: int | None = None, gains: Gains | None = None,
                scenarios: Any = None) -> dict[str, Any]:
     """Configs, fields (on device) and a batch of one gain setting of a benchmark case."""
-    from ..rollout import default_width
+    from ..engine import default_width
 
     steps = check_int("bench.steps", steps, 1)
     if width is not None:
@@ -121,9 +121,9 @@ def bench_case(fields: int, obstacles: int, horizon: int, iters: int, steps: int
 
 
 def lower_case(case: dict[str, Any]) -> tuple[Any, tuple]:
-    """The engine (:func:`~jaxapf.rollout.evaluate_program`) lowered for a :func:`bench_case`, and its arguments."""
+    """The engine (:func:`~jaxapf.engine.evaluate_program`) lowered for a :func:`bench_case`, and its arguments."""
+    from ..engine import evaluate_program
     from ..metrics import METRICS
-    from ..rollout import evaluate_program
 
     args = (case["scenarios"], case["gains_batch"])
     return evaluate_program.lower(*args, sim=case["sim"], mpc=case["mpc"], width=case["width"],
@@ -173,9 +173,9 @@ def run_benchmark(
         fewer steps is the whole episode's.
       family, seed: scenario family and seed (``make_scenarios(seed, params, fields)``).
       method: planner (``PlannerConfig.method``).
-      width: the vmap width of :func:`~jaxapf.rollout.evaluate` (default:
-        :func:`~jaxapf.rollout.default_width` for the backend).
-      devices: local devices the fields are split over (:class:`~jaxapf.devices.DeviceBatch`, as
+      width: the vmap width of :func:`~jaxapf.engine.evaluate` (default:
+        :func:`~jaxapf.engine.default_width` for the backend).
+      devices: local devices the fields are split over (:class:`~jaxapf.engine.devices.DeviceBatch`, as
         ``jaxapf sweep`` does); ``fields`` must be a multiple. With more than one, compilation is
         not timed apart: ``first_run_s`` includes it.
       gains: one gain setting (default ``Gains()``); the engine runs it as a batch of G = 1.
@@ -212,7 +212,7 @@ def run_benchmark(
         run = lowered.compile()
         t_compile = time.perf_counter() - t0
     else:
-        from ..devices import DeviceBatch
+        from ..engine.devices import DeviceBatch
         from ..metrics import METRICS
 
         batch = DeviceBatch(jax.local_devices()[:devices])

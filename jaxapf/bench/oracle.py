@@ -1,6 +1,6 @@
 r"""The numpy + OSQP oracle: the same closed loop, written again the way a researcher without jaxapf would.
 
-This module re-implements :func:`jaxapf.rollout.rollout` independently, the way a controls
+This module re-implements :func:`jaxapf.engine.rollout` independently, the way a controls
 researcher would write it without JAX: one scenario at a time, a Python loop over control steps,
 numpy for the potentials and the APF reference flow, and the MPC QP handed to OSQP and solved to
 tight tolerance. It serves two purposes:
@@ -23,7 +23,7 @@ Choices (documented because the engine must agree with them):
   derivatives of the line-of-sight unit vector ``∂n/∂p = -σ P (I - n nᵀ)/|s|`` (σ = +1 for
   ``intent``, -1 for ``literal``, ``P`` drops z for a cylinder). The test suite checks it against
   numpy central differences of :func:`total_potential`. The same conventions as
-  :mod:`jaxapf.potentials` are used: ``safe_norm(r) = sqrt(max(|r|², 1e-12))`` (its gradient is
+  :mod:`jaxapf.planners.potentials` are used: ``safe_norm(r) = sqrt(max(|r|², 1e-12))`` (its gradient is
   zero below the floor), the smooth C¹ clearance floor ``d̃ = d_min²/(2 d_min - d)`` for
   ``d < d_min``, ``|v|_ε = sqrt(|v|² + ε²)`` in cos θ, and padded slots masked to exactly zero.
 * **The MPC is the full 3N-variable condensed QP** (paper eq. 8–12): ``X = M x0 + C U`` with the
@@ -363,7 +363,7 @@ def _osqp_major(osqp) -> int:
 
 
 def oracle_rollout(scenario: Any, gains: Any, sim: Any, mpc: Any, *, eps: float = 1e-7) -> dict[str, np.ndarray]:
-    """Simulate one episode with numpy + OSQP, exactly the loop of :func:`jaxapf.rollout.rollout`.
+    """Simulate one episode with numpy + OSQP, exactly the loop of :func:`jaxapf.engine.rollout`.
 
     Each step ``k`` (``t_k = k Δt``): APF reference from the current state, MPC QP solved by OSQP,
     first acceleration applied, plant stepped exactly (double integrator, piecewise-constant a).

@@ -46,7 +46,7 @@ def _bare_run(spec: Any, streaming: bool) -> Any:
     """A timed-run callable of the same episodes as one ``evaluate`` call per (variant, family) on
     pre-generated fields (nothing written), with the streaming or the fixed-length engine, after a
     compiling call."""
-    from ..rollout import evaluate
+    from ..engine import evaluate
     from ..scenarios import make_scenarios
     from ..sweep import plan_sweep
 

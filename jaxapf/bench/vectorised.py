@@ -211,7 +211,7 @@ class _Axes:
 
     def __init__(self, dt: float, mpc: Any, a_max: float, v_max: float, dtype: Any, setup: Any):
         from ..control import axis_problem
-        from ..dynamics import discrete_matrices
+        from ..world import discrete_matrices
 
         prob = axis_problem(mpc, *discrete_matrices(dt, 1, setup))
         as64 = lambda a: np.asarray(a, np.float64)  # noqa: E731
@@ -284,7 +284,7 @@ def vectorised_rollout(scenarios: Any, gains: Any, sim: Any, mpc: Any, *, dtype:
     """Every field of the batch ``scenarios`` (leading axis F) flown with one gain setting ``gains``.
 
     Returns ``time`` (T+1,), ``position``/``velocity`` (F, T+1, 3) and ``control`` (F, T, 3) in
-    ``dtype``: the loop of :func:`jaxapf.rollout.rollout` (APF reference, FISTA MPC with
+    ``dtype``: the loop of :func:`jaxapf.engine.rollout` (APF reference, FISTA MPC with
     ``mpc.iters`` iterations, exact double-integrator step) for all fields at once.
 
     Raises :class:`~jaxapf.validation.ConfigError` for a planner, filter or plant it does not know.

@@ -56,7 +56,7 @@ def run_world_benchmark(fields: int = 256, steps: int = 200, family: str = "dyna
     Returns a JSON-serialisable dict: ``config``, ``environment`` and per variant ``compile_s``,
     ``run_s``, ``cpu_s``, ``us_per_scenario_step`` and ``ratio`` (to ``ideal``).
     """
-    from ..rollout import evaluate_program
+    from ..engine import evaluate_program
     from ..scenarios import family_params, make_scenarios
 
     fields = check_int("bench.fields", fields, 1)

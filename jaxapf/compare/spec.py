@@ -125,7 +125,7 @@ class CompareSpec:
 
     def method_gains(self, method: str) -> tuple[str, ...]:
         """The searched gains ``method`` reads (its planner's, plus the filter's and plant's:
-        :func:`jaxapf.rollout.gains_read`)."""
+        :func:`jaxapf.engine.gains_read`)."""
         read = _gains_read(self.sim, self.settings(method))
         return tuple(g for g in self.selection.gains if g in read)
 
@@ -139,7 +139,7 @@ def _settings(method: str, methods: tuple[str, ...]) -> dict[str, str]:
 
 def _gains_read(sim: Mapping[str, Any], settings: Mapping[str, str]) -> set[str]:
     from ..config import SIM_KEYS, SimConfig
-    from ..rollout import gains_read
+    from ..engine import gains_read
 
     return set(gains_read(SimConfig.from_flat({**{k: v for k, v in sim.items() if k in SIM_KEYS}, **settings})))
 

@@ -36,7 +36,7 @@ import numpy as np
 from jax import Array
 
 from ..config import MPCConfig
-from ..dynamics.double_integrator import discrete_matrices
+from ..world.double_integrator import discrete_matrices
 
 __all__ = [
     "prediction_matrices",
@@ -219,7 +219,7 @@ class AxisProblem:
 def axis_problem(mpc: MPCConfig, a: Array, b: Array) -> AxisProblem:
     """Per-axis condensed matrices for :class:`MPCConfig` ``mpc`` and the model ``x(k+1) = a x(k) + b u(k)``
     of one axis on ``(p, v)`` (a (2, 2), b (2, 1): the plant's
-    :meth:`~jaxapf.dynamics.Plant.linear_model`, the double integrator by default)."""
+    :meth:`~jaxapf.world.Plant.linear_model`, the double integrator by default)."""
     n = mpc.horizon
     dtype = a.dtype
     big_m, c = prediction_matrices(a, b, n)

@@ -42,7 +42,7 @@ class Scenario:
 
     def take(self, i: int | slice | Array) -> "Scenario":
         """Field ``i`` of a batch (leading axis on every leaf) as one :class:`Scenario`, for
-        :func:`~jaxapf.rollout.rollout`; a slice or an index array gives a smaller batch. The same as
+        :func:`~jaxapf.engine.rollout`; a slice or an index array gives a smaller batch. The same as
         ``jax.tree_util.tree_map(lambda x: x[i], batch)``; ``make_scenarios(seed, params, [i])`` is
         the same field again (bit-identical, as a batch of one)."""
         if jnp.ndim(self.start) != 2:

@@ -107,7 +107,7 @@ def certainly_ended(p0: Array, p1: Array, t0: Array, scenario: Scenario, sim: Si
     the episode: its swept clearance is below ``-END_MARGIN`` (a collision) or ``p1`` is within
     ``r_goal - END_MARGIN`` of the goal. The episode-end rules of :func:`episode_end` then hold at
     this sample or an earlier one whatever program rounds them, so the samples flown so far decide
-    every metric. The streaming engine (:mod:`jaxapf.stream`) evaluates it after each step."""
+    every metric. The streaming engine (:mod:`jaxapf.engine.stream`) evaluates it after each step."""
     swept = jnp.min(segment_clearance(p0, p1, scenario.obstacles, t0, t0 + sim.episode.dt, sim.vehicle.r_uav))
     return (swept < -END_MARGIN) | certainly_at_goal(p1, scenario, sim)
 

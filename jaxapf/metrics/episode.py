@@ -65,7 +65,7 @@ Metrics (one scalar each, in registration order)
   incompatible and flew the least-violating velocity (``traj.extras["vo_infeasible"]``); 0 for
   the other planners (int32).
 - ``max_tilt``: the largest tilt [deg] of the body's thrust axis over valid intervals
-  (``traj.extras["tilt"]``, a plant with attitude such as :mod:`jaxapf.dynamics.quadrotor`); 0 for a
+  (``traj.extras["tilt"]``, a plant with attitude such as :mod:`jaxapf.world.quadrotor`); 0 for a
   plant without attitude.
 - ``saturation_time``: time [s] during valid intervals in which some rotor's command was clipped
   (``traj.extras["saturated_time"]``); 0 for a plant without rotors.
@@ -76,7 +76,7 @@ Metrics (one scalar each, in registration order)
   far one step of the plant lands from where the MPC's model puts it; 0 with no valid interval.
 - ``unseen_steps``: over valid intervals, the number of (step, obstacle) pairs in which an obstacle
   within ``d_sense`` of the UAV (true clearance) was not detected by the sensor
-  (``traj.extras["unseen_near"]``, :mod:`jaxapf.sensing`); 0 with the ideal sensor (int32).
+  (``traj.extras["unseen_near"]``, :mod:`jaxapf.world.sensing`); 0 with the ideal sensor (int32).
 
 Efficiency metrics (``time_to_goal``, ``path_ratio``, ``control_effort``, ``jerk_rms``, ``min_ttc``)
 are registered as meaningful only on successful episodes (``Metric.on_success``): a collision cuts a

@@ -9,8 +9,8 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 import pandas as pd
 
-from ..components import COMPONENTS
 from ..config import PlannerConfig, SimConfig
+from ..engine.components import COMPONENTS
 from ..gains import GAINS
 from ..metrics import METRICS
 from ..planners import PLANNERS

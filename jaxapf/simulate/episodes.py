@@ -1,6 +1,6 @@
 """``jaxapf simulate``: one field, several methods side by side, trajectories + the paper's figures.
 
-Each method is one jit-compiled :func:`~jaxapf.rollout.rollout` on the same field (same key), so the
+Each method is one jit-compiled :func:`~jaxapf.engine.rollout` on the same field (same key), so the
 runs differ only by the planner. The output folder receives
 
 - ``trajectories.parquet``: one row per (method, sample) with time, position, velocity, applied
@@ -24,9 +24,9 @@ import pandas as pd
 
 from ..config import MPCConfig, SimConfig
 from ..datatypes import Scenario
+from ..engine import XLA_OPTIONS, rollout
 from ..gains import Gains
 from ..metrics import METRICS, clearance_history, episode_end, episode_metrics
-from ..rollout import XLA_OPTIONS, rollout
 from ..scenarios import family_params, make_scenarios
 from ..versions import versions
 from .figures import Field, Run, plot_all

@@ -5,7 +5,7 @@ Work and its pieces
 A spec (:mod:`jaxapf.sweep.spec`) expands into settings; settings with the same static part
 (method, convention, simulation and MPC settings) form a **variant**, one compiled program whose
 numeric gains are a batched :class:`~jaxapf.gains.Gains` vmapped inside
-:func:`jaxapf.rollout.evaluate`. A **chunk** is a block of consecutive fields ``[start, stop)`` of one
+:func:`jaxapf.engine.evaluate`. A **chunk** is a block of consecutive fields ``[start, stop)`` of one
 family × every setting of one variant; it is one call of ``evaluate`` per device and becomes one
 Parquet part file ``part-v{variant}-{family}-f{start}-{stop}.parquet`` (docs/sweep-format.md), written
 to a hidden temporary name and renamed into place once complete. Only metrics leave the device.
@@ -13,7 +13,7 @@ to a hidden temporary name and renamed into place once complete. Only metrics le
 Numbers
 -------
 Common random numbers: field ``i`` of a family is ``make_scenarios(seed, params, [i])`` for every
-setting. The vmap width of ``evaluate`` (``vmap_width``: :func:`~jaxapf.rollout.default_width`, or
+setting. The vmap width of ``evaluate`` (``vmap_width``: :func:`~jaxapf.engine.default_width`, or
 the smallest power of two >= settings × fields of the largest variant if that is less; a
 (variant, family) whose batch working set ``W`` (below) would exceed :data:`WIDTH_BUDGET` runs at
 the largest power of two that fits) depends on the spec and the backend only, not on the
@@ -29,7 +29,7 @@ family) of fewer than ``N × width`` episodes is padded up to that.
 
 Devices
 -------
-The fields of a chunk are laid out over the local devices by :class:`jaxapf.devices.DeviceBatch`
+The fields of a chunk are laid out over the local devices by :class:`jaxapf.engine.devices.DeviceBatch`
 (``jax.make_mesh`` + ``NamedSharding``; each device runs the single-device ``evaluate`` program
 on its shard, concurrently; why not ``shard_map`` is said there), so the sweep gives the same
 numbers on any number of devices. With ``jax.distributed`` each process runs every

@@ -73,7 +73,7 @@ class Variant:
 
     ``inverse[i]`` is the position of setting ``i``'s episodes among the ``simulated`` settings:
     settings that agree on every gain the variant's planner, filter and plant read
-    (:func:`~jaxapf.rollout.gains_read`) -- e.g. ``basic`` at two values of γ, which it ignores --
+    (:func:`~jaxapf.engine.gains_read`) -- e.g. ``basic`` at two values of γ, which it ignores --
     fly the same episodes, so only the first of them is simulated and its rows are repeated.
     """
 
@@ -97,7 +97,7 @@ class Variant:
 def variants(spec: SweepSpec) -> list[Variant]:
     """The spec's settings grouped by static part, in order of first appearance, each group with
     its distinct settings (:class:`Variant`)."""
-    from ..rollout import gains_read
+    from ..engine import gains_read
 
     groups: dict[tuple, list[Setting]] = {}
     for setting in spec.settings():
@@ -313,7 +313,7 @@ def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: in
                chunk_fields: int | None = None, devices: int | None = None, processes: int = 1,
                width: int | None = None) -> Plan:
     """Cut the spec's work into chunks (skipping the ``done`` ones), see the module docstring."""
-    from ..rollout import default_width
+    from ..engine import default_width
 
     if chunk_fields is not None:
         chunk_fields = check_int("--chunk-fields", chunk_fields, 1)

@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..devices import DeviceBatch
+from ..engine.devices import DeviceBatch
 from ..gains import Gains
 from ..lock import OutputLock, check_writable
 from ..validation import ConfigError, Interrupted
@@ -73,7 +73,7 @@ def parse_size(text: str) -> int:
 
 
 class _Devices:
-    """Runs the chunks of a plan on the local devices (:class:`~jaxapf.devices.DeviceBatch`)."""
+    """Runs the chunks of a plan on the local devices (:class:`~jaxapf.engine.devices.DeviceBatch`)."""
 
     def __init__(self, plan: Plan):
         self.batch = DeviceBatch(jax.local_devices()[: plan.devices])

@@ -51,8 +51,8 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from ..components import COMPONENTS
 from ..config import MPC_KEYS, SIM_KEYS, STATIC_KEYS, MPCConfig, SimConfig
+from ..engine.components import COMPONENTS
 from ..gains import GAINS, Gains, read_gains_file
 from ..metrics import METRICS
 from ..plugins import check_plugins, load_plugins

@@ -41,10 +41,10 @@ from tqdm.auto import tqdm
 
 from ..config import MPCConfig, SimConfig
 from ..datatypes import Obstacles, Scenario
+from ..engine import XLA_OPTIONS, default_width, episode_index, rollout
 from ..gains import Gains
 from ..lock import write_atomic
 from ..metrics import METRICS, episode_metrics
-from ..rollout import XLA_OPTIONS, default_width, episode_index, rollout
 from ..scenarios import FamilyParams, make_scenarios
 from .objective import TERMS, Objective, surrogate_loss, surrogate_terms
 from .spec import TuneSpec, split_count
@@ -119,7 +119,7 @@ def _concat(batches: Sequence[Scenario]) -> Scenario:
 
 
 def stack_gains(settings: Sequence[Gains]) -> Gains:
-    """A batch (leading axis G) of gain settings (as :func:`~jaxapf.rollout.evaluate` and
+    """A batch (leading axis G) of gain settings (as :func:`~jaxapf.engine.evaluate` and
     :meth:`Tuner.report` take them)."""
     return jax.tree_util.tree_map(lambda *x: jnp.asarray(x, jnp.result_type(float)), *settings)
 
@@ -284,7 +284,7 @@ class Tuner:
     def report(self, scenarios: Scenario, settings: Sequence[Gains]) -> dict[str, np.ndarray]:
         """:func:`episode_report` of every (setting, field): numpy arrays of shape (G, F).
 
-        The G·F episodes (``e = g·F + f``) run in batches of :func:`~jaxapf.rollout.default_width`
+        The G·F episodes (``e = g·F + f``) run in batches of :func:`~jaxapf.engine.default_width`
         paired episodes, or of the smallest power of two >= G·F if that is less (a validation set
         is not padded to a whole wide batch), the last batch padded with episode 0; calls of a
         similar size and obstacle count reuse one compiled batch.

@@ -49,7 +49,7 @@ def test_compare_xla_options_times_both_compilations_of_one_lowering():
     An override that restates a shipped option compiles the same program: same episodes."""
     from xla_options import compare_xla_options, format_xla_options
 
-    from jaxapf.rollout import XLA_OPTIONS
+    from jaxapf.engine import XLA_OPTIONS
 
     key, value = next(iter(XLA_OPTIONS.items()))
     result = compare_xla_options({key: value}, repeats=1, fields=2, steps=4, obstacles=2, horizon=3, iters=2)

@@ -19,10 +19,10 @@ from conftest import three_obstacle_field  # noqa: E402
 from jaxapf.bench import oracle as bl  # noqa: E402
 from jaxapf.config import MPCConfig, SimConfig  # noqa: E402
 from jaxapf.control.mpc import axis_problem, solve_axes  # noqa: E402
-from jaxapf.dynamics import discrete_matrices  # noqa: E402
+from jaxapf.engine import rollout  # noqa: E402
 from jaxapf.gains import Gains  # noqa: E402
 from jaxapf.planners.potentials import total_force as jax_total_force  # noqa: E402
-from jaxapf.rollout import rollout  # noqa: E402
+from jaxapf.world import discrete_matrices  # noqa: E402
 
 COMBOS = [(m, c) for m in ("basic", "direction", "direction_velocity") for c in ("intent", "literal")]
 

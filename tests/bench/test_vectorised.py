@@ -15,8 +15,8 @@ from jaxapf.bench.engine import format_benchmark, run_benchmark
 from jaxapf.bench.vectorised import vectorised_rollout
 from jaxapf.config import MPCConfig, SimConfig
 from jaxapf.datatypes import Scenario
+from jaxapf.engine import rollout
 from jaxapf.gains import Gains
-from jaxapf.rollout import rollout
 from jaxapf.scenarios import family_params, make_scenarios
 from jaxapf.validation import ConfigError
 

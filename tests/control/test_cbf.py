@@ -15,8 +15,8 @@ from hypothesis import strategies as st
 from jaxapf.config import MPCConfig, SimConfig
 from jaxapf.control import FILTERS, cbf_coefficients, cbf_constraints
 from jaxapf.datatypes import Obstacles
+from jaxapf.engine import rollout_metrics
 from jaxapf.gains import Gains, gains_from_mapping
-from jaxapf.rollout import rollout_metrics
 from jaxapf.validation import ConfigError
 
 

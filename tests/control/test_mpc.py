@@ -18,7 +18,7 @@ from jaxapf.control.mpc import (
     solve_axes,
     solve_box_qp,
 )
-from jaxapf.dynamics import discrete_matrices, step
+from jaxapf.world import discrete_matrices, step
 
 DT, N = 0.1, 8
 WEIGHTS = dict(q_pos=(1.0, 2.0, 0.5), q_vel=(0.1, 0.2, 0.3), f_pos=(5.0, 4.0, 3.0), f_vel=(0.5, 0.6, 0.7),

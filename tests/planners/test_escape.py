@@ -9,9 +9,9 @@ from conftest import one_obstacle_scenario, outcomes
 
 from jaxapf.config import MPCConfig, SimConfig
 from jaxapf.datatypes import Obstacles, Scenario
+from jaxapf.engine import rollout
 from jaxapf.gains import Gains
 from jaxapf.planners import PLANNERS
-from jaxapf.rollout import rollout
 
 PLANNER = PLANNERS.get("basic_escape")
 SIM = SimConfig.from_flat(method="basic_escape")  # dt 0.1 s, v_stall 0.1 m/s, r_goal 0.5 m

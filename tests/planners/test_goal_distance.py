@@ -10,10 +10,10 @@ from hypothesis import strategies as st
 
 from jaxapf.bench import oracle
 from jaxapf.config import MPCConfig, SimConfig
+from jaxapf.engine import rollout
 from jaxapf.gains import Gains
 from jaxapf.planners import PLANNERS, WEIGHTS
 from jaxapf.planners.potentials import total_force
-from jaxapf.rollout import rollout
 
 GAINS = Gains(n_g=1.5, k_rep=8.0, d_s=3.5, k_att=1.2)
 SIM = SimConfig.from_flat(method="ge_cui_bounded")

@@ -230,18 +230,6 @@ def test_component_first_obstacles_equal_one_at_a_time():
                                           convention="literal", cylinder=cylinder[i]) for i in range(5)], rtol=1e-6)
 
 
-def test_the_first_import_path_keeps_working():
-    """The public contract of ``jaxapf.potentials`` and ``jaxapf.mpc`` at the paths it was published at."""
-    from jaxapf import mpc, potentials
-    from jaxapf.control import mpc as control_mpc
-    from jaxapf.planners import potentials as planner_potentials
-
-    assert potentials.repulsive_force is planner_potentials.repulsive_force
-    assert potentials.weighted_repulsive_potential is planner_potentials.weighted_repulsive_potential
-    assert mpc.condensed_qp is control_mpc.condensed_qp and mpc.solve_box_qp is control_mpc.solve_box_qp
-    assert set(WEIGHTS.names()) >= {"basic", "direction", "direction_velocity"}
-
-
 @settings(max_examples=30, deadline=None)
 @given(gamma=st.floats(0.0, 5.0), k=st.floats(0.0, 3.0))
 def test_every_normalised_weight_is_one_at_its_reference_condition(gamma, k):

@@ -18,11 +18,11 @@ from hypothesis import strategies as st
 
 from jaxapf.config import MPCConfig, SimConfig
 from jaxapf.datatypes import Obstacles, Scenario
+from jaxapf.engine import rollout, rollout_metrics
 from jaxapf.gains import Gains
 from jaxapf.planners import PLANNERS, VelocityObstacle
 from jaxapf.planners.velocity_obstacle import orca_half_spaces
 from jaxapf.projection import INFEASIBLE_TOL
-from jaxapf.rollout import rollout, rollout_metrics
 
 SIM = SimConfig.from_flat(method="velocity_obstacle")
 PLANNER = VelocityObstacle()

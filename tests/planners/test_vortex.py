@@ -11,9 +11,9 @@ from hypothesis import strategies as st
 from jaxapf.bench import oracle
 from jaxapf.config import MPCConfig, SimConfig
 from jaxapf.datatypes import Obstacles
+from jaxapf.engine import rollout
 from jaxapf.gains import Gains
 from jaxapf.planners import PLANNERS, Vortex
-from jaxapf.rollout import rollout
 
 SIM = SimConfig.from_flat(method="vortex")
 GAINS = Gains(k_v=1.5, k_rep=8.0, d_s=3.5)

@@ -19,9 +19,9 @@ from conftest import assert_same_episodes
 
 from jaxapf.cli import main
 from jaxapf.config import MPCConfig, SimConfig
+from jaxapf.engine import default_width
 from jaxapf.gains import Gains
 from jaxapf.metrics import METRICS
-from jaxapf.rollout import default_width
 from jaxapf.sweep import (
     DEFAULT_MEMORY_BUDGET,
     Chunk,

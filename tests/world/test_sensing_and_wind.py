@@ -9,9 +9,9 @@ from conftest import three_obstacle_field
 from jaxapf import Gains, family_params, make_scenarios
 from jaxapf.config import MPCConfig, SimConfig
 from jaxapf.datatypes import Scenario
-from jaxapf.dynamics import DISTURBANCES
-from jaxapf.rollout import evaluate
-from jaxapf.sensing import SENSORS
+from jaxapf.engine import evaluate
+from jaxapf.world import DISTURBANCES
+from jaxapf.world.sensing import SENSORS
 
 NOISY = SENSORS.get("noisy")
 WIND = DISTURBANCES.get("wind")

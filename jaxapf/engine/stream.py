@@ -3,7 +3,7 @@ r"""Episode streaming: a batch of slots, each taking the next episode of the que
 The fixed-length engine (``evaluate(..., streaming=False)``) flies every episode for the whole
 ``t_max`` and applies termination by masks, so a batch keeps simulating episodes that are over (in
 the quick start's sweep the episodes end after 293 of 600 steps on average). The streaming engine
-flies the same episodes with the same control step (:func:`~jaxapf.rollout.loop_step`) and
+flies the same episodes with the same control step (:func:`~jaxapf.engine.loop.loop_step`) and
 computes the same metrics, but stops each one when it is over:
 
 * ``slots`` episodes fly side by side (a ``vmap``), in **segments** of :data:`SEGMENT` control
@@ -27,7 +27,7 @@ metric masks them), so the metrics are those of the fixed engine up to rounding:
 control step inside a different program and rounds some operations apart in the last bit, which
 the closed loop can amplify along an episode (``jaxapf bench sweep`` measures the agreement:
 identical outcomes on 99.9 % of episodes, docs/performance.md). Within the streaming engine an
-episode's numbers do not depend on the queue it ran in, bit for bit (``tests/test_stream.py``):
+episode's numbers do not depend on the queue it ran in, bit for bit (``tests/engine/test_stream.py``):
 the queue is every (setting, field) episode ``e = g·F + f`` in order, and which slot flies an
 episode, or when, changes nothing in its numbers.
 
@@ -44,19 +44,19 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from .config import MPCConfig, SimConfig
-from .datatypes import Scenario
-from .gains import Gains
-from .metrics import episode_metrics
-from .metrics.context import certainly_at_goal, certainly_ended
-from .rollout import closed_loop, loop_init, loop_step, record_trajectory
+from ..config import MPCConfig, SimConfig
+from ..datatypes import Scenario
+from ..gains import Gains
+from ..metrics import episode_metrics
+from ..metrics.context import certainly_at_goal, certainly_ended
+from .loop import closed_loop, loop_init, loop_step, record_trajectory
 
 __all__ = ["SEGMENT", "stream_slots", "stream_metrics"]
 
 #: Control steps between two refills of the slots.
 SEGMENT = 10
 #: The narrowest vmap of the engine: the tail of a queue shrinks to it, a short queue flies at it.
-#: Below it XLA:CPU rounds a few episodes differently (``tests/test_stream.py``).
+#: Below it XLA:CPU rounds a few episodes differently (``tests/engine/test_stream.py``).
 NARROWEST = 64
 
 

@@ -12,8 +12,8 @@ from scipy.integrate import solve_ivp
 
 from jaxapf import Gains, rollout
 from jaxapf.config import MPCConfig, SimConfig
-from jaxapf.dynamics import HUMMINGBIRD, PLANTS, Quadrotor
-from jaxapf.dynamics.quadrotor import rotation
+from jaxapf.world import HUMMINGBIRD, PLANTS, Quadrotor
+from jaxapf.world.quadrotor import rotation
 
 QUAD = PLANTS.get("quadrotor")
 SIM = SimConfig.from_flat(plant="quadrotor", substeps=20)

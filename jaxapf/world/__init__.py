@@ -1,11 +1,13 @@
-"""Plants and disturbances: the vehicle models the closed loop integrates (SPEC 1) and what acts on
-them besides the command, as registered components."""
+"""The world the vehicle flies in: the plants the closed loop integrates (SPEC 1), the disturbances
+acting on them besides the command, and the sensing models through which the stack sees the UAV and
+the obstacles, as registered components."""
 
 from .base import PLANTS, Plant, register_plant
 from .double_integrator import DoubleIntegrator, discrete_matrices, step
 from .quadrotor import HUMMINGBIRD, Quadrotor, QuadrotorState, Vehicle
+from .sensing import SENSORS, Ideal, NoisySensor, Sensor, register_sensor
 from .wind import DISTURBANCES, Calm, Disturbance, Wind, register_disturbance
 
 __all__ = ["Plant", "PLANTS", "register_plant", "DoubleIntegrator", "discrete_matrices", "step", "Quadrotor",
            "QuadrotorState", "Vehicle", "HUMMINGBIRD", "Disturbance", "DISTURBANCES", "register_disturbance", "Calm",
-           "Wind"]
+           "Wind", "Sensor", "Ideal", "NoisySensor", "SENSORS", "register_sensor"]

@@ -8,11 +8,11 @@ from conftest import assert_same_episodes
 
 from jaxapf.config import MPCConfig, SimConfig
 from jaxapf.datatypes import Obstacles, Scenario
-from jaxapf.dynamics import step
+from jaxapf.engine import evaluate, evaluate_program, rollout
 from jaxapf.gains import Gains
 from jaxapf.metrics import episode_metrics
 from jaxapf.planners import PLANNERS
-from jaxapf.rollout import evaluate, evaluate_program, rollout
+from jaxapf.world import step
 
 SIM = SimConfig.from_flat(t_max=8.0)
 MPC = MPCConfig(horizon=8, iters=15)
@@ -148,10 +148,10 @@ def test_apf_reference_follows_the_saturated_flow_in_either_obstacle_layout():
 
 @pytest.mark.parametrize("method", PLANNERS.names())
 def test_a_rollout_reads_only_the_gains_its_planner_declares(method):
-    """The contract a sweep's deduplication of identical settings rests on (jaxapf.rollout.gains_read):
+    """The contract a sweep's deduplication of identical settings rests on (jaxapf.engine.gains_read):
     changing every gain outside gains_read changes no number; changing one inside does."""
+    from jaxapf.engine import gains_read
     from jaxapf.gains import GAINS
-    from jaxapf.rollout import gains_read
 
     sim = SimConfig.from_flat(method=method, t_max=4.0)
     mpc = MPCConfig(horizon=4, iters=5)

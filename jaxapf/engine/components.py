@@ -5,9 +5,9 @@ key               registry                                    what it is
 ================  ==========================================  =====================================
 ``method``        :data:`jaxapf.planners.PLANNERS`            the planner (reference for the MPC)
 ``filter``        :data:`jaxapf.control.FILTERS`              the safety filter after the MPC
-``plant``         :data:`jaxapf.dynamics.PLANTS`              the vehicle model integrated
-``sensor``        :data:`jaxapf.sensing.SENSORS`              what the stack sees of the world
-``disturbance``   :data:`jaxapf.dynamics.DISTURBANCES`        what acts on the plant besides the command
+``plant``         :data:`jaxapf.world.PLANTS`              the vehicle model integrated
+``sensor``        :data:`jaxapf.world.sensing.SENSORS`              what the stack sees of the world
+``disturbance``   :data:`jaxapf.world.DISTURBANCES`        what acts on the plant besides the command
 ================  ==========================================  =====================================
 
 Every tool reads this table (which gains a setting reads, which names a spec may give, what
@@ -18,11 +18,11 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
-from .control import FILTERS
-from .dynamics import DISTURBANCES, PLANTS
-from .planners import PLANNERS
-from .registry import Registry
-from .sensing import SENSORS
+from ..control import FILTERS
+from ..planners import PLANNERS
+from ..registry import Registry
+from ..world import DISTURBANCES, PLANTS
+from ..world.sensing import SENSORS
 
 __all__ = ["COMPONENTS", "components_read_gains"]
 

@@ -1,4 +1,4 @@
-"""The streaming engine (jaxapf.stream) against the fixed-length one, and the metric contract it rests on."""
+"""The streaming engine (jaxapf.engine.stream) against the fixed-length one, and the metric contract it rests on."""
 
 from __future__ import annotations
 
@@ -11,12 +11,12 @@ import pytest
 from conftest import assert_same_episodes
 
 from jaxapf.config import MPCConfig, PlannerConfig, SimConfig
+from jaxapf.engine import evaluate, rollout
+from jaxapf.engine.stream import NARROWEST, stream_slots
 from jaxapf.gains import Gains
 from jaxapf.metrics import METRICS, episode_end, episode_metrics
 from jaxapf.planners import PLANNERS
-from jaxapf.rollout import evaluate, rollout
 from jaxapf.scenarios import family_params, make_scenarios
-from jaxapf.stream import NARROWEST, stream_slots
 
 MPC = MPCConfig(horizon=10, iters=15)
 

@@ -2,7 +2,7 @@
 
 A batch of F fields is placed with a ``jax.make_mesh`` mesh over the devices and
 ``NamedSharding(mesh, P("batch"))``; each device runs the single-device
-:func:`jaxapf.rollout.evaluate` program on its block of F / D fields, dispatched from a thread per
+:func:`jaxapf.engine.evaluate` program on its block of F / D fields, dispatched from a thread per
 device so the devices run concurrently, and the per-device ``(G, F/D)`` metrics are assembled
 into global ``(G, F)`` arrays with ``jax.make_array_from_single_device_arrays``. Not
 ``shard_map``: on XLA:CPU the SPMD-partitioned executable rounds differently from the
@@ -19,15 +19,16 @@ from typing import Sequence
 import jax
 from jax.sharding import NamedSharding, PartitionSpec
 
-from .config import MPCConfig, SimConfig
-from .datatypes import Scenario
-from .gains import Gains
+from ..config import MPCConfig, SimConfig
+from ..datatypes import Scenario
+from ..gains import Gains
+from .batch import evaluate_program
 
 __all__ = ["DeviceBatch"]
 
 
 class DeviceBatch:
-    """Runs :func:`~jaxapf.rollout.evaluate` with the fields split over ``devices``.
+    """Runs :func:`~jaxapf.engine.evaluate` with the fields split over ``devices``.
 
     The field count must be a multiple of ``len(devices)`` (callers pad). Close it (or use it as a
     context manager) to stop its threads.
@@ -58,7 +59,6 @@ class DeviceBatch:
                  width: int, metrics: tuple[str, ...]) -> dict[str, jax.Array]:
         """The ``metrics``, each as a global ``(G, F)`` array sharded over the devices; returns once all
         devices have been dispatched (block on the result to wait for them)."""
-        from .rollout import evaluate_program
 
         placed = jax.device_put(scenarios, self.fields)
         shards = [jax.tree_util.tree_map(lambda x, i=i: _shard(x, i), placed) for i in range(len(self.devices))]

@@ -3,7 +3,7 @@
 A :class:`Plant` owns its state layout (any pytree of arrays), integrates one control step from the
 applied acceleration command, reports the UAV's position and velocity (what the metrics and the
 MPC see), and names the linear model the MPC plans with. The double integrator
-(:class:`~jaxapf.dynamics.double_integrator.DoubleIntegrator`, paper eq. 4–7) is the default and is
+(:class:`~jaxapf.world.double_integrator.DoubleIntegrator`, paper eq. 4–7) is the default and is
 exactly the MPC's own model; a plant with more physics (e.g. a quadrotor, paper eq. 1–3) keeps the
 MPC planning with the double integrator and differs from it only in how the command is realised.
 
@@ -50,7 +50,7 @@ class Plant(abc.ABC):
              ) -> tuple[Any, dict[str, Array]]:
         """The state one control step ``sim.episode.dt`` later under the acceleration command
         ``accel`` (3,) and the ``disturbance`` (3,), an acceleration [m/s²] in the world frame held
-        over the step (:mod:`jaxapf.dynamics.wind`; zeros in a calm world), and the step's
+        over the step (:mod:`jaxapf.world.wind`; zeros in a calm world), and the step's
         diagnostics (``{}`` if none; each becomes a per-step entry of
         :attr:`~jaxapf.datatypes.Trajectory.extras`)."""
 

@@ -23,16 +23,16 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from .datatypes import ObstacleColumns, episode_key
-from .gains import GainSpec
-from .planners.sight import line_of_sight, norm
-from .registry import Registry
-from .stage import Stage, register_stage
+from ..datatypes import ObstacleColumns, episode_key
+from ..gains import GainSpec
+from ..planners.sight import line_of_sight, norm
+from ..registry import Registry
+from ..stage import Stage, register_stage
 
 if TYPE_CHECKING:
-    from .config import SimConfig
-    from .datatypes import Scenario
-    from .gains import Gains
+    from ..config import SimConfig
+    from ..datatypes import Scenario
+    from ..gains import Gains
 
 __all__ = ["Sensor", "Ideal", "NoisySensor", "SENSORS", "register_sensor"]
 

@@ -1,0 +1,13 @@
+"""The engine: the closed loop of one episode (:mod:`~jaxapf.engine.loop`), batches of episodes in
+one compiled call, streamed or fixed-length (:mod:`~jaxapf.engine.batch`, :mod:`~jaxapf.engine.stream`),
+split over devices (:mod:`~jaxapf.engine.devices`), and the table of the components a setting names
+(:mod:`~jaxapf.engine.components`)."""
+
+from .batch import ACCELERATOR_WIDTH, CPU_WIDTH, XLA_OPTIONS, default_width, episode_index, evaluate, evaluate_program
+from .components import COMPONENTS, components_read_gains
+from .devices import DeviceBatch
+from .loop import gains_read, rollout, rollout_metrics
+
+__all__ = ["rollout", "rollout_metrics", "gains_read", "evaluate", "evaluate_program", "episode_index",
+           "default_width", "CPU_WIDTH", "ACCELERATOR_WIDTH", "XLA_OPTIONS", "COMPONENTS", "components_read_gains",
+           "DeviceBatch"]

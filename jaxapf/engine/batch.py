@@ -1,0 +1,128 @@
+"""Batches of episodes: every (gain setting, field) pair of a grid in one compiled call (:func:`evaluate`),
+streamed (:mod:`jaxapf.engine.stream`) or in fixed-length vmapped batches, the vmap widths and the
+XLA options every compiled closed loop uses.
+
+The nesting follows gymnax: one episode is a ``lax.scan`` over time (:func:`~jaxapf.engine.loop.rollout`);
+a batch of fields is a ``vmap`` over scenarios; a population of gain settings is a ``vmap`` over
+:class:`~jaxapf.gains.Gains`. Static configuration is compiled in; gains are traced, so a whole gain
+grid over many fields is one compiled call.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from ..config import MPCConfig, SimConfig
+from ..datatypes import Scenario
+from ..gains import Gains, setting_count
+from ..metrics import METRICS
+from .loop import rollout_metrics
+from .stream import stream_metrics, stream_slots
+
+__all__ = ["evaluate", "evaluate_program", "episode_index", "default_width", "CPU_WIDTH", "ACCELERATOR_WIDTH",
+           "XLA_OPTIONS"]
+
+
+#: Episodes vmapped together (the vmap width) on CPU: wide enough that every step's kernels run
+#: over long contiguous rows (``jaxapf bench engine --width`` measures other widths).
+CPU_WIDTH = 1024
+#: Episodes vmapped together on accelerators, where wide batches pay.
+ACCELERATOR_WIDTH = 4096
+
+
+#: XLA options of every compiled closed loop (CPU only; other backends ignore them):
+#:
+#: * ``xla_cpu_experimental_ynn_fusion_type = ""``: jaxlib 0.10 hands reductions and small matrix
+#:   products on CPU to YNNPACK kernels, which run the APF's sums over obstacles and xyz several
+#:   times slower than XLA's own fused loops (``jaxapf bench``: the engine took about twice as long);
+#:   the empty list switches YNNPACK fusions off.
+#: * ``xla_cpu_use_fusion_emitters = False``: XLA's classic loop emitter instead of the newer
+#:   fusion emitters. On a lone elementwise kernel the fusion emitters are the faster ones
+#:   (``benchmarks/kernels.py``), but the closed loop's kernels are large fusions of the APF's
+#:   forward and backward pass over ``(fields, obstacles)``, which the fusion emitters compile
+#:   into slower code: the whole closed loop runs about 1.1-1.2x faster with the classic one
+#:   (``benchmarks/xla_options.py --xla-option xla_cpu_use_fusion_emitters=true`` compiles one
+#:   lowering both ways and times them interleaved; docs/performance.md).
+#: * ``xla_cpu_copy_insertion_use_region_analysis = True``: XLA's copy insertion analyses the
+#:   loops' regions, so FISTA's ``lax.scan`` keeps one copy of its carry per iteration instead of
+#:   three; the same arithmetic, about 1.07x faster (median of five ``benchmarks/xla_options.py``
+#:   runs, docs/performance.md).
+XLA_OPTIONS = {
+    "xla_cpu_experimental_ynn_fusion_type": "",
+    "xla_cpu_use_fusion_emitters": False,
+    "xla_cpu_copy_insertion_use_region_analysis": True,
+}
+
+
+def default_width(episodes: int | None = None) -> int:
+    """The vmap width for the default backend; for a batch of fewer ``episodes``, the smallest power
+    of two that holds them (so a small batch is not padded to a wide batch)."""
+    width = CPU_WIDTH if jax.default_backend() == "cpu" else ACCELERATOR_WIDTH
+    return width if episodes is None else min(width, 1 << (max(episodes, 1) - 1).bit_length())
+
+
+def episode_index(total: int, width: int) -> np.ndarray:
+    """Episodes ``0 … total-1`` of a (setting, field) grid (episode ``e = g·F + f``: setting
+    ``e // F``, field ``e % F``), padded with episode 0 to a whole number of ``width``-wide batches;
+    callers drop the padding."""
+    index = np.zeros(-(-total // width) * width, np.int64)
+    index[:total] = np.arange(total)
+    return index
+
+
+@partial(jax.jit, static_argnames=("sim", "mpc", "width", "metrics", "streaming"), compiler_options=XLA_OPTIONS)
+def evaluate_program(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, width: int,
+                     metrics: tuple[str, ...], streaming: bool = True) -> dict[str, Array]:
+    """The compiled program behind :func:`evaluate`, every static argument explicit (for
+    ``evaluate_program.lower(...)``)."""
+    n_gains = max((jnp.shape(x)[0] for x in jax.tree_util.tree_leaves(gains) if jnp.ndim(x)), default=1)
+    gains = jax.tree_util.tree_map(lambda x: x if jnp.ndim(x) else jnp.full((n_gains,), x), gains)
+    n_fields = scenarios.start.shape[0]
+    total = n_gains * n_fields
+    if streaming:
+        return stream_metrics(scenarios, gains, sim, mpc, stream_slots(total, width), metrics)
+    width = min(width, total)
+    index = episode_index(total, width)
+    padded = index.shape[0]
+    flat = (
+        jax.tree_util.tree_map(lambda x: x[index % n_fields], scenarios),
+        jax.tree_util.tree_map(lambda x: jnp.asarray(x)[index // n_fields], gains),
+    )
+    batches = jax.tree_util.tree_map(lambda x: x.reshape((padded // width, width) + x.shape[1:]), flat)
+    episodes = jax.vmap(lambda s, g: rollout_metrics(s, g, sim, mpc, metrics))
+    values = jax.lax.map(lambda c: episodes(*c), batches)
+    return jax.tree_util.tree_map(lambda m: m.reshape((padded,) + m.shape[2:])[:total].reshape(
+        (n_gains, n_fields) + m.shape[2:]), values)
+
+
+def evaluate(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, width: int | None = None,
+             metrics: Sequence[str] | None = None, *, streaming: bool = True) -> dict[str, Array]:
+    """Metrics of every (gain setting, field) pair: arrays of shape (G, F), in one compiled call.
+
+    The G·F episodes ``e = g·F + f`` form one queue. By default they are streamed
+    (:mod:`jaxapf.stream`): a few hundred slots fly them side by side and each slot takes the next
+    episode when its own ends, so no step is simulated after an episode is over. With
+    ``streaming=False`` (the fixed-length engine) the queue is padded to a multiple of ``width``
+    and run as a ``lax.map`` over batches of ``width`` vmapped episodes of ``T`` steps each. Both
+    give the same numbers, and neither depends on G, F or the batch an episode ran in.
+
+    Args:
+      scenarios: a batch of F fields (leading axis F on every leaf).
+      gains: a batch of G gain settings (leading axis G on every array leaf; a scalar leaf, e.g. a
+        gain left at its default, is shared by all G settings): ``Gains(gamma=[...], k=[...])`` or
+        :meth:`~jaxapf.gains.Gains.paired` pairs the lists, :meth:`~jaxapf.gains.Gains.grid` takes
+        every combination. Lists of different lengths raise :class:`~jaxapf.validation.ConfigError`.
+      width: the vmap width (static; ``None``: :func:`default_width`); the streaming engine flies
+        at most this many episodes side by side.
+      metrics: the metrics to compute (default: every registered one, :data:`~jaxapf.metrics.METRICS`).
+      streaming: stop each episode when it ends (default) instead of flying all ``T`` steps.
+    """
+    setting_count(gains, "evaluate: gains")  # one line for lists of different lengths, which would not pair
+    names = METRICS.names() if metrics is None else tuple(metrics)
+    return evaluate_program(scenarios, gains, sim, mpc, default_width() if width is None else width, names, streaming)
