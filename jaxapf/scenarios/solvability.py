@@ -4,100 +4,11 @@ A planner that stalls in a field where no collision-free path exists is not at f
 give rates among the fields this oracle calls solvable. :func:`solvable` answers for a batch of
 fields (a :class:`~jaxapf.datatypes.Scenario` whose leaves have leading batch axes, as
 :func:`~jaxapf.scenarios.make_scenarios` returns), on the host, in numpy/scipy, one field at a time.
-
-Definition
-----------
-A field is *solvable* when the UAV, a sphere of radius ``r_uav`` whose velocity obeys the per-axis
-limit ``|v_i| <= v_max`` (SPEC 1), can move from the start to within ``r_goal`` of the goal by
-``t_max`` with clearance ``>= 0`` to every valid obstacle at every instant (SPEC 2:
-``d = |P(p - p_o(t))| - rho - r_uav``, obstacles at ``p_o(t) = p_o + v_o t``).
-
-The oracle answers a *relaxation* of that question, so its two answers mean different things:
-
-- **"unsolvable" is a proof**: no such flight exists (under the assumptions below; for moving
-  fields, none that stays inside the searched box). A stall in such a field is not the planner's
-  fault.
-- **"solvable" may be optimistic**: the acceleration limit is ignored (the UAV may reach ``v_max``
-  at once, and stop at once); a passage narrower than the UAV by less than about
-  ``sqrt 2 · h`` (``h`` the grid cell) may count as open; moving obstacles are checked at sample
-  times only.
-
-Assumptions (every built-in family satisfies them)
---------------------------------------------------
-- **Planar flight at the start's altitude.** The search runs in the horizontal plane
-  ``z = start_z``. A cylinder (infinitely tall; its clearance ignores z) blocks the UAV's centre in
-  the disc of radius ``rho + r_uav`` around its axis. A sphere centred ``dz`` above or below the
-  plane blocks the disc of radius ``sqrt((rho + r_uav)^2 - dz^2)`` (exactly where the UAV would
-  touch it: a sphere the plane misses, ``rho <= |dz| < rho + r_uav``, still blocks a small disc)
-  and is absent from the plane when ``|dz| >= rho + r_uav``; ``dz`` follows a sphere's vertical
-  velocity. A goal at another height is projected onto the plane (the goal test uses horizontal
-  distances, the climb is not searched). With cylinders only this is exact: the UAV can change
-  height anywhere without changing a clearance, and under per-axis limits a climb does not slow
-  the horizontal motion. With spheres and a height difference it answers the planar problem.
-- **Start and goal.** A start with clearance ``< 0`` at t = 0 is unsolvable; so is a goal with
-  clearance ``< 0`` to an obstacle that never moves, even if a point within ``r_goal`` of it is
-  free (an ill-posed field); a moving obstacle over the goal only delays the arrival. A goal farther
-  than ``v_max · t_max + r_goal`` along some axis is unsolvable.
-- **Static fields: time enters only through distance.** The UAV must stay in the region it could
-  visit by ``t_max`` with no obstacle in its way, ``|p - start|_inf + |p - goal|_inf <=
-  v_max · t_max + r_goal``; within it the path may be as long as it likes. A wall that can only be
-  flown around outside that region is therefore closed, and one that ends inside it is open even if
-  the detour takes longer than ``t_max`` (the built-in static detours take a few seconds). The
-  search covers every obstacle whose blocked disc reaches the start–goal bounding box grown by
-  ``margin``, or is joined to one by a chain of discs; other obstacles are ignored.
-- **Moving fields: a bounded box.** The search covers the start–goal bounding box grown by
-  ``margin`` (default 5 m). Static obstacles are cut at its edge; moving ones block wherever they
-  are. A flight that must leave the box is not found, so a moving field's "unsolvable" is a proof
-  only for flights inside the box.
-
-Outside its grid, space is taken as free of static obstacles: the grid's outermost ring of cells is
-never blocked by one, so a path may go around everything along it.
-
-Static fields (no valid obstacle moves): 8-connectivity
--------------------------------------------------------
-Obstacles are rasterised on a square grid of cell ``h = resolution`` (default 0.025 m) in the frame
-of the start–goal line (a rotation changes no connectivity). A cell is *blocked* iff the UAV
-centred at the cell's centre has clearance ``< -h/sqrt 2``: only if the whole cell is inside an
-inflated obstacle (clearance is 1-Lipschitz and a cell's half-diagonal is ``h/sqrt 2``). Every other
-cell of the region above is free. The field is solvable iff the start's cell and a free *goal cell*
-(centre within ``r_goal + h/sqrt 2`` of the goal) lie in the same 8-connected component of free
-cells (:func:`scipy.ndimage.label`).
-
-Every cell that a collision-free path crosses contains a free point, so it is free, and the cells
-a continuous path crosses are 8-connected: "unsolvable" is a proof. The other way, a passage
-narrower than the UAV by less than ``sqrt 2 · h`` in all (``h/sqrt 2`` a side) may be reported open,
-as may a diagonal squeeze between two cells: 0.035 m at the default cell. The built-in closed cups
-(``paper_static``: 0.30 m between surfaces for a 0.6 m UAV; the trap kind ``concave``: touching
-cylinders) stay closed, and a ``narrow_gap`` (0.05–0.3 m to spare on each side) is always open.
-
-Moving fields (some valid obstacle moves): space–time reachability
-------------------------------------------------------------------
-On a grid of cell ``h`` in world axes with time step ``Δ = h / v_max``, the cells the UAV could
-occupy at the sample times are
-
-.. math:: R_0 = \{\text{start cell}\}, \qquad
-          R_{k+1} = \mathrm{dilate}(R_k) \cap \mathrm{free}((k + 1) Δ),
-
-the dilation by the 3×3 square of cells (per axis, the UAV moves at most ``v_max Δ = h`` in a step,
-so a step's reachable set is a square; it holds the current cell: waiting is allowed) and
-``free(t)`` the rule of static fields applied to the obstacles at time ``t``. The field is solvable
-iff some ``R_k`` with ``k Δ <= t_max`` meets a goal cell, here a free cell whose centre lies within
-``r_goal + h/sqrt 2 + sqrt 2 · h`` of the goal (the last term covers an arrival between two
-samples). Every flight inside the box visits, at each sample time, a cell of ``R_k``: the test is a
-relaxation, a necessary condition for a feasible flight under the full dynamics. The loop stops
-when ``R_k`` meets the goal, when it is empty (the UAV is caught), or, once no moving obstacle can
-enter the grid again, when it stops growing.
-
-The cell is ``reach_resolution`` (default 0.1 m), coarsened for large boxes so that (grid cells) ×
-(time steps), which grows like ``area · t_max · v_max / h^3``, stays within ``cell_steps``
-(:func:`reach_cell`). The built-in ``crossing``, ``head_on``, ``overtake`` and ``dynamic`` fields
-keep 0.1 m; ``paper_dynamic`` (a 70 m run, ``t_max`` 300 s) gets 0.24 m.
-
-Cost, measured on a shared 2-core host (numpy 2.4, scipy 1.17, default parameters, 64 fields of
-seed 0 per family at the family's ``t_max``, whole batch timed): per static field 2–4 ms
-(``paper_static`` 2.3, ``trap`` 1.6, ``clutter`` 4.1), per moving field about 20–30 ms
-(``crossing`` 21, ``head_on`` 20, ``overtake`` 19, ``dynamic`` 30, ``paper_dynamic`` 19; the
-slowest single field 42 ms).
+It answers a relaxation of the question: "unsolvable" is a proof (no collision-free flight exists),
+"solvable" may be optimistic (the acceleration limit is ignored). Static fields are an
+8-connectivity test on a rasterised plane, moving fields a space–time reachability on a grid;
+docs/scenarios.md ("The solvability oracle") states the definition, its assumptions and why each
+answer means what it says.
 """
 
 from __future__ import annotations
