@@ -5,9 +5,9 @@ key               registry                                    what it is
 ================  ==========================================  =====================================
 ``method``        :data:`jaxapf.planners.PLANNERS`            the planner (reference for the MPC)
 ``filter``        :data:`jaxapf.control.FILTERS`              the safety filter after the MPC
-``plant``         :data:`jaxapf.world.PLANTS`              the vehicle model integrated
-``sensor``        :data:`jaxapf.world.sensing.SENSORS`              what the stack sees of the world
-``disturbance``   :data:`jaxapf.world.DISTURBANCES`        what acts on the plant besides the command
+``plant``         :data:`jaxapf.world.PLANTS`                 the vehicle model integrated
+``sensor``        :data:`jaxapf.world.SENSORS`                what the stack sees of the world
+``disturbance``   :data:`jaxapf.world.DISTURBANCES`           what acts on the plant besides the command
 ================  ==========================================  =====================================
 
 Every tool reads this table (which gains a setting reads, which names a spec may give, what
@@ -16,7 +16,7 @@ Every tool reads this table (which gains a setting reads, which names a spec may
 
 from __future__ import annotations
 
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 from ..control import FILTERS
 from ..planners import PLANNERS
@@ -24,7 +24,10 @@ from ..registry import Registry
 from ..world import DISTURBANCES, PLANTS
 from ..world.sensing import SENSORS
 
-__all__ = ["COMPONENTS", "components_read_gains"]
+if TYPE_CHECKING:
+    from ..config import SimConfig
+
+__all__ = ["COMPONENTS", "components_read_gains", "component_names", "gains_read"]
 
 #: Static key of a simulation setting -> the registry of the components it names.
 COMPONENTS: Mapping[str, Registry[Any]] = {"method": PLANNERS, "filter": FILTERS, "plant": PLANTS,
@@ -36,3 +39,16 @@ def components_read_gains(names: Mapping[str, str], where: str = "sim") -> froze
     declare; an unknown name raises :class:`~jaxapf.validation.ConfigError` naming ``where.key``."""
     return frozenset(g.name for key, registry in COMPONENTS.items()
                      for g in registry.get(names[key], f"{where}.{key}").gains)
+
+
+def component_names(sim: SimConfig) -> dict[str, str]:
+    """``{key: name}`` of the components ``sim`` names (:data:`COMPONENTS`)."""
+    flat = sim.flat()
+    return {key: flat[key] for key in COMPONENTS}
+
+
+def gains_read(sim: SimConfig) -> frozenset[str]:
+    """The gains a :func:`~jaxapf.engine.rollout` with ``sim`` reads: those its planner, safety filter, plant, sensor
+    and disturbance declare. Settings that agree on these fly the same episodes (a sweep runs them
+    once)."""
+    return components_read_gains(component_names(sim))

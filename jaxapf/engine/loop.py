@@ -37,22 +37,9 @@ from ..control import axis_problem, shift_warm_start, solve_axes
 from ..datatypes import Scenario, Trajectory
 from ..gains import Gains
 from ..metrics import episode_metrics
-from .components import COMPONENTS, components_read_gains
+from .components import COMPONENTS, component_names
 
-__all__ = ["rollout", "rollout_metrics", "gains_read", "closed_loop", "loop_init", "loop_step", "record_trajectory"]
-
-
-def component_names(sim: SimConfig) -> dict[str, str]:
-    """``{key: name}`` of the components ``sim`` names (:data:`~jaxapf.engine.components.COMPONENTS`)."""
-    flat = sim.flat()
-    return {key: flat[key] for key in COMPONENTS}
-
-
-def gains_read(sim: SimConfig) -> frozenset[str]:
-    """The gains a :func:`rollout` with ``sim`` reads: those its planner, safety filter, plant, sensor
-    and disturbance declare. Settings that agree on these fly the same episodes (a sweep runs them
-    once)."""
-    return components_read_gains(component_names(sim))
+__all__ = ["rollout", "rollout_metrics", "closed_loop", "loop_init", "loop_step", "record_trajectory"]
 
 
 class ClosedLoop(NamedTuple):
