@@ -26,8 +26,8 @@ import numpy as np
 from .registry import Registry
 from .validation import BoundWarning, ConfigError, check_range, check_table, describe_range, read_toml_file
 
-__all__ = ["GainSpec", "GAINS", "declare_gains", "Gains", "validate_gains", "gains_from_mapping", "load_gains",
-           "read_gains_file", "check_gain_name", "setting_count"]
+__all__ = ["GainSpec", "GAINS", "declare_gains", "declare_entry_gains", "Gains", "validate_gains",
+           "gains_from_mapping", "load_gains", "read_gains_file", "check_gain_name", "setting_count"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -107,6 +107,11 @@ def declare_gains(*specs: GainSpec) -> tuple[GainSpec, ...]:
                     hi_open=spec.high_open)
         GAINS.register(spec.name, spec)
     return specs
+
+
+def declare_entry_gains(entry: Any) -> None:
+    """What a component registry does with a new entry: declare the gains it reads (``entry.gains``)."""
+    declare_gains(*entry.gains)
 
 
 def _is_user_value(x: Any) -> bool:

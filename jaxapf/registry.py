@@ -30,12 +30,16 @@ class Registry(Generic[T]):
     Args:
       what: what an entry is, in words (``"planner"``); used in error messages.
       describe: one line about an entry for ``jaxapf list`` (default: its docstring's first line).
+      on_register: called with every entry before it is entered (a component registry passes
+        :func:`jaxapf.gains.declare_entry_gains`: registering a component declares its gains).
     """
 
-    def __init__(self, what: str, describe: Callable[[T], str] | None = None) -> None:
+    def __init__(self, what: str, describe: Callable[[T], str] | None = None,
+                 on_register: Callable[[T], object] | None = None) -> None:
         self.what = what
         self._entries: dict[str, T] = {}
         self._describe = describe
+        self._on_register = on_register
 
     def register(self, name: str, entry: T, *, replace: bool = False) -> T:
         """Add ``entry`` under ``name`` (letters, digits and ``_``, starting with a letter); returns it."""
@@ -43,6 +47,8 @@ class Registry(Generic[T]):
             raise ConfigError(f"{self.what} name {name!r} must be letters, digits and '_', starting with a letter")
         if name in self._entries and not replace and self._entries[name] != entry:
             raise ConfigError(f"a {self.what} named {name!r} is registered already; pass replace=True to replace it")
+        if self._on_register is not None:
+            self._on_register(entry)
         self._entries[name] = entry
         return entry
 

@@ -3,26 +3,22 @@
 A safety filter (:mod:`jaxapf.control.filters`), a sensing model (:mod:`jaxapf.world.sensing`) and a
 disturbance (:mod:`jaxapf.world.wind`) are each a :class:`Stage`: a frozen dataclass that declares
 the gains it reads and makes its state at the start of an episode with :meth:`Stage.init` (optax's
-``init``; each kind adds its own call). :func:`register_stage` declares a stage's gains and enters it
-in its kind's registry.
+``init``; each kind adds its own call). Registering a stage in its kind's registry declares its
+gains, as for every component.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
-from .gains import GainSpec, declare_gains
-from .registry import Registry
+from .gains import GainSpec
 
 if TYPE_CHECKING:
     from .config import SimConfig
     from .datatypes import Scenario
     from .gains import Gains
 
-__all__ = ["Stage", "register_stage"]
-
-S = TypeVar("S", bound="Stage")
-
+__all__ = ["Stage"]
 
 class Stage:
     """A stateful stage of the closed loop. Subclasses are frozen dataclasses.
@@ -36,9 +32,3 @@ class Stage:
     def init(self, scenario: "Scenario", gains: "Gains", sim: "SimConfig") -> Any:
         """The stage's state at the start of an episode (default: none)."""
         return ()
-
-
-def register_stage(registry: Registry[S], name: str, stage: S, *, replace: bool = False) -> S:
-    """Declare ``stage``'s gains and register it in ``registry`` under ``name``."""
-    declare_gains(*stage.gains)
-    return registry.register(name, stage, replace=replace)

@@ -58,7 +58,7 @@ CHECK = textwrap.dedent("""
                            **gains.floats()))
     print("RESULT " + json.dumps({
         "no_goal": no_goal, "at_goal": at_goal,
-        "reference": float(jaxapf.WEIGHTS.get("closing_goal").reference(gains)),
+        "reference": float(jaxapf.PLANNERS.get("closing_goal").weight.reference(gains)),
         "listing": listing.getvalue(), "rows": len(rows), "columns": list(rows.columns),
         "finite": bool(rows[["mean_speed", "final_distance"]].notna().all().all()),
         "methods": sorted(set(rows["method"])), "lag_matters": bool(lag.loc[0.05] != lag.loc[0.2]),

@@ -18,8 +18,9 @@ from typing import TYPE_CHECKING, Any
 
 from jax import Array
 
+from ..gains import declare_entry_gains
 from ..registry import Registry
-from ..stage import Stage, register_stage
+from ..stage import Stage
 
 if TYPE_CHECKING:
     from ..config import SimConfig
@@ -49,12 +50,12 @@ class Passthrough(SafetyFilter):
 
 
 #: Registered safety filters: the values of ``filter`` (default ``none``).
-FILTERS: Registry[SafetyFilter] = Registry("safety filter")
+FILTERS: Registry[SafetyFilter] = Registry("safety filter", on_register=declare_entry_gains)
 
 
 def register_filter(name: str, safety_filter: SafetyFilter, *, replace: bool = False) -> SafetyFilter:
-    """Register ``safety_filter`` as ``filter = name`` and declare its gains."""
-    return register_stage(FILTERS, name, safety_filter, replace=replace)
+    """Register ``safety_filter`` as ``filter = name`` (its gains are declared)."""
+    return FILTERS.register(name, safety_filter, replace=replace)
 
 
 register_filter("none", Passthrough())

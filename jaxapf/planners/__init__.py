@@ -3,7 +3,7 @@
 ========================  =================================================================
 :mod:`.base`              the :class:`Planner` protocol (``init``/``reference``) and :data:`PLANNERS`
 :mod:`.apf`               potential-field planners (:class:`APF`): the saturated gradient flow
-:mod:`.weights`           repulsive weights ω (:class:`Weight`, :data:`WEIGHTS`), paper eq. 14–20
+:mod:`.weights`           repulsive weights ω (:class:`Weight`), paper eq. 14–20
 :mod:`.potentials`        attractive and weighted repulsive potentials and their forces
 :mod:`.sight`             the line of sight, component by component
 :mod:`.vortex`            a vortex force term (:class:`Vortex`) and the ``vortex`` planner
@@ -13,15 +13,15 @@
 ========================  =================================================================
 """
 
-from .apf import APF, ForceTerm, register_weight, saturate
+from .apf import APF, ForceTerm, saturate
 from .base import PLANNERS, Planner, reference_states, register_planner
 from .escape import StallEscape
 from .goal_distance import GoalDistance
 from .sight import Sight
 from .velocity_obstacle import VelocityObstacle
 from .vortex import Vortex
-from .weights import WEIGHTS, Basic, Direction, DirectionVelocity, Weight
+from .weights import Basic, Direction, DirectionVelocity, Weight
 
 __all__ = ["Planner", "PLANNERS", "register_planner", "reference_states", "APF", "ForceTerm", "saturate", "Weight",
-           "WEIGHTS", "register_weight", "Sight", "Basic", "Direction", "DirectionVelocity", "Vortex",
+           "Sight", "Basic", "Direction", "DirectionVelocity", "Vortex",
            "GoalDistance", "StallEscape", "VelocityObstacle"]

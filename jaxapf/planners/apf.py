@@ -32,13 +32,13 @@ from ..datatypes import ObstacleColumns, Obstacles, safe_norm
 from ..gains import GainSpec, declare_gains
 from .base import Planner, reference_states, register_planner
 from .potentials import total_force
-from .weights import GAMMA, WEIGHTS, Basic, Direction, DirectionVelocity, K, Normalised, Weight
+from .weights import GAMMA, Basic, Direction, DirectionVelocity, K, Normalised, Weight
 
 if TYPE_CHECKING:
     from ..config import SimConfig
     from ..gains import Gains
 
-__all__ = ["K_REP", "D_S", "K_ATT", "ETA", "ForceTerm", "APF", "saturate", "register_weight"]
+__all__ = ["K_REP", "D_S", "K_ATT", "ETA", "ForceTerm", "APF", "saturate"]
 
 K_REP = GainSpec("k_rep", 10.0, low=0.0, low_open=True, doc="repulsive gain k_rep (paper eq. 13)")
 D_S = GainSpec("d_s", 4.0, low=0.0, low_open=True, unit="m", doc="influence distance d_s (paper eq. 13)")
@@ -129,26 +129,18 @@ class APF(Planner):
         return reference_states(x, points, flows, sim), state
 
 
-def register_weight(name: str, weight: Weight, *, planner: bool = True, replace: bool = False, **style: Any) -> Weight:
-    """Register ``weight`` under ``name`` and, with ``planner`` (default), the potential-field planner
-    ``APF(weight, **style)`` as ``method = name`` (``style``: ``description``, ``color``,
-    ``linestyle``)."""
-    declare_gains(*weight.gains)
-    WEIGHTS.register(name, weight, replace=replace)
-    if planner:
-        register_planner(name, APF(weight, **style), replace=replace)
-    return weight
-
-
 # The paper's gains, in the order of its tables, then its three methods.
 declare_gains(GAMMA, K, *APF_GAINS)
-register_weight("basic", Basic(), color="tab:orange", linestyle=":",
-                description="the classical potential field: ω = 1 (paper eq. 13)")
-register_weight("direction", Direction(), color="tab:purple", linestyle="--",
-                description="direction-weighted: ω = 1 + γ(1 + cos θ)/2 (paper eq. 15)")
-register_weight("direction_velocity", DirectionVelocity(), color="tab:blue", linestyle="-",
-                description="the paper's proposal: ω = [1 + γ(1 + cos θ)/2](2 + k tanh c) (paper eq. 19)")
-register_weight("direction_normalised", Normalised(Direction()), color="tab:pink", linestyle="--",
-                description="direction weight divided by its abeam value 1 + γ/2: shape without strength")
-register_weight("direction_velocity_normalised", Normalised(DirectionVelocity()), color="tab:cyan", linestyle="-.",
-                description="the paper's weight divided by its abeam, non-closing value (1 + γ/2)·2")
+register_planner("basic", APF(Basic(), color="tab:orange", linestyle=":",
+                              description="the classical potential field: ω = 1 (paper eq. 13)"))
+register_planner("direction", APF(Direction(), color="tab:purple", linestyle="--",
+                                  description="direction-weighted: ω = 1 + γ(1 + cos θ)/2 (paper eq. 15)"))
+register_planner("direction_velocity", APF(DirectionVelocity(), color="tab:blue", linestyle="-",
+                                           description="the paper's proposal: ω = [1 + γ(1 + cos θ)/2](2 + k tanh c) "
+                                                       "(paper eq. 19)"))
+register_planner("direction_normalised", APF(Normalised(Direction()), color="tab:pink", linestyle="--",
+                                             description="direction weight divided by its abeam value 1 + γ/2: "
+                                                         "shape without strength"))
+register_planner("direction_velocity_normalised", APF(Normalised(DirectionVelocity()), color="tab:cyan",
+                                                      linestyle="-.", description="the paper's weight divided by its "
+                                                      "abeam, non-closing value (1 + γ/2)·2"))

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 import jax.numpy as jnp
 from jax import Array
 
-from ..gains import GainSpec, declare_gains
+from ..gains import GainSpec, declare_entry_gains
 from ..registry import Registry
 
 if TYPE_CHECKING:
@@ -98,10 +98,9 @@ def _describe(planner: Planner) -> str:
 
 
 #: Registered planners: the values of ``method``.
-PLANNERS: Registry[Planner] = Registry("planner", describe=_describe)
+PLANNERS: Registry[Planner] = Registry("planner", describe=_describe, on_register=declare_entry_gains)
 
 
 def register_planner(name: str, planner: Planner, *, replace: bool = False) -> Planner:
-    """Register ``planner`` as ``method = name`` and declare its gains."""
-    declare_gains(*planner.gains)
+    """Register ``planner`` as ``method = name`` (its gains are declared)."""
     return PLANNERS.register(name, planner, replace=replace)

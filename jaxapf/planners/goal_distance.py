@@ -33,7 +33,8 @@ import jax.numpy as jnp
 from jax import Array
 
 from ..gains import GainSpec
-from .apf import register_weight
+from .apf import APF
+from .base import register_planner
 from .sight import Sight
 from .weights import Weight
 
@@ -68,6 +69,7 @@ class GoalDistance(Weight):
         return jnp.ones((), jnp.result_type(float))
 
 
-register_weight("ge_cui_bounded", GoalDistance(), color="tab:brown", linestyle="--",
-                description="bounded variant of Ge–Cui: the basic repulsion scaled by (ρ_g²/(ρ_g² + d_s²))^(n/2), "
-                            "vanishing at the goal (after Ge & Cui 2000)")
+register_planner("ge_cui_bounded", APF(GoalDistance(), color="tab:brown", linestyle="--",
+                                     description="bounded variant of Ge–Cui: the basic repulsion scaled by "
+                                                 "(ρ_g²/(ρ_g² + d_s²))^(n/2), vanishing at the goal "
+                                                 "(after Ge & Cui 2000)"))

@@ -31,9 +31,10 @@ from jax import Array
 from ..config import CONVENTIONS
 from ..datatypes import ObstacleColumns, Obstacles, safe_norm
 from ..gains import Gains
-from ..validation import check_choice
+from ..validation import ConfigError, check_choice
+from .base import PLANNERS
 from .sight import Sight, line_of_sight, norm
-from .weights import WEIGHTS, Weight, direction_weight, velocity_weight
+from .weights import Weight, direction_weight, velocity_weight
 
 __all__ = [
     "D_MIN",
@@ -92,7 +93,14 @@ def repulsive_potential(d: Array, k_rep: Array, d_s: Array, d_min: float = D_MIN
 
 
 def _weight(method: str | Weight) -> Weight:
-    return method if isinstance(method, Weight) else WEIGHTS.get(method, "method")
+    """``method`` itself, or the weight of the potential-field planner registered as ``method``."""
+    if isinstance(method, Weight):
+        return method
+    weight = getattr(PLANNERS.get(method, "method"), "weight", None)
+    if not isinstance(weight, Weight):
+        raise ConfigError(f"method = {method!r} is not a potential-field planner (no weight ω); choose one of "
+                          + ", ".join(n for n, p in PLANNERS.items() if isinstance(getattr(p, "weight", None), Weight)))
+    return weight
 
 
 def weight(p: Array, v: Array, p_o: Array, v_o: Array, *, method: str | Weight, convention: str,

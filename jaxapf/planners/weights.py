@@ -27,9 +27,8 @@ weight by its value at the reference condition — obstacle abeam (θ = 90°), z
 *shape* of the weighting differs; ``direction_normalised`` and ``direction_velocity_normalised``
 are registered.
 
-A new weight is a subclass of :class:`Weight` registered with
-:func:`jaxapf.planners.register_weight` (which also registers the potential-field planner that
-uses it).
+A new weight is a subclass of :class:`Weight`, flown by registering the potential-field planner that
+uses it: ``register_planner(NAME, APF(weight))``.
 """
 
 from __future__ import annotations
@@ -42,11 +41,10 @@ import jax.numpy as jnp
 from jax import Array
 
 from ..gains import GainSpec
-from ..registry import Registry
 from ..validation import ConfigError
 from .sight import Sight, dot, norm
 
-__all__ = ["GAMMA", "K", "Weight", "WEIGHTS", "Basic", "Direction", "DirectionVelocity", "Normalised",
+__all__ = ["GAMMA", "K", "Weight", "Basic", "Direction", "DirectionVelocity", "Normalised",
            "reference_sight", "direction_weight", "velocity_weight"]
 
 GAMMA = GainSpec("gamma", 1.0, low=0.0, symbol="γ",
@@ -150,10 +148,6 @@ class DirectionVelocity(Weight):
         gamma, k = gains.gamma, gains.k
         lo = jnp.where(k <= 2.0, 2.0 - k, (1.0 + gamma) * (2.0 - k))
         return lo, (1.0 + gamma) * (2.0 + k)
-
-
-#: Registered weights, by the name of the planner that uses them.
-WEIGHTS: Registry[Weight] = Registry("weight")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 from jax import Array
 
-from ..gains import GainSpec, declare_gains
+from ..gains import GainSpec, declare_entry_gains
 from ..registry import Registry
 
 if TYPE_CHECKING:
@@ -60,10 +60,9 @@ class Plant(abc.ABC):
 
 
 #: Registered plants (``double_integrator`` is the default of :class:`~jaxapf.config.VehicleConfig`).
-PLANTS: Registry[Plant] = Registry("plant")
+PLANTS: Registry[Plant] = Registry("plant", on_register=declare_entry_gains)
 
 
 def register_plant(name: str, plant: Plant, *, replace: bool = False) -> Plant:
-    """Register ``plant`` under ``name`` and declare its gains."""
-    declare_gains(*plant.gains)
+    """Register ``plant`` as ``plant = name`` (its gains are declared)."""
     return PLANTS.register(name, plant, replace=replace)

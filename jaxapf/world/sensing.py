@@ -24,10 +24,10 @@ import jax.numpy as jnp
 from jax import Array
 
 from ..datatypes import ObstacleColumns, episode_key
-from ..gains import GainSpec
+from ..gains import GainSpec, declare_entry_gains
 from ..planners.sight import line_of_sight, norm
 from ..registry import Registry
-from ..stage import Stage, register_stage
+from ..stage import Stage
 
 if TYPE_CHECKING:
     from ..config import SimConfig
@@ -171,12 +171,12 @@ class NoisySensor(Sensor):
 
 
 #: Registered sensing models: the values of ``sensor`` (default ``ideal``).
-SENSORS: Registry[Sensor] = Registry("sensor")
+SENSORS: Registry[Sensor] = Registry("sensor", on_register=declare_entry_gains)
 
 
 def register_sensor(name: str, sensor: Sensor, *, replace: bool = False) -> Sensor:
     """Register ``sensor`` as ``sensor = name`` and declare its gains."""
-    return register_stage(SENSORS, name, sensor, replace=replace)
+    return SENSORS.register(name, sensor, replace=replace)
 
 
 register_sensor("ideal", Ideal())

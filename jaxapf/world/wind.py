@@ -31,9 +31,9 @@ import jax.numpy as jnp
 from jax import Array
 
 from ..datatypes import episode_key
-from ..gains import GainSpec
+from ..gains import GainSpec, declare_entry_gains
 from ..registry import Registry
-from ..stage import Stage, register_stage
+from ..stage import Stage
 
 if TYPE_CHECKING:
     from ..config import SimConfig
@@ -101,12 +101,12 @@ class Wind(Disturbance):
 
 
 #: Registered disturbances: the values of ``disturbance`` (default ``none``).
-DISTURBANCES: Registry[Disturbance] = Registry("disturbance")
+DISTURBANCES: Registry[Disturbance] = Registry("disturbance", on_register=declare_entry_gains)
 
 
 def register_disturbance(name: str, disturbance: Disturbance, *, replace: bool = False) -> Disturbance:
     """Register ``disturbance`` as ``disturbance = name`` and declare its gains."""
-    return register_stage(DISTURBANCES, name, disturbance, replace=replace)
+    return DISTURBANCES.register(name, disturbance, replace=replace)
 
 
 register_disturbance("none", Calm())

@@ -12,7 +12,7 @@ from jaxapf.bench import oracle
 from jaxapf.config import MPCConfig, SimConfig
 from jaxapf.engine import rollout
 from jaxapf.gains import Gains
-from jaxapf.planners import PLANNERS, WEIGHTS
+from jaxapf.planners import PLANNERS
 from jaxapf.planners.potentials import total_force
 
 GAINS = Gains(n_g=1.5, k_rep=8.0, d_s=3.5, k_att=1.2)
@@ -71,7 +71,7 @@ def test_the_repulsion_vanishes_at_the_goal():
 def test_omega_lies_in_its_bounds_and_tends_to_one_far_away(rho, n_g):
     from jaxapf.planners.sight import Sight
 
-    weight = WEIGHTS.get("ge_cui_bounded")
+    weight = PLANNERS.get("ge_cui_bounded").weight
     gains = Gains(n_g=n_g)
     sight = Sight(s=(jnp.ones(()),) * 3, v=jnp.zeros(3), v_o=jnp.zeros(3), p=jnp.asarray([rho, 0.0, 0.0]),
                   goal=jnp.zeros(3))

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from jaxapf.config import CONVENTIONS
 from jaxapf.datatypes import Obstacles
 from jaxapf.gains import Gains
-from jaxapf.planners import WEIGHTS
+from jaxapf.planners import APF, PLANNERS
 from jaxapf.planners.potentials import (
     repulsive_force,
     total_force,
@@ -181,9 +181,12 @@ def test_padded_slots_contribute_exactly_nothing():
 
 
 def test_unknown_method_is_a_clear_error():
-    with pytest.raises(ConfigError, match="method = 'magic' is not a registered weight"):
+    with pytest.raises(ConfigError, match="method = 'magic' is not a registered planner"):
         weighted_repulsive_potential(jnp.zeros(3), jnp.zeros(3), jnp.ones(3), jnp.zeros(3), k_rep=1.0,
                                      d_s=2.0, gamma=0.0, k=0.0, method="magic")
+    with pytest.raises(ConfigError, match="'velocity_obstacle' is not a potential-field planner.*direction_velocity"):
+        weighted_repulsive_potential(jnp.zeros(3), jnp.zeros(3), jnp.ones(3), jnp.zeros(3), k_rep=1.0,
+                                     d_s=2.0, gamma=0.0, k=0.0, method="velocity_obstacle")
 
 
 @pytest.mark.parametrize("method,convention", VARIANTS)
@@ -233,11 +236,14 @@ def test_component_first_obstacles_equal_one_at_a_time():
 @settings(max_examples=30, deadline=None)
 @given(gamma=st.floats(0.0, 5.0), k=st.floats(0.0, 3.0))
 def test_every_normalised_weight_is_one_at_its_reference_condition(gamma, k):
-    """ω / ω(θ = 90°, c = 0) = 1 there, for every registered weight and any gains (SPEC 3, fair strength)."""
+    """ω / ω(θ = 90°, c = 0) = 1 there, for the weight of every registered potential-field planner and any
+    gains (SPEC 3, fair strength)."""
     from jaxapf.planners.weights import Normalised, reference_sight
 
     gains = Gains.unchecked({"gamma": jnp.float32(gamma), "k": jnp.float32(k)})
-    for name, w in WEIGHTS.items():
+    weights = {name: p.weight for name, p in PLANNERS.items() if isinstance(p, APF)}
+    assert {"basic", "direction", "direction_velocity", "ge_cui_bounded"} <= set(weights)
+    for name, w in weights.items():
         value = Normalised(w)(reference_sight(jnp.float32), gains, convention="intent", eps_v=1e-3)
         np.testing.assert_allclose(float(value), 1.0, rtol=1e-6, err_msg=name)
 

@@ -85,7 +85,7 @@ def _mean_speed(ctx: jaxapf.EpisodeContext):
     return jnp.sum(jnp.where(ctx.sample_valid, speed, 0.0)) / jnp.sum(ctx.sample_valid)
 
 
-jaxapf.register_weight("sideways", Sideways(), description="test plugin: obstacles to the side weigh more")
+jaxapf.register_planner("sideways", jaxapf.APF(Sideways(), description="test plugin: obstacles to the side weigh more"))
 jaxapf.register_planner("sideways_drift", jaxapf.APF(Sideways(), terms=(Drift(),), description="test plugin"))
 jaxapf.register_filter("damped", Damped())
 register_family(PillarParams, _pillar, ("thin", "thick"), description="test plugin: one pillar on the line")
