@@ -25,11 +25,7 @@ from typing import Any
 
 __all__ = ["catalog", "live", "fingerprint", "catalog_path"]
 
-#: ``jaxapf list`` targets and the component key (:data:`jaxapf.engine.components.COMPONENTS`) of each component.
-COMPONENT_LISTS = {"planners": "method", "filters": "filter", "plants": "plant", "sensors": "sensor",
-                   "disturbances": "disturbance"}
-LISTS = (*COMPONENT_LISTS, "families", "metrics", "gains")
-_VERSION = 1  # of the catalogue's layout
+_VERSION = 2  # of the catalogue's layout
 
 
 def fingerprint() -> str:
@@ -60,22 +56,22 @@ def live() -> dict[str, Any]:
     from .metrics import METRICS
     from .scenarios import FAMILIES
 
-    registries = {name: COMPONENTS[key] for name, key in COMPONENT_LISTS.items()} | {
-        "families": FAMILIES, "metrics": METRICS, "gains": GAINS}
     lists = {}
-    for what, registry in registries.items():
+    for registry in (*COMPONENTS.values(), FAMILIES, METRICS, GAINS):
         entries = []
         for name in registry.names():
             entry = {"name": name, "describe": registry.describe(name)}
-            if what in COMPONENT_LISTS:
+            if registry in COMPONENTS.values():
                 entry["gains"] = [g.name for g in registry.get(name).gains]
             entries.append(entry)
-        lists[what] = entries
+        lists[registry.listed_as] = entries
     defaults = SimConfig().flat()
     return {
         "lists": lists,
+        "components": [{"key": key, "list": registry.listed_as, "role": registry.role, "default": defaults[key]}
+                       for key, registry in COMPONENTS.items()],
         "gains": [{"name": n, "doc": s.doc, "unit": s.unit, "default": float(s.default)} for n, s in GAINS.items()],
-        "defaults": {k: defaults[k] for k in ("filter", "plant", "sensor", "disturbance", "convention", "dt")},
+        "defaults": {k: defaults[k] for k in ("convention", "dt")},
         "conventions": list(CONVENTIONS),
         "mpc": {"horizon": MPCConfig.horizon, "iters": MPCConfig.iters},
     }

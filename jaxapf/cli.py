@@ -19,7 +19,6 @@ from typing import Sequence
 
 __all__ = ["main", "build_parser"]
 
-_LISTS = ("planners", "filters", "plants", "sensors", "disturbances", "families", "metrics", "gains")
 #: The registries' catalogue the parser is built from (:func:`jaxapf.catalog.catalog`); set by :func:`main`.
 _CATALOG: dict | None = None
 #: What an interrupted command leaves behind, for the one line Ctrl-C prints.
@@ -106,14 +105,10 @@ def build_parser() -> argparse.ArgumentParser:
     _gain_flags(sim)
     s = sim.add_argument_group("simulation and MPC")
     defaults = cat["defaults"]
-    s.add_argument("--filter", default=defaults["filter"], choices=_names("filters"),
-                   help=f"safety filter between the MPC and the plant (default {defaults['filter']})")
-    s.add_argument("--plant", default=defaults["plant"], choices=_names("plants"),
-                   help=f"vehicle model (default {defaults['plant']})")
-    s.add_argument("--sensor", default=defaults["sensor"], choices=_names("sensors"),
-                   help=f"what the stack sees of the world (default {defaults['sensor']})")
-    s.add_argument("--disturbance", default=defaults["disturbance"], choices=_names("disturbances"),
-                   help=f"what acts on the plant besides the command (default {defaults['disturbance']})")
+    for component in cat["components"]:  # every component but the planner (--methods): --filter, --plant, ...
+        if component["key"] != "method":
+            s.add_argument(f"--{component['key']}", default=component["default"], choices=_names(component["list"]),
+                           help=f"{component['role']} (default {component['default']})")
     s.add_argument("--convention", choices=cat["conventions"], default=defaults["convention"],
                    help="sign convention of the direction and velocity weights (default intent)")
     s.add_argument("--dt", type=float, default=defaults["dt"], help=f"control step [s] (default {defaults['dt']:g})")
@@ -225,9 +220,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="also time the sweep with the host split into N CPU devices (default 2; 0: skip)")
     bsw.add_argument("--json", action="store_true", help="print one JSON object")
 
-    lst = sub.add_parser("list", help="what is registered: " + ", ".join(_LISTS),
+    lst = sub.add_parser("list", help="what is registered: " + ", ".join(cat["lists"]),
                          description="Print a registry, one line per entry.")
-    lst.add_argument("what", choices=_LISTS, help="which registry")
+    lst.add_argument("what", choices=tuple(cat["lists"]), help="which registry")
     return parser
 
 
@@ -280,8 +275,9 @@ def _simulate(args: argparse.Namespace) -> int:
     gains = _gains(args)
     check_writable(args.out)
     t_max = args.t_max if args.t_max is not None else family_params(args.family).t_max
-    sim = SimConfig.from_flat(method=args.methods[0], filter=args.filter, plant=args.plant, sensor=args.sensor,
-                              disturbance=args.disturbance, convention=args.convention, dt=args.dt, t_max=t_max)
+    components = {c["key"]: getattr(args, c["key"]) for c in _catalog()["components"] if c["key"] != "method"}
+    sim = SimConfig.from_flat(method=args.methods[0], **components, convention=args.convention, dt=args.dt,
+                              t_max=t_max)
     mpc = MPCConfig(horizon=args.horizon, iters=args.iters)
     start = time.perf_counter()
     field, runs, table = simulate_runs(args.family, args.seed, args.field, args.methods, gains, sim, mpc)

@@ -32,11 +32,16 @@ class Registry(Generic[T]):
       describe: one line about an entry for ``jaxapf list`` (default: its docstring's first line).
       on_register: called with every entry before it is entered (a component registry passes
         :func:`jaxapf.gains.declare_entry_gains`: registering a component declares its gains).
+      listed_as: its target of ``jaxapf list`` (default ``what`` + "s").
+      role: what an entry does, in a few words, for help texts (default ``what``).
     """
 
     def __init__(self, what: str, describe: Callable[[T], str] | None = None,
-                 on_register: Callable[[T], object] | None = None) -> None:
+                 on_register: Callable[[T], object] | None = None, *, listed_as: str | None = None,
+                 role: str | None = None) -> None:
         self.what = what
+        self.listed_as = listed_as or f"{what}s"
+        self.role = role or what
         self._entries: dict[str, T] = {}
         self._describe = describe
         self._on_register = on_register

@@ -12,9 +12,10 @@ import textwrap
 from cli_capture import capture
 from conftest import ROOT
 
-from jaxapf.catalog import LISTS
+from jaxapf.catalog import live
 from jaxapf.cli import main
 
+LISTS = tuple(live()["lists"])
 COMMANDS = ("simulate", "sweep", "report", "tune", "compare", "bench", "list")
 CALLS = ([["--help"]] + [[c, "--help"] for c in COMMANDS] + [["bench", "engine", "--help"]]
          + [["list", w] for w in LISTS]

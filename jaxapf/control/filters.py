@@ -50,7 +50,8 @@ class Passthrough(SafetyFilter):
 
 
 #: Registered safety filters: the values of ``filter`` (default ``none``).
-FILTERS: Registry[SafetyFilter] = Registry("safety filter", on_register=declare_entry_gains)
+FILTERS: Registry[SafetyFilter] = Registry("safety filter", on_register=declare_entry_gains, listed_as="filters",
+                                            role="safety filter between the MPC and the plant")
 
 
 def register_filter(name: str, safety_filter: SafetyFilter, *, replace: bool = False) -> SafetyFilter:

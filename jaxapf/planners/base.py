@@ -98,7 +98,8 @@ def _describe(planner: Planner) -> str:
 
 
 #: Registered planners: the values of ``method``.
-PLANNERS: Registry[Planner] = Registry("planner", describe=_describe, on_register=declare_entry_gains)
+PLANNERS: Registry[Planner] = Registry("planner", describe=_describe, on_register=declare_entry_gains,
+                                       role="what turns the UAV's state and the obstacles into the MPC's reference")
 
 
 def register_planner(name: str, planner: Planner, *, replace: bool = False) -> Planner:

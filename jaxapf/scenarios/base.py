@@ -139,7 +139,7 @@ def _describe(family: Family) -> str:
 
 
 #: Registered scenario families.
-FAMILIES: Registry[Family] = Registry("family", describe=_describe)
+FAMILIES: Registry[Family] = Registry("family", describe=_describe, listed_as="families")
 
 
 def register_family(params: type[FamilyParams], build: Callable[..., Any], kinds: tuple[str, ...] | None = None,

@@ -60,7 +60,7 @@ class Plant(abc.ABC):
 
 
 #: Registered plants (``double_integrator`` is the default of :class:`~jaxapf.config.VehicleConfig`).
-PLANTS: Registry[Plant] = Registry("plant", on_register=declare_entry_gains)
+PLANTS: Registry[Plant] = Registry("plant", on_register=declare_entry_gains, role="vehicle model")
 
 
 def register_plant(name: str, plant: Plant, *, replace: bool = False) -> Plant:

@@ -171,7 +171,8 @@ class NoisySensor(Sensor):
 
 
 #: Registered sensing models: the values of ``sensor`` (default ``ideal``).
-SENSORS: Registry[Sensor] = Registry("sensor", on_register=declare_entry_gains)
+SENSORS: Registry[Sensor] = Registry("sensor", on_register=declare_entry_gains,
+                                     role="what the stack sees of the world")
 
 
 def register_sensor(name: str, sensor: Sensor, *, replace: bool = False) -> Sensor:

@@ -101,7 +101,8 @@ class Wind(Disturbance):
 
 
 #: Registered disturbances: the values of ``disturbance`` (default ``none``).
-DISTURBANCES: Registry[Disturbance] = Registry("disturbance", on_register=declare_entry_gains)
+DISTURBANCES: Registry[Disturbance] = Registry("disturbance", on_register=declare_entry_gains,
+                                                   role="what acts on the plant besides the command")
 
 
 def register_disturbance(name: str, disturbance: Disturbance, *, replace: bool = False) -> Disturbance:
