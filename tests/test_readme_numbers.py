@@ -1,5 +1,5 @@
-"""Every number in README's "What the data says" comes from the committed results of the studies its row
-names, and every number of its "Speed" section, of docs/performance.md and of docs/testing.md's cost from
+"""Every number in README's "What the data says" (and in the docs sections that report a study) comes
+from the committed results of the studies its row names, and every number of its "Speed" section, of docs/performance.md and of docs/testing.md's cost from
 the committed benchmark runs (benchmarks/results/, written by benchmarks/record.py, quickstart.py and
 suite.py): a rerun that changes a number fails here until the text follows."""
 
@@ -149,6 +149,18 @@ def test_every_number_of_the_performance_page_comes_from_the_runs_its_section_ci
         source |= numbers(results_text("fista_iterations"))
     missing = unmatched(numbers(prose(body)), source)
     assert not missing, f"docs/performance.md '{title}': numbers in none of {sorted(cited_runs(body))}: {missing}"
+
+
+#: Sections of docs/ that report a study: (page, section, the study's results folder).
+STUDY_SECTIONS = [("docs/tune.md", "Measured results", "tuning"),
+                  ("docs/scenarios.md", "Which settings separate what", "family_variants")]
+
+
+@pytest.mark.parametrize("page, title, folder", STUDY_SECTIONS, ids=[p for p, _, _ in STUDY_SECTIONS])
+def test_a_docs_section_reporting_a_study_states_its_results(page, title, folder):
+    body = section((ROOT / page).read_text(), title)
+    missing = unmatched(numbers(prose(body)), numbers(results_text(folder)))
+    assert not missing, f"{page} '{title}': numbers not in analysis/results/{folder}/README.md: {missing}"
 
 
 def test_the_studies_summary_cites_their_results():
