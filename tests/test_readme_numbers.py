@@ -1,7 +1,8 @@
 """Every number in README's "What the data says" (and in the docs sections that report a study) comes
-from the committed results of the studies its row names, and every number of its "Speed" section, of docs/performance.md and of docs/testing.md's cost from
-the committed benchmark runs (benchmarks/results/, written by benchmarks/record.py, quickstart.py and
-suite.py): a rerun that changes a number fails here until the text follows."""
+from the committed results of the studies its row names, and every number of its "Speed" section,
+of docs/performance.md and of docs/testing.md's cost from the committed benchmark runs
+(benchmarks/results/, written by benchmarks/record.py, quickstart.py and suite.py): a rerun that
+changes a number fails here until the text follows."""
 
 from __future__ import annotations
 
