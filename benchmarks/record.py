@@ -1,4 +1,4 @@
-"""Run the benchmarks whose figures docs/performance.md quotes and keep their JSON in benchmarks/results/.
+"""Run the benchmarks whose figures docs/performance.md and docs/sweep.md quote; keep their JSON in benchmarks/results/.
 
     python benchmarks/record.py                 # every record below, one after the other
     python benchmarks/record.py world split     # only these
@@ -37,6 +37,7 @@ RECORDS: dict[str, tuple[str, int]] = {
     "xla-fusion-emitters": ("python benchmarks/xla_options.py --xla-option xla_cpu_use_fusion_emitters=true --json", 1),
     "xla-region-analysis": (
         "python benchmarks/xla_options.py --xla-option xla_cpu_copy_insertion_use_region_analysis=false --json", 1),
+    "faults": ("python benchmarks/faults.py --json", 1),
 }
 
 
