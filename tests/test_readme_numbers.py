@@ -130,7 +130,8 @@ def sections(text: str) -> list[tuple[str, str]]:
     return [("", parts[0])] + list(zip(parts[1::2], parts[2::2]))
 
 
-@pytest.mark.parametrize("page, title", [("README.md", "Speed"), ("docs/testing.md", "Cost")])
+@pytest.mark.parametrize("page, title", [("README.md", "Speed"), ("docs/testing.md", "Cost"),
+                                         ("docs/sweep.md", "Measured figures")])
 def test_speed_numbers_come_from_the_runs_they_cite(page, title):
     body = section((ROOT / page).read_text(), title)
     missing = unmatched(numbers(prose(body)), benchmark_numbers(cited_runs(body)))

@@ -39,20 +39,17 @@ ACCELERATOR_WIDTH = 4096
 #: XLA options of every compiled closed loop (CPU only; other backends ignore them):
 #:
 #: * ``xla_cpu_experimental_ynn_fusion_type = ""``: jaxlib 0.10 hands reductions and small matrix
-#:   products on CPU to YNNPACK kernels, which run the APF's sums over obstacles and xyz several
-#:   times slower than XLA's own fused loops (``jaxapf bench``: the engine took about twice as long);
-#:   the empty list switches YNNPACK fusions off.
+#:   products on CPU to YNNPACK kernels, which run the APF's sums over obstacles and xyz slower
+#:   than XLA's own fused loops; the empty list switches YNNPACK fusions off.
 #: * ``xla_cpu_use_fusion_emitters = False``: XLA's classic loop emitter instead of the newer
 #:   fusion emitters. On a lone elementwise kernel the fusion emitters are the faster ones
 #:   (``benchmarks/kernels.py``), but the closed loop's kernels are large fusions of the APF's
 #:   forward and backward pass over ``(fields, obstacles)``, which the fusion emitters compile
-#:   into slower code: the whole closed loop runs about 1.1-1.2x faster with the classic one
-#:   (``benchmarks/xla_options.py --xla-option xla_cpu_use_fusion_emitters=true`` compiles one
-#:   lowering both ways and times them interleaved; docs/performance.md).
+#:   into slower code (``benchmarks/xla_options.py`` times one lowering both ways; the figures are
+#:   in docs/performance.md).
 #: * ``xla_cpu_copy_insertion_use_region_analysis = True``: XLA's copy insertion analyses the
 #:   loops' regions, so FISTA's ``lax.scan`` keeps one copy of its carry per iteration instead of
-#:   three; the same arithmetic, about 1.07x faster (median of five ``benchmarks/xla_options.py``
-#:   runs, docs/performance.md).
+#:   three: the same arithmetic, faster (docs/performance.md).
 XLA_OPTIONS = {
     "xla_cpu_experimental_ynn_fusion_type": "",
     "xla_cpu_use_fusion_emitters": False,

@@ -26,7 +26,7 @@ Samples after an episode's end are never read by a metric (:mod:`jaxapf.metrics.
 metric masks them), so the metrics are those of the fixed engine up to rounding: XLA compiles the
 control step inside a different program and rounds some operations apart in the last bit, which
 the closed loop can amplify along an episode (``jaxapf bench sweep`` measures the agreement:
-identical outcomes on 99.9 % of episodes, docs/performance.md). Within the streaming engine an
+docs/performance.md gives the agreement). Within the streaming engine an
 episode's numbers do not depend on the queue it ran in, bit for bit (``tests/engine/test_stream.py``):
 the queue is every (setting, field) episode ``e = g·F + f`` in order, and which slot flies an
 episode, or when, changes nothing in its numbers.

@@ -49,19 +49,18 @@ WIDTH_BUDGET = DEFAULT_MEMORY_BUDGET // 2
 #: A part holds at most this many vmapped batches per device (a few seconds to a minute of work
 #: on a CPU core at the default MPC settings), so progress and resume have a fine grain.
 CALLS_PER_PART = 256
-#: Memory of the process besides its chunks (Python, JAX, loaded programs) [bytes]: about 430 MB
-#: measured on CPU (jax 0.10, warm cache); XLA compilation adds up to ~1 GB while it runs.
+#: Memory of the process besides its chunks (Python, JAX, loaded programs) [bytes], on CPU with a
+#: warm cache; XLA compilation adds more while it runs.
 PROCESS_BASELINE = 450 * 2**20
 #: Cost model of one episode step [µs of wall time] on one CPU device (float32, vmap width 1024,
 #: XLA spreading the kernels over the cores): ``c0 + c_qp·N·I + c_obs·N·M + c_n·N`` (N horizon,
 #: I FISTA iterations, M obstacle slots), fitted by ``benchmarks/fit_cost.py`` (least squares on
-#: 18 configurations, N 10–40, I 10–60, M 4 and 16) on the 2-core AMD EPYC development machine
-#: with the classic loop emitters of ``rollout.XLA_OPTIONS``; the fit is within 0.77–1.46× of
-#: every measurement (two fits in a row agreed within 3 % at N = 20, I = 30, M = 16).
+#: 18 configurations, N 10–40, I 10–60, M 4 and 16) on the 2-core development machine with
+#: :data:`jaxapf.engine.XLA_OPTIONS`; docs/performance.md gives how far the fit is from its
+#: measurements.
 STEP_COST_US = (3.002, 0.009114, 0.006484, 0.09848)
-#: Cold XLA compile of one (streaming) evaluate program on that machine [s]: 3.3 s (one vmap
-#: level) and 4.2 s (two) on `crossing`, 5–7 s before the store was flushed from one place;
-#: an upper estimate for families with many obstacle slots.
+#: Cold XLA compile of one (streaming) evaluate program on that machine [s]: an upper estimate,
+#: for families with many obstacle slots.
 COMPILE_S = 6.0
 
 _PART = re.compile(r"^part-v(\d{3,})-([a-z_][a-z0-9_]*)-f(\d{8,})-(\d{8,})\.parquet$")
