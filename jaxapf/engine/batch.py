@@ -103,7 +103,7 @@ def evaluate(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, 
     """Metrics of every (gain setting, field) pair: arrays of shape (G, F), in one compiled call.
 
     The G·F episodes ``e = g·F + f`` form one queue. By default they are streamed
-    (:mod:`jaxapf.stream`): a few hundred slots fly them side by side and each slot takes the next
+    (:mod:`jaxapf.engine.stream`): a few hundred slots fly them side by side and each slot takes the next
     episode when its own ends, so no step is simulated after an episode is over. With
     ``streaming=False`` (the fixed-length engine) the queue is padded to a multiple of ``width``
     and run as a ``lax.map`` over batches of ``width`` vmapped episodes of ``T`` steps each. Both
