@@ -28,7 +28,7 @@ import pandas as pd
 from .. import stats
 from ..metrics import METRICS
 from .document import Document, render_html, render_markdown
-from .figures import DEFAULT_HEATMAP, table_figures
+from .figures import DEFAULT_HEATMAP, check_heatmap, table_figures
 from .gallery import RowWorker
 from .latex import latex_tables
 from .load import ReportError, load_sweep, report_metrics
@@ -143,6 +143,7 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
     if options.profile_metric not in df.columns or options.profile_metric not in METRICS:
         raise ReportError(f"--profile-metric {options.profile_metric!r} is not a metric column of {path}")
     sel = select(df, options)
+    check_heatmap(sel, options)
     rates, continuous = report_metrics(sel.data.columns)
     out.mkdir(parents=True, exist_ok=True)
     figdir = out / "figures"

@@ -36,6 +36,7 @@ __all__ = [
     "plot_continuous",
     "plot_differences",
     "plot_performance_profile",
+    "check_heatmap",
     "row_figures",
     "table_figures",
     "DEFAULT_HEATMAP",
@@ -313,16 +314,26 @@ def plot_differences(comparisons: pd.DataFrame, labels: Mapping[int, str], metri
 # --------------------------------------------------------------------------------------------
 
 
-def _heatmap_figures(sel: Selection, options: Any, figdir: pathlib.Path) -> tuple[list[FigureFile], list[str]]:
-    if options.heatmap is None:
-        return [], ["heatmaps skipped (--heatmap none)"]
+def check_heatmap(sel: Selection, options: Any) -> None:
+    """A ``--heatmap`` naming a column the sweep does not have is an error, raised before any work
+    (without the default's columns, the heatmaps are skipped with a note instead)."""
+    if options.heatmap is None or tuple(options.heatmap) == DEFAULT_HEATMAP:
+        return
     x, y = options.heatmap
     for c in (x, y):
-        if c not in sel.table.columns and tuple(options.heatmap) == DEFAULT_HEATMAP:
-            return [], [f"heatmaps skipped: the sweep has no {c} column (--heatmap X,Y names two swept gains)"]
         if c not in sel.table.columns:
             raise ReportError(f"--heatmap {x},{y}: no setting column {c!r}; use two of "
                               f"{', '.join(sel.swept) or 'the swept gains (none here)'}")
+
+
+def _heatmap_figures(sel: Selection, options: Any, figdir: pathlib.Path) -> tuple[list[FigureFile], list[str]]:
+    if options.heatmap is None:
+        return [], ["heatmaps skipped (--heatmap none)"]
+    check_heatmap(sel, options)
+    x, y = options.heatmap
+    for c in (x, y):
+        if c not in sel.table.columns:
+            return [], [f"heatmaps skipped: the sweep has no {c} column (--heatmap X,Y names two swept gains)"]
     table = sel.table.loc[sel.settings]
     swept_here = [c for c in swept_columns(table)]
     if x not in swept_here or y not in swept_here:
