@@ -20,7 +20,12 @@ from typing import Any, Sequence
 
 from .validation import ConfigError, first_line
 
-__all__ = ["load_plugin", "load_plugins", "check_plugins", "plugin_path"]
+__all__ = ["load_plugin", "load_plugins", "check_plugins", "plugin_path", "LOADED"]
+
+#: Every plugin this process has imported, in order, as ``(name, path)`` (``path``: the ``.py``
+#: file, None for a module name): a second process imports the same ones to see the same registries
+#: (the report's, :class:`jaxapf.report.gallery.RowWorker`).
+LOADED: list[tuple[str, str | None]] = []
 
 
 def plugin_path(name: str, base: str | os.PathLike | None = None) -> str:
@@ -44,6 +49,7 @@ def load_plugin(name: str, where: str = "plugin", path: str | os.PathLike | None
             module_name = f"jaxapf_plugin_{path.stem}_{abs(hash(str(path))):x}"
             if module_name in sys.modules:
                 return sys.modules[module_name]
+            loaded = (name, str(path))
             spec = importlib.util.spec_from_file_location(module_name, path)
             module = importlib.util.module_from_spec(spec)
             sys.modules[module_name] = module
@@ -52,8 +58,11 @@ def load_plugin(name: str, where: str = "plugin", path: str | os.PathLike | None
             except BaseException:
                 del sys.modules[module_name]
                 raise
-            return module
-        return importlib.import_module(name)
+        else:
+            module, loaded = importlib.import_module(name), (name, None)
+        if loaded not in LOADED:
+            LOADED.append(loaded)
+        return module
     except ConfigError:
         raise
     except ImportError as err:

@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import ast
 import graphlib
+import importlib
 import pathlib
+import pkgutil
 
 import pytest
 from conftest import ROOT
@@ -64,3 +66,18 @@ def test_the_check_finds_a_circle():
                                  "jaxapf.sensing", "jaxapf.dynamics", "jaxapf.devices", "jaxapf.components"])
 def test_no_shim_keeps_an_old_import_path(old):
     assert old not in {module_name(p) for p in PACKAGE.rglob("*.py")}
+
+
+def test_no_package_attribute_hides_its_submodule():
+    """``import jaxapf.X.Y as m`` gives the module Y: no package exports a name equal to one of its
+    submodules (``jaxapf.rollout`` was once the function, hiding the module)."""
+    hidden = []
+    for path in sorted(PACKAGE.rglob("__init__.py")):
+        package = importlib.import_module(module_name(path))
+        for sub in pkgutil.iter_modules(package.__path__):
+            if sub.name == "__main__":  # running it is the command line
+                continue
+            module = importlib.import_module(f"{package.__name__}.{sub.name}")
+            if getattr(package, sub.name) is not module:
+                hidden.append(f"{package.__name__}.{sub.name}")
+    assert not hidden, hidden

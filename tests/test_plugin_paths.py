@@ -128,3 +128,32 @@ def test_compare_spec_digest_does_not_depend_on_where_the_spec_lies(tmp_path):
         assert spec.plugin_paths == (str((tmp_path / folder / "noop_plugin.py").resolve()),)
         digests.append(spec_digest(spec))
     assert digests[0] == digests[1]
+
+
+def _registered_after(plugins):
+    """In a fresh process: import ``plugins`` as the report's second process does; the planners then
+    registered and what the process recorded as loaded."""
+    import jaxapf
+    from jaxapf.plugins import LOADED, load_plugin
+
+    for name, path in plugins:
+        load_plugin(name, "plugin", path)
+        load_plugin(name, "plugin", path)  # imported once, recorded once
+    return jaxapf.PLANNERS.names(), list(LOADED)
+
+
+def test_a_second_process_imports_the_plugins_this_one_imported():
+    """The report draws figures in a spawned process (jaxapf.report.gallery.RowWorker), which must see
+    the planners of the plugins loaded in the report's process (by --plugin or by the sweep's spec):
+    jaxapf.plugins.LOADED records them once each. (Fresh processes: a plugin's registrations would
+    outlive the test in this one.)"""
+    import concurrent.futures
+    import multiprocessing
+
+    plugin = (str(PLUGIN), str(PLUGIN.resolve()))
+    spawn = multiprocessing.get_context("spawn")
+    with concurrent.futures.ProcessPoolExecutor(1, mp_context=spawn) as pool:
+        assert "sideways" not in pool.submit(_registered_after, ()).result()[0]
+    with concurrent.futures.ProcessPoolExecutor(1, mp_context=spawn) as pool:
+        planners, loaded = pool.submit(_registered_after, (plugin,)).result()
+    assert "sideways" in planners and loaded == [plugin]

@@ -63,7 +63,7 @@ __all__ = [
     "require_osqp",
 ]
 
-_TINY = 1e-12  # floor inside every square root (safe_norm), as jaxapf.obstacles.TINY
+_TINY = 1e-12  # floor inside every square root (safe_norm), as jaxapf.datatypes.obstacles.TINY
 
 
 def require_osqp():

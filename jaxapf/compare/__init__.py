@@ -8,8 +8,8 @@
 """
 
 from .protocol import run_compare, run_compare_spec, test_sweep_spec
-from .select import Selection, select
+from .select import Selection
 from .spec import CompareSpec, load_compare_spec, parse_compare_spec
 
-__all__ = ["run_compare", "run_compare_spec", "test_sweep_spec", "Selection", "select", "CompareSpec",
+__all__ = ["run_compare", "run_compare_spec", "test_sweep_spec", "Selection", "CompareSpec",
            "load_compare_spec", "parse_compare_spec"]

@@ -7,10 +7,11 @@ import concurrent.futures
 import math
 import multiprocessing
 import pathlib
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import pandas as pd
 
+from ..plugins import LOADED, load_plugin
 from ..validation import ConfigError, first_line
 from .document import FigureFile, save_figure
 from .figures import row_figures
@@ -122,13 +123,17 @@ _JAX_SETTINGS = ("jax_enable_x64", "jax_compilation_cache_dir", "jax_persistent_
 
 
 def _row_work(sel: Selection, meta: Mapping, options: Any, figdir: pathlib.Path,
-              jax_settings: Mapping[str, Any] | None = None) -> tuple[list[FigureFile], list[FigureFile], list[str]]:
-    """:func:`~jaxapf.report.figures.row_figures`, then the gallery: ``(figures, gallery figures, notes)``."""
+              jax_settings: Mapping[str, Any] | None = None,
+              plugins: Sequence[tuple[str, str | None]] = ()) -> tuple[list[FigureFile], list[FigureFile], list[str]]:
+    """:func:`~jaxapf.report.figures.row_figures`, then the gallery: ``(figures, gallery figures, notes)``.
+    In a second process: with the report's JAX settings and its plugins (:data:`jaxapf.plugins.LOADED`)."""
     if jax_settings:
         import jax
 
         for key, value in jax_settings.items():
             jax.config.update(key, value)
+    for name, path in plugins:
+        load_plugin(name, "plugin", path)
     figures, notes = row_figures(sel, options, figdir)
     shown, gallery_notes = gallery(sel, resimulate(sel, meta, options), options, figdir)
     return figures, shown, notes + gallery_notes
@@ -154,7 +159,7 @@ class RowWorker:
         settings = {key: getattr(jax.config, key) for key in _JAX_SETTINGS}
         try:
             self._pool = concurrent.futures.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
-            self._future = self._pool.submit(_row_work, *self._args, settings)
+            self._future = self._pool.submit(_row_work, *self._args, settings, tuple(LOADED))
         except OSError:  # no process can be started here: result() makes them in this process
             self._pool = self._future = None
         return self

@@ -164,7 +164,7 @@ def _relevant(centres: np.ndarray, radii: np.ndarray, lo: np.ndarray, hi: np.nda
 def _static_discs(f: _Field, r_uav: float, h: float, margin: float) -> tuple[np.ndarray, np.ndarray]:
     """Which obstacles (n,) the static test rasterises, and their blocking squared radii (n,) at
     cell ``h``: those whose blocked disc touches the start–goal box grown by ``margin``, or is joined
-    to one by a chain of discs (module docstring)."""
+    to one by a chain of discs (docs/scenarios.md)."""
     r2 = _blocking_r2(f, np.ones(f.radius.shape, bool), 0.0, f.start[2], f.radius + r_uav - h / math.sqrt(2))
     lo = np.minimum(f.start[:2], f.goal[:2]) - margin
     hi = np.maximum(f.start[:2], f.goal[:2]) + margin
@@ -181,8 +181,8 @@ def _chebyshev_sum(p: np.ndarray, start: np.ndarray, goal: np.ndarray) -> np.nda
 def _connected(f: _Field, keep: np.ndarray, r2: np.ndarray, r_goal: float, h: float, travel: float) -> bool:
     """Whether start and goal cells share an 8-connected component of free cells (static fields),
     on a grid of ``h`` in the frame of the start–goal line (rotations do not change connectivity),
-    within the region a UAV that flies at most ``travel`` [m] per axis could visit (module
-    docstring)."""
+    within the region a UAV that flies at most ``travel`` [m] per axis could visit
+    (docs/scenarios.md)."""
     along = f.goal[:2] - f.start[:2]
     length = float(np.hypot(*along))
     u = along / length if length > 0 else np.array([1.0, 0.0])
@@ -233,8 +233,8 @@ def _presence(f: _Field, lo: np.ndarray, hi: np.ndarray, height: float,
 
 def _reachable(f: _Field, movers: np.ndarray, lo: np.ndarray, hi: np.ndarray, r_uav: float, v_max: float,
                t_max: float, r_goal: float, h: float) -> bool:
-    """Space–time reachability on a grid of ``h`` in world axes over the box ``lo … hi`` (module
-    docstring); ``movers`` (n,) marks the obstacles to move, the others are painted once."""
+    """Space–time reachability on a grid of ``h`` in world axes over the box ``lo … hi``
+    (docs/scenarios.md); ``movers`` (n,) marks the obstacles to move, the others are painted once."""
     height = f.start[2]
     slack = h / math.sqrt(2)
     reach = f.radius + r_uav - slack
@@ -304,7 +304,7 @@ def _reachable(f: _Field, movers: np.ndarray, lo: np.ndarray, hi: np.ndarray, r_
 def reach_cell(area: float, *, v_max: float, t_max: float, resolution: float = REACH_RESOLUTION,
                cell_steps: float = CELL_STEPS) -> float:
     """The grid cell [m] of the space–time reachability over a box of ``area`` [m²]:
-    ``max(resolution, (area · t_max · v_max / cell_steps)^(1/3))`` (module docstring)."""
+    ``max(resolution, (area · t_max · v_max / cell_steps)^(1/3))`` (docs/scenarios.md)."""
     return max(float(resolution), (float(area) * t_max * v_max / cell_steps) ** (1.0 / 3.0))
 
 
@@ -322,7 +322,7 @@ def solvable_field(start: Any, goal: Any, position: Any, velocity: Any, radius: 
                    valid: Any = None, *, r_uav: float, v_max: float, t_max: float, r_goal: float = 0.5,
                    resolution: float = RESOLUTION, reach_resolution: float = REACH_RESOLUTION,
                    margin: float = MARGIN, cell_steps: float = CELL_STEPS) -> bool:
-    """Whether one field is solvable (module docstring). Arrays as in
+    """Whether one field is solvable (docs/scenarios.md). Arrays as in
     :class:`~jaxapf.datatypes.Scenario` and :class:`~jaxapf.datatypes.Obstacles` without batch axes
     (``valid`` defaults to all True); keyword arguments as for :func:`solvable`, unchecked."""
     f = _field(start, goal, position, velocity, radius, cylinder, valid)
@@ -361,8 +361,8 @@ def solvable(scenarios: Any, *, r_uav: float, v_max: float, t_max: float, r_goal
       margin: growth [m] >= 0 of the start–goal bounding box that the search covers.
       cell_steps: budget > 0 of (grid cells) × (time steps) of the space–time reachability.
 
-    "Unsolvable" is a proof: no collision-free flight exists under the assumptions of the module
-    docstring (for a moving field, none inside the searched box). "Solvable" may be optimistic: by
+    "Unsolvable" is a proof: no collision-free flight exists under the assumptions in
+    docs/scenarios.md (for a moving field, none inside the searched box). "Solvable" may be optimistic: by
     about ``sqrt 2`` cells of passage width, and the acceleration limit is ignored. Deterministic;
     runs on the host, one field at a time.
     """

@@ -1,6 +1,6 @@
 """Planning a sweep: variants, chunks and their shapes, and the time and memory estimates.
 
-See :mod:`jaxapf.sweep` for what the pieces are and why every episode runs at the same vmap width.
+docs/sweep.md says what the pieces are and why every episode runs at the same vmap width.
 """
 
 from __future__ import annotations
@@ -311,7 +311,7 @@ MAX_CHUNKS = 1_000_000
 def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: int = DEFAULT_MEMORY_BUDGET,
                chunk_fields: int | None = None, devices: int | None = None, processes: int = 1,
                width: int | None = None) -> Plan:
-    """Cut the spec's work into chunks (skipping the ``done`` ones), see the module docstring."""
+    """Cut the spec's work into chunks (skipping the ``done`` ones), as docs/sweep.md says."""
     from ..engine import default_width
 
     if chunk_fields is not None:
