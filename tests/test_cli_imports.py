@@ -1,5 +1,5 @@
 """``jaxapf --help``, ``jaxapf CMD --help``, ``jaxapf list ...`` and argument errors import no JAX:
-they read the registries' catalogue (jaxapf/catalog.py), which says what the registries say."""
+they read the registries' catalogue (jaxapf/cli/catalog.py), which says what the registries say."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ import textwrap
 from cli_capture import capture
 from conftest import ROOT
 
-from jaxapf.catalog import live
 from jaxapf.cli import main
+from jaxapf.cli.catalog import live
 
 LISTS = tuple(live()["lists"])
 COMMANDS = ("simulate", "sweep", "report", "tune", "compare", "bench", "list")

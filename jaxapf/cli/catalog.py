@@ -30,7 +30,7 @@ _VERSION = 2  # of the catalogue's layout
 
 def fingerprint() -> str:
     """sha256 of every package source file's path, size and mtime, the Python version and the layout."""
-    root = pathlib.Path(__file__).resolve().parent
+    root = pathlib.Path(__file__).resolve().parents[1]  # the package's sources
     h = hashlib.sha256(f"{_VERSION}\0{sys.version}\0{root}".encode())
     for dirpath, dirnames, filenames in os.walk(root):
         dirnames[:] = sorted(d for d in dirnames if d != "__pycache__")
@@ -50,11 +50,11 @@ def catalog_path() -> pathlib.Path:
 
 def live() -> dict[str, Any]:
     """The catalogue read from the registries as they are in this process (imports them, and JAX)."""
-    from .config import CONVENTIONS, MPCConfig, SimConfig
-    from .engine.components import COMPONENTS
-    from .gains import GAINS
-    from .metrics import METRICS
-    from .scenarios import FAMILIES
+    from ..config import CONVENTIONS, MPCConfig, SimConfig
+    from ..engine.components import COMPONENTS
+    from ..gains import GAINS
+    from ..metrics import METRICS
+    from ..scenarios import FAMILIES
 
     lists = {}
     for registry in (*COMPONENTS.values(), FAMILIES, METRICS, GAINS):

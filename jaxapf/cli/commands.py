@@ -5,7 +5,7 @@ families, metrics, gains), so a registered component appears here with no edit. 
 errors are reported as one line naming the field and its allowed range, with exit status 2.
 
 Help, ``list`` and argument errors import no JAX: they read the registries' catalogue
-(:mod:`jaxapf.catalog`); a command imports the engine when it runs.
+(:mod:`jaxapf.cli.catalog`); a command imports the engine when it runs.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from typing import Sequence
 
 __all__ = ["main", "build_parser"]
 
-#: The registries' catalogue the parser is built from (:func:`jaxapf.catalog.catalog`); set by :func:`main`.
+#: The registries' catalogue the parser is built from (:func:`jaxapf.cli.catalog.catalog`); set by :func:`main`.
 _CATALOG: dict | None = None
 #: What an interrupted command leaves behind, for the one line Ctrl-C prints.
 _KEPT = {
@@ -72,7 +72,7 @@ def _gain_flags(p: argparse.ArgumentParser) -> None:
 
 
 def _gains(args: argparse.Namespace):
-    from .gains import GAINS, Gains, gains_from_mapping, load_gains
+    from ..gains import GAINS, Gains, gains_from_mapping, load_gains
 
     base = load_gains(args.gains) if args.gains else Gains()
     given = {n: getattr(args, f"gain_{n}") for n in GAINS.names() if getattr(args, f"gain_{n}") is not None}
@@ -264,11 +264,11 @@ def _simulate(args: argparse.Namespace) -> int:
         import jax
 
         jax.config.update("jax_enable_x64", True)
-    from .config import MPCConfig, SimConfig
-    from .lock import check_writable
-    from .scenarios import family_params
-    from .simulate import format_metrics_table, simulate_runs, write_outputs
-    from .validation import MAX_FIELDS, MAX_SEED, check_int
+    from ..config import MPCConfig, SimConfig
+    from ..lock import check_writable
+    from ..scenarios import family_params
+    from ..simulate import format_metrics_table, simulate_runs, write_outputs
+    from ..validation import MAX_FIELDS, MAX_SEED, check_int
 
     check_int("--seed", args.seed, 0, MAX_SEED)
     check_int("--field", args.field, 0, MAX_FIELDS - 1)
@@ -293,18 +293,18 @@ def _simulate(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from .validation import check_int
+    from ..validation import check_int
 
     if args.bench == "world":
-        from .bench.world import format_world_benchmark, run_world_benchmark
+        from ..bench.world import format_world_benchmark, run_world_benchmark
 
         result = run_world_benchmark(fields=args.fields, steps=args.steps, substeps=args.substeps,
                                      repeats=args.repeats)
         print(json.dumps(result, indent=2) if args.json else format_world_benchmark(result))
         return 0
     if args.bench == "sweep":
-        from .bench.sweep import format_sweep_benchmark, run_sweep_benchmark
-        from .sweep import read_toml
+        from ..bench.sweep import format_sweep_benchmark, run_sweep_benchmark
+        from ..sweep import read_toml
 
         check_int("--repeats", args.repeats, 1)
         check_int("--sharded-devices", args.sharded_devices, 0)
@@ -312,11 +312,11 @@ def _bench(args: argparse.Namespace) -> int:
                                      sharded_devices=args.sharded_devices, repeats=args.repeats)
         print(json.dumps(result, indent=2) if args.json else format_sweep_benchmark(result))
         return 0
-    from .bench.engine import format_benchmark, run_benchmark
+    from ..bench.engine import format_benchmark, run_benchmark
 
     check_int("bench.devices", args.devices, 1)
     if args.devices != 1:
-        from .sweep import configure_jax
+        from ..sweep import configure_jax
 
         configure_jax(cpu_devices=args.devices)
     result = run_benchmark(fields=args.fields, obstacles=args.obstacles, horizon=args.horizon, iters=args.iters,
@@ -327,7 +327,7 @@ def _bench(args: argparse.Namespace) -> int:
 
 
 def _tune(args: argparse.Namespace) -> int:
-    from .tune import TuneError, run_tune
+    from ..tune import TuneError, run_tune
 
     try:
         run_tune(args.spec, args.out, quiet=args.quiet)
@@ -338,9 +338,9 @@ def _tune(args: argparse.Namespace) -> int:
 
 
 def _compare(args: argparse.Namespace) -> int:
-    from .compare import run_compare
-    from .sweep import configure_jax, default_cache_dir
-    from .tune import TuneError
+    from ..compare import run_compare
+    from ..sweep import configure_jax, default_cache_dir
+    from ..tune import TuneError
 
     configure_jax(cache_dir=None if args.no_cache else default_cache_dir())
     try:
@@ -352,9 +352,9 @@ def _compare(args: argparse.Namespace) -> int:
 
 
 def _report(args: argparse.Namespace) -> int:
-    from .lock import check_writable
-    from .report import ReportOptions, build_report
-    from .sweep import configure_jax, default_cache_dir
+    from ..lock import check_writable
+    from ..report import ReportOptions, build_report
+    from ..sweep import configure_jax, default_cache_dir
 
     configure_jax(cache_dir=None if args.no_cache else default_cache_dir())
 
@@ -382,7 +382,7 @@ def _report(args: argparse.Namespace) -> int:
 
 
 def _margins(texts: Sequence[str]) -> tuple[tuple[str, float], ...]:
-    from .validation import ConfigError
+    from ..validation import ConfigError
 
     out = []
     for text in texts:
@@ -397,8 +397,8 @@ def _margins(texts: Sequence[str]) -> tuple[tuple[str, float], ...]:
 
 
 def _sweep(args: argparse.Namespace) -> int:
-    from .sweep import configure_jax, default_cache_dir, dry_run, load_spec, parse_size, run_sweep
-    from .validation import ConfigError, check_int
+    from ..sweep import configure_jax, default_cache_dir, dry_run, load_spec, parse_size, run_sweep
+    from ..validation import ConfigError, check_int
 
     budget = parse_size(args.memory_budget)
     cluster = {k: v for k, v in (("coordinator_address", args.coordinator), ("num_processes", args.num_processes),
@@ -444,8 +444,8 @@ def _list(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     global _CATALOG
-    from .plugins import load_plugin
-    from .validation import ConfigError
+    from ..plugins import load_plugin
+    from ..validation import ConfigError
 
     argv = list(sys.argv[1:] if argv is None else argv)
     # plugins register components (and their gain flags) before the parser is built from the registries
@@ -466,7 +466,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     import warnings
 
-    from .validation import Interrupted
+    from ..validation import Interrupted
 
     def one_line(message, category, filename, lineno, file=None, line=None):
         print(f"jaxapf {args.command}: warning: {str(message).strip().splitlines()[0]}", file=sys.stderr)

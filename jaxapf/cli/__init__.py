@@ -1,0 +1,6 @@
+"""The jaxapf command line (:mod:`.commands`) and the registries' catalogue it is built from without
+importing JAX (:mod:`.catalog`)."""
+
+from .commands import build_parser, main
+
+__all__ = ["main", "build_parser"]
