@@ -534,7 +534,7 @@ def test_two_processes_give_the_rows_of_one(tmp_path, reference):
     out = tmp_path / "two.parquet"
     port = _free_port()
     env = {**os.environ, "JAX_PLATFORMS": "cpu"}
-    procs = [subprocess.Popen([sys.executable, "-m", "jaxapf.cli", "sweep", str(spec), "--out", str(out),
+    procs = [subprocess.Popen([sys.executable, "-m", "jaxapf", "sweep", str(spec), "--out", str(out),
                                "--distributed", "--coordinator", f"localhost:{port}", "--num-processes", "2",
                                "--process-id", str(i), "--devices", "1", "--no-cache", "--quiet",
                                "--chunk-fields", "2"],
