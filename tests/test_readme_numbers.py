@@ -165,6 +165,50 @@ def test_a_docs_section_reporting_a_study_states_its_results(page, title, folder
     assert not missing, f"{page} '{title}': numbers not in analysis/results/{folder}/README.md: {missing}"
 
 
+def test_the_solvability_oracles_page_states_the_codes_numbers():
+    """docs/scenarios.md's "The solvability oracle": its numbers are the oracle's defaults and what
+    follows from them and from the built-in families (not measurements)."""
+    import math
+
+    from jaxapf.config import VehicleConfig
+    from jaxapf.scenarios import family_params, reach_cell
+    from jaxapf.scenarios import solvability as oracle
+
+    static, dynamic, trap = (family_params(f) for f in ("paper_static", "paper_dynamic", "trap"))
+    run = dynamic.distance[0]
+    side = run * math.cos(math.radians(dynamic.heading[0])) + 2 * oracle.MARGIN  # the searched box
+    source = {
+        oracle.RESOLUTION, oracle.MARGIN, oracle.REACH_RESOLUTION, math.sqrt(2) * oracle.RESOLUTION,
+        reach_cell(side * side, v_max=VehicleConfig().v_max, t_max=dynamic.t_max), run, dynamic.t_max,
+        2 * static.r_uav, 2 * static.cup_radius * math.sin(math.pi / 8) - 2 * static.radius,  # a cup's gap
+        *(s / 2 for s in trap.gap_slack),  # a narrow gap's room on each side
+        1, 2, 3, 8,  # SPEC 1 and 2, the 3×3 dilation, 8-connectivity
+    }
+    body = section((ROOT / "docs" / "scenarios.md").read_text(), "The solvability oracle")
+    missing = unmatched(numbers(prose(body)), {repr(v) for v in source})
+    assert not missing, f"docs/scenarios.md 'The solvability oracle': numbers not from the code: {missing}"
+
+
+def test_the_dry_runs_cost_model_on_the_sweep_page_is_the_codes():
+    """docs/sweep.md's cost model: its coefficients are jaxapf.sweep.STEP_COST_US, and the fit it names
+    (18 configurations, N 10–40, I 10–60, M 4 and 16, vmap width 1,024) is benchmarks/fit_cost.py's
+    (fit-cost.json)."""
+    from jaxapf.sweep import STEP_COST_US
+
+    body = (ROOT / "docs" / "sweep.md").read_text().split("### Dry run\n", 1)[1].split("\n## ", 1)[0]
+    formula = re.search(r"`([\d.]+) \+ ([\d.]+)·N·I \+ ([\d.]+)·N·M \+ ([\d.]+)·N` µs", body).groups()
+    assert len(formula) == len(STEP_COST_US)
+    for written, coefficient in zip(formula, STEP_COST_US):
+        assert not unmatched({written}, {repr(coefficient)}), (written, coefficient)
+    fit = json.loads((RESULTS / "fit-cost.json").read_text())["runs"][0]
+    rows = fit["rows"]
+    described = {str(len(rows)), "10", "40", "60", "4", "16", "1024", "2"}
+    assert described >= numbers(prose(body)) - {n.replace(",", "") for n in formula}
+    assert (len(rows), min(r["horizon"] for r in rows), max(r["horizon"] for r in rows)) == (18, 10, 40)
+    assert (min(r["iters"] for r in rows), max(r["iters"] for r in rows)) == (10, 60)
+    assert {r["obstacles"] for r in rows} == {4, 16} and fit["fields"] == 1024
+
+
 def test_the_studies_summary_cites_their_results():
     """analysis/README.md's "In short" paragraph: each number is in the results of a study it cites
     ("study 11"), or of any study when the sentence cites none."""
