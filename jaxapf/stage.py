@@ -20,6 +20,7 @@ if TYPE_CHECKING:
 
 __all__ = ["Stage"]
 
+
 class Stage:
     """A stateful stage of the closed loop. Subclasses are frozen dataclasses.
 
