@@ -24,7 +24,7 @@ __all__ = ["load_plugin", "load_plugins", "check_plugins", "plugin_path", "LOADE
 
 #: Every plugin this process has imported, in order, as ``(name, path)`` (``path``: the ``.py``
 #: file, None for a module name): a second process imports the same ones to see the same registries
-#: (the report's, :class:`jaxapf.report.gallery.RowWorker`).
+#: (the report's, :class:`jaxapf.report.worker.RowWorker`).
 LOADED: list[tuple[str, str | None]] = []
 
 

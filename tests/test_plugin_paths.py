@@ -143,7 +143,7 @@ def _registered_after(plugins):
 
 
 def test_a_second_process_imports_the_plugins_this_one_imported():
-    """The report draws figures in a spawned process (jaxapf.report.gallery.RowWorker), which must see
+    """The report draws figures in a spawned process (jaxapf.report.worker.RowWorker), which must see
     the planners of the plugins loaded in the report's process (by --plugin or by the sweep's spec):
     jaxapf.plugins.LOADED records them once each. (Fresh processes: a plugin's registrations would
     outlive the test in this one.)"""

@@ -9,14 +9,31 @@
 :mod:`.latex`      the LaTeX tables
 :mod:`.figures`    the figures
 :mod:`.gallery`    the worst episodes, re-simulated and drawn
+:mod:`.worker`     the second process that draws the figures from the rows and the gallery
 =================  =====================================================================
 """
 
-from .build import ReportOptions, ReportResult, build_report
-from .load import ReportError, load_sweep, report_metrics, validate_sweep
-from .select import ignored_columns, parse_filters, setting_labels, setting_table, swept_columns
-from .tables import ALL, compare, summarize
+from importlib import import_module
 
-__all__ = ["build_report", "ReportOptions", "ReportResult", "ReportError", "load_sweep", "validate_sweep",
-           "report_metrics", "setting_table", "swept_columns", "setting_labels", "parse_filters", "ignored_columns",
-           "summarize", "compare", "ALL"]
+#: public name -> the module it lives in, imported on first use (PEP 562), so that the command line can
+#: start the report's second process (:mod:`.worker`) before the report's own imports
+_LAZY = {
+    "build_report": ".build", "ReportOptions": ".build", "ReportResult": ".build",
+    "ReportError": ".load", "load_sweep": ".load", "validate_sweep": ".load", "report_metrics": ".load",
+    "setting_table": ".select", "swept_columns": ".select", "setting_labels": ".select", "parse_filters": ".select",
+    "ignored_columns": ".select", "summarize": ".tables", "compare": ".tables", "ALL": ".tables",
+}
+
+__all__ = list(_LAZY)
+
+
+def __getattr__(name: str):
+    if name not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(import_module(_LAZY[name], __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))

@@ -21,7 +21,7 @@ import datetime
 import json
 import math
 import pathlib
-from typing import Mapping
+from typing import Any, Mapping
 
 import pandas as pd
 
@@ -29,7 +29,6 @@ from .. import stats
 from ..metrics import METRICS
 from .document import Document, render_html, render_markdown
 from .figures import DEFAULT_HEATMAP, check_heatmap, table_figures
-from .gallery import RowWorker
 from .latex import latex_tables
 from .load import ReportError, load_sweep, report_metrics
 from .select import format_value, select
@@ -45,6 +44,7 @@ from .tables import (
     rates_table,
     summarize,
 )
+from .worker import RowWorker
 
 __all__ = ["ReportOptions", "ReportResult", "build_report"]
 
@@ -135,8 +135,9 @@ class ReportResult:
 
 
 def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
-                 options: ReportOptions = ReportOptions()) -> ReportResult:
-    """Read the sweep at ``path``, compute every statistic and write the report into ``out``."""
+                 options: ReportOptions = ReportOptions(), pool: Any = None) -> ReportResult:
+    """Read the sweep at ``path``, compute every statistic and write the report into ``out``. ``pool``:
+    the second process, started early (:func:`jaxapf.report.worker.spawn`); else one is started here."""
     path = pathlib.Path(path)
     out = pathlib.Path(out)
     df, meta = load_sweep(path)
@@ -148,7 +149,7 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
     out.mkdir(parents=True, exist_ok=True)
     figdir = out / "figures"
     # the figures drawn from the rows alone and the gallery are made in a second process meanwhile
-    with RowWorker(sel, meta, options, figdir) as worker:
+    with RowWorker(sel, meta, options, figdir, pool) as worker:
         summary = summarize(sel.data, sel.settings, sel.table, sel.labels, options)
         comparisons = compare(sel.data, sel.pairs, sel.labels, options)
         figures = table_figures(sel, summary, comparisons, options, figdir)

@@ -397,7 +397,7 @@ def _profile_taus(values: np.ndarray) -> np.ndarray:
 def row_figures(sel: Selection, options: Any, figdir: pathlib.Path) -> tuple[list[FigureFile], list[str]]:
     """The figures drawn from the episode rows alone (heatmaps, ECDF of the clearance, performance
     profile), written to ``figdir``, and notes on what was skipped. They need no statistics, so a
-    report draws them in its second process (:class:`jaxapf.report.gallery.RowWorker`)."""
+    report draws them in its second process (:class:`jaxapf.report.worker.RowWorker`)."""
     labels = {s: sel.labels[s] for s in sel.settings}
     methods = {s: str(sel.table.at[s, "method"]) for s in sel.settings}
     names = groups(sel.data)

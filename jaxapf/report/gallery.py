@@ -1,25 +1,21 @@
-"""The gallery of a report (the worst failed episodes, re-simulated from their seeds and drawn) and
-the second process that makes it, with the other figures drawn from the rows alone."""
+"""The gallery of a report: the worst failed episodes, re-simulated from their seeds and drawn (in the
+report's second process, :mod:`jaxapf.report.worker`)."""
 
 from __future__ import annotations
 
-import concurrent.futures
 import math
-import multiprocessing
 import pathlib
-from typing import Any, Mapping, Sequence
+from typing import Any, Mapping
 
 import pandas as pd
 
-from ..plugins import LOADED, load_plugin
 from ..validation import ConfigError, first_line
 from .document import FigureFile, save_figure
-from .figures import row_figures
 from .load import report_metrics
 from .select import Selection
 from .tables import _num
 
-__all__ = ["worst_episodes", "resimulate", "gallery", "RowWorker"]
+__all__ = ["worst_episodes", "resimulate", "gallery"]
 
 
 def worst_episodes(data: pd.DataFrame, count: int) -> list[tuple[str, pd.Series]]:
@@ -63,7 +59,7 @@ def resimulate(sel: Selection, meta: Mapping, options: Any) -> list[tuple[str, p
     """The ``options.gallery`` worst episodes (:func:`worst_episodes`), each re-simulated with
     :func:`jaxapf.sweep.row_config` and :func:`jaxapf.simulate.simulate_runs`: ``(kind, row, result)``
     with ``result`` either ``(cfg, field, runs)`` or the :class:`ConfigError` that prevented it. Only
-    JAX work: :class:`RowWorker` runs it in a second process while the report is made."""
+    JAX work: :class:`jaxapf.report.worker.RowWorker` runs it in a second process while the report is made."""
     if options.gallery == 0:
         return []
     from ..simulate import simulate_runs
@@ -115,63 +111,3 @@ def gallery(sel: Selection, episodes: list[tuple[str, pd.Series, Any]], options:
                    f"re-simulated min clearance {_num(run.metrics['min_clearance'])} m; {check}")
         figures.append(save_figure(fig, f"gallery_{i}", caption, figdir, options.svg))
     return figures, notes
-
-
-#: The JAX settings a worker copies from the report's process (compilation cache, precision).
-_JAX_SETTINGS = ("jax_enable_x64", "jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs",
-                 "jax_persistent_cache_min_entry_size_bytes")
-
-
-def _row_work(sel: Selection, meta: Mapping, options: Any, figdir: pathlib.Path,
-              jax_settings: Mapping[str, Any] | None = None,
-              plugins: Sequence[tuple[str, str | None]] = ()) -> tuple[list[FigureFile], list[FigureFile], list[str]]:
-    """:func:`~jaxapf.report.figures.row_figures`, then the gallery: ``(figures, gallery figures, notes)``.
-    In a second process: with the report's JAX settings and its plugins (:data:`jaxapf.plugins.LOADED`)."""
-    if jax_settings:
-        import jax
-
-        for key, value in jax_settings.items():
-            jax.config.update(key, value)
-    for name, path in plugins:
-        load_plugin(name, "plugin", path)
-    figures, notes = row_figures(sel, options, figdir)
-    shown, gallery_notes = gallery(sel, resimulate(sel, meta, options), options, figdir)
-    return figures, shown, notes + gallery_notes
-
-
-class RowWorker:
-    """The figures drawn from the rows alone (:func:`~jaxapf.report.figures.row_figures`) and the
-    gallery (:func:`resimulate`, :func:`gallery`), made in a second (spawned) process started on
-    entering, while the report's process computes its statistics and the figures drawn from them
-    (a thread would not do: tracing the re-simulations and drawing are Python work). ``result()``
-    gives ``(figures, gallery figures, notes)``. With ``--gallery 0``, or where no process can be
-    started, ``result()`` makes them in this process."""
-
-    def __init__(self, sel: Selection, meta: Mapping, options: Any, figdir: pathlib.Path):
-        self._args = (sel, meta, options, figdir)
-        self._pool = self._future = None
-
-    def __enter__(self) -> RowWorker:
-        if self._args[2].gallery == 0:  # no JAX work: not worth a second process
-            return self
-        import jax
-
-        settings = {key: getattr(jax.config, key) for key in _JAX_SETTINGS}
-        try:
-            self._pool = concurrent.futures.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
-            self._future = self._pool.submit(_row_work, *self._args, settings, tuple(LOADED))
-        except OSError:  # no process can be started here: result() makes them in this process
-            self._pool = self._future = None
-        return self
-
-    def result(self) -> tuple[list[FigureFile], list[FigureFile], list[str]]:
-        if self._future is not None:
-            try:
-                return self._future.result()
-            except concurrent.futures.process.BrokenProcessPool:
-                pass
-        return _row_work(*self._args)
-
-    def __exit__(self, *exc) -> None:
-        if self._pool is not None:  # on an error or Ctrl-C here, the worker's job is cancelled, not awaited
-            self._pool.shutdown(wait=exc[0] is None, cancel_futures=True)

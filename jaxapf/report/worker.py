@@ -1,0 +1,111 @@
+"""The report's second process: it draws the figures that need only the episode rows and the gallery
+(:class:`RowWorker`) while the report's process computes its statistics. The command line spawns it
+(:func:`spawn`) before the report's own imports, so that its imports run beside them; this module
+imports nothing heavy itself."""
+
+from __future__ import annotations
+
+import concurrent.futures
+import gc
+import multiprocessing
+import pathlib
+from typing import Any, Mapping, Sequence
+
+__all__ = ["RowWorker", "spawn", "close"]
+
+
+def _import() -> None:
+    """The worker's imports, made while the report's process makes its own."""
+    from .. import simulate  # noqa: F401
+    from . import figures, gallery  # noqa: F401
+
+
+def spawn() -> concurrent.futures.ProcessPoolExecutor | None:
+    """A one-process pool (spawned: JAX is not fork-safe) already importing what the worker needs,
+    or None where no process can be started here."""
+    try:
+        pool = concurrent.futures.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+        pool.submit(_import)
+    except OSError:
+        return None
+    return pool
+
+
+def close(pool: concurrent.futures.ProcessPoolExecutor, wait: bool = True) -> None:
+    """Shut ``pool`` down, cancelling what has not started; its process exits without a last garbage
+    collection of everything it imported (``gc.freeze``: half a second of nothing on 2 cores)."""
+    try:
+        pool.submit(gc.freeze)
+    except (RuntimeError, concurrent.futures.process.BrokenProcessPool):
+        pass
+    pool.shutdown(wait=wait, cancel_futures=True)
+
+
+#: The JAX settings a worker copies from the report's process (compilation cache, precision).
+_JAX_SETTINGS = ("jax_enable_x64", "jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs",
+                 "jax_persistent_cache_min_entry_size_bytes")
+
+
+def _row_work(sel: Any, meta: Mapping, options: Any, figdir: pathlib.Path,
+              jax_settings: Mapping[str, Any] | None = None,
+              plugins: Sequence[tuple[str, str | None]] = ()) -> tuple[list, list, list[str]]:
+    """:func:`~jaxapf.report.figures.row_figures`, then the gallery: ``(figures, gallery figures, notes)``.
+    In a second process: with the report's JAX settings and its plugins (:data:`jaxapf.plugins.LOADED`)."""
+    from ..plugins import load_plugin
+    from .figures import row_figures
+    from .gallery import gallery, resimulate
+
+    if jax_settings:
+        import jax
+
+        for key, value in jax_settings.items():
+            jax.config.update(key, value)
+    for name, path in plugins:
+        load_plugin(name, "plugin", path)
+    figures, notes = row_figures(sel, options, figdir)
+    shown, gallery_notes = gallery(sel, resimulate(sel, meta, options), options, figdir)
+    return figures, shown, notes + gallery_notes
+
+
+class RowWorker:
+    """The figures drawn from the rows alone (:func:`~jaxapf.report.figures.row_figures`) and the
+    gallery (:mod:`jaxapf.report.gallery`), made in a second (spawned) process while the
+    report's process computes its statistics and the figures drawn from them (a thread would not do:
+    tracing the re-simulations and drawing are Python work). ``pool``: a process started earlier
+    (:func:`spawn`), else one is started on entering. ``result()`` gives
+    ``(figures, gallery figures, notes)``. With ``--gallery 0``, or where no process can be started,
+    ``result()`` makes them in this process."""
+
+    def __init__(self, sel: Any, meta: Mapping, options: Any, figdir: pathlib.Path,
+                 pool: concurrent.futures.ProcessPoolExecutor | None = None):
+        self._args = (sel, meta, options, figdir)
+        self._pool, self._owned, self._future = pool, pool is None, None
+
+    def __enter__(self) -> RowWorker:
+        if self._args[2].gallery == 0:  # no JAX work: not worth a second process
+            return self
+        import jax
+
+        from ..plugins import LOADED
+
+        if self._pool is None:
+            self._pool = spawn()
+        settings = {key: getattr(jax.config, key) for key in _JAX_SETTINGS}
+        try:
+            if self._pool is not None:
+                self._future = self._pool.submit(_row_work, *self._args, settings, tuple(LOADED))
+        except (OSError, concurrent.futures.process.BrokenProcessPool):  # result() makes them here
+            self._future = None
+        return self
+
+    def result(self) -> tuple[list, list, list[str]]:
+        if self._future is not None:
+            try:
+                return self._future.result()
+            except concurrent.futures.process.BrokenProcessPool:
+                pass
+        return _row_work(*self._args)
+
+    def __exit__(self, *exc) -> None:
+        if self._pool is not None and self._owned:  # on an error or Ctrl-C, the job is cancelled, not awaited
+            close(self._pool, wait=exc[0] is None)
