@@ -509,7 +509,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def console() -> int:
     """The ``jaxapf`` program: :func:`main`, then an exit that skips the last garbage collection of
-    everything imported (``gc.freeze``; half a second of nothing after every command on 2 cores)."""
+    everything imported (``gc.freeze``), which is work for nothing at exit."""
     import gc
 
     code = main()

@@ -33,7 +33,7 @@ def spawn() -> concurrent.futures.ProcessPoolExecutor | None:
 
 def close(pool: concurrent.futures.ProcessPoolExecutor, wait: bool = True) -> None:
     """Shut ``pool`` down, cancelling what has not started; its process exits without a last garbage
-    collection of everything it imported (``gc.freeze``: half a second of nothing on 2 cores)."""
+    collection of everything it imported (``gc.freeze``), which is work for nothing at exit."""
     try:
         pool.submit(gc.freeze)
     except (RuntimeError, concurrent.futures.process.BrokenProcessPool):
