@@ -23,7 +23,7 @@ from typing import Any, Iterator, Mapping
 import jax
 import numpy as np
 
-from .registry import Registry
+from .registry import Registry, loop_rank
 from .validation import BoundWarning, ConfigError, check_range, check_table, describe_range, read_toml_file
 
 __all__ = ["GainSpec", "GAINS", "declare_gains", "declare_entry_gains", "Gains", "validate_gains",
@@ -92,26 +92,32 @@ def _describe(spec: GainSpec) -> str:
     return f"{spec.doc}{unit}; default {spec.default:g}; {allowed}"
 
 
-#: Every declared gain, in declaration order (the order of :class:`Gains` leaves and of the gain
-#: columns of a sweep).
-GAINS: Registry[GainSpec] = Registry("gain", describe=_describe)
+#: Where each declared gain is listed (:func:`jaxapf.registry.loop_rank` of the first kind declaring it).
+_RANK: dict[str, int] = {}
+
+#: Every declared gain, by the kind of component declaring it (:data:`jaxapf.registry.LOOP`), then in
+#: declaration order: the order of :class:`Gains` leaves, of a sweep's gain columns and of what
+#: ``jaxapf tune`` learns, whichever module was imported first.
+GAINS: Registry[GainSpec] = Registry("gain", describe=_describe, rank=_RANK.__getitem__)
 
 
-def declare_gains(*specs: GainSpec) -> tuple[GainSpec, ...]:
-    """Declare ``specs`` (a gain declared twice must be declared the same way); returns them."""
+def declare_gains(*specs: GainSpec, kind: str | None = None) -> tuple[GainSpec, ...]:
+    """Declare ``specs``, read by a component of ``kind`` (``"planner"``, ...; None: no component kind);
+    a gain declared twice must be declared the same way. Returns them."""
     for spec in specs:
         if spec.name in GAINS and GAINS.get(spec.name) != spec:
             raise ConfigError(f"gain {spec.name!r} is declared already with another range or default: "
                               f"{GAINS.get(spec.name)}")
         check_range(f"gain {spec.name!r} default", spec.default, spec.low, spec.high, lo_open=spec.low_open,
                     hi_open=spec.high_open)
+        _RANK[spec.name] = min(_RANK.get(spec.name, loop_rank(kind)), loop_rank(kind))
         GAINS.register(spec.name, spec)
     return specs
 
 
-def declare_entry_gains(entry: Any) -> None:
+def declare_entry_gains(entry: Any, registry: Registry) -> None:
     """What a component registry does with a new entry: declare the gains it reads (``entry.gains``)."""
-    declare_gains(*entry.gains)
+    declare_gains(*entry.gains, kind=registry.what)
 
 
 def _is_user_value(x: Any) -> bool:

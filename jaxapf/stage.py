@@ -11,14 +11,19 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any, ClassVar
 
-from .gains import GainSpec
+from .gains import GainSpec, declare_entry_gains
+from .metrics import register_entry_metrics
 
 if TYPE_CHECKING:
     from .config import SimConfig
     from .datatypes import Scenario
     from .gains import Gains
 
-__all__ = ["Stage"]
+__all__ = ["Stage", "DECLARE"]
+
+#: What a component registry does with every new entry (``Registry(on_register=DECLARE)``): declare the
+#: gains it reads and register the metrics it owns.
+DECLARE = (declare_entry_gains, register_entry_metrics)
 
 
 class Stage:
@@ -26,9 +31,11 @@ class Stage:
 
     Attributes:
       gains: the gains it reads (declared when it is registered).
+      metrics: the metrics of what only it records (registered with it), e.g. a filter's infeasible steps.
     """
 
     gains: ClassVar[tuple[GainSpec, ...]] = ()
+    metrics: ClassVar[tuple] = ()
 
     def init(self, scenario: "Scenario", gains: "Gains", sim: "SimConfig") -> Any:
         """The stage's state at the start of an episode (default: none)."""

@@ -54,6 +54,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from ..gains import GainSpec
+from ..metrics import Metric
 from ..planners.sight import dot, line_of_sight, norm
 from ..projection import INFEASIBLE_TOL, nearest_feasible
 from .filters import SafetyFilter, register_filter
@@ -105,6 +106,10 @@ class CBF(SafetyFilter):
     """
 
     gains = (CBF_P1, CBF_P2)
+    metrics = (Metric("cbf_infeasible_steps", lambda ctx: ctx.extra("cbf_infeasible"), dtype="int32", kind="count",
+                      higher_is_better=False, per_step=True,
+                      doc="control steps at which the CBF filter's constraints and the acceleration box could not "
+                          "all hold (0 without this filter)"),)
 
     def __call__(self, state: Any, accel: Array, x: Array, t: Array, obstacles: "ObstacleColumns", gains: "Gains",
                  sim: "SimConfig") -> tuple[Array, Any, dict[str, Array]]:

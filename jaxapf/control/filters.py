@@ -18,9 +18,8 @@ from typing import TYPE_CHECKING, Any
 
 from jax import Array
 
-from ..gains import declare_entry_gains
 from ..registry import Registry
-from ..stage import Stage
+from ..stage import DECLARE, Stage
 
 if TYPE_CHECKING:
     from ..config import SimConfig
@@ -50,7 +49,7 @@ class Passthrough(SafetyFilter):
 
 
 #: Registered safety filters: the values of ``filter`` (default ``none``).
-FILTERS: Registry[SafetyFilter] = Registry("safety filter", on_register=declare_entry_gains, listed_as="filters",
+FILTERS: Registry[SafetyFilter] = Registry("safety filter", on_register=DECLARE, listed_as="filters",
                                             role="safety filter between the MPC and the plant")
 
 

@@ -4,10 +4,10 @@
 metrics share (:class:`EpisodeContext`), :mod:`.episode` the built-in metrics.
 """
 
-from .base import DTYPES, KINDS, METRICS, Metric, compute_metrics, metric_names, register_metric
+from .base import DTYPES, KINDS, METRICS, Metric, compute_metrics, metric_names, register_entry_metrics, register_metric
 from .context import EpisodeContext, clearance_history, episode_end, interval_clearance, time_to_collision
 from .episode import episode_metrics
 
-__all__ = ["Metric", "METRICS", "KINDS", "DTYPES", "register_metric", "metric_names", "compute_metrics",
-           "EpisodeContext", "episode_metrics", "episode_end", "clearance_history", "interval_clearance",
-           "time_to_collision"]
+__all__ = ["Metric", "METRICS", "KINDS", "DTYPES", "register_metric", "register_entry_metrics", "metric_names",
+           "compute_metrics", "EpisodeContext", "episode_metrics", "episode_end", "clearance_history",
+           "interval_clearance", "time_to_collision"]

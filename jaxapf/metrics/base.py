@@ -14,16 +14,17 @@ computes it and every later sweep writes its column.
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import jax.numpy as jnp
 from jax import Array
 
-from ..registry import Registry
+from ..registry import Registry, loop_rank
 from ..validation import ConfigError
 from .context import EpisodeContext
 
-__all__ = ["Metric", "METRICS", "KINDS", "DTYPES", "register_metric", "compute_metrics", "metric_names"]
+__all__ = ["Metric", "METRICS", "KINDS", "DTYPES", "register_metric", "register_entry_metrics", "compute_metrics",
+           "metric_names"]
 
 #: What a metric is: a boolean outcome (its mean is a rate), a continuous number, or a count.
 KINDS = ("rate", "continuous", "count")
@@ -93,13 +94,27 @@ def _describe(metric: Metric) -> str:
     return f"{metric.doc}{unit} ({metric.kind}{better}{success}{margin})"
 
 
-#: Registered metrics, in column order.
-METRICS: Registry[Metric] = Registry("metric", describe=_describe)
+#: Where each metric is listed: the episode's own metrics first, then those of the closed loop's
+#: components by kind (:data:`jaxapf.registry.LOOP`).
+_RANK: dict[str, int] = {}
+
+#: Registered metrics, in column order: the episode's own, then the components' by kind, each in
+#: registration order (whichever module was imported first).
+METRICS: Registry[Metric] = Registry("metric", describe=_describe, rank=_RANK.__getitem__)
 
 
-def register_metric(metric: Metric, *, replace: bool = False) -> Metric:
-    """Register ``metric`` under its name."""
+def register_metric(metric: Metric, *, replace: bool = False, kind: str | None = None) -> Metric:
+    """Register ``metric`` under its name; ``kind``: the kind of component whose metric it is (None: the
+    episode's, listed first)."""
+    _RANK[metric.name] = -1 if kind is None else loop_rank(kind)
     return METRICS.register(metric.name, metric, replace=replace)
+
+
+def register_entry_metrics(entry: Any, registry: Registry) -> None:
+    """What a component registry does with a new entry: register the metrics it owns (``entry.metrics``,
+    measuring what only it records, e.g. a filter's infeasible steps)."""
+    for metric in getattr(entry, "metrics", ()):
+        register_metric(metric, kind=registry.what)
 
 
 def metric_names(*, kind: str | None = None, report: bool | None = None) -> tuple[str, ...]:

@@ -167,6 +167,15 @@ class EpisodeContext:
     def interval_valid(self) -> Array:
         return jnp.arange(self.steps) < self.end_index
 
+    def extra(self, name: str, reduce=jnp.sum) -> Array:
+        """``reduce`` (sum, max) of the per-step diagnostic ``name`` a component records in the
+        trajectory's ``extras``, over the valid intervals (0 where they hold none); 0 if the episode's
+        components record no ``name``."""
+        values = self.traj.extras.get(name)
+        if values is None:
+            return jnp.zeros((), self.traj.position.dtype)
+        return reduce(jnp.where(self.interval_valid, values, 0))
+
     @functools.cached_property
     def success(self) -> Array:
         return (self.end["goal_index"] <= self.steps) & (self.end["goal_index"] < self.end["collision_index"])

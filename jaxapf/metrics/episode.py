@@ -1,4 +1,4 @@
-r"""The built-in per-episode metrics (SPEC 6): every one is defined here, once, and registered.
+r"""The episode's own metrics (SPEC 6): every one is defined here, once, and registered.
 
 An episode is a fixed-length scan of ``T`` control steps; termination (goal, collision) is applied
 here by masking, so every episode of a batch has the same shape and every function below is pure,
@@ -57,26 +57,16 @@ Metrics (one scalar each, in registration order)
   understate an agent's efficiency). In [0, 1]; 1 for a straight successful flight, 0 for a failure;
   degenerate ``L = 0``: ``success`` if the path length is 0, else 0.
 - ``steps``: ``e`` (int32).
-- ``cbf_infeasible_steps``: valid intervals at which the CBF safety filter (:mod:`jaxapf.control.cbf`)
-  found its constraints and the acceleration box incompatible (``traj.extras["cbf_infeasible"]``);
-  0 without that filter (int32).
-- ``vo_infeasible_steps``: valid intervals at which the ``velocity_obstacle`` planner
-  (:mod:`jaxapf.planners.velocity_obstacle`) found its ORCA half-spaces and the speed ball
-  incompatible and flew the least-violating velocity (``traj.extras["vo_infeasible"]``); 0 for
-  the other planners (int32).
-- ``max_tilt``: the largest tilt [deg] of the body's thrust axis over valid intervals
-  (``traj.extras["tilt"]``, a plant with attitude such as :mod:`jaxapf.world.quadrotor`); 0 for a
-  plant without attitude.
-- ``saturation_time``: time [s] during valid intervals in which some rotor's command was clipped
-  (``traj.extras["saturated_time"]``); 0 for a plant without rotors.
 - ``accel_error_rms``: ``sqrt(mean_i |(v_{i+1} - v_i)/dt - a_i|²)`` over valid intervals: the applied
   command against the acceleration the plant realised (a plant's lag, a disturbance); 0 with no
   valid interval. The double integrator in calm air realises its command (up to rounding).
 - ``position_error_max``: ``max_i |p_{i+1} - (p_i + v_i dt + a_i dt²/2)|`` over valid intervals: how
   far one step of the plant lands from where the MPC's model puts it; 0 with no valid interval.
-- ``unseen_steps``: over valid intervals, the number of (step, obstacle) pairs in which an obstacle
-  within ``d_sense`` of the UAV (true clearance) was not detected by the sensor
-  (``traj.extras["unseen_near"]``, :mod:`jaxapf.world.sensing`); 0 with the ideal sensor (int32).
+
+A component that records what only it knows (a filter's infeasible steps, a plant's tilt, a
+sensor's missed obstacles) owns the metric that reads it: registering the component registers the
+metric (``metrics`` of :class:`~jaxapf.control.CBF`, :class:`~jaxapf.world.Quadrotor`,
+:class:`~jaxapf.world.NoisySensor`, :class:`~jaxapf.planners.VelocityObstacle`).
 
 Efficiency metrics (``time_to_goal``, ``path_ratio``, ``control_effort``, ``jerk_rms``, ``min_ttc``)
 are registered as meaningful only on successful episodes (``Metric.on_success``): a collision cuts a
@@ -162,21 +152,6 @@ def _spl(ctx: EpisodeContext) -> Array:
     return jnp.where(ctx.success, efficiency, 0.0)
 
 
-def _extra_sum(ctx: EpisodeContext, name: str) -> Array:
-    """Sum of the per-step diagnostic ``name`` over valid intervals; 0 if no component records it."""
-    values = ctx.traj.extras.get(name)
-    if values is None:
-        return jnp.zeros((), ctx.traj.position.dtype)
-    return jnp.sum(jnp.where(ctx.interval_valid, values, 0))
-
-
-def _max_tilt(ctx: EpisodeContext) -> Array:
-    tilt = ctx.traj.extras.get("tilt")
-    if tilt is None:
-        return jnp.zeros((), ctx.traj.position.dtype)
-    return jnp.rad2deg(jnp.max(jnp.where(ctx.interval_valid, tilt, 0.0)))
-
-
 def _step_errors(ctx: EpisodeContext) -> tuple[Array, Array]:
     """Per interval: the realised minus the applied acceleration (T, 3), and where one step lands
     against the double integrator's prediction (T, 3)."""
@@ -231,22 +206,10 @@ for _metric in (
            doc="success weighted by path length, S·L/max(path, L) (Anderson et al. 2018)"),
     Metric("steps", lambda ctx: ctx.end_index, dtype="int32", kind="count", per_step=True,
            doc="steps until the episode ended"),
-    Metric("cbf_infeasible_steps", lambda ctx: _extra_sum(ctx, "cbf_infeasible"), dtype="int32", kind="count",
-           higher_is_better=False, per_step=True,
-           doc="control steps at which the CBF filter's constraints and the acceleration box could not all hold"),
-    Metric("vo_infeasible_steps", lambda ctx: _extra_sum(ctx, "vo_infeasible"), dtype="int32", kind="count",
-           higher_is_better=False, per_step=True,
-           doc="control steps at which the velocity obstacles' half-spaces and the speed ball could not all hold"),
-    Metric("max_tilt", _max_tilt, unit="deg", higher_is_better=False, margin=2.0,
-           doc="largest tilt of the thrust axis (a plant with attitude; 0 otherwise)"),
-    Metric("saturation_time", lambda ctx: _extra_sum(ctx, "saturated_time"), unit="s", higher_is_better=False,
-           margin=0.1, doc="time during which a rotor command was clipped (a plant with rotors; 0 otherwise)"),
     Metric("accel_error_rms", _accel_error_rms, unit="m/s²", higher_is_better=False, margin=0.1,
            doc="RMS of the realised minus the applied acceleration"),
     Metric("position_error_max", _position_error_max, unit="m", higher_is_better=False, margin=0.01,
            doc="largest one-step miss of the plant against the MPC's double-integrator prediction"),
-    Metric("unseen_steps", lambda ctx: _extra_sum(ctx, "unseen_near"), dtype="int32", kind="count",
-           higher_is_better=False, doc="obstacle-steps with an obstacle within d_sense not detected by the sensor"),
 ):
     register_metric(_metric)
 

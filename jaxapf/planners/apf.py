@@ -130,7 +130,7 @@ class APF(Planner):
 
 
 # The paper's gains, in the order of its tables, then its three methods.
-declare_gains(GAMMA, K, *APF_GAINS)
+declare_gains(GAMMA, K, *APF_GAINS, kind="planner")
 register_planner("basic", APF(Basic(), color="tab:orange", linestyle=":",
                               description="the classical potential field: ω = 1 (paper eq. 13)"))
 register_planner("direction", APF(Direction(), color="tab:purple", linestyle="--",

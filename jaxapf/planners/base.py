@@ -25,8 +25,9 @@ from typing import TYPE_CHECKING, Any
 import jax.numpy as jnp
 from jax import Array
 
-from ..gains import GainSpec, declare_entry_gains
+from ..gains import GainSpec
 from ..registry import Registry
+from ..stage import DECLARE
 
 if TYPE_CHECKING:
     from ..config import SimConfig
@@ -42,10 +43,12 @@ class Planner(abc.ABC):
     Attributes:
       color, linestyle: how figures draw its runs (matplotlib colour and line style; ``None``:
         from a palette).
+      metrics: the metrics of what only it records (registered with it).
     """
 
     color: str | None = None
     linestyle: str | None = None
+    metrics: tuple = ()
 
     @property
     def description(self) -> str:
@@ -98,7 +101,7 @@ def _describe(planner: Planner) -> str:
 
 
 #: Registered planners: the values of ``method``.
-PLANNERS: Registry[Planner] = Registry("planner", describe=_describe, on_register=declare_entry_gains,
+PLANNERS: Registry[Planner] = Registry("planner", describe=_describe, on_register=DECLARE,
                                        role="what turns the UAV's state and the obstacles into the MPC's reference")
 
 

@@ -59,6 +59,7 @@ from jax import Array
 from ..datatypes import ObstacleColumns, Obstacles, safe_norm
 from ..datatypes.obstacles import TINY
 from ..gains import GainSpec
+from ..metrics import Metric
 from ..projection import INFEASIBLE_TOL, nearest_feasible
 from .apf import ETA, K_ATT, saturate
 from .base import Planner, reference_states, register_planner
@@ -126,6 +127,10 @@ class VelocityObstacle(Planner):
 
     color: str | None = "tab:brown"
     linestyle: str | None = "-"
+    metrics = (Metric("vo_infeasible_steps", lambda ctx: ctx.extra("vo_infeasible"), dtype="int32", kind="count",
+                      higher_is_better=False, per_step=True,
+                      doc="control steps at which the velocity obstacles' half-spaces and the speed ball could not "
+                          "all hold (0 for other planners)"),)
 
     @property
     def gains(self) -> tuple[GainSpec, ...]:

@@ -18,8 +18,9 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 from jax import Array
 
-from ..gains import GainSpec, declare_entry_gains
+from ..gains import GainSpec
 from ..registry import Registry
+from ..stage import DECLARE
 
 if TYPE_CHECKING:
     from ..config import SimConfig
@@ -33,9 +34,11 @@ class Plant(abc.ABC):
 
     Attributes:
       gains: the traced parameters the plant reads (declared when it is registered).
+      metrics: the metrics of what only it records (registered with it), e.g. a quadrotor's tilt.
     """
 
     gains: ClassVar[tuple[GainSpec, ...]] = ()
+    metrics: ClassVar[tuple] = ()
 
     @abc.abstractmethod
     def init(self, start: Array, gains: "Gains", sim: "SimConfig") -> Any:
@@ -60,7 +63,7 @@ class Plant(abc.ABC):
 
 
 #: Registered plants (``double_integrator`` is the default of :class:`~jaxapf.config.VehicleConfig`).
-PLANTS: Registry[Plant] = Registry("plant", on_register=declare_entry_gains, role="vehicle model")
+PLANTS: Registry[Plant] = Registry("plant", on_register=DECLARE, role="vehicle model")
 
 
 def register_plant(name: str, plant: Plant, *, replace: bool = False) -> Plant:

@@ -60,6 +60,7 @@ from jax import Array
 
 from ..datatypes import safe_norm
 from ..gains import GainSpec
+from ..metrics import Metric
 from .base import Plant, register_plant
 from .double_integrator import discrete_matrices
 
@@ -138,6 +139,12 @@ class Quadrotor(Plant):
                  doc="time constant of the rotors' first-order lag (0: none)"),
         GainSpec("tilt_max", 35.0, low=0.0, high=90.0, low_open=True, high_open=True, unit="deg", symbol="θ_max",
                  tunable=False, doc="largest tilt of the thrust axis the attitude setpoint may ask for"),
+    )
+    metrics: ClassVar[tuple[Metric, ...]] = (
+        Metric("max_tilt", lambda ctx: jnp.rad2deg(ctx.extra("tilt", jnp.max)), unit="deg", higher_is_better=False,
+               margin=2.0, doc="largest tilt of the thrust axis (0 for a plant without attitude)"),
+        Metric("saturation_time", lambda ctx: ctx.extra("saturated_time"), unit="s", higher_is_better=False,
+               margin=0.1, doc="time during which a rotor command was clipped (0 for a plant without rotors)"),
     )
 
     def init(self, start: Array, gains: Any, sim: Any) -> QuadrotorState:

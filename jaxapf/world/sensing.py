@@ -24,10 +24,11 @@ import jax.numpy as jnp
 from jax import Array
 
 from ..datatypes import ObstacleColumns, episode_key
-from ..gains import GainSpec, declare_entry_gains
+from ..gains import GainSpec
+from ..metrics import Metric
 from ..planners.sight import line_of_sight, norm
 from ..registry import Registry
-from ..stage import Stage
+from ..stage import DECLARE, Stage
 
 if TYPE_CHECKING:
     from ..config import SimConfig
@@ -88,6 +89,11 @@ class NoisySensor(Sensor):
     ``sim.metrics.d_sense`` and which the step's measurement did not detect.
     """
 
+    metrics: ClassVar[tuple[Metric, ...]] = (
+        Metric("unseen_steps", lambda ctx: ctx.extra("unseen_near"), dtype="int32", kind="count",
+               higher_is_better=False,
+               doc="obstacle-steps with an obstacle within d_sense not detected by the sensor (0 for the ideal one)"),
+    )
     gains: ClassVar[tuple[GainSpec, ...]] = (
         GainSpec("sigma_obs_p", 0.0, low=0.0, unit="m", symbol="σ_o", tunable=False,
                  doc="standard deviation of each coordinate of an obstacle's measured centre"),
@@ -171,7 +177,7 @@ class NoisySensor(Sensor):
 
 
 #: Registered sensing models: the values of ``sensor`` (default ``ideal``).
-SENSORS: Registry[Sensor] = Registry("sensor", on_register=declare_entry_gains,
+SENSORS: Registry[Sensor] = Registry("sensor", on_register=DECLARE,
                                      role="what the stack sees of the world")
 
 

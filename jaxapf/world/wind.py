@@ -31,9 +31,9 @@ import jax.numpy as jnp
 from jax import Array
 
 from ..datatypes import episode_key
-from ..gains import GainSpec, declare_entry_gains
+from ..gains import GainSpec
 from ..registry import Registry
-from ..stage import Stage
+from ..stage import DECLARE, Stage
 
 if TYPE_CHECKING:
     from ..config import SimConfig
@@ -101,7 +101,7 @@ class Wind(Disturbance):
 
 
 #: Registered disturbances: the values of ``disturbance`` (default ``none``).
-DISTURBANCES: Registry[Disturbance] = Registry("disturbance", on_register=declare_entry_gains,
+DISTURBANCES: Registry[Disturbance] = Registry("disturbance", on_register=DECLARE,
                                                    role="what acts on the plant besides the command")
 
 
