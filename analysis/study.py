@@ -265,7 +265,7 @@ def write_readme(out: pathlib.Path, title: str, command: str, parquet: pathlib.P
     (paths relative to ``out``)."""
     import jax
 
-    from jaxapf.versions import versions
+    from jaxapf.io.versions import versions
 
     v = versions()
     lines = [f"# {title}", "",

@@ -25,7 +25,7 @@ _LAZY = {
     "DISTURBANCES": ".world", "PLANTS": ".world", "Disturbance": ".world", "DoubleIntegrator": ".world",
     "Plant": ".world", "Quadrotor": ".world", "register_disturbance": ".world", "register_plant": ".world",
     "SENSORS": ".world", "Sensor": ".world", "register_sensor": ".world",
-    "evaluate_frame": ".frame",
+    "evaluate_frame": ".sweep",
     "GAINS": ".gains", "Gains": ".gains", "GainSpec": ".gains", "declare_gains": ".gains", "load_gains": ".gains",
     "METRICS": ".metrics", "EpisodeContext": ".metrics", "Metric": ".metrics", "episode_metrics": ".metrics",
     "register_metric": ".metrics",

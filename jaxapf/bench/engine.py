@@ -56,7 +56,7 @@ __all__ = ["run_benchmark", "format_benchmark", "bench_case", "lower_case", "int
 
 def environment(dtype: Any) -> dict[str, Any]:
     """Versions of everything that can change a timing, with OSQP's and the dtype."""
-    from ..versions import versions
+    from ..io.versions import versions
 
     try:
         osqp = metadata.version("osqp")

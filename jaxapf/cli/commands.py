@@ -265,7 +265,7 @@ def _simulate(args: argparse.Namespace) -> int:
 
         jax.config.update("jax_enable_x64", True)
     from ..config import MPCConfig, SimConfig
-    from ..lock import check_writable
+    from ..io.lock import check_writable
     from ..scenarios import family_params
     from ..simulate import format_metrics_table, simulate_runs, write_outputs
     from ..validation import MAX_FIELDS, MAX_SEED, check_int
@@ -364,7 +364,7 @@ def _report(args: argparse.Namespace) -> int:
 
 
 def _report_with(args: argparse.Namespace, pool: Any) -> int:
-    from ..lock import check_writable
+    from ..io.lock import check_writable
     from ..report import ReportOptions, build_report
     from ..sweep import configure_jax, default_cache_dir
 
@@ -456,7 +456,7 @@ def _list(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     global _CATALOG
-    from ..plugins import load_plugin
+    from ..io.plugins import load_plugin
     from ..validation import ConfigError
 
     argv = list(sys.argv[1:] if argv is None else argv)

@@ -14,7 +14,7 @@
 ``DIR`` also holds ``selection/`` (one JSON file per method and seed; a rerun reuses those of the
 same spec, and a gradient search resumes from its checkpoint), ``selection.csv`` and
 ``summary.json``. Rerunning the command resumes whatever is missing; the command holds
-``DIR/.lock`` while it runs (one writer per folder, :mod:`jaxapf.lock`).
+``DIR/.lock`` while it runs (one writer per folder, :mod:`jaxapf.io.lock`).
 """
 
 from __future__ import annotations
@@ -28,9 +28,9 @@ from typing import Any, Sequence
 import numpy as np
 import pandas as pd
 
-from ..lock import writing
+from ..io.lock import writing
+from ..io.versions import versions
 from ..validation import ConfigError
-from ..versions import versions
 from .select import Selection, select, spec_digest
 from .spec import CompareSpec, load_compare_spec
 

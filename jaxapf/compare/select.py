@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from ..gains import Gains
-from ..lock import write_atomic
+from ..io.lock import write_atomic
 from ..tune import TuneError, Tuner, parse_tune_spec
 from ..tune.proof import select_best, tuning_budget
 from .spec import CompareSpec

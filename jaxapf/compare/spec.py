@@ -17,8 +17,8 @@ import re
 from typing import Any, Mapping
 
 from ..gains import GAINS, GainSpec
+from ..io.plugins import check_plugins, load_plugins
 from ..planners import PLANNERS
-from ..plugins import check_plugins, load_plugins
 from ..sweep.spec import STATIC_KEYS, RandomRange, check_value, parse_range, spec_family_params, variant_names
 from ..tune.spec import MAX_HELD_FIELDS
 from ..validation import (

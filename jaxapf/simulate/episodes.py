@@ -26,9 +26,9 @@ from ..config import MPCConfig, SimConfig
 from ..datatypes import Scenario
 from ..engine import XLA_OPTIONS, rollout
 from ..gains import Gains
+from ..io.versions import versions
 from ..metrics import METRICS, clearance_history, episode_end, episode_metrics
 from ..scenarios import family_params, make_scenarios
-from ..versions import versions
 from .figures import Field, Run, plot_all
 
 __all__ = ["simulate_runs", "write_outputs", "format_metrics_table"]

@@ -7,10 +7,12 @@ device and one Parquet part (:mod:`.plan` variants, chunks and estimates; :mod:`
 layout; :mod:`.output` the output directory; :mod:`.run` the runner; :mod:`.read` reading back). An
 episode's numbers do not depend on the chunking, the memory budget, the devices or what was
 resumed. docs/sweep.md says how and why (variants, chunks, the memory estimate, devices,
-determinism); docs/sweep-format.md gives the dataset's layout.
+determinism); docs/sweep-format.md gives the dataset's layout. :mod:`.frame` gives a notebook the same
+rows in memory.
 """
 
 from ..validation import MAX_SEED
+from .frame import evaluate_frame
 from .output import prepare_output
 from .plan import (
                    CALLS_PER_PART,
@@ -33,4 +35,5 @@ __all__ = [
     "Plan", "Chunk", "Variant", "variants", "plan_sweep", "describe_plan", "DEFAULT_MEMORY_BUDGET", "CALLS_PER_PART",
     "STEP_COST_US", "FORMAT", "sweep_meta", "prepare_output", "run_sweep", "dry_run", "SweepResult",
     "configure_jax", "default_cache_dir", "parse_size", "read_sweep", "row_config", "sweep_spec", "RowConfig",
+    "evaluate_frame",
 ]

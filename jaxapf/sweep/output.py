@@ -1,6 +1,6 @@
 """A sweep's output directory: one writer, parts written atomically, every part verifiable.
 
-- **One writer.** :func:`jaxapf.lock.OutputLock` holds ``OUT/.lock`` while a run writes; a second
+- **One writer.** :func:`jaxapf.io.lock.OutputLock` holds ``OUT/.lock`` while a run writes; a second
   run on the same output refuses with one line. Temporary files (``.part-….tmp-PID``) therefore
   belong to a dead writer whenever the lock is ours, and only then are they removed.
 - **Atomic parts.** A part is written to a hidden temporary file, fsynced and renamed.
@@ -22,7 +22,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..lock import LOCK_NAME, write_atomic
+from ..io.lock import LOCK_NAME, write_atomic
 from ..validation import ConfigError, first_line
 from .plan import Chunk
 from .schema import LEGACY_FORMAT, META_KEY, identity, read_meta
@@ -57,7 +57,7 @@ def content_hash(table) -> str:
 
 
 def write_part(out: pathlib.Path, name: str, table) -> None:
-    """Write ``table`` to ``out/name`` atomically (:func:`jaxapf.lock.write_atomic`), with its
+    """Write ``table`` to ``out/name`` atomically (:func:`jaxapf.io.lock.write_atomic`), with its
     content hash in the metadata and a CRC on every data page."""
     import pyarrow.parquet as pq
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..engine.devices import DeviceBatch
 from ..gains import Gains
-from ..lock import OutputLock, check_writable
+from ..io.lock import OutputLock, check_writable
 from ..validation import ConfigError, Interrupted
 from .output import prepare_output, write_part
 from .plan import DEFAULT_MEMORY_BUDGET, Chunk, Plan, Variant, describe_plan, plan_sweep
@@ -194,7 +194,7 @@ def run_sweep(
     Finished parts already in ``out`` are verified and kept, and their chunks skipped; the fields
     they do not cover are cut into chunks of the current size. A damaged part is refused, or with
     ``repair`` removed and its chunk recomputed. The run holds ``out/.lock`` (one writer per
-    output, :class:`jaxapf.lock.OutputLock`). ``after_part`` is called after each part is written
+    output, :class:`jaxapf.io.lock.OutputLock`). ``after_part`` is called after each part is written
     (tests use it to interrupt a run). Ctrl-C raises :class:`~jaxapf.validation.Interrupted`
     saying what was kept. In a multi-process run (``jax.distributed``), process ``p`` runs chunks
     ``p, p + P, p + 2P, …`` of the plan; process 0 holds the lock.

@@ -152,7 +152,7 @@ def identity(meta: Mapping[str, Any]) -> dict[str, Any]:
 def sweep_meta(spec: SweepSpec, plan: Plan, out: str | pathlib.Path | None = None) -> dict[str, Any]:
     """The ``jaxapf`` metadata of every part (docs/sweep-format.md); with ``.py`` plugins and the
     output folder ``out``, ``plugin_files`` records where each was imported from."""
-    from ..versions import versions
+    from ..io.versions import versions
 
     meta = {"format": FORMAT, "spec": spec.to_json(), "spec_hash": spec.hash, "versions": versions(),
             "prng": PRNG, "dtype": plan.dtype, "vmap_width": plan.width, "metrics": list(plan.metrics)}

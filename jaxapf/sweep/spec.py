@@ -16,7 +16,7 @@ Keys ("setting keys") live in one flat namespace:
   *variant* with its own program. ``method``, ``filter`` and ``plant`` take registered names.
 
 ``plugins = [...]`` at the top level names modules (or ``.py`` files) that register components;
-they are imported before anything else is checked (:mod:`jaxapf.plugins`). A relative ``.py`` path
+they are imported before anything else is checked (:mod:`jaxapf.io.plugins`). A relative ``.py`` path
 is read from the spec file's folder, so a spec runs from any directory.
 
 Expansion order (the ``setting`` index of the output): the grid product with the keys in the
@@ -54,8 +54,8 @@ import numpy as np
 from ..config import MPC_KEYS, SIM_KEYS, STATIC_KEYS, MPCConfig, SimConfig
 from ..engine.components import COMPONENTS
 from ..gains import GAINS, Gains, read_gains_file
+from ..io.plugins import check_plugins, load_plugins
 from ..metrics import METRICS
-from ..plugins import check_plugins, load_plugins
 from ..scenarios import FAMILIES, FamilyParams, family_params
 from ..validation import (
     MAX_FIELDS,

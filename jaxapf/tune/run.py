@@ -15,7 +15,7 @@ settings on held-out fields with paired statistics (:mod:`jaxapf.tune.proof`). `
 - ``checkpoint.npz``: the training state; rerunning the command resumes from it;
 - ``searches.json``: the grid and random searches' results, reused by a rerun with the same spec.
 
-The command holds ``DIR/.lock`` while it runs (one writer per folder, :mod:`jaxapf.lock`). Rerun
+The command holds ``DIR/.lock`` while it runs (one writer per folder, :mod:`jaxapf.io.lock`). Rerun
 on a finished folder of the same spec, it prints the test table again and recomputes nothing;
 interrupted (Ctrl-C), it keeps the checkpoint and finished searches for the rerun to resume.
 """
@@ -32,8 +32,8 @@ from typing import Any
 import pandas as pd
 
 from ..gains import Gains
-from ..lock import write_atomic, writing
-from ..versions import versions
+from ..io.lock import write_atomic, writing
+from ..io.versions import versions
 from .proof import (
     SETTINGS,
     candidates,

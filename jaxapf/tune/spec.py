@@ -24,7 +24,7 @@ import optax
 from ..config import MPC_KEYS, SIM_KEYS, MPCConfig, SimConfig
 from ..engine import gains_read
 from ..gains import GAINS, Gains, check_gain_name, gains_from_mapping
-from ..plugins import check_plugins, load_plugins
+from ..io.plugins import check_plugins, load_plugins
 from ..scenarios import FAMILIES, FamilyParams
 from ..sweep.spec import check_value, spec_family_params, variant_names
 from ..validation import (

@@ -43,7 +43,7 @@ from ..config import MPCConfig, SimConfig
 from ..datatypes import Obstacles, Scenario
 from ..engine import XLA_OPTIONS, default_width, episode_index, rollout
 from ..gains import Gains
-from ..lock import write_atomic
+from ..io.lock import write_atomic
 from ..metrics import METRICS, episode_metrics
 from ..scenarios import FamilyParams, make_scenarios
 from .objective import TERMS, Objective, surrogate_loss, surrogate_terms
@@ -159,7 +159,7 @@ class TrainState:
         return sum(1 for row in self.history if math.isfinite(row["val_loss"]))
 
     def save(self, path: pathlib.Path, digest: str, next_fields: dict[str, int]) -> None:
-        """Write atomically (:func:`jaxapf.lock.write_atomic`)."""
+        """Write atomically (:func:`jaxapf.io.lock.write_atomic`)."""
         meta = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
                 if f.name not in ("theta", "opt_state", "best_theta")}
         meta |= {"format": _CHECKPOINT_FORMAT, "spec_digest": digest,

@@ -19,7 +19,7 @@ import pandas as pd
 import pytest
 
 from jaxapf.cli import main
-from jaxapf.lock import LOCK_NAME, OutputLock
+from jaxapf.io.lock import LOCK_NAME, OutputLock
 from jaxapf.sweep import parse_spec, read_sweep, run_sweep
 from jaxapf.sweep.output import part_files, verify_part
 from jaxapf.validation import ConfigError

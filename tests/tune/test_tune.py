@@ -314,7 +314,7 @@ def test_an_interrupted_tune_reuses_its_finished_searches(command_run, tmp_path,
 
 
 def test_a_second_tune_on_the_same_folder_refuses(tmp_path, capsys):
-    from jaxapf.lock import OutputLock
+    from jaxapf.io.lock import OutputLock
 
     (tmp_path / "micro.toml").write_text(MICRO_TOML)
     with OutputLock(tmp_path / "out", "jaxapf tune"):

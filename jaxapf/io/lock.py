@@ -21,7 +21,7 @@ import sys
 import time
 from typing import IO, Any, Callable, Iterator
 
-from .validation import ConfigError, Interrupted, first_line
+from ..validation import ConfigError, Interrupted, first_line
 
 __all__ = ["LOCK_NAME", "OutputLock", "LockInfo", "check_writable", "write_atomic", "writing"]
 

@@ -17,10 +17,16 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .config import MPC_KEYS, SIM_KEYS, MPCConfig, SimConfig
-from .gains import GAINS, Gains, setting_count
-from .scenarios import FamilyParams, family_params
-from .validation import BoundWarning, ConfigError, check_int
+from ..config import MPC_KEYS, SIM_KEYS, MPCConfig, SimConfig
+from ..engine import default_width, evaluate
+from ..gains import GAINS, Gains, setting_count
+from ..metrics import METRICS
+from ..scenarios import FamilyParams, family_params, make_scenarios
+from ..scenarios import solvable as solvable_fields
+from ..validation import BoundWarning, ConfigError, check_int
+from .plan import Chunk, plan_sweep
+from .schema import part_table, schema, sweep_meta
+from .spec import parse_spec
 
 __all__ = ["evaluate_frame"]
 
@@ -66,13 +72,6 @@ def evaluate_frame(family: str | FamilyParams, gains: Gains | None = None, sim: 
     """
     import jax
 
-    from .engine import default_width, evaluate
-    from .metrics import METRICS
-    from .scenarios import make_scenarios
-    from .scenarios import solvable as solvable_fields
-    from .sweep import parse_spec, plan_sweep, sweep_meta
-    from .sweep.plan import Chunk
-    from .sweep.schema import part_table, schema
 
     if isinstance(family, FamilyParams):
         params = family

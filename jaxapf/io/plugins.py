@@ -18,7 +18,7 @@ import sys
 from types import ModuleType
 from typing import Any, Sequence
 
-from .validation import ConfigError, first_line
+from ..validation import ConfigError, first_line
 
 __all__ = ["load_plugin", "load_plugins", "check_plugins", "plugin_path", "LOADED"]
 
