@@ -13,21 +13,27 @@ import dataclasses
 import math
 import os
 import pathlib
-import re
 from typing import Any, Mapping
 
 from ..gains import GAINS, GainSpec
 from ..io.plugins import check_plugins, load_plugins
+from ..io.spec import OMIT, REQUIRED, SEED, Key, Table, choice, integer, spec_name, value_grid
 from ..planners import PLANNERS
-from ..sweep.spec import STATIC_KEYS, RandomRange, check_value, parse_range, spec_family_params, variant_names
+from ..sweep.spec import (
+    STATIC_KEYS,
+    RandomRange,
+    check_value,
+    parse_range,
+    setting_values,
+    spec_family_params,
+    variant_names,
+)
 from ..tune.spec import MAX_HELD_FIELDS
 from ..validation import (
     MAX_FIELDS,
-    MAX_SEED,
     MAX_SETTINGS,
     ConfigError,
     check_choice,
-    check_int,
     check_names,
     check_table,
     read_toml_file,
@@ -46,10 +52,6 @@ GRADIENT_KEYS: tuple[str, ...] = ("fields_per_step", "optimizer", "learning_rate
                                   "clip", "episode_clip", "patience", "validate_every", "remat",
                                   "validation_fields")
 
-_TOP = ("name", "plugins", "methods", "baseline", "selection", "test", "sim", "scenario", "objective")
-_SELECTION = ("families", "seeds", "budget", "search", "candidates", "gains", "ranges", "grid", "gradient")
-_TEST = ("families", "fields", "seed")
-_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
 
 def default_range(spec: GainSpec) -> RandomRange:
@@ -170,46 +172,68 @@ def _methods(value: Any, sim: Mapping[str, Any]) -> tuple[str, ...]:
     return tuple(value)
 
 
-def _seeds(value: Any) -> tuple[int, ...]:
+def _seeds(where: str, value: Any) -> tuple[int, ...]:
     if not isinstance(value, list):
-        raise ConfigError(f"selection.seeds = {value!r} must be a list of at least {MIN_SEEDS} distinct integers")
-    seeds = tuple(check_int(f"selection.seeds[{i}]", s, 0, MAX_SEED) for i, s in enumerate(value))
+        raise ConfigError(f"{where} = {value!r} must be a list of at least {MIN_SEEDS} distinct integers")
+    seeds = tuple(SEED(f"{where}[{i}]", s) for i, s in enumerate(value))
     if len(set(seeds)) != len(seeds) or len(seeds) < MIN_SEEDS:
-        raise ConfigError(f"selection.seeds = {value!r} must list at least {MIN_SEEDS} distinct seeds: "
+        raise ConfigError(f"{where} = {value!r} must list at least {MIN_SEEDS} distinct seeds: "
                           "each is an independent selection, and their spread is part of the result")
     return seeds
 
 
-def _selection(data: Any, choices: tuple[str, ...], read: set[str]) -> SelectionSpec:
-    d = check_table("selection", data, _SELECTION)
-    for key in ("families", "seeds", "budget"):
-        if key not in d:
-            raise ConfigError(f"selection.{key} is missing")
+def _given(where: str, value: Any) -> Any:
+    """A value read later, once what it depends on is known."""
+    return value
+
+
+def _finite(where: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ConfigError(f"{where} = {value!r} must be a number")
+    return float(value)
+
+
+def _schema() -> Table:
+    """The compare spec's schema (docs/compare.md); the methods, the baseline, the families and gains
+    of ``[selection]`` and its grid are read once ``[sim]`` and the methods are known."""
+    from ..tune.objective import Objective
+
+    return Table({
+        "name": Key(spec_name(), "compare"),
+        "plugins": Key(check_plugins, []),
+        "methods": Key(_given, REQUIRED, 'list the planners to compare, e.g. methods = ["basic", '
+                                         '"direction_velocity"]'),
+        "baseline": Key(_given, OMIT),
+        "selection": Key(Table({
+            "families": Key(_given, REQUIRED), "seeds": Key(_seeds, REQUIRED),
+            "budget": Key(integer(1, MAX_HELD_FIELDS), REQUIRED), "search": Key(choice(SEARCHES), "random"),
+            "candidates": Key(integer(1, MAX_SETTINGS), OMIT), "gains": Key(_given, OMIT),
+            "ranges": Key(_given, {}), "grid": Key(_given, OMIT), "gradient": Key(_given, OMIT),
+        }), REQUIRED, "add [selection] with families, seeds and budget"),
+        "test": Key(Table({"families": Key(_given, REQUIRED), "fields": Key(integer(1, MAX_FIELDS), REQUIRED),
+                           "seed": Key(SEED, OMIT)}), REQUIRED, "add [test] with families and fields"),
+        "sim": Key(setting_values(tuple(k for k in STATIC_KEYS if k != "method")), {}),
+        "scenario": Key(Table({"params": Key(lambda where, value: check_table(where, value), {})}), {}),
+        "objective": Key(Table({f.name: Key(_finite) for f in dataclasses.fields(Objective)}), {}),
+    })
+
+
+def _selection(d: Mapping[str, Any], choices: tuple[str, ...], read: set[str]) -> SelectionSpec:
     families = check_names("selection.families", d["families"], choices, what="family or variant")
-    seeds = _seeds(d["seeds"])
-    budget = check_int("selection.budget", d["budget"], 1, MAX_HELD_FIELDS)
-    search = check_choice("selection.search", d.get("search", "random"), SEARCHES)
-    candidates = check_int("selection.candidates", d.get("candidates", 32), 1, MAX_SETTINGS)
+    search = d["search"]
     tunable = tuple(n for n, g in GAINS.items() if g.tunable and n in read)
     gains = check_names("selection.gains", d.get("gains", list(tunable)), tunable, what="tunable gain read by "
                         "one of the methods", canonical=True)
-    ranges_in = check_table("selection.ranges", d.get("ranges", {}), gains)
+    ranges_in = check_table("selection.ranges", d["ranges"], gains)
     ranges = tuple((g, parse_range(f"selection.ranges.{g}", g, ranges_in[g]) if g in ranges_in
                     else default_range(GAINS.get(g))) for g in gains)
     grid = ()
     if search == "grid":
-        table = check_table("selection.grid", d.get("grid", {}), gains)
-        if not table:
-            raise ConfigError("selection.grid is empty; a grid search needs values for at least one gain, "
-                              "e.g. grid = { k_rep = [5.0, 10.0, 20.0] }")
-        for g, values in table.items():
-            if not isinstance(values, list) or not values:
-                raise ConfigError(f"selection.grid.{g} = {values!r} must be a non-empty list of numbers")
-        count = math.prod(len(values) for values in table.values())
-        if count > MAX_SETTINGS:
-            raise ConfigError(f"selection.grid expands to {count:,} settings; at most {MAX_SETTINGS:,} are allowed")
-        grid = tuple((g, tuple(check_value(f"selection.grid.{g}[{i}]", g, v) for i, v in enumerate(table[g])))
-                     for g in gains if g in table)
+        read_grid = value_grid(lambda where, g, v: check_value(where, g, v), keys=gains,
+                               empty="selection.grid is empty; a grid search needs values for at least one gain, "
+                                     "e.g. grid = { k_rep = [5.0, 10.0, 20.0] }")
+        given = dict(read_grid("selection.grid", d.get("grid", {})))
+        grid = tuple((g, given[g]) for g in gains if g in given)
     elif "grid" in d:
         raise ConfigError(f"selection.grid is for search = \"grid\" (this spec's search is {search!r})")
     gradient = ()
@@ -219,69 +243,43 @@ def _selection(data: Any, choices: tuple[str, ...], read: set[str]) -> Selection
         gradient = tuple(check_table("selection.gradient", d["gradient"], GRADIENT_KEYS).items())
     if "candidates" in d and search != "random":
         raise ConfigError(f"selection.candidates is for search = \"random\" (this spec's search is {search!r})")
-    return SelectionSpec(families=families, seeds=seeds, budget=budget, search=search, candidates=candidates,
-                         gains=gains, ranges=ranges, grid=grid, gradient=gradient)
-
-
-def _test(data: Any, choices: tuple[str, ...], seeds: tuple[int, ...]) -> TestSpec:
-    d = check_table("test", data, _TEST)
-    for key in ("families", "fields"):
-        if key not in d:
-            raise ConfigError(f"test.{key} is missing")
-    families = check_names("test.families", d["families"], choices, what="family or variant")
-    fields = check_int("test.fields", d["fields"], 1, MAX_FIELDS)
-    seed = check_int("test.seed", d.get("seed", max(seeds) + 1), 0, MAX_SEED)
-    if seed in seeds:
-        raise ConfigError(f"test.seed = {seed} is also a selection seed; the test fields must be held out")
-    return TestSpec(families=families, fields=fields, seed=seed)
+    return SelectionSpec(families=families, seeds=d["seeds"], budget=d["budget"], search=search,
+                         candidates=d.get("candidates", 32), gains=gains, ranges=ranges, grid=grid, gradient=gradient)
 
 
 def parse_compare_spec(data: Mapping[str, Any], *, base: str | os.PathLike | None = None) -> CompareSpec:
     """A :class:`CompareSpec` from a parsed TOML mapping (every key checked; docs/compare.md);
     ``base``: the folder relative ``.py`` plugin paths are read from (default the current directory)."""
-    data = check_table("", dict(data), _TOP)
+    from ..scenarios import FAMILIES
+    from ..tune.objective import Objective
+
+    data = check_table("", dict(data))
     plugins = check_plugins("plugins", data.get("plugins", []))
     paths = load_plugins(plugins, base=base)
-    name = data.get("name", "compare")
-    if not isinstance(name, str) or not _NAME.match(name):
-        raise ConfigError(f"name = {name!r} must be a string of letters, digits, '_', '.', '-'")
-    if "methods" not in data:
-        raise ConfigError("methods is missing; list the planners to compare, e.g. methods = [\"basic\", "
-                          "\"direction_velocity\"]")
-    sim = check_table("sim", data.get("sim", {}), tuple(k for k in STATIC_KEYS if k != "method"))
-    sim = {k: check_value(f"sim.{k}", k, v) for k, v in sim.items()}
-    methods = _methods(data["methods"], sim)
-    baseline = check_choice("baseline", data.get("baseline", methods[0]), methods)
-    scenario = check_table("scenario", data.get("scenario", {}), ("params",))
-    tables = check_table("scenario.params", scenario.get("params", {}))
-    from ..scenarios import FAMILIES
-
+    d = _schema()("", data)
+    sim = d["sim"]
+    methods = _methods(d["methods"], sim)
+    baseline = check_choice("baseline", d.get("baseline", methods[0]), methods)
+    tables = d["scenario"]["params"]
     choices = FAMILIES.names() + variant_names(tables)
-    if "selection" not in data:
-        raise ConfigError("selection is missing; add [selection] with families, seeds and budget")
     read = set().union(*(_gains_read(sim, _settings(m, methods)) for m in methods))
-    selection = _selection(data["selection"], choices, read)
-    if "test" not in data:
-        raise ConfigError("test is missing; add [test] with families and fields")
-    test = _test(data["test"], choices, selection.seeds)
-    used = set(selection.families) | set(test.families)
+    selection = _selection(d["selection"], choices, read)
+    test = d["test"]
+    families = check_names("test.families", test["families"], choices, what="family or variant")
+    seed = test.get("seed", max(selection.seeds) + 1)
+    if seed in selection.seeds:
+        raise ConfigError(f"test.seed = {seed} is also a selection seed; the test fields must be held out")
+    used = set(selection.families) | set(families)
     for label in tables:
         if label not in used:
             raise ConfigError(f"scenario.params.{label} is not one of selection.families or test.families")
     params = {label: dict(tables.get(label, {})) for label in sorted(used)}
     for label, table in params.items():
         spec_family_params(label, table)
-    from ..tune.objective import Objective
-
-    keys = tuple(f.name for f in dataclasses.fields(Objective))
-    objective = check_table("objective", data.get("objective", {}), keys)
-    for key, value in objective.items():
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise ConfigError(f"objective.{key} = {value!r} must be a number")
-    Objective(**{k: float(v) for k, v in objective.items()})
-    return CompareSpec(name=name, methods=methods, baseline=baseline, selection=selection, test=test, sim=sim,
-                       params=params, objective={k: float(v) for k, v in objective.items()}, plugins=plugins,
-                       plugin_paths=paths)
+    Objective(**d["objective"])
+    return CompareSpec(name=d["name"], methods=methods, baseline=baseline, selection=selection,
+                       test=TestSpec(families=families, fields=test["fields"], seed=seed), sim=sim, params=params,
+                       objective=d["objective"], plugins=plugins, plugin_paths=paths)
 
 
 def load_compare_spec(path: str | os.PathLike) -> tuple[CompareSpec, str]:

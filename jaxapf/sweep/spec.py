@@ -47,7 +47,7 @@ import os
 import pathlib
 import re
 import warnings
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -170,6 +170,21 @@ def check_value(where: str, key: str, value: Any) -> Any:
         message = str(w.message).removeprefix(f"{prefix}.{key}")
         warnings.warn(f"{where} = {value!r}{message}", BoundWarning, stacklevel=2)
     return value
+
+
+def setting_values(keys: Sequence[str]) -> Callable[[str, Any], dict[str, Any]]:
+    """A table of setting values (``[sim]``, ``[gains]``) out of ``keys``, each checked by
+    :func:`check_value`: the values it gives (a reader of :mod:`jaxapf.io.spec`)."""
+    def read(where: str, value: Any) -> dict[str, Any]:
+        table = check_table(where, value, keys)
+        return {key: check_value(f"{where}.{key}", key, v) for key, v in table.items()}
+    return read
+
+
+def sim_configs(values: Mapping[str, Any]) -> tuple[SimConfig, MPCConfig]:
+    """The :class:`SimConfig` and :class:`MPCConfig` of ``[sim]`` values (the rest at their defaults)."""
+    return (SimConfig.from_flat({k: v for k, v in values.items() if k in SIM_KEYS}),
+            MPCConfig(**{k: v for k, v in values.items() if k in MPC_KEYS}))
 
 
 # --------------------------------------------------------------------------------------------

@@ -2,8 +2,9 @@
 
 Every key is checked before anything is traced; an unknown key or a bad value raises
 :class:`~jaxapf.validation.ConfigError` naming it (``train.learning_rate = -1.0 is out of range; ...``).
-The keys, their defaults and ranges are listed in ``docs/tune.md``; :data:`SECTIONS` is the
-authoritative list.
+The keys, their defaults and ranges are listed in ``docs/tune.md``; the schema
+(:mod:`jaxapf.io.spec`) is :func:`_schema`, with the defaults of :class:`TrainSpec`, :class:`SearchSpec` and
+:class:`~jaxapf.tune.objective.Objective`.
 """
 
 from __future__ import annotations
@@ -25,26 +26,15 @@ from ..config import MPC_KEYS, SIM_KEYS, MPCConfig, SimConfig
 from ..engine import gains_read
 from ..gains import GAINS, Gains, check_gain_name, gains_from_mapping
 from ..io.plugins import check_plugins, load_plugins
+from ..io.spec import OMIT, REQUIRED, SEED, Key, Table, boolean, choice, integer, names, number, value_grid
 from ..scenarios import FAMILIES, FamilyParams
-from ..sweep.spec import check_value, spec_family_params, variant_names
-from ..validation import (
-    MAX_SEED,
-    MAX_SETTINGS,
-    ConfigError,
-    check_bool,
-    check_choice,
-    check_int,
-    check_names,
-    check_range,
-    check_table,
-    read_toml_file,
-)
+from ..sweep.spec import setting_values, sim_configs, spec_family_params, variant_names
+from ..validation import MAX_SETTINGS, ConfigError, check_choice, check_table, read_toml_file
 from .objective import Objective, Reparam
 
 __all__ = [
     "SCHEDULES",
     "TEST_FAMILIES",
-    "SECTIONS",
     "TrainSpec",
     "FieldSetSpec",
     "SearchSpec",
@@ -66,20 +56,6 @@ MAX_HELD_FIELDS = 2**22
 TEST_FAMILIES: tuple[str, ...] = ("trap", "crossing", "head_on", "overtake", "clutter", "dynamic")
 #: Learning-rate schedules: constant, cosine decay to 0 over ``steps``, linear warm-up then cosine.
 SCHEDULES: tuple[str, ...] = ("constant", "cosine", "warmup_cosine")
-
-#: Allowed keys of every section (``scenario`` holds one sub-table per family).
-SECTIONS: Mapping[str, tuple[str, ...]] = {
-    "": ("name", "plugins", "train", "validation", "test", "objective", "init", "tune", "sim", "scenario", "search"),
-    "train": ("families", "fields_per_step", "steps", "seed", "optimizer", "learning_rate", "schedule",
-              "warmup_steps", "clip", "episode_clip", "patience", "validate_every", "remat"),
-    "validation": ("fields", "seed"),
-    "test": ("families", "fields", "seed"),
-    "objective": tuple(f.name for f in dataclasses.fields(Objective)),
-    "tune": ("params", "upper"),
-    "sim": SIM_KEYS + MPC_KEYS,
-    "search": ("grid", "random_n", "random_range", "random_seed"),
-}
-
 
 def split_count(n: int, parts: int) -> tuple[int, ...]:
     """``n`` items over ``parts`` groups as evenly as possible, the first groups taking the remainder."""
@@ -235,75 +211,19 @@ class TuneSpec:
 # --------------------------------------------------------------------------------------------
 
 
-def _table(data: Any, where: str) -> dict[str, Any]:
-    return check_table(where, data, SECTIONS[where])
+def _keys(cls: type, readers: Mapping[str, Any]) -> Table:
+    """The table of a section whose keys are the fields of ``cls`` (a dataclass of defaults), each read
+    by its reader in ``readers``; a field without a default is required."""
+    defaults = {f.name: f.default for f in dataclasses.fields(cls)}
+    return Table({k: Key(read, defaults.get(k, REQUIRED)) for k, read in readers.items()})
 
 
-def _float(where: str, value: Any, lo: float | None = None, *, lo_open: bool = False) -> float:
-    if isinstance(value, bool):
-        raise ConfigError(f"{where} = {value!r} must be a number")
-    return float(check_range(where, value, lo, lo_open=lo_open))
-
-
-def _episode_clip(value: Any) -> float:
-    """``train.episode_clip``: a number > 0 or ``inf`` (no per-episode clipping)."""
-    if isinstance(value, float) and value == math.inf:
-        return value
-    return _float("train.episode_clip", value, 0.0, lo_open=True)
-
-
-def _families(where: str, value: Any, choices: tuple[str, ...]) -> tuple[str, ...]:
-    return check_names(where, value, choices, what="family or variant")
-
-
-def _train(data: dict[str, Any], choices: tuple[str, ...]) -> TrainSpec:
-    d = _table(data, "train")
-    default = TrainSpec()
-    get = lambda key: d.get(key, getattr(default, key))  # noqa: E731
-    spec = TrainSpec(
-        families=_families("train.families", get("families"), choices),
-        fields_per_step=check_int("train.fields_per_step", get("fields_per_step"), 1, MAX_HELD_FIELDS),
-        steps=check_int("train.steps", get("steps"), 1, MAX_HELD_FIELDS),
-        seed=check_int("train.seed", get("seed"), 0, MAX_SEED),
-        optimizer=check_optimizer(get("optimizer")),
-        learning_rate=_float("train.learning_rate", get("learning_rate"), 0.0, lo_open=True),
-        schedule=check_choice("train.schedule", get("schedule"), SCHEDULES),
-        warmup_steps=check_int("train.warmup_steps", get("warmup_steps"), 0),
-        clip=_float("train.clip", get("clip"), 0.0, lo_open=True),
-        episode_clip=_episode_clip(get("episode_clip")),
-        patience=check_int("train.patience", get("patience"), 1),
-        validate_every=check_int("train.validate_every", get("validate_every"), 1),
-        remat=check_bool("train.remat", get("remat")),
-    )
-    if spec.fields_per_step < len(spec.families):
-        raise ConfigError(f"train.fields_per_step = {spec.fields_per_step} must be at least the number of "
-                          f"train.families ({len(spec.families)}): every family is in every step")
-    if spec.steps * spec.fields_per_step > MAX_HELD_FIELDS:
-        raise ConfigError(f"train.steps × train.fields_per_step = {spec.steps * spec.fields_per_step:,} training "
-                          f"fields; at most {MAX_HELD_FIELDS:,} are allowed (they are drawn up front): fewer "
-                          "steps or fields per step")
-    if spec.schedule == "warmup_cosine" and not 0 < spec.warmup_steps < max(spec.steps, 1):
-        raise ConfigError(f"train.warmup_steps = {spec.warmup_steps} must lie in 1..steps-1 for warmup_cosine")
-    return spec
-
-
-def _field_set(data: dict[str, Any], where: str, families: tuple[str, ...] | None, default_fields: int,
-               default_seed: int, choices: tuple[str, ...] = ()) -> FieldSetSpec:
-    d = _table(data, where)
-    fams = families if families is not None else _families(f"{where}.families", d.get("families", list(TEST_FAMILIES)),
-                                                           choices)
-    fields = check_int(f"{where}.fields", d.get("fields", default_fields), 1, MAX_HELD_FIELDS)
-    if families is not None and fields < len(families):
-        raise ConfigError(f"{where}.fields = {fields} must be at least the number of train.families ({len(families)})")
-    return FieldSetSpec(fams, fields, check_int(f"{where}.seed", d.get("seed", default_seed), 0, MAX_SEED))
-
-
-def _gains(table: Mapping[str, Any], where: str, base: Gains | None = None) -> Gains:
+def _gains(where: str, table: Any, base: Gains | None = None) -> Gains:
     """Gains from ``{name: number}`` on top of ``base``; errors name ``where.name``."""
+    table = check_table(where, table)
     for name in table:
         check_gain_name(where, name)
-    values = {k: _float(f"{where}.{k}", v) for k, v in table.items()}
-    return gains_from_mapping(values, where, base)
+    return gains_from_mapping({k: number()(f"{where}.{k}", v) for k, v in table.items()}, where, base)
 
 
 def read_gains(sim: SimConfig) -> tuple[str, ...]:
@@ -313,30 +233,62 @@ def read_gains(sim: SimConfig) -> tuple[str, ...]:
     return tuple(n for n, g in GAINS.items() if n in read and g.tunable)
 
 
-def _tune(data: dict[str, Any], init: Gains, sim: SimConfig) -> Reparam:
-    d = _table(data, "tune")
-    params = d.get("params", list(read_gains(sim)))
-    if not isinstance(params, list) or not all(isinstance(p, str) for p in params):
-        raise ConfigError(f"tune.params = {params!r} must be a list of gain names")
-    upper = check_table("tune.upper", d.get("upper", {}))
-    for name, value in upper.items():
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"tune.upper.{name} = {value!r} must be a number or inf")
-    reparam = Reparam(tuple(params), init, tuple((k, float(v)) for k, v in upper.items()))
-    reparam.theta(init)  # the start must be reachable
-    return reparam
+def _gain_names(where: str, value: Any) -> tuple[str, ...]:
+    if not isinstance(value, list) or not all(isinstance(p, str) for p in value):
+        raise ConfigError(f"{where} = {value!r} must be a list of gain names")
+    return tuple(value)
 
 
-def _sim(data: dict[str, Any]) -> tuple[SimConfig, MPCConfig]:
-    d = _table(data, "sim")
-    for key, value in d.items():
-        check_value(f"sim.{key}", key, value)
-    return (SimConfig.from_flat({k: v for k, v in d.items() if k in SIM_KEYS}),
-            MPCConfig(**{k: v for k, v in d.items() if k in MPC_KEYS}))
+def _uppers(where: str, value: Any) -> tuple[tuple[str, float], ...]:
+    table = check_table(where, value)
+    for name, v in table.items():
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise ConfigError(f"{where}.{name} = {v!r} must be a number or inf")
+    return tuple((k, float(v)) for k, v in table.items())
 
 
-def _scenario(data: dict[str, Any], families: set[str]) -> tuple[tuple[str, FamilyParams], ...]:
-    """``[scenario.params.FAMILY]`` tables, as in a sweep spec (docs/sweep.md)."""
+def _schema(choices: tuple[str, ...]) -> Table:
+    """The tune spec's schema, given the families and variants it may name (docs/tune.md)."""
+    families = names(choices, "family or variant")
+    train = _keys(TrainSpec, {
+        "families": families, "fields_per_step": integer(1, MAX_HELD_FIELDS), "steps": integer(1, MAX_HELD_FIELDS),
+        "seed": SEED, "optimizer": lambda where, value: check_optimizer(value),
+        "learning_rate": number(0.0, lo_open=True), "schedule": choice(SCHEDULES), "warmup_steps": integer(0),
+        "clip": number(0.0, lo_open=True), "episode_clip": number(0.0, lo_open=True, inf=True),
+        "patience": integer(1), "validate_every": integer(1),
+        "remat": boolean})
+    fields = integer(1, MAX_HELD_FIELDS)
+    return Table({
+        "name": Key(_text, "tune"), "plugins": Key(check_plugins, []), "train": Key(train, {}),
+        "validation": Key(Table({"fields": Key(fields, 64), "seed": Key(SEED, OMIT)}), {}),
+        "test": Key(Table({"families": Key(families, TEST_FAMILIES), "fields": Key(fields, 256),
+                           "seed": Key(SEED, OMIT)}), {}),
+        "objective": Key(_keys(Objective, {f.name: number() for f in dataclasses.fields(Objective)}), {}),
+        "init": Key(_gains, {}),
+        "tune": Key(Table({"params": Key(_gain_names, OMIT), "upper": Key(_uppers, {})}), {}),
+        "sim": Key(setting_values(SIM_KEYS + MPC_KEYS), {}),
+        "scenario": Key(_scenario, {}),
+        "search": Key(Table({"grid": Key(value_grid(lambda where, gain, value: number()(where, value),
+                                                    check_key=check_gain_name, empty=_EMPTY_GRID),
+                                         {n: list(v) for n, v in SearchSpec.grid}),
+                             "random_n": Key(integer(1, MAX_SETTINGS), SearchSpec.random_n),
+                             "random_range": Key(number(1.0), SearchSpec.random_range),
+                             "random_seed": Key(SEED, SearchSpec.random_seed)}), {}),
+    })
+
+
+_EMPTY_GRID = "search.grid must be a non-empty table {gain = [values, ...]}"
+
+
+def _text(where: str, value: Any) -> str:
+    if not isinstance(value, str) or not value:
+        raise ConfigError(f"{where} = {value!r} must be a non-empty string")
+    return value
+
+
+def _scenario(where: str, data: Any) -> tuple[tuple[str, dict], ...]:
+    """``[scenario.params.FAMILY]`` tables, as in a sweep spec (docs/sweep.md); resolved once the
+    families the spec uses are known."""
     if not isinstance(data, dict):
         raise ConfigError("scenario must be a table holding [scenario.params.FAMILY] tables")
     extra = sorted(set(data) - {"params"})
@@ -348,31 +300,7 @@ def _scenario(data: dict[str, Any], families: set[str]) -> tuple[tuple[str, Fami
         raise ConfigError("scenario.params must be a table of [scenario.params.FAMILY] tables")
     for name in params:
         check_choice("scenario.params", name, FAMILIES.names() + variant_names(params))
-    return tuple((f, spec_family_params(f, params.get(f, {}))) for f in sorted(families | set(params)))
-
-
-def _search(data: dict[str, Any], reparam: Reparam) -> SearchSpec:
-    d = _table(data, "search")
-    default = SearchSpec()
-    grid_raw = d.get("grid", {n: list(v) for n, v in default.grid})
-    if not isinstance(grid_raw, dict) or not grid_raw:
-        raise ConfigError("search.grid must be a non-empty table {gain = [values, ...]}")
-    grid = []
-    for name, values in grid_raw.items():
-        if not isinstance(values, list) or not values:
-            raise ConfigError(f"search.grid.{name} = {values!r} must be a non-empty list of numbers")
-        if len(values) > MAX_SETTINGS:
-            raise ConfigError(f"search.grid.{name} has {len(values):,} values; at most {MAX_SETTINGS:,} are allowed")
-        grid.append((name, tuple(_gains({name: v}, "search.grid", reparam.base)[name] for v in values)))
-    count = math.prod(len(v) for _, v in grid)
-    if count > MAX_SETTINGS:
-        raise ConfigError(f"search.grid expands to {count:,} settings; at most {MAX_SETTINGS:,} are allowed")
-    return SearchSpec(
-        grid=tuple(grid),
-        random_n=check_int("search.random_n", d.get("random_n", default.random_n), 1, MAX_SETTINGS),
-        random_range=_float("search.random_range", d.get("random_range", default.random_range), 1.0),
-        random_seed=check_int("search.random_seed", d.get("random_seed", default.random_seed), 0, MAX_SEED),
-    )
+    return tuple(params.items())
 
 
 def parse_tune_spec(data: Mapping[str, Any], *, base: str | os.PathLike | None = None,
@@ -380,31 +308,45 @@ def parse_tune_spec(data: Mapping[str, Any], *, base: str | os.PathLike | None =
     """A :class:`TuneSpec` from a parsed TOML mapping (see docs/tune.md for every key); ``base``:
     the folder relative ``.py`` plugin paths are read from (default the current directory), or
     ``plugin_paths``: what each plugin imports."""
-    data = _table(dict(data), "")
+    data = check_table("", dict(data))
     plugins = check_plugins("plugins", data.get("plugins", []))
     load_plugins(plugins, base=base, paths=plugin_paths)
-    name = data.get("name", "tune")
-    if not isinstance(name, str) or not name:
-        raise ConfigError(f"name = {name!r} must be a non-empty string")
     scenario = data.get("scenario", {})
     choices = FAMILIES.names() + variant_names(scenario.get("params", {}) if isinstance(scenario, dict) else {})
-    train = _train(data.get("train", {}), choices)
-    validation = _field_set(data.get("validation", {}), "validation", train.families, 64, train.seed + 1)
-    test = _field_set(data.get("test", {}), "test", None, 256, train.seed + 2, choices)
+    d = _schema(choices)("", data)
+    train = TrainSpec(**d["train"])
+    if train.fields_per_step < len(train.families):
+        raise ConfigError(f"train.fields_per_step = {train.fields_per_step} must be at least the number of "
+                          f"train.families ({len(train.families)}): every family is in every step")
+    if train.steps * train.fields_per_step > MAX_HELD_FIELDS:
+        raise ConfigError(f"train.steps × train.fields_per_step = {train.steps * train.fields_per_step:,} training "
+                          f"fields; at most {MAX_HELD_FIELDS:,} are allowed (they are drawn up front): fewer "
+                          "steps or fields per step")
+    if train.schedule == "warmup_cosine" and not 0 < train.warmup_steps < max(train.steps, 1):
+        raise ConfigError(f"train.warmup_steps = {train.warmup_steps} must lie in 1..steps-1 for warmup_cosine")
+    validation = FieldSetSpec(train.families, d["validation"]["fields"], d["validation"].get("seed", train.seed + 1))
+    if validation.fields < len(train.families):
+        raise ConfigError(f"validation.fields = {validation.fields} must be at least the number of train.families "
+                          f"({len(train.families)})")
+    test = FieldSetSpec(d["test"]["families"], d["test"]["fields"], d["test"].get("seed", train.seed + 2))
     seeds = {"train.seed": train.seed, "validation.seed": validation.seed, "test.seed": test.seed}
     if len(set(seeds.values())) != 3:
         raise ConfigError(f"train.seed, validation.seed and test.seed must differ (got {seeds}): "
                           "validation and test fields are never trained on")
-    objective_kw = _table(data.get("objective", {}), "objective")
-    objective = Objective(**{k: _float(f"objective.{k}", v) for k, v in objective_kw.items()})
-    init = _gains(check_table("init", data.get("init", {})), "init")
-    sim, mpc = _sim(data.get("sim", {}))
-    reparam = _tune(data.get("tune", {}), init, sim)
+    sim, mpc = sim_configs(d["sim"])
+    init = d["init"]
+    reparam = Reparam(d["tune"].get("params", read_gains(sim)), init, d["tune"]["upper"])
+    reparam.theta(init)  # the start must be reachable
+    grid = tuple((name, tuple(gains_from_mapping({name: v}, "search.grid", reparam.base)[name] for v in values))
+                 for name, values in d["search"]["grid"])
+    params = dict(d["scenario"])
+    used = set(train.families) | set(test.families) | set(params)
     return TuneSpec(
-        name=name, plugins=plugins, train=train, validation=validation, test=test, objective=objective, init=init,
-        reparam=reparam, sim=sim, mpc=mpc,
-        scenario=_scenario(scenario, set(train.families) | set(test.families)),
-        search=_search(data.get("search", {}), reparam),
+        name=d["name"], plugins=plugins, train=train, validation=validation, test=test,
+        objective=Objective(**d["objective"]), init=init, reparam=reparam, sim=sim, mpc=mpc,
+        scenario=tuple((f, spec_family_params(f, params.get(f, {}))) for f in sorted(used)),
+        search=SearchSpec(grid=grid, random_n=d["search"]["random_n"], random_range=d["search"]["random_range"],
+                          random_seed=d["search"]["random_seed"]),
     )
 
 

@@ -1,0 +1,161 @@
+"""The schema every spec file is read with: ``jaxapf sweep``'s, ``tune``'s and ``compare``'s.
+
+A spec is a :class:`Table` of :class:`Key` s. A key is a reader ``(where, value) -> value`` that
+returns the value normalised or raises a one-line :class:`~jaxapf.validation.ConfigError` naming
+``where`` (the dotted place in the file, ``train.learning_rate``), and a default, which is read as if
+the file gave it. Reading a table refuses unknown keys (listing the allowed ones) and missing required
+ones (saying what to add), then reads every key in declaration order; a :class:`Table` is itself a
+reader, so tables nest. What the
+three specs share is defined here once: the spec's name, its plugins, ``[sim]``, the
+``[scenario.params]`` tables, lists of families, seeds, and gain grids. What holds between keys
+(a test seed apart from the selection seeds) is checked by the spec's parser after reading.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+from typing import Any, Callable, Mapping, Sequence
+
+from ..validation import (
+    MAX_SEED,
+    MAX_SETTINGS,
+    ConfigError,
+    check_bool,
+    check_choice,
+    check_int,
+    check_names,
+    check_range,
+    check_table,
+)
+
+__all__ = ["Key", "Table", "REQUIRED", "OMIT", "integer", "number", "choice", "boolean", "names", "SEED",
+           "spec_name", "value_list", "value_grid"]
+
+Reader = Callable[[str, Any], Any]
+
+#: A key the spec must give.
+REQUIRED = object()
+#: A key that, absent, is absent from what the table reads (no default).
+OMIT = object()
+
+
+@dataclasses.dataclass(frozen=True)
+class Key:
+    """One key of a table: its reader, its default (a value as a file gives it, read like one;
+    :data:`REQUIRED`; or :data:`OMIT`), and for a required key what the message of its absence advises
+    (``add [test] with families and fields``)."""
+
+    read: Reader
+    default: Any = OMIT
+    missing: str = ""
+
+
+@dataclasses.dataclass(frozen=True)
+class Table:
+    """A table of :class:`Key` s by name (their order: the order of reading and of the allowed keys
+    an unknown key's message lists). Calling it reads a table found at ``where`` (``""``: the file)."""
+
+    keys: Mapping[str, Key]
+
+    def __call__(self, where: str, value: Any) -> dict[str, Any]:
+        table = check_table(where, value, tuple(self.keys))
+        out = {}
+        for name, key in self.keys.items():
+            at = f"{where}.{name}" if where else name
+            if name in table:
+                out[name] = key.read(at, table[name])
+            elif key.default is REQUIRED:
+                raise ConfigError(f"{at} is missing" + (f"; {key.missing}" if key.missing else ""))
+            elif key.default is not OMIT:
+                out[name] = key.read(at, key.default)
+        return out
+
+
+def integer(lo: int, hi: int | None = None) -> Reader:
+    """An integer in ``[lo, hi]``."""
+    return lambda where, value: check_int(where, value, lo, hi)
+
+
+def number(lo: float | None = None, *, lo_open: bool = False, inf: bool = False) -> Reader:
+    """A number (not a boolean) at least ``lo`` (above it with ``lo_open``), as a float; ``inf``:
+    also ``inf``."""
+    def read(where: str, value: Any) -> float:
+        if isinstance(value, bool):
+            raise ConfigError(f"{where} = {value!r} must be a number")
+        if inf and isinstance(value, float) and value == math.inf:
+            return value
+        return float(check_range(where, value, lo, lo_open=lo_open))
+    return read
+
+
+def choice(choices: Sequence[str]) -> Reader:
+    """One of ``choices``."""
+    return lambda where, value: check_choice(where, value, choices)
+
+
+def boolean(where: str, value: Any) -> bool:
+    """``true`` or ``false``."""
+    return check_bool(where, value)
+
+
+def names(choices: Sequence[str], what: str = "name", *, canonical: bool = False) -> Reader:
+    """Distinct names out of ``choices`` (:func:`~jaxapf.validation.check_names`)."""
+    return lambda where, value: check_names(where, value, choices, what=what, canonical=canonical)
+
+
+#: A seed of a generator: an integer in ``[0, 2**32 - 1]``.
+SEED = integer(0, MAX_SEED)
+
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+
+
+def spec_name(hint: str = "") -> Reader:
+    """The spec's ``name``: letters, digits, ``_``, ``.`` and ``-`` (it names outputs); ``hint`` says which."""
+    def read(where: str, value: Any) -> str:
+        if not isinstance(value, str) or not _NAME.match(value):
+            raise ConfigError(f"{where} = {value!r} must be a string of letters, digits, '_', '.', '-'"
+                              + (f" ({hint})" if hint else ""))
+        return value
+    return read
+
+
+def value_list(read: Reader) -> Reader:
+    """A non-empty list, each value read by ``read`` at ``where[i]``."""
+    def read_list(where: str, value: Any) -> tuple:
+        if not isinstance(value, list):
+            raise ConfigError(f"{where} = {value!r} must be a list of values")
+        if not value:
+            raise ConfigError(f"{where} is empty; give at least one value")
+        return tuple(read(f"{where}[{i}]", v) for i, v in enumerate(value))
+    return read_list
+
+
+def value_grid(read: Callable[[str, str, Any], Any], *, keys: Sequence[str] | None = None,
+               check_key: Callable[[str, str], Any] | None = None, empty: str) -> Reader:
+    """A table ``{key = [values, ...]}`` (keys out of ``keys``, or accepted by ``check_key(where,
+    key)``), each value read by ``read(where, key, value)``, whose product is at most
+    :data:`~jaxapf.validation.MAX_SETTINGS` settings: the grids of sweep, tune and compare specs.
+    ``empty``: the message for an empty table."""
+    def read_grid(where: str, value: Any) -> tuple[tuple[str, tuple], ...]:
+        table = check_table(where, value, keys)
+        if not table:
+            raise ConfigError(empty)
+        grid = []
+        for key, values in table.items():
+            at = f"{where}.{key}"
+            if check_key is not None:
+                check_key(where, key)
+            if not isinstance(values, list):
+                raise ConfigError(f"{at} = {values!r} must be a list of values")
+            if not values:
+                raise ConfigError(f"{at} is empty; give at least one value")
+            if len(values) > MAX_SETTINGS:
+                raise ConfigError(f"{at} has {len(values):,} values; at most {MAX_SETTINGS:,} are allowed")
+            grid.append((key, tuple(read(f"{at}[{i}]", key, v) for i, v in enumerate(values))))
+        count = math.prod(len(v) for _, v in grid)
+        if count > MAX_SETTINGS:
+            raise ConfigError(f"{where} expands to {count:,} settings; at most {MAX_SETTINGS:,} are allowed")
+        return tuple(grid)
+    return read_grid
