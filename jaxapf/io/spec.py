@@ -14,6 +14,7 @@ three specs share is defined here once: the spec's name, its plugins, ``[sim]``,
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import re
 from typing import Any, Callable, Mapping, Sequence
@@ -135,8 +136,8 @@ def value_list(read: Reader) -> Reader:
 def value_grid(read: Callable[[str, str, Any], Any], *, keys: Sequence[str] | None = None,
                check_key: Callable[[str, str], Any] | None = None, empty: str) -> Reader:
     """A table ``{key = [values, ...]}`` (keys out of ``keys``, or accepted by ``check_key(where,
-    key)``), each value read by ``read(where, key, value)``, whose product is at most
-    :data:`~jaxapf.validation.MAX_SETTINGS` settings: the grids of sweep, tune and compare specs.
+    key)``), each value read by ``read(where, key, value)`` and none repeated, whose product is at
+    most :data:`~jaxapf.validation.MAX_SETTINGS` settings: the grids of sweep, tune and compare specs.
     ``empty``: the message for an empty table."""
     def read_grid(where: str, value: Any) -> tuple[tuple[str, tuple], ...]:
         table = check_table(where, value, keys)
@@ -153,7 +154,13 @@ def value_grid(read: Callable[[str, str, Any], Any], *, keys: Sequence[str] | No
                 raise ConfigError(f"{at} is empty; give at least one value")
             if len(values) > MAX_SETTINGS:
                 raise ConfigError(f"{at} has {len(values):,} values; at most {MAX_SETTINGS:,} are allowed")
-            grid.append((key, tuple(read(f"{at}[{i}]", key, v) for i, v in enumerate(values))))
+            read_values = tuple(read(f"{at}[{i}]", key, v) for i, v in enumerate(values))
+            seen = set()
+            for i, v in enumerate(read_values):
+                if json.dumps(v) in seen:
+                    raise ConfigError(f"{at}[{i}] = {values[i]!r} repeats an earlier value")
+                seen.add(json.dumps(v))
+            grid.append((key, read_values))
         count = math.prod(len(v) for _, v in grid)
         if count > MAX_SETTINGS:
             raise ConfigError(f"{where} expands to {count:,} settings; at most {MAX_SETTINGS:,} are allowed")

@@ -55,15 +55,14 @@ from ..config import MPC_KEYS, SIM_KEYS, STATIC_KEYS, MPCConfig, SimConfig
 from ..engine.components import COMPONENTS
 from ..gains import GAINS, Gains, read_gains_file
 from ..io.plugins import check_plugins, load_plugins
+from ..io.spec import OMIT, REQUIRED, SEED, Key, Table, boolean, integer, spec_name, value_grid
 from ..metrics import METRICS
 from ..scenarios import FAMILIES, FamilyParams, family_params
 from ..validation import (
     MAX_FIELDS,
-    MAX_SEED,
     MAX_SETTINGS,
     BoundWarning,
     ConfigError,
-    check_bool,
     check_choice,
     check_int,
     check_names,
@@ -91,10 +90,7 @@ __all__ = [
 #: MPC weights that take a number (same on x, y, z) or 3 numbers.
 AXIS_WEIGHT_KEYS: frozenset[str] = frozenset({"q_pos", "q_vel", "f_pos", "f_vel", "r"})
 
-_TOP_KEYS = ("name", "plugins", "scenario", "sim", "gains", "grid", "random", "setting")
-_SCENARIO_KEYS = ("families", "fields", "seed", "params", "oracle")
 _RANDOM_KEYS = ("n", "seed")
-_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 _TAG = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 #: Columns of every sweep row that a tag may not shadow.
 _RESERVED_COLUMNS = frozenset({"setting", "family", "kind", "field", "seed", "solvable"})
@@ -430,24 +426,16 @@ def spec_family_params(label: str, overrides: Any) -> FamilyParams:
         raise relocated(err, f"scenario.{base}", where) from None
 
 
-def _seed(where: str, value: Any) -> int:
-    return check_int(where, value, 0, MAX_SEED)
-
-
-def _scenario(table: dict[str, Any]) -> tuple[tuple[str, ...], int, int, dict[str, dict[str, Any]], bool]:
-    scenario = check_table("scenario", table, _SCENARIO_KEYS)
-    for key in ("families", "fields"):
-        if key not in scenario:
-            raise ConfigError(f"scenario.{key} is missing")
-    families = scenario["families"]
-    tables = check_table("scenario.params", scenario.get("params", {}))
+def _scenario(where: str, table: Any) -> tuple[tuple[str, ...], int, int, dict[str, dict[str, Any]], bool]:
+    scenario = Table({"families": Key(_given, REQUIRED), "fields": Key(integer(1, MAX_FIELDS), REQUIRED),
+                      "seed": Key(SEED, 0), "params": Key(lambda at, value: check_table(at, value), {}),
+                      "oracle": Key(boolean, True)})(where, table)
+    families, tables = scenario["families"], scenario["params"]
     choices = FAMILIES.names() + variant_names(tables)
     if not isinstance(families, list):
         raise ConfigError(f"scenario.families = {families!r} must be a non-empty list of family names; "
                           f"allowed: {', '.join(choices)}")
     families = check_names("scenario.families", families, choices, what="family or variant")
-    fields = check_int("scenario.fields", scenario["fields"], 1, MAX_FIELDS)
-    seed = _seed("scenario.seed", scenario.get("seed", 0))
     params = {}
     for label, overrides in tables.items():
         if label not in families:
@@ -455,36 +443,37 @@ def _scenario(table: dict[str, Any]) -> tuple[tuple[str, ...], int, int, dict[st
         resolved = spec_family_params(label, overrides)
         params[label] = {k: (list(v) if isinstance(v, tuple) else v) if k != "family" else overrides[k]
                          for k, v in ((k, getattr(resolved, k, None)) for k in overrides)}
-    oracle = check_bool("scenario.oracle", scenario.get("oracle", True))
-    return tuple(families), fields, seed, params, oracle
+    return tuple(families), scenario["fields"], scenario["seed"], params, scenario["oracle"]
 
 
-def _fixed(where: str, table: Any, keys: tuple[str, ...]) -> dict[str, Any]:
-    table = check_table(where, table, keys)
-    return {key: check_value(f"{where}.{key}", key, value) for key, value in table.items()}
+def _given(where: str, value: Any) -> Any:
+    """A value read later, once what it depends on is known."""
+    return value
+
+
+def _schema() -> Table:
+    """The sweep spec's schema (docs/sweep.md; built once the plugins, which may declare gains, are
+    loaded); the settings (``[grid]``, ``[random]``, ``[[setting]]``) are read once ``[sim]`` and
+    ``[gains]`` are known."""
+    return Table({
+        "name": Key(spec_name("it names the default output runs/NAME.parquet"), REQUIRED,
+                    'give the spec a name = "..." (it names the default output runs/NAME.parquet)'),
+        "plugins": Key(check_plugins, []),
+        "scenario": Key(_scenario, REQUIRED, "add [scenario] with families and fields"),
+        "sim": Key(setting_values(STATIC_KEYS), {}),
+        "gains": Key(setting_values(GAINS.names()), {}),
+        "grid": Key(_given, OMIT), "random": Key(_given, OMIT), "setting": Key(_given, OMIT),
+    })
 
 
 def _grid(table: Any, fixed: Mapping[str, str]) -> tuple[tuple[str, tuple[Any, ...]], ...]:
-    table = check_table("grid", table, GAINS.names() + STATIC_KEYS)
-    if not table:
-        raise ConfigError("grid is empty; give at least one key with a list of values, or remove [grid]")
-    axes = []
-    for key, values in table.items():
+    def check_key(where: str, key: str) -> None:
         if key in fixed:
             raise ConfigError(f"grid.{key} is also set in [{fixed[key]}]; set it in one place")
-        if not isinstance(values, list):
-            raise ConfigError(f"grid.{key} = {values!r} must be a list of values")
-        if not values:
-            raise ConfigError(f"grid.{key} is empty; give at least one value")
-        checked = tuple(check_value(f"grid.{key}[{i}]", key, v) for i, v in enumerate(values))
-        seen = set()
-        for i, v in enumerate(checked):
-            text = json.dumps(v)
-            if text in seen:
-                raise ConfigError(f"grid.{key}[{i}] = {values[i]!r} repeats an earlier value")
-            seen.add(text)
-        axes.append((key, checked))
-    return tuple(axes)
+
+    read = value_grid(check_value, keys=GAINS.names() + STATIC_KEYS, check_key=check_key,
+                      empty="grid is empty; give at least one key with a list of values, or remove [grid]")
+    return read("grid", table)
 
 
 def _explicit(value: Any, fixed: Mapping[str, str]) -> tuple[tuple, tuple]:
@@ -550,7 +539,7 @@ def _random(table: Any, fixed: Mapping[str, str], grid: Iterable[str]) -> tuple[
     if "n" not in table:
         raise ConfigError("random.n is missing; give the number of samples")
     n = check_int("random.n", table["n"], 1, MAX_SETTINGS)
-    seed = _seed("random.seed", table.get("seed", 0))
+    seed = SEED("random.seed", table.get("seed", 0))
     grid = set(grid)
     ranges = []
     for key, value in table.items():
@@ -580,28 +569,20 @@ def parse_spec(data: Mapping[str, Any], gains_file: str | os.PathLike | None = N
     except the gains the grid or ``[random]`` vary. Every check runs here, including the :class:`SimConfig` /
     :class:`MPCConfig` of every variant on every family.
     """
-    data = check_table("", dict(data), _TOP_KEYS)
+    data = check_table("", dict(data))
     plugins = check_plugins("plugins", data.get("plugins", []))
     if plugin_paths is not None and len(plugin_paths) != len(plugins):
         raise ConfigError(f"plugins: {len(plugin_paths)} paths given for {len(plugins)} plugins")
     paths = load_plugins(plugins, base=base, paths=plugin_paths)
-    name = data.get("name")
-    if not isinstance(name, str) or not _NAME.match(name):
-        raise ConfigError(f"name = {name!r} must be a string of letters, digits, '_', '.', '-' "
-                          "(it names the default output runs/NAME.parquet)")
-    if "scenario" not in data:
-        raise ConfigError("scenario is missing; add [scenario] with families and fields")
-    families, fields, seed, params, oracle = _scenario(data["scenario"])
-    sim = _fixed("sim", data.get("sim", {}), STATIC_KEYS)
-    gains = _fixed("gains", data.get("gains", {}), GAINS.names())
+    d = _schema()("", data)
+    name, (families, fields, seed, params, oracle), sim, gains = d["name"], d["scenario"], d["sim"], d["gains"]
     fixed = {**{k: "sim" for k in sim}, **{k: "gains" for k in gains}}
-    if "setting" in data and ("grid" in data or "random" in data):
+    if "setting" in d and ("grid" in d or "random" in d):
         raise ConfigError("setting: [[setting]] tables list the settings themselves; remove [grid] and [random] "
                           "or the [[setting]] tables")
-    explicit, tags = _explicit(data["setting"], fixed) if "setting" in data else ((), ())
-    grid = _grid(data["grid"], fixed) if "grid" in data else ()
-    random_n, random_seed, ranges = (_random(data["random"], fixed, (k for k, _ in grid)) if "random" in data
-                                     else (0, 0, ()))
+    explicit, tags = _explicit(d["setting"], fixed) if "setting" in d else ((), ())
+    grid = _grid(d["grid"], fixed) if "grid" in d else ()
+    random_n, random_seed, ranges = _random(d["random"], fixed, (k for k, _ in grid)) if "random" in d else (0, 0, ())
     if gains_file is not None:
         varied = {k for k, _ in grid} | {k for k, _ in ranges} | {k for entry in explicit for k, _ in entry}
         gains = {k: v for k, v in {**gains, **read_gains_file(gains_file)}.items() if k not in varied}
