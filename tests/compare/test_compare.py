@@ -176,7 +176,8 @@ def test_gradient_steps_fill_the_budget(budget, per_step, val, every, steps):
                                   "<= 4194304"),
     ({"selection.candidates": 10**9}, "selection.candidates = 1000000000 is out of range"),
     ({"test.fields": 5 * 10**9}, "test.fields = 5000000000 is out of range"),
-    ({"selection.search": "grid", "selection.grid": {"k_rep": [5.0] * 400, "d_s": [2.0] * 400}},
+    ({"selection.search": "grid", "selection.grid": {"k_rep": [5.0 + i for i in range(400)],
+                                                     "d_s": [2.0 + i for i in range(400)]}},
      "selection.grid expands to 160,000 settings; at most 100,000 are allowed"),
 ])
 def test_bad_specs_name_the_key(change, message):
