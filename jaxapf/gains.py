@@ -18,7 +18,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import warnings
-from typing import Any, Iterator, Mapping
+from typing import Any, Collection, Iterator, Mapping
 
 import jax
 import numpy as np
@@ -262,6 +262,11 @@ class Gains(Mapping[str, Any]):
         validate_gains(changes)
         changes = _lists_as_arrays(changes)
         return Gains.unchecked({k: changes.get(k, v) for k, v in self._values.items()})
+
+    def only(self, names: Collection[str]) -> "Gains":
+        """The gains of ``names`` alone (in declaration order): what the components of a setting read
+        (:func:`jaxapf.engine.gains_read`); a component reading another one fails while it is traced."""
+        return Gains.unchecked({k: v for k, v in self._values.items() if k in names})
 
     def as_arrays(self, dtype: Any = None) -> "Gains":
         """The same gains as ``jnp`` arrays of ``dtype`` (default: JAX's default float)."""

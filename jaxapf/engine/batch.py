@@ -22,6 +22,7 @@ from ..config import MPCConfig, SimConfig
 from ..datatypes import Scenario
 from ..gains import Gains, setting_count
 from ..metrics import METRICS
+from .components import gains_read
 from .loop import rollout_metrics
 from .stream import stream_metrics, stream_slots
 
@@ -120,6 +121,10 @@ def evaluate(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, 
       metrics: the metrics to compute (default: every registered one, :data:`~jaxapf.metrics.METRICS`).
       streaming: stop each episode when it ends (default) instead of flying all ``T`` steps.
     """
-    setting_count(gains, "evaluate: gains")  # one line for lists of different lengths, which would not pair
+    count = setting_count(gains, "evaluate: gains")  # one line for lists of different lengths, which would not pair
     names = METRICS.names() if metrics is None else tuple(metrics)
-    return evaluate_program(scenarios, gains, sim, mpc, default_width() if width is None else width, names, streaming)
+    # the program takes the gains the setting's components read, G settings of each (a list of a gain
+    # no component reads still counts its settings)
+    read = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (count,)) if jnp.ndim(x) == 0 and count > 1 else x,
+                                  gains.only(gains_read(sim)))
+    return evaluate_program(scenarios, read, sim, mpc, default_width() if width is None else width, names, streaming)

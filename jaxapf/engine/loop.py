@@ -37,7 +37,7 @@ from ..control import axis_problem, shift_warm_start, solve_axes
 from ..datatypes import Scenario, Trajectory
 from ..gains import Gains
 from ..metrics import episode_metrics
-from .components import COMPONENTS, component_names
+from .components import COMPONENTS, component_names, gains_read
 
 __all__ = ["rollout", "rollout_metrics", "closed_loop", "loop_init", "loop_step", "record_trajectory"]
 
@@ -110,7 +110,7 @@ def rollout(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, *,
     (``jaxapf tune`` measures the trade-off, docs/tune.md).
     """
     dtype = scenario.start.dtype
-    gains = gains.as_arrays(dtype)
+    gains = gains.only(gains_read(sim)).as_arrays(dtype)  # each component sees what it declared, nothing else
     loop = closed_loop(sim, mpc, dtype)
     obstacles = scenario.obstacles.columns()  # once per episode, not once per control step
 

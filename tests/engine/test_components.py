@@ -34,3 +34,51 @@ def test_an_unknown_component_is_one_line_naming_its_key():
     with pytest.raises(ConfigError, match=r"sim\.filter"):
         from jaxapf.engine import components_read_gains
         components_read_gains(component_names(sim) | {"filter": "no_such_filter"})
+
+
+_PEEKING = """
+import dataclasses
+import jax.numpy as jnp
+import jaxapf
+from jaxapf.scenarios import family_params, make_scenarios
+
+base = jaxapf.PLANNERS.get("basic")
+
+@dataclasses.dataclass(frozen=True)
+class Peeking(type(base)):
+    def reference(self, state, x, t, goal, obstacles, gains, sim, horizon):
+        return type(base).reference(self, state, x, t, goal, obstacles, gains.replace(k_rep=gains.cbf_p1), sim,
+                                    horizon)
+
+jaxapf.register_planner("peeking", Peeking(base.weight))
+fields = make_scenarios(0, family_params("crossing"), jnp.arange(1))
+try:
+    jaxapf.evaluate(fields, jaxapf.Gains(), jaxapf.SimConfig.from_flat(method="peeking", t_max=1.0),
+                    jaxapf.MPCConfig(horizon=4, iters=2))
+except AttributeError as err:
+    print(err)
+"""
+
+
+def test_a_component_sees_only_the_gains_its_setting_declares():
+    """The closed loop hands the components the gains they declare (gains_read), nothing else: a planner
+    reading a filter's gain fails while it is traced, naming the gain and those it may read (a second
+    process keeps this one's planner registry as built)."""
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", _PEEKING], capture_output=True, text=True, check=True).stdout
+    assert out.startswith("no gain 'cbf_p1'; gains: k_rep, d_s, k_att, eta"), out
+
+
+def test_a_list_of_a_gain_no_component_reads_still_counts_its_settings():
+    import numpy as np
+
+    from jaxapf.config import MPCConfig
+    from jaxapf.scenarios import family_params, make_scenarios
+
+    fields = make_scenarios(0, family_params("crossing"), np.arange(2))
+    sim, mpc = SimConfig.from_flat(method="basic", t_max=1.0), MPCConfig(horizon=4, iters=2)
+    out = jaxapf.evaluate(fields, jaxapf.Gains(cbf_p1=[1.0, 2.0, 3.0]), sim, mpc)
+    assert out["min_clearance"].shape == (3, 2)
+    assert all(np.array_equal(out["min_clearance"][0], row) for row in out["min_clearance"])
