@@ -8,7 +8,8 @@ same as a table with a sweep's columns (:func:`evaluate_frame`); one episode's t
 :mod:`jaxapf.report`, :mod:`jaxapf.tune`, :mod:`jaxapf.simulate`, :mod:`jaxapf.bench`.
 
 Extension points (``docs/extending.md``): planners and their weights ω, force terms, safety
-filters, plants, sensing models, disturbances, scenario families and metrics, each a registry;
+filters, disturbance estimators, plants, sensing models, disturbances, scenario families and
+metrics, each a registry;
 components declare their gains (:class:`GainSpec`), which become sweep keys, CLI flags and tunable
 parameters.
 """
@@ -21,6 +22,7 @@ _LAZY = {
     "EpisodeConfig": ".config", "MetricConfig": ".config", "MPCConfig": ".config", "PlannerConfig": ".config",
     "SimConfig": ".config", "VehicleConfig": ".config", "WorldConfig": ".config",
     "FILTERS": ".control", "Passthrough": ".control", "SafetyFilter": ".control", "register_filter": ".control",
+    "ESTIMATORS": ".control", "Estimator": ".control", "register_estimator": ".control",
     "ObstacleColumns": ".datatypes", "Obstacles": ".datatypes", "Scenario": ".datatypes", "Trajectory": ".datatypes",
     "DISTURBANCES": ".world", "PLANTS": ".world", "Disturbance": ".world", "DoubleIntegrator": ".world",
     "Plant": ".world", "Quadrotor": ".world", "register_disturbance": ".world", "register_plant": ".world",

@@ -71,13 +71,15 @@ def _name(where: str, value: Any) -> str:
 
 @dataclasses.dataclass(frozen=True)
 class PlannerConfig:
-    r"""The avoidance stack: planner, safety filter and the potentials' settings (SPEC 3–4).
+    r"""The avoidance stack: planner, safety filter, disturbance estimator and the potentials' settings (SPEC 3–4).
 
     Attributes:
       method: planner, a name of :data:`jaxapf.planners.PLANNERS` (``basic``, ``direction``,
         ``direction_velocity``, ...).
       filter: safety filter between the MPC and the plant, a name of
         :data:`jaxapf.control.FILTERS` (``none``: the MPC's acceleration is applied as it is).
+      estimator: disturbance estimator for offset-free tracking, a name of
+        :data:`jaxapf.control.ESTIMATORS` (``none``: the MPC plans without a disturbance).
       convention: ``intent`` (default, the paper's prose) | ``literal`` (its printed formulas), SPEC 3.
       d_min: floor [m] > 0 on the clearance inside the repulsive potential (no inf/NaN).
       eps_v: regulariser [m/s] > 0 of |v| in cos θ: a hovering UAV has cos θ = 0.
@@ -89,6 +91,7 @@ class PlannerConfig:
 
     method: str = "direction_velocity"
     filter: str = "none"
+    estimator: str = "none"
     convention: Convention = "intent"
     d_min: float = 0.05
     eps_v: float = 1e-3
@@ -98,6 +101,7 @@ class PlannerConfig:
     def __post_init__(self) -> None:
         _name("sim.method", self.method)
         _name("sim.filter", self.filter)
+        _name("sim.estimator", self.estimator)
         check_choice("sim.convention", self.convention, CONVENTIONS)
         _positive(self, ("d_min", "eps_v"), "sim")
         if self.att_cap is not None:

@@ -26,7 +26,7 @@ T = TypeVar("T")
 #: The kinds of component of the closed loop (their registries' ``what``), in the order in which the
 #: gains and metrics they declare are listed: a sweep's columns and a tuner's parameter vector follow
 #: this order and their declaration order within a kind, never which module happened to be imported first.
-LOOP = ("planner", "safety filter", "plant", "sensor", "disturbance")
+LOOP = ("planner", "safety filter", "plant", "sensor", "disturbance", "estimator")
 
 
 def loop_rank(kind: str | None) -> int:

@@ -65,7 +65,7 @@ def test_bad_mpc(kwargs, message):
         (dict(r_uav=-0.1), r"sim\.r_uav = -0\.1 .*>= 0"),
         (dict(d_min=0.0), r"sim\.d_min = 0\.0"),
         (dict(method=""), r"sim\.method = '' must be a name"),
-        (dict(bogus=1.0), r"sim\.bogus is not a simulation setting; allowed: method, filter, convention"),
+        (dict(bogus=1.0), r"sim\.bogus is not a simulation setting; allowed: method, filter, estimator, convention"),
         (dict(convention="reversed"), r"sim\.convention = 'reversed' is not allowed; choose one of intent, literal"),
         (dict(att_cap=-1.0), r"sim\.att_cap = -1\.0"),
         (dict(reference_velocity="yes"), r"sim\.reference_velocity = 'yes' must be true or false"),

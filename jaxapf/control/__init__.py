@@ -1,6 +1,8 @@
-"""Control: the tracking MPC (paper eq. 8–12) and the safety filters between it and the plant."""
+"""Control: the tracking MPC (paper eq. 8–12), the safety filters between it and the plant, and the
+disturbance estimators that make its tracking offset-free."""
 
-from .cbf import CBF, cbf_coefficients, cbf_constraints
+from .cbf import CBF, RobustCBF, cbf_coefficients, cbf_constraints
+from .estimators import ESTIMATORS, Estimator, Integral, NoEstimator, Observer, register_estimator
 from .filters import FILTERS, Passthrough, SafetyFilter, register_filter
 from .mpc import (
                   AxisProblem,
@@ -16,6 +18,8 @@ from .mpc import (
                   solve_box_qp,
 )
 
-__all__ = ["SafetyFilter", "Passthrough", "FILTERS", "register_filter", "CBF", "cbf_coefficients", "cbf_constraints",
+__all__ = ["SafetyFilter", "Passthrough", "FILTERS", "register_filter", "CBF", "RobustCBF", "cbf_coefficients",
+           "cbf_constraints",
+           "Estimator", "NoEstimator", "Observer", "Integral", "ESTIMATORS", "register_estimator",
            "AxisProblem", "axis_problem", "solve_axes", "shift_warm_start", "condensed_qp", "condensed_hessian",
            "condensed_linear", "prediction_matrices", "augmented_weights", "fista", "solve_box_qp"]

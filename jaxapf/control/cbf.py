@@ -43,12 +43,19 @@ in the box with the least largest violation (nearest ``a_mpc`` among those) is a
 
 The condition is the continuous-time one, applied with the control held for ``dt``: it guarantees
 nothing between samples, which the swept clearance of the metrics measures.
+
+Robust (``robust_cbf``, input-to-state safety against a bounded disturbance): the UAV's acceleration
+is ``a + e`` with an unknown ``e``, ``|e| <= δ`` (``cbf_margin``): a wind gust, or the error of a
+disturbance estimate the loop already adds (:mod:`jaxapf.control.estimators`). With unit rows the
+worst ``e`` lowers ``g_o·(a + e)`` by ``δ``, so the filter enforces ``g_o·a >= b_o + δ``: the
+condition then holds for every admissible ``e``, at the price of infeasible steps where the box
+cannot absorb ``δ``.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import jax.numpy as jnp
 from jax import Array
@@ -64,12 +71,16 @@ if TYPE_CHECKING:
     from ..datatypes import ObstacleColumns
     from ..gains import Gains
 
-__all__ = ["CBF", "CBF_P1", "CBF_P2", "cbf_coefficients", "cbf_constraints", "INFEASIBLE_TOL"]
+__all__ = ["CBF", "RobustCBF", "CBF_P1", "CBF_P2", "CBF_MARGIN", "cbf_coefficients", "cbf_constraints",
+           "INFEASIBLE_TOL"]
 
 CBF_P1 = GainSpec("cbf_p1", 1.0, low=0.0, low_open=True, unit="1/s", symbol="p_1",
                   doc="CBF filter: first root rate, h'' + (p_1 + p_2) h' + p_1 p_2 h >= 0")
 CBF_P2 = GainSpec("cbf_p2", 1.0, low=0.0, low_open=True, unit="1/s", symbol="p_2",
                   doc="CBF filter: second root rate, h'' + (p_1 + p_2) h' + p_1 p_2 h >= 0")
+CBF_MARGIN = GainSpec("cbf_margin", 0.5, low=0.0, unit="m/s²", symbol="δ", tunable=False,
+                      doc="robust CBF filter: the largest unknown acceleration (disturbance, or its estimate's "
+                          "error) the condition holds against")
 
 
 
@@ -105,17 +116,32 @@ class CBF(SafetyFilter):
     The acceleration nearest the MPC's within the box; the module docstring has the maths.
     """
 
-    gains = (CBF_P1, CBF_P2)
+    robust: ClassVar[bool] = False
     metrics = (Metric("cbf_infeasible_steps", lambda ctx: ctx.extra("cbf_infeasible"), dtype="int32", kind="count",
                       higher_is_better=False, per_step=True,
                       doc="control steps at which the CBF filter's constraints and the acceleration box could not "
                           "all hold (0 without this filter)"),)
 
+    @property
+    def gains(self) -> tuple[GainSpec, ...]:
+        return (CBF_P1, CBF_P2, CBF_MARGIN) if self.robust else (CBF_P1, CBF_P2)
+
     def __call__(self, state: Any, accel: Array, x: Array, t: Array, obstacles: "ObstacleColumns", gains: "Gains",
                  sim: "SimConfig") -> tuple[Array, Any, dict[str, Array]]:
         g, b = cbf_constraints(x, t, obstacles, gains, sim)
+        if self.robust:  # unit rows: the worst unknown acceleration of norm δ takes δ off g·a
+            b = jnp.where(obstacles.valid, b + gains.cbf_margin, b)
         applied, worst = nearest_feasible(accel, g, b, sim.vehicle.a_max, "box")
         return applied, state, {"cbf_infeasible": worst > INFEASIBLE_TOL}
 
 
+@dataclasses.dataclass(frozen=True)
+class RobustCBF(CBF):
+    """Robust exponential CBF filter: the CBF condition held against every unknown acceleration of norm
+    at most cbf_margin (a disturbance, or the error of its estimate), g·a >= b + δ on unit rows."""
+
+    robust: ClassVar[bool] = True
+
+
 register_filter("cbf", CBF())
+register_filter("robust_cbf", RobustCBF())

@@ -250,6 +250,7 @@ def solve_axes(
     a_max: float,
     v_max: float,
     iters: int,
+    shift: Array | None = None,
 ) -> Array:
     """Solve the three per-axis MPC QPs together by :func:`fista`; returns the inputs (3, N).
 
@@ -257,6 +258,8 @@ def solve_axes(
       x0: (6,) current state ``[p, v]``.
       x_ref: (N+1, 6) reference for ``x(k..k+N)``.
       warm: (3, N) warm start (previous solution shifted, see :func:`shift_warm_start`).
+      shift: (3,) estimated disturbance ``d̂``: the inputs are then total accelerations, in the box
+        ``[-a_max + d̂, a_max + d̂]`` per axis (offset-free MPC, :mod:`jaxapf.control.estimators`).
     """
     n = warm.shape[-1]
     x0_axes = jnp.stack([x0[:3], x0[3:]], axis=-1)  # (3, 2): (p_j, v_j)
@@ -274,7 +277,8 @@ def solve_axes(
         hy, cy = jnp.split(stacked(y), [n], axis=-1)
         return hy + e_hat - prob.v_penalty * (jnp.clip(v_free + cy, -v_max, v_max) @ c_vel)
 
-    return fista(grad, warm, -a_max, a_max, step=1.0 / prob.lipschitz[:, None], iters=iters)
+    lower, upper = (-a_max, a_max) if shift is None else (shift[:, None] - a_max, shift[:, None] + a_max)
+    return fista(grad, warm, lower, upper, step=1.0 / prob.lipschitz[:, None], iters=iters)
 
 
 def shift_warm_start(u: Array) -> Array:

@@ -123,8 +123,11 @@ def evaluate(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, 
     """
     count = setting_count(gains, "evaluate: gains")  # one line for lists of different lengths, which would not pair
     names = METRICS.names() if metrics is None else tuple(metrics)
-    # the program takes the gains the setting's components read, G settings of each (a list of a gain
-    # no component reads still counts its settings)
-    read = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (count,)) if jnp.ndim(x) == 0 and count > 1 else x,
-                                  gains.only(gains_read(sim)))
-    return evaluate_program(scenarios, read, sim, mpc, default_width() if width is None else width, names, streaming)
+    # the program takes the gains the setting's components read; if none of them varies, the G settings
+    # fly the same episodes, so one is flown and its rows stand for all G (a list of a gain no
+    # component reads still counts its settings)
+    read = gains.only(gains_read(sim))
+    out = evaluate_program(scenarios, read, sim, mpc, default_width() if width is None else width, names, streaming)
+    if count > 1 and all(jnp.ndim(x) == 0 for x in jax.tree_util.tree_leaves(read)):
+        out = {m: jnp.broadcast_to(v, (count,) + v.shape[1:]) for m, v in out.items()}
+    return out

@@ -8,6 +8,7 @@ key               registry                                    what it is
 ``plant``         :data:`jaxapf.world.PLANTS`                 the vehicle model integrated
 ``sensor``        :data:`jaxapf.world.SENSORS`                what the stack sees of the world
 ``disturbance``   :data:`jaxapf.world.DISTURBANCES`           what acts on the plant besides the command
+``estimator``     :data:`jaxapf.control.ESTIMATORS`           the disturbance the MPC plans with
 ================  ==========================================  =====================================
 
 Every tool reads this table (which gains a setting reads, which names a spec may give, what
@@ -18,7 +19,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any, Mapping
 
-from ..control import FILTERS
+from ..control import ESTIMATORS, FILTERS
 from ..planners import PLANNERS
 from ..registry import Registry
 from ..world import DISTURBANCES, PLANTS
@@ -31,7 +32,7 @@ __all__ = ["COMPONENTS", "components_read_gains", "component_names", "gains_read
 
 #: Static key of a simulation setting -> the registry of the components it names.
 COMPONENTS: Mapping[str, Registry[Any]] = {"method": PLANNERS, "filter": FILTERS, "plant": PLANTS,
-                                           "sensor": SENSORS, "disturbance": DISTURBANCES}
+                                           "sensor": SENSORS, "disturbance": DISTURBANCES, "estimator": ESTIMATORS}
 
 
 def components_read_gains(names: Mapping[str, str], where: str = "sim") -> frozenset[str]:
@@ -48,7 +49,7 @@ def component_names(sim: SimConfig) -> dict[str, str]:
 
 
 def gains_read(sim: SimConfig) -> frozenset[str]:
-    """The gains a :func:`~jaxapf.engine.rollout` with ``sim`` reads: those its planner, safety filter, plant, sensor
-    and disturbance declare. Settings that agree on these fly the same episodes (a sweep runs them
+    """The gains a :func:`~jaxapf.engine.rollout` with ``sim`` reads: those its planner, safety filter, plant, sensor,
+    disturbance and estimator declare. Settings that agree on these fly the same episodes (a sweep runs them
     once)."""
     return components_read_gains(component_names(sim))

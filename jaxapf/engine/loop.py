@@ -51,6 +51,7 @@ class ClosedLoop(NamedTuple):
     plant: Any
     sensor: Any
     disturbance: Any
+    estimator: Any
     prob: Any
 
 
@@ -58,16 +59,17 @@ def closed_loop(sim: SimConfig, mpc: MPCConfig, dtype: Any) -> ClosedLoop:
     """The registered components of ``sim`` and the MPC problem on the plant's linear model."""
     parts = {key: COMPONENTS[key].get(name, f"sim.{key}") for key, name in component_names(sim).items()}
     return ClosedLoop(parts["method"], parts["filter"], parts["plant"], parts["sensor"], parts["disturbance"],
-                      axis_problem(mpc, *parts["plant"].linear_model(sim.episode.dt, dtype)))
+                      parts["estimator"], axis_problem(mpc, *parts["plant"].linear_model(sim.episode.dt, dtype)))
 
 
 def loop_init(loop: ClosedLoop, scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig) -> tuple:
     """The carry of an episode at rest at ``scenario.start``: (plant state, warm start, planner
-    state, filter state, sensor state, disturbance state)."""
+    state, filter state, sensor state, disturbance state, estimator state)."""
     dtype = scenario.start.dtype
     return (loop.plant.init(scenario.start, gains, sim), jnp.zeros((3, mpc.horizon), dtype),
             loop.planner.init(scenario, gains, sim, mpc.horizon), loop.safety.init(scenario, gains, sim),
-            loop.sensor.init(scenario, gains, sim), loop.disturbance.init(scenario, gains, sim))
+            loop.sensor.init(scenario, gains, sim), loop.disturbance.init(scenario, gains, sim),
+            loop.estimator.init(scenario, gains, sim))
 
 
 def loop_step(loop: ClosedLoop, carry: tuple, k: Array, scenario: Scenario, obstacles: Any, gains: Gains,
@@ -75,18 +77,25 @@ def loop_step(loop: ClosedLoop, carry: tuple, k: Array, scenario: Scenario, obst
     """Control step ``k`` (a float: ``t_k = k Δt``) of the module docstring; returns the new carry
     and the step's record: the plant's ``[p, v]`` after it, the applied acceleration and the
     components' diagnostics. ``obstacles`` is ``scenario.obstacles.columns()`` (the truth)."""
-    state, warm, plan, guard, seen, gust = carry
+    state, warm, plan, guard, seen, gust, estimated = carry
     t = k * sim.episode.dt
     step = jnp.round(k).astype(jnp.int32)
     x, observed, seen, sensed = loop.sensor(seen, loop.plant.kinematics(state), step, scenario, obstacles, gains, sim)
+    # offset-free tracking: the MPC plans and the filter guards the total acceleration command + d̂
+    # (jaxapf.control.estimators); with no estimator nothing of it is compiled in
+    d_hat, estimates = loop.estimator(estimated, x, gains, sim) if loop.estimator.active else (None, {})
     x_ref, plan = loop.planner.reference(plan, x, t, scenario.goal, observed, gains, sim, mpc.horizon)
     planned = loop.planner.diagnostics(plan)
-    u = solve_axes(loop.prob, x, x_ref, warm, a_max=sim.vehicle.a_max, v_max=sim.vehicle.v_max, iters=mpc.iters)
+    u = solve_axes(loop.prob, x, x_ref, warm, a_max=sim.vehicle.a_max, v_max=sim.vehicle.v_max, iters=mpc.iters,
+                   shift=d_hat)
     accel, guard, filtered = loop.safety(guard, u[:, 0], x, t, observed, gains, sim)
+    if loop.estimator.active:
+        accel = jnp.clip(accel - d_hat, -sim.vehicle.a_max, sim.vehicle.a_max)
+        estimated = loop.estimator.advance(x, accel, d_hat)
     push, gust = loop.disturbance(gust, step, scenario, gains, sim)
     state, integrated = loop.plant.step(state, accel, push, gains, sim)
-    return ((state, shift_warm_start(u), plan, guard, seen, gust),
-            (loop.plant.kinematics(state), accel, sensed | planned | filtered | integrated))
+    return ((state, shift_warm_start(u), plan, guard, seen, gust, estimated),
+            (loop.plant.kinematics(state), accel, sensed | estimates | planned | filtered | integrated))
 
 
 def record_trajectory(x0: Array, records: tuple, sim: SimConfig) -> Trajectory:

@@ -101,7 +101,7 @@ def stream_metrics(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCCo
     gains = gains.as_arrays(dtype)
     loop = closed_loop(sim, mpc, dtype)
     n_fields = scenarios.start.shape[0]
-    n_gains = jax.tree_util.tree_leaves(gains)[0].shape[0]
+    n_gains = next((leaf.shape[0] for leaf in jax.tree_util.tree_leaves(gains)), 1)  # no gain read: one setting
     total, steps, dt = n_gains * n_fields, sim.episode.steps, sim.episode.dt
     levels = tuple(sorted({max(slots >> i, min(slots, NARROWEST)) for i in range(3)}, reverse=True))
     moves = max(slots // 4, 1)  # finished episodes handed to the store per boundary, oldest first

@@ -12,11 +12,14 @@ from jaxapf.validation import ConfigError
 
 
 def test_every_static_key_names_its_registry():
+    from jaxapf.control import ESTIMATORS
+
     assert COMPONENTS == {"method": jaxapf.PLANNERS, "filter": jaxapf.FILTERS, "plant": jaxapf.PLANTS,
-                          "sensor": jaxapf.SENSORS, "disturbance": jaxapf.DISTURBANCES}
-    sim = SimConfig.from_flat(method="vortex", filter="cbf", plant="quadrotor", sensor="noisy", disturbance="wind")
+                          "sensor": jaxapf.SENSORS, "disturbance": jaxapf.DISTURBANCES, "estimator": ESTIMATORS}
+    sim = SimConfig.from_flat(method="vortex", filter="cbf", plant="quadrotor", sensor="noisy", disturbance="wind",
+                              estimator="observer")
     assert component_names(sim) == {"method": "vortex", "filter": "cbf", "plant": "quadrotor", "sensor": "noisy",
-                                    "disturbance": "wind"}
+                                    "disturbance": "wind", "estimator": "observer"}
 
 
 def test_a_setting_reads_the_gains_its_components_declare():
