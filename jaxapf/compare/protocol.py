@@ -70,6 +70,7 @@ def test_sweep_spec(spec: CompareSpec, selections: Sequence[Selection]):
                      "params": {f: dict(p) for f, p in spec.params.items() if f in spec.test.families}},
         "sim": {k: list(v) if isinstance(v, tuple) else v for k, v in spec.sim.items()},
         "setting": settings,
+        **({"gains": dict(spec.gains)} if spec.gains else {}),
     }
     return parse_spec(data, plugin_paths=spec.plugin_paths or None)
 

@@ -69,7 +69,8 @@ def spec_digest(spec: CompareSpec) -> str:
     plugins were read from (``plugin_paths``) is not part of it, so a moved spec keeps its runs."""
     import hashlib
 
-    fields = {k: v for k, v in dataclasses.asdict(spec).items() if k != "plugin_paths"}
+    fields = {k: v for k, v in dataclasses.asdict(spec).items()
+              if k != "plugin_paths" and not (k == "gains" and not v)}  # no [gains]: the digest it always had
     text = json.dumps(fields, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()
 
@@ -105,6 +106,7 @@ def tune_spec(spec: CompareSpec, method: str, seed: int, steps: int = 1):
         "sim": {**{k: list(v) if isinstance(v, tuple) else v for k, v in spec.sim.items()}, **spec.settings(method)},
         "scenario": {"params": {f: dict(p) for f, p in spec.params.items() if f in sel.families}},
         "objective": dict(spec.objective),
+        "init": dict(spec.gains),
         "tune": {"params": list(names)},
     }
     return parse_tune_spec(data, plugin_paths=spec.plugin_paths or None)
@@ -115,18 +117,24 @@ def random_candidates(spec: CompareSpec, method: str, seed: int) -> list[Gains]:
     sel = spec.selection
     names = set(spec.method_gains(method))
     u = np.random.default_rng(seed).uniform(size=(sel.candidates - 1, len(sel.ranges)))
-    out = [Gains()]
+    base = fixed_gains(spec)
+    out = [base]
     for row in u:
         values = {g: float(r.sample(np.array([row[i]]))[0]) for i, (g, r) in enumerate(sel.ranges) if g in names}
-        out.append(Gains().replace(**values))
+        out.append(base.replace(**values))
     return out
+
+
+def fixed_gains(spec: CompareSpec) -> Gains:
+    """The declared defaults with the spec's fixed ``[gains]``: every candidate's base."""
+    return Gains().replace(**spec.gains)
 
 
 def grid_candidates(spec: CompareSpec, method: str) -> list[Gains]:
     """The product of the grid over the gains the method reads (the defaults alone if none)."""
     names = set(spec.method_gains(method))
     axes = [(g, values) for g, values in spec.selection.grid if g in names]
-    return [Gains().replace(**dict(zip([g for g, _ in axes], point)))
+    return [fixed_gains(spec).replace(**dict(zip([g for g, _ in axes], point)))
             for point in itertools.product(*(values for _, values in axes))]
 
 
@@ -177,7 +185,7 @@ def select(spec: CompareSpec, method: str, seed: int, out: pathlib.Path, *, quie
         tuner = Tuner(tune_spec(spec, method, seed))
         settings = random_candidates(spec, method, seed) if sel.search == "random" else grid_candidates(spec, method)
         best = select_best(tuner, settings, sel.budget, sel.search)
-        chosen = "defaults" if best["gains"] == Gains() else f"candidate {best['index']}"
+        chosen = "defaults" if best["gains"] == fixed_gains(spec) else f"candidate {best['index']}"
         result = Selection(method, seed, sel.search, best["gains"].floats(), best["settings"],
                            best["fields_per_setting"], best["episodes"], sel.budget, time.perf_counter() - start,
                            best["selection_success"], best["selection_loss"], chosen)

@@ -102,9 +102,10 @@ class TestSpec:
 class CompareSpec:
     """A validated comparison: methods, selection, test, and the shared simulation settings.
 
-    ``sim`` holds fixed static settings (``[sim]``, as in a sweep spec; not ``method``), ``params``
-    the ``[scenario.params.LABEL]`` tables of every family or variant used, ``objective`` the
-    surrogate loss's weights (``[objective]``: selection ties and the gradient search).
+    ``sim`` holds fixed static settings (``[sim]``, as in a sweep spec; not ``method``), ``gains``
+    fixed gains no selection searches (``[gains]``: the world's, e.g. a wind to select and test in),
+    ``params`` the ``[scenario.params.LABEL]`` tables of every family or variant used, ``objective``
+    the surrogate loss's weights (``[objective]``: selection ties and the gradient search).
     """
 
     name: str
@@ -116,6 +117,7 @@ class CompareSpec:
     params: Mapping[str, Mapping[str, Any]]
     objective: Mapping[str, float]
     plugins: tuple[str, ...] = ()
+    gains: Mapping[str, float] = dataclasses.field(default_factory=dict)
     #: what each plugin imported (a ``.py`` file's absolute path; relative ones from the spec file's folder)
     plugin_paths: tuple[str, ...] = dataclasses.field(default=(), compare=False)
 
@@ -213,6 +215,7 @@ def _schema() -> Table:
         "test": Key(Table({"families": Key(_given, REQUIRED), "fields": Key(integer(1, MAX_FIELDS), REQUIRED),
                            "seed": Key(SEED, OMIT)}), REQUIRED, "add [test] with families and fields"),
         "sim": Key(setting_values(tuple(k for k in STATIC_KEYS if k != "method")), {}),
+        "gains": Key(setting_values(GAINS.names()), {}),
         "scenario": Key(Table({"params": Key(lambda where, value: check_table(where, value), {})}), {}),
         "objective": Key(Table({f.name: Key(_finite) for f in dataclasses.fields(Objective)}), {}),
     })
@@ -264,6 +267,9 @@ def parse_compare_spec(data: Mapping[str, Any], *, base: str | os.PathLike | Non
     choices = FAMILIES.names() + variant_names(tables)
     read = set().union(*(_gains_read(sim, _settings(m, methods)) for m in methods))
     selection = _selection(d["selection"], choices, read)
+    for gain in d["gains"]:
+        if gain in selection.gains:
+            raise ConfigError(f"gains.{gain} is also searched (selection.gains); fix it in one place")
     test = d["test"]
     families = check_names("test.families", test["families"], choices, what="family or variant")
     seed = test.get("seed", max(selection.seeds) + 1)
@@ -279,7 +285,7 @@ def parse_compare_spec(data: Mapping[str, Any], *, base: str | os.PathLike | Non
     Objective(**d["objective"])
     return CompareSpec(name=d["name"], methods=methods, baseline=baseline, selection=selection,
                        test=TestSpec(families=families, fields=test["fields"], seed=seed), sim=sim, params=params,
-                       objective=d["objective"], plugins=plugins, plugin_paths=paths)
+                       objective=d["objective"], plugins=plugins, gains=d["gains"], plugin_paths=paths)
 
 
 def load_compare_spec(path: str | os.PathLike) -> tuple[CompareSpec, str]:

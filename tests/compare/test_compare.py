@@ -225,3 +225,27 @@ def test_a_method_with_a_safety_filter_is_its_own_contender():
     table = pd.DataFrame({"method": ["basic", "basic", "velocity_obstacle"], "filter": ["cbf", "none", "none"]})
     assert list(rows_of(table, spec, "basic").index) == [1]
     assert list(rows_of(table, spec, "basic+cbf").index) == [0]
+
+
+def test_fixed_gains_are_the_world_every_candidate_and_the_test_fly_in():
+    """``[gains]`` fixes gains no selection searches (a wind to select and test in): every candidate and
+    the tune spec start from them, the test sweep flies them, and a searched gain cannot be fixed too."""
+    from jaxapf.compare.protocol import test_sweep_spec
+    from jaxapf.compare.select import Selection, spec_digest, tune_spec
+
+    wind = {"wind_speed": 4.0, "wind_heading": 90.0}
+    spec = _spec(**{"gains": wind, "sim.disturbance": "wind"})
+    assert dict(spec.gains) == wind and spec_digest(spec) != spec_digest(_spec(**{"sim.disturbance": "wind"}))
+    for method in spec.methods:
+        for candidate in random_candidates(spec, method, 1) + grid_candidates(spec, method):
+            assert candidate["wind_speed"] == 4.0 and candidate["wind_heading"] == 90.0
+        assert tune_spec(spec, method, 1).init["wind_speed"] == 4.0
+    chosen = [Selection(m, s, "random", dict(random_candidates(spec, m, s)[1].floats()), 4, 6, 24, 24, 0.0, 0.5, 1.0,
+                        "candidate 1") for s in spec.selection.seeds for m in spec.methods]
+    test = test_sweep_spec(spec, chosen)
+    assert test.gains["wind_speed"] == 4.0 and "wind_speed" in test.gain_columns()
+    with pytest.raises(ConfigError, match="gains.k_rep is also searched"):
+        _spec(**{"gains": {"k_rep": 5.0}})
+    with pytest.raises(ConfigError, match="gains.wind_sped is not a known key"):
+        _spec(**{"gains": {"wind_sped": 5.0}})
+    assert spec_digest(_spec()) == spec_digest(_spec(**{"gains": {}}))  # no [gains]: the digest it always had
