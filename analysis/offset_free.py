@@ -17,7 +17,7 @@ estimator, paired on the fields: exact McNemar and TOST within the 2-point margi
 :func:`jaxapf.stats.verdicts` over all of the study's comparisons (Holm), the verdict function every
 study uses. Tuning under wind is not done here (study 12's redo, issue 30).
 
-    python analysis/offset_free.py      # ~30 min on 2 cores
+    python analysis/offset_free.py      # ~15 min on 2 cores
 """
 
 from __future__ import annotations
