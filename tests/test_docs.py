@@ -23,6 +23,7 @@ CHECK = textwrap.dedent("""
         assert main(["--plugin", plugin, "list", "planners"]) == 0
         assert main(["--plugin", plugin, "list", "sensors"]) == 0
         assert main(["--plugin", plugin, "list", "disturbances"]) == 0
+        assert main(["--plugin", plugin, "list", "estimators"]) == 0
     (root / "spec.toml").write_text(f'''
     name = "doc-example"
     plugins = ["{plugin}"]
@@ -34,6 +35,7 @@ CHECK = textwrap.dedent("""
     filter = "governor"
     sensor = "flicker"
     disturbance = "downdraft"
+    estimator = "downdraft_forecast"
     t_max = 2.0
     horizon = 3
     iters = 3
@@ -79,13 +81,13 @@ def test_extending_examples_run_as_documented(tmp_path, repo_root):
     assert proc.returncode == 0, proc.stderr[-3000:]
     out = json.loads(next(line for line in proc.stdout.splitlines() if line.startswith("RESULT "))[7:])
     assert {"closing", "closing_damped", "smoothed_dv", "closing_goal", "closing_goal_normalised", "flicker",
-            "downdraft"} <= set(out["listing"].split())
+            "downdraft", "downdraft_forecast"} <= set(out["listing"].split())
     assert out["rows"] == 4 * 2 * 4 and out["finite"]
     assert out["methods"] == ["closing", "closing_damped", "closing_goal_normalised", "smoothed_dv"]
     # sight.goal None: the weight is the closing one (> 1: the obstacle closes in); at the goal it fades to 1
     assert out["no_goal"][0] > 1.0 and out["at_goal"] == 1.0 and out["reference"] == 1.0
     assert out["no_goal"][1] == out["no_goal"][0]  # normalised by its reference value 1
-    for column in ("k_c", "b_damp", "alpha", "tau", "plant", "filter", "sensor", "disturbance", "flicker",
+    for column in ("k_c", "b_damp", "alpha", "tau", "plant", "filter", "sensor", "disturbance", "estimator", "flicker",
                    "downdraft", "mean_speed"):
         assert column in out["columns"], column
     assert out["lag_matters"]  # the plant's traced time constant reaches the episodes
