@@ -9,13 +9,17 @@ observer (``estimator = "observer"`` at its default gain), and in calm air. For 
 the robust CBF (``robust_cbf``) is flown too: in a steady wind of 6 m/s with no gusts, whose push of
 1.8 m/s² it is told (``cbf_margin = 1.8``), without an estimator; and in the gusty wind with the
 observer and ``cbf_margin = 1.0``, the bound it is told on the estimate's error (not a guarantee:
-gusts are Gaussian). The integral action (``estimator = "integral"``) is tested against control
-theory (tests/control/test_estimators.py), not flown here.
+gusts are Gaussian). Every method is also flown at its tuned best in the wind: the same protocol's
+random search with selection in this wind, without the estimator
+(``sweeps/planner-benchmark-wind.toml``) and with the observer
+(``sweeps/planner-benchmark-wind-observer.toml``), three seeds each, flown in the world it was tuned
+in. The integral action (``estimator = "integral"``) is tested against control theory
+(tests/control/test_estimators.py), not flown here.
 
-Each (method, selection, arm) is compared with the same selection in the gusty wind without an
-estimator, paired on the fields: exact McNemar and TOST within the 2-point margin of success,
-:func:`jaxapf.stats.verdicts` over all of the study's comparisons (Holm), the verdict function every
-study uses. Tuning under wind is not done here (study 12's redo, issue 30).
+Each (method, selection seed, arm) is compared with the calm-air selection of the same seed in the
+gusty wind without an estimator, paired on the fields: exact McNemar and TOST within the 2-point
+margin of success, :func:`jaxapf.stats.verdicts` over all of the study's comparisons (Holm), the
+verdict function every study uses.
 
     python analysis/offset_free.py      # ~15 min on 2 cores
 """
@@ -35,29 +39,70 @@ FIELDS = robustness.FIELDS  # per family, study 12's held-out fields
 MARGIN = 0.02
 GUSTY = {"wind_speed": 6.0, "wind_heading": 90.0, "gust_sigma": 3.0}
 STEADY = {"wind_speed": 6.0, "wind_heading": 90.0, "gust_sigma": 0.0}
-#: (arm, static settings on top of the method's, gains on top of its selection); the first is the baseline.
-ARMS = [("wind", {}, GUSTY), ("wind + observer", {"estimator": "observer"}, GUSTY), ("calm", {}, {})]
+#: Where a selection's gains come from: study 11's (tuned in calm air), or the same protocol with selection
+#: in this study's gusty wind, without and with the observer (``jaxapf compare``'s selections of the spec).
+TUNED = {"calm": None, "wind": study.ROOT / "sweeps" / "planner-benchmark-wind.toml",
+         "wind + observer": study.ROOT / "sweeps" / "planner-benchmark-wind-observer.toml"}
+#: (arm, static settings on top of the method's, gains on top of its selection, the selection's TUNED
+#: source); the first is the baseline.
+ARMS = [("wind", {}, GUSTY, "calm"), ("wind + observer", {"estimator": "observer"}, GUSTY, "calm"),
+        ("calm", {}, {}, "calm"), ("wind, tuned in wind", {}, GUSTY, "wind"),
+        ("wind + observer, tuned in wind + observer", {"estimator": "observer"}, GUSTY, "wind + observer")]
 #: Arms of the CBF stacks only: the robust CBF, told the push (steady wind) or the estimate's error.
-ROBUST = [("steady wind, robust CBF δ = 1.8", {"filter": "robust_cbf"}, STEADY | {"cbf_margin": 1.8}),
+ROBUST = [("steady wind, robust CBF δ = 1.8", {"filter": "robust_cbf"}, STEADY | {"cbf_margin": 1.8}, "calm"),
           ("wind + observer, robust CBF δ = 1.0", {"filter": "robust_cbf", "estimator": "observer"},
-           GUSTY | {"cbf_margin": 1.0})]
+           GUSTY | {"cbf_margin": 1.0}, "calm")]
 METRICS = ("success", "collision", "stalled", "min_clearance", "final_distance", "cbf_infeasible_steps")
 
 
-def run(spec) -> pd.DataFrame:
+def selections() -> pd.DataFrame:
+    """The selections tuned in wind: ``jaxapf compare``'s random search of each :data:`TUNED` spec, one
+    per (method, seed), run here (and kept under ``runs/compare-NAME/selection``, reused when there)."""
+    from jaxapf.compare.select import select
+    from jaxapf.compare.spec import load_compare_spec
+
+    rows = []
+    for source, path in TUNED.items():
+        if path is None:
+            continue
+        spec, _ = load_compare_spec(path)
+        out = study.ROOT / "runs" / f"compare-{spec.name}" / "selection"
+        for seed in spec.selection.seeds:
+            for method in spec.methods:
+                chosen = select(spec, method, seed, out)
+                rows.append({"tuned": source, "method": method, "seed": seed, "chosen": chosen.chosen,
+                             "selection_success": chosen.selection_success,
+                             **{g: chosen.gains[g] for g in spec.method_gains(method)}})
+    return pd.DataFrame(rows)
+
+
+def tuned_gains(tuned: pd.DataFrame, source: str, method: str, seed: int) -> dict[str, float]:
+    """The gains ``method``'s selection with ``seed`` chose, tuned in ``source``."""
+    if source == "calm":
+        return robustness.tuned_gains(method, seed)
+    row = tuned[(tuned["tuned"] == source) & (tuned["method"] == method) & (tuned["seed"] == seed)].iloc[0]
+    return {g: float(v) for g, v in row.drop(["tuned", "method", "seed", "chosen", "selection_success"]).items()
+            if pd.notna(v)}
+
+
+def run(spec, tuned: pd.DataFrame, done: pd.DataFrame | None) -> pd.DataFrame:
+    """The rows of every (method, arm) not in ``done`` (a previous run's rows, kept), appended to it."""
     from jaxapf import Gains
     from jaxapf.config import MPCConfig, SimConfig
     from jaxapf.engine import evaluate
 
     groups = robustness.fields(spec, FIELDS)
     t_max = max(robustness.spec_t_max(spec, f) for f in spec.test.families)
-    rows = []
+    have = set() if done is None else set(zip(done["method"], done["arm"]))
+    rows = [] if done is None else [done]
     for method in spec.methods:
         planner, _, safety = method.partition("+")
         base = SimConfig.from_flat(method=planner, filter=safety or "none", disturbance="wind", t_max=t_max)
-        for arm, static, world in ARMS + (ROBUST if safety == "cbf" else []):
+        for arm, static, world, source in ARMS + (ROBUST if safety == "cbf" else []):
+            if (method, arm) in have:
+                continue
             batch = jax.tree_util.tree_map(lambda *x: np.asarray(x, np.float32), *[
-                Gains(**robustness.tuned_gains(method, s), **world) for s in robustness.seeds()])
+                Gains(**(tuned_gains(tuned, source, method, s) | world)) for s in robustness.seeds()])
             for scenarios, family in groups:
                 out = jax.device_get(evaluate(scenarios, batch, base.replace(**static), MPCConfig(), metrics=METRICS))
                 for i, seed in enumerate(robustness.seeds()):
@@ -134,6 +179,12 @@ def write(summary: pd.DataFrame, out) -> dict:
         "robust_steady_min_clearance": {f: float(v) for f, v in clear.items()},
         "robust_steady_collision_max": {f: float(v) for f, v in by_family["collision"].max().items()},
         "robust_steady_infeasible": {f: int(v) for f, v in by_family["infeasible_steps"].sum().items()},
+        "pooled_success_by_arm": {arm: [round(100 * float(v), 1) for v in
+                                        pooled[pooled["arm"] == arm].groupby("method", sort=False)["success"].mean()]
+                                  for arm in arms},
+        "pooled_verdicts_by_arm": {arm: {k: int(v) for k, v in
+                                         pooled[pooled["arm"] == arm]["verdict"].value_counts().items()}
+                                   for arm in arms[1:]},
         "verdicts": {k: int(v) for k, v in summary["verdict"].value_counts().items()},
         "verdicts_pooled": {k: int(v) for k, v in pooled["verdict"].value_counts().items()},
     }
@@ -152,6 +203,11 @@ def write(summary: pd.DataFrame, out) -> dict:
                           f"{facts['robust_steady_infeasible'][f]} infeasible steps)" for f in lost) or "none")
              + ": where the box cannot both absorb the push and brake for a moving obstacle the condition cannot "
              "hold, and its guarantee with it.",
+             "- Pooled success, mean over the three selections, lowest to highest method: "
+             + "; ".join(f"{arm} {min(v):.1f}–{max(v):.1f} %" for arm, v in facts["pooled_success_by_arm"].items())
+             + ". Pooled verdicts against the calm-air selections in the wind without an estimator: "
+             + "; ".join(f"{arm}: " + ", ".join(f"{k} {n}" for k, n in v.items())
+                         for arm, v in facts["pooled_verdicts_by_arm"].items()) + ".",
              f"- Verdicts over all {sum(facts['verdicts'].values())} comparisons of the study (Holm; pooled and per "
              "family): " + ", ".join(f"{k} {v}" for k, v in facts["verdicts"].items()) + "; of the "
              f"{sum(facts['verdicts_pooled'].values())} pooled ones: "
@@ -184,10 +240,11 @@ def main() -> None:
     spec, _ = load_compare_spec(robustness.SPEC)
     # git-ignored; a rerun only rewrites the tables
     data = study.ROOT / "runs" / f"offset-free-s{len(robustness.seeds())}-f{FIELDS}.parquet"
-    if data.exists():
-        df = pd.read_parquet(data)
-    else:
-        df = run(spec)
+    tuned = selections()
+    tuned.to_csv(out / "selection_wind.csv", index=False)
+    done = pd.read_parquet(data) if data.exists() else None
+    df = run(spec, tuned, done)
+    if done is None or len(df) > len(done):
         data.parent.mkdir(exist_ok=True)
         df.to_parquet(data, index=False)
     summary = summarise(df)
