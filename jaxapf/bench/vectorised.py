@@ -287,9 +287,11 @@ def vectorised_rollout(scenarios: Any, gains: Any, sim: Any, mpc: Any, *, dtype:
     ``dtype``: the loop of :func:`jaxapf.engine.rollout` (APF reference, FISTA MPC with
     ``mpc.iters`` iterations, exact double-integrator step) for all fields at once.
 
-    Raises :class:`~jaxapf.validation.ConfigError` for a planner, filter or plant it does not know.
+    Raises :class:`~jaxapf.validation.ConfigError` for a planner, filter, plant, sensor, disturbance or
+    estimator it does not know (it flies the paper's ideal world only).
     """
-    known = {"method": VECTORISED_METHODS, "filter": ("none",), "plant": ("double_integrator",)}
+    known = {"method": VECTORISED_METHODS, "filter": ("none",), "plant": ("double_integrator",), "sensor": ("ideal",),
+             "disturbance": ("none",), "estimator": ("none",)}
     for key, names in known.items():
         check_choice(f"sim.{key} (the vectorised numpy peer)", sim.flat()[key], names)
     import jax.numpy as jnp

@@ -70,10 +70,20 @@ def test_float32_agrees_with_the_engine_on_a_short_episode():
     np.testing.assert_allclose(peer["position"], traj.position, rtol=0, atol=1e-3)
 
 
-def test_unknown_components_are_refused():
-    with pytest.raises(ConfigError, match=r"sim\.method \(the vectorised numpy peer\) = 'direction_normalised'"):
-        vectorised_rollout(_batch(jnp.float32), Gains(), SimConfig.from_flat(method="direction_normalised"),
-                           MPCConfig())
+@pytest.mark.parametrize("setting", [{"method": "direction_normalised"}, {"sensor": "noisy"},
+                                     {"disturbance": "wind"}, {"estimator": "observer"}])
+def test_unknown_components_are_refused(setting):
+    """The peer and the oracle fly the paper's ideal world only: any other component is refused, never
+    silently replaced by the ideal one."""
+    from jaxapf.bench.oracle import oracle_rollout
+
+    (key, value), = setting.items()
+    sim = SimConfig.from_flat(**setting)
+    with pytest.raises(ConfigError, match=rf"sim\.{key} \(the vectorised numpy peer\) = '{value}'"):
+        vectorised_rollout(_batch(jnp.float32), Gains(), sim, MPCConfig())
+    pytest.importorskip("osqp")
+    with pytest.raises(ConfigError, match=rf"sim\.{key} \(the numpy \+ OSQP oracle\) = '{value}'"):
+        oracle_rollout(jax.tree_util.tree_map(lambda x: x[0], _batch(jnp.float64)), Gains(), sim, MPCConfig())
 
 
 @pytest.mark.slow
