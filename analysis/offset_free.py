@@ -187,6 +187,9 @@ def write(summary: pd.DataFrame, tuned: pd.DataFrame, out) -> dict:
         "robust_steady_min_clearance": {f: float(v) for f, v in clear.items()},
         "robust_steady_collision_max": {f: float(v) for f, v in by_family["collision"].max().items()},
         "robust_steady_infeasible": {f: int(v) for f, v in by_family["infeasible_steps"].sum().items()},
+        "calm_cbf_min_clearance": {f: float(v) for f, v in summary[
+            summary["method"].str.endswith("+cbf") & (summary["arm"] == "calm") & (summary["family"] != "all")
+        ].groupby("family", sort=False)["min_clearance"].min().items()},
         "pooled_success_by_arm": {arm: [round(100 * float(v), 1) for v in
                                         pooled[pooled["arm"] == arm].groupby("method", sort=False)["success"].mean()]
                                   for arm in arms},
@@ -218,7 +221,10 @@ def write(summary: pd.DataFrame, tuned: pd.DataFrame, out) -> dict:
              + (", ".join(f"`{f}` (smallest clearance {clear[f]:.2f} m, "
                           f"{facts['robust_steady_infeasible'][f]} infeasible steps)" for f in lost) or "none")
              + ": where the box cannot both absorb the push and brake for a moving obstacle the condition cannot "
-             "hold, and its guarantee with it.",
+             "hold, and its guarantee with it. The plain CBF in calm air does not keep these families clear "
+             "either (smallest clearance "
+             + ", ".join(f"`{f}` {facts['calm_cbf_min_clearance'][f]:.3f} m" for f in lost)
+             + "): the limit is the filter's, met before any wind.",
              "- Pooled success, mean over the three selections, lowest to highest method: "
              + "; ".join(f"{arm} {min(v):.1f}–{max(v):.1f} %" for arm, v in facts["pooled_success_by_arm"].items())
              + ". Pooled verdicts against the calm-air selections in the wind without an estimator: "
