@@ -83,7 +83,7 @@ def test_unknown_components_are_refused(setting):
         vectorised_rollout(_batch(jnp.float32), Gains(), sim, MPCConfig())
     pytest.importorskip("osqp")
     with pytest.raises(ConfigError, match=rf"sim\.{key} \(the numpy \+ OSQP oracle\) = '{value}'"):
-        oracle_rollout(jax.tree_util.tree_map(lambda x: x[0], _batch(jnp.float64)), Gains(), sim, MPCConfig())
+        oracle_rollout(jax.tree_util.tree_map(lambda x: x[0], _batch(jnp.float32)), Gains(), sim, MPCConfig())
 
 
 @pytest.mark.slow
