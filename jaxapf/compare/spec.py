@@ -17,7 +17,7 @@ from typing import Any, Mapping
 
 from ..gains import GAINS, GainSpec
 from ..io.plugins import check_plugins, load_plugins
-from ..io.spec import OMIT, REQUIRED, SEED, Key, Table, choice, integer, spec_name, value_grid
+from ..io.spec import OMIT, REQUIRED, SEED, Key, Table, choice, given, integer, spec_name, value_grid
 from ..planners import PLANNERS
 from ..sweep.spec import (
     STATIC_KEYS,
@@ -51,7 +51,6 @@ MIN_SEEDS = 3
 GRADIENT_KEYS: tuple[str, ...] = ("fields_per_step", "optimizer", "learning_rate", "schedule", "warmup_steps",
                                   "clip", "episode_clip", "patience", "validate_every", "remat",
                                   "validation_fields")
-
 
 
 def default_range(spec: GainSpec) -> RandomRange:
@@ -184,11 +183,6 @@ def _seeds(where: str, value: Any) -> tuple[int, ...]:
     return seeds
 
 
-def _given(where: str, value: Any) -> Any:
-    """A value read later, once what it depends on is known."""
-    return value
-
-
 def _finite(where: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise ConfigError(f"{where} = {value!r} must be a number")
@@ -203,20 +197,20 @@ def _schema() -> Table:
     return Table({
         "name": Key(spec_name(), "compare"),
         "plugins": Key(check_plugins, []),
-        "methods": Key(_given, REQUIRED, 'list the planners to compare, e.g. methods = ["basic", '
-                                         '"direction_velocity"]'),
-        "baseline": Key(_given, OMIT),
+        "methods": Key(given, REQUIRED, 'list the planners to compare, e.g. methods = ["basic", '
+                                        '"direction_velocity"]'),
+        "baseline": Key(given, OMIT),
         "selection": Key(Table({
-            "families": Key(_given, REQUIRED), "seeds": Key(_seeds, REQUIRED),
+            "families": Key(given, REQUIRED), "seeds": Key(_seeds, REQUIRED),
             "budget": Key(integer(1, MAX_HELD_FIELDS), REQUIRED), "search": Key(choice(SEARCHES), "random"),
-            "candidates": Key(integer(1, MAX_SETTINGS), OMIT), "gains": Key(_given, OMIT),
-            "ranges": Key(_given, {}), "grid": Key(_given, OMIT), "gradient": Key(_given, OMIT),
+            "candidates": Key(integer(1, MAX_SETTINGS), OMIT), "gains": Key(given, OMIT),
+            "ranges": Key(given, {}), "grid": Key(given, OMIT), "gradient": Key(given, OMIT),
         }), REQUIRED, "add [selection] with families, seeds and budget"),
-        "test": Key(Table({"families": Key(_given, REQUIRED), "fields": Key(integer(1, MAX_FIELDS), REQUIRED),
+        "test": Key(Table({"families": Key(given, REQUIRED), "fields": Key(integer(1, MAX_FIELDS), REQUIRED),
                            "seed": Key(SEED, OMIT)}), REQUIRED, "add [test] with families and fields"),
         "sim": Key(setting_values(tuple(k for k in STATIC_KEYS if k != "method")), {}),
         "gains": Key(setting_values(GAINS.names()), {}),
-        "scenario": Key(Table({"params": Key(lambda where, value: check_table(where, value), {})}), {}),
+        "scenario": Key(Table({"params": Key(check_table, {})}), {}),
         "objective": Key(Table({f.name: Key(_finite) for f in dataclasses.fields(Objective)}), {}),
     })
 

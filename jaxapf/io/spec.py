@@ -5,10 +5,11 @@ returns the value normalised or raises a one-line :class:`~jaxapf.validation.Con
 ``where`` (the dotted place in the file, ``train.learning_rate``), and a default, which is read as if
 the file gave it. Reading a table refuses unknown keys (listing the allowed ones) and missing required
 ones (saying what to add), then reads every key in declaration order; a :class:`Table` is itself a
-reader, so tables nest. What the
-three specs share is defined here once: the spec's name, its plugins, ``[sim]``, the
-``[scenario.params]`` tables, lists of families, seeds, and gain grids. What holds between keys
-(a test seed apart from the selection seeds) is checked by the spec's parser after reading.
+reader, so tables nest. The readers the three specs share are here (numbers, names, seeds, the spec's
+name, gain grids); those of setting values (``[sim]``, ``[gains]``) and of ``[scenario.params]`` are
+the sweep spec's (:mod:`jaxapf.sweep.spec`), which tune and compare specs read with. What holds
+between keys (a test seed apart from the selection seeds) is checked by each spec's parser after
+reading.
 """
 
 from __future__ import annotations
@@ -31,8 +32,8 @@ from ..validation import (
     check_table,
 )
 
-__all__ = ["Key", "Table", "REQUIRED", "OMIT", "integer", "number", "choice", "boolean", "names", "SEED",
-           "spec_name", "value_list", "value_grid"]
+__all__ = ["Key", "Table", "REQUIRED", "OMIT", "given", "integer", "number", "choice", "boolean", "names", "SEED",
+           "spec_name", "value_grid"]
 
 Reader = Callable[[str, Any], Any]
 
@@ -72,6 +73,11 @@ class Table:
             elif key.default is not OMIT:
                 out[name] = key.read(at, key.default)
         return out
+
+
+def given(where: str, value: Any) -> Any:
+    """The value as the file gives it: read later by the spec's parser, once what it depends on is known."""
+    return value
 
 
 def integer(lo: int, hi: int | None = None) -> Reader:
@@ -122,17 +128,6 @@ def spec_name(hint: str = "") -> Reader:
     return read
 
 
-def value_list(read: Reader) -> Reader:
-    """A non-empty list, each value read by ``read`` at ``where[i]``."""
-    def read_list(where: str, value: Any) -> tuple:
-        if not isinstance(value, list):
-            raise ConfigError(f"{where} = {value!r} must be a list of values")
-        if not value:
-            raise ConfigError(f"{where} is empty; give at least one value")
-        return tuple(read(f"{where}[{i}]", v) for i, v in enumerate(value))
-    return read_list
-
-
 def value_grid(read: Callable[[str, str, Any], Any], *, keys: Sequence[str] | None = None,
                check_key: Callable[[str, str], Any] | None = None, empty: str) -> Reader:
     """A table ``{key = [values, ...]}`` (keys out of ``keys``, or accepted by ``check_key(where,
@@ -157,9 +152,10 @@ def value_grid(read: Callable[[str, str, Any], Any], *, keys: Sequence[str] | No
             read_values = tuple(read(f"{at}[{i}]", key, v) for i, v in enumerate(values))
             seen = set()
             for i, v in enumerate(read_values):
-                if json.dumps(v) in seen:
+                text = json.dumps(v)
+                if text in seen:
                     raise ConfigError(f"{at}[{i}] = {values[i]!r} repeats an earlier value")
-                seen.add(json.dumps(v))
+                seen.add(text)
             grid.append((key, read_values))
         count = math.prod(len(v) for _, v in grid)
         if count > MAX_SETTINGS:

@@ -55,7 +55,7 @@ from ..config import MPC_KEYS, SIM_KEYS, STATIC_KEYS, MPCConfig, SimConfig
 from ..engine.components import COMPONENTS
 from ..gains import GAINS, Gains, read_gains_file
 from ..io.plugins import check_plugins, load_plugins
-from ..io.spec import OMIT, REQUIRED, SEED, Key, Table, boolean, integer, spec_name, value_grid
+from ..io.spec import OMIT, REQUIRED, SEED, Key, Table, boolean, given, integer, spec_name, value_grid
 from ..metrics import METRICS
 from ..scenarios import FAMILIES, FamilyParams, family_params
 from ..validation import (
@@ -427,8 +427,8 @@ def spec_family_params(label: str, overrides: Any) -> FamilyParams:
 
 
 def _scenario(where: str, table: Any) -> tuple[tuple[str, ...], int, int, dict[str, dict[str, Any]], bool]:
-    scenario = Table({"families": Key(_given, REQUIRED), "fields": Key(integer(1, MAX_FIELDS), REQUIRED),
-                      "seed": Key(SEED, 0), "params": Key(lambda at, value: check_table(at, value), {}),
+    scenario = Table({"families": Key(given, REQUIRED), "fields": Key(integer(1, MAX_FIELDS), REQUIRED),
+                      "seed": Key(SEED, 0), "params": Key(check_table, {}),
                       "oracle": Key(boolean, True)})(where, table)
     families, tables = scenario["families"], scenario["params"]
     choices = FAMILIES.names() + variant_names(tables)
@@ -446,11 +446,6 @@ def _scenario(where: str, table: Any) -> tuple[tuple[str, ...], int, int, dict[s
     return tuple(families), scenario["fields"], scenario["seed"], params, scenario["oracle"]
 
 
-def _given(where: str, value: Any) -> Any:
-    """A value read later, once what it depends on is known."""
-    return value
-
-
 def _schema() -> Table:
     """The sweep spec's schema (docs/sweep.md; built once the plugins, which may declare gains, are
     loaded); the settings (``[grid]``, ``[random]``, ``[[setting]]``) are read once ``[sim]`` and
@@ -462,7 +457,7 @@ def _schema() -> Table:
         "scenario": Key(_scenario, REQUIRED, "add [scenario] with families and fields"),
         "sim": Key(setting_values(STATIC_KEYS), {}),
         "gains": Key(setting_values(GAINS.names()), {}),
-        "grid": Key(_given, OMIT), "random": Key(_given, OMIT), "setting": Key(_given, OMIT),
+        "grid": Key(given, OMIT), "random": Key(given, OMIT), "setting": Key(given, OMIT),
     })
 
 
