@@ -80,7 +80,9 @@ def evaluate_program(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPC
     """The compiled program behind :func:`evaluate`, every static argument explicit (for
     ``evaluate_program.lower(...)``)."""
     n_gains = max((jnp.shape(x)[0] for x in jax.tree_util.tree_leaves(gains) if jnp.ndim(x)), default=1)
-    gains = jax.tree_util.tree_map(lambda x: x if jnp.ndim(x) else jnp.full((n_gains,), x), gains)
+    # both engines fly the gains the setting's components declare, nothing else (also when called directly)
+    gains = jax.tree_util.tree_map(lambda x: x if jnp.ndim(x) else jnp.full((n_gains,), x),
+                                   gains.only(gains_read(sim)))
     n_fields = scenarios.start.shape[0]
     total = n_gains * n_fields
     if streaming:
@@ -123,9 +125,9 @@ def evaluate(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, 
     """
     count = setting_count(gains, "evaluate: gains")  # one line for lists of different lengths, which would not pair
     names = METRICS.names() if metrics is None else tuple(metrics)
-    # the program takes the gains the setting's components read; if none of them varies, the G settings
-    # fly the same episodes, so one is flown and its rows stand for all G (a list of a gain no
-    # component reads still counts its settings)
+    # only the gains the setting's components read enter the program (it would fly no others); if none
+    # of them varies, the G settings fly the same episodes, so one is flown and its rows stand for all G
+    # (a list of a gain no component reads still counts its settings)
     read = gains.only(gains_read(sim))
     out = evaluate_program(scenarios, read, sim, mpc, default_width() if width is None else width, names, streaming)
     if count > 1 and all(jnp.ndim(x) == 0 for x in jax.tree_util.tree_leaves(read)):
