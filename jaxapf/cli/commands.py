@@ -1,7 +1,7 @@
 """The jaxapf command line: simulate, sweep, report, tune, compare, bench and list.
 
 Choices, gain flags and their help texts come from the registries (planners, filters, plants, sensors, disturbances,
-families, metrics, gains), so a registered component appears here with no edit. Configuration
+estimators, families, metrics, gains), so a registered component appears here with no edit. Configuration
 errors are reported as one line naming the field and its allowed range, with exit status 2.
 
 Help, ``list`` and argument errors import no JAX: they read the registries' catalogue
@@ -17,7 +17,7 @@ import sys
 import time
 from typing import Any, Sequence
 
-__all__ = ["main", "build_parser"]
+__all__ = ["main", "console", "build_parser"]
 
 #: The registries' catalogue the parser is built from (:func:`jaxapf.cli.catalog.catalog`); set by :func:`main`.
 _CATALOG: dict | None = None
