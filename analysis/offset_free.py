@@ -118,29 +118,23 @@ def summarise(df: pd.DataFrame) -> pd.DataFrame:
     smallest clearance, the median final distance, the infeasible CBF steps, and the paired change in
     success against the same selection in the gusty wind without an estimator, with the verdict of
     :func:`jaxapf.stats.verdicts` over every such comparison of the study at once."""
-    from jaxapf.stats import equivalence_test, mcnemar_exact, paired_proportion_difference, verdicts, wilson_interval
+    from jaxapf.stats import verdicts
 
     df = pd.concat([df, df.assign(family="all")], ignore_index=True)
     base = df[df["arm"] == ARMS[0][0]].set_index(["method", "seed", "family", "field"]).sort_index()["success"]
     out = []
     for (method, seed, arm, family), g in df.groupby(["method", "seed", "arm", "family"], sort=False):
-        row = {"method": method, "seed": seed, "arm": arm, "family": family, "n": len(g)}
-        for rate in ("success", "collision", "stalled"):
-            lo, hi = wilson_interval(int(g[rate].sum()), len(g))
-            row |= {rate: float(g[rate].mean()), f"{rate}_lo": float(lo), f"{rate}_hi": float(hi)}
+        row = {"method": method, "seed": seed, "arm": arm, "family": family, "n": len(g)} | study.rates(g)
         row |= {"min_clearance": float(g["min_clearance"].min()), "final_distance": float(g["final_distance"].median()),
                 "infeasible_steps": int(g["cbf_infeasible_steps"].sum())}
         if arm != ARMS[0][0]:
-            now = g["success"].to_numpy(bool)
             then = base.loc[(method, seed, family)].loc[g["field"]].to_numpy(bool)
-            diff, lo, hi = paired_proportion_difference(now, then)
-            row |= {"change": diff, "change_lo": lo, "change_hi": hi, "p": mcnemar_exact(now, then).pvalue,
-                    "p_equiv": equivalence_test(now, then, MARGIN, kind="rate").p}
+            row |= study.paired_success(g["success"].to_numpy(bool), then, MARGIN)
         out.append(row)
     table = pd.DataFrame(out)
     tested = table["p"].notna()
     _, _, marks = verdicts(table.loc[tested, "change_lo"], table.loc[tested, "change_hi"], table.loc[tested, "p"],
-                           table.loc[tested, "p_equiv"], MARGIN, True)
+                           table.loc[tested, "p_equivalent"], MARGIN, True)
     table.loc[tested, "verdict"] = marks
     return table
 

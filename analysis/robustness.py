@@ -169,23 +169,12 @@ def summarise(df: pd.DataFrame, resamples: int) -> pd.DataFrame:
     """Per (method, seed, axis, level): rates with Wilson intervals, mean clearance with a bootstrap
     interval, and the paired change in success against the same selection in the ideal world with
     the study's verdict (:func:`jaxapf.stats.verdicts` over every such comparison at once)."""
-    from jaxapf.stats import (
-        bootstrap_ci,
-        equivalence_test,
-        mcnemar_exact,
-        paired_proportion_difference,
-        verdicts,
-        wilson_interval,
-    )
+    from jaxapf.stats import bootstrap_ci, verdicts
 
     ideal = df[df["axis"] == "ideal"].set_index(["method", "seed", "field"])
     out = []
     for (method, seed, axis, level), g in df.groupby(["method", "seed", "axis", "level"], sort=False):
-        row = {"method": method, "seed": seed, "axis": axis, "level": level, "n": len(g)}
-        for rate in ("success", "collision", "stalled"):
-            k = int(g[rate].sum())
-            lo, hi = wilson_interval(k, len(g))
-            row |= {rate: k / len(g), f"{rate}_lo": float(lo), f"{rate}_hi": float(hi)}
+        row = {"method": method, "seed": seed, "axis": axis, "level": level, "n": len(g)} | study.rates(g)
         clear = np.clip(g["min_clearance"].to_numpy(np.float64), -1.0, 10.0)  # +inf without obstacles: capped
         row["min_clearance"] = float(clear.mean())
         row["min_clearance_lo"], row["min_clearance_hi"] = map(float, bootstrap_ci(clear, n_resamples=resamples))
@@ -194,11 +183,9 @@ def summarise(df: pd.DataFrame, resamples: int) -> pd.DataFrame:
         row["unseen_steps"] = float(g["unseen_steps"].mean())
         row["final_distance"] = float(g["final_distance"].median())
         base = ideal.loc[(method, seed)].loc[g["field"]]["success"].to_numpy(bool)
-        now = g["success"].to_numpy(bool)
-        diff, lo, hi = paired_proportion_difference(now, base)
-        row |= {"success_change": diff, "change_lo": lo, "change_hi": hi,
-                "p": mcnemar_exact(now, base).pvalue if axis != "ideal" else np.nan,
-                "p_equivalent": equivalence_test(now, base, MARGIN, kind="rate").p if axis != "ideal" else np.nan}
+        row |= study.paired_success(g["success"].to_numpy(bool), base, MARGIN)
+        if axis == "ideal":  # its own baseline: no test
+            row |= {"p": np.nan, "p_equivalent": np.nan}
         out.append(row)
     summary = pd.DataFrame(out)
     tested = summary["axis"] != "ideal"

@@ -259,6 +259,33 @@ class Numbers:
                      float(r["baseline_value"]), int(r["n_pairs"]), str(r["conditioning"]))
 
 
+RATE_COLUMNS = ("success", "collision", "stalled")
+
+
+def rates(episodes) -> dict[str, float]:
+    """The success, collision and stall rates of ``episodes`` (rows of outcomes), each with its 95 %
+    Wilson interval (``success_lo``, ``success_hi``, ...)."""
+    from jaxapf.stats import wilson_interval
+
+    row = {}
+    for rate in RATE_COLUMNS:
+        k = int(episodes[rate].sum())
+        lo, hi = wilson_interval(k, len(episodes))
+        row |= {rate: k / len(episodes), f"{rate}_lo": float(lo), f"{rate}_hi": float(hi)}
+    return row
+
+
+def paired_success(now, then, margin: float) -> dict[str, float]:
+    """The change in success of ``now`` against ``then`` on the same fields (bool arrays, paired):
+    Newcombe's interval, the exact McNemar p and the TOST p within ``margin``, ready for
+    :func:`jaxapf.stats.verdicts`."""
+    from jaxapf.stats import equivalence_test, mcnemar_exact, paired_proportion_difference
+
+    diff, lo, hi = paired_proportion_difference(now, then)
+    return {"success_change": diff, "change_lo": lo, "change_hi": hi, "p": mcnemar_exact(now, then).pvalue,
+            "p_equivalent": equivalence_test(now, then, margin, kind="rate").p}
+
+
 def write_readme(out: pathlib.Path, title: str, command: str, parquet: pathlib.Path, sections: list[str],
                  figures: list[tuple[str, str]]) -> pathlib.Path:
     """``out/README.md``: the question's title, how it was produced, the findings and the figures
