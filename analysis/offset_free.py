@@ -9,7 +9,9 @@ observer (``estimator = "observer"`` at its default gain), and in calm air. For 
 the robust CBF (``robust_cbf``) is flown too: in a steady wind of 6 m/s with no gusts, whose push of
 1.8 m/s² it is told (``cbf_margin = 1.8``), without an estimator; and in the gusty wind with the
 observer and ``cbf_margin = 1.0``, the bound it is told on the estimate's error (not a guarantee:
-gusts are Gaussian). Every method is also flown at its tuned best in the wind: the same protocol's
+gusts are Gaussian). The braking CBF (``braking_cbf``, a barrier that keeps the braking the box
+allows in reserve) is flown told the steady push (δ = 1.8) and in calm air (δ = 0), its guarantee
+checked episode by episode. Every method is also flown at its tuned best in the wind: the same protocol's
 random search with selection in this wind, without the estimator
 (``sweeps/planner-benchmark-wind.toml``) and with the observer
 (``sweeps/planner-benchmark-wind-observer.toml``), three seeds each, flown in the world it was tuned
@@ -21,7 +23,7 @@ gusty wind without an estimator, paired on the fields: exact McNemar and TOST wi
 margin of success, :func:`jaxapf.stats.verdicts` over all of the study's comparisons (Holm), the
 verdict function every study uses.
 
-    python analysis/offset_free.py      # ~15 min on 2 cores
+    python analysis/offset_free.py      # ~20 min on 2 cores
 """
 
 from __future__ import annotations
@@ -51,7 +53,11 @@ ARMS = [("wind", {}, GUSTY, "calm"), ("wind + observer", {"estimator": "observer
 #: Arms of the CBF stacks only: the robust CBF, told the push (steady wind) or the estimate's error.
 ROBUST = [("steady wind, robust CBF δ = 1.8", {"filter": "robust_cbf"}, STEADY | {"cbf_margin": 1.8}, "calm"),
           ("wind + observer, robust CBF δ = 1.0", {"filter": "robust_cbf", "estimator": "observer"},
-           GUSTY | {"cbf_margin": 1.0}, "calm")]
+           GUSTY | {"cbf_margin": 1.0}, "calm"),
+          ("steady wind, braking CBF δ = 1.8", {"filter": "braking_cbf"}, STEADY | {"cbf_margin": 1.8}, "calm"),
+          ("calm, braking CBF δ = 0", {"filter": "braking_cbf"}, {"cbf_margin": 0.0}, "calm")]
+#: The braking CBF's arms, whose guarantee is checked episode by episode (:func:`guarantee`).
+BRAKING = [arm for arm, static, _, _ in ROBUST if static.get("filter") == "braking_cbf"]
 METRICS = ("success", "collision", "stalled", "min_clearance", "final_distance", "cbf_infeasible_steps")
 
 
@@ -159,7 +165,25 @@ def success_table(summary: pd.DataFrame, family: str, arms: list[str]) -> list[s
     return lines
 
 
-def write(summary: pd.DataFrame, tuned: pd.DataFrame, out) -> dict:
+def guarantee(df: pd.DataFrame) -> dict:
+    """Per braking arm and family: the episodes with negative clearance, how many of them had a step at
+    which the condition could not hold (outside the guarantee), and the smallest clearance of the
+    episodes whose every step was feasible (the guarantee's claim: >= 0)."""
+    out = {}
+    for arm in BRAKING:
+        rows = df[df["arm"] == arm]
+        out[arm] = {}
+        for family, g in rows.groupby("family", sort=False):
+            hit = g["min_clearance"] < 0
+            feasible = g["cbf_infeasible_steps"] == 0
+            out[arm][family] = {"episodes": len(g), "negative": int(hit.sum()),
+                                "negative_infeasible": int((hit & ~feasible).sum()),
+                                "infeasible": int((~feasible).sum()),
+                                "feasible_min_clearance": float(g.loc[feasible, "min_clearance"].min())}
+    return out
+
+
+def write(summary: pd.DataFrame, tuned: pd.DataFrame, held: dict, out) -> dict:
     arms = list(dict.fromkeys(summary["arm"]))
     families = [f for f in dict.fromkeys(summary["family"]) if f != "all"]
     pooled = summary[summary["family"] == "all"]
@@ -190,6 +214,7 @@ def write(summary: pd.DataFrame, tuned: pd.DataFrame, out) -> dict:
         "pooled_verdicts_by_arm": {arm: {k: int(v) for k, v in
                                          pooled[pooled["arm"] == arm]["verdict"].value_counts().items()}
                                    for arm in arms[1:]},
+        "braking": held,
         "verdicts": {k: int(v) for k, v in summary["verdict"].value_counts().items()},
         "verdicts_pooled": {k: int(v) for k, v in pooled["verdict"].value_counts().items()},
     }
@@ -219,6 +244,18 @@ def write(summary: pd.DataFrame, tuned: pd.DataFrame, out) -> dict:
              "either (smallest clearance "
              + ", ".join(f"`{f}` {facts['calm_cbf_min_clearance'][f]:.3f} m" for f in lost)
              + "): the limit is the filter's, met before any wind.",
+             *(f"- The braking CBF ({arm}, α and κ at their declared defaults): clearance >= 0 on every episode "
+               "whose every step was feasible (smallest "
+               + ", ".join(f"`{f}` {v['feasible_min_clearance']:.3f} m" for f, v in held[arm].items())
+               + "); negative clearance on "
+               + (", ".join(f"`{f}` {v['negative']} of {v['episodes']}" for f, v in held[arm].items() if v["negative"])
+                  or "no episode")
+               + (", each with infeasible steps (obstacles closing from two sides, or first met too close and too "
+                  "fast: outside the guarantee)" if all(v["negative"] == v["negative_infeasible"]
+                                                         for v in held[arm].values()) else
+                  ", some of them with every step feasible: the guarantee fails")
+               + "; episodes with an infeasible step: "
+               + ", ".join(f"`{f}` {v['infeasible']}" for f, v in held[arm].items()) + "." for arm in BRAKING),
              "- Pooled success, mean over the three selections, lowest to highest method: "
              + "; ".join(f"{arm} {min(v):.1f}–{max(v):.1f} %" for arm, v in facts["pooled_success_by_arm"].items())
              + ". Pooled verdicts against the calm-air selections in the wind without an estimator: "
@@ -265,7 +302,7 @@ def main() -> None:
         df.to_parquet(data, index=False)
     summary = summarise(df)
     summary.to_csv(out / "summary.csv", index=False)
-    print(json.dumps(write(summary, tuned, out), indent=1))
+    print(json.dumps(write(summary, tuned, guarantee(df), out), indent=1))
 
 
 if __name__ == "__main__":

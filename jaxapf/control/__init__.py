@@ -1,7 +1,7 @@
 """Control: the tracking MPC (paper eq. 8–12), the safety filters between it and the plant, and the
 disturbance estimators that make its tracking offset-free."""
 
-from .cbf import CBF, RobustCBF, cbf_coefficients, cbf_constraints
+from .cbf import CBF, braking_constraints, cbf_coefficients, cbf_constraints
 from .estimators import ESTIMATORS, Estimator, Integral, NoEstimator, Observer, register_estimator
 from .filters import FILTERS, Passthrough, SafetyFilter, register_filter
 from .mpc import (
@@ -18,7 +18,7 @@ from .mpc import (
                   solve_box_qp,
 )
 
-__all__ = ["SafetyFilter", "Passthrough", "FILTERS", "register_filter", "CBF", "RobustCBF", "cbf_coefficients",
+__all__ = ["SafetyFilter", "Passthrough", "FILTERS", "register_filter", "CBF", "braking_constraints", "cbf_coefficients",
            "cbf_constraints",
            "Estimator", "NoEstimator", "Observer", "Integral", "ESTIMATORS", "register_estimator",
            "AxisProblem", "axis_problem", "solve_axes", "shift_warm_start", "condensed_qp", "condensed_hessian",

@@ -49,17 +49,45 @@ is ``a + e`` with an unknown ``e``, ``|e| <= δ`` (``cbf_margin``): a wind gust,
 disturbance estimate the loop already adds (:mod:`jaxapf.control.estimators`). With unit rows the
 worst ``e`` lowers ``g_o·(a + e)`` by ``δ``, so the filter enforces ``g_o·a >= b_o + δ``: the
 condition then holds for every admissible ``e``, at the price of infeasible steps where the box
-cannot absorb ``δ``.
+cannot absorb ``δ``. That happens where it matters: with the box ``a_max`` fixed, the exponential
+condition asks for more than the box holds when an obstacle closes fast (it does so even with
+``δ = 0``), so it keeps no guarantee against fast movers.
+
+Braking (``braking_cbf``, robust by construction): a barrier that knows the box. With the distance
+``d = |r| - R``, its rate ``ḋ = r̂·w`` and a braking deceleration ``β = κ (a_max - δ)`` held in
+reserve (``κ``: ``cbf_brake`` <= 1/2),
+
+.. math:: h_b = \dot d + φ(d),\quad φ(d) = \begin{cases} \sqrt{2 β d} & d \ge d^* \\ λ d & d < d^* \end{cases},
+          \qquad \ddot d = r̂·(a + e) + c,\quad c = (|w|^2 - \dot d^2)/|r| \ge 0,
+
+``h_b >= 0`` says the closing speed can still be braked to zero, by ``β`` along ``r̂``, before
+contact (the stopping-distance barrier of Ames et al., 2014, "Control barrier function based quadratic
+programs with application to adaptive cruise control", CDC; in the obstacle's frame, inertial as it
+does not accelerate). Its last ``d^* = 2β/λ^2`` metres are an exponential approach at the rate
+``λ = 1/(2Δt)`` the held control can follow (the square root's slope grows without bound at
+contact, and a sampled filter chatters there). ``h_b`` has relative degree one; the filter enforces
+``ḣ_b >= -α h_b`` (``cbf_alpha``) against every ``|e| <= δ``:
+
+.. math:: r̂·a \ge δ - c - φ'(d)\, \dot d - α h_b .
+
+On the boundary ``h_b = 0`` the right side is ``δ + β - c`` (or ``δ + λ^2 d - c <= δ + 2β``), at most
+``a_max`` as ``κ <= 1/2`` and the box holds ``a_max`` in every direction; inside it is smaller: one
+obstacle never makes a step infeasible from the safe set, whatever its speed; several on opposite
+sides still can, and an obstacle first met with ``h_b < 0`` (too close, too fast) is outside any
+guarantee. Both are counted as above. The condition is continuous-time and the control is held for
+``dt``, so ``d`` is measured from ``R + a_max dt²/2``: the sampling buffer, the most a held
+acceleration moves the UAV off the continuous law's path within a step.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, Literal
 
 import jax.numpy as jnp
 from jax import Array
 
+from ..datatypes.obstacles import TINY
 from ..gains import GainSpec
 from ..metrics import Metric
 from ..planners.sight import dot, line_of_sight, norm
@@ -71,8 +99,8 @@ if TYPE_CHECKING:
     from ..datatypes import ObstacleColumns
     from ..gains import Gains
 
-__all__ = ["CBF", "RobustCBF", "CBF_P1", "CBF_P2", "CBF_MARGIN", "cbf_coefficients", "cbf_constraints",
-           "INFEASIBLE_TOL"]
+__all__ = ["CBF", "CBF_P1", "CBF_P2", "CBF_MARGIN", "CBF_ALPHA", "CBF_BRAKE", "cbf_coefficients", "cbf_constraints",
+           "braking_constraints", "INFEASIBLE_TOL"]
 
 CBF_P1 = GainSpec("cbf_p1", 1.0, low=0.0, low_open=True, unit="1/s", symbol="p_1",
                   doc="CBF filter: first root rate, h'' + (p_1 + p_2) h' + p_1 p_2 h >= 0")
@@ -81,7 +109,10 @@ CBF_P2 = GainSpec("cbf_p2", 1.0, low=0.0, low_open=True, unit="1/s", symbol="p_2
 CBF_MARGIN = GainSpec("cbf_margin", 0.5, low=0.0, unit="m/s²", symbol="δ", tunable=False,
                       doc="robust CBF filter: the largest unknown acceleration (disturbance, or its estimate's "
                           "error) the condition holds against")
-
+CBF_ALPHA = GainSpec("cbf_alpha", 2.0, low=0.0, low_open=True, unit="1/s", symbol="α",
+                     doc="braking CBF filter: rate of its condition, h_b' >= -α h_b")
+CBF_BRAKE = GainSpec("cbf_brake", 0.5, low=0.0, low_open=True, high=0.5, unit="", symbol="κ",
+                     doc="braking CBF filter: the share of a_max - δ held in reserve for braking to a stop")
 
 
 def cbf_coefficients(gains: "Gains") -> tuple[Array, Array]:
@@ -108,15 +139,36 @@ def cbf_constraints(x: Array, t: Array, obstacles: "ObstacleColumns", gains: "Ga
     return jnp.where(valid[:, None], g, 0.0), jnp.where(valid, b / length, -1.0)
 
 
+def braking_constraints(x: Array, t: Array, obstacles: "ObstacleColumns", gains: "Gains",
+                        sim: "SimConfig") -> tuple[Array, Array]:
+    """The unit rows ``r̂`` (M, 3) and bounds (M,) of the braking CBF, ``r̂·a >= δ - c - φ'(d) ḋ - α h_b``
+    (module docstring); padded slots get ``g = 0, b = -1``."""
+    s = line_of_sight(x[:3], obstacles.position + obstacles.velocity * t, obstacles.cylinder)
+    u = line_of_sight(x[3:], obstacles.velocity, obstacles.cylinder)
+    distance = norm(s)
+    d = distance - (obstacles.radius + sim.vehicle.r_uav) - 0.5 * sim.vehicle.a_max * sim.episode.dt ** 2
+    rate = dot(s, u) / distance  # ḋ = r̂·w with r̂ = -s/|s|, w = -u
+    turning = jnp.maximum(dot(u, u) - rate * rate, 0.0) / distance
+    brake = gains.cbf_brake * jnp.maximum(sim.vehicle.a_max - gains.cbf_margin, 0.0)
+    lam = 0.5 / sim.episode.dt
+    near = lam * lam * d < 2.0 * brake  # d < d* = 2β/λ²: the exponential approach
+    root = jnp.sqrt(jnp.maximum(2.0 * brake * d, TINY))
+    h = rate + jnp.where(near, lam * d, root)
+    slope = jnp.where(near, lam, brake / jnp.where(near, 1.0, root))  # φ'(d)
+    b = gains.cbf_margin - turning - slope * rate - gains.cbf_alpha * h
+    g = -jnp.stack(s, axis=-1) / distance[:, None]
+    valid = obstacles.valid
+    return jnp.where(valid[:, None], g, 0.0), jnp.where(valid, b, -1.0)
+
+
 @dataclasses.dataclass(frozen=True)
 class CBF(SafetyFilter):
-    """Exponential CBF filter: the nearest acceleration keeping h'' + k1 h' + k0 h >= 0 per obstacle,
-    with k1 = p1 + p2, k0 = p1 p2 (``cbf_p1``, ``cbf_p2`` > 0).
+    """CBF filter: the acceleration in the box nearest the MPC's that keeps each obstacle's barrier
+    condition (module docstring): the exponential one, h'' + k1 h' + k0 h >= 0 with k1 = p1 + p2,
+    k0 = p1 p2, held against an unknown acceleration of norm δ if ``robust``; or the braking one."""
 
-    The acceleration nearest the MPC's within the box; the module docstring has the maths.
-    """
-
-    robust: ClassVar[bool] = False
+    barrier: Literal["exponential", "braking"] = "exponential"
+    robust: bool = False
     metrics = (Metric("cbf_infeasible_steps", lambda ctx: ctx.extra("cbf_infeasible"), dtype="int32", kind="count",
                       higher_is_better=False, per_step=True,
                       doc="control steps at which the CBF filter's constraints and the acceleration box could not "
@@ -124,24 +176,22 @@ class CBF(SafetyFilter):
 
     @property
     def gains(self) -> tuple[GainSpec, ...]:
+        if self.barrier == "braking":
+            return CBF_ALPHA, CBF_MARGIN, CBF_BRAKE
         return (CBF_P1, CBF_P2, CBF_MARGIN) if self.robust else (CBF_P1, CBF_P2)
 
     def __call__(self, state: Any, accel: Array, x: Array, t: Array, obstacles: "ObstacleColumns", gains: "Gains",
                  sim: "SimConfig") -> tuple[Array, Any, dict[str, Array]]:
-        g, b = cbf_constraints(x, t, obstacles, gains, sim)
-        if self.robust:  # unit rows: the worst unknown acceleration of norm δ takes δ off g·a
-            b = jnp.where(obstacles.valid, b + gains.cbf_margin, b)
+        if self.barrier == "braking":
+            g, b = braking_constraints(x, t, obstacles, gains, sim)
+        else:
+            g, b = cbf_constraints(x, t, obstacles, gains, sim)
+            if self.robust:  # unit rows: the worst unknown acceleration of norm δ takes δ off g·a
+                b = jnp.where(obstacles.valid, b + gains.cbf_margin, b)
         applied, worst = nearest_feasible(accel, g, b, sim.vehicle.a_max, "box")
         return applied, state, {"cbf_infeasible": worst > INFEASIBLE_TOL}
 
 
-@dataclasses.dataclass(frozen=True)
-class RobustCBF(CBF):
-    """Robust exponential CBF filter: the CBF condition held against every unknown acceleration of norm
-    at most cbf_margin (a disturbance, or the error of its estimate), g·a >= b + δ on unit rows."""
-
-    robust: ClassVar[bool] = True
-
-
 register_filter("cbf", CBF())
-register_filter("robust_cbf", RobustCBF())
+register_filter("robust_cbf", CBF(robust=True))
+register_filter("braking_cbf", CBF(barrier="braking", robust=True))
