@@ -96,10 +96,13 @@ class Registry(Generic[T]):
 
     def describe(self, name: str) -> str:
         """One line about entry ``name``, plain text (reST markup removed): the ``describe`` given to
-        the registry, else the first paragraph of the entry's docstring."""
+        the registry, else the entry's ``summary`` (one class registered in several configurations),
+        else the first paragraph of the entry's docstring."""
         entry = self.get(name)
         if self._describe is not None:
             return plain_text(self._describe(entry))
+        if isinstance(getattr(entry, "summary", None), str):
+            return plain_text(entry.summary)
         doc = (type(entry).__doc__ if not isinstance(entry, type) else entry.__doc__) or ""
         return plain_text(doc.strip().split("\n\n")[0])
 

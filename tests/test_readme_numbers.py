@@ -244,13 +244,15 @@ def test_the_quick_start_states_what_its_committed_run_measured():
 
 def test_the_offset_free_section_of_the_spec_states_the_declared_defaults():
     """docs/spec.md's offset-free tracking and robust CBF: its numbers are the declared defaults of the
-    estimators' and the robust filter's gains, besides the formulas' constants and the citation's year."""
+    estimators' and the robust filters' gains (defaults and the brake share's bound), besides the formulas'
+    constants and the citations' years."""
     from jaxapf.control import ESTIMATORS, FILTERS
 
     title = "### Beyond the paper: offset-free tracking and the robust CBF"
     body = (ROOT / "docs" / "spec.md").read_text().split(title, 1)[1].split("\n## ", 1)[0].split("\n### ", 1)[0]
     declared = {g.default for name in ("observer", "integral") for g in ESTIMATORS.get(name).gains}
-    declared |= {g.default for g in FILTERS.get("robust_cbf").gains if g.name == "cbf_margin"}
-    source = declared | {1, 2, 2003}  # 1 − e^(−Δt/τ), Δt²/2, Pannocchia & Rawlings 2003
+    declared |= {g.default for g in FILTERS.get("braking_cbf").gains} | {
+        g.high for g in FILTERS.get("braking_cbf").gains if g.high is not None}
+    source = declared | {0, 1, 2, 2003, 2014}  # 1 − e^(−Δt/τ), Δt²/2, 1/(2Δt), δ = 0, the citations' years
     missing = unmatched(numbers(prose(body)), {repr(float(v)) for v in source})
     assert not missing, f"docs/spec.md offset-free section: numbers not from the declared gains: {missing}"

@@ -18,8 +18,8 @@ from .mpc import (
                   solve_box_qp,
 )
 
-__all__ = ["SafetyFilter", "Passthrough", "FILTERS", "register_filter", "CBF", "braking_constraints", "cbf_coefficients",
-           "cbf_constraints",
+__all__ = ["SafetyFilter", "Passthrough", "FILTERS", "register_filter", "CBF", "braking_constraints",
+           "cbf_coefficients", "cbf_constraints",
            "Estimator", "NoEstimator", "Observer", "Integral", "ESTIMATORS", "register_estimator",
            "AxisProblem", "axis_problem", "solve_axes", "shift_warm_start", "condensed_qp", "condensed_hessian",
            "condensed_linear", "prediction_matrices", "augmented_weights", "fista", "solve_box_qp"]

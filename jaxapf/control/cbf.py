@@ -175,6 +175,17 @@ class CBF(SafetyFilter):
                           "all hold (0 without this filter)"),)
 
     @property
+    def summary(self) -> str:
+        if self.barrier == "braking":
+            return ("Braking CBF: the acceleration nearest the MPC's that keeps, against any push up to cbf_margin, "
+                    "enough of the box in reserve to brake to a stop before each obstacle (stays feasible against "
+                    "fast obstacles).")
+        return ("Robust exponential CBF: the acceleration nearest the MPC's with h'' + k1 h' + k0 h >= 0 per obstacle "
+                "against any push up to cbf_margin." if self.robust else
+                "Exponential CBF: the acceleration nearest the MPC's with h'' + k1 h' + k0 h >= 0 per obstacle, "
+                "k1 = p1 + p2, k0 = p1 p2.")
+
+    @property
     def gains(self) -> tuple[GainSpec, ...]:
         if self.barrier == "braking":
             return CBF_ALPHA, CBF_MARGIN, CBF_BRAKE

@@ -88,19 +88,20 @@ def _beside(offset: float, heading: float, speed: float, margin: float) -> dict[
     gains = Gains(k_rep=1e-6, wind_speed=speed, wind_heading=heading, cbf_margin=margin)
     return {name: rollout_metrics(scenario, gains, SimConfig.from_flat(
         method="basic", filter=name, disturbance="wind", t_max=20.0), MPCConfig(horizon=10, iters=20))
-        for name in ("cbf", "robust_cbf")}
+        for name in ("cbf", "robust_cbf", "braking_cbf")}
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("offset", [0.0, 0.5])
 def test_the_robust_cbf_keeps_off_an_obstacle_the_push_drives_toward(offset):
     """A steady 6 m/s wind pushes the UAV toward the cylinder with 1.8 m/s² (drag 0.3): the plain CBF,
-    blind to the push, lets it in; the robust CBF with cbf_margin = 1.8 keeps every interval clear,
-    with no infeasible step."""
+    blind to the push, lets it in; the robust CBFs (exponential and braking) with cbf_margin = 1.8 keep
+    every interval clear, with no infeasible step."""
     out = _beside(offset, 30.0, 6.0, 1.8)
     assert float(out["cbf"]["min_clearance"]) < 0.0
-    assert float(out["robust_cbf"]["min_clearance"]) > 0.0
-    assert int(out["robust_cbf"]["cbf_infeasible_steps"]) == 0
+    for name in ("robust_cbf", "braking_cbf"):
+        assert float(out[name]["min_clearance"]) > 0.0
+        assert int(out[name]["cbf_infeasible_steps"]) == 0
 
 
 _STEP = """
@@ -128,7 +129,7 @@ for offset in (0.0, 0.5):
     sc = one_obstacle_scenario(16.0, 8.0, 1.0)
     sc = dataclasses.replace(sc, obstacles=dataclasses.replace(sc.obstacles,
                                                                position=jnp.asarray([[8.0, offset, 2.0]])))
-    for f in ("cbf", "robust_cbf"):
+    for f in ("cbf", "robust_cbf", "braking_cbf"):
         sim = SimConfig.from_flat(method="basic", filter=f, disturbance="step_push", t_max=20.0)
         m = rollout_metrics(sc, Gains(k_rep=1e-6, cbf_margin=1.8), sim, MPCConfig(horizon=10, iters=20))
         out[f"{{offset}} {{f}}"] = [float(m["min_clearance"]), int(m["cbf_infeasible_steps"])]
@@ -139,7 +140,7 @@ print(json.dumps(out))
 @pytest.mark.slow
 def test_the_robust_cbf_holds_against_a_step_push():
     """The push of 1.8 m/s² toward the cylinder switches on at t = 2 s (a disturbance of this test, in a
-    second process): the plain CBF lets the UAV in, the robust one told δ = 1.8 keeps it clear."""
+    second process): the plain CBF lets the UAV in, the robust ones told δ = 1.8 keep it clear."""
     import json
     import subprocess
     import sys
@@ -150,7 +151,8 @@ def test_the_robust_cbf_holds_against_a_step_push():
                                     capture_output=True, text=True, check=True).stdout)
     for offset in ("0.0", "0.5"):
         assert out[f"{offset} cbf"][0] < 0.0
-        assert out[f"{offset} robust_cbf"][0] > 0.0 and out[f"{offset} robust_cbf"][1] == 0
+        for f in ("robust_cbf", "braking_cbf"):
+            assert out[f"{offset} {f}"][0] > 0.0 and out[f"{offset} {f}"][1] == 0
 
 
 @pytest.mark.slow
