@@ -111,7 +111,7 @@ CBF_MARGIN = GainSpec("cbf_margin", 0.5, low=0.0, unit="m/s²", symbol="δ", tun
                           "error) the condition holds against")
 CBF_ALPHA = GainSpec("cbf_alpha", 2.0, low=0.0, low_open=True, unit="1/s", symbol="α",
                      doc="braking CBF filter: rate of its condition, h_b' >= -α h_b")
-CBF_BRAKE = GainSpec("cbf_brake", 0.5, low=0.0, low_open=True, high=0.5, unit="", symbol="κ",
+CBF_BRAKE = GainSpec("cbf_brake", 0.5, low=0.05, high=0.5, unit="", symbol="κ",
                      doc="braking CBF filter: the share of a_max - δ held in reserve for braking to a stop")
 
 

@@ -1,10 +1,12 @@
 """``jaxapf tune``: learn the gains through the closed loop with optax, then test them on held-out
-fields against the defaults, a grid search and a random search given the same episode budget.
+fields against the defaults and the black-box tuners (grid, random, CMA-ES, TPE) given the same
+episode budget.
 
 ==================  ===================================================================
 :mod:`.spec`        the tune spec (TOML), validated into a :class:`TuneSpec`
 :mod:`.objective`   the smooth surrogate loss and the reparametrisation of the gains
 :mod:`.train`       training, validation, early stopping and checkpoints
+:mod:`.searches`    the black-box tuners beside it: grid, random, CMA-ES, TPE
 :mod:`.proof`       the searches under the same budget and the held-out test
 :mod:`.run`         the whole command (:func:`run_tune`)
 ==================  ===================================================================

@@ -1,4 +1,4 @@
-r"""The proof step of ``jaxapf tune``: tuned gains against the defaults, a grid and a random search.
+r"""The proof step of ``jaxapf tune``: tuned gains against the defaults and the black-box tuners.
 
 Budgets
 -------
@@ -11,11 +11,12 @@ wall-clock times are reported next to the episode counts.
 
 Test
 ----
-Four settings -- ``tuned``, ``default`` (:class:`~jaxapf.gains.Gains`, the paper-style
-defaults), ``grid`` and ``random`` -- fly the same held-out fields (seed ``test.seed``, never seen
-in training or selection) of every test family, so outcomes are paired. For each family and pooled
-over all of them: success and collision rates with Wilson 95 % intervals, and exact McNemar tests of
-each setting against ``default`` (Holm-adjusted over the whole table, per outcome).
+The settings -- ``tuned`` (the gradient tuner's), ``default`` (:class:`~jaxapf.gains.Gains`, the
+paper-style defaults) and each black-box tuner's of ``search.tuners`` (:mod:`jaxapf.tune.searches`) --
+fly the same held-out fields (seed ``test.seed``, never seen in training or selection) of every test
+family, so outcomes are paired. For each family and pooled over all of them: success and collision
+rates with Wilson 95 % intervals, and exact McNemar tests of each setting against ``default``
+(Holm-adjusted over the whole table, per outcome).
 """
 
 from __future__ import annotations
@@ -39,9 +40,11 @@ from .train import TrainState, TuneError, Tuner
 
 __all__ = [
     "SETTINGS",
+    "settings",
     "candidates",
     "tuning_budget",
     "random_settings",
+    "search_ranges",
     "select_best",
     "test_episodes",
     "comparison_table",
@@ -49,8 +52,14 @@ __all__ = [
     "plot_test",
 ]
 
-#: The compared gain settings, in table order (``default`` is the reference of the tests).
-SETTINGS: tuple[str, ...] = ("tuned", "default", "grid", "random")
+#: The settings every test compares, first in its table (``default`` is the reference of the tests); the
+#: black-box tuners of ``search.tuners`` follow (:func:`settings`).
+SETTINGS: tuple[str, ...] = ("tuned", "default")
+
+
+def settings(spec: TuneSpec) -> tuple[str, ...]:
+    """The compared settings in table order: :data:`SETTINGS`, then the spec's black-box tuners."""
+    return SETTINGS + spec.search.tuners
 
 
 def tuning_budget(spec: TuneSpec, state: TrainState) -> dict[str, int]:
@@ -80,6 +89,20 @@ def random_settings(spec: TuneSpec) -> list[Gains]:
                 values[name] = start * math.exp(rng.uniform(-math.log(b.random_range), math.log(b.random_range)))
         settings.append(rp.base.replace(**values))
     return settings
+
+
+def search_ranges(spec: TuneSpec) -> dict[str, tuple[float, float, bool]]:
+    """``{gain: (low, high, log)}``: the range :func:`random_settings` draws each tuned gain from
+    (log-uniform around its start, or uniform over a bounded tuning range), for the tuners that take
+    a search space (TPE)."""
+    b, rp = spec.search, spec.reparam
+    out = {}
+    for name in rp.names:
+        low, high = rp.bounds(name)
+        start = float(rp.base[name])
+        out[name] = (float(low), float(high), False) if high is not None else (
+            start / b.random_range, start * b.random_range, True)
+    return out
 
 
 def select_best(tuner: Tuner, settings: Sequence[Gains], budget: int, label: str) -> dict:
@@ -135,7 +158,7 @@ def comparison_table(episodes: pd.DataFrame, families: Sequence[str]) -> pd.Data
     for family in list(families) + ["all"]:
         sub = episodes if family == "all" else episodes[episodes.family == family]
         ref = sub[sub.setting == "default"].sort_values(["family", "field"])
-        for setting in SETTINGS:
+        for setting in episodes.setting.cat.categories:
             e = sub[sub.setting == setting].sort_values(["family", "field"])
             n = len(e)
             row = {"family": family, "setting": setting, "n": n}
@@ -196,22 +219,23 @@ def plot_test(table: pd.DataFrame, title: str, path: pathlib.Path) -> None:
     families = list(dict.fromkeys(table.family))
     fig = Figure(figsize=(max(7.0, 1.4 * len(families)), 6.5), layout="constrained")
     ax = fig.subplots(2, 1, sharex=True)
-    width = 0.8 / len(SETTINGS)
+    names = list(dict.fromkeys(table.setting))
+    width = 0.8 / len(names)
     x = np.arange(len(families))
-    for i, setting in enumerate(SETTINGS):
+    for i, setting in enumerate(names):
         rows = table[table.setting == setting].set_index("family").loc[families]
         for a, outcome in zip(ax, ("success", "collision")):
             err = np.vstack([rows[outcome] - rows[f"{outcome}_lo"], rows[f"{outcome}_hi"] - rows[outcome]])
-            a.bar(x + (i - 1.5) * width, rows[outcome], width, yerr=err, capsize=2, label=setting)
+            a.bar(x + (i - (len(names) - 1) / 2) * width, rows[outcome], width, yerr=err, capsize=2, label=setting)
     for a, outcome in zip(ax, ("success", "collision")):
         a.set(ylabel=f"{outcome} rate", ylim=(0, 1))
         a.grid(axis="y", alpha=0.3)
-    ax[0].legend(ncol=4, fontsize=8)
+    ax[0].legend(ncol=len(names), fontsize=8)
     ax[0].set_title(title)
     ax[1].set_xticks(x, families)
     fig.savefig(path, dpi=120)
 
 
-def candidates(tuned: Gains, grid: Gains, random: Gains) -> dict[str, Gains]:
-    """The four settings of the test, keyed by :data:`SETTINGS`."""
-    return dict(zip(SETTINGS, (tuned, Gains(), grid, random)))
+def candidates(tuned: Gains, searched: Mapping[str, Gains]) -> dict[str, Gains]:
+    """The settings of the test in table order: the gradient tuner's, the defaults, each search's."""
+    return {"tuned": tuned, "default": Gains(), **searched}

@@ -1,19 +1,21 @@
 """``jaxapf tune SPEC.toml --out DIR``: learn the planner gains, then prove them on held-out fields.
 
 Steps (each in its own module): validate the spec (:mod:`jaxapf.tune.spec`); train or resume
-(:mod:`jaxapf.tune.train`); give a grid and a random search the same episode budget and test all
-settings on held-out fields with paired statistics (:mod:`jaxapf.tune.proof`). ``DIR`` receives
+(:mod:`jaxapf.tune.train`); give each black-box tuner of ``search.tuners`` (grid, random, CMA-ES,
+TPE: :mod:`jaxapf.tune.searches`) the same episode budget and test all settings on held-out fields
+with paired statistics (:mod:`jaxapf.tune.proof`). ``DIR`` receives
 
 - ``gains.toml``: the tuned gains as a ``[gains]`` table (``jaxapf simulate --gains``,
   ``jaxapf sweep --gains``, :func:`jaxapf.gains.load_gains`);
-- ``summary.json``: resolved spec, spec file text, versions, the four gain settings, training
+- ``summary.json``: resolved spec, spec file text, versions, the compared gain settings, training
   outcome, episode budgets and wall-clock times, the test table;
 - ``history.csv``: one row per step (training batch loss, terms, gradient norm, learning rate) and
   the validation scores where validated (step 0 = the start gains);
 - ``test_results.csv`` (the table), ``test_episodes.parquet`` (one row per test episode);
 - ``training.png`` (training curves), ``test.png`` (test rates with 95 % intervals);
 - ``checkpoint.npz``: the training state; rerunning the command resumes from it;
-- ``searches.json``: the grid and random searches' results, reused by a rerun with the same spec.
+- ``searches.json``: the black-box tuners' results, reused by a rerun with the same spec;
+  ``search-cmaes.pkl``, ``search-tpe.pkl``: their state while they run (a rerun resumes it).
 
 The command holds ``DIR/.lock`` while it runs (one writer per folder, :mod:`jaxapf.io.lock`). Rerun
 on a finished folder of the same spec, it prints the test table again and recomputes nothing;
@@ -31,20 +33,10 @@ from typing import Any
 
 import pandas as pd
 
-from ..gains import Gains
 from ..io.lock import write_atomic, writing
 from ..io.versions import versions
-from .proof import (
-    SETTINGS,
-    candidates,
-    comparison_table,
-    plot_test,
-    plot_training,
-    random_settings,
-    select_best,
-    test_episodes,
-    tuning_budget,
-)
+from .proof import candidates, comparison_table, plot_test, plot_training, test_episodes, tuning_budget
+from .searches import SEARCHES
 from .spec import TuneSpec, load_tune_spec
 from .train import HISTORY_COLUMNS, TrainState, Tuner
 
@@ -121,10 +113,9 @@ def finished_summary(out: pathlib.Path, digest: str) -> dict[str, Any] | None:
     return summary
 
 
-def _search(tuner: Tuner, label: str, settings: list[Gains], budget: int, out: pathlib.Path,
-            digest: str) -> dict[str, Any]:
-    """:func:`select_best`, or its result stored in ``out/searches.json`` by a run of the same spec
-    and budget."""
+def _search(tuner: Tuner, label: str, budget: int, out: pathlib.Path, digest: str) -> dict[str, Any]:
+    """The black-box tuner ``label`` (:data:`~jaxapf.tune.searches.SEARCHES`), or its result stored in
+    ``out/searches.json`` by a run of the same spec and budget."""
     path = out / "searches.json"
     try:
         stored = json.loads(path.read_text())
@@ -135,7 +126,7 @@ def _search(tuner: Tuner, label: str, settings: list[Gains], budget: int, out: p
     if label in stored:
         entry = stored[label]
         return entry | {"gains": tuner.spec.reparam.base.replace(**entry["gains"])}
-    result = select_best(tuner, settings, budget, label)
+    result = SEARCHES[label](tuner, budget, out, digest)
     stored[label] = result | {"gains": result["gains"].floats()}
     text = json.dumps(_json_safe(stored), indent=2) + "\n"
     write_atomic(path, lambda fh: fh.write(text.encode("utf-8")))
@@ -172,14 +163,14 @@ def _run(spec: TuneSpec, text: str, out: pathlib.Path, quiet: bool) -> dict[str,
                 f"{state.best_val_loss:.4g} at step {state.best_step}")
 
     budget = tuning_budget(spec, state)
-    grid = _search(tuner, "grid", spec.search.grid_settings(spec.init), budget["episodes"], out, digest)
-    _say(quiet, f"grid search: {grid['settings']} settings x {grid['fields_per_setting']} fields "
-                f"in {grid['seconds']:.1f} s")
-    rand = _search(tuner, "random", random_settings(spec), budget["episodes"], out, digest)
-    _say(quiet, f"random search: {rand['settings']} settings x {rand['fields_per_setting']} fields "
-                f"in {rand['seconds']:.1f} s")
+    searched = {}
+    for label in spec.search.tuners:
+        searched[label] = _search(tuner, label, budget["episodes"], out, digest)
+        r = searched[label]
+        _say(quiet, f"{label} search: {r['settings']} settings x {r['fields_per_setting']} fields "
+                    f"in {r['seconds']:.1f} s")
 
-    settings = candidates(tuned, grid["gains"], rand["gains"])
+    settings = candidates(tuned, {label: r["gains"] for label, r in searched.items()})
     start = time.perf_counter()
     episodes = test_episodes(tuner, settings)
     test_seconds = time.perf_counter() - start
@@ -197,10 +188,9 @@ def _run(spec: TuneSpec, text: str, out: pathlib.Path, quiet: bool) -> dict[str,
         "gains": {label: g.floats() for label, g in settings.items()},
         "training": _training_summary(spec, state),
         "budgets": {"tuning": budget | {"seconds": state.train_seconds},
-                    **{name: {k: v for k, v in sel.items() if k != "gains"}
-                       for name, sel in (("grid", grid), ("random", rand))},
+                    **{name: {k: v for k, v in sel.items() if k != "gains"} for name, sel in searched.items()},
                     "test": {"episodes": len(episodes), "seconds": test_seconds}},
-        "settings": list(SETTINGS),
+        "settings": list(settings),
         "test": table.to_dict(orient="records"),
     }
     (out / "summary.json").write_text(json.dumps(_json_safe(summary), indent=2) + "\n")

@@ -34,6 +34,7 @@ from .objective import Objective, Reparam
 
 __all__ = [
     "SCHEDULES",
+    "TUNERS",
     "TEST_FAMILIES",
     "TrainSpec",
     "FieldSetSpec",
@@ -54,6 +55,8 @@ MAX_HELD_FIELDS = 2**22
 
 #: Default test families: every randomized family (the paper's two fixed scenarios need their own t_max).
 TEST_FAMILIES: tuple[str, ...] = ("trap", "crossing", "head_on", "overtake", "clutter", "dynamic")
+#: The black-box tuners ``[search] tuners`` may name (:mod:`jaxapf.tune.searches`).
+TUNERS: tuple[str, ...] = ("grid", "random", "cmaes", "tpe")
 #: Learning-rate schedules: constant, cosine decay to 0 over ``steps``, linear warm-up then cosine.
 SCHEDULES: tuple[str, ...] = ("constant", "cosine", "warmup_cosine")
 
@@ -133,15 +136,23 @@ class FieldSetSpec:
 
 @dataclasses.dataclass(frozen=True)
 class SearchSpec:
-    """``[search]``: the searches tuning is compared with under the same budget: a grid (product of
-    per-gain value lists) and a random search (``random_n`` settings, each tuned gain log-uniform in
-    ``[x0/random_range, x0·random_range]`` around its start value ``x0``, or uniform over its tuning
-    range when that is bounded, e.g. ``k`` in ``[0, 1]``)."""
+    """``[search]``: the black-box tuners (``tuners``, of :data:`TUNERS`) flown beside the gradient one
+    under the same budget: a grid (product of per-gain value lists), a random search (``random_n``
+    settings, each tuned gain log-uniform in ``[x0/random_range, x0·random_range]`` around its start
+    value ``x0``, or uniform over its tuning range when that is bounded, e.g. ``k`` in ``[0, 1]``),
+    CMA-ES (``popsize`` candidates a generation, 0: the library's ``4 + 3 ln n``; step ``cmaes_sigma``
+    in θ) and TPE (``tpe_batch`` trials at a time over the random search's ranges), the last two on
+    ``fields_per_setting`` fresh training fields per candidate (0: ``train.fields_per_step``)."""
 
     grid: tuple[tuple[str, tuple[float, ...]], ...] = (("gamma", (0.5, 1.0, 2.0, 4.0)), ("k", (0.0, 0.5, 1.0)))
     random_n: int = 32
     random_range: float = 4.0
     random_seed: int = 0
+    tuners: tuple[str, ...] = ("grid", "random")
+    fields_per_setting: int = 0
+    popsize: int = 0
+    cmaes_sigma: float = 1.0
+    tpe_batch: int = 8
 
     def grid_settings(self, base: Gains) -> list[Gains]:
         """Every grid point (product in the order of the spec), on top of ``base``."""
@@ -273,8 +284,29 @@ def _schema(choices: tuple[str, ...]) -> Table:
                                          {n: list(v) for n, v in SearchSpec.grid}),
                              "random_n": Key(integer(1, MAX_SETTINGS), SearchSpec.random_n),
                              "random_range": Key(number(1.0), SearchSpec.random_range),
-                             "random_seed": Key(SEED, SearchSpec.random_seed)}), {}),
+                             "random_seed": Key(SEED, SearchSpec.random_seed),
+                             "tuners": Key(_tuners, list(SearchSpec.tuners)),
+                             "fields_per_setting": Key(integer(0, MAX_HELD_FIELDS), SearchSpec.fields_per_setting),
+                             "popsize": Key(integer(0, MAX_SETTINGS), SearchSpec.popsize),
+                             "cmaes_sigma": Key(number(0.0, lo_open=True), SearchSpec.cmaes_sigma),
+                             "tpe_batch": Key(integer(1, MAX_SETTINGS), SearchSpec.tpe_batch)}), {}),
     })
+
+
+#: The library each black-box tuner needs beyond the core install (the ``tune`` extra).
+TUNER_PACKAGES: dict[str, str] = {"cmaes": "cmaes", "tpe": "optuna"}
+
+
+def _tuners(where: str, value: Any) -> tuple[str, ...]:
+    """Distinct names of :data:`TUNERS` whose library is installed."""
+    import importlib.util
+
+    chosen = names(TUNERS, "tuner")(where, value)
+    for i, name in enumerate(chosen):
+        package = TUNER_PACKAGES.get(name)
+        if package and importlib.util.find_spec(package) is None:
+            raise ConfigError(f"{where}[{i}] = {name!r} needs the {package} package: pip install 'jaxapf[tune]'")
+    return tuple(chosen)
 
 
 _EMPTY_GRID = "search.grid must be a non-empty table {gain = [values, ...]}"
@@ -345,8 +377,7 @@ def parse_tune_spec(data: Mapping[str, Any], *, base: str | os.PathLike | None =
         name=d["name"], plugins=plugins, train=train, validation=validation, test=test,
         objective=Objective(**d["objective"]), init=init, reparam=reparam, sim=sim, mpc=mpc,
         scenario=tuple((f, spec_family_params(f, params.get(f, {}))) for f in sorted(used)),
-        search=SearchSpec(grid=grid, random_n=d["search"]["random_n"], random_range=d["search"]["random_range"],
-                          random_seed=d["search"]["random_seed"]),
+        search=SearchSpec(**(d["search"] | {"grid": grid})),
     )
 
 
