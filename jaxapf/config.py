@@ -69,6 +69,10 @@ def _name(where: str, value: Any) -> str:
     return value
 
 
+#: Where the MPC's weights come from (:attr:`PlannerConfig.mpc_weights`).
+MPC_WEIGHTS: tuple[str, ...] = ("static", "gains")
+
+
 @dataclasses.dataclass(frozen=True)
 class PlannerConfig:
     r"""The avoidance stack: planner, safety filter, disturbance estimator and the potentials' settings (SPEC 3–4).
@@ -87,6 +91,10 @@ class PlannerConfig:
         distance); ``None`` (default) keeps it quadratic everywhere.
       reference_velocity: use the flow velocities u_i as the MPC velocity reference instead of
         the paper's zero (off by default).
+      mpc_weights: ``static`` (default): the MPC's weights of :class:`MPCConfig`, compiled in (its
+        matrices built once for every episode); ``gains``: those weights times the traced scale gains
+        ``mpc_pos``, ``mpc_vel``, ``mpc_terminal``, ``mpc_input``, ``mpc_speed`` (matrices built per
+        episode, so a grid over them is one vmap and ``jaxapf tune`` differentiates through them).
     """
 
     method: str = "direction_velocity"
@@ -97,6 +105,7 @@ class PlannerConfig:
     eps_v: float = 1e-3
     att_cap: float | None = None
     reference_velocity: bool = False
+    mpc_weights: str = "static"
 
     def __post_init__(self) -> None:
         _name("sim.method", self.method)
@@ -108,6 +117,7 @@ class PlannerConfig:
             object.__setattr__(self, "att_cap", float(check_range("sim.att_cap", self.att_cap, 0.0, lo_open=True)))
         if not isinstance(self.reference_velocity, (bool, np.bool_)):
             raise ConfigError(f"sim.reference_velocity = {self.reference_velocity!r} must be true or false")
+        check_choice("sim.mpc_weights", self.mpc_weights, MPC_WEIGHTS)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -89,7 +89,8 @@ _FLOAT32_MAX = float(np.finfo(np.float32).max)
 def _describe(spec: GainSpec) -> str:
     unit = f" [{spec.unit}]" if spec.unit else ""
     allowed = describe_range(spec.low, spec.high, spec.low_open, spec.high_open)
-    return f"{spec.doc}{unit}; default {spec.default:g}; {allowed}"
+    tuned = "tunable (jaxapf tune)" if spec.tunable else "not tuned"
+    return f"{spec.doc}{unit}; default {spec.default:g}; {allowed}; {tuned}"
 
 
 #: Where each declared gain is listed (:func:`jaxapf.registry.loop_rank` of the first kind declaring it).

@@ -381,11 +381,13 @@ def oracle_rollout(scenario: Any, gains: Any, sim: Any, mpc: Any, *, eps: float 
 
     Raises:
       ImportError: OSQP is not installed (``pip install "jaxapf[bench]"``).
-      ConfigError: a planner, filter, plant, sensor, disturbance or estimator the oracle does not know.
+      ConfigError: a planner, filter, plant, sensor, disturbance, estimator or traced MPC weights the oracle
+        does not know.
     """
     require_osqp()
     known = {"method": ("basic", "direction", "direction_velocity"), "filter": ("none",),
-             "plant": ("double_integrator",), "sensor": ("ideal",), "disturbance": ("none",), "estimator": ("none",)}
+             "plant": ("double_integrator",), "sensor": ("ideal",), "disturbance": ("none",), "estimator": ("none",),
+             "mpc_weights": ("static",)}
     for key, names in known.items():
         check_choice(f"sim.{key} (the numpy + OSQP oracle)", sim.flat()[key], names)
     # Padded slots contribute exactly zero (see total_force's mask), so drop them up front.

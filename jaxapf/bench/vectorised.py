@@ -287,11 +287,12 @@ def vectorised_rollout(scenarios: Any, gains: Any, sim: Any, mpc: Any, *, dtype:
     ``dtype``: the loop of :func:`jaxapf.engine.rollout` (APF reference, FISTA MPC with
     ``mpc.iters`` iterations, exact double-integrator step) for all fields at once.
 
-    Raises :class:`~jaxapf.validation.ConfigError` for a planner, filter, plant, sensor, disturbance or
-    estimator it does not know (it flies the paper's ideal world only).
+    Raises :class:`~jaxapf.validation.ConfigError` for a planner, filter, plant, sensor, disturbance,
+    estimator or traced MPC weights it does not know (it flies the paper's ideal world only).
     """
     known = {"method": VECTORISED_METHODS, "filter": ("none",), "plant": ("double_integrator",), "sensor": ("ideal",),
-             "disturbance": ("none",), "estimator": ("none",)}
+             "disturbance": ("none",), "estimator": ("none",),
+             "mpc_weights": ("static",)}
     for key, names in known.items():
         check_choice(f"sim.{key} (the vectorised numpy peer)", sim.flat()[key], names)
     import jax.numpy as jnp

@@ -5,6 +5,7 @@ from .cbf import CBF, braking_constraints, cbf_coefficients, cbf_constraints
 from .estimators import ESTIMATORS, Estimator, Integral, NoEstimator, Observer, register_estimator
 from .filters import FILTERS, Passthrough, SafetyFilter, register_filter
 from .mpc import (
+                  MPC_GAINS,
                   AxisProblem,
                   augmented_weights,
                   axis_problem,
@@ -21,5 +22,5 @@ from .mpc import (
 __all__ = ["SafetyFilter", "Passthrough", "FILTERS", "register_filter", "CBF", "braking_constraints",
            "cbf_coefficients", "cbf_constraints",
            "Estimator", "NoEstimator", "Observer", "Integral", "ESTIMATORS", "register_estimator",
-           "AxisProblem", "axis_problem", "solve_axes", "shift_warm_start", "condensed_qp", "condensed_hessian",
-           "condensed_linear", "prediction_matrices", "augmented_weights", "fista", "solve_box_qp"]
+           "MPC_GAINS", "AxisProblem", "axis_problem", "solve_axes", "shift_warm_start", "condensed_qp",
+           "condensed_hessian", "condensed_linear", "prediction_matrices", "augmented_weights", "fista", "solve_box_qp"]

@@ -28,7 +28,7 @@ stays the acceleration box.
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable
+from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
@@ -36,9 +36,11 @@ import numpy as np
 from jax import Array
 
 from ..config import MPCConfig
+from ..gains import GainSpec, declare_gains
 from ..world.double_integrator import discrete_matrices
 
 __all__ = [
+    "MPC_GAINS",
     "prediction_matrices",
     "augmented_weights",
     "condensed_hessian",
@@ -51,6 +53,21 @@ __all__ = [
     "solve_axes",
     "shift_warm_start",
 ]
+
+
+_SCALED = "with sim.mpc_weights = gains"
+#: Traced scales of the MPC's weights, read with ``sim.mpc_weights = "gains"`` (:func:`axis_problem`):
+#: the weight of :class:`MPCConfig` times its scale; 1 leaves the weight as it is.
+MPC_GAINS: tuple[GainSpec, ...] = declare_gains(
+    GainSpec("mpc_pos", 1.0, low=0.0, symbol="s_p", doc=f"MPC: scale of the stage position weight q_pos ({_SCALED})"),
+    GainSpec("mpc_vel", 1.0, low=0.0, symbol="s_v", doc=f"MPC: scale of the stage velocity weight q_vel ({_SCALED})"),
+    GainSpec("mpc_terminal", 1.0, low=0.0, symbol="s_f",
+             doc=f"MPC: scale of the terminal weights f_pos and f_vel ({_SCALED})"),
+    GainSpec("mpc_input", 1.0, low=0.0, low_open=True, symbol="s_r",
+             doc=f"MPC: scale of the input weight r ({_SCALED})"),
+    GainSpec("mpc_speed", 1.0, low=0.0, symbol="s_ρ",
+             doc=f"MPC: scale of the velocity-limit penalty v_penalty ({_SCALED})"),
+)
 
 
 def prediction_matrices(a: Array, b: Array, horizon: int) -> tuple[Array, Array]:
@@ -216,22 +233,29 @@ class AxisProblem:
     v_penalty: Array
 
 
-def axis_problem(mpc: MPCConfig, a: Array, b: Array) -> AxisProblem:
+def axis_problem(mpc: MPCConfig, a: Array, b: Array, gains: Any = None) -> AxisProblem:
     """Per-axis condensed matrices for :class:`MPCConfig` ``mpc`` and the model ``x(k+1) = a x(k) + b u(k)``
     of one axis on ``(p, v)`` (a (2, 2), b (2, 1): the plant's
-    :meth:`~jaxapf.world.Plant.linear_model`, the double integrator by default)."""
+    :meth:`~jaxapf.world.Plant.linear_model`, the double integrator by default). With ``gains`` (a
+    :class:`~jaxapf.gains.Gains` holding :data:`MPC_GAINS`) each weight is scaled by its traced gain."""
     n = mpc.horizon
     dtype = a.dtype
     big_m, c = prediction_matrices(a, b, n)
     weights = ("q_pos", "q_vel", "f_pos", "f_vel", "r")
-    w = lambda name: jnp.asarray(getattr(mpc, name), dtype)  # noqa: E731  (3,) per axis
+    scale = {} if gains is None else {"q_pos": gains.mpc_pos, "q_vel": gains.mpc_vel, "f_pos": gains.mpc_terminal,
+                                      "f_vel": gains.mpc_terminal, "r": gains.mpc_input,
+                                      "v_penalty": gains.mpc_speed}
+    def w(name: str) -> Array:  # (3,) per axis; static weights stay constants
+        weight = jnp.asarray(getattr(mpc, name), dtype)
+        return weight * scale[name] if name in scale else weight
+
     q_aug = jax.vmap(augmented_weights, in_axes=(0, 0, None))(
         jnp.stack([w("q_pos"), w("q_vel")], -1), jnp.stack([w("f_pos"), w("f_vel")], -1), n
     )
     r_aug = jnp.repeat(w("r")[:, None], n, axis=1)
     h = jax.vmap(condensed_hessian, in_axes=(None, 0, 0))(c, q_aug, r_aug)
     c_vel = c[3::2]  # predicted velocities v(k+1..k+N)
-    rho = jnp.asarray(mpc.v_penalty, dtype)
+    rho = w("v_penalty")
     shared = all(len(set(getattr(mpc, name))) == 1 for name in weights)  # static: from the config
     distinct = h[:1] if shared else h
     kernel = jnp.concatenate(

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any, Mapping
 
-from ..control import ESTIMATORS, FILTERS
+from ..control import ESTIMATORS, FILTERS, MPC_GAINS
 from ..planners import PLANNERS
 from ..registry import Registry
 from ..world import DISTURBANCES, PLANTS
@@ -50,6 +50,7 @@ def component_names(sim: SimConfig) -> dict[str, str]:
 
 def gains_read(sim: SimConfig) -> frozenset[str]:
     """The gains a :func:`~jaxapf.engine.rollout` with ``sim`` reads: those its planner, safety filter, plant, sensor,
-    disturbance and estimator declare. Settings that agree on these fly the same episodes (a sweep runs them
-    once)."""
-    return components_read_gains(component_names(sim))
+    disturbance and estimator declare, and the MPC's weight scales with ``sim.mpc_weights = "gains"``. Settings
+    that agree on these fly the same episodes (a sweep runs them once)."""
+    read = components_read_gains(component_names(sim))
+    return read | {g.name for g in MPC_GAINS} if sim.planner.mpc_weights == "gains" else read

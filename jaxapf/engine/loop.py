@@ -39,7 +39,7 @@ from ..gains import Gains
 from ..metrics import episode_metrics
 from .components import COMPONENTS, component_names, gains_read
 
-__all__ = ["rollout", "rollout_metrics", "closed_loop", "loop_init", "loop_step", "record_trajectory"]
+__all__ = ["rollout", "rollout_metrics", "closed_loop", "episode_loop", "loop_init", "loop_step", "record_trajectory"]
 
 
 class ClosedLoop(NamedTuple):
@@ -56,10 +56,21 @@ class ClosedLoop(NamedTuple):
 
 
 def closed_loop(sim: SimConfig, mpc: MPCConfig, dtype: Any) -> ClosedLoop:
-    """The registered components of ``sim`` and the MPC problem on the plant's linear model."""
+    """The registered components of ``sim`` and the MPC problem on the plant's linear model (``None``
+    with ``sim.mpc_weights = "gains"``: each episode builds its own, :func:`episode_loop`)."""
     parts = {key: COMPONENTS[key].get(name, f"sim.{key}") for key, name in component_names(sim).items()}
+    static = sim.planner.mpc_weights == "static"
     return ClosedLoop(parts["method"], parts["filter"], parts["plant"], parts["sensor"], parts["disturbance"],
-                      parts["estimator"], axis_problem(mpc, *parts["plant"].linear_model(sim.episode.dt, dtype)))
+                      parts["estimator"],
+                      axis_problem(mpc, *parts["plant"].linear_model(sim.episode.dt, dtype)) if static else None)
+
+
+def episode_loop(loop: ClosedLoop, gains: Gains, sim: SimConfig, mpc: MPCConfig, dtype: Any) -> ClosedLoop:
+    """``loop`` with the MPC problem of an episode flown with ``gains``: the shared one, or with
+    ``sim.mpc_weights = "gains"`` the one whose weights these gains scale."""
+    if loop.prob is not None:
+        return loop
+    return loop._replace(prob=axis_problem(mpc, *loop.plant.linear_model(sim.episode.dt, dtype), gains))
 
 
 def loop_init(loop: ClosedLoop, scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig) -> tuple:
@@ -120,7 +131,7 @@ def rollout(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, *,
     """
     dtype = scenario.start.dtype
     gains = gains.only(gains_read(sim)).as_arrays(dtype)  # each component sees what it declared, nothing else
-    loop = closed_loop(sim, mpc, dtype)
+    loop = episode_loop(closed_loop(sim, mpc, dtype), gains, sim, mpc, dtype)
     obstacles = scenario.obstacles.columns()  # once per episode, not once per control step
 
     def control_step(carry, k):

@@ -49,7 +49,7 @@ from ..datatypes import Scenario
 from ..gains import Gains
 from ..metrics import episode_metrics
 from ..metrics.context import certainly_at_goal, certainly_ended
-from .loop import closed_loop, loop_init, loop_step, record_trajectory
+from .loop import closed_loop, episode_loop, loop_init, loop_step, record_trajectory
 
 __all__ = ["SEGMENT", "stream_slots", "stream_metrics"]
 
@@ -114,7 +114,8 @@ def stream_metrics(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCCo
         scenario = _rows(scenarios, e % n_fields)
         g = _rows(gains, e // n_fields)
         carry = loop_init(loop, scenario, g, sim, mpc)
-        return {"scenario": scenario, "obstacles": scenario.obstacles.columns(), "gains": g, "carry": carry,
+        own = {} if loop.prob is not None else {"prob": episode_loop(loop, g, sim, mpc, dtype).prob}
+        return {**own, "scenario": scenario, "obstacles": scenario.obstacles.columns(), "gains": g, "carry": carry,
                 "k": jnp.zeros((), jnp.int32), "ended": certainly_at_goal(scenario.start, scenario, sim),
                 "x0": loop.plant.kinematics(carry[0])}
 
@@ -123,7 +124,8 @@ def stream_metrics(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCCo
         applied acceleration, the components' diagnostics)."""
         k = slot["k"]
         p0 = loop.plant.kinematics(slot["carry"][0])[:3]
-        carry, record = loop_step(loop, slot["carry"], k.astype(dtype), slot["scenario"], slot["obstacles"],
+        flown = loop if loop.prob is not None else loop._replace(prob=slot["prob"])
+        carry, record = loop_step(flown, slot["carry"], k.astype(dtype), slot["scenario"], slot["obstacles"],
                                   slot["gains"], sim, mpc)
         ended = slot["ended"] | certainly_ended(p0, record[0][:3], k.astype(dtype) * dt, slot["scenario"], sim)
         return {**slot, "carry": carry, "k": k + 1, "ended": ended}, record

@@ -52,6 +52,7 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 import numpy as np
 
 from ..config import MPC_KEYS, SIM_KEYS, STATIC_KEYS, MPCConfig, SimConfig
+from ..control import MPC_GAINS
 from ..engine.components import COMPONENTS
 from ..gains import GAINS, Gains, read_gains_file
 from ..io.plugins import check_plugins, load_plugins
@@ -177,10 +178,19 @@ def setting_values(keys: Sequence[str]) -> Callable[[str, Any], dict[str, Any]]:
     return read
 
 
-def sim_configs(values: Mapping[str, Any]) -> tuple[SimConfig, MPCConfig]:
-    """The :class:`SimConfig` and :class:`MPCConfig` of ``[sim]`` values (the rest at their defaults)."""
-    return (SimConfig.from_flat({k: v for k, v in values.items() if k in SIM_KEYS}),
-            MPCConfig(**{k: v for k, v in values.items() if k in MPC_KEYS}))
+def sim_configs(values: Mapping[str, Any], named: Iterable[str] = (), where: str = "sim"
+                ) -> tuple[SimConfig, MPCConfig]:
+    """The :class:`SimConfig` and :class:`MPCConfig` of ``[sim]`` values (the rest at their defaults).
+    If ``named`` (the gains a spec sets or varies) holds an MPC weight scale, the MPC's weights come from
+    the gains (``mpc_weights = "gains"``); ``mpc_weights = "static"`` beside one is refused."""
+    sim = {k: v for k, v in values.items() if k in SIM_KEYS}
+    scales = sorted(set(named) & {g.name for g in MPC_GAINS})
+    if scales:
+        if sim.get("mpc_weights", "gains") != "gains":
+            raise ConfigError(f"{where}.mpc_weights = {sim['mpc_weights']!r} compiles the MPC's weights in, but the "
+                              f"spec sets {scales[0]}, which only mpc_weights = \"gains\" reads")
+        sim["mpc_weights"] = "gains"
+    return SimConfig.from_flat(sim), MPCConfig(**{k: v for k, v in values.items() if k in MPC_KEYS})
 
 
 # --------------------------------------------------------------------------------------------
@@ -372,18 +382,19 @@ class SweepSpec:
         disturbances) read, and any the spec names, in declaration order."""
         read = {g.name for key, registry in COMPONENTS.items() for name in self.components(key)
                 for g in registry.get(name).gains}
-        named = (set(self.gains) | {k for k, _ in self.grid} | {k for k, _ in self.random}
-                 | {k for entry in self.explicit for k, _ in entry})
-        return tuple(k for k in GAINS.names() if k in read | named)
+        return tuple(k for k in GAINS.names() if k in read | self.named_gains())
+
+    def named_gains(self) -> set[str]:
+        """The gains the spec sets (``[gains]``) or varies (grid, random, explicit settings)."""
+        return (set(self.gains) | {k for k, _ in self.grid} | {k for k, _ in self.random}
+                | {k for entry in self.explicit for k, _ in entry})
 
     def configs(self, static: Iterable[tuple[str, Any]], family: str) -> tuple[SimConfig, MPCConfig]:
         """:class:`SimConfig` and :class:`MPCConfig` of one setting's static part on ``family``
         (``t_max``: the spec's if named, else the family's)."""
         values = dict(static)
-        sim = {k: v for k, v in values.items() if k in SIM_KEYS}
-        sim.setdefault("t_max", self.family_params(family).t_max)
-        mpc = {k: v for k, v in values.items() if k in MPC_KEYS}
-        return SimConfig.from_flat(sim), MPCConfig(**mpc)
+        values.setdefault("t_max", self.family_params(family).t_max)
+        return sim_configs(values, self.named_gains())
 
 
 # --------------------------------------------------------------------------------------------

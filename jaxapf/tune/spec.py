@@ -238,8 +238,9 @@ def _gains(where: str, table: Any, base: Gains | None = None) -> Gains:
 
 
 def read_gains(sim: SimConfig) -> tuple[str, ...]:
-    """The tunable gains the planner, filter and plant of ``sim`` read, in declaration order: what
-    ``jaxapf tune`` learns unless ``[tune] params`` says otherwise."""
+    """The tunable gains the components of ``sim`` read (the MPC's weight scales only where
+    ``mpc_weights = "gains"``), in declaration order: what ``jaxapf tune`` learns unless ``[tune]
+    params`` says otherwise."""
     read = gains_read(sim)
     return tuple(n for n, g in GAINS.items() if n in read and g.tunable)
 
@@ -365,8 +366,8 @@ def parse_tune_spec(data: Mapping[str, Any], *, base: str | os.PathLike | None =
     if len(set(seeds.values())) != 3:
         raise ConfigError(f"train.seed, validation.seed and test.seed must differ (got {seeds}): "
                           "validation and test fields are never trained on")
-    sim, mpc = sim_configs(d["sim"])
     init = d["init"]
+    sim, mpc = sim_configs(d["sim"], set(d["tune"].get("params", ())) | set(data.get("init", {})))
     reparam = Reparam(d["tune"].get("params", read_gains(sim)), init, d["tune"]["upper"])
     reparam.theta(init)  # the start must be reachable
     grid = tuple((name, tuple(gains_from_mapping({name: v}, "search.grid", reparam.base)[name] for v in values))

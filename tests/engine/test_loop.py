@@ -163,3 +163,52 @@ def test_a_rollout_reads_only_the_gains_its_planner_declares(method):
     gain = "k_rep" if "k_rep" in read else PLANNERS.get(method).gains[0].name  # the repulsion, or what stands for it
     moved = _rollout(_scenario(), Gains().replace(**{gain: 3.0 * Gains()[gain]}), sim, mpc)
     assert gain in read and not np.array_equal(np.asarray(moved.position), np.asarray(base.position))
+
+
+SCALES = {"mpc_pos": 2.0, "mpc_vel": 3.0, "mpc_terminal": 0.5, "mpc_input": 2.0, "mpc_speed": 0.5}
+
+
+def _scaled(mpc: MPCConfig) -> MPCConfig:
+    """``mpc`` with every weight multiplied by its scale in :data:`SCALES`, compiled in."""
+    times = lambda w, s: tuple(x * s for x in w)  # noqa: E731
+    return MPCConfig(horizon=mpc.horizon, iters=mpc.iters, q_pos=times(mpc.q_pos, 2.0), q_vel=times(mpc.q_vel, 3.0),
+                     f_pos=times(mpc.f_pos, 0.5), f_vel=times(mpc.f_vel, 0.5), r=times(mpc.r, 2.0),
+                     v_penalty=mpc.v_penalty * 0.5)
+
+
+def test_traced_mpc_weights_fly_the_static_weights_they_scale():
+    """With ``mpc_weights = "gains"`` the weights are the config's times the traced scales: the episode
+    equals the one with the scaled weights compiled in (float64, to rounding), and unit scales are the
+    static program exactly; the scales are read only in that mode."""
+    gains_mode = SIM.replace(mpc_weights="gains")
+    with jax.enable_x64(True):
+        scenario = jax.tree_util.tree_map(lambda x: x.astype(jnp.float64) if x.dtype == jnp.float32 else x,
+                                          _scenario())
+        traced = _rollout(scenario, Gains(**SCALES), gains_mode, MPC)
+        static = _rollout(scenario, Gains(), SIM, _scaled(MPC))
+        np.testing.assert_allclose(traced.position, static.position, rtol=0, atol=1e-9)
+        assert float(jnp.abs(traced.position - _rollout(scenario, Gains(), SIM, MPC).position).max()) > 0.1
+        unit = _rollout(scenario, Gains(), gains_mode, MPC)
+        np.testing.assert_allclose(unit.position, _rollout(scenario, Gains(), SIM, MPC).position, rtol=0, atol=1e-12)
+    ignored = _rollout(_scenario(), Gains(**SCALES), SIM, MPC)  # static mode: the scales are not read
+    np.testing.assert_array_equal(ignored.position, _rollout(_scenario(), Gains(), SIM, MPC).position)
+
+
+def test_a_grid_over_mpc_weights_is_one_call_matching_single_runs():
+    """``evaluate`` (the streaming engine) over settings that scale the MPC's weights: each row is
+    that setting's own rollout."""
+    gains_mode = SIM.replace(mpc_weights="gains")
+    settings = [Gains(), Gains(mpc_pos=0.5, mpc_input=3.0), Gains(**SCALES)]
+    batch = jax.tree_util.tree_map(lambda *x: np.asarray(x, np.float32), *settings)
+    scenarios = jax.tree_util.tree_map(lambda x: x[None], _scenario())
+    out = evaluate(scenarios, batch, gains_mode, MPC, metrics=("final_distance", "min_clearance"))
+    for i, g in enumerate(settings):
+        one = episode_metrics(_rollout(_scenario(), g, gains_mode, MPC), _scenario(), gains_mode,
+                              ("final_distance", "min_clearance"))
+        assert_same_episodes({n: np.asarray(out[n])[i, 0][None] for n in one},
+                             {n: np.asarray(v)[None] for n, v in one.items()}, SIM.episode.dt)
+    assert len({round(float(v), 3) for v in out["final_distance"][:, 0]}) == 3
+    size = evaluate_program._cache_size()
+    evaluate(scenarios, jax.tree_util.tree_map(lambda g: g * 0.9, batch), gains_mode, MPC,
+             metrics=("final_distance", "min_clearance"))
+    assert evaluate_program._cache_size() == size, "changing the MPC's weights must not recompile"

@@ -145,6 +145,8 @@ BAD = {
                    "random.k.range[0] = 0.0 is out of range; allowed: > 0 for a log range"),
     "random table": ({"random.n": 4, "random.k": {"rng": [0.0, 1.0]}}, "random.k.rng is not a known key"),
     "random empty": ({"random.n": 4}, "random has no gain to sample"),
+    "static mpc weights": ({"sim.mpc_weights": "static", "grid.mpc_pos": [0.5, 2.0]},
+                           "sim.mpc_weights = 'static' compiles the MPC's weights in, but the spec sets mpc_pos"),
 }
 
 
@@ -555,3 +557,15 @@ def test_cluster_flags_need_distributed_and_a_valid_id(tmp_path, capsys):
     assert main(["sweep", str(spec), "--distributed", "--num-processes", "2", "--process-id", "2",
                  "--no-cache", "--dry-run"]) == 2
     assert "--process-id = 2 is out of range; allowed: 0 … 1" in capsys.readouterr().err
+
+
+def test_a_grid_over_an_mpc_weight_traces_the_weights(tmp_path):
+    """Naming an MPC weight scale in the grid flies the weights from the gains (``mpc_weights = "gains"``)
+    and gives it a column; the two settings fly different episodes."""
+    spec = _spec(**{"grid.mpc_pos": [0.2, 5.0], "grid.method": ["basic"], "grid.gamma": [1.0]})
+    assert all(spec.configs(s.static, "trap")[0].planner.mpc_weights == "gains" for s in spec.settings())
+    result = run_sweep(spec, tmp_path / "out", quiet=True)
+    rows, _ = read_sweep(result.out)
+    assert "mpc_pos" in rows.columns and sorted(rows["mpc_pos"].unique()) == [0.2, 5.0]
+    by_setting = rows.groupby("mpc_pos")["final_distance"].mean()
+    assert abs(by_setting[0.2] - by_setting[5.0]) > 1e-3

@@ -79,11 +79,22 @@ def _two_obstacles(dtype) -> Scenario:
     return Scenario(start=jnp.array([0.0, 0.0, 2.0], dtype), goal=jnp.array([2.5, 1.0, 2.0], dtype), obstacles=obs)
 
 
-def test_gradient_matches_central_differences_in_float64():
+STACK = ["gamma", "k", "k_rep", "d_s", "k_att", "eta", "cbf_p1", "cbf_p2", "mpc_pos", "mpc_vel", "mpc_terminal",
+         "mpc_input", "mpc_speed"]
+
+
+@pytest.mark.parametrize("stack", [{}, {"sim": {"filter": "cbf"}, "tune": {"params": STACK},
+                                      "init": {"eta": 2.0, "k_rep": 0.01, "cbf_p1": 0.2, "cbf_p2": 0.3}}],
+                         ids=["planner", "planner+cbf+mpc"])
+def test_gradient_matches_central_differences_in_float64(stack):
     """Reverse mode through the scan over time (rematerialised, as in training), the APF reference
-    flow and the unrolled FISTA against central differences of the same float64 loss."""
-    spec = parse_tune_spec({"sim": {"t_max": 1.0, "horizon": 3, "iters": 3}, "objective": {"d_safe": 0.6},
-                            "init": {"eta": 0.2, "k_rep": 1.0}})
+    flow, the unrolled FISTA and (second case: weak repulsion and slow CBF rates, so the filter acts) the
+    CBF filter's QP and the MPC's matrices built from its traced weights, against central differences of
+    the same float64 loss."""
+    spec = parse_tune_spec({"sim": {"t_max": 1.0, "horizon": 3, "iters": 3} | stack.get("sim", {}),
+                            "objective": {"d_safe": 0.6}, "init": stack.get("init", {"eta": 0.2, "k_rep": 1.0}),
+                            **({"tune": stack["tune"]} if "tune" in stack else {})})
+    assert set(spec.reparam.names) == set(stack.get("tune", {}).get("params", STACK[:6]))
     assert spec.train.remat
     with jax.enable_x64(True):
         scenario = _two_obstacles(jnp.float64)
@@ -97,6 +108,9 @@ def test_gradient_matches_central_differences_in_float64():
             fd = (loss(theta | {name: theta[name] + h}) - loss(theta | {name: theta[name] - h})) / (2 * h)
             np.testing.assert_allclose(float(grad[name]), fd, rtol=1e-5, atol=1e-8, err_msg=name)
         assert max(abs(float(g)) for g in grad.values()) > 1e-2
+        if "tune" in stack:  # naming the MPC's scales traces its weights; each gain moves the loss (the CBF acts)
+            assert spec.sim.planner.mpc_weights == "gains"
+            assert all(abs(float(grad[n])) > 0 for n in STACK if n.startswith(("mpc_", "cbf_")))
 
 
 @pytest.mark.filterwarnings("ignore::jaxapf.validation.BoundWarning")  # k > 1 is allowed, and warned about
