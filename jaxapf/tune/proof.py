@@ -2,7 +2,9 @@ r"""The proof step of ``jaxapf tune``: tuned gains against the defaults and the 
 
 Budgets
 -------
-Tuning used ``B = steps_run · fields_per_step + validations · validation.fields`` episode rollouts.
+Tuning used ``B = steps_run · fields_per_step · r + validations · validation.fields`` episode rollouts
+(``r``: rollouts per training episode, 1 for the pathwise gradient, ``2 · train.samples`` for the
+perturbed estimators).
 Each search gets the same ``B``: its ``S`` settings (the grid product, or ``random_n``
 random settings) are each flown on the first ``⌊B/S⌋`` training fields (seed ``train.seed``,
 split over the training families as in a training step), and the setting with the highest success
@@ -34,6 +36,7 @@ from matplotlib.figure import Figure
 from .. import stats
 from ..gains import Gains
 from ..metrics import METRICS
+from .estimators import rollouts
 from .objective import TERMS
 from .spec import TuneSpec, split_count
 from .train import TrainState, TuneError, Tuner
@@ -63,8 +66,9 @@ def settings(spec: TuneSpec) -> tuple[str, ...]:
 
 
 def tuning_budget(spec: TuneSpec, state: TrainState) -> dict[str, int]:
-    """Episode rollouts the tuning used: training (steps × fields_per_step) plus validation."""
-    train = state.step * spec.train.fields_per_step
+    """Episode rollouts the tuning used: training (steps × fields_per_step × the estimator's rollouts per
+    episode, :func:`~jaxapf.tune.estimators.rollouts`) plus validation."""
+    train = state.step * spec.train.fields_per_step * rollouts(spec)
     validation = state.validations * spec.validation.fields
     return {"gradient_steps": state.step, "training_episodes": train, "validations": state.validations,
             "validation_episodes": validation, "episodes": train + validation}

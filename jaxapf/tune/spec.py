@@ -30,6 +30,7 @@ from ..io.spec import OMIT, REQUIRED, SEED, Key, Table, boolean, choice, integer
 from ..scenarios import FAMILIES, FamilyParams
 from ..sweep.spec import setting_values, sim_configs, spec_family_params, variant_names
 from ..validation import MAX_SETTINGS, ConfigError, check_choice, check_table, read_toml_file
+from .estimators import ESTIMATORS
 from .objective import Objective, Reparam
 
 __all__ = [
@@ -107,7 +108,9 @@ def check_optimizer(name: str) -> str:
 
 @dataclasses.dataclass(frozen=True)
 class TrainSpec:
-    """``[train]``: training fields, optimiser and stopping (ranges in docs/tune.md)."""
+    """``[train]``: training fields, optimiser, stopping and the gradient estimator (``estimator``,
+    with ``samples`` antithetic pairs of perturbations of size ``sigma`` in θ:
+    :mod:`jaxapf.tune.estimators`; ranges in docs/tune.md)."""
 
     families: tuple[str, ...] = ("crossing", "trap")
     fields_per_step: int = 16
@@ -122,6 +125,9 @@ class TrainSpec:
     patience: int = 5
     validate_every: int = 10
     remat: bool = True
+    estimator: str = "pathwise"
+    samples: int = 4
+    sigma: float = 0.1
 
 
 @dataclasses.dataclass(frozen=True)
@@ -268,7 +274,8 @@ def _schema(choices: tuple[str, ...]) -> Table:
         "learning_rate": number(0.0, lo_open=True), "schedule": choice(SCHEDULES), "warmup_steps": integer(0),
         "clip": number(0.0, lo_open=True), "episode_clip": number(0.0, lo_open=True, inf=True),
         "patience": integer(1), "validate_every": integer(1),
-        "remat": boolean})
+        "remat": boolean, "estimator": choice(ESTIMATORS), "samples": integer(1, 4096),
+        "sigma": number(0.0, lo_open=True)})
     fields = integer(1, MAX_HELD_FIELDS)
     return Table({
         "name": Key(_text, "tune"), "plugins": Key(check_plugins, []), "train": Key(train, {}),

@@ -46,6 +46,7 @@ from ..gains import Gains
 from ..io.lock import write_atomic
 from ..metrics import METRICS, episode_metrics
 from ..scenarios import FamilyParams, make_scenarios
+from .estimators import episode_gradient
 from .objective import TERMS, Objective, surrogate_loss, surrogate_terms
 from .spec import TuneSpec, split_count
 
@@ -199,11 +200,12 @@ def episode_loss(theta: dict[str, Array], scenario: Scenario, spec: TuneSpec) ->
     return surrogate_loss(terms, spec.objective), terms
 
 
-def batch_gradient(theta: dict[str, Array], batch: Scenario, spec: TuneSpec
+def batch_gradient(theta: dict[str, Array], batch: Scenario, spec: TuneSpec, key: Array | None = None
                    ) -> tuple[dict[str, Array], dict[str, Array]]:
     r"""The update direction of one batch (leading axis B on every leaf) and its logs.
 
-    With per-episode gradients ``∇_b`` the direction is
+    With per-episode gradients ``∇_b`` (:func:`~jaxapf.tune.estimators.episode_gradient` by
+    ``train.estimator``; ``key`` draws the perturbations of the perturbed estimators) the direction is
 
     .. math:: d = \frac1B \sum_{b:\ \lVert\nabla_b\rVert < \infty}
               \nabla_b \min\big(1, c_e / \lVert\nabla_b\rVert\big)
@@ -216,8 +218,10 @@ def batch_gradient(theta: dict[str, Array], batch: Scenario, spec: TuneSpec
     ``grad_norm`` = ``|d|`` (what the global clip then sees), the median and the largest
     per-episode norm, and ``clipped`` = fraction of episodes scaled down or dropped (non-finite).
     """
-    value_and_grad = jax.value_and_grad(partial(episode_loss, spec=spec), has_aux=True)
-    (loss, terms), grads = jax.vmap(value_and_grad, in_axes=(None, 0))(theta, batch)
+    size = batch.start.shape[0]
+    keys = jax.random.split(jax.random.key(0) if key is None else key, size)
+    estimate = partial(episode_gradient, partial(episode_loss, spec=spec), spec=spec)
+    loss, terms, grads = jax.vmap(estimate, in_axes=(None, 0, 0))(theta, batch, keys)
     norms = jnp.sqrt(sum(g * g for g in grads.values()))
     finite = jnp.isfinite(norms)
     scale = jnp.where(finite, jnp.minimum(1.0, spec.train.episode_clip / jnp.where(finite, norms, 1.0)), 0.0)
@@ -229,9 +233,11 @@ def batch_gradient(theta: dict[str, Array], batch: Scenario, spec: TuneSpec
 
 
 @partial(jax.jit, static_argnames="spec", compiler_options=XLA_OPTIONS)
-def _train_step(theta: dict[str, Array], opt_state: Any, batch: Scenario, spec: TuneSpec):
-    """One optimiser step (clipping by global norm, then the optimiser of the spec)."""
-    direction, logs = batch_gradient(theta, batch, spec)
+def _train_step(theta: dict[str, Array], opt_state: Any, batch: Scenario, step: Array, spec: TuneSpec):
+    """One optimiser step (clipping by global norm, then the optimiser of the spec); ``step`` keys the
+    perturbations of the perturbed gradient estimators (``(train.seed, step)``)."""
+    key = jax.random.fold_in(jax.random.key(spec.train.seed), step)
+    direction, logs = batch_gradient(theta, batch, spec, key)
     updates, opt_state = spec.optimizer().update(direction, opt_state, theta)
     return optax.apply_updates(theta, updates), opt_state, logs
 
@@ -351,7 +357,7 @@ class Tuner:
         while state.step < spec.train.steps and not state.stopped:
             batch = jax.tree_util.tree_map(lambda x: x[state.step], train_fields)
             lr = float(self.schedule(state.step))
-            theta, opt_state, logs = _train_step(state.theta, state.opt_state, batch, spec)
+            theta, opt_state, logs = _train_step(state.theta, state.opt_state, batch, state.step, spec)
             logs = {k: float(v) for k, v in jax.device_get(logs).items()}
             if not math.isfinite(logs["loss"]):
                 bar.close()

@@ -402,3 +402,20 @@ def test_an_interrupted_black_box_tuner_resumes_to_the_uninterrupted_result(tune
     monkeypatch.setattr(Tuner, "report", report)
     resumed = SEARCHES[tuner](Tuner(spec), 64, tmp_path / "part", spec.digest())
     assert resumed["gains"].floats() == whole["gains"].floats() and resumed["episodes"] == whole["episodes"]
+
+
+@pytest.mark.parametrize("estimator", ["smoothed", "zeroth", "blend"])
+def test_training_with_a_perturbed_estimator_runs_counts_its_rollouts_and_is_deterministic(estimator, tmp_path):
+    """Each perturbed estimator trains MICRO to a finite state, its budget counts 2·samples rollouts per
+    training episode, and the same spec twice gives the same state (the perturbations are keyed by
+    seed and step)."""
+    from jaxapf.tune.proof import tuning_budget
+
+    spec = parse_tune_spec(MICRO | {"train": MICRO["train"] | {"estimator": estimator, "samples": 2}})
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    state = Tuner(spec).train(tmp_path / "a", quiet=True)
+    assert state.step == 6 and all(math.isfinite(float(v)) for v in state.theta.values())
+    assert tuning_budget(spec, state)["training_episodes"] == 6 * 2 * 4
+    again = Tuner(spec).train(tmp_path / "b", quiet=True)
+    _same_state(state, again)
