@@ -116,7 +116,7 @@ def main() -> None:
     lines = [f"# Study 14: bias and spread of the gradient estimators ({len(family)} closed-loop episodes)", "",
              "`python analysis/gradient_estimators.py`", "",
              "Protocol: " + " ".join(__doc__.split("\n\n")[1].split()), "",
-             f"Outcomes at the start gains: " + ", ".join(f"{k} {v}" for k, v in facts["outcomes"].items())
+             "Outcomes at the start gains: " + ", ".join(f"{k} {v}" for k, v in facts["outcomes"].items())
              + f". The reference's standard error is {100 * facts['reference_relative_se_median']:.1f} % of its norm "
              "(median over the episodes).", "",
              "## Median over the episodes, relative to the reference's norm", "",
