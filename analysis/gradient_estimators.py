@@ -63,7 +63,7 @@ def draws(spec, estimator: str, samples: int, theta, scenarios, count: int, seed
     out = []
     n = scenarios.start.shape[0]
     for e in range(n):
-        scenario = jax.tree_util.tree_map(lambda x: x[e], scenarios)
+        scenario = jax.tree_util.tree_map(lambda x, e=e: x[e], scenarios)
         keys = jax.random.split(jax.random.fold_in(jax.random.key(seed), e), count)
         out.append(np.concatenate([np.asarray(block(scenario, k)) for k in np.array_split(keys, max(count // 50, 1))]))
     return np.stack(out)
