@@ -48,9 +48,9 @@ if TYPE_CHECKING:
 
 __all__ = ["T_DETECT", "T_ESCAPE", "D_ESCAPE", "EscapeState", "StallEscape"]
 
-T_DETECT = GainSpec("t_detect", 2.0, low=0.0, low_open=True, unit="s", tunable=False,
+T_DETECT = GainSpec("t_detect", 2.0, low=0.0, low_open=True, unit="s",
                     doc="stall escape: seconds of low speed far from the goal before an escape starts")
-T_ESCAPE = GainSpec("t_escape", 3.0, low=0.0, low_open=True, unit="s", tunable=False,
+T_ESCAPE = GainSpec("t_escape", 3.0, low=0.0, low_open=True, unit="s",
                     doc="stall escape: seconds the virtual goal replaces the goal")
 D_ESCAPE = GainSpec("d_escape", 4.0, low=0.0, low_open=True, unit="m",
                     doc="stall escape: distance of the virtual goal to the side of the UAV")
