@@ -124,8 +124,6 @@ def summarise(df: pd.DataFrame) -> pd.DataFrame:
     smallest clearance, the median final distance, the infeasible CBF steps, and the paired change in
     success against the same selection in the gusty wind without an estimator, with the verdict of
     :func:`jaxapf.stats.verdicts` over every such comparison of the study at once."""
-    from jaxapf.stats import verdicts
-
     df = pd.concat([df, df.assign(family="all")], ignore_index=True)
     base = df[df["arm"] == ARMS[0][0]].set_index(["method", "seed", "family", "field"]).sort_index()["success"]
     out = []
@@ -137,12 +135,7 @@ def summarise(df: pd.DataFrame) -> pd.DataFrame:
             then = base.loc[(method, seed, family)].loc[g["field"]].to_numpy(bool)
             row |= study.paired_success(g["success"].to_numpy(bool), then, MARGIN)
         out.append(row)
-    table = pd.DataFrame(out)
-    tested = table["p"].notna()
-    _, _, marks = verdicts(table.loc[tested, "change_lo"], table.loc[tested, "change_hi"], table.loc[tested, "p"],
-                           table.loc[tested, "p_equivalent"], MARGIN, True)
-    table.loc[tested, "verdict"] = marks
-    return table
+    return study.mark_verdicts(out, MARGIN)
 
 
 def cell(rows: pd.DataFrame, key: str, scale: float = 100.0, digits: int = 1) -> str:

@@ -286,6 +286,22 @@ def paired_success(now, then, margin: float) -> dict[str, float]:
             "p_equivalent": equivalence_test(now, then, margin, kind="rate").p}
 
 
+def mark_verdicts(rows: list[dict], margin: float):
+    """The rows (dicts, those with a paired comparison carrying :func:`paired_success`'s keys) as a
+    table with a ``verdict`` column: :func:`jaxapf.stats.verdicts` over every comparison at once (Holm),
+    success higher being better."""
+    import pandas as pd
+
+    from jaxapf.stats import verdicts
+
+    table = pd.DataFrame(rows)
+    tested = table["p"].notna()
+    _, _, marks = verdicts(table.loc[tested, "change_lo"], table.loc[tested, "change_hi"], table.loc[tested, "p"],
+                           table.loc[tested, "p_equivalent"], margin, True)
+    table.loc[tested, "verdict"] = marks
+    return table
+
+
 def write_readme(out: pathlib.Path, title: str, command: str, parquet: pathlib.Path, sections: list[str],
                  figures: list[tuple[str, str]]) -> pathlib.Path:
     """``out/README.md``: the question's title, how it was produced, the findings and the figures

@@ -92,8 +92,6 @@ def summarise(episodes: pd.DataFrame, cost: pd.DataFrame) -> pd.DataFrame:
     """Per (dimension, mix, seed, tuner, held-out kind, and pooled): success with Wilson intervals,
     the paired change against the gradient tuner of the same run, verdicts over the whole study, and
     the cost per point of success over the defaults."""
-    from jaxapf.stats import verdicts
-
     both = pd.concat([episodes, episodes.assign(held_out="all")], ignore_index=True)
     rows = []
     for (dim, mix, seed, held), g in both.groupby(["dim", "mix", "seed", "held_out"], sort=False):
@@ -114,12 +112,7 @@ def summarise(episodes: pd.DataFrame, cost: pd.DataFrame) -> pd.DataFrame:
                 then = base.loc[list(zip(t["family"], t["field"]))].to_numpy(bool)
                 row |= study.paired_success(t["success"].to_numpy(bool), then, MARGIN)
             rows.append(row)
-    table = pd.DataFrame(rows)
-    tested = table["p"].notna()
-    _, _, marks = verdicts(table.loc[tested, "change_lo"], table.loc[tested, "change_hi"], table.loc[tested, "p"],
-                           table.loc[tested, "p_equivalent"], MARGIN, True)
-    table.loc[tested, "verdict"] = marks
-    return table
+    return study.mark_verdicts(rows, MARGIN)
 
 
 MARK = {"better": "↑", "worse": "↓", "equivalent": "=", "inconclusive": "·"}
