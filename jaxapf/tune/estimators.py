@@ -24,26 +24,25 @@ counts (:func:`rollouts`).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Callable
+from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
 from jax import Array
 
-if TYPE_CHECKING:
-    from ..datatypes import Scenario
-    from .spec import TuneSpec
+from ..datatypes import Scenario
 
 __all__ = ["ESTIMATORS", "rollouts", "episode_gradient"]
 
 #: The values of ``train.estimator``.
 ESTIMATORS: tuple[str, ...] = ("pathwise", "smoothed", "zeroth", "blend")
 
-Loss = Callable[[dict[str, Array], "Scenario"], tuple[Array, dict[str, Array]]]
+Loss = Callable[[dict[str, Array], Scenario], tuple[Array, dict[str, Array]]]
 
 
-def rollouts(spec: "TuneSpec") -> int:
-    """Rollouts one training episode costs: 1 for ``pathwise``, else ``2 · train.samples``."""
+def rollouts(spec: Any) -> int:
+    """Rollouts one training episode of the :class:`~jaxapf.tune.spec.TuneSpec` ``spec`` costs: 1 for
+    ``pathwise``, else ``2 · train.samples``."""
     return 1 if spec.train.estimator == "pathwise" else 2 * spec.train.samples
 
 
@@ -51,9 +50,10 @@ def _flat(tree: dict[str, Array], names: tuple[str, ...]) -> Array:
     return jnp.stack([tree[n] for n in names], axis=-1)
 
 
-def episode_gradient(loss: Loss, theta: dict[str, Array], scenario: "Scenario", key: Array, spec: "TuneSpec"
+def episode_gradient(loss: Loss, theta: dict[str, Array], scenario: Scenario, key: Array, spec: Any
                      ) -> tuple[Array, dict[str, Array], dict[str, Array]]:
-    """``(loss, terms, gradient)`` of one episode by ``train.estimator`` (module docstring); for the
+    """``(loss, terms, gradient)`` of one episode by ``spec.train.estimator`` (a
+    :class:`~jaxapf.tune.spec.TuneSpec`; module docstring); for the
     perturbed estimators the loss and terms are the means over the ``K`` perturbed rollouts."""
     t = spec.train
     if t.estimator == "pathwise":
