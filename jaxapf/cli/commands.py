@@ -265,6 +265,7 @@ def _simulate(args: argparse.Namespace) -> int:
 
         jax.config.update("jax_enable_x64", True)
     from ..config import MPCConfig, SimConfig
+    from ..control import scales_set
     from ..io.lock import check_writable
     from ..scenarios import family_params
     from ..simulate import format_metrics_table, simulate_runs, write_outputs
@@ -276,8 +277,9 @@ def _simulate(args: argparse.Namespace) -> int:
     check_writable(args.out)
     t_max = args.t_max if args.t_max is not None else family_params(args.family).t_max
     components = {c["key"]: getattr(args, c["key"]) for c in _catalog()["components"] if c["key"] != "method"}
+    scaled = scales_set(gains.floats())  # the MPC's weights follow the gains only where a scale is set
     sim = SimConfig.from_flat(method=args.methods[0], **components, convention=args.convention, dt=args.dt,
-                              t_max=t_max)
+                              t_max=t_max, mpc_weights="gains" if scaled else "static")
     mpc = MPCConfig(horizon=args.horizon, iters=args.iters)
     start = time.perf_counter()
     field, runs, table = simulate_runs(args.family, args.seed, args.field, args.methods, gains, sim, mpc)

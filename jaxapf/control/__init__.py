@@ -14,6 +14,7 @@ from .mpc import (
                   condensed_qp,
                   fista,
                   prediction_matrices,
+                  scales_set,
                   shift_warm_start,
                   solve_axes,
                   solve_box_qp,
@@ -22,5 +23,5 @@ from .mpc import (
 __all__ = ["SafetyFilter", "Passthrough", "FILTERS", "register_filter", "CBF", "braking_constraints",
            "cbf_coefficients", "cbf_constraints",
            "Estimator", "NoEstimator", "Observer", "Integral", "ESTIMATORS", "register_estimator",
-           "MPC_GAINS", "AxisProblem", "axis_problem", "solve_axes", "shift_warm_start", "condensed_qp",
+           "MPC_GAINS", "scales_set", "AxisProblem", "axis_problem", "solve_axes", "shift_warm_start", "condensed_qp",
            "condensed_hessian", "condensed_linear", "prediction_matrices", "augmented_weights", "fista", "solve_box_qp"]

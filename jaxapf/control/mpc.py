@@ -41,6 +41,7 @@ from ..world.double_integrator import discrete_matrices
 
 __all__ = [
     "MPC_GAINS",
+    "scales_set",
     "prediction_matrices",
     "augmented_weights",
     "condensed_hessian",
@@ -68,6 +69,14 @@ MPC_GAINS: tuple[GainSpec, ...] = declare_gains(
     GainSpec("mpc_speed", 1.0, low=0.0, symbol="s_ρ",
              doc=f"MPC: scale of the velocity-limit penalty v_penalty ({_SCALED})"),
 )
+
+
+def scales_set(values: Any) -> tuple[str, ...]:
+    """The :data:`MPC_GAINS` that ``values`` (gain name -> a value or a sequence of values) sets to
+    something other than 1: the scales that need ``sim.mpc_weights = "gains"`` (a scale of 1 leaves its
+    weight as it is, so a gains file that lists every gain at its default does not switch the mode)."""
+    return tuple(g.name for g in MPC_GAINS if g.name in values
+                 and np.any(np.asarray(values[g.name], np.float64) != 1.0))
 
 
 def prediction_matrices(a: Array, b: Array, horizon: int) -> tuple[Array, Array]:

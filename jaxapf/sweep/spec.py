@@ -52,7 +52,7 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 import numpy as np
 
 from ..config import MPC_KEYS, SIM_KEYS, STATIC_KEYS, MPCConfig, SimConfig
-from ..control import MPC_GAINS
+from ..control import MPC_GAINS, scales_set
 from ..engine.components import COMPONENTS
 from ..gains import GAINS, Gains, read_gains_file
 from ..io.plugins import check_plugins, load_plugins
@@ -178,13 +178,14 @@ def setting_values(keys: Sequence[str]) -> Callable[[str, Any], dict[str, Any]]:
     return read
 
 
-def sim_configs(values: Mapping[str, Any], named: Iterable[str] = (), where: str = "sim"
+def sim_configs(values: Mapping[str, Any], scaled: Iterable[str] = (), where: str = "sim"
                 ) -> tuple[SimConfig, MPCConfig]:
     """The :class:`SimConfig` and :class:`MPCConfig` of ``[sim]`` values (the rest at their defaults).
-    If ``named`` (the gains a spec sets or varies) holds an MPC weight scale, the MPC's weights come from
-    the gains (``mpc_weights = "gains"``); ``mpc_weights = "static"`` beside one is refused."""
+    If ``scaled`` (the MPC weight scales a spec sets to something other than 1, or varies:
+    :func:`~jaxapf.control.scales_set`) is not empty, the MPC's weights come from the gains
+    (``mpc_weights = "gains"``); ``mpc_weights = "static"`` beside one is refused."""
     sim = {k: v for k, v in values.items() if k in SIM_KEYS}
-    scales = sorted(set(named) & {g.name for g in MPC_GAINS})
+    scales = sorted(scaled)
     if scales:
         if sim.get("mpc_weights", "gains") != "gains":
             raise ConfigError(f"{where}.mpc_weights = {sim['mpc_weights']!r} compiles the MPC's weights in, but the "
@@ -389,12 +390,18 @@ class SweepSpec:
         return (set(self.gains) | {k for k, _ in self.grid} | {k for k, _ in self.random}
                 | {k for entry in self.explicit for k, _ in entry})
 
+    def scaled_weights(self) -> set[str]:
+        """The MPC weight scales some setting sets to something other than 1 (sampled ones always)."""
+        return (set(scales_set(self.gains)) | set(scales_set(dict(self.grid)))
+                | {k for k, _ in self.random if k in {g.name for g in MPC_GAINS}}
+                | {k for entry in self.explicit for k in scales_set(dict(entry))})
+
     def configs(self, static: Iterable[tuple[str, Any]], family: str) -> tuple[SimConfig, MPCConfig]:
         """:class:`SimConfig` and :class:`MPCConfig` of one setting's static part on ``family``
         (``t_max``: the spec's if named, else the family's)."""
         values = dict(static)
         values.setdefault("t_max", self.family_params(family).t_max)
-        return sim_configs(values, self.named_gains())
+        return sim_configs(values, self.scaled_weights())
 
 
 # --------------------------------------------------------------------------------------------

@@ -13,9 +13,10 @@ P, ``train.sigma`` = σ, in the reparametrised coordinates θ):
 - ``zeroth``: the zeroth-order estimate ``ĝ_0 = (1/P) Σ_p (J(θ+σε_p) - J(θ-σε_p)) ε_p / (2σ)``,
   forward rollouts only, unbiased for ``∇J_σ`` even where ``J`` jumps;
 - ``blend``: Suh et al.'s α-order estimate ``α ĝ_1 + (1-α) ĝ_0`` with ``α = v_0/(v_0 + v_1)`` from the
-  two estimates' sample variances ``v_1, v_0`` (the variance-minimising mix), and ``α = 0`` where
-  ``ĝ_1`` lies outside ``ĝ_0``'s 2-standard-error ball (about 95 %) (a pathwise gradient that is biased by a jump)
-  or is not finite.
+  variances of the two means over the ``P`` independent pairs (``v_1`` from the pairs' mean pathwise
+  gradients, ``v_0`` from their zeroth-order samples, ddof 1; ``P >= 2``): the variance-minimising
+  mix; and ``α = 0`` where ``ĝ_1`` lies outside ``ĝ_0``'s 95 % ball (``|ĝ_1 - ĝ_0|² > v_0 χ²_{n,0.95}/n``
+  for ``n`` gains: a pathwise gradient biased by a jump) or is not finite.
 
 The perturbations come from ``(train.seed, step, episode)``, so a run is reproducible and a resumed
 one exact. Each estimate costs ``K`` rollouts an episode (``pathwise``: 1), which the tuning budget
@@ -44,6 +45,14 @@ def rollouts(spec: Any) -> int:
     """Rollouts one training episode of the :class:`~jaxapf.tune.spec.TuneSpec` ``spec`` costs: 1 for
     ``pathwise``, else ``2 · train.samples``."""
     return 1 if spec.train.estimator == "pathwise" else 2 * spec.train.samples
+
+
+def _chi2_95(n: int) -> float:
+    """The 95 % quantile of χ² with ``n`` degrees of freedom: ``|ĝ_1 - ĝ_0|²`` against ``ĝ_0``'s
+    variance ``v_0`` spread over ``n`` gains (``v_0 χ²_n / n``, the 95 % ball of an isotropic ``ĝ_0``)."""
+    from scipy.stats import chi2
+
+    return float(chi2.ppf(0.95, n))
 
 
 def _flat(tree: dict[str, Array], names: tuple[str, ...]) -> Array:
@@ -80,11 +89,12 @@ def episode_gradient(loss: Loss, theta: dict[str, Array], scenario: Scenario, ke
         first = jnp.mean(jnp.where(finite, grads, 0.0), axis=0)
         if t.estimator == "smoothed":
             estimate = jnp.where(finite, first, jnp.nan)
-        else:
-            k, p = grads.shape[0], zo_samples.shape[0]
-            v1 = jnp.sum(jnp.var(jnp.where(finite, grads, 0.0), axis=0)) / k  # variance of the mean
-            v0 = jnp.sum(jnp.var(zo_samples, axis=0)) / p
-            near = jnp.sum((first - zeroth) ** 2) <= 4.0 * v0  # within ~95 % (2 standard errors)
+        else:  # the variances of the two means, from the P independent pairs (ddof 1)
+            p = zo_samples.shape[0]
+            pairs = 0.5 * sum(jnp.split(jnp.where(finite, grads, 0.0), 2))  # (P, n): (∇J(θ+σε) + ∇J(θ-σε))/2
+            v1 = jnp.sum(jnp.var(pairs, axis=0, ddof=1)) / p
+            v0 = jnp.sum(jnp.var(zo_samples, axis=0, ddof=1)) / p
+            near = jnp.sum((first - zeroth) ** 2) <= v0 * _chi2_95(len(names)) / len(names)
             alpha = jnp.where(finite & near, v0 / jnp.maximum(v0 + v1, jnp.finfo(v0.dtype).tiny), 0.0)
             estimate = alpha * first + (1.0 - alpha) * zeroth
     grad = {n: estimate[i] for i, n in enumerate(names)}

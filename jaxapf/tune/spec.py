@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import optax
 
 from ..config import MPC_KEYS, SIM_KEYS, MPCConfig, SimConfig
+from ..control import MPC_GAINS, scales_set
 from ..engine import gains_read
 from ..gains import GAINS, Gains, check_gain_name, gains_from_mapping
 from ..io.plugins import check_plugins, load_plugins
@@ -362,6 +363,9 @@ def parse_tune_spec(data: Mapping[str, Any], *, base: str | os.PathLike | None =
         raise ConfigError(f"train.steps × train.fields_per_step = {train.steps * train.fields_per_step:,} training "
                           f"fields; at most {MAX_HELD_FIELDS:,} are allowed (they are drawn up front): fewer "
                           "steps or fields per step")
+    if train.estimator == "blend" and train.samples < 2:
+        raise ConfigError(f"train.samples = {train.samples} must be at least 2 for train.estimator = 'blend' "
+                          "(its mix weighs the variances of the pairs)")
     if train.schedule == "warmup_cosine" and not 0 < train.warmup_steps < max(train.steps, 1):
         raise ConfigError(f"train.warmup_steps = {train.warmup_steps} must lie in 1..steps-1 for warmup_cosine")
     validation = FieldSetSpec(train.families, d["validation"]["fields"], d["validation"].get("seed", train.seed + 1))
@@ -374,7 +378,9 @@ def parse_tune_spec(data: Mapping[str, Any], *, base: str | os.PathLike | None =
         raise ConfigError(f"train.seed, validation.seed and test.seed must differ (got {seeds}): "
                           "validation and test fields are never trained on")
     init = d["init"]
-    sim, mpc = sim_configs(d["sim"], set(d["tune"].get("params", ())) | set(data.get("init", {})))
+    tuned = {g.name for g in MPC_GAINS} & set(d["tune"].get("params", ()))
+    varied = scales_set(init.floats()) + scales_set(dict(d["search"]["grid"]))
+    sim, mpc = sim_configs(d["sim"], tuned | set(varied))
     reparam = Reparam(d["tune"].get("params", read_gains(sim)), init, d["tune"]["upper"])
     reparam.theta(init)  # the start must be reachable
     grid = tuple((name, tuple(gains_from_mapping({name: v}, "search.grid", reparam.base)[name] for v in values))

@@ -569,3 +569,16 @@ def test_a_grid_over_an_mpc_weight_traces_the_weights(tmp_path):
     assert "mpc_pos" in rows.columns and sorted(rows["mpc_pos"].unique()) == [0.2, 5.0]
     by_setting = rows.groupby("mpc_pos")["final_distance"].mean()
     assert abs(by_setting[0.2] - by_setting[5.0]) > 1e-3
+
+
+def test_mpc_scales_of_one_leave_the_weights_compiled_in():
+    """A gains file that lists every gain at its default (what ``jaxapf tune`` writes) sets the MPC's
+    scales to 1: the weights stay static; a scale set to another value switches them to the gains."""
+    from jaxapf.control import scales_set
+
+    assert scales_set({"mpc_pos": 1.0, "k_rep": 3.0, "mpc_input": [1.0, 1.0]}) == ()
+    assert scales_set({"mpc_pos": [1.0, 2.0], "mpc_speed": 0.5}) == ("mpc_pos", "mpc_speed")
+    unit = _spec(**{"gains.mpc_pos": 1.0})
+    assert all(unit.configs(s.static, "trap")[0].planner.mpc_weights == "static" for s in unit.settings())
+    scaled = _spec(**{"gains.mpc_pos": 2.0})
+    assert all(scaled.configs(s.static, "trap")[0].planner.mpc_weights == "gains" for s in scaled.settings())

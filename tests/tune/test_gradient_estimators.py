@@ -6,6 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from scipy.stats import chi2
 
 from jaxapf.tune.estimators import episode_gradient, rollouts
 from jaxapf.tune.spec import parse_tune_spec
@@ -62,8 +63,8 @@ def test_the_estimators_are_unbiased_on_a_quadratic(estimator):
 
 def test_the_blend_is_the_alpha_order_estimate_of_its_samples():
     """The blend against an independent numpy computation from the same perturbations: the pathwise
-    gradients at ``θ ± σε`` (analytic on the quadratic), the zeroth-order samples, their variances of
-    the mean, ``α = v0/(v0 + v1)`` or 0 outside the 2-standard-error ball."""
+    gradients at ``θ ± σε`` (analytic on the quadratic), the zeroth-order samples, the variances of the
+    two means over the pairs (ddof 1), ``α = v0/(v0 + v1)`` or 0 outside the χ² 95 % ball."""
     with jax.enable_x64(True):
         spec = _spec("blend", samples=4, sigma=0.3)
         x = np.array([0.3, -0.2, 1.0, 0.5, -1.0, 0.1])
@@ -79,8 +80,9 @@ def test_the_blend_is_the_alpha_order_estimate_of_its_samples():
             grads = SCALE * points + np.eye(6)[0]
             zo = np.array([(value(x + 0.3 * e) - value(x - 0.3 * e)) / 0.6 * e for e in eps])
             first, zeroth = grads.mean(0), zo.mean(0)
-            v1, v0 = grads.var(0).sum() / 8, zo.var(0).sum() / 4
-            alpha = v0 / (v0 + v1) if np.sum((first - zeroth) ** 2) <= 4 * v0 else 0.0
+            pairs = 0.5 * (grads[:4] + grads[4:])
+            v1, v0 = pairs.var(0, ddof=1).sum() / 4, zo.var(0, ddof=1).sum() / 4
+            alpha = v0 / (v0 + v1) if np.sum((first - zeroth) ** 2) <= v0 * chi2.ppf(0.95, 6) / 6 else 0.0
             np.testing.assert_allclose(got, alpha * first + (1 - alpha) * zeroth, rtol=1e-10, atol=1e-12)
 
 
@@ -99,6 +101,13 @@ def test_zeroth_order_and_blend_see_a_jump_the_pathwise_gradient_misses():
         assert np.all(_estimates(_spec("smoothed", samples=16), _step, theta, 4) == 0)
         blend = _estimates(_spec("blend", samples=64), _step, theta, 500)
         assert abs(blend[:, 0].mean() - truth) <= 0.1 * truth
+
+
+def test_the_blend_needs_two_pairs():
+    from jaxapf.validation import ConfigError
+
+    with pytest.raises(ConfigError, match="train.samples = 1 must be at least 2 for train.estimator = 'blend'"):
+        _spec("blend", samples=1)
 
 
 def test_the_budget_counts_every_rollout():

@@ -419,3 +419,13 @@ def test_training_with_a_perturbed_estimator_runs_counts_its_rollouts_and_is_det
     assert tuning_budget(spec, state)["training_episodes"] == 6 * 2 * 4
     again = Tuner(spec).train(tmp_path / "b", quiet=True)
     _same_state(state, again)
+
+
+def test_a_tune_spec_traces_the_mpc_weights_it_tunes_or_scales():
+    """Tuning an MPC scale, starting one away from 1 or gridding over one traces the weights; listing
+    one at 1 does not."""
+    mode = lambda data: parse_tune_spec(MICRO | data).sim.planner.mpc_weights  # noqa: E731
+    assert mode({}) == "static" and mode({"init": {"mpc_pos": 1.0}}) == "static"
+    assert mode({"tune": {"params": ["k_rep", "mpc_pos"]}}) == "gains"
+    assert mode({"init": {"mpc_input": 2.0}}) == "gains"
+    assert mode({"search": MICRO["search"] | {"grid": {"mpc_vel": [0.5, 1.0]}}}) == "gains"
