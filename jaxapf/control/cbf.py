@@ -70,13 +70,15 @@ contact, and a sampled filter chatters there). ``h_b`` has relative degree one; 
 
 .. math:: r̂·a \ge δ - c - φ'(d)\, \dot d - α h_b .
 
-On the boundary ``h_b = 0`` the right side is ``δ + β - c`` (or ``δ + λ^2 d - c <= δ + 2β``), at most
-``a_max`` as ``κ <= 1/2`` and the box holds ``a_max`` in every direction; inside it is smaller: one
-obstacle never makes a step infeasible from the safe set, whatever its speed; several on opposite
-sides still can, and an obstacle first met with ``h_b < 0`` (too close, too fast) is outside any
-guarantee. Both are counted as above. The condition is continuous-time and the control is held for
-``dt``, so ``d`` is measured from ``R + a_max dt²/2``: the sampling buffer, the most a held
-acceleration moves the UAV off the continuous law's path within a step.
+(``φ`` is continuous but not smooth at ``d^*``, where its slope falls from ``λ`` to ``λ/2``: the
+smaller of two barriers.) On the boundary ``h_b = 0`` the right side is ``δ + β - c`` (or
+``δ + λ^2 d - c <= δ + 2β``), at most ``a_max`` as ``κ <= 1/2``, ``δ < a_max`` and the box holds
+``a_max`` in every direction; inside it is smaller: one obstacle never makes a step infeasible from
+the safe set, whatever its speed; several on opposite sides still can (those steps are counted as
+above), and an obstacle first met with ``h_b < 0`` (too close for its closing speed) is outside any
+guarantee (not counted: study 13 checks its episodes' starts itself). The condition is
+continuous-time and the control is held for ``dt``, so ``d`` is measured from ``R + a_max dt²/2``:
+a sampling buffer, the distance an acceleration of ``a_max`` covers from rest in one step.
 """
 
 from __future__ import annotations
@@ -169,6 +171,10 @@ class CBF(SafetyFilter):
 
     barrier: Literal["exponential", "braking"] = "exponential"
     robust: bool = False
+
+    def __post_init__(self) -> None:
+        if self.barrier == "braking" and not self.robust:
+            raise ValueError("the braking CBF holds its margin δ by construction: CBF(barrier='braking', robust=True)")
     metrics = (Metric("cbf_infeasible_steps", lambda ctx: ctx.extra("cbf_infeasible"), dtype="int32", kind="count",
                       higher_is_better=False, per_step=True,
                       doc="control steps at which the CBF filter's constraints and the acceleration box could not "

@@ -42,8 +42,6 @@ from .spec import TuneSpec, split_count
 from .train import TrainState, TuneError, Tuner
 
 __all__ = [
-    "SETTINGS",
-    "settings",
     "candidates",
     "tuning_budget",
     "random_settings",
@@ -54,16 +52,6 @@ __all__ = [
     "plot_training",
     "plot_test",
 ]
-
-#: The settings every test compares, first in its table (``default`` is the reference of the tests); the
-#: black-box tuners of ``search.tuners`` follow (:func:`settings`).
-SETTINGS: tuple[str, ...] = ("tuned", "default")
-
-
-def settings(spec: TuneSpec) -> tuple[str, ...]:
-    """The compared settings in table order: :data:`SETTINGS`, then the spec's black-box tuners."""
-    return SETTINGS + spec.search.tuners
-
 
 def tuning_budget(spec: TuneSpec, state: TrainState) -> dict[str, int]:
     """Episode rollouts the tuning used: training (steps × fields_per_step × the estimator's rollouts per
@@ -97,15 +85,19 @@ def random_settings(spec: TuneSpec) -> list[Gains]:
 
 def search_ranges(spec: TuneSpec) -> dict[str, tuple[float, float, bool]]:
     """``{gain: (low, high, log)}``: the range :func:`random_settings` draws each tuned gain from
-    (log-uniform around its start, or uniform over a bounded tuning range), for the tuners that take
-    a search space (TPE)."""
+    (log-uniform around its start, or uniform over a bounded tuning range; uniform from its lower end
+    up ``random_range`` above it for a start at 0), for the tuners that take a search space (TPE)."""
     b, rp = spec.search, spec.reparam
     out = {}
     for name in rp.names:
         low, high = rp.bounds(name)
         start = float(rp.base[name])
-        out[name] = (float(low), float(high), False) if high is not None else (
-            start / b.random_range, start * b.random_range, True)
+        if high is not None:
+            out[name] = (float(low), float(high), False)
+        elif start > 0:
+            out[name] = (start / b.random_range, start * b.random_range, True)
+        else:  # a start at 0 has no log range around it: uniform up to random_range
+            out[name] = (float(low), float(low) + b.random_range, False)
     return out
 
 

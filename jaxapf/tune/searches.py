@@ -60,7 +60,7 @@ def _mean_loss(report: dict[str, np.ndarray]) -> np.ndarray:
 
 
 class _Checkpoint:
-    """A search's state in ``out/search-NAME.pkl``, belonging to one spec digest."""
+    """A search's state in ``out/search-NAME.pkl``, belonging to one spec digest and budget."""
 
     def __init__(self, out: pathlib.Path, name: str, digest: str) -> None:
         self.path, self.digest = out / f"search-{name}.pkl", digest
@@ -89,7 +89,7 @@ def cmaes_search(tuner: Tuner, budget: int, out: pathlib.Path, digest: str) -> d
     spec, rp = tuner.spec, tuner.spec.reparam
     m = _fields_per_setting(tuner)
     start_theta = rp.theta(spec.init)
-    checkpoint = _Checkpoint(out, "cmaes", digest)
+    checkpoint = _Checkpoint(out, "cmaes", f"{digest}/budget={budget}")
     state = checkpoint.load() or {
         "cma": CMA(mean=np.array([float(start_theta[n]) for n in rp.names]), sigma=spec.search.cmaes_sigma,
                    seed=spec.search.random_seed, population_size=spec.search.popsize or None),
@@ -112,7 +112,7 @@ def cmaes_search(tuner: Tuner, budget: int, out: pathlib.Path, digest: str) -> d
         checkpoint.save(state)
     return {"gains": to_gains(cma.mean), "settings": generations * cma.population_size, "fields_per_setting": m,
             "episodes": generations * cma.population_size * m, "generations": generations,
-            "population": cma.population_size, "selection_loss": state["last"], "seconds": state["seconds"]}
+            "population": cma.population_size, "last_generation_best_loss": state["last"], "seconds": state["seconds"]}
 
 
 def tpe_search(tuner: Tuner, budget: int, out: pathlib.Path, digest: str) -> dict[str, Any]:
@@ -127,7 +127,7 @@ def tpe_search(tuner: Tuner, budget: int, out: pathlib.Path, digest: str) -> dic
         raise TuneError(f"search: TPE needs {batch} trials x {m} fields = {batch * m} episodes a batch, more than "
                         f"the tuning budget of {budget}; lower search.tpe_batch or search.fields_per_setting")
     space = {name: FloatDistribution(low, high, log=log) for name, (low, high, log) in search_ranges(spec).items()}
-    checkpoint = _Checkpoint(out, "tpe", digest)
+    checkpoint = _Checkpoint(out, "tpe", f"{digest}/budget={budget}")
     state = checkpoint.load() or {"trials": [], "seconds": 0.0}
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     study = optuna.create_study(direction="minimize")
