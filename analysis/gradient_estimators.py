@@ -135,9 +135,7 @@ def main() -> None:
     for r in first.itertuples():
         lines.append(f"| {r.episode} | {r.family} | {r.outcome} | {r.reference_norm:.3g} | {r.reference_se:.2g} | "
                      f"{r.pathwise_norm:.3g} |")
-    (out / "README.md").write_text("\n".join(lines) + "\n")
-    (out / "facts.json").write_text(json.dumps(facts, indent=1) + "\n")
-    print(json.dumps(facts, indent=1))
+    print(json.dumps(study.write_results(out, lines, facts), indent=1))
 
 
 if __name__ == "__main__":

@@ -306,9 +306,7 @@ def write(summary: pd.DataFrame, tuned: pd.DataFrame, held: dict, out) -> dict:
         lines.append(f"| {r['method'].iloc[0]} | {r['arm'].iloc[0]} | {r['family'].iloc[0]} | {cell(r, 'collision')} | "
                      f"{cell(r, 'min_clearance', 1.0, 2)} | {cell(r, 'final_distance', 1.0, 2)} | "
                      f"{' / '.join(str(int(v)) for v in r.sort_values('seed')['infeasible_steps'])} |")
-    (out / "README.md").write_text("\n".join(lines) + "\n")
-    (out / "facts.json").write_text(json.dumps(facts, indent=1) + "\n")
-    return facts
+    return study.write_results(out, lines, facts)
 
 
 def main() -> None:

@@ -302,6 +302,16 @@ def mark_verdicts(rows: list[dict], margin: float):
     return table
 
 
+def write_results(out: pathlib.Path, lines: list[str], facts: dict) -> dict:
+    """A study's conclusion page (``README.md``, the ``lines``) and its numbers (``facts.json``) in ``out``;
+    returns the facts."""
+    import json
+
+    (out / "README.md").write_text("\n".join(lines) + "\n")
+    (out / "facts.json").write_text(json.dumps(facts, indent=1) + "\n")
+    return facts
+
+
 def write_readme(out: pathlib.Path, title: str, command: str, parquet: pathlib.Path, sections: list[str],
                  figures: list[tuple[str, str]]) -> pathlib.Path:
     """``out/README.md``: the question's title, how it was produced, the findings and the figures

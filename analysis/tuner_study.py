@@ -235,9 +235,7 @@ def write(table: pd.DataFrame, cost: pd.DataFrame, out) -> dict:
     for (dim, tuner), _ in mean.set_index(["dim", "tuner"]).iterrows():
         lines.append(f"| {dim} | {tuner} | {100 * split[(dim, tuner, 'fields')]:.1f} | "
                      f"{100 * split[(dim, tuner, 'families')]:.1f} |")
-    (out / "README.md").write_text("\n".join(lines) + "\n")
-    (out / "facts.json").write_text(json.dumps(facts, indent=1) + "\n")
-    return facts
+    return study.write_results(out, lines, facts)
 
 
 def main() -> None:
