@@ -73,7 +73,8 @@ def run_all() -> pd.DataFrame:
                 data = spec_data(dim, mix, seed)
                 out = study.ROOT / "runs" / "tuner-study" / data["name"]
                 out.mkdir(parents=True, exist_ok=True)
-                summary = run_tune_spec(parse_tune_spec(data), json.dumps(data), out, quiet=True)
+                spec = parse_tune_spec(data)
+                summary = run_tune_spec(spec, json.dumps(data), out, quiet=True)
                 ep = pd.read_parquet(out / "test_episodes.parquet")
                 frames.append(ep.assign(dim=dim, mix=mix, seed=seed,
                                         held_out=np.where(ep["family"].isin(MIXES[mix]), "fields", "families")))
@@ -83,7 +84,7 @@ def run_all() -> pd.DataFrame:
                            "seconds": budgets["tuning" if name == "tuned" else name]["seconds"],
                            "still_improving": name == "tuned" and training["best_step"] == training["steps_run"]}
                           for name in summary["settings"] if name != "default"]
-                wall, spent = equal_time(parse_tune_spec(data), summary, out)
+                wall, spent = equal_time(spec, summary, out)
                 frames.append(wall.assign(dim=dim, mix=mix, seed=seed,
                                           held_out=np.where(wall["family"].isin(MIXES[mix]), "fields", "families")))
                 costs += [{"dim": dim, "mix": mix, "seed": seed, "tuner": name, **r, "still_improving": False}

@@ -71,12 +71,14 @@ MPC_GAINS: tuple[GainSpec, ...] = declare_gains(
 )
 
 
-def scales_set(values: Any) -> tuple[str, ...]:
+def scales_set(values: Any, varied: Any = ()) -> tuple[str, ...]:
     """The :data:`MPC_GAINS` that ``values`` (gain name -> a value or a sequence of values) sets to
-    something other than 1: the scales that need ``sim.mpc_weights = "gains"`` (a scale of 1 leaves its
-    weight as it is, so a gains file that lists every gain at its default does not switch the mode)."""
-    return tuple(g.name for g in MPC_GAINS if g.name in values
-                 and np.any(np.asarray(values[g.name], np.float64) != 1.0))
+    something other than 1, or that ``varied`` names (sampled or tuned: any value): the scales that need
+    ``sim.mpc_weights = "gains"`` (a scale of 1 leaves its weight as it is, so a gains file that lists
+    every gain at its default does not switch the mode)."""
+    varied = set(varied)
+    return tuple(g.name for g in MPC_GAINS if g.name in varied or (
+        g.name in values and np.any(np.asarray(values[g.name], np.float64) != 1.0)))
 
 
 def prediction_matrices(a: Array, b: Array, horizon: int) -> tuple[Array, Array]:

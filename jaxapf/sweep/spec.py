@@ -52,7 +52,7 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 import numpy as np
 
 from ..config import MPC_KEYS, SIM_KEYS, STATIC_KEYS, MPCConfig, SimConfig
-from ..control import MPC_GAINS, scales_set
+from ..control import scales_set
 from ..engine.components import COMPONENTS
 from ..gains import GAINS, Gains, read_gains_file
 from ..io.plugins import check_plugins, load_plugins
@@ -392,8 +392,7 @@ class SweepSpec:
 
     def scaled_weights(self) -> set[str]:
         """The MPC weight scales some setting sets to something other than 1 (sampled ones always)."""
-        return (set(scales_set(self.gains)) | set(scales_set(dict(self.grid)))
-                | {k for k, _ in self.random if k in {g.name for g in MPC_GAINS}}
+        return (set(scales_set(self.gains, varied=(k for k, _ in self.random))) | set(scales_set(dict(self.grid)))
                 | {k for entry in self.explicit for k in scales_set(dict(entry))})
 
     def configs(self, static: Iterable[tuple[str, Any]], family: str) -> tuple[SimConfig, MPCConfig]:

@@ -86,12 +86,13 @@ def episode_gradient(loss: Loss, theta: dict[str, Array], scenario: Scenario, ke
         estimate = zeroth
     else:
         finite = jnp.all(jnp.isfinite(grads))
-        first = jnp.mean(jnp.where(finite, grads, 0.0), axis=0)
+        grads = jnp.where(finite, grads, 0.0)  # a non-finite sample voids the first-order estimate (below)
+        first = jnp.mean(grads, axis=0)
         if t.estimator == "smoothed":
             estimate = jnp.where(finite, first, jnp.nan)
         else:  # the variances of the two means, from the P independent pairs (ddof 1)
             p = zo_samples.shape[0]
-            pairs = 0.5 * sum(jnp.split(jnp.where(finite, grads, 0.0), 2))  # (P, n): (∇J(θ+σε) + ∇J(θ-σε))/2
+            pairs = 0.5 * sum(jnp.split(grads, 2))  # (P, n): (∇J(θ+σε) + ∇J(θ-σε))/2
             v1 = jnp.sum(jnp.var(pairs, axis=0, ddof=1)) / p
             v0 = jnp.sum(jnp.var(zo_samples, axis=0, ddof=1)) / p
             near = jnp.sum((first - zeroth) ** 2) <= v0 * _chi2_95(len(names)) / len(names)

@@ -36,10 +36,9 @@ import numpy as np
 
 from ..datatypes import Scenario
 from ..io.lock import write_atomic
-from ..scenarios import make_scenarios
 from .proof import random_settings, search_ranges, select_best
 from .spec import split_count
-from .train import TuneError, Tuner, _concat
+from .train import TuneError, Tuner
 
 __all__ = ["SEARCHES", "cmaes_search", "tpe_search", "round_fields"]
 
@@ -48,9 +47,7 @@ def round_fields(tuner: Tuner, index: int, fields: int) -> Scenario:
     """Round ``index``'s training fields: ``c_f`` per family (``fields`` split over the training
     families), indices ``index·c_f … (index+1)·c_f - 1`` of seed ``train.seed``."""
     spec = tuner.spec
-    counts = split_count(fields, len(spec.train.families))
-    return _concat([make_scenarios(spec.train.seed, spec.family(f), np.arange(index * c, (index + 1) * c))
-                    for f, c in zip(spec.train.families, counts) if c > 0])
+    return tuner.fields(spec.train.seed, split_count(fields, len(spec.train.families)), block=index)
 
 
 def _mean_loss(report: dict[str, np.ndarray]) -> np.ndarray:

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import optax
 
 from ..config import MPC_KEYS, SIM_KEYS, MPCConfig, SimConfig
-from ..control import MPC_GAINS, scales_set
+from ..control import scales_set
 from ..engine import gains_read
 from ..gains import GAINS, Gains, check_gain_name, gains_from_mapping
 from ..io.plugins import check_plugins, load_plugins
@@ -378,9 +378,8 @@ def parse_tune_spec(data: Mapping[str, Any], *, base: str | os.PathLike | None =
         raise ConfigError(f"train.seed, validation.seed and test.seed must differ (got {seeds}): "
                           "validation and test fields are never trained on")
     init = d["init"]
-    tuned = {g.name for g in MPC_GAINS} & set(d["tune"].get("params", ()))
-    varied = scales_set(init.floats()) + scales_set(dict(d["search"]["grid"]))
-    sim, mpc = sim_configs(d["sim"], tuned | set(varied))
+    scaled = scales_set(init.floats(), varied=d["tune"].get("params", ())) + scales_set(dict(d["search"]["grid"]))
+    sim, mpc = sim_configs(d["sim"], scaled)
     reparam = Reparam(d["tune"].get("params", read_gains(sim)), init, d["tune"]["upper"])
     reparam.theta(init)  # the start must be reachable
     grid = tuple((name, tuple(gains_from_mapping({name: v}, "search.grid", reparam.base)[name] for v in values))

@@ -102,10 +102,11 @@ def pad_obstacles(scenarios: Scenario, size: int) -> Scenario:
 FIELD_BLOCK = 64
 
 
-def family_fields(seed: int, params: FamilyParams, count: int) -> Scenario:
-    """Fields ``0 … count-1`` of ``seed`` (exactly ``make_scenarios(seed, params, count)``: a
+def family_fields(seed: int, params: FamilyParams, count: int, first: int = 0) -> Scenario:
+    """Fields ``first … first+count-1`` of ``seed`` (exactly ``make_scenarios(seed, params, indices)``: a
     field does not depend on its batch), generated in blocks of :data:`FIELD_BLOCK`."""
-    blocks = [make_scenarios(seed, params, np.arange(i, i + FIELD_BLOCK)) for i in range(0, count, FIELD_BLOCK)]
+    blocks = [make_scenarios(seed, params, np.arange(i, i + FIELD_BLOCK))
+              for i in range(first, first + count, FIELD_BLOCK)]
     return jax.tree_util.tree_map(lambda *x: jnp.concatenate(x)[:count], *blocks)
 
 
@@ -263,11 +264,13 @@ class Tuner:
 
     # --- fields --------------------------------------------------------------------------
 
-    def fields(self, seed: int, counts: Sequence[int], families: Sequence[str] | None = None) -> Scenario:
-        """Fields ``0 … count_f - 1`` of every family (default: the training families), padded to
-        a common obstacle count and concatenated."""
+    def fields(self, seed: int, counts: Sequence[int], families: Sequence[str] | None = None, block: int = 0
+               ) -> Scenario:
+        """Fields ``block·c_f … (block+1)·c_f - 1`` of every family ``f`` (default: the training families;
+        ``c_f`` = its count; block 0: the first ones), padded to a common obstacle count and concatenated."""
         families = families or self.spec.train.families
-        return _concat([family_fields(seed, self.spec.family(f), c) for f, c in zip(families, counts) if c > 0])
+        return _concat([family_fields(seed, self.spec.family(f), c, block * c)
+                        for f, c in zip(families, counts) if c > 0])
 
     def step_counts(self) -> tuple[int, ...]:
         """Training fields per family in every step."""
