@@ -22,8 +22,10 @@ field's key, the same field always flies the same episode, whatever the gains or
 seed, same numbers). Every quantity is a ``jnp.where`` of the state, so the planner jit-compiles,
 vmaps and differentiates (the switching times themselves carry no gradient).
 
-Registered planner: ``basic_escape`` = ``StallEscape(APF(Basic()))`` (gains ``t_detect``,
-``t_escape``, ``d_escape`` and the basic potential's).
+Registered planners: ``basic_escape`` = ``StallEscape(APF(Basic()))`` and
+``direction_velocity_escape`` = ``StallEscape(APF(DirectionVelocity()))`` (the paper's weight, eq. 19,
+with the escape: a variant, not the paper's method); gains ``t_detect``, ``t_escape``, ``d_escape``
+and the wrapped potential's.
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ from ..datatypes import episode_key
 from ..gains import GainSpec
 from .apf import APF
 from .base import Planner, register_planner
-from .weights import Basic
+from .weights import Basic, DirectionVelocity
 
 if TYPE_CHECKING:
     from ..config import SimConfig
@@ -121,3 +123,7 @@ register_planner("basic_escape", StallEscape(APF(Basic()), color="tab:olive", li
                                                          "s slow far from the goal, a virtual goal d_escape to the "
                                                          "side for t_escape s, the first side at random from "
                                                          "the field's key, then alternating"))
+register_planner("direction_velocity_escape",
+                 StallEscape(APF(DirectionVelocity()), color="tab:gray", linestyle="--",
+                             description="the paper's weight (eq. 19) with the stall escape of basic_escape: a "
+                                         "variant, so every gain of planner, MPC, filter and escape is tunable"))

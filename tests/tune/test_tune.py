@@ -83,9 +83,16 @@ STACK = ["gamma", "k", "k_rep", "d_s", "k_att", "eta", "cbf_p1", "cbf_p2", "mpc_
          "mpc_input", "mpc_speed"]
 
 
+ESCAPE = ["t_detect", "t_escape", "d_escape"]
+
+
 @pytest.mark.parametrize("stack", [{}, {"sim": {"filter": "cbf"}, "tune": {"params": STACK},
-                                      "init": {"eta": 2.0, "k_rep": 0.01, "cbf_p1": 0.2, "cbf_p2": 0.3}}],
-                         ids=["planner", "planner+cbf+mpc"])
+                                      "init": {"eta": 2.0, "k_rep": 0.01, "cbf_p1": 0.2, "cbf_p2": 0.3}},
+                                   {"sim": {"filter": "cbf", "method": "direction_velocity_escape"},
+                                    "tune": {"params": STACK + ESCAPE},
+                                    "init": {"eta": 2.0, "k_rep": 0.01, "cbf_p1": 0.2, "cbf_p2": 0.3,
+                                             "t_detect": 0.27, "t_escape": 0.53, "d_escape": 3.0}}],
+                         ids=["planner", "planner+cbf+mpc", "planner+cbf+mpc+escape"])
 def test_gradient_matches_central_differences_in_float64(stack):
     """Reverse mode through the scan over time (rematerialised, as in training), the APF reference
     flow, the unrolled FISTA and (second case: weak repulsion and slow CBF rates, so the filter acts) the
@@ -111,6 +118,10 @@ def test_gradient_matches_central_differences_in_float64(stack):
         if "tune" in stack:  # naming the MPC's scales traces its weights; each gain moves the loss (the CBF acts)
             assert spec.sim.planner.mpc_weights == "gains"
             assert all(abs(float(grad[n])) > 0 for n in STACK if n.startswith(("mpc_", "cbf_")))
+        if "t_detect" in theta:  # the UAV starts at rest, so an escape starts at 0.3 s: its distance moves the
+            # loss, its switching times carry no gradient (central differences agree: the loss is flat in them)
+            assert abs(float(grad["d_escape"])) > 0
+            assert float(grad["t_detect"]) == 0.0 and float(grad["t_escape"]) == 0.0
 
 
 @pytest.mark.filterwarnings("ignore::jaxapf.validation.BoundWarning")  # k > 1 is allowed, and warned about
