@@ -62,31 +62,11 @@ def tuning_budget(spec: TuneSpec, state: TrainState) -> dict[str, int]:
             "validation_episodes": validation, "episodes": train + validation}
 
 
-def random_settings(spec: TuneSpec) -> list[Gains]:
-    r"""``random_n`` settings: every tuned gain ``x`` log-uniform in ``[x_0/r, x_0 r]`` around its
-    start ``x_0`` (``r`` = ``random_range``), except one whose tuning range is bounded (e.g. ``k``
-    in ``[0, 1]``): uniform over it. Untuned gains stay at their start values. Deterministic in
-    ``random_seed``."""
-    b, rp = spec.search, spec.reparam
-    rng = np.random.default_rng(b.random_seed)
-    settings = []
-    for _ in range(b.random_n):
-        values = {}
-        for name in rp.names:
-            low, high = rp.bounds(name)
-            if high is not None:
-                values[name] = float(rng.uniform(low, high))
-            else:
-                start = float(rp.base[name])
-                values[name] = start * math.exp(rng.uniform(-math.log(b.random_range), math.log(b.random_range)))
-        settings.append(rp.base.replace(**values))
-    return settings
-
-
 def search_ranges(spec: TuneSpec) -> dict[str, tuple[float, float, bool]]:
-    """``{gain: (low, high, log)}``: the range :func:`random_settings` draws each tuned gain from
-    (log-uniform around its start, or uniform over a bounded tuning range; uniform from its lower end
-    up ``random_range`` above it for a start at 0), for the tuners that take a search space (TPE)."""
+    """``{gain: (low, high, log)}``, the range every black-box tuner searches a tuned gain over:
+    log-uniform in ``[x_0/r, x_0 r]`` around its start ``x_0`` (``r`` = ``search.random_range``);
+    uniform over its tuning range where that is bounded (e.g. ``k`` in ``[0, 1]``); uniform from its
+    lower end up ``r`` above it for a start at 0 (no log range around 0)."""
     b, rp = spec.search, spec.reparam
     out = {}
     for name in rp.names:
@@ -96,9 +76,24 @@ def search_ranges(spec: TuneSpec) -> dict[str, tuple[float, float, bool]]:
             out[name] = (float(low), float(high), False)
         elif start > 0:
             out[name] = (start / b.random_range, start * b.random_range, True)
-        else:  # a start at 0 has no log range around it: uniform up to random_range
+        else:
             out[name] = (float(low), float(low) + b.random_range, False)
     return out
+
+
+def random_settings(spec: TuneSpec) -> list[Gains]:
+    """``random_n`` settings drawn from :func:`search_ranges` (log-uniform draws uniform in the log);
+    untuned gains stay at their start values. Deterministic in ``random_seed``."""
+    ranges = search_ranges(spec)
+    rng = np.random.default_rng(spec.search.random_seed)
+    settings = []
+    for _ in range(spec.search.random_n):
+        values = {}
+        for name, (low, high, log) in ranges.items():
+            values[name] = (math.exp(rng.uniform(math.log(low), math.log(high))) if log
+                            else float(rng.uniform(low, high)))
+        settings.append(spec.reparam.base.replace(**values))
+    return settings
 
 
 def select_best(tuner: Tuner, settings: Sequence[Gains], budget: int, label: str) -> dict:
