@@ -44,6 +44,9 @@ class Obstacles:
       radius: (M,) radius ρ [m].
       cylinder: (M,) True for a vertical cylinder of infinite height, False for a sphere.
       valid: (M,) True for a real obstacle, False for a padded slot.
+      agent: (M,) True for another UAV running the same stack (a swarm's neighbour,
+        :mod:`jaxapf.datatypes.swarm`), which a reciprocal planner shares the avoidance with; ``None``
+        (no leaf) where no obstacle is one, as in every single-UAV field.
     """
 
     position: Array
@@ -51,6 +54,7 @@ class Obstacles:
     radius: Array
     cylinder: Array
     valid: Array
+    agent: Array | None = None
 
     @property
     def size(self) -> int:
@@ -71,7 +75,7 @@ class Obstacles:
         """The same obstacles with component-first vectors (see :class:`ObstacleColumns`)."""
         first = lambda a: jnp.moveaxis(a, -1, -2)  # noqa: E731  (..., M, 3) -> (..., 3, M)
         return ObstacleColumns(position=first(self.position), velocity=first(self.velocity),
-                               radius=self.radius, cylinder=self.cylinder, valid=self.valid)
+                               radius=self.radius, cylinder=self.cylinder, valid=self.valid, agent=self.agent)
 
 
 @jax.tree_util.register_dataclass
@@ -90,6 +94,7 @@ class ObstacleColumns:
     radius: Array
     cylinder: Array
     valid: Array
+    agent: Array | None = None
 
     def columns(self) -> "ObstacleColumns":
         """Already component-first: itself."""

@@ -8,7 +8,7 @@
 :mod:`.sight`             the line of sight, component by component
 :mod:`.vortex`            a vortex force term (:class:`Vortex`) and the ``vortex`` planner
 :mod:`.goal_distance`     Ge–Cui's goal-distance weight (:class:`GoalDistance`), planner ``ge_cui_bounded``
-:mod:`.escape`            stall escape toward a virtual goal (:class:`StallEscape`), ``basic_escape``, ``direction_velocity_escape``
+:mod:`.escape`            stall escape (:class:`StallEscape`), planners ``basic_escape``, ``direction_velocity_escape``
 :mod:`.velocity_obstacle` velocity obstacles, ORCA (:class:`VelocityObstacle`), planner ``velocity_obstacle``
 ========================  =================================================================
 """

@@ -20,7 +20,10 @@ and the combined radius :math:`R = ρ_o + r_{uav} + m` (gain ``vo_margin`` = m):
   :math:`n = -\sin α\,\hat s + \cos α\,e`. In the horizontal plane this is RVO2's two-dimensional
   construction; for spheres it is the same construction in the plane of ``s`` and ``w``.
 - The obstacle's **ORCA half-space** for a non-reactive obstacle is
-  :math:`\{v' : (v' - (v + u))\cdot n \ge 0\}`.
+  :math:`\{v' : (v' - (v + u))\cdot n \ge 0\}`; for another UAV of a swarm running the same
+  stack (an obstacle flagged ``agent``, :mod:`jaxapf.datatypes.swarm`) it is
+  :math:`\{v' : (v' - (v + u/2))\cdot n \ge 0\}`: each of the two takes half of the avoidance,
+  ORCA's reciprocity.
 
 The new velocity is the one nearest the preferred velocity that lies in every half-space and the
 speed ball,
@@ -112,6 +115,8 @@ def orca_half_spaces(x: Array, t: Array, obstacles: ObstacleColumns, gains: "Gai
     n_leg = -sin_a[:, None] * s_hat + cos_a[:, None] * e
     u = jnp.where(on_disc[:, None], u_disc, u_leg)
     n = jnp.where(on_disc[:, None], cut_hat, n_leg)
+    if obstacles.agent is not None:  # another UAV of the swarm takes its half (ORCA's reciprocity)
+        u = u * jnp.where(obstacles.agent, 0.5, 1.0)[:, None]
     bound = jnp.sum(n * (v + u), axis=-1)
     valid = obstacles.valid
     return jnp.where(valid[:, None], n, 0.0), jnp.where(valid, bound, -1.0)

@@ -1,0 +1,117 @@
+"""The swarm engine: every UAV flies the stack and sees the others as obstacles (jaxapf.engine.swarm)."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxapf.config import MPCConfig, SimConfig
+from jaxapf.datatypes import Obstacles, obstacles_at
+from jaxapf.datatypes.swarm import Swarm, agent_view, neighbours, with_neighbours
+from jaxapf.engine import rollout
+from jaxapf.engine.swarm import swarm_rollout
+from jaxapf.gains import Gains
+from jaxapf.scenarios import family_params, make_scenarios
+
+MPC = MPCConfig()
+
+
+def _swap(dtype=jnp.float32, lateral: float = 0.0, valid=(True, True)) -> Swarm:
+    """Two UAVs 10 m apart flying to each other's start (RVO2's two-agent circle)."""
+    n = len(valid)
+    start = np.array([[0.0, 0.0, 2.0], [10.0, lateral, 2.0], [5.0, 0.0, 2.0]])[:n]
+    goal = np.array([[10.0, 0.0, 2.0], [0.0, lateral, 2.0], [5.0, 0.0, 2.0]])[:n]
+    return Swarm(start=jnp.asarray(start, dtype), goal=jnp.asarray(goal, dtype), valid=jnp.asarray(valid),
+                 obstacles=Obstacles.empty(2, dtype))
+
+
+def _fly(swarm: Swarm, gains: Gains | None = None, **sim):
+    config = SimConfig.from_flat({"t_max": 20.0} | sim)
+    traj = jax.jit(lambda s: swarm_rollout(s, gains or Gains(), config, MPC))(swarm)
+    return np.asarray(traj.position), config
+
+
+def _separation(p: np.ndarray, config: SimConfig) -> np.ndarray:
+    return np.linalg.norm(p[0] - p[1], axis=-1) - 2 * config.vehicle.r_uav
+
+
+@pytest.mark.parametrize("sim", [{"method": "direction_velocity"}, {"method": "velocity_obstacle", "filter": "cbf"},
+                                 {"method": "basic_escape", "sensor": "noisy"}])
+def test_a_one_uav_swarm_is_the_single_uav_program_bit_for_bit(sim):
+    field = make_scenarios(3, family_params("clutter"), 1).take(0)
+    config = SimConfig.from_flat({"t_max": 8.0} | sim)
+    gains = Gains(sigma_obs_p=0.05)
+    one = jax.jit(lambda s: swarm_rollout(s, gains, config, MPC))(Swarm.of(field))
+    alone = jax.jit(lambda s: rollout(s, gains, config, MPC))(field)
+    for a, b in zip(jax.tree_util.tree_leaves(one), jax.tree_util.tree_leaves(alone)):
+        np.testing.assert_array_equal(np.asarray(a)[0], np.asarray(b))
+
+
+def test_neighbours_stand_where_the_uavs_are_and_leave_out_itself_and_padding():
+    swarm = _swap(valid=(True, True, False))
+    view = agent_view(swarm, 0, 0.25)
+    assert view.obstacles.radius.shape == (2 + 3,)  # the others at rest at their starts, padding out
+    assert np.array_equal(np.asarray(view.obstacles.valid), [False, False, False, True, False])
+    assert np.array_equal(np.asarray(view.obstacles.agent), [False, False, True, True, True])
+    x = jnp.array([[1.0, 2.0, 2.0, 0.5, -1.0, 0.0], [7.0, 0.5, 2.0, -1.5, 0.25, 0.0], [5.0, 0.0, 2.0, 0, 0, 0]])
+    t = jnp.float32(3.7)
+    seen = neighbours(view.obstacles.columns(), swarm, x, t, 0, 0.25)
+    assert np.array_equal(np.asarray(seen.valid), [False, False, False, True, False])  # itself and padding out
+    at = obstacles_at(Obstacles(jnp.moveaxis(seen.position, 0, 1), jnp.moveaxis(seen.velocity, 0, 1), seen.radius,
+                                seen.cylinder, seen.valid), t)
+    np.testing.assert_allclose(np.asarray(at[3]), [7.0, 0.5, 2.0], atol=1e-6)  # where UAV 1 is at t
+    np.testing.assert_allclose(np.asarray(seen.velocity[:, 3]), [-1.5, 0.25, 0.0])
+    assert float(seen.radius[3]) == 0.25 and not bool(seen.cylinder[3])
+    assert with_neighbours(swarm.obstacles, 1) is swarm.obstacles
+
+
+def test_each_uav_has_its_own_key_and_uav_0_the_fields():
+    field = make_scenarios(3, family_params("clutter"), 1).take(0)
+    swarm = Swarm(start=jnp.stack([field.start] * 3), goal=jnp.stack([field.goal] * 3), valid=jnp.ones(3, bool),
+                  obstacles=field.obstacles, key=field.key)
+    keys = [np.asarray(agent_view(swarm, a, 0.25).key) for a in range(3)]
+    assert np.array_equal(keys[0], np.asarray(field.key))
+    assert len({k.tobytes() for k in keys}) == 3
+
+
+def test_reciprocal_velocity_obstacles_swap_two_uavs_head_on_sharing_the_avoidance():
+    """Two UAVs flying at each other: each takes half of the avoidance (ORCA's ½), so they pass
+    symmetrically, no closer than the margin, and both arrive."""
+    p, config = _fly(_swap(), method="velocity_obstacle")
+    margin = Gains().vo_margin
+    assert _separation(p, config).min() >= margin - 0.01
+    np.testing.assert_allclose(p[:, -1], [[10.0, 0.0, 2.0], [0.0, 0.0, 2.0]], atol=0.05)
+    np.testing.assert_allclose(p[0, :, 0] + p[1, :, 0], 10.0, atol=1e-3)  # point symmetry about the midpoint
+    np.testing.assert_allclose(p[0, :, 1] + p[1, :, 1], 0.0, atol=1e-3)
+    assert np.abs(p[0, :, 1]).max() > 0.1  # each swerved
+
+
+def test_potential_fields_deadlock_in_the_symmetric_swap():
+    """The classical failure the swarm families are built to measure: the repulsion of two UAVs flying
+    at each other balances their attraction on the line between them, and both stop short."""
+    p, config = _fly(_swap(), method="basic")
+    assert _separation(p, config).min() > 0.5
+    assert np.all(np.linalg.norm(p[:, -1] - np.array([[10.0, 0, 2], [0, 0, 2]]), axis=-1) > 3.0)
+    assert np.abs(p[:, :, 1]).max() < 1e-4  # never leave the line
+
+
+def test_neighbours_are_sensed_like_obstacles():
+    """With a sensing range below the passing distance nobody sees anybody: the two UAVs fly straight
+    through each other; in full view they do not."""
+    blind, config = _fly(_swap(), Gains(sense_range=0.01), method="velocity_obstacle", sensor="noisy")
+    seeing, _ = _fly(_swap(), method="velocity_obstacle", sensor="noisy")
+    assert _separation(blind, config).min() < -0.4
+    assert _separation(seeing, config).min() > 0.2
+
+
+def test_a_padded_uav_is_invisible():
+    """A third slot parked on the line between the two, marked invalid: the two fly as if it were
+    not there (float64, up to rounding between the two programs)."""
+    with jax.enable_x64(True):
+        two, _ = _fly(_swap(jnp.float64), method="velocity_obstacle")
+        three, _ = _fly(_swap(jnp.float64, valid=(True, True, False)), method="velocity_obstacle")
+        shown, _ = _fly(_swap(jnp.float64, valid=(True, True, True)), method="velocity_obstacle")
+    np.testing.assert_allclose(three[:2], two, atol=1e-9)
+    assert np.abs(shown[:2] - two).max() > 0.1  # the same UAV, valid, is avoided
