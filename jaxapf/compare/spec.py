@@ -15,6 +15,7 @@ import os
 import pathlib
 from typing import Any, Mapping
 
+from ..control import scales_set
 from ..gains import GAINS, GainSpec
 from ..io.plugins import check_plugins, load_plugins
 from ..io.spec import OMIT, REQUIRED, SEED, Key, Table, choice, given, integer, spec_name, value_grid
@@ -26,6 +27,7 @@ from ..sweep.spec import (
     parse_range,
     setting_values,
     spec_family_params,
+    traced_weights,
     variant_names,
 )
 from ..tune.spec import MAX_HELD_FIELDS
@@ -254,7 +256,10 @@ def parse_compare_spec(data: Mapping[str, Any], *, base: str | os.PathLike | Non
     plugins = check_plugins("plugins", data.get("plugins", []))
     paths = load_plugins(plugins, base=base)
     d = _schema()("", data)
-    sim = d["sim"]
+    # a searched MPC weight scale traces the MPC's weights, as in sweep and tune specs
+    named = [g for part in (d["selection"].get(k) for k in ("gains", "ranges", "grid"))
+             if isinstance(part, (list, dict)) for g in part if isinstance(g, str)]  # bad ones: refused below
+    sim = traced_weights(d["sim"], scales_set({}, varied=named))
     methods = _methods(d["methods"], sim)
     baseline = check_choice("baseline", d.get("baseline", methods[0]), methods)
     tables = d["scenario"]["params"]

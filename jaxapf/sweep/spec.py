@@ -184,14 +184,20 @@ def sim_configs(values: Mapping[str, Any], scaled: Iterable[str] = (), where: st
     If ``scaled`` (the MPC weight scales a spec sets to something other than 1, or varies:
     :func:`~jaxapf.control.scales_set`) is not empty, the MPC's weights come from the gains
     (``mpc_weights = "gains"``); ``mpc_weights = "static"`` beside one is refused."""
-    sim = {k: v for k, v in values.items() if k in SIM_KEYS}
-    scales = sorted(scaled)
+    sim = traced_weights({k: v for k, v in values.items() if k in SIM_KEYS}, scaled, where)
+    return SimConfig.from_flat(sim), MPCConfig(**{k: v for k, v in values.items() if k in MPC_KEYS})
+
+
+def traced_weights(sim: Mapping[str, Any], scaled: Iterable[str], where: str = "sim") -> dict[str, Any]:
+    """``[sim]`` values with ``mpc_weights = "gains"`` if ``scaled`` (MPC weight scales a spec sets away
+    from 1 or varies) is not empty; ``mpc_weights = "static"`` beside one is refused in one line."""
+    sim, scales = dict(sim), sorted(scaled)
     if scales:
         if sim.get("mpc_weights", "gains") != "gains":
             raise ConfigError(f"{where}.mpc_weights = {sim['mpc_weights']!r} compiles the MPC's weights in, but the "
                               f"spec sets {scales[0]}, which only mpc_weights = \"gains\" reads")
         sim["mpc_weights"] = "gains"
-    return SimConfig.from_flat(sim), MPCConfig(**{k: v for k, v in values.items() if k in MPC_KEYS})
+    return sim
 
 
 # --------------------------------------------------------------------------------------------

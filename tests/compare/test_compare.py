@@ -169,6 +169,8 @@ def test_gradient_steps_fill_the_budget(budget, per_step, val, every, steps):
     ({"selection.grid": {"k_rep": [1.0]}}, "selection.grid is for search = \"grid\""),
     ({"selection.ranges": {"k_rep": [5.0, 1.0]}}, "selection.ranges.k_rep = [5.0, 1.0] is not a range"),
     ({"selection.gains": ["d_min"]}, "selection.gains[0] = 'd_min' is not a tunable gain"),
+    ({"selection.gains": ["k_rep", "mpc_pos"], "sim.mpc_weights": "static"},
+     "sim.mpc_weights = 'static' compiles the MPC's weights in, but the spec sets mpc_pos"),
     ({"sim.method": "basic"}, "sim.method is not a known key"),
     ({"test.families": ["forest"]}, "test.families[0] = 'forest' is not a family or variant"),
     ({"scenario.params.clutter": {"density": 1.0}}, "scenario.params.clutter is not one of selection.families"),
@@ -249,3 +251,19 @@ def test_fixed_gains_are_the_world_every_candidate_and_the_test_fly_in():
     with pytest.raises(ConfigError, match="gains.wind_sped is not a known key"):
         _spec(**{"gains": {"wind_sped": 5.0}})
     assert spec_digest(_spec()) == spec_digest(_spec(**{"gains": {}}))  # no [gains]: the digest it always had
+
+
+def test_a_searched_mpc_weight_traces_the_mpcs_weights_in_selection_and_test():
+    """Naming an MPC weight scale in ``selection.gains`` switches ``mpc_weights`` to ``gains`` (as sweep and
+    tune specs do): the method searches it, its tune spec and the test sweep trace the weights."""
+    from jaxapf.compare.protocol import test_sweep_spec
+    from jaxapf.compare.select import Selection, tune_spec
+
+    spec = _spec(**{"selection.gains": ["k_rep", "mpc_pos"]})
+    assert spec.sim["mpc_weights"] == "gains" and spec.method_gains("basic") == ("k_rep", "mpc_pos")
+    assert tune_spec(spec, "basic", 1).sim.planner.mpc_weights == "gains"
+    chosen = [Selection(m, s, "random", dict(random_candidates(spec, m, s)[1].floats()), 4, 6, 24, 24, 0.0, 0.5, 1.0,
+                        "candidate 1") for s in spec.selection.seeds for m in spec.methods]
+    test = test_sweep_spec(spec, chosen)
+    assert test.configs(test.settings()[0].static, "trap")[0].planner.mpc_weights == "gains"
+    assert "mpc_weights" not in _spec().sim  # no scale named: the spec (and its digest) as before
