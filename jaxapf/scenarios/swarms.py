@@ -1,0 +1,317 @@
+r"""Swarm families: fields flown by ``A`` UAVs at once (:class:`~jaxapf.datatypes.swarm.Swarm`).
+
+Every swarm field is built like a single-UAV one (:mod:`jaxapf.scenarios.families`): one block of
+uniforms from the field's key (``field_key(seed, i)``), a local layout, then the world frame -- the
+layout turned by a heading drawn from ``heading`` about the origin, at ``altitude``. Every UAV's
+start and goal are then moved by a uniform offset in ``±jitter`` per horizontal coordinate (the
+standard way to break the exact symmetry of a formation), and every obstacle closer than
+``start_margin`` (goals: ``goal_margin``) to some UAV's start (goal) is dropped. A field is the same
+whatever batch it is computed in (elementwise arithmetic only).
+
+``circle_swap`` (:class:`CircleSwapParams`)
+    RVO2's standard first test: ``agents`` UAVs evenly on a circle of diameter ``distance``
+    (12–16 m; a random rotation), each flying to the antipodal point, so every path crosses the
+    centre at about the same time. No obstacles.
+``crossing_flows`` (:class:`CrossingFlowsParams`)
+    ``groups`` (2–4) flows of ``agents / groups`` UAVs abreast (``spacing`` 1.5 m apart) entering a
+    common square from the directions ``0°, 90°, 180°, 270°`` (the first ``groups``), each flying
+    straight through it to ``distance`` beyond its start; each UAV starts up to ``stagger`` (2 m)
+    further back. No obstacles.
+``formation_gap`` (:class:`FormationGapParams`)
+    ``agents`` UAVs in a formation ``columns`` abreast (``spacing`` apart) flying ``distance`` (20–24 m)
+    through a gap of width ``gap`` (3–5 m, centre offset up to ``offset``) in a wall of touching
+    cylinders across the middle of the run; the goals keep the formation.
+``swarm_clutter`` (:class:`SwarmClutterParams`)
+    ``agents`` UAVs abreast (``spacing`` apart) flying across a forest (``density`` per 100 m² of
+    the run's corridor, radius 0.5–1.0 m), each to the goal of its mirror image (UAV ``i`` to the
+    column of UAV ``A - 1 - i``), so every pair of paths crosses; a ``moving`` share of the
+    obstacles drifts at ``speed``.
+
+Which are solvable: the first two have no obstacles, so every UAV can reach its goal (one at a
+time, the others waiting: solvable, though perhaps not within ``t_max``); in the last two each
+UAV's own path is checked by the single-UAV oracle (:mod:`jaxapf.scenarios.solvability`) on the
+static obstacles, and ``formation_gap``'s gap is wider than the formation needs to pass in single
+file (``gap > 2 r_uav``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from functools import partial
+from typing import Any, Callable, ClassVar, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from ..datatypes import Obstacles
+from ..datatypes.swarm import Swarm
+from ..registry import Registry
+from ..validation import ConfigError
+from .base import FamilyParams, integer, number, span
+from .layout import Draws, Layout, fit, scatter, with_motion
+
+__all__ = ["SwarmParams", "CircleSwapParams", "CrossingFlowsParams", "FormationGapParams", "SwarmClutterParams",
+           "SWARM_FAMILIES", "swarm_params", "make_swarm", "make_swarms"]
+
+
+@dataclasses.dataclass(frozen=True)
+class SwarmParams(FamilyParams):
+    """Parameters every swarm family has, beyond :class:`~jaxapf.scenarios.FamilyParams`'s.
+
+    Attributes:
+      agents: UAVs per field, ``A`` (static; 1–256).
+      jitter: each start and goal moved by a uniform offset in ``±jitter`` per horizontal coordinate [m]
+        (default 0.1 m).
+    """
+
+    family = "swarm"
+    #: Uniforms per UAV in a field's block (beyond ``draws``).
+    agent_draws: ClassVar[int] = 6
+    CHECKS = FamilyParams.CHECKS | {"agents": integer(1, 256), "jitter": number(0.0)}
+
+    agents: int = 8
+    jitter: float = 0.1
+    max_obstacles: int = 1
+    goal_margin: float = 0.5
+    t_max: float = 40.0
+
+    def draw_count(self) -> int:
+        per_field, per_slot = self.draws
+        return per_field + per_slot * self.max_obstacles + self.agent_draws * self.agents
+
+
+@dataclasses.dataclass(frozen=True)
+class CircleSwapParams(SwarmParams):
+    """``circle_swap`` (module docstring): ``distance`` is the circle's diameter."""
+
+    family = "circle_swap"
+    distance: tuple[float, float] = (12.0, 16.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class CrossingFlowsParams(SwarmParams):
+    """``crossing_flows`` (module docstring): ``agents`` must be a multiple of ``groups``."""
+
+    family = "crossing_flows"
+    CHECKS = SwarmParams.CHECKS | {"groups": integer(2, 4), "spacing": number(0.0, lo_open=True),
+                                   "stagger": number(0.0)}
+
+    groups: int = 2
+    spacing: float = 1.5
+    stagger: float = 2.0
+    distance: tuple[float, float] = (16.0, 20.0)
+
+    def _check(self, where: str) -> None:
+        if self.agents % self.groups:
+            raise ConfigError(f"{where}.agents = {self.agents} must be a multiple of groups = {self.groups}")
+
+
+@dataclasses.dataclass(frozen=True)
+class FormationGapParams(SwarmParams):
+    """``formation_gap`` (module docstring): a wall of ``max_obstacles`` (24) cylinders of radius
+    ``wall_radius`` (0.5 m), touching, across the run; ``agents`` a multiple of ``columns``."""
+
+    family = "formation_gap"
+    CHECKS = SwarmParams.CHECKS | {"columns": integer(1), "spacing": number(0.0, lo_open=True),
+                                   "gap": span(0.0, lo_open=True), "offset": number(0.0),
+                                   "wall_radius": number(0.0, lo_open=True)}
+
+    columns: int = 4
+    spacing: float = 1.5
+    gap: tuple[float, float] = (3.0, 5.0)
+    offset: float = 1.0
+    wall_radius: float = 0.5
+    max_obstacles: int = 24
+    distance: tuple[float, float] = (20.0, 24.0)
+
+    def _check(self, where: str) -> None:
+        if self.agents % self.columns:
+            raise ConfigError(f"{where}.agents = {self.agents} must be a multiple of columns = {self.columns}")
+        if self.gap[0] <= 2 * self.r_uav:
+            raise ConfigError(f"{where}.gap = {list(self.gap)} must be wider than the UAV (2 r_uav = "
+                              f"{2 * self.r_uav} m)")
+
+
+@dataclasses.dataclass(frozen=True)
+class SwarmClutterParams(SwarmParams):
+    """``swarm_clutter`` (module docstring)."""
+
+    family = "swarm_clutter"
+    CHECKS = SwarmParams.CHECKS | {"spacing": number(0.0, lo_open=True), "density": number(0.0),
+                                   "radius": span(0.0, lo_open=True), "moving": number(0.0, 1.0),
+                                   "speed": span(0.0)}
+
+    spacing: float = 1.5
+    density: float = 3.0
+    radius: tuple[float, float] = (0.5, 1.0)
+    moving: float = 0.5
+    speed: tuple[float, float] = (0.2, 1.0)
+    max_obstacles: int = 24
+    distance: tuple[float, float] = (20.0, 24.0)
+    t_max: float = 60.0
+
+
+class SwarmLayout(NamedTuple):
+    """A swarm field in its local frame: starts and goals (A, 2), the obstacles, the kind."""
+
+    start: Array
+    goal: Array
+    obstacles: Layout
+
+
+def _abreast(n: int, spacing: float, dtype: Any) -> Array:
+    """``n`` lateral offsets ``spacing`` apart, centred on 0."""
+    return (jnp.arange(n, dtype=dtype) - 0.5 * (n - 1)) * spacing
+
+
+def _no_obstacles(size: int, dtype: Any) -> Layout:
+    return Layout(jnp.zeros((size, 2), dtype), jnp.zeros((size, 2), dtype), jnp.zeros((size,), dtype),
+                  jnp.zeros((size,), bool))
+
+
+def _circle(d: Draws, p: CircleSwapParams, length: Array) -> SwarmLayout:
+    # the agents' directions: one random rotation (trig of one number per field) of A fixed unit
+    # vectors, so that no vectorised trig over the batch's agents rounds with the batch's size
+    turn = d.uniform((0.0, 2 * math.pi))
+    fixed = 2 * np.pi * np.arange(p.agents) / p.agents
+    c, s = jnp.cos(turn), jnp.sin(turn)
+    cos, sin = jnp.asarray(np.cos(fixed), length.dtype), jnp.asarray(np.sin(fixed), length.dtype)
+    ring = 0.5 * length * jnp.stack([c * cos - s * sin, s * cos + c * sin], axis=-1)
+    return SwarmLayout(ring, -ring, _no_obstacles(p.max_obstacles, length.dtype))
+
+
+def _flows(d: Draws, p: CrossingFlowsParams, length: Array) -> SwarmLayout:
+    per = p.agents // p.groups
+    lateral = jnp.tile(_abreast(per, p.spacing, length.dtype), p.groups)
+    quarter = np.repeat(np.arange(p.groups), per)  # the flows' directions: k · 90°
+    along = jnp.asarray(np.stack([[1, 0], [0, 1], [-1, 0], [0, -1]])[quarter], length.dtype)
+    left = jnp.stack([-along[:, 1], along[:, 0]], -1)
+    back = 0.5 * length + d.uniform((0.0, p.stagger), (p.agents,))
+    start = -back[:, None] * along + lateral[:, None] * left
+    goal = start + length * along
+    return SwarmLayout(start, goal, _no_obstacles(p.max_obstacles, length.dtype))
+
+
+def _formation(d: Draws, p: FormationGapParams, length: Array) -> SwarmLayout:
+    rows = p.agents // p.columns
+    lateral = jnp.tile(_abreast(p.columns, p.spacing, length.dtype), rows)
+    back = jnp.repeat(jnp.arange(rows, dtype=length.dtype) * p.spacing, p.columns)
+    start = jnp.stack([-back, lateral], -1)
+    goal = start + jnp.stack([length, jnp.zeros_like(length)])
+    gap, centre = d.uniform(p.gap), d.uniform((-p.offset, p.offset))
+    # the wall: touching cylinders outward from each side of the gap, half of them on each side
+    half = p.max_obstacles // 2
+    steps = p.wall_radius + 2 * p.wall_radius * jnp.arange(half, dtype=length.dtype)
+    y = jnp.concatenate([centre + 0.5 * gap + steps, centre - 0.5 * gap - steps])
+    n = y.shape[0]
+    wall = Layout(jnp.stack([jnp.full((n,), 0.5 * length), y], -1), jnp.zeros((n, 2), length.dtype),
+                  jnp.full((n,), p.wall_radius, length.dtype), jnp.ones((n,), bool))
+    return SwarmLayout(start, goal, fit(wall, p.max_obstacles))
+
+
+def _clutter(d: Draws, p: SwarmClutterParams, length: Array) -> SwarmLayout:
+    lateral = _abreast(p.agents, p.spacing, length.dtype)
+    start = jnp.stack([jnp.zeros_like(lateral), lateral], -1)
+    goal = jnp.stack([jnp.full_like(lateral, length), lateral[::-1]], -1)
+    width = p.agents * p.spacing + 4.0
+    count = jnp.minimum(jnp.round(p.density * length * width / 100.0), p.max_obstacles)
+    forest = scatter(d, p.max_obstacles, count, length, width, p.radius)
+    moving = d.uniform((0.0, 1.0), (p.max_obstacles,)) < p.moving
+    return SwarmLayout(start, goal, with_motion(forest, d, p.speed, moving & forest.valid))
+
+
+@dataclasses.dataclass(frozen=True)
+class SwarmFamily:
+    """A registered swarm family: its parameters and its builder ``build(draws, params, L) -> SwarmLayout``."""
+
+    params: type[SwarmParams]
+    build: Callable[..., SwarmLayout]
+    description: str = ""
+
+    @property
+    def name(self) -> str:
+        return self.params.family
+
+
+#: Registered swarm families.
+SWARM_FAMILIES: Registry[SwarmFamily] = Registry("swarm family", describe=lambda f: f.description,
+                                                 listed_as="swarm families")
+
+
+def register_swarm_family(params: type[SwarmParams], build: Callable[..., SwarmLayout], *, description: str = ""
+                          ) -> SwarmFamily:
+    """Register the swarm family ``params.family`` with its builder."""
+    return SWARM_FAMILIES.register(params.family, SwarmFamily(params, build, description))
+
+
+def swarm_params(family: str, **overrides: Any) -> SwarmParams:
+    """The default parameters of swarm ``family`` with ``overrides`` (validated, one-line errors)."""
+    cls = SWARM_FAMILIES.get(family, "scenario.family").params
+    fields = tuple(f.name for f in dataclasses.fields(cls))
+    for name in overrides:
+        if name not in fields:
+            raise ConfigError(f"scenario.{family}.{name} is not a parameter of {family}; allowed: {', '.join(fields)}")
+    return cls(**overrides)
+
+
+def _world(xy: Array, heading: Array, z: float) -> Array:
+    c, s = jnp.cos(heading), jnp.sin(heading)
+    return jnp.stack([c * xy[..., 0] - s * xy[..., 1], s * xy[..., 0] + c * xy[..., 1], jnp.full_like(xy[..., 0], z)],
+                     axis=-1)
+
+
+def _far(obstacles: Obstacles, points: Array, reach: Array) -> Array:
+    """Whether every obstacle keeps its centre at least ``reach`` (M,) from every point (A, 3), in xy for a
+    cylinder (written out elementwise: the same in any batch)."""
+    dx = obstacles.position[:, None, 0] - points[None, :, 0]
+    dy = obstacles.position[:, None, 1] - points[None, :, 1]
+    dz = jnp.where(obstacles.cylinder[:, None], 0.0, obstacles.position[:, None, 2] - points[None, :, 2])
+    return jnp.all(dx * dx + dy * dy + dz * dz >= (reach * reach)[:, None], axis=1)
+
+
+def make_swarm(key: Array, params: SwarmParams) -> Swarm:
+    """One field of swarm family ``params.family`` from ``key`` (module docstring)."""
+    d = Draws(jax.random.uniform(key, (params.draw_count(),), jnp.result_type(float)))
+    length = d.uniform(params.distance)
+    heading = jnp.deg2rad(d.uniform(params.heading))
+    local = SWARM_FAMILIES.get(params.family).build(d, params, length)
+    shake = d.uniform((-params.jitter, params.jitter), (2, params.agents, 2))
+    start = _world(local.start + shake[0], heading, params.altitude)
+    goal = _world(local.goal + shake[1], heading, params.altitude)
+    lay = local.obstacles
+    obstacles = Obstacles(position=_world(lay.xy, heading, params.altitude), velocity=_world(lay.vxy, heading, 0.0),
+                          radius=lay.radius, cylinder=jnp.full(lay.valid.shape, params.shape == "cylinder"),
+                          valid=lay.valid)
+    reach = obstacles.radius + params.r_uav
+    keep = (obstacles.valid & _far(obstacles, start, reach + params.start_margin)
+            & _far(obstacles, goal, reach + params.goal_margin))
+    obstacles = Obstacles(position=jnp.where(keep[:, None], obstacles.position, 1e6),
+                          velocity=jnp.where(keep[:, None], obstacles.velocity, 0.0),
+                          radius=jnp.where(keep, obstacles.radius, 0.0), cylinder=obstacles.cylinder & keep,
+                          valid=keep)
+    return Swarm(start=start, goal=goal, valid=jnp.ones((params.agents,), bool), obstacles=obstacles,
+                 kind=jnp.zeros((), jnp.int32), key=jax.random.key_data(key))
+
+
+def make_swarms(seed: int, params: SwarmParams, fields: int | Array) -> Swarm:
+    """A batch of swarm fields: field ``i`` is ``make_swarm(field_key(seed, i), params)``
+    (:func:`~jaxapf.scenarios.field_key`), the same in any batch (``fields``: a count or an array of
+    field indices)."""
+    indices = jnp.arange(fields) if isinstance(fields, int) else jnp.asarray(fields)
+    return _build(jax.random.key(seed), indices, params)
+
+
+@partial(jax.jit, static_argnames="params")
+def _build(base: Array, indices: Array, params: SwarmParams) -> Swarm:
+    return jax.vmap(lambda i: make_swarm(jax.random.fold_in(base, i), params))(indices)
+
+register_swarm_family(CircleSwapParams, _circle, description="UAVs on a circle swapping to the antipodal points "
+                                                             "(RVO2's circle); no obstacles")
+register_swarm_family(CrossingFlowsParams, _flows, description="2-4 flows of UAVs abreast crossing a common square "
+                                                               "at right angles; no obstacles")
+register_swarm_family(FormationGapParams, _formation, description="a formation flying through a 3-5 m gap in a wall")
+register_swarm_family(SwarmClutterParams, _clutter, description="UAVs abreast crossing a forest of static and "
+                                                                "drifting cylinders to mirrored goals")
