@@ -209,6 +209,16 @@ def build_parser() -> argparse.ArgumentParser:
     bwo.add_argument("--substeps", type=int, default=10, help="quadrotor sub-steps per control step (default 10)")
     bwo.add_argument("--repeats", type=int, default=3, help="timed runs of each variant, interleaved (default 3)")
     bwo.add_argument("--json", action="store_true", help="print one JSON object")
+    bsm = bsub.add_parser("swarm", help="what a swarm step costs for 1 to 64 UAVs (the O(A²) interaction)",
+                          description="Time circle_swap swarms of 1, 2, 4, ..., 64 UAVs on about the same number of "
+                                      "UAVs per call: us per swarm-step and per UAV-step, compile time, working "
+                                      "memory.")
+    bsm.add_argument("--agents", type=int, nargs="+", default=[1, 2, 4, 8, 16, 32, 64],
+                     help="swarm sizes (default 1 2 4 8 16 32 64)")
+    bsm.add_argument("--uavs", type=int, default=256, help="UAVs per compiled call, about (default 256)")
+    bsm.add_argument("--steps", type=int, default=200, help="control steps per episode (default 200)")
+    bsm.add_argument("--repeats", type=int, default=3, help="timed runs of each size, interleaved (default 3)")
+    bsm.add_argument("--json", action="store_true", help="print one JSON object")
     bsw = bsub.add_parser("sweep", help="streaming vs fixed-length engine, the whole sweep path, 2 CPU devices",
                           description="Time a sweep's episodes with the streaming and the fixed-length engine (bare "
                                       "evaluate calls, interleaved), the whole sweep end to end, and the sweep on "
@@ -303,6 +313,12 @@ def _bench(args: argparse.Namespace) -> int:
         result = run_world_benchmark(fields=args.fields, steps=args.steps, substeps=args.substeps,
                                      repeats=args.repeats)
         print(json.dumps(result, indent=2) if args.json else format_world_benchmark(result))
+        return 0
+    if args.bench == "swarm":
+        from ..bench.swarm import format_swarm_benchmark, run_swarm_benchmark
+
+        result = run_swarm_benchmark(agents=args.agents, uavs=args.uavs, steps=args.steps, repeats=args.repeats)
+        print(json.dumps(result, indent=2) if args.json else format_swarm_benchmark(result))
         return 0
     if args.bench == "sweep":
         from ..bench.sweep import format_sweep_benchmark, run_sweep_benchmark

@@ -6,21 +6,28 @@ the UAVs' true states ``x`` (A, 6) place every UAV in the others' obstacle sets
 -- sensor, planner, MPC, filter, plant -- on its own carry, exactly as a single UAV does. The
 interaction is ``O(A²)`` per step: each UAV's planner, filter and sensor see ``M + A`` obstacle
 slots. A one-UAV swarm is :func:`~jaxapf.engine.loop.rollout` itself (the same program, bit for bit).
+:func:`evaluate_swarms` flies every (gain setting, swarm field) pair of a batch in one compiled call
+(fixed-length episodes) and returns the swarm metrics (:mod:`jaxapf.metrics.swarm`).
 """
 
 from __future__ import annotations
 
+from functools import partial
+
 import jax
 import jax.numpy as jnp
+from jax import Array
 
 from ..config import MPCConfig, SimConfig
 from ..datatypes import Trajectory
 from ..datatypes.swarm import Swarm, agent_view, neighbours
 from ..gains import Gains
+from ..metrics.swarm import swarm_metrics
+from .batch import XLA_OPTIONS
 from .components import gains_read
 from .loop import closed_loop, episode_loop, loop_init, loop_step, record_trajectory, rollout
 
-__all__ = ["swarm_rollout"]
+__all__ = ["swarm_rollout", "evaluate_swarms"]
 
 
 def swarm_rollout(swarm: Swarm, gains: Gains, sim: SimConfig, mpc: MPCConfig, *, remat: bool = False) -> Trajectory:
@@ -51,3 +58,16 @@ def swarm_rollout(swarm: Swarm, gains: Gains, sim: SimConfig, mpc: MPCConfig, *,
     _, records = jax.lax.scan(body, carry0, jnp.arange(sim.episode.steps, dtype=dtype))
     x0 = jax.vmap(loop.plant.kinematics)(carry0[0])
     return jax.vmap(lambda x, r: record_trajectory(x, r, sim), in_axes=(0, 1))(x0, records)
+
+
+@partial(jax.jit, static_argnames=("sim", "mpc"), compiler_options=XLA_OPTIONS)
+def evaluate_swarms(swarms: Swarm, gains: Gains, sim: SimConfig, mpc: MPCConfig) -> dict[str, Array]:
+    """The swarm metrics of every (setting, field) pair: arrays (G, F). ``swarms``: F fields (leading
+    axis F); ``gains``: G settings (leading axis G on every array leaf; scalars are shared)."""
+    n_gains = max((jnp.shape(x)[0] for x in jax.tree_util.tree_leaves(gains) if jnp.ndim(x)), default=1)
+    gains = jax.tree_util.tree_map(lambda x: x if jnp.ndim(x) else jnp.full((n_gains,), x),
+                                   gains.only(gains_read(sim)))
+
+    def episode(swarm: Swarm, g: Gains) -> dict[str, Array]:
+        return swarm_metrics(swarm_rollout(swarm, g, sim, mpc), swarm, sim)
+    return jax.vmap(lambda g: jax.vmap(lambda s: episode(s, g))(swarms))(gains)

@@ -87,12 +87,13 @@ def swarm_metrics(traj: Trajectory, swarm: Swarm, sim: SimConfig) -> dict[str, A
     jain = jnp.sum(slowdown) ** 2 / (jnp.maximum(arrived, 1) * jnp.maximum(jnp.sum(slowdown ** 2), TINY))
     # deadlock: a window of n samples in 0..E in which everybody still on the way gets nowhere
     n = stall_samples(sim)
-    first = jnp.arange(steps + 2 - n)  # window starts i with i + n - 1 <= T
+    windows = max(steps + 2 - n, 0)  # window starts i with i + n - 1 <= T (none in an episode shorter than n)
+    first = jnp.arange(windows)
     on_way = (swarm.valid[None] & (first[:, None] < goal_index[None]) & (first[:, None] < obstacle_index[None])
               & (first[:, None] < agent_index[None]))  # (W, A)
-    progress = (distance[:, : steps + 2 - n] - distance[:, n - 1:]).T  # (W, A)
+    progress = (distance[:, :windows] - distance[:, n - 1:n - 1 + windows]).T  # (W, A)
     stuck = jnp.any(on_way, axis=1) & jnp.all(~on_way | (progress < sim.metrics.d_progress), axis=1)
-    stuck = stuck & (first + n - 1 <= jnp.maximum(last, n - 1))
+    stuck = stuck & (first + n - 1 <= last)
     return {
         "at_goal": jnp.sum(success) / count,
         "swarm_success": jnp.all(success | ~swarm.valid),

@@ -109,3 +109,29 @@ def test_flown_swaps_reciprocal_arrival_and_potential_field_deadlock():
     basic = sim.replace(method="basic")
     m = {k: np.asarray(v) for k, v in swarm_metrics(fly(basic), swarm, basic).items()}
     assert m["deadlock"] and m["at_goal"] == 0.0 and not m["agent_collision"] and np.isnan(m["mean_time_to_goal"])
+
+
+def test_an_episode_shorter_than_t_stall_cannot_deadlock():
+    traj = _straight([[0, 0, 2], [10, 0, 2]], [[0, 0, 2], [10, 0, 2]], 10)  # both hover, 1 s < t_stall = 3 s
+    m = _metrics(traj, _swarm([[0, 0, 2], [10, 0, 2]], [[5, 0, 2], [5, 5, 2]]))
+    assert not m["deadlock"] and m["at_goal"] == 0.0
+    long = _straight([[0, 0, 2], [10, 0, 2]], [[0, 0, 2], [10, 0, 2]], 40)
+    assert _metrics(long, _swarm([[0, 0, 2], [10, 0, 2]], [[5, 0, 2], [5, 5, 2]]))["deadlock"]
+
+
+def test_evaluate_swarms_is_the_metrics_of_each_setting_and_field():
+    from jaxapf.engine.swarm import evaluate_swarms
+    from jaxapf.scenarios.swarms import make_swarms, swarm_params
+
+    sim = SimConfig.from_flat(method="velocity_obstacle", t_max=4.0)
+    mpc = MPCConfig(horizon=5, iters=5)
+    swarms = make_swarms(0, swarm_params("circle_swap", agents=3), 2)
+    gains = Gains(vo_tau=jnp.array([1.0, 3.0]))
+    grid = evaluate_swarms(swarms, gains, sim, mpc)
+    assert set(grid) == set(SWARM_METRICS) and grid["at_goal"].shape == (2, 2)
+    for g, tau in enumerate((1.0, 3.0)):
+        for f in range(2):
+            one = jax.tree_util.tree_map(lambda x, f=f: x[f], swarms)
+            alone = swarm_metrics(jax.jit(lambda s, t=tau: swarm_rollout(s, Gains(vo_tau=t), sim, mpc))(one), one, sim)
+            np.testing.assert_allclose(float(grid["min_agent_clearance"][g, f]), float(alone["min_agent_clearance"]),
+                                       rtol=1e-4)
