@@ -27,11 +27,13 @@ whatever batch it is computed in (elementwise arithmetic only).
     column of UAV ``A - 1 - i``), so every pair of paths crosses; a ``moving`` share of the
     obstacles drifts at ``speed``.
 
-Which are solvable: the first two have no obstacles, so every UAV can reach its goal (one at a
-time, the others waiting: solvable, though perhaps not within ``t_max``); in the last two each
-UAV's own path is checked by the single-UAV oracle (:mod:`jaxapf.scenarios.solvability`) on the
-static obstacles, and ``formation_gap``'s gap is wider than the formation needs to pass in single
-file (``gap > 2 r_uav``).
+Which are solvable: :func:`agents_solvable` runs the single-UAV oracle
+(:mod:`jaxapf.scenarios.solvability`) for every UAV alone among the field's obstacles (moving ones
+included); a swarm field all of whose UAVs pass it is solvable UAV by UAV, a necessary condition:
+the UAVs may still block each other, and flying one at a time (the others waiting clear of the
+paths) need not fit in ``t_max``. ``circle_swap`` and ``crossing_flows`` have no obstacles, so every
+UAV passes; ``formation_gap``'s gap is wider than a UAV (``gap > 2 r_uav``, checked), so the
+formation can pass in single file.
 """
 
 from __future__ import annotations
@@ -54,7 +56,7 @@ from .base import FamilyParams, integer, number, span
 from .layout import Draws, Layout, fit, scatter, with_motion
 
 __all__ = ["SwarmParams", "CircleSwapParams", "CrossingFlowsParams", "FormationGapParams", "SwarmClutterParams",
-           "SWARM_FAMILIES", "swarm_params", "make_swarm", "make_swarms"]
+           "SWARM_FAMILIES", "swarm_params", "make_swarm", "make_swarms", "agents_solvable"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -315,3 +317,19 @@ register_swarm_family(CrossingFlowsParams, _flows, description="2-4 flows of UAV
 register_swarm_family(FormationGapParams, _formation, description="a formation flying through a 3-5 m gap in a wall")
 register_swarm_family(SwarmClutterParams, _clutter, description="UAVs abreast crossing a forest of static and "
                                                                 "drifting cylinders to mirrored goals")
+
+
+def agents_solvable(swarms: Swarm, **oracle: Any) -> np.ndarray:
+    """Whether each UAV of each field could reach its goal alone among the field's obstacles: a bool array
+    of shape (..., A) (padded slots: True), by :func:`~jaxapf.scenarios.solvable` (whose keyword
+    arguments ``oracle`` passes on: ``r_uav``, ``v_max``, ``t_max``, ...)."""
+    from ..datatypes import Scenario
+    from .solvability import solvable
+
+    start = np.asarray(swarms.start)
+    lead, agents = start.ndim - 2, start.shape[-2]  # the fields' batch axes, the UAV axis after them
+    o = swarms.obstacles
+    alone = Obstacles(*(np.repeat(np.expand_dims(np.asarray(x), lead), agents, axis=lead)
+                        for x in (o.position, o.velocity, o.radius, o.cylinder, o.valid)))
+    return solvable(Scenario(start=start, goal=np.asarray(swarms.goal), obstacles=alone), **oracle) | ~np.asarray(
+        swarms.valid)

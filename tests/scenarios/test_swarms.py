@@ -92,3 +92,22 @@ def test_bad_swarm_parameters_are_one_line_errors():
         swarm_params("circle_swap", wind=1.0)
     with pytest.raises(ConfigError, match=r"'ring' is not a registered swarm family"):
         swarm_params("ring")
+
+
+def test_the_oracle_answers_for_every_uav_alone():
+    """Obstacle-free families and the formation's gap: every UAV solvable. By hand: a cylinder over one
+    UAV's goal makes that UAV, and only it, unsolvable; a padded slot counts as solvable."""
+    from jaxapf.datatypes import Obstacles
+    from jaxapf.datatypes.swarm import Swarm
+    from jaxapf.scenarios.swarms import agents_solvable
+
+    oracle = dict(r_uav=0.3, v_max=2.0, t_max=40.0)
+    free = make_swarms(0, swarm_params("circle_swap", agents=4), 2)
+    assert agents_solvable(free, **oracle).shape == (2, 4) and agents_solvable(free, **oracle).all()
+    assert agents_solvable(make_swarms(0, swarm_params("formation_gap", agents=4, columns=2), 2), **oracle).all()
+    block = Obstacles(position=np.array([[10.0, 4.0, 2.0]]), velocity=np.zeros((1, 3)), radius=np.array([1.0]),
+                      cylinder=np.array([True]), valid=np.array([True]))
+    swarm = Swarm(start=np.array([[0.0, 0, 2], [0, 4, 2], [0, 8, 2]]), goal=np.array([[10.0, 0, 2], [10, 4, 2],
+                                                                                       [10, 4, 2]]),
+                  valid=np.array([True, True, False]), obstacles=block)
+    assert agents_solvable(swarm, **oracle).tolist() == [True, False, True]
