@@ -3,11 +3,20 @@ one compiled call, streamed or fixed-length (:mod:`~jaxapf.engine.batch`, :mod:`
 split over devices (:mod:`~jaxapf.engine.devices`), and the table of the components a setting names
 (:mod:`~jaxapf.engine.components`)."""
 
-from .batch import ACCELERATOR_WIDTH, CPU_WIDTH, XLA_OPTIONS, default_width, episode_index, evaluate, evaluate_program
+from .batch import (
+                    ACCELERATOR_WIDTH,
+                    CPU_WIDTH,
+                    XLA_OPTIONS,
+                    default_width,
+                    episode_index,
+                    evaluate,
+                    evaluate_program,
+                    program,
+)
 from .components import COMPONENTS, components_read_gains, gains_read
 from .devices import DeviceBatch
 from .loop import rollout, rollout_metrics
 
 __all__ = ["rollout", "rollout_metrics", "gains_read", "evaluate", "evaluate_program", "episode_index",
            "default_width", "CPU_WIDTH", "ACCELERATOR_WIDTH", "XLA_OPTIONS", "COMPONENTS", "components_read_gains",
-           "DeviceBatch"]
+           "DeviceBatch", "program"]

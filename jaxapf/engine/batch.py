@@ -10,8 +10,9 @@ grid over many fields is one compiled call.
 
 from __future__ import annotations
 
+import functools
 from functools import partial
-from typing import Sequence
+from typing import Any, Callable, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -27,7 +28,7 @@ from .loop import rollout_metrics
 from .stream import stream_metrics, stream_slots
 
 __all__ = ["evaluate", "evaluate_program", "episode_index", "default_width", "CPU_WIDTH", "ACCELERATOR_WIDTH",
-           "XLA_OPTIONS"]
+           "XLA_OPTIONS", "program"]
 
 
 #: Episodes vmapped together (the vmap width) on CPU: wide enough that every step's kernels run
@@ -37,7 +38,8 @@ CPU_WIDTH = 1024
 ACCELERATOR_WIDTH = 4096
 
 
-#: XLA options of every compiled closed loop (CPU only; other backends ignore them):
+#: XLA options of every compiled closed loop on CPU (:func:`program` gives them to the CPU compiler
+#: only: a GPU's compiler refuses options it does not know):
 #:
 #: * ``xla_cpu_experimental_ynn_fusion_type = ""``: jaxlib 0.10 hands reductions and small matrix
 #:   products on CPU to YNNPACK kernels, which run the APF's sums over obstacles and xyz slower
@@ -58,6 +60,23 @@ XLA_OPTIONS = {
 }
 
 
+def program(fun: Callable | None = None, *, static_argnames: str | Sequence[str] = ()) -> Callable:
+    """``jax.jit`` of a closed-loop program, compiled with :data:`XLA_OPTIONS` when JAX's default backend is
+    the CPU and without them elsewhere (decided at each call; ``.lower`` and ``._cache_size`` follow)."""
+    if fun is None:
+        return partial(program, static_argnames=static_argnames)
+    on_cpu = jax.jit(fun, static_argnames=static_argnames, compiler_options=XLA_OPTIONS)
+    elsewhere = jax.jit(fun, static_argnames=static_argnames)
+    pick = lambda: on_cpu if jax.default_backend() == "cpu" else elsewhere  # noqa: E731
+
+    @functools.wraps(fun)
+    def call(*args: Any, **kwargs: Any) -> Any:
+        return pick()(*args, **kwargs)
+    call.lower = lambda *args, **kwargs: pick().lower(*args, **kwargs)
+    call._cache_size = lambda: pick()._cache_size()
+    return call
+
+
 def default_width(episodes: int | None = None) -> int:
     """The vmap width for the default backend; for a batch of fewer ``episodes``, the smallest power
     of two that holds them (so a small batch is not padded to a wide batch)."""
@@ -74,7 +93,7 @@ def episode_index(total: int, width: int) -> np.ndarray:
     return index
 
 
-@partial(jax.jit, static_argnames=("sim", "mpc", "width", "metrics", "streaming"), compiler_options=XLA_OPTIONS)
+@program(static_argnames=("sim", "mpc", "width", "metrics", "streaming"))
 def evaluate_program(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, width: int,
                      metrics: tuple[str, ...], streaming: bool = True) -> dict[str, Array]:
     """The compiled program behind :func:`evaluate`, every static argument explicit (for

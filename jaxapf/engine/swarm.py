@@ -12,8 +12,6 @@ slots. A one-UAV swarm is :func:`~jaxapf.engine.loop.rollout` itself (the same p
 
 from __future__ import annotations
 
-from functools import partial
-
 import jax
 import jax.numpy as jnp
 from jax import Array
@@ -23,7 +21,7 @@ from ..datatypes import Trajectory
 from ..datatypes.swarm import Swarm, agent_view, neighbours
 from ..gains import Gains
 from ..metrics.swarm import swarm_metrics
-from .batch import XLA_OPTIONS
+from .batch import program
 from .components import gains_read
 from .loop import closed_loop, episode_loop, loop_init, loop_step, record_trajectory, rollout
 
@@ -60,7 +58,7 @@ def swarm_rollout(swarm: Swarm, gains: Gains, sim: SimConfig, mpc: MPCConfig, *,
     return jax.vmap(lambda x, r: record_trajectory(x, r, sim), in_axes=(0, 1))(x0, records)
 
 
-@partial(jax.jit, static_argnames=("sim", "mpc"), compiler_options=XLA_OPTIONS)
+@program(static_argnames=("sim", "mpc"))
 def evaluate_swarms(swarms: Swarm, gains: Gains, sim: SimConfig, mpc: MPCConfig) -> dict[str, Array]:
     """The swarm metrics of every (setting, field) pair: arrays (G, F). ``swarms``: F fields (leading
     axis F); ``gains``: G settings (leading axis G on every array leaf; scalars are shared)."""

@@ -15,7 +15,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import pathlib
-from functools import partial
 from typing import Sequence
 
 import jax
@@ -24,7 +23,7 @@ import pandas as pd
 
 from ..config import MPCConfig, SimConfig
 from ..datatypes import Scenario
-from ..engine import XLA_OPTIONS, rollout
+from ..engine import program, rollout
 from ..gains import Gains
 from ..io.versions import versions
 from ..metrics import METRICS, clearance_history, episode_end, episode_metrics
@@ -36,7 +35,7 @@ __all__ = ["simulate_runs", "write_outputs", "format_metrics_table"]
 _PYTHON = {"bool": bool, "int32": int, "float": float}
 
 
-@partial(jax.jit, static_argnames=("sim", "mpc", "metrics"), compiler_options=XLA_OPTIONS)
+@program(static_argnames=("sim", "mpc", "metrics"))
 def _episode(scenario: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, metrics: tuple[str, ...]):
     traj = rollout(scenario, gains, sim, mpc)
     return (traj, episode_metrics(traj, scenario, sim, metrics), clearance_history(traj, scenario, sim),

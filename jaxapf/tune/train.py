@@ -41,7 +41,7 @@ from tqdm.auto import tqdm
 
 from ..config import MPCConfig, SimConfig
 from ..datatypes import Obstacles, Scenario
-from ..engine import XLA_OPTIONS, default_width, episode_index, rollout
+from ..engine import default_width, episode_index, program, rollout
 from ..gains import Gains
 from ..io.lock import write_atomic
 from ..metrics import METRICS, episode_metrics
@@ -233,7 +233,7 @@ def batch_gradient(theta: dict[str, Array], batch: Scenario, spec: TuneSpec, key
     return direction, logs
 
 
-@partial(jax.jit, static_argnames="spec", compiler_options=XLA_OPTIONS)
+@program(static_argnames="spec")
 def _train_step(theta: dict[str, Array], opt_state: Any, batch: Scenario, step: Array, spec: TuneSpec):
     """One optimiser step (clipping by global norm, then the optimiser of the spec); ``step`` keys the
     perturbations of the perturbed gradient estimators (``(train.seed, step)``)."""
@@ -243,7 +243,7 @@ def _train_step(theta: dict[str, Array], opt_state: Any, batch: Scenario, step: 
     return optax.apply_updates(theta, updates), opt_state, logs
 
 
-@partial(jax.jit, static_argnames=("sim", "mpc", "objective", "metrics"), compiler_options=XLA_OPTIONS)
+@program(static_argnames=("sim", "mpc", "objective", "metrics"))
 def _report_batch(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, objective: Objective,
                   metrics: tuple[str, ...]):
     """:func:`episode_report` of paired (field, gains) episodes (leading axis: the batch)."""
