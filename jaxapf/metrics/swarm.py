@@ -48,18 +48,23 @@ SWARM_METRICS = ("at_goal", "swarm_success", "agent_collision", "obstacle_collis
                  "deadlock", "makespan", "mean_time_to_goal", "arrival_fairness")
 
 
-def pair_clearance(position: Array, valid: Array, r_uav: float) -> Array:
-    """``c^{ab}_i`` (T, A, A) of positions (A, T+1, 3): the swept clearance of every pair over every
-    interval (module docstring); +inf on the diagonal and for padded slots."""
-    r = position[:, None] - position[None, :]  # (A, A, T+1, 3)
-    r0, delta = r[..., :-1, :], r[..., 1:, :] - r[..., :-1, :]
+def _interval_pairs(p0: Array, p1: Array, valid: Array, r_uav: float) -> Array:
+    """``c^{ab}`` (A, A) of one interval from positions ``p0`` to ``p1`` (A, 3)."""
+    r0 = p0[:, None] - p0[None, :]
+    delta = (p1[:, None] - p1[None, :]) - r0
     dd = jnp.sum(delta * delta, axis=-1)
     s = jnp.clip(-jnp.sum(r0 * delta, axis=-1) / jnp.maximum(dd, TINY), 0.0, 1.0)
     closest = r0 + s[..., None] * delta
     c = jnp.sqrt(jnp.maximum(jnp.sum(closest * closest, axis=-1), TINY)) - 2 * r_uav
-    n = valid.shape[0]
-    pair = valid[:, None] & valid[None, :] & ~jnp.eye(n, dtype=bool)
-    return jnp.moveaxis(jnp.where(pair[..., None], c, jnp.inf), -1, 0)
+    pair = valid[:, None] & valid[None, :] & ~jnp.eye(valid.shape[0], dtype=bool)
+    return jnp.where(pair, c, jnp.inf)
+
+
+def pair_clearance(position: Array, valid: Array, r_uav: float) -> Array:
+    """``c^{ab}_i`` (T, A, A) of positions (A, T+1, 3): the swept clearance of every pair over every
+    interval (module docstring); +inf on the diagonal and for padded slots."""
+    p = jnp.moveaxis(position, 0, 1)  # (T+1, A, 3)
+    return jax.vmap(lambda p0, p1: _interval_pairs(p0, p1, valid, r_uav))(p[:-1], p[1:])
 
 
 def swarm_metrics(traj: Trajectory, swarm: Swarm, sim: SimConfig) -> dict[str, Array]:
@@ -70,10 +75,16 @@ def swarm_metrics(traj: Trajectory, swarm: Swarm, sim: SimConfig) -> dict[str, A
         ctx = EpisodeContext(t, Scenario(start=start, goal=goal, obstacles=swarm.obstacles), sim)
         return ctx.end["goal_index"], ctx.end["collision_index"], ctx.goal_distance
     goal_index, obstacle_index, distance = jax.vmap(own)(traj, swarm.start, swarm.goal)  # (A,), (A,), (A, T+1)
-    c = pair_clearance(traj.position, swarm.valid, sim.vehicle.r_uav)  # (T, A, A)
-    i = jnp.arange(steps)[:, None, None]
-    intact = (i < obstacle_index[None, :, None]) & (i < obstacle_index[None, None, :])
-    hit = jnp.any((c < 0) & intact, axis=-1)  # (T, A)
+    # one interval at a time (lax.map), keeping per interval only what the metrics need: which UAVs
+    # hit another (T, A) and the closest pair (T,), so memory grows with A² per step, not per episode
+    p = jnp.moveaxis(traj.position, 0, 1)  # (T+1, A, 3)
+
+    def interval(args: tuple[Array, Array, Array]) -> tuple[Array, Array]:
+        p0, p1, i = args
+        c = _interval_pairs(p0, p1, swarm.valid, sim.vehicle.r_uav)
+        intact = (i < obstacle_index)[:, None] & (i < obstacle_index)[None, :]
+        return jnp.any((c < 0) & intact, axis=-1), jnp.min(jnp.where(intact, c, jnp.inf))
+    hit, closest = jax.lax.map(interval, (p[:-1], p[1:], jnp.arange(steps)))  # (T, A), (T,)
     agent_index = jnp.where(jnp.any(hit, axis=0), jnp.argmax(hit, axis=0), steps).astype(jnp.int32) + 1
     success = swarm.valid & (goal_index <= steps) & (goal_index < jnp.minimum(obstacle_index, agent_index))
     end = jnp.minimum(jnp.minimum(goal_index, jnp.minimum(obstacle_index, agent_index)), steps)
@@ -99,7 +110,7 @@ def swarm_metrics(traj: Trajectory, swarm: Swarm, sim: SimConfig) -> dict[str, A
         "swarm_success": jnp.all(success | ~swarm.valid),
         "agent_collision": jnp.any(swarm.valid & (agent_index <= last)),
         "obstacle_collision": jnp.any(swarm.valid & (obstacle_index <= steps) & (obstacle_index <= goal_index)),
-        "min_agent_clearance": jnp.min(jnp.where(intact & (i < last), c, jnp.inf)),
+        "min_agent_clearance": jnp.min(jnp.where(jnp.arange(steps) < last, closest, jnp.inf)),
         "deadlock": jnp.any(stuck),
         "makespan": jnp.where(jnp.all(success | ~swarm.valid), jnp.max(jnp.where(success, arrival, 0.0)), jnp.nan),
         "mean_time_to_goal": mean_time,
