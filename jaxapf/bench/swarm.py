@@ -52,8 +52,9 @@ def run_swarm_benchmark(agents: Sequence[int] = AGENTS, uavs: int = 256, steps: 
         t0 = time.perf_counter()
         compiled = evaluate_swarms.lower(swarms, gains, sim=sim, mpc=mpc).compile()
         memory = compiled.memory_analysis()
-        out[a] = {"fields": fields, "compile_s": time.perf_counter() - t0,
-                  "temp_bytes": None if memory is None else int(memory.temp_size_in_bytes)}
+        temp = None if memory is None else int(memory.temp_size_in_bytes)
+        out[a] = {"fields": fields, "compile_s": time.perf_counter() - t0, "temp_bytes": temp,
+                  "temp_mib": None if temp is None else round(temp / 2**20, 1)}
         jax.block_until_ready(compiled(swarms, gains))
         runs[a] = (lambda c, s: lambda: jax.block_until_ready(c(s, gains)))(compiled, swarms)
     timed = interleaved(runs, repeats)
@@ -74,7 +75,7 @@ def format_swarm_benchmark(result: dict[str, Any]) -> str:
              f"{'UAVs':>5} {'fields':>7} {'compile':>9} {'run':>9} {'us/swarm-step':>14} {'us/UAV-step':>12} "
              f"{'memory':>10}"]
     for a, v in result["sizes"].items():
-        memory = "–" if v["temp_bytes"] is None else f"{v['temp_bytes'] / 2**20:.1f} MiB"
+        memory = "–" if v["temp_mib"] is None else f"{v['temp_mib']:.1f} MiB"
         lines.append(f"{a:>5} {v['fields']:>7} {v['compile_s']:>8.1f}s {v['run_s']:>8.2f}s "
                      f"{v['us_per_swarm_step']:>14.1f} {v['us_per_uav_step']:>12.2f} {memory:>10}")
     return "\n".join(lines)
