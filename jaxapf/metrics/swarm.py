@@ -27,9 +27,17 @@ Metrics (one scalar each per episode):
 - ``arrival_fairness``: Jain's index ``(Σ s_a)² / (n Σ s_a²)`` of the arrived UAVs' slowdowns
   ``s_a = t_a / |g_a - start_a|`` (seconds per metre of straight line), in ``(0, 1]``, 1 when every
   UAV is held up alike; NaN if none arrives.
+
+Each is a :class:`~jaxapf.metrics.Metric` of :data:`SWARM_METRICS` whose function reads the
+:class:`SwarmContext`, which computes every shared quantity once (as
+:class:`~jaxapf.metrics.EpisodeContext` does for one UAV); the pair clearances are taken one
+interval at a time, so the working memory grows with ``A²`` per step, not per episode.
 """
 
 from __future__ import annotations
+
+import functools
+from typing import Sequence
 
 import jax
 import jax.numpy as jnp
@@ -39,13 +47,11 @@ from ..config import SimConfig
 from ..datatypes import Scenario, Trajectory
 from ..datatypes.obstacles import TINY
 from ..datatypes.swarm import Swarm
+from ..registry import Registry
+from .base import Metric, _describe
 from .context import EpisodeContext, stall_samples
 
-__all__ = ["pair_clearance", "swarm_metrics", "SWARM_METRICS"]
-
-#: The metrics :func:`swarm_metrics` returns, in order.
-SWARM_METRICS = ("at_goal", "swarm_success", "agent_collision", "obstacle_collision", "min_agent_clearance",
-                 "deadlock", "makespan", "mean_time_to_goal", "arrival_fairness")
+__all__ = ["SwarmContext", "SWARM_METRICS", "pair_clearance", "swarm_metrics"]
 
 
 def _interval_pairs(p0: Array, p1: Array, valid: Array, r_uav: float) -> Array:
@@ -67,52 +73,123 @@ def pair_clearance(position: Array, valid: Array, r_uav: float) -> Array:
     return jax.vmap(lambda p0, p1: _interval_pairs(p0, p1, valid, r_uav))(p[:-1], p[1:])
 
 
-def swarm_metrics(traj: Trajectory, swarm: Swarm, sim: SimConfig) -> dict[str, Array]:
-    """:data:`SWARM_METRICS` of one swarm episode (``traj`` with a leading UAV axis)."""
-    steps, dt = traj.control.shape[-2], sim.episode.dt
+class SwarmContext:
+    """One swarm episode (``traj`` with a leading UAV axis) and what its metrics share, each computed once."""
 
-    def own(t: Trajectory, start: Array, goal: Array) -> tuple[Array, Array, Array]:
-        ctx = EpisodeContext(t, Scenario(start=start, goal=goal, obstacles=swarm.obstacles), sim)
-        return ctx.end["goal_index"], ctx.end["collision_index"], ctx.goal_distance
-    goal_index, obstacle_index, distance = jax.vmap(own)(traj, swarm.start, swarm.goal)  # (A,), (A,), (A, T+1)
-    # one interval at a time (lax.map), keeping per interval only what the metrics need: which UAVs
-    # hit another (T, A) and the closest pair (T,), so memory grows with A² per step, not per episode
-    p = jnp.moveaxis(traj.position, 0, 1)  # (T+1, A, 3)
+    def __init__(self, traj: Trajectory, swarm: Swarm, sim: SimConfig) -> None:
+        self.traj, self.swarm, self.sim = traj, swarm, sim
+        self.steps, self.dt = traj.control.shape[-2], sim.episode.dt
 
-    def interval(args: tuple[Array, Array, Array]) -> tuple[Array, Array]:
-        p0, p1, i = args
-        c = _interval_pairs(p0, p1, swarm.valid, sim.vehicle.r_uav)
-        intact = (i < obstacle_index)[:, None] & (i < obstacle_index)[None, :]
-        return jnp.any((c < 0) & intact, axis=-1), jnp.min(jnp.where(intact, c, jnp.inf))
-    hit, closest = jax.lax.map(interval, (p[:-1], p[1:], jnp.arange(steps)))  # (T, A), (T,)
-    agent_index = jnp.where(jnp.any(hit, axis=0), jnp.argmax(hit, axis=0), steps).astype(jnp.int32) + 1
-    success = swarm.valid & (goal_index <= steps) & (goal_index < jnp.minimum(obstacle_index, agent_index))
-    end = jnp.minimum(jnp.minimum(goal_index, jnp.minimum(obstacle_index, agent_index)), steps)
-    last = jnp.max(jnp.where(swarm.valid, end, 0))
-    count = jnp.maximum(jnp.sum(swarm.valid), 1)
-    arrival = goal_index.astype(traj.position.dtype) * dt
-    arrived = jnp.sum(success)
-    mean_time = jnp.where(arrived > 0, jnp.sum(jnp.where(success, arrival, 0.0)) / jnp.maximum(arrived, 1), jnp.nan)
-    straight = jnp.linalg.norm(swarm.goal - swarm.start, axis=-1)
-    slowdown = jnp.where(success, arrival / jnp.maximum(straight, TINY), 0.0)
-    jain = jnp.sum(slowdown) ** 2 / (jnp.maximum(arrived, 1) * jnp.maximum(jnp.sum(slowdown ** 2), TINY))
-    # deadlock: a window of n samples in 0..E in which everybody still on the way gets nowhere
-    n = stall_samples(sim)
+    @functools.cached_property
+    def own(self) -> tuple[Array, Array, Array]:
+        """Per UAV: ``g_a``, ``o_a`` (A,) and the distance to its goal (A, T+1), by the single-UAV rules."""
+        def one(t: Trajectory, start: Array, goal: Array) -> tuple[Array, Array, Array]:
+            ctx = EpisodeContext(t, Scenario(start=start, goal=goal, obstacles=self.swarm.obstacles), self.sim)
+            return ctx.end["goal_index"], ctx.end["collision_index"], ctx.goal_distance
+        return jax.vmap(one)(self.traj, self.swarm.start, self.swarm.goal)
+
+    @functools.cached_property
+    def pairs(self) -> tuple[Array, Array]:
+        """Per interval: which UAVs hit another while neither has hit an obstacle (T, A), and the closest
+        such pair (T,); one interval at a time."""
+        obstacle_index = self.own[1]
+        p = jnp.moveaxis(self.traj.position, 0, 1)  # (T+1, A, 3)
+
+        def interval(args: tuple[Array, Array, Array]) -> tuple[Array, Array]:
+            p0, p1, i = args
+            c = _interval_pairs(p0, p1, self.swarm.valid, self.sim.vehicle.r_uav)
+            intact = (i < obstacle_index)[:, None] & (i < obstacle_index)[None, :]
+            return jnp.any((c < 0) & intact, axis=-1), jnp.min(jnp.where(intact, c, jnp.inf))
+        return jax.lax.map(interval, (p[:-1], p[1:], jnp.arange(self.steps)))
+
+    @functools.cached_property
+    def agent_index(self) -> Array:
+        """``k_a`` (A,): the first interval on which UAV ``a`` hits another, + 1 (``T + 1``: never)."""
+        hit = self.pairs[0]
+        return jnp.where(jnp.any(hit, axis=0), jnp.argmax(hit, axis=0), self.steps).astype(jnp.int32) + 1
+
+    @functools.cached_property
+    def success(self) -> Array:
+        goal_index, obstacle_index, _ = self.own
+        return self.swarm.valid & (goal_index <= self.steps) & (goal_index < jnp.minimum(obstacle_index,
+                                                                                          self.agent_index))
+
+    @functools.cached_property
+    def last(self) -> Array:
+        """``E``: the last UAV's end."""
+        goal_index, obstacle_index, _ = self.own
+        end = jnp.minimum(jnp.minimum(goal_index, jnp.minimum(obstacle_index, self.agent_index)), self.steps)
+        return jnp.max(jnp.where(self.swarm.valid, end, 0))
+
+    @functools.cached_property
+    def arrival(self) -> Array:
+        """Arrival times (A,) [s] of the UAVs that succeed, 0 for the others."""
+        return jnp.where(self.success, self.own[0].astype(self.traj.position.dtype) * self.dt, 0.0)
+
+    @property
+    def arrived(self) -> Array:
+        return jnp.sum(self.success)
+
+
+def _deadlock(ctx: SwarmContext) -> Array:
+    goal_index, obstacle_index, distance = ctx.own
+    n, steps, valid = stall_samples(ctx.sim), ctx.steps, ctx.swarm.valid
     windows = max(steps + 2 - n, 0)  # window starts i with i + n - 1 <= T (none in an episode shorter than n)
     first = jnp.arange(windows)
-    on_way = (swarm.valid[None] & (first[:, None] < goal_index[None]) & (first[:, None] < obstacle_index[None])
-              & (first[:, None] < agent_index[None]))  # (W, A)
+    on_way = (valid[None] & (first[:, None] < goal_index[None]) & (first[:, None] < obstacle_index[None])
+              & (first[:, None] < ctx.agent_index[None]))  # (W, A)
     progress = (distance[:, :windows] - distance[:, n - 1:n - 1 + windows]).T  # (W, A)
-    stuck = jnp.any(on_way, axis=1) & jnp.all(~on_way | (progress < sim.metrics.d_progress), axis=1)
-    stuck = stuck & (first + n - 1 <= last)
-    return {
-        "at_goal": jnp.sum(success) / count,
-        "swarm_success": jnp.all(success | ~swarm.valid),
-        "agent_collision": jnp.any(swarm.valid & (agent_index <= last)),
-        "obstacle_collision": jnp.any(swarm.valid & (obstacle_index <= steps) & (obstacle_index <= goal_index)),
-        "min_agent_clearance": jnp.min(jnp.where(jnp.arange(steps) < last, closest, jnp.inf)),
-        "deadlock": jnp.any(stuck),
-        "makespan": jnp.where(jnp.all(success | ~swarm.valid), jnp.max(jnp.where(success, arrival, 0.0)), jnp.nan),
-        "mean_time_to_goal": mean_time,
-        "arrival_fairness": jnp.where(arrived > 0, jain, jnp.nan),
-    }
+    stuck = jnp.any(on_way, axis=1) & jnp.all(~on_way | (progress < ctx.sim.metrics.d_progress), axis=1)
+    return jnp.any(stuck & (first + n - 1 <= ctx.last))
+
+
+def _fairness(ctx: SwarmContext) -> Array:
+    straight = jnp.linalg.norm(ctx.swarm.goal - ctx.swarm.start, axis=-1)
+    slowdown = ctx.arrival / jnp.maximum(straight, TINY)
+    jain = jnp.sum(slowdown) ** 2 / (jnp.maximum(ctx.arrived, 1) * jnp.maximum(jnp.sum(slowdown ** 2), TINY))
+    return jnp.where(ctx.arrived > 0, jain, jnp.nan)
+
+
+def _obstacle_collision(ctx: SwarmContext) -> Array:
+    goal_index, obstacle_index, _ = ctx.own
+    return jnp.any(ctx.swarm.valid & (obstacle_index <= ctx.steps) & (obstacle_index <= goal_index))
+
+
+def _mean_time(ctx: SwarmContext) -> Array:
+    return jnp.where(ctx.arrived > 0, jnp.sum(ctx.arrival) / jnp.maximum(ctx.arrived, 1), jnp.nan)
+
+
+#: The swarm metrics, in column order (module docstring for their definitions).
+SWARM_METRICS: Registry[Metric] = Registry("swarm metric", describe=_describe, listed_as="swarm metrics")
+for _metric in (
+    Metric("at_goal", lambda c: jnp.sum(c.success) / jnp.maximum(jnp.sum(c.swarm.valid), 1), higher_is_better=True,
+           report=True, margin=0.02, doc="fraction of the swarm's UAVs that reach their goals"),
+    Metric("swarm_success", lambda c: jnp.all(c.success | ~c.swarm.valid), dtype="bool", kind="rate",
+           higher_is_better=True, report=True, margin=0.02, doc="every UAV reaches its goal"),
+    Metric("agent_collision", lambda c: jnp.any(c.swarm.valid & (c.agent_index <= c.last)), dtype="bool",
+           kind="rate", higher_is_better=False, report=True, margin=0.02, doc="two UAVs collide"),
+    Metric("obstacle_collision", _obstacle_collision, dtype="bool", kind="rate", higher_is_better=False, report=True,
+           margin=0.02, doc="a UAV hits an obstacle before its goal"),
+    Metric("min_agent_clearance", lambda c: jnp.min(jnp.where(jnp.arange(c.steps) < c.last, c.pairs[1], jnp.inf)),
+           unit="m", higher_is_better=True, report=True, margin=0.05,
+           doc="closest approach between two UAVs (swept, surface to surface)"),
+    Metric("deadlock", _deadlock, dtype="bool", kind="rate", higher_is_better=False, report=True, margin=0.02,
+           doc="for t_stall no UAV still on its way gets d_progress closer to its goal"),
+    Metric("makespan", lambda c: jnp.where(jnp.all(c.success | ~c.swarm.valid), jnp.max(c.arrival), jnp.nan),
+           unit="s", higher_is_better=False, on_success=True, margin=0.5, per_step=True,
+           doc="time until the last UAV is at its goal (every UAV arriving)"),
+    Metric("mean_time_to_goal", _mean_time, unit="s", higher_is_better=False, margin=0.5, per_step=True,
+           doc="mean arrival time of the UAVs that arrive"),
+    Metric("arrival_fairness", _fairness, higher_is_better=True, margin=0.02,
+           doc="Jain's index of the arrived UAVs' slowdowns (s per m of straight line)"),
+):
+    SWARM_METRICS.register(_metric.name, _metric)
+
+
+def swarm_metrics(traj: Trajectory, swarm: Swarm, sim: SimConfig, names: Sequence[str] | None = None
+                  ) -> dict[str, Array]:
+    """The swarm metrics ``names`` (default: all, :data:`SWARM_METRICS`) of one swarm episode."""
+    ctx = SwarmContext(traj, swarm, sim)
+    dtype = traj.position.dtype
+    return {n: SWARM_METRICS.get(n).cast(SWARM_METRICS.get(n).fn(ctx), dtype)
+            for n in (SWARM_METRICS.names() if names is None else names)}

@@ -103,7 +103,7 @@ def test_flown_swaps_reciprocal_arrival_and_potential_field_deadlock():
     swarm = _swarm([[0, 0, 2], [10, 0, 2]], [[10, 0, 2], [0, 0, 2]])
     fly = lambda s: jax.jit(lambda w: swarm_rollout(w, Gains(), s, MPCConfig()))(swarm)  # noqa: E731
     m = {k: np.asarray(v) for k, v in swarm_metrics(fly(sim), swarm, sim).items()}
-    assert list(m) == list(SWARM_METRICS)
+    assert list(m) == list(SWARM_METRICS.names())
     assert m["swarm_success"] and not m["deadlock"] and m["min_agent_clearance"] > 0.2
     np.testing.assert_allclose(m["arrival_fairness"], 1.0, atol=1e-6)  # a symmetric swap
     basic = sim.replace(method="basic")
@@ -128,7 +128,7 @@ def test_evaluate_swarms_is_the_metrics_of_each_setting_and_field():
     swarms = make_swarms(0, swarm_params("circle_swap", agents=3), 2)
     gains = Gains(vo_tau=jnp.array([1.0, 3.0]))
     grid = evaluate_swarms(swarms, gains, sim, mpc)
-    assert set(grid) == set(SWARM_METRICS) and grid["at_goal"].shape == (2, 2)
+    assert set(grid) == set(SWARM_METRICS.names()) and grid["at_goal"].shape == (2, 2)
     for g, tau in enumerate((1.0, 3.0)):
         for f in range(2):
             one = jax.tree_util.tree_map(lambda x, f=f: x[f], swarms)
