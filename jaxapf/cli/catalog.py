@@ -54,10 +54,12 @@ def live() -> dict[str, Any]:
     from ..engine.components import COMPONENTS
     from ..gains import GAINS
     from ..metrics import METRICS
+    from ..metrics.swarm import SWARM_METRICS
     from ..scenarios import FAMILIES
+    from ..scenarios.swarms import SWARM_FAMILIES
 
     lists = {}
-    for registry in (*COMPONENTS.values(), FAMILIES, METRICS, GAINS):
+    for registry in (*COMPONENTS.values(), FAMILIES, SWARM_FAMILIES, METRICS, SWARM_METRICS, GAINS):
         entries = []
         for name in registry.names():
             entry = {"name": name, "describe": registry.describe(name)}

@@ -160,7 +160,7 @@ def _mean_time(ctx: SwarmContext) -> Array:
 
 
 #: The swarm metrics, in column order (module docstring for their definitions).
-SWARM_METRICS: Registry[Metric] = Registry("swarm metric", describe=_describe, listed_as="swarm metrics")
+SWARM_METRICS: Registry[Metric] = Registry("swarm metric", describe=_describe, listed_as="swarm-metrics")
 for _metric in (
     Metric("at_goal", lambda c: jnp.sum(c.success) / jnp.maximum(jnp.sum(c.swarm.valid), 1), higher_is_better=True,
            report=True, margin=0.02, doc="fraction of the swarm's UAVs that reach their goals"),

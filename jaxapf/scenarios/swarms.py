@@ -240,7 +240,7 @@ class SwarmFamily:
 
 #: Registered swarm families.
 SWARM_FAMILIES: Registry[SwarmFamily] = Registry("swarm family", describe=lambda f: f.description,
-                                                 listed_as="swarm families")
+                                                 listed_as="swarm-families")
 
 
 def register_swarm_family(params: type[SwarmParams], build: Callable[..., SwarmLayout], *, description: str = ""
