@@ -8,6 +8,6 @@ def test_the_swarm_benchmark_reports_every_size():
     sizes = result["sizes"]
     assert list(sizes) == ["1", "3"] and sizes["1"]["fields"] == 6 and sizes["3"]["fields"] == 2
     for v in sizes.values():
-        assert v["run_s"] > 0 and v["us_per_uav_step"] > 0 and v["compile_s"] > 0
+        assert v["run_s"] > 0 and v["us_per_uav_step"] > 0 and v["compile_s"] > 0 and v["alone_us_per_uav_step"] > 0
         assert abs(v["us_per_swarm_step"] - v["us_per_uav_step"] * int(next(k for k in sizes if sizes[k] is v))) < 1e-6
     assert "UAVs" in format_swarm_benchmark(result)
