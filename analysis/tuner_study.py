@@ -1,17 +1,26 @@
 """Study 15: at which dimension of the gain space, if any, do gradients reach the best black-box tuner?
 
 Every tuner of ``jaxapf tune`` -- the gradient tuner (pathwise, clipped), random search, CMA-ES and
-TPE (the grid too where the space has 3 gains) -- tunes ``direction_velocity`` with the CBF filter
-in four gain spaces: 3 gains (``k_rep``, ``k_att``, ``eta``), the paper's 6, the 6 plus the MPC's
-5 weight scales (11), and those plus the CBF's 2 rates (13, every tunable gain this stack reads), on
-two training mixes (crossing + trap; head-on + clutter), with three seeds each (training fields
-and the searches' seeds; validation and test fields fixed). Each black-box tuner gets the episodes
-the gradient tuner used (its budget in episodes), and, in a second arm (``TUNER @ time``), the
-gradient tuner's wall-clock time: ``⌊B · t_gradient / t_tuner⌋`` episodes, from the seconds each
-spent on its first run (compilation included, as a user meets it).
-Small episodes keep the study to half an hour on 2 cores: 14 s flights, horizon 5, 8 FISTA
-iterations, 30 gradient steps of 8 fields. The tuned gains fly 48 held-out fields of each of the
-four families: the training mix's own (held-out fields) and the other mix's (held-out families).
+TPE (the grid too where the space has 3 gains) -- tunes ``direction_velocity_escape`` (the paper's
+weight with the stall escape) with the CBF filter in four gain spaces: 3 gains (``k_rep``,
+``k_att``, ``eta``), the paper's 6, the 6 plus the MPC's 5 weight scales (11), and those plus the
+CBF's 2 rates and the escape's 3 gains (16, every tunable gain this stack reads), on two training
+mixes (crossing + trap; head-on + clutter), with three seeds each (training fields and the searches'
+seeds; validation and test fields fixed). Each black-box tuner gets the episodes the gradient tuner
+used (its budget in episodes), and, in a second arm (``TUNER @ time``), the gradient tuner's
+wall-clock time: ``⌊B · t_gradient / t_tuner⌋`` episodes, from the seconds each spent on its first
+run (compilation included, as a user meets it). Small episodes keep the study to about an hour on
+2 cores: 14 s flights, horizon 5, 8 FISTA iterations, 30 gradient steps of 8 fields. The tuned
+gains fly 48 held-out fields of each of the four families: the training mix's own (held-out
+fields) and the other mix's (held-out families).
+
+Each tuner with a step size runs at its tuned best: before the study, per gain space, the gradient
+tuner's learning rate (adam, cosine decay; 0.05, 0.1, 0.2, 0.4) and CMA-ES's initial step
+(0.5, 1, 2, 4, 8 in ``θ``) are chosen on a selection problem of their own -- all four families in
+training, three selection seeds (11, 12, 13), the full budget -- by the held-out success (ties:
+the surrogate loss) of what each returns on 64 fresh check fields (seed 404), the rule the
+black-box searches pick a setting by. Random search and TPE search the same fixed ranges and have
+no step size; the grid is fixed.
 
 Each black-box tuner's success on the held-out fields is compared with the gradient tuner's of the
 same run, paired on the fields: exact McNemar and TOST within a 2-point margin,
@@ -19,7 +28,7 @@ same run, paired on the fields: exact McNemar and TOST within a 2-point margin,
 study uses; the cost of each tuner is its episodes and seconds per percentage point of success it
 adds to the defaults.
 
-    python analysis/tuner_study.py      # ~35 min on 2 cores
+    python analysis/tuner_study.py      # ~1.5 h on 2 cores
 """
 
 from __future__ import annotations
@@ -31,38 +40,100 @@ import pandas as pd
 import study
 
 STUDY = "tuner_study"
+METHOD = "direction_velocity_escape"
 MARGIN = 0.02
 SEEDS = (1, 2, 3)
-SPACES = {3: ["k_rep", "k_att", "eta"],
-          6: ["gamma", "k", "k_rep", "d_s", "k_att", "eta"],
-          11: ["gamma", "k", "k_rep", "d_s", "k_att", "eta", "mpc_pos", "mpc_vel", "mpc_terminal", "mpc_input",
-               "mpc_speed"],
-          13: ["gamma", "k", "k_rep", "d_s", "k_att", "eta", "mpc_pos", "mpc_vel", "mpc_terminal", "mpc_input",
-               "mpc_speed", "cbf_p1", "cbf_p2"]}
-MIXES = {"crossing+trap": ["crossing", "trap"], "head_on+clutter": ["head_on", "clutter"]}
+PAPER = ["gamma", "k", "k_rep", "d_s", "k_att", "eta"]
+MPC = ["mpc_pos", "mpc_vel", "mpc_terminal", "mpc_input", "mpc_speed"]
+SPACES = {3: ["k_rep", "k_att", "eta"], 6: PAPER, 11: PAPER + MPC,
+          16: PAPER + MPC + ["cbf_p1", "cbf_p2", "t_detect", "t_escape", "d_escape"]}
 FAMILIES = ["crossing", "trap", "head_on", "clutter"]
+MIXES = {"crossing+trap": ["crossing", "trap"], "head_on+clutter": ["head_on", "clutter"]}
 TEST_FIELDS = 48
+#: The step sizes tried per gain space, the selection problem's seeds, check fields and their seed.
+LEARNING_RATES = (0.05, 0.1, 0.2, 0.4)
+SIGMAS = (0.5, 1.0, 2.0, 4.0, 8.0)
+SELECTION_SEEDS = (11, 12, 13)
+CHECK_FIELDS, CHECK_SEED = 64, 404
 
 
-def spec_data(dim: int, mix: str, seed: int) -> dict:
+def spec_data(dim: int, families: list[str], seed: int, learning_rate: float, sigma: float, name: str) -> dict:
     """The tune spec of one run (module docstring)."""
     tuners = (["grid"] if dim == 3 else []) + ["random", "cmaes", "tpe"]
     return {
-        "name": f"tuners-d{dim}-{mix}-s{seed}",
-        "train": {"families": MIXES[mix], "fields_per_step": 8, "steps": 30, "seed": seed, "learning_rate": 0.05,
-                  "validate_every": 10, "patience": 3},
+        "name": name,
+        "train": {"families": families, "fields_per_step": 8, "steps": 30, "seed": seed,
+                  "learning_rate": learning_rate, "validate_every": 10, "patience": 3},
         "validation": {"fields": 16, "seed": 101},
         "test": {"families": FAMILIES, "fields": TEST_FIELDS, "seed": 202},
         "tune": {"params": SPACES[dim]},
-        "sim": {"method": "direction_velocity", "filter": "cbf", "t_max": 14.0, "horizon": 5, "iters": 8},
+        "sim": {"method": METHOD, "filter": "cbf", "t_max": 14.0, "horizon": 5, "iters": 8},
         "scenario": {"params": {f: {"distance": [8.0, 10.0]} for f in FAMILIES}},
         "search": {"tuners": tuners, "random_n": 16, "random_seed": seed, "fields_per_setting": 8, "tpe_batch": 8,
+                   "cmaes_sigma": sigma,
                    "grid": {"k_rep": [2.5, 10.0, 40.0], "k_att": [0.5, 1.0, 2.0], "eta": [0.25, 0.5, 1.0]}},
     }
 
 
-def run_all() -> pd.DataFrame:
-    """Every run (kept under ``runs/tuner-study/``, reused when finished); one row per test episode."""
+def select_step_sizes() -> pd.DataFrame:
+    """The selection runs of the module docstring (kept under ``runs/tuner-study/selection/``): one
+    row per (space, seed, tuner, step size) with the check fields' success and loss."""
+    from jaxapf.tune.proof import tuning_budget
+    from jaxapf.tune.searches import SEARCHES
+    from jaxapf.tune.spec import parse_tune_spec, split_count
+    from jaxapf.tune.train import Tuner
+
+    root = study.ROOT / "runs" / "tuner-study" / "selection"
+    root.mkdir(parents=True, exist_ok=True)
+    cache = root / "rows.json"
+    done = json.loads(cache.read_text()) if cache.exists() else {}
+
+    def check(tuner, gains) -> dict:
+        r = tuner.report(tuner.fields(CHECK_SEED, split_count(CHECK_FIELDS, len(FAMILIES)), FAMILIES), [gains])
+        return {"success": float(np.mean(r["success"])), "loss": float(np.mean(r["loss"]))}
+
+    for dim in SPACES:
+        for seed in SELECTION_SEEDS:
+            budget = None
+            for lr in LEARNING_RATES:
+                name = f"select-d{dim}-s{seed}-lr{lr}"
+                if name not in done:
+                    spec = parse_tune_spec(spec_data(dim, FAMILIES, seed, lr, 1.0, name))
+                    tuner = Tuner(spec)
+                    (root / name).mkdir(exist_ok=True)
+                    state = tuner.train(root / name, quiet=True)
+                    done[name] = {"dim": dim, "seed": seed, "tuner": "gradient", "step": lr,
+                                  "episodes": tuning_budget(spec, state)["episodes"],
+                                  **check(tuner, spec.reparam.gains(state.best_theta))}
+                    cache.write_text(json.dumps(done, indent=1) + "\n")
+                budget = done[name]["episodes"]
+            for sigma in SIGMAS:
+                name = f"select-d{dim}-s{seed}-sigma{sigma}"
+                if name not in done:
+                    spec = parse_tune_spec(spec_data(dim, FAMILIES, seed, 0.05, sigma, name))
+                    tuner = Tuner(spec)
+                    (root / name).mkdir(exist_ok=True)
+                    r = SEARCHES["cmaes"](tuner, budget, root / name, spec.digest())
+                    done[name] = {"dim": dim, "seed": seed, "tuner": "cmaes", "step": sigma,
+                                  "episodes": r["episodes"], **check(tuner, r["gains"])}
+                    cache.write_text(json.dumps(done, indent=1) + "\n")
+        print(f"  selection, {dim} gains: done", flush=True)
+    rows = pd.DataFrame(done.values())
+    grid = {"gradient": LEARNING_RATES, "cmaes": SIGMAS}
+    return rows[[step in grid[t] for t, step in zip(rows["tuner"], rows["step"])]].reset_index(drop=True)
+
+
+def chosen(selection: pd.DataFrame) -> dict[int, dict[str, float]]:
+    """Per gain space, each tuner's step size of highest mean check success over the selection seeds
+    (ties: lowest mean loss)."""
+    mean = selection.groupby(["dim", "tuner", "step"], as_index=False)[["success", "loss"]].mean()
+    best = mean.sort_values(["success", "loss"], ascending=[False, True]).groupby(["dim", "tuner"]).head(1)
+    return {dim: dict(zip(g["tuner"], g["step"])) for dim, g in best.groupby("dim")}
+
+
+def run_all(steps: dict[int, dict[str, float]]) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Every run at the chosen step sizes (kept under ``runs/tuner-study/``, reused when finished); one
+    row per test episode, and one per (run, tuner) with its cost."""
     from jaxapf.tune import run_tune_spec
     from jaxapf.tune.spec import parse_tune_spec
 
@@ -70,7 +141,8 @@ def run_all() -> pd.DataFrame:
     for dim in SPACES:
         for mix in MIXES:
             for seed in SEEDS:
-                data = spec_data(dim, mix, seed)
+                lr, sigma = steps[dim]["gradient"], steps[dim]["cmaes"]
+                data = spec_data(dim, MIXES[mix], seed, lr, sigma, f"tuners-d{dim}-{mix}-s{seed}-lr{lr}-sigma{sigma}")
                 out = study.ROOT / "runs" / "tuner-study" / data["name"]
                 out.mkdir(parents=True, exist_ok=True)
                 spec = parse_tune_spec(data)
@@ -159,7 +231,8 @@ def summarise(episodes: pd.DataFrame, cost: pd.DataFrame) -> pd.DataFrame:
 MARK = {"better": "↑", "worse": "↓", "equivalent": "=", "inconclusive": "·"}
 
 
-def write(table: pd.DataFrame, cost: pd.DataFrame, out) -> dict:
+def write(table: pd.DataFrame, cost: pd.DataFrame, selection: pd.DataFrame, steps: dict[int, dict[str, float]],
+          episodes: pd.DataFrame, out) -> dict:
     pooled = table[table["held_out"] == "all"]
     mean = pooled.groupby(["dim", "tuner"], sort=False)[["success", "episodes", "seconds", "points_over_default"]
                                                         ].mean().reset_index()
@@ -180,6 +253,10 @@ def write(table: pd.DataFrame, cost: pd.DataFrame, out) -> dict:
              "episodes": {f"d{r.dim}/{r.tuner}": int(round(r.episodes)) for r in mean.itertuples()},
              "pooled_verdicts_vs_gradient": counts,
              "gradient_still_improving": int(cost["still_improving"].sum()),
+             "chosen_steps": {f"d{d}": v for d, v in steps.items()},
+             "selection_success": {f"d{r.dim}/{r.tuner}/{r.step:g}": round(100 * r.success, 1)
+                                   for r in selection.groupby(["dim", "tuner", "step"], as_index=False)["success"]
+                                   .mean().itertuples()},
              "runs": int((cost["tuner"] == "gradient").sum()),
              "verdicts": {k: int(v) for k, v in table["verdict"].value_counts().items()},
              "comparisons": int(table["verdict"].notna().sum())}
@@ -198,10 +275,12 @@ def write(table: pd.DataFrame, cost: pd.DataFrame, out) -> dict:
                f"{facts['success_mean'][f'd{dim}/{best_time[dim][0]}']:.1f} %; its verdicts against the gradient "
                "tuner: " + ", ".join(f"{k} {v}" for k, v in counts[f"d{dim}/{best_time[dim][0]}"].items()) + "."
                for dim in SPACES),
-             f"- Every tuner ran at its defaults (the gradient tuner: adam, learning rate 0.05, cosine decay). In "
-             f"{facts['gradient_still_improving']} of the {facts['runs']} runs the gradient tuner's best validation "
-             "loss was at its last step: at this budget it had not converged, while the black-box tuners had "
-             "spent theirs.",
+             "- The step sizes chosen on the selection problem (learning rate of the gradient tuner / CMA-ES's "
+             "initial step, per gain space): " + "; ".join(f"{d} gains {steps[d]['gradient']:g} / "
+                                                            f"{steps[d]['cmaes']:g}" for d in SPACES) + ". At its "
+             f"chosen learning rate the gradient tuner's best validation loss was at its last step in "
+             f"{facts['gradient_still_improving']} of the {facts['runs']} runs (still improving when the budget "
+             "ran out).",
              "",
              f"Verdicts over all {facts['comparisons']} comparisons (Holm; pooled and per held-out kind): "
              + ", ".join(f"{k} {v}" for k, v in facts["verdicts"].items()) + ".", "",
@@ -236,16 +315,33 @@ def write(table: pd.DataFrame, cost: pd.DataFrame, out) -> dict:
     for (dim, tuner), _ in mean.set_index(["dim", "tuner"]).iterrows():
         lines.append(f"| {dim} | {tuner} | {100 * split[(dim, tuner, 'fields')]:.1f} | "
                      f"{100 * split[(dim, tuner, 'families')]:.1f} |")
+    lines += ["", "## Per family: held-out success [%] of each tuner at equal episodes (mean over mixes and seeds; "
+              "a family is held out of training for one mix)", "",
+              "| gains | tuner | " + " | ".join(FAMILIES) + " |", "|---|---|" + "---|" * len(FAMILIES)]
+    fam = episodes[~episodes["setting"].str.endswith(" @ time")].groupby(["dim", "setting", "family"])["success"].mean()
+    for dim in SPACES:
+        for tuner in ["default", *(t for t in tuners if not t.endswith(" @ time"))]:
+            if (dim, tuner, FAMILIES[0]) in fam.index:
+                lines.append(f"| {dim} | {tuner} | " + " | ".join(f"{100 * fam[(dim, tuner, f)]:.1f}" for f in FAMILIES)
+                             + " |")
+    lines += ["", "## Step-size selection: mean success [%] on the 64 check fields over the three selection seeds "
+              "(chosen: bold)", "", "| gains | tuner | " + " | ".join(["step", "success"]) + " |", "|---|---|---|---|"]
+    for r in selection.groupby(["dim", "tuner", "step"], as_index=False)["success"].mean().itertuples():
+        mark = "**" if steps[r.dim][r.tuner] == r.step else ""
+        lines.append(f"| {r.dim} | {r.tuner} | {mark}{r.step:g}{mark} | {100 * r.success:.1f} |")
     return study.write_results(out, lines, facts)
 
 
 def main() -> None:
     args, out = study.begin(__doc__, STUDY)
-    episodes, cost = run_all()
+    selection = select_step_sizes()
+    selection.to_csv(out / "selection.csv", index=False)
+    steps = chosen(selection)
+    episodes, cost = run_all(steps)
     cost.to_csv(out / "costs.csv", index=False)
     table = summarise(episodes, cost)
     table.to_csv(out / "summary.csv", index=False)
-    print(json.dumps(write(table, cost, out), indent=1))
+    print(json.dumps(write(table, cost, selection, steps, episodes, out), indent=1))
 
 
 if __name__ == "__main__":
