@@ -1,8 +1,11 @@
 """``jaxapf bench swarm``: the scaling table's structure on a tiny run (speed is measured, never asserted)."""
 
+import pytest
+
 from jaxapf.bench.swarm import format_swarm_benchmark, run_swarm_benchmark
 
 
+@pytest.mark.slow
 def test_the_swarm_benchmark_reports_every_size():
     result = run_swarm_benchmark(agents=(1, 3), uavs=6, steps=5, horizon=4, iters=3, repeats=1)
     sizes = result["sizes"]

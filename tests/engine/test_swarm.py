@@ -37,8 +37,9 @@ def _separation(p: np.ndarray, config: SimConfig) -> np.ndarray:
     return np.linalg.norm(p[0] - p[1], axis=-1) - 2 * config.vehicle.r_uav
 
 
-@pytest.mark.parametrize("sim", [{"method": "direction_velocity"}, {"method": "velocity_obstacle", "filter": "cbf"},
-                                 {"method": "basic_escape", "sensor": "noisy"}])
+@pytest.mark.parametrize("sim", [{"method": "direction_velocity"},
+                                 pytest.param({"method": "velocity_obstacle", "filter": "cbf"}, marks=pytest.mark.slow),
+                                 pytest.param({"method": "basic_escape", "sensor": "noisy"}, marks=pytest.mark.slow)])
 def test_a_one_uav_swarm_is_the_single_uav_program_bit_for_bit(sim):
     field = make_scenarios(3, family_params("clutter"), 1).take(0)
     config = SimConfig.from_flat({"t_max": 8.0} | sim)
@@ -88,6 +89,7 @@ def test_reciprocal_velocity_obstacles_swap_two_uavs_head_on_sharing_the_avoidan
     assert np.abs(p[0, :, 1]).max() > 0.1  # each swerved
 
 
+@pytest.mark.slow
 def test_potential_fields_deadlock_in_the_symmetric_swap():
     """The classical failure the swarm families are built to measure: the repulsion of two UAVs flying
     at each other balances their attraction on the line between them, and both stop short."""
@@ -97,6 +99,7 @@ def test_potential_fields_deadlock_in_the_symmetric_swap():
     assert np.abs(p[:, :, 1]).max() < 1e-4  # never leave the line
 
 
+@pytest.mark.slow
 def test_neighbours_are_sensed_like_obstacles():
     """With a sensing range below the passing distance nobody sees anybody: the two UAVs fly straight
     through each other; in full view they do not."""
@@ -106,6 +109,7 @@ def test_neighbours_are_sensed_like_obstacles():
     assert _separation(seeing, config).min() > 0.2
 
 
+@pytest.mark.slow
 def test_a_padded_uav_is_invisible():
     """A third slot parked on the line between the two, marked invalid: the two fly as if it were
     not there (float64, up to rounding between the two programs)."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -98,6 +99,7 @@ def test_unequal_slowdowns_lower_the_fairness_to_jains_index():
     np.testing.assert_allclose([m["makespan"], m["mean_time_to_goal"]], [10.0, 7.5], rtol=1e-5)
 
 
+@pytest.mark.slow
 def test_flown_swaps_reciprocal_arrival_and_potential_field_deadlock():
     sim = SimConfig.from_flat(method="velocity_obstacle", t_max=20.0)
     swarm = _swarm([[0, 0, 2], [10, 0, 2]], [[10, 0, 2], [0, 0, 2]])
@@ -119,6 +121,7 @@ def test_an_episode_shorter_than_t_stall_cannot_deadlock():
     assert _metrics(long, _swarm([[0, 0, 2], [10, 0, 2]], [[5, 0, 2], [5, 5, 2]]))["deadlock"]
 
 
+@pytest.mark.slow
 def test_evaluate_swarms_is_the_metrics_of_each_setting_and_field():
     from jaxapf.engine.swarm import evaluate_swarms
     from jaxapf.scenarios.swarms import make_swarms, swarm_params
