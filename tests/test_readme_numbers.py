@@ -155,7 +155,7 @@ def test_every_number_of_the_performance_page_comes_from_the_runs_its_section_ci
 
 
 #: Sections of docs/ that report a study: (page, section, the study's results folder).
-STUDY_SECTIONS = [("docs/tune.md", "Measured results", "tuning"),
+STUDY_SECTIONS = [("docs/tune.md", "Measured results", "tuning"), ("docs/tune.md", "Which tuner", "tuner_study"),
                   ("docs/scenarios.md", "Which settings separate what", "family_variants")]
 
 
