@@ -16,7 +16,7 @@ from ..registry import Registry
 from ..validation import ConfigError, check_choice, check_int, check_names, check_range, check_span
 
 __all__ = ["SHAPES", "Check", "integer", "number", "span", "choice", "names", "FamilyParams", "Family", "FAMILIES",
-           "register_family", "family_params"]
+           "register_family", "family_params", "checked_params"]
 
 SHAPES: tuple[str, ...] = ("cylinder", "sphere")
 
@@ -155,7 +155,11 @@ def family_params(family: str, **overrides: Any) -> FamilyParams:
     Raises :class:`ConfigError` for an unknown family, an unknown parameter name (listing the
     allowed ones) or a value out of range.
     """
-    cls = FAMILIES.get(family, "scenario.family").params
+    return checked_params(FAMILIES.get(family, "scenario.family").params, family, overrides)
+
+
+def checked_params(cls: type[FamilyParams], family: str, overrides: Mapping[str, Any]) -> FamilyParams:
+    """``cls(**overrides)``, an unknown parameter name refused in one line listing the allowed ones."""
     fields = tuple(f.name for f in dataclasses.fields(cls))
     for name in overrides:
         if name not in fields:

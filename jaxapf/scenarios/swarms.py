@@ -52,7 +52,8 @@ from ..datatypes import Obstacles
 from ..datatypes.swarm import Swarm
 from ..registry import Registry
 from ..validation import ConfigError
-from .base import FamilyParams, integer, number, span
+from .base import FamilyParams, checked_params, integer, number, span
+from .generate import _to_world
 from .layout import Draws, Layout, fit, scatter, with_motion
 
 __all__ = ["SwarmParams", "CircleSwapParams", "CrossingFlowsParams", "FormationGapParams", "SwarmClutterParams",
@@ -251,18 +252,7 @@ def register_swarm_family(params: type[SwarmParams], build: Callable[..., SwarmL
 
 def swarm_params(family: str, **overrides: Any) -> SwarmParams:
     """The default parameters of swarm ``family`` with ``overrides`` (validated, one-line errors)."""
-    cls = SWARM_FAMILIES.get(family, "scenario.family").params
-    fields = tuple(f.name for f in dataclasses.fields(cls))
-    for name in overrides:
-        if name not in fields:
-            raise ConfigError(f"scenario.{family}.{name} is not a parameter of {family}; allowed: {', '.join(fields)}")
-    return cls(**overrides)
-
-
-def _world(xy: Array, heading: Array, z: float) -> Array:
-    c, s = jnp.cos(heading), jnp.sin(heading)
-    return jnp.stack([c * xy[..., 0] - s * xy[..., 1], s * xy[..., 0] + c * xy[..., 1], jnp.full_like(xy[..., 0], z)],
-                     axis=-1)
+    return checked_params(SWARM_FAMILIES.get(family, "scenario.family").params, family, overrides)
 
 
 def _far(obstacles: Obstacles, points: Array, reach: Array) -> Array:
@@ -281,12 +271,12 @@ def make_swarm(key: Array, params: SwarmParams) -> Swarm:
     heading = jnp.deg2rad(d.uniform(params.heading))
     local = SWARM_FAMILIES.get(params.family).build(d, params, length)
     shake = d.uniform((-params.jitter, params.jitter), (2, params.agents, 2))
-    start = _world(local.start + shake[0], heading, params.altitude)
-    goal = _world(local.goal + shake[1], heading, params.altitude)
+    start = _to_world(local.start + shake[0], heading, params.altitude)
+    goal = _to_world(local.goal + shake[1], heading, params.altitude)
     lay = local.obstacles
-    obstacles = Obstacles(position=_world(lay.xy, heading, params.altitude), velocity=_world(lay.vxy, heading, 0.0),
-                          radius=lay.radius, cylinder=jnp.full(lay.valid.shape, params.shape == "cylinder"),
-                          valid=lay.valid)
+    obstacles = Obstacles(position=_to_world(lay.xy, heading, params.altitude),
+                          velocity=_to_world(lay.vxy, heading, 0.0), radius=lay.radius,
+                          cylinder=jnp.full(lay.valid.shape, params.shape == "cylinder"), valid=lay.valid)
     reach = obstacles.radius + params.r_uav
     keep = (obstacles.valid & _far(obstacles, start, reach + params.start_margin)
             & _far(obstacles, goal, reach + params.goal_margin))
