@@ -279,6 +279,7 @@ def _simulate(args: argparse.Namespace) -> int:
     from ..io.lock import check_writable
     from ..scenarios import family_params
     from ..simulate import format_metrics_table, simulate_runs, write_outputs
+    from ..sweep.spec import traced_weights
     from ..validation import MAX_FIELDS, MAX_SEED, check_int
 
     check_int("--seed", args.seed, 0, MAX_SEED)
@@ -287,9 +288,10 @@ def _simulate(args: argparse.Namespace) -> int:
     check_writable(args.out)
     t_max = args.t_max if args.t_max is not None else family_params(args.family).t_max
     components = {c["key"]: getattr(args, c["key"]) for c in _catalog()["components"] if c["key"] != "method"}
-    scaled = scales_set(gains.floats())  # the MPC's weights follow the gains only where a scale is set
+    # the MPC's weights follow the gains only where a scale is set, as in sweep, tune and compare specs
+    traced = traced_weights({}, scales_set(gains.floats()))
     sim = SimConfig.from_flat(method=args.methods[0], **components, convention=args.convention, dt=args.dt,
-                              t_max=t_max, mpc_weights="gains" if scaled else "static")
+                              t_max=t_max, **traced)
     mpc = MPCConfig(horizon=args.horizon, iters=args.iters)
     start = time.perf_counter()
     field, runs, table = simulate_runs(args.family, args.seed, args.field, args.methods, gains, sim, mpc)

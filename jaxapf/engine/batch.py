@@ -77,6 +77,14 @@ def program(fun: Callable | None = None, *, static_argnames: str | Sequence[str]
     return call
 
 
+def settings_read(gains: Gains, sim: SimConfig) -> tuple[int, Gains]:
+    """``(G, gains)``: the G settings of a batch of ``gains`` (the leading axis of its array leaves, 1 if
+    none has one), only the gains ``sim``'s components read, each leaf with the leading axis G."""
+    n_gains = max((jnp.shape(x)[0] for x in jax.tree_util.tree_leaves(gains) if jnp.ndim(x)), default=1)
+    return n_gains, jax.tree_util.tree_map(lambda x: x if jnp.ndim(x) else jnp.full((n_gains,), x),
+                                           gains.only(gains_read(sim)))
+
+
 def default_width(episodes: int | None = None) -> int:
     """The vmap width for the default backend; for a batch of fewer ``episodes``, the smallest power
     of two that holds them (so a small batch is not padded to a wide batch)."""
@@ -98,10 +106,8 @@ def evaluate_program(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPC
                      metrics: tuple[str, ...], streaming: bool = True) -> dict[str, Array]:
     """The compiled program behind :func:`evaluate`, every static argument explicit (for
     ``evaluate_program.lower(...)``)."""
-    n_gains = max((jnp.shape(x)[0] for x in jax.tree_util.tree_leaves(gains) if jnp.ndim(x)), default=1)
     # both engines fly the gains the setting's components declare, nothing else (also when called directly)
-    gains = jax.tree_util.tree_map(lambda x: x if jnp.ndim(x) else jnp.full((n_gains,), x),
-                                   gains.only(gains_read(sim)))
+    n_gains, gains = settings_read(gains, sim)
     n_fields = scenarios.start.shape[0]
     total = n_gains * n_fields
     if streaming:

@@ -21,7 +21,7 @@ from ..datatypes import Trajectory
 from ..datatypes.swarm import Swarm, agent_view, neighbours
 from ..gains import Gains
 from ..metrics.swarm import swarm_metrics
-from .batch import program
+from .batch import program, settings_read
 from .components import gains_read
 from .loop import closed_loop, episode_loop, loop_init, loop_step, record_trajectory, rollout
 
@@ -62,9 +62,7 @@ def swarm_rollout(swarm: Swarm, gains: Gains, sim: SimConfig, mpc: MPCConfig, *,
 def evaluate_swarms(swarms: Swarm, gains: Gains, sim: SimConfig, mpc: MPCConfig) -> dict[str, Array]:
     """The swarm metrics of every (setting, field) pair: arrays (G, F). ``swarms``: F fields (leading
     axis F); ``gains``: G settings (leading axis G on every array leaf; scalars are shared)."""
-    n_gains = max((jnp.shape(x)[0] for x in jax.tree_util.tree_leaves(gains) if jnp.ndim(x)), default=1)
-    gains = jax.tree_util.tree_map(lambda x: x if jnp.ndim(x) else jnp.full((n_gains,), x),
-                                   gains.only(gains_read(sim)))
+    _, gains = settings_read(gains, sim)
 
     def episode(swarm: Swarm, g: Gains) -> dict[str, Array]:
         return swarm_metrics(swarm_rollout(swarm, g, sim, mpc), swarm, sim)
