@@ -167,18 +167,23 @@ class WorldConfig:
         ``sigma_obs_v``) or ``differenced`` (finite difference of two consecutive noisy positions).
       max_latency: the largest latency [control steps] the noisy sensor can apply (the length of its
         history; the gain ``latency`` is clipped to it).
+      max_neighbours: in a swarm, the other UAVs each UAV's stack sees: the ``max_neighbours`` nearest
+        (RVO2's ``maxNeighbors``), or every other one with 0 (default). Bounds the obstacle slots of each
+        UAV's planner and filter to ``M + max_neighbours`` (:mod:`jaxapf.datatypes.swarm`).
     """
 
     sensor: str = "ideal"
     disturbance: str = "none"
     velocity_estimate: Literal["measured", "differenced"] = "measured"
     max_latency: int = 10
+    max_neighbours: int = 0
 
     def __post_init__(self) -> None:
         _name("sim.sensor", self.sensor)
         _name("sim.disturbance", self.disturbance)
         check_choice("sim.velocity_estimate", self.velocity_estimate, VELOCITY_ESTIMATES)
         check_int("sim.max_latency", self.max_latency, 0, 1000)
+        check_int("sim.max_neighbours", self.max_neighbours, 0, 1000)
 
 
 @dataclasses.dataclass(frozen=True)

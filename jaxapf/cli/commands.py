@@ -93,8 +93,12 @@ def build_parser() -> argparse.ArgumentParser:
     sim = sub.add_parser("simulate", help="one field, several planners side by side, figures and trajectories",
                          description="Run planners on one field and write trajectories, metrics and the paper's "
                                      "figures.")
-    sim.add_argument("--family", default="paper_static", choices=families, metavar="NAME",
-                     help=f"scenario family: {', '.join(families)} (default paper_static)")
+    swarms = _names("swarm-families")
+    sim.add_argument("--family", default="paper_static", choices=families + swarms, metavar="NAME",
+                     help=f"scenario family: {', '.join(families)} (default paper_static); or a swarm family, "
+                          f"{', '.join(swarms)}, whose UAVs all fly each planner")
+    sim.add_argument("--agents", type=int, metavar="A",
+                     help="UAVs of a swarm family's field (default: the family's)")
     sim.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
     sim.add_argument("--field", type=int, default=0, help="field index within the seed (default 0)")
     sim.add_argument("--methods", type=_planners, default=["basic", "direction_velocity"],
@@ -142,8 +146,9 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--resamples", type=int, default=2000, help="bootstrap resamples (default 2000)")
     rep.add_argument("--confidence", type=float, default=0.95, help="interval level (default 0.95)")
     rep.add_argument("--seed", type=int, default=0, help="bootstrap seed (default 0)")
-    rep.add_argument("--profile-metric", default="spl",
-                     help="metric of the performance profile, higher is better (default spl)")
+    rep.add_argument("--profile-metric",
+                     help="metric of the performance profile, higher is better (default spl; of a swarm sweep "
+                          "at_goal)")
     rep.add_argument("--margin", action="append", default=[], metavar="METRIC=VALUE",
                      help="relevance margin of a metric, overriding its registered one (repeatable; rates as "
                           "proportions, e.g. success=0.05)")
@@ -278,15 +283,22 @@ def _simulate(args: argparse.Namespace) -> int:
     from ..control import scales_set
     from ..io.lock import check_writable
     from ..scenarios import family_params
+    from ..scenarios.swarms import swarm_params
     from ..simulate import format_metrics_table, simulate_runs, write_outputs
+    from ..simulate.swarm import format_swarm_table, simulate_swarm, write_swarm_outputs
     from ..sweep.spec import traced_weights
-    from ..validation import MAX_FIELDS, MAX_SEED, check_int
+    from ..validation import MAX_FIELDS, MAX_SEED, ConfigError, check_int
 
     check_int("--seed", args.seed, 0, MAX_SEED)
     check_int("--field", args.field, 0, MAX_FIELDS - 1)
+    swarm = args.family in _names("swarm-families")
+    if args.agents is not None and not swarm:
+        raise ConfigError(f"--agents: {args.family} is a single-UAV family; --agents sets a swarm family's UAVs")
+    overrides = {} if args.agents is None else {"agents": args.agents}
+    params = swarm_params(args.family, **overrides) if swarm else family_params(args.family)
     gains = _gains(args)
     check_writable(args.out)
-    t_max = args.t_max if args.t_max is not None else family_params(args.family).t_max
+    t_max = args.t_max if args.t_max is not None else params.t_max
     components = {c["key"]: getattr(args, c["key"]) for c in _catalog()["components"] if c["key"] != "method"}
     # the MPC's weights follow the gains only where a scale is set, as in sweep, tune and compare specs
     traced = traced_weights({}, scales_set(gains.floats()))
@@ -294,14 +306,21 @@ def _simulate(args: argparse.Namespace) -> int:
                               t_max=t_max, **traced)
     mpc = MPCConfig(horizon=args.horizon, iters=args.iters)
     start = time.perf_counter()
-    field, runs, table = simulate_runs(args.family, args.seed, args.field, args.methods, gains, sim, mpc)
     config = {"command": "simulate", "family": args.family, "seed": args.seed, "field_index": args.field,
               "methods": args.methods, "gains": gains.floats(), "sim": sim.flat() | {"method": None},
-              "mpc": vars(mpc)}
-    paths = write_outputs(args.out, field, runs, table, config)
-    print(f"{field.title}: {sim.episode.steps} steps of {sim.episode.dt:g} s, {len(runs)} methods "
+              "mpc": vars(mpc), **({"scenario": overrides} if overrides else {})}
+    if swarm:
+        field, runs, table = simulate_swarm(args.family, args.seed, args.field, args.methods, gains, sim, mpc,
+                                            overrides)
+        paths = write_swarm_outputs(args.out, field, runs, table, config)
+        title, metrics = field.field.title, format_swarm_table(runs)
+    else:
+        field, runs, table = simulate_runs(args.family, args.seed, args.field, args.methods, gains, sim, mpc)
+        paths = write_outputs(args.out, field, runs, table, config)
+        title, metrics = field.title, format_metrics_table(runs)
+    print(f"{title}: {sim.episode.steps} steps of {sim.episode.dt:g} s, {len(runs)} methods "
           f"in {time.perf_counter() - start:.1f} s")
-    print(format_metrics_table(runs))
+    print(metrics)
     print(f"wrote {len(paths)} files to {args.out}/:", ", ".join(p.name for p in paths))
     return 0
 

@@ -10,7 +10,10 @@ A neighbour is a sphere of radius ``r_uav`` (so its clearance is the distance of
 less ``2 r_uav``) moving at its current velocity: at time ``t_k`` the obstacle slot holds the
 centre at ``t = 0`` that puts it at its true position now, ``p_b - v_b t_k``, so a planner that
 extrapolates obstacles at constant velocity from ``t = 0`` (every planner does) sees it where it
-is and predicts it straight ahead. Its slot is flagged ``agent`` (reciprocal planners share the
+is and predicts it straight ahead. With ``max_neighbours = K`` (``sim.world``; RVO2's ``maxNeighbors``) a
+UAV sees only the ``K`` other UAVs nearest to it at the step (ties to the lower index), in ``K`` slots,
+nearest first; without it (0, or ``K >= A - 1``) every other UAV, UAV ``b`` in slot ``b``. Its slot is
+flagged ``agent`` (reciprocal planners share the
 avoidance with it, :mod:`jaxapf.planners.velocity_obstacle`), and the sensor sees it as it sees any
 obstacle, so noise, range, dropout and latency apply to neighbours too (latency by extrapolating
 the current state back at its velocity, the constant-velocity model every obstacle follows).
@@ -31,7 +34,7 @@ from ..validation import ConfigError
 from .obstacles import ObstacleColumns, Obstacles
 from .scenario import Scenario
 
-__all__ = ["Swarm", "agent_view", "neighbours", "with_neighbours"]
+__all__ = ["Swarm", "agent_view", "neighbours", "with_neighbours", "neighbour_slots"]
 
 
 @jax.tree_util.register_dataclass
@@ -72,53 +75,70 @@ def _key_data(swarm: Swarm, a: Array | int) -> Array:
     return jnp.where(jnp.asarray(a) == 0, data, folded)
 
 
-def with_neighbours(obstacles: Obstacles, agents: int) -> Obstacles:
-    """``obstacles`` followed by ``agents`` neighbour slots (invalid, flagged ``agent``), the layout
-    every UAV of a swarm of that many sees; ``agents = 1`` (nobody else): ``obstacles`` unchanged."""
+def neighbour_slots(agents: int, max_neighbours: int = 0) -> int:
+    """The neighbour slots each UAV of a swarm of ``agents`` sees: ``agents`` (UAV ``b`` in slot ``b``,
+    itself invalid) with every other UAV, ``max_neighbours`` when fewer (module docstring), none alone."""
     if agents == 1:
+        return 0
+    return max_neighbours if 0 < max_neighbours < agents - 1 else agents
+
+
+def with_neighbours(obstacles: Obstacles, slots: int) -> Obstacles:
+    """``obstacles`` followed by ``slots`` neighbour slots (invalid, flagged ``agent``), the layout
+    every UAV of a swarm sees (:func:`neighbour_slots`); ``slots = 0`` (nobody else): ``obstacles``
+    unchanged."""
+    if slots == 0:
         return obstacles
     dtype = obstacles.position.dtype
-    empty = Obstacles.empty(agents, dtype)
+    empty = Obstacles.empty(slots, dtype)
     own = jnp.zeros(obstacles.radius.shape, bool) if obstacles.agent is None else obstacles.agent
     return Obstacles(*(jnp.concatenate([a, b]) for a, b in
                        zip((obstacles.position, obstacles.velocity, obstacles.radius, obstacles.cylinder,
                             obstacles.valid, own),
                            (empty.position, empty.velocity, empty.radius, empty.cylinder, empty.valid,
-                            jnp.ones((agents,), bool)))))
+                            jnp.ones((slots,), bool)))))
 
 
-def agent_view(swarm: Swarm, a: Array | int, r_uav: float) -> Scenario:
+def agent_view(swarm: Swarm, a: Array | int, r_uav: float, max_neighbours: int = 0) -> Scenario:
     """The field UAV ``a`` flies: its start and goal, the obstacles with the other UAVs at rest at
-    their starts (:func:`with_neighbours`), and its own key (module docstring)."""
+    their starts (:func:`with_neighbours`; the ``max_neighbours`` nearest with it), and its own key
+    (module docstring)."""
     if jnp.ndim(swarm.start) != 2:
         raise ConfigError(f"agent_view: one swarm is wanted (start of shape (A, 3)), not {jnp.shape(swarm.start)}")
     obstacles = swarm.obstacles
     if swarm.agents > 1:
         still = jnp.zeros_like(swarm.start)
-        obstacles = _place(with_neighbours(obstacles, swarm.agents), swarm, swarm.start, still, 0.0, a, r_uav)
+        slots = neighbour_slots(swarm.agents, max_neighbours)
+        obstacles = _place(with_neighbours(obstacles, slots), swarm, swarm.start, still, 0.0, a, r_uav, slots)
     return Scenario(start=swarm.start[a], goal=swarm.goal[a], obstacles=obstacles, kind=swarm.kind,
                     key=_key_data(swarm, a))
 
 
 def _place(obstacles: Obstacles | ObstacleColumns, swarm: Swarm, p: Array, v: Array, t: Array | float,
-           a: Array | int, r_uav: float):
-    """``obstacles`` (laid out by :func:`with_neighbours`) with its last ``A`` slots holding the UAVs
-    at positions ``p`` and velocities ``v`` (A, 3) at time ``t``, UAV ``a`` itself left out."""
+           a: Array | int, r_uav: float, slots: int):
+    """``obstacles`` (laid out by :func:`with_neighbours`) with its last ``slots`` slots holding the UAVs
+    at positions ``p`` and velocities ``v`` (A, 3) at time ``t``, UAV ``a`` itself left out: every UAV
+    ``b`` in slot ``b``, or with fewer slots than UAVs the nearest to UAV ``a``, nearest first."""
     n = swarm.agents
     others = swarm.valid & (jnp.arange(n) != a)
     centre = p - v * jnp.asarray(t, p.dtype)  # the centre at t = 0 that is at p at time t
+    if slots < n:  # the nearest: top_k of -distance² (others only), ties to the lower index
+        gap = jnp.sum((p - p[a]) ** 2, axis=-1)
+        _, nearest = jax.lax.top_k(jnp.where(others, -gap, -jnp.inf), slots)
+        centre, v, others = centre[nearest], v[nearest], others[nearest]
     columns = isinstance(obstacles, ObstacleColumns)
     lay = (lambda x: x.T) if columns else (lambda x: x)  # noqa: E731
     axis = -1 if columns else 0
-    put = lambda old, new: jax.lax.dynamic_update_slice_in_dim(old, new, old.shape[axis] - n, axis)  # noqa: E731
+    put = lambda old, new: jax.lax.dynamic_update_slice_in_dim(old, new, old.shape[axis] - slots, axis)  # noqa: E731
     return dataclasses.replace(obstacles, position=put(obstacles.position, lay(centre)),
                                velocity=put(obstacles.velocity, lay(v)),
-                               radius=put(obstacles.radius, jnp.full((n,), r_uav, p.dtype)),
+                               radius=put(obstacles.radius, jnp.full((slots,), r_uav, p.dtype)),
                                valid=put(obstacles.valid, others))
 
 
 def neighbours(columns: ObstacleColumns, swarm: Swarm, x: Array, t: Array, a: Array | int,
-               r_uav: float) -> ObstacleColumns:
+               r_uav: float, max_neighbours: int = 0) -> ObstacleColumns:
     """The obstacles (component-first, laid out by :func:`with_neighbours`) UAV ``a`` sees at time
-    ``t`` when the UAVs' true states are ``x`` (A, 6): the others at their positions and velocities."""
-    return _place(columns, swarm, x[:, :3], x[:, 3:], t, a, r_uav)
+    ``t`` when the UAVs' true states are ``x`` (A, 6): the others (the ``max_neighbours`` nearest with
+    it) at their positions and velocities."""
+    return _place(columns, swarm, x[:, :3], x[:, 3:], t, a, r_uav, neighbour_slots(swarm.agents, max_neighbours))

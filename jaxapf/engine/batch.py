@@ -28,7 +28,7 @@ from .loop import rollout_metrics
 from .stream import stream_metrics, stream_slots
 
 __all__ = ["evaluate", "evaluate_program", "episode_index", "default_width", "CPU_WIDTH", "ACCELERATOR_WIDTH",
-           "XLA_OPTIONS", "program"]
+           "XLA_OPTIONS", "program", "settings_read", "fixed_batches"]
 
 
 #: Episodes vmapped together (the vmap width) on CPU: wide enough that every step's kernels run
@@ -108,20 +108,29 @@ def evaluate_program(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPC
     ``evaluate_program.lower(...)``)."""
     # both engines fly the gains the setting's components declare, nothing else (also when called directly)
     n_gains, gains = settings_read(gains, sim)
-    n_fields = scenarios.start.shape[0]
-    total = n_gains * n_fields
     if streaming:
-        return stream_metrics(scenarios, gains, sim, mpc, stream_slots(total, width), metrics)
+        return stream_metrics(scenarios, gains, sim, mpc, stream_slots(n_gains * scenarios.start.shape[0], width),
+                              metrics)
+    return fixed_batches(lambda s, g: rollout_metrics(s, g, sim, mpc, metrics), scenarios, gains, n_gains, width)
+
+
+def fixed_batches(episode: Callable[[Any, Gains], dict[str, Array]], fields: Any, gains: Gains, n_gains: int,
+                  width: int) -> dict[str, Array]:
+    """The fixed-length engine: ``episode(field, setting)`` (a dict of metrics) of every (setting, field)
+    pair of a grid, the G·F episodes ``e = g·F + f`` padded to whole batches of ``width`` and run as a
+    ``lax.map`` over vmapped batches; arrays (G, F, ...). ``fields``: F on the leading axis of every
+    leaf; ``gains``: G on every leaf (:func:`settings_read`)."""
+    n_fields = jax.tree_util.tree_leaves(fields)[0].shape[0]
+    total = n_gains * n_fields
     width = min(width, total)
     index = episode_index(total, width)
     padded = index.shape[0]
     flat = (
-        jax.tree_util.tree_map(lambda x: x[index % n_fields], scenarios),
+        jax.tree_util.tree_map(lambda x: x[index % n_fields], fields),
         jax.tree_util.tree_map(lambda x: jnp.asarray(x)[index // n_fields], gains),
     )
     batches = jax.tree_util.tree_map(lambda x: x.reshape((padded // width, width) + x.shape[1:]), flat)
-    episodes = jax.vmap(lambda s, g: rollout_metrics(s, g, sim, mpc, metrics))
-    values = jax.lax.map(lambda c: episodes(*c), batches)
+    values = jax.lax.map(lambda c: jax.vmap(episode)(*c), batches)
     return jax.tree_util.tree_map(lambda m: m.reshape((padded,) + m.shape[2:])[:total].reshape(
         (n_gains, n_fields) + m.shape[2:]), values)
 

@@ -14,13 +14,14 @@ single-device one (last-bit differences in a few percent of episodes, docs/sweep
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
-from typing import Sequence
+from typing import Callable, Sequence
 
 import jax
 from jax.sharding import NamedSharding, PartitionSpec
 
 from ..config import MPCConfig, SimConfig
 from ..datatypes import Scenario
+from ..datatypes.swarm import Swarm
 from ..gains import Gains
 from .batch import evaluate_program
 
@@ -55,14 +56,17 @@ class DeviceBatch:
         """One copy of a gain batch on every device (reuse it across calls)."""
         return [jax.device_put(gains, d) for d in self.devices]
 
-    def evaluate(self, scenarios: Scenario, gains: Sequence[Gains], sim: SimConfig, mpc: MPCConfig,
-                 width: int, metrics: tuple[str, ...]) -> dict[str, jax.Array]:
+    def evaluate(self, scenarios: Scenario | Swarm, gains: Sequence[Gains], sim: SimConfig, mpc: MPCConfig,
+                 width: int, metrics: tuple[str, ...], program: Callable = evaluate_program) -> dict[str, jax.Array]:
         """The ``metrics``, each as a global ``(G, F)`` array sharded over the devices; returns once all
-        devices have been dispatched (block on the result to wait for them)."""
+        devices have been dispatched (block on the result to wait for them). ``program``: the compiled
+        program each device runs, ``program(fields, gains, sim, mpc, width, metrics)``
+        (:func:`~jaxapf.engine.evaluate_program`, or :func:`~jaxapf.engine.swarm.evaluate_swarms` for
+        a batch of :class:`~jaxapf.datatypes.swarm.Swarm` fields)."""
 
         placed = jax.device_put(scenarios, self.fields)
         shards = [jax.tree_util.tree_map(lambda x, i=i: _shard(x, i), placed) for i in range(len(self.devices))]
-        futures = [self.pool.submit(evaluate_program, s, g, sim, mpc, width, metrics) for s, g in zip(shards, gains)]
+        futures = [self.pool.submit(program, s, g, sim, mpc, width, metrics) for s, g in zip(shards, gains)]
         outs = [f.result() for f in futures]
         settings = outs[0][metrics[0]].shape[0]
         fields = scenarios.start.shape[0]

@@ -5,7 +5,8 @@ the UAVs' true states ``x`` (A, 6) place every UAV in the others' obstacle sets
 (:func:`~jaxapf.datatypes.swarm.neighbours`), then each UAV runs :func:`~jaxapf.engine.loop.loop_step`
 -- sensor, planner, MPC, filter, plant -- on its own carry, exactly as a single UAV does. The
 interaction is ``O(A²)`` per step: each UAV's planner, filter and sensor see ``M + A`` obstacle
-slots. A one-UAV swarm is :func:`~jaxapf.engine.loop.rollout` itself (the same program, bit for bit).
+slots (``M + K`` with ``sim.world.max_neighbours = K``: the nearest ``K`` only). A one-UAV swarm is
+:func:`~jaxapf.engine.loop.rollout` itself (the same program, bit for bit).
 :func:`evaluate_swarms` flies every (gain setting, swarm field) pair of a batch in one compiled call
 (fixed-length episodes) and returns the swarm metrics (:mod:`jaxapf.metrics.swarm`).
 """
@@ -21,7 +22,7 @@ from ..datatypes import Trajectory
 from ..datatypes.swarm import Swarm, agent_view, neighbours
 from ..gains import Gains
 from ..metrics.swarm import swarm_metrics
-from .batch import program, settings_read
+from .batch import fixed_batches, program, settings_read
 from .components import gains_read
 from .loop import closed_loop, episode_loop, loop_init, loop_step, record_trajectory, rollout
 
@@ -39,7 +40,8 @@ def swarm_rollout(swarm: Swarm, gains: Gains, sim: SimConfig, mpc: MPCConfig, *,
     gains = gains.only(gains_read(sim)).as_arrays(dtype)
     loop = episode_loop(closed_loop(sim, mpc, dtype), gains, sim, mpc, dtype)
     ids = jnp.arange(swarm.agents)
-    views = jax.vmap(lambda a: agent_view(swarm, a, r_uav))(ids)
+    near = sim.world.max_neighbours
+    views = jax.vmap(lambda a: agent_view(swarm, a, r_uav, near))(ids)
     columns = jax.vmap(lambda v: v.obstacles.columns())(views)
 
     def control_step(carry, k):
@@ -47,7 +49,7 @@ def swarm_rollout(swarm: Swarm, gains: Gains, sim: SimConfig, mpc: MPCConfig, *,
         t = k * sim.episode.dt
 
         def one(c, view, cols, a):
-            seen = neighbours(cols, swarm, x, t, a, r_uav)
+            seen = neighbours(cols, swarm, x, t, a, r_uav, near)
             return loop_step(loop, c, k, view, seen, gains, sim, mpc)
         return jax.vmap(one)(carry, views, columns, ids)
 
@@ -58,12 +60,15 @@ def swarm_rollout(swarm: Swarm, gains: Gains, sim: SimConfig, mpc: MPCConfig, *,
     return jax.vmap(lambda x, r: record_trajectory(x, r, sim), in_axes=(0, 1))(x0, records)
 
 
-@program(static_argnames=("sim", "mpc"))
-def evaluate_swarms(swarms: Swarm, gains: Gains, sim: SimConfig, mpc: MPCConfig) -> dict[str, Array]:
-    """The swarm metrics of every (setting, field) pair: arrays (G, F). ``swarms``: F fields (leading
-    axis F); ``gains``: G settings (leading axis G on every array leaf; scalars are shared)."""
-    _, gains = settings_read(gains, sim)
-
-    def episode(swarm: Swarm, g: Gains) -> dict[str, Array]:
-        return swarm_metrics(swarm_rollout(swarm, g, sim, mpc), swarm, sim)
-    return jax.vmap(lambda g: jax.vmap(lambda s: episode(s, g))(swarms))(gains)
+@program(static_argnames=("sim", "mpc", "width", "metrics"))
+def evaluate_swarms(swarms: Swarm, gains: Gains, sim: SimConfig, mpc: MPCConfig, width: int | None = None,
+                    metrics: tuple[str, ...] | None = None) -> dict[str, Array]:
+    """The swarm ``metrics`` (default: all of :data:`~jaxapf.metrics.swarm.SWARM_METRICS`) of every
+    (setting, field) pair: arrays (G, F). ``swarms``: F fields (leading axis F); ``gains``: G settings
+    (leading axis G on every array leaf; scalars are shared). The G·F swarm episodes run in the
+    fixed-length engine (:func:`~jaxapf.engine.batch.fixed_batches`), ``width`` of them vmapped
+    together (default: all)."""
+    n_gains, gains = settings_read(gains, sim)
+    width = n_gains * swarms.start.shape[0] if width is None else width
+    return fixed_batches(lambda s, g: swarm_metrics(swarm_rollout(s, g, sim, mpc), s, sim, metrics), swarms, gains,
+                         n_gains, width)

@@ -103,9 +103,17 @@ _RANK: dict[str, int] = {}
 METRICS: Registry[Metric] = Registry("metric", describe=_describe, rank=_RANK.__getitem__)
 
 
+#: The names of the swarm metrics (:mod:`jaxapf.metrics.swarm` adds them as it registers them): no
+#: single-UAV metric may take one.
+SWARM_NAMES: set[str] = set()
+
+
 def register_metric(metric: Metric, *, replace: bool = False, kind: str | None = None) -> Metric:
     """Register ``metric`` under its name; ``kind``: the kind of component whose metric it is (None: the
-    episode's, listed first)."""
+    episode's, listed first). A swarm metric's name is refused (:func:`jaxapf.metrics.find_metric`
+    finds a metric of either registry by its name)."""
+    if metric.name in SWARM_NAMES:
+        raise ConfigError(f"metric {metric.name!r} is a swarm metric's name; give the metric a name of its own")
     _RANK[metric.name] = -1 if kind is None else loop_rank(kind)
     return METRICS.register(metric.name, metric, replace=replace)
 

@@ -48,10 +48,11 @@ from ..datatypes import Scenario, Trajectory
 from ..datatypes.obstacles import TINY
 from ..datatypes.swarm import Swarm
 from ..registry import Registry
-from .base import Metric, _describe
+from ..validation import ConfigError
+from .base import METRICS, SWARM_NAMES, Metric, _describe
 from .context import EpisodeContext, stall_samples
 
-__all__ = ["SwarmContext", "SWARM_METRICS", "pair_clearance", "swarm_metrics"]
+__all__ = ["SwarmContext", "SWARM_METRICS", "pair_clearance", "swarm_metrics", "agent_outcomes"]
 
 
 def _interval_pairs(p0: Array, p1: Array, valid: Array, r_uav: float) -> Array:
@@ -115,11 +116,15 @@ class SwarmContext:
                                                                                           self.agent_index))
 
     @functools.cached_property
+    def ends(self) -> Array:
+        """``e_a = min(g_a, o_a, k_a, T)`` (A,): each UAV's end."""
+        goal_index, obstacle_index, _ = self.own
+        return jnp.minimum(jnp.minimum(goal_index, jnp.minimum(obstacle_index, self.agent_index)), self.steps)
+
+    @functools.cached_property
     def last(self) -> Array:
         """``E``: the last UAV's end."""
-        goal_index, obstacle_index, _ = self.own
-        end = jnp.minimum(jnp.minimum(goal_index, jnp.minimum(obstacle_index, self.agent_index)), self.steps)
-        return jnp.max(jnp.where(self.swarm.valid, end, 0))
+        return jnp.max(jnp.where(self.swarm.valid, self.ends, 0))
 
     @functools.cached_property
     def arrival(self) -> Array:
@@ -176,14 +181,24 @@ for _metric in (
     Metric("deadlock", _deadlock, dtype="bool", kind="rate", higher_is_better=False, report=True, margin=0.02,
            doc="for t_stall no UAV still on its way gets d_progress closer to its goal"),
     Metric("makespan", lambda c: jnp.where(jnp.all(c.success | ~c.swarm.valid), jnp.max(c.arrival), jnp.nan),
-           unit="s", higher_is_better=False, on_success=True, margin=0.5, per_step=True,
+           unit="s", higher_is_better=False, on_success=True, report=True, margin=0.5, per_step=True,
            doc="time until the last UAV is at its goal (every UAV arriving)"),
     Metric("mean_time_to_goal", _mean_time, unit="s", higher_is_better=False, margin=0.5, per_step=True,
            doc="mean arrival time of the UAVs that arrive"),
     Metric("arrival_fairness", _fairness, higher_is_better=True, margin=0.02,
            doc="Jain's index of the arrived UAVs' slowdowns (s per m of straight line)"),
 ):
+    if _metric.name in METRICS:
+        raise ConfigError(f"swarm metric {_metric.name!r} is a single-UAV metric's name")
+    SWARM_NAMES.add(_metric.name)
     SWARM_METRICS.register(_metric.name, _metric)
+
+
+def agent_outcomes(traj: Trajectory, swarm: Swarm, sim: SimConfig) -> dict[str, Array]:
+    """Each UAV's outcome (A,) in one swarm episode (module docstring): ``end`` (``e_a``), ``success``,
+    ``obstacle_index`` (``o_a``, ``T + 1``: never) and ``agent_index`` (``k_a``), sample indices."""
+    ctx = SwarmContext(traj, swarm, sim)
+    return {"end": ctx.ends, "success": ctx.success, "obstacle_index": ctx.own[1], "agent_index": ctx.agent_index}
 
 
 def swarm_metrics(traj: Trajectory, swarm: Swarm, sim: SimConfig, names: Sequence[str] | None = None

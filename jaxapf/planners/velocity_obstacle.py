@@ -47,7 +47,9 @@ re-solves every control step. The planner's state is the last step's ``vo_infeas
 by :meth:`VelocityObstacle.diagnostics`). Every valid obstacle counts, static or moving, at its true position
 and velocity; a static obstacle is an agent of velocity zero.
 
-Registered planner: ``velocity_obstacle`` (gains ``vo_tau``, ``vo_margin``, ``k_att``, ``eta``).
+Registered planners: ``velocity_obstacle`` (gains ``vo_tau``, ``vo_margin``, ``k_att``, ``eta``), and
+``velocity_obstacle_unilateral``, the same but taking the whole avoidance against other UAVs too (ORCA
+without its reciprocity: what reciprocity buys a swarm; one UAV flies it as ``velocity_obstacle``).
 """
 
 from __future__ import annotations
@@ -87,9 +89,10 @@ def _unit(a: Array) -> tuple[Array, Array]:
 
 
 def orca_half_spaces(x: Array, t: Array, obstacles: ObstacleColumns, gains: "Gains",
-                     sim: "SimConfig") -> tuple[Array, Array]:
+                     sim: "SimConfig", reciprocal: bool = True) -> tuple[Array, Array]:
     """Rows ``n_o`` (M, 3, unit length) and bounds ``n_o·(v + u_o)`` (M,) of the ORCA half-spaces
-    ``n_o·v' >= bound`` (module docstring); invalid slots give ``n = 0, bound = -1`` (always met)."""
+    ``n_o·v' >= bound`` (module docstring); invalid slots give ``n = 0, bound = -1`` (always met).
+    ``reciprocal``: another UAV of the swarm takes half of the avoidance (else all of it falls on this one)."""
     p, v = x[:3], x[3:]
     s = jnp.stack(line_of_sight(p, obstacles.position + obstacles.velocity * t, obstacles.cylinder), axis=-1)
     w = -jnp.stack(line_of_sight(v, obstacles.velocity, obstacles.cylinder), axis=-1)  # P(v - v_o)
@@ -115,7 +118,7 @@ def orca_half_spaces(x: Array, t: Array, obstacles: ObstacleColumns, gains: "Gai
     n_leg = -sin_a[:, None] * s_hat + cos_a[:, None] * e
     u = jnp.where(on_disc[:, None], u_disc, u_leg)
     n = jnp.where(on_disc[:, None], cut_hat, n_leg)
-    if obstacles.agent is not None:  # another UAV of the swarm takes its half (ORCA's reciprocity)
+    if reciprocal and obstacles.agent is not None:  # another UAV of the swarm takes its half (ORCA's reciprocity)
         u = u * jnp.where(obstacles.agent, 0.5, 1.0)[:, None]
     bound = jnp.sum(n * (v + u), axis=-1)
     valid = obstacles.valid
@@ -127,15 +130,24 @@ class VelocityObstacle(Planner):
     """velocity obstacles (ORCA, van den Berg et al. 2009): the goal-seeking velocity avoiding every collision within τ
 
     The velocity nearest the preferred one in every obstacle's ORCA half-space and the speed ball
-    (module docstring).
+    (module docstring). ``reciprocal``: another UAV of a swarm takes half of the avoidance (ORCA);
+    without it this UAV takes all of it, as against a passive obstacle (``velocity_obstacle_unilateral``).
     """
 
     color: str | None = "tab:brown"
+    reciprocal: bool = True
     linestyle: str | None = "-"
     metrics = (Metric("vo_infeasible_steps", lambda ctx: ctx.extra("vo_infeasible"), dtype="int32", kind="count",
                       higher_is_better=False, per_step=True,
                       doc="control steps at which the velocity obstacles' half-spaces and the speed ball could not "
                           "all hold (0 for other planners)"),)
+
+    @property
+    def description(self) -> str:
+        """One line for ``jaxapf list planners`` (the variant says what it lacks)."""
+        return super().description if self.reciprocal else (
+            "velocity obstacles taking the whole avoidance against other UAVs too: ORCA without its reciprocity "
+            "(a variant; one UAV alone flies it as velocity_obstacle)")
 
     @property
     def gains(self) -> tuple[GainSpec, ...]:
@@ -157,7 +169,7 @@ class VelocityObstacle(Planner):
         """``(v*, largest violation of the half-spaces)`` at the state ``x`` and time ``t``."""
         attraction = -jax.grad(attractive_potential)(x[:3], goal, gains.k_att, sim.planner.att_cap)
         preferred = saturate(gains.eta * attraction, sim.vehicle.v_max)
-        n, bound = orca_half_spaces(x, t, obstacles, gains, sim)
+        n, bound = orca_half_spaces(x, t, obstacles, gains, sim, self.reciprocal)
         return nearest_feasible(preferred, n, bound, sim.vehicle.v_max, "ball")
 
     def reference(self, state: Any, x: Array, t: Array, goal: Array, obstacles: Obstacles | ObstacleColumns,
@@ -170,3 +182,4 @@ class VelocityObstacle(Planner):
 
 
 register_planner("velocity_obstacle", VelocityObstacle())
+register_planner("velocity_obstacle_unilateral", VelocityObstacle(color="tab:pink", linestyle="--", reciprocal=False))

@@ -26,11 +26,11 @@ from typing import Any, Mapping
 import pandas as pd
 
 from .. import stats
-from ..metrics import METRICS
+from ..metrics import all_metrics, find_metric, is_metric
 from .document import Document, render_html, render_markdown
 from .figures import DEFAULT_HEATMAP, check_heatmap, table_figures
 from .latex import latex_tables
-from .load import ReportError, load_sweep, report_metrics
+from .load import ReportError, load_sweep, report_metrics, roles
 from .select import format_value, select
 from .tables import (
     ALL,
@@ -62,7 +62,8 @@ class ReportOptions:
       resamples: bootstrap resamples of every interval.
       confidence: level of every interval; tests are significant at ``1 - confidence`` after Holm.
       seed: seed of every bootstrap generator.
-      profile_metric: the metric of the performance profile (higher is better).
+      profile_metric: the metric of the performance profile (higher is better; default ``spl``, of a swarm
+        sweep ``at_goal``: :data:`~jaxapf.report.load.Roles`).
       margins: ``(metric, margin)`` overrides of the registry's relevance margins (``--margin``).
       efficiency: ``both-success`` (default): metrics meaningful only on successful episodes are
         compared on the pairs where both settings succeed; ``all-pairs``: on every pair.
@@ -79,7 +80,7 @@ class ReportOptions:
     resamples: int = stats.DEFAULT_RESAMPLES
     confidence: float = 0.95
     seed: int = 0
-    profile_metric: str = "spl"
+    profile_metric: str | None = None
     margins: tuple[tuple[str, float], ...] = ()
     efficiency: str = "both-success"
     pair_on: tuple[str, ...] = ()
@@ -90,12 +91,12 @@ class ReportOptions:
             raise ReportError(f"--efficiency = {self.efficiency!r} is not allowed; "
                               "choose one of both-success, all-pairs")
         for name, margin in self.margins:
-            if name not in METRICS:
+            if not is_metric(name):
                 raise ReportError(f"--margin {name}=...: {name!r} is not a metric; choose one of "
-                                  f"{', '.join(METRICS.names())}")
+                                  f"{', '.join(name for name, _ in all_metrics())}")
             if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not 0 < margin < math.inf:
                 raise ReportError(f"--margin {name}={margin!r} must be a finite number > 0")
-            if METRICS.get(name).kind == "rate" and not margin < 1:
+            if find_metric(name).kind == "rate" and not margin < 1:
                 raise ReportError(f"--margin {name}={margin!r}: a rate's margin is a proportion below 1 "
                                   "(0.02 = 2 percentage points)")
         if isinstance(self.resamples, bool) or not isinstance(self.resamples, int) or self.resamples < 100:
@@ -141,8 +142,9 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
     path = pathlib.Path(path)
     out = pathlib.Path(out)
     df, meta = load_sweep(path)
-    if options.profile_metric not in df.columns or options.profile_metric not in METRICS:
-        raise ReportError(f"--profile-metric {options.profile_metric!r} is not a metric column of {path}")
+    profile = options.profile_metric or roles(df.columns).profile
+    if profile not in df.columns or not is_metric(profile):
+        raise ReportError(f"--profile-metric {profile!r} is not a metric column of {path}")
     sel = select(df, options)
     check_heatmap(sel, options)
     rates, continuous = report_metrics(sel.data.columns)
@@ -205,7 +207,7 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
         f"({', '.join(g for g in names if '/' in g) or 'none'}), and '{ALL}' pooling the families; a pooled row "
         "says what it pools",
         "metrics meaningful only on successful episodes ("
-        + ", ".join(m for m in continuous if METRICS.get(m).on_success) + "): summarised over successful episodes "
+        + ", ".join(m for m in continuous if find_metric(m).on_success) + "): summarised over successful episodes "
         + ("and compared on the pairs where both settings succeed (n given)" if options.efficiency == "both-success"
            else "and compared on all pairs (--efficiency all-pairs)")
         + "; other non-finite values (e.g. min_clearance = +inf in a field without obstacles) are left out",
@@ -233,7 +235,7 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
                 + " fields" if sizes.nunique() > 1 else "") + ")." if ALL in names else ".")
           + (" 'among solvable' counts only the fields where a collision-free path exists "
              "(jaxapf.scenarios.solvable, the solvability oracle)." if "n_solvable" in summary.columns else ""))
-    if {"success", "stalled"} <= set(rates):
+    if {"success", "stalled"} <= set(rates):  # a single UAV's rates (a swarm's deadlock ends no episode)
         both = int((sel.data["success"].astype(bool) & sel.data["stalled"].astype(bool)).sum())
         doc.p("The rates are not exclusive and need not sum to 100 %: an episode that stalls and then escapes to "
               f"the goal counts as both stalled and successful ({both} episode{'s' if both != 1 else ''} here).")
@@ -243,7 +245,7 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
           f"({options.resamples} resamples, stratified for pooled groups); n = episodes with a finite value "
           "(successful episodes for a metric meaningful only there).")
     for m in continuous:
-        metric = METRICS.get(m)
+        metric = find_metric(m)
         unit = f" [{metric.unit}]" if metric.unit else ""
         doc.h(3, f"{m}{unit}" + (" — successful episodes only" if metric.on_success else ""))
         doc.table(continuous_table(summary, m))
@@ -258,11 +260,11 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
               "difference below which it does not matter; p equiv.: two one-sided tests that the difference lies "
               "within it; MDE: the smallest difference this many pairs detects with power 0.8. PoI = P(setting "
               "better than baseline on the same field) + ½ P(tie): > 0.5 favours the setting. Better means higher "
-              f"for {', '.join(m for m in rates + continuous if METRICS.get(m).higher_is_better)}, lower for "
-              f"{', '.join(m for m in rates + continuous if not METRICS.get(m).higher_is_better)}. "
+              f"for {', '.join(m for m in rates + continuous if find_metric(m).higher_is_better)}, lower for "
+              f"{', '.join(m for m in rates + continuous if not find_metric(m).higher_is_better)}. "
               f"p Holm: Holm-adjusted over all {n_tests} difference tests; * = significant at {options.alpha:.3g}.")
         for m in rates + continuous:
-            doc.h(3, m + (" (higher is better)" if METRICS.get(m).higher_is_better else " (lower is better)"))
+            doc.h(3, m + (" (higher is better)" if find_metric(m).higher_is_better else " (lower is better)"))
             doc.table(comparison_table(comparisons, m))
     else:
         doc.p("No setting to compare: every reported setting is a baseline setting.")

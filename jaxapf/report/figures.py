@@ -20,11 +20,11 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
 from .. import stats
-from ..metrics import METRICS
+from ..metrics import find_metric
 from ..planners import PLANNERS
 from ..simulate.figures import panel_grid
 from .document import FigureFile, save_figure
-from .load import ReportError, report_metrics
+from .load import SINGLE_ROLES, SWARM_ROLES, ReportError, report_metrics, roles
 from .select import Selection, format_value, ignored_columns, swept_columns, symbol
 from .tables import ALL, group_rows, groups, headline
 
@@ -170,7 +170,9 @@ def plot_ecdf(values: Mapping[str, Mapping[int, np.ndarray]], labels: Mapping[in
                for s in settings]
     _legend_below(fig, handles, ncol=min(len(handles), 3))
     fig.suptitle(f"Empirical CDF of {metric} per setting"
-                 + (" (red line: collision)" if vline == 0.0 and metric == "min_clearance" else ""), fontsize=10)
+                 + (" (red line: collision)" if vline == 0.0 and metric in (SINGLE_ROLES.clearance,
+                                                                             SWARM_ROLES.clearance) else ""),
+                 fontsize=10)
     return fig
 
 
@@ -276,7 +278,7 @@ def plot_differences(comparisons: pd.DataFrame, labels: Mapping[int, str], metri
     fig, axes = panel_grid(len(metrics), (3.4, 0.8 + 0.3 * max(len(settings), 1)), (2.6, 1.0), sharey=True)
     for ax, metric in zip(axes, metrics):
         sub = comparisons[comparisons["metric"] == metric].set_index("setting")
-        rate = METRICS.get(metric).kind == "rate"
+        rate = find_metric(metric).kind == "rate"
         scale = 100.0 if rate else 1.0
         if len(sub) and math.isfinite(float(sub["margin"].iloc[0])):
             margin = scale * float(sub["margin"].iloc[0])
@@ -294,7 +296,7 @@ def plot_differences(comparisons: pd.DataFrame, labels: Mapping[int, str], metri
             ax.errorbar([d], [i], xerr=[[max(d - lo, 0.0)], [max(hi - d, 0.0)]] if math.isfinite(lo) else None,
                         fmt="o", color=color, markerfacecolor=color if sig else "white", capsize=2)
         ax.axvline(0.0, color="black", linewidth=0.8)
-        unit = "pp" if rate else METRICS.get(metric).unit
+        unit = "pp" if rate else find_metric(metric).unit
         name = f"Δ {metric}" if rate else f"HL shift {metric}"
         name += f" [{unit}]" if unit else ""
         if len(sub):
@@ -357,7 +359,8 @@ def _heatmap_figures(sel: Selection, options: Any, figdir: pathlib.Path) -> tupl
         if len(combos) > 6:
             notes.append(f"heatmaps for {method}: only the first 6 of {len(combos)} combinations of "
                          f"{', '.join(others)} are drawn")
-        for rate in ("success", "collision"):
+        role = roles(sel.data.columns)
+        for rate in (role.success, role.collision):
             cells = []
             for combo in keys:
                 ids = list(combos[combo])
@@ -402,12 +405,15 @@ def row_figures(sel: Selection, options: Any, figdir: pathlib.Path) -> tuple[lis
     methods = {s: str(sel.table.at[s, "method"]) for s in sel.settings}
     names = groups(sel.data)
     figures, notes = _heatmap_figures(sel, options, figdir)
-    clearance = {g: {s: group_rows(sel.data[sel.data["setting"] == s], g)["min_clearance"].to_numpy(np.float64)
+    role = roles(sel.data.columns)
+    near = role.clearance
+    clearance = {g: {s: group_rows(sel.data[sel.data["setting"] == s], g)[near].to_numpy(np.float64)
                      for s in sel.settings} for g in names}
-    figures.append(save_figure(plot_ecdf(clearance, labels, methods, "min_clearance", "m"), "ecdf_min_clearance",
-                               "Empirical CDF of the minimum clearance per setting (left of 0: collision)", figdir,
-                               options.svg))
-    metric = options.profile_metric
+    figures.append(save_figure(plot_ecdf(clearance, labels, methods, near, "m"), f"ecdf_{near}",
+                               "Empirical CDF of the minimum clearance per setting (left of 0: collision)"
+                               if not role.swarm else "Empirical CDF of the closest approach between two UAVs "
+                               "per swarm episode and setting (left of 0: two UAVs collide)", figdir, options.svg))
+    metric = options.profile_metric or role.profile
     values = sel.data[metric].to_numpy(np.float64)
     taus = _profile_taus(values)
     curves = {}
@@ -435,7 +441,7 @@ def table_figures(sel: Selection, summary: pd.DataFrame, comparisons: pd.DataFra
     labels = {s: sel.labels[s] for s in sel.settings}
     names = groups(sel.data)
     rates, continuous = report_metrics(sel.data.columns)
-    units = {m: METRICS.get(m).unit for m in continuous}
+    units = {m: find_metric(m).unit for m in continuous}
     figures = [save_figure(plot_rates(summary, labels, rates, options.confidence), "rates",
                            f"{', '.join(rates).capitalize()} rates with {100 * options.confidence:g} % Wilson "
                            "intervals", figdir, options.svg),

@@ -11,7 +11,7 @@ import pandas as pd
 
 from ..validation import ConfigError, first_line
 from .document import FigureFile, save_figure
-from .load import report_metrics
+from .load import report_metrics, roles
 from .select import Selection
 from .tables import _num
 
@@ -20,17 +20,21 @@ __all__ = ["worst_episodes", "resimulate", "gallery"]
 
 def worst_episodes(data: pd.DataFrame, count: int) -> list[tuple[str, pd.Series]]:
     """Up to ``count`` failed episodes: collisions (deepest first), stalls and other failures
-    (farthest from the goal first), taken in turn, distinct fields before repeats."""
-    fails = data[~data["success"]]
+    (farthest from the goal first; of a swarm: two UAVs colliding, deadlocks and the rest, fewest UAVs
+    at their goals first), taken in turn, distinct fields before repeats."""
+    role = roles(data.columns)
+    fails = data[~data[role.success].astype(bool)]
     order = ["setting", "family", "field"]
+    hit, stuck = fails[role.collision].astype(bool), fails[role.stalled].astype(bool)
+    far, ascending = ("at_goal", True) if role.swarm else ("final_distance", False)
+
+    def worst(frame: pd.DataFrame) -> pd.DataFrame:
+        return (frame.sort_values([far] + order, ascending=[ascending, True, True, True], kind="stable")
+                if far in frame.columns else frame)
     cats = [
-        ("collision", fails[fails["collision"]].sort_values(["min_clearance"] + order, kind="stable")),
-        ("stall", fails[~fails["collision"] & fails["stalled"]].sort_values(
-            ["final_distance"] + order, ascending=[False, True, True, True], kind="stable")
-         if "final_distance" in fails.columns else fails[~fails["collision"] & fails["stalled"]]),
-        ("not reached", fails[~fails["collision"] & ~fails["stalled"]].sort_values(
-            ["final_distance"] + order, ascending=[False, True, True, True], kind="stable")
-         if "final_distance" in fails.columns else fails[~fails["collision"] & ~fails["stalled"]]),
+        ("collision", fails[hit].sort_values([role.clearance] + order, kind="stable")),
+        ("deadlock" if role.swarm else "stall", worst(fails[~hit & stuck])),
+        ("not reached", worst(fails[~hit & ~stuck])),
     ]
     queues = [(name, [r for _, r in frame.iterrows()]) for name, frame in cats]
     picked: list[tuple[str, pd.Series]] = []
@@ -57,7 +61,8 @@ def worst_episodes(data: pd.DataFrame, count: int) -> list[tuple[str, pd.Series]
 
 def resimulate(sel: Selection, meta: Mapping, options: Any) -> list[tuple[str, pd.Series, Any]]:
     """The ``options.gallery`` worst episodes (:func:`worst_episodes`), each re-simulated with
-    :func:`jaxapf.sweep.row_config` and :func:`jaxapf.simulate.simulate_runs`: ``(kind, row, result)``
+    :func:`jaxapf.sweep.row_config` and :func:`jaxapf.simulate.simulate_runs` (a swarm's with
+    :func:`jaxapf.simulate.swarm.simulate_swarm`): ``(kind, row, result)``
     with ``result`` either ``(cfg, field, runs)`` or the :class:`ConfigError` that prevented it. Only
     JAX work: :class:`jaxapf.report.worker.RowWorker` runs it in a second process while the report is made."""
     if options.gallery == 0:
@@ -69,12 +74,15 @@ def resimulate(sel: Selection, meta: Mapping, options: Any) -> list[tuple[str, p
         import jax
 
         jax.config.update("jax_enable_x64", True)
+    from ..simulate.swarm import simulate_swarm
+
+    simulate = simulate_swarm if roles(sel.data.columns).swarm else simulate_runs
     out = []
     for kind, row in worst_episodes(sel.data, options.gallery):
         try:
             cfg = row_config(meta, row.to_dict())
-            field, runs, _ = simulate_runs(cfg.family, cfg.seed, cfg.field, [cfg.sim.planner.method], cfg.gains,
-                                           cfg.sim, cfg.mpc, cfg.overrides)
+            field, runs, _ = simulate(cfg.family, cfg.seed, cfg.field, [cfg.sim.planner.method], cfg.gains,
+                                      cfg.sim, cfg.mpc, cfg.overrides)
             out.append((kind, row, (cfg, field, runs)))
         except ConfigError as err:  # e.g. a planner of a plugin this process cannot import
             out.append((kind, row, err))
@@ -89,7 +97,9 @@ def gallery(sel: Selection, episodes: list[tuple[str, pd.Series, Any]], options:
     if not episodes:
         return [], ["gallery: no failed episode among the reported settings"]
     from ..simulate import plot_trajectories
+    from ..simulate.swarm import plot_swarm_snapshots, plot_swarm_trajectories
 
+    role = roles(sel.data.columns)
     rates = report_metrics(sel.data.columns)[0]
     figures, notes = [], []
     for i, (kind, row, result) in enumerate(episodes, 1):
@@ -105,9 +115,20 @@ def gallery(sel: Selection, episodes: list[tuple[str, pd.Series, Any]], options:
             "re-simulation differs from the recorded row: recorded "
             + ", ".join(f"{m}={recorded[m]}" for m in rates) + "; re-simulated "
             + ", ".join(f"{m}={resim[m]}" for m in rates))
+        near = role.clearance
+        if role.swarm:
+            caption = (f"{kind}: {what} (seed {cfg.seed}), {run.position.shape[0]} UAVs; recorded closest approach "
+                       f"between UAVs {_num(row[near])} m, {_num(100 * row['at_goal'])} % at their goals; "
+                       f"re-simulated {_num(run.metrics[near])} m, {_num(100 * run.metrics['at_goal'])} %; {check}")
+            fig = plot_swarm_trajectories(runs, field)
+            figures.append(save_figure(fig, f"gallery_{i}", f"Worst episode #{i}, every UAV's path: {caption}",
+                                       figdir, options.svg))
+            figures.append(save_figure(plot_swarm_snapshots(runs, field), f"gallery_{i}_snapshots",
+                                       f"Worst episode #{i}, the swarm at fractions of its end", figdir, options.svg))
+            continue
         fig = plot_trajectories(runs, field, title=f"Worst episode #{i} ({kind}): {what}")
         caption = (f"{kind}: {what} (seed {cfg.seed}); recorded min clearance "
-                   f"{_num(row['min_clearance'])} m, final distance {_num(row.get('final_distance', math.nan))} m; "
-                   f"re-simulated min clearance {_num(run.metrics['min_clearance'])} m; {check}")
+                   f"{_num(row[near])} m, final distance {_num(row.get('final_distance', math.nan))} m; "
+                   f"re-simulated min clearance {_num(run.metrics[near])} m; {check}")
         figures.append(save_figure(fig, f"gallery_{i}", caption, figdir, options.svg))
     return figures, notes

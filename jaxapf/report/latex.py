@@ -8,6 +8,7 @@ from typing import Any, Callable, Sequence
 import pandas as pd
 
 from ..gains import GAINS
+from .load import roles
 from .select import Selection, format_value, ignored_columns
 from .tables import _with_ci
 
@@ -71,12 +72,15 @@ def latex_tables(summary: pd.DataFrame, comparisons: pd.DataFrame, sel: Selectio
                  options: Any, spec_name: str, rates: Sequence[str]) -> str:
     """The outcome, time-to-goal and paired-comparison tables of ``group`` as LaTeX."""
     conf = f"{100 * options.confidence:g}"
+    role = roles(sel.data.columns)
+    near, time = role.clearance, role.time
     lines = [
         f"% jaxapf report table: {_tex(spec_name)} (needs \\usepackage{{booktabs}}); generated from the sweep, "
         "do not edit by hand",
         r"\begin{table}[t]", r"\centering", r"\small",
         rf"\caption{{Outcomes per setting ({_tex(group)}; $n$ episodes). Rates in \% with {conf}\,\% Wilson "
-        rf"intervals; min.\ clearance: IQM [m] and time to goal: median [s] (successful episodes) with "
+        rf"intervals; {'min.' if not role.swarm else 'closest UAV--UAV'}\ clearance: IQM [m] and "
+        rf"{'time to goal' if not role.swarm else 'makespan'}: median [s] (successful episodes) with "
         rf"{conf}\,\% stratified bootstrap intervals ({options.resamples} resamples).}}",
         r"\label{tab:jaxapf-outcomes}",
         rf"\begin{{tabular}}{{lr{'l' * (len(rates) + 1)}}}", r"\toprule",
@@ -87,21 +91,22 @@ def latex_tables(summary: pd.DataFrame, comparisons: pd.DataFrame, sel: Selectio
     for _, r in sub.iterrows():
         cells = [_tex_label(int(r["setting"]), sel.table, sel.swept), str(int(r["n"]))]
         cells += [_tex_ci(r[f"{m}_rate"], r[f"{m}_lo"], r[f"{m}_hi"], _tex_pct) for m in rates]
-        cells.append(_tex_ci(r["min_clearance_iqm"], r["min_clearance_iqm_lo"], r["min_clearance_iqm_hi"], _tex_num))
+        cells.append(_tex_ci(r[f"{near}_iqm"], r[f"{near}_iqm_lo"], r[f"{near}_iqm_hi"], _tex_num))
         lines.append(" & ".join(cells) + r" \\")
     lines += [r"\bottomrule", r"\end{tabular}", r"\end{table}", ""]
     # time to goal as an extra table keeps the first one narrow enough for one column
     lines += [
         r"\begin{table}[t]", r"\centering", r"\small",
-        rf"\caption{{Time to goal [s] over successful episodes: median with {conf}\,\% stratified bootstrap "
+        rf"\caption{{{'Time to goal' if not role.swarm else 'Makespan'} [s] over successful episodes: median with "
+        rf"{conf}\,\% stratified bootstrap "
         rf"interval and the number of successful episodes ({_tex(group)}).}}",
         r"\label{tab:jaxapf-time}", r"\begin{tabular}{lrl}", r"\toprule",
-        r"Setting & $n_{\mathrm{success}}$ & Time to goal [s] \\ \midrule",
+        rf"Setting & $n_{{\mathrm{{success}}}}$ & {'Time to goal' if not role.swarm else 'Makespan'} [s] \\ \midrule",
     ]
     for _, r in sub.iterrows():
-        lines.append(" & ".join([_tex_label(int(r["setting"]), sel.table, sel.swept), str(int(r["time_to_goal_n"])),
-                                 _tex_ci(r["time_to_goal_median"], r["time_to_goal_median_lo"],
-                                         r["time_to_goal_median_hi"], _tex_num)]) + r" \\")
+        lines.append(" & ".join([_tex_label(int(r["setting"]), sel.table, sel.swept), str(int(r[f"{time}_n"])),
+                                 _tex_ci(r[f"{time}_median"], r[f"{time}_median_lo"], r[f"{time}_median_hi"],
+                                         _tex_num)]) + r" \\")
     lines += [r"\bottomrule", r"\end{tabular}", r"\end{table}", ""]
     if len(comparisons):
         comp = comparisons[comparisons["family"] == group]
@@ -117,9 +122,9 @@ def latex_tables(summary: pd.DataFrame, comparisons: pd.DataFrame, sel: Selectio
         ]
         for s in sorted(set(comp["setting"])):
             cs = comp[comp["setting"] == s].set_index("metric")
-            if "success" not in cs.index:
+            if role.success not in cs.index:
                 continue
-            succ, coll = cs.loc["success"], cs.loc["collision"]
+            succ, coll = cs.loc[role.success], cs.loc[role.collision]
             lines.append(" & ".join([
                 _tex_label(int(s), sel.table, sel.swept), _tex(f"#{int(succ['baseline'])}"),
                 _tex_ci(succ["delta"], succ["delta_lo"], succ["delta_hi"], _tex_signed_pct),

@@ -1,28 +1,63 @@
 """Loading a sweep for a report: its rows, metadata, and which metrics the report shows.
 
 What a metric means (rate or continuous, unit, direction, successful episodes only) comes from the
-metric registry (:data:`jaxapf.metrics.METRICS`); the default report shows the registered metrics
+metric registries (:data:`jaxapf.metrics.METRICS`, :data:`~jaxapf.metrics.SWARM_METRICS` for a swarm
+sweep); the default report shows the registered metrics
 marked ``report=True`` that the sweep wrote.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import pathlib
 from typing import Any, Iterable, Mapping
 
 import pandas as pd
 
-from ..metrics import metric_names
+from ..metrics import METRICS, all_metrics
 from ..validation import ConfigError
 
-__all__ = ["ReportError", "ROW_COLUMNS", "FIELD_COLUMNS", "report_metrics", "load_sweep", "validate_sweep"]
+__all__ = ["ReportError", "ROW_COLUMNS", "FIELD_COLUMNS", "Roles", "SINGLE_ROLES", "SWARM_ROLES", "roles",
+           "report_metrics", "load_sweep", "validate_sweep"]
 
 #: Columns that identify an episode within a setting (the pairing key: those present).
 ROW_COLUMNS: tuple[str, ...] = ("family", "kind", "field", "seed")
-#: Row columns that describe the episode's field under its setting's vehicle (not a setting column).
-FIELD_COLUMNS: tuple[str, ...] = ("solvable",)
+#: Row columns that describe the episode's field under its setting's vehicle (not a setting column);
+#: ``agents``: the UAVs of a swarm field.
+FIELD_COLUMNS: tuple[str, ...] = ("solvable", "agents")
 #: Columns every report needs besides its metrics.
 BASE_COLUMNS: tuple[str, ...] = ("setting", "method", "family", "field")
+
+
+@dataclasses.dataclass(frozen=True)
+class Roles:
+    """The metric columns that play each part of a report: the outcome (``success``), the failure
+    (``collision``), being stuck (``stalled``), the clearance of the ECDF, the gallery and the LaTeX
+    table, the duration of the LaTeX table (``time``), and the default metric of the performance
+    profile."""
+
+    success: str
+    collision: str
+    stalled: str
+    clearance: str
+    time: str
+    profile: str
+
+    @property
+    def swarm(self) -> bool:
+        return self is SWARM_ROLES
+
+
+#: A single-UAV sweep's roles.
+SINGLE_ROLES = Roles("success", "collision", "stalled", "min_clearance", "time_to_goal", "spl")
+#: A swarm sweep's (:data:`~jaxapf.metrics.SWARM_METRICS`): every UAV at its goal, two UAVs colliding,
+#: deadlock, the closest approach between UAVs, the makespan, the fraction of UAVs at their goals.
+SWARM_ROLES = Roles("swarm_success", "agent_collision", "deadlock", "min_agent_clearance", "makespan", "at_goal")
+
+
+def roles(columns: Iterable[str]) -> Roles:
+    """The roles of a sweep's rows with these ``columns`` (a swarm sweep's if it has ``swarm_success``)."""
+    return SWARM_ROLES if "swarm_success" in set(columns) else SINGLE_ROLES
 
 
 class ReportError(ConfigError):
@@ -30,10 +65,11 @@ class ReportError(ConfigError):
 
 
 def report_metrics(columns: Iterable[str] | None = None) -> tuple[tuple[str, ...], tuple[str, ...]]:
-    """``(rates, continuous)``: the registered metrics of the default report, in registration order,
-    among ``columns`` if given."""
-    keep = None if columns is None else set(columns)
-    pick = lambda kind: tuple(m for m in metric_names(kind=kind, report=True) if keep is None or m in keep)  # noqa: E731
+    """``(rates, continuous)``: the registered metrics of the default report (single-UAV, then swarm
+    metrics), in registration order, among ``columns`` if given (else the single-UAV ones)."""
+    keep = set(METRICS.names()) if columns is None else set(columns)
+    pick = lambda kind: tuple(m for m, metric in all_metrics()  # noqa: E731
+                              if metric.kind == kind and metric.report and m in keep)
     return pick("rate"), pick("continuous")
 
 

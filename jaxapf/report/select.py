@@ -12,7 +12,7 @@ import pandas as pd
 from ..config import PlannerConfig, SimConfig
 from ..engine.components import COMPONENTS
 from ..gains import GAINS
-from ..metrics import METRICS
+from ..metrics import is_metric
 from ..planners import PLANNERS
 from .load import FIELD_COLUMNS, ROW_COLUMNS, ReportError, report_metrics
 
@@ -46,7 +46,7 @@ def ignored_columns(row: Any) -> tuple[str, ...]:
 def setting_table(df: pd.DataFrame) -> pd.DataFrame:
     """One row per setting (index ``setting``) with every column constant within a setting
     (method, convention, gains, simulation settings); metrics and row columns excluded."""
-    cols = [c for c in df.columns if c not in METRICS and c not in ROW_COLUMNS + FIELD_COLUMNS and c != "setting"]
+    cols = [c for c in df.columns if not is_metric(c) and c not in ROW_COLUMNS + FIELD_COLUMNS and c != "setting"]
     grouped = df.groupby("setting", sort=True)
     constant = [c for c in cols if bool((grouped[c].nunique(dropna=False) <= 1).all())]
     return grouped[constant].first()
@@ -149,14 +149,14 @@ def select(df: pd.DataFrame, options: Any) -> Selection:
     setting_cols = set(table.columns) | {"setting"}
     # row filters: family, field, seed, and columns that vary within a setting (e.g. t_max when it
     # defaults to each family's own)
-    row_cols = [c for c in df.columns if c not in setting_cols and c not in METRICS]
+    row_cols = [c for c in df.columns if c not in setting_cols and not is_metric(c)]
 
     # --where: row filters (family, field, seed) on the rows, setting filters on the settings
     rows = np.ones(len(df), dtype=bool)
     chosen = np.ones(len(table), dtype=bool)
     for key, values in parse_filters(options.where, "--where"):
         what = f"--where {key}={','.join(values)}"
-        if key in METRICS:
+        if is_metric(key):
             raise ReportError(f"{what}: {key} is a metric; filter on settings or family/field/seed only")
         if key in row_cols:
             m = _mask(df[key], values, what)

@@ -25,8 +25,8 @@ import numpy as np
 import pandas as pd
 
 from .. import stats
-from ..metrics import METRICS
-from .load import ROW_COLUMNS, report_metrics
+from ..metrics import all_metrics, find_metric
+from .load import ROW_COLUMNS, SINGLE_ROLES, SWARM_ROLES, report_metrics
 
 __all__ = ["ALL", "groups", "group_rows", "pools", "summarize", "compare", "rates_table", "continuous_table",
            "comparison_table", "findings", "margins"]
@@ -87,12 +87,14 @@ def _strata(frame: pd.DataFrame, group: str) -> np.ndarray | None:
 
 def margins(options: Any) -> dict[str, float | None]:
     """The relevance margin of every metric: the registry's, overridden by ``options.margins``."""
-    return {name: metric.margin for name, metric in METRICS.items()} | dict(options.margins)
+    return {name: metric.margin for name, metric in all_metrics()} | dict(options.margins)
 
 
 def _success_mask(frame: pd.DataFrame, suffix: str = "") -> np.ndarray:
-    column = f"success{suffix}"
-    return frame[column].to_numpy(dtype=bool) if column in frame.columns else np.ones(len(frame), bool)
+    """The success column (a swarm's ``swarm_success``) of ``frame`` with ``suffix``; all True without one."""
+    column = next((f"{r.success}{suffix}" for r in (SWARM_ROLES, SINGLE_ROLES) if f"{r.success}{suffix}" in frame),
+                  None)
+    return frame[column].to_numpy(dtype=bool) if column is not None else np.ones(len(frame), bool)
 
 
 def summarize(data: pd.DataFrame, settings: Sequence[int], table: pd.DataFrame, labels: Mapping[int, str],
@@ -135,7 +137,7 @@ def summarize(data: pd.DataFrame, settings: Sequence[int], table: pd.DataFrame, 
             success = _success_mask(sub)
             for m in continuous:
                 v = sub[m].to_numpy(dtype=np.float64)
-                keep = np.isfinite(v) & (success if METRICS.get(m).on_success else True)
+                keep = np.isfinite(v) & (success if find_metric(m).on_success else True)
                 x = v[keep]
                 st = strata[keep] if strata is not None else None
                 rec[f"{m}_n"] = int(keep.sum())
@@ -201,7 +203,7 @@ def compare(data: pd.DataFrame, pairs: Mapping[int, int], labels: Mapping[int, s
             strata = _strata(sub, group)
             both = _success_mask(sub, "_x") & _success_mask(sub, "_y")
             for metric in rates + continuous:
-                entry = METRICS.get(metric)
+                entry = find_metric(metric)
                 rate = metric in rates
                 x = sub[f"{metric}_x"].to_numpy(dtype=np.float64)
                 y = sub[f"{metric}_y"].to_numpy(dtype=np.float64)
@@ -308,7 +310,7 @@ def _delta_text(r: Any, rate: bool) -> str:
 def comparison_table(comp: pd.DataFrame, metric: str) -> pd.DataFrame:
     """The paired comparisons of one metric: estimate and interval, verdict, tests, margin, MDE."""
     rows = []
-    rate = METRICS.get(metric).kind == "rate"
+    rate = find_metric(metric).kind == "rate"
     scale = (lambda v: _signed(v, 100.0, 3)) if rate else (lambda v: _num(v))
     for _, r in comp[comp["metric"] == metric].iterrows():
         value = (_pct(r["value"]) + " vs " + _pct(r["baseline_value"])) if rate else (
@@ -333,9 +335,12 @@ def findings(summary: pd.DataFrame, comparisons: pd.DataFrame, group: str, optio
     """Headline sentences for the pooled group, every number taken from the two tables."""
     sub = summary[summary["family"] == group]
     out = []
-    picks = (("success", "rate", True, "Highest success rate"), ("collision", "rate", False, "Lowest collision rate"),
-             ("stalled", "rate", False, "Lowest stall rate"),
-             ("min_clearance", "iqm", True, "Largest IQM of the minimum clearance"))
+    role = SWARM_ROLES if f"{SWARM_ROLES.success}_rate" in sub.columns else SINGLE_ROLES
+    picks = ((role.success, "rate", True, "Highest success rate"),
+             (role.collision, "rate", False, "Lowest collision rate"),
+             (role.stalled, "rate", False, "Lowest stall rate" if not role.swarm else "Lowest deadlock rate"),
+             (role.clearance, "iqm", True, "Largest IQM of the minimum clearance" if not role.swarm else
+              "Largest IQM of the closest approach between UAVs"))
     for metric, kind, high, text in picks:
         col = f"{metric}_{kind}"
         if col not in sub.columns:
@@ -349,7 +354,7 @@ def findings(summary: pd.DataFrame, comparisons: pd.DataFrame, group: str, optio
         if kind == "rate":
             value = f"{_pct(r[col])} % [{_pct(r[f'{metric}_lo'])}, {_pct(r[f'{metric}_hi'])}]"
         else:
-            value = _with_ci(r[col], r[f"{col}_lo"], r[f"{col}_hi"]) + f" {METRICS.get(metric).unit}".rstrip()
+            value = _with_ci(r[col], r[f"{col}_lo"], r[f"{col}_hi"]) + f" {find_metric(metric).unit}".rstrip()
         names = ", ".join(rows["label"].head(3)) + (f" and {len(rows) - 3} more" if len(rows) > 3 else "")
         out.append(f"{text} ({group}): {names}: {value}.")
     if len(comparisons):
@@ -361,9 +366,9 @@ def findings(summary: pd.DataFrame, comparisons: pd.DataFrame, group: str, optio
                    + ", ".join(f"{counts.get(v, 0)} {v}" for v in stats.VERDICTS) + ".")
         relevant = comp[comp["verdict"].isin(("better", "worse"))]
         for _, r in relevant.sort_values(["p_holm", "setting"]).head(10).iterrows():
-            rate = METRICS.get(r["metric"]).kind == "rate"
+            rate = find_metric(r["metric"]).kind == "rate"
             what = "Δ " + _delta_text(r, rate) + " pp" if rate else "shift " + _delta_text(r, rate)
-            unit = "" if rate else f" {METRICS.get(r['metric']).unit}".rstrip()
+            unit = "" if rate else f" {find_metric(r['metric']).unit}".rstrip()
             pairs = f"{int(r['n_pairs'])} pairs" + (", both succeed" if r["conditioning"] == "both succeed" else "")
             out.append(f"{r['verdict'].capitalize()}: {r['label']} vs #{int(r['baseline'])}, {r['metric']} "
                        f"{what}{unit} ({pairs}; p Holm {_p(r['p_holm'])}).")

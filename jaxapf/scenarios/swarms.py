@@ -238,6 +238,11 @@ class SwarmFamily:
     def name(self) -> str:
         return self.params.family
 
+    @property
+    def kinds(self) -> tuple[str, ...]:
+        """The kinds of field it draws: one, its name (a sweep's ``kind`` column)."""
+        return (self.name,)
+
 
 #: Registered swarm families.
 SWARM_FAMILIES: Registry[SwarmFamily] = Registry("swarm family", describe=lambda f: f.description,

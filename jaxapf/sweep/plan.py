@@ -17,7 +17,7 @@ import numpy as np
 
 from ..config import MPCConfig, SimConfig
 from ..gains import GAINS, Gains
-from ..metrics import METRICS
+from ..metrics import METRICS, SWARM_METRICS
 from ..text import format_bytes, format_seconds
 from ..validation import ConfigError, check_int
 from .spec import Setting, SweepSpec
@@ -39,6 +39,7 @@ __all__ = [
     "working_set_bytes",
     "episode_bytes",
     "step_cost_us",
+    "seen_slots",
 ]
 
 #: Default memory budget of one chunk's working set [bytes].
@@ -139,12 +140,13 @@ class Chunk:
 class Block:
     """Shapes of the chunks of one (variant, family): ``fields`` per chunk, padded to ``padded =
     devices · per_device`` fields with ``per_device · settings`` at least its vmap ``width``;
-    ``bytes``: the memory estimate of one chunk."""
+    ``bytes``: the memory estimate of one chunk; ``agents``: UAVs per field (1 but in a swarm family)."""
 
     sim: SimConfig
     mpc: MPCConfig
     obstacles: int
     settings: int
+    agents: int
     fields: int
     per_device: int
     padded: int
@@ -154,29 +156,42 @@ class Block:
 
 def _program(block: Block) -> tuple:
     """What identifies a compiled ``evaluate`` program: static configuration and shapes."""
-    return block.sim, block.mpc, block.obstacles, block.settings, block.per_device, block.width
+    return block.sim, block.mpc, block.obstacles, block.agents, block.settings, block.per_device, block.width
 
 
-def working_set_bytes(width: int, steps: int, obstacles: int, itemsize: int) -> int:
+def working_set_bytes(width: int, steps: int, obstacles: int, itemsize: int, agents: int = 1) -> int:
     """``W``: ``width`` episodes inside ``evaluate``: the streaming engine's record ring and store of
     finished episodes (about 2.3 trajectories of 9 numbers per sample each) and the metrics'
-    temporaries (clearances to every obstacle slot)."""
-    return width * (steps + 1) * (41 + 3 * obstacles) * itemsize
+    temporaries (clearances to every obstacle slot). A swarm episode of ``agents`` UAVs counts as that
+    many episodes, each among ``obstacles`` slots (:func:`seen_slots`: the other UAVs are obstacles to it)."""
+    return width * agents * (steps + 1) * (41 + 3 * obstacles) * itemsize
 
 
-def episode_bytes(obstacles: int, itemsize: int) -> int:
-    """``E``: memory that grows with the episodes of a chunk, per episode."""
-    return 2 * ((7 * obstacles + 12) * itemsize + 2 * obstacles) + 3 * len(METRICS) * itemsize + 320
+def seen_slots(sim: SimConfig, obstacles: int, agents: int) -> int:
+    """The obstacle slots each UAV's stack works on: the field's ``obstacles``, and in a swarm of ``agents``
+    the neighbour slots (:func:`~jaxapf.datatypes.swarm.neighbour_slots`; with every other UAV, one of them
+    its own, left invalid)."""
+    from ..datatypes.swarm import neighbour_slots
+
+    return obstacles + neighbour_slots(agents, sim.world.max_neighbours)
 
 
-def step_cost_us(mpc: MPCConfig, obstacles: int) -> float:
-    """Cost model of one episode step on one CPU device [µs] (see :data:`STEP_COST_US`)."""
+def episode_bytes(obstacles: int, itemsize: int, agents: int = 1) -> int:
+    """``E``: memory that grows with the episodes of a chunk, per episode (a swarm's: its fields hold
+    ``agents`` starts and goals, its rows the swarm metrics)."""
+    metrics = len(METRICS) if agents == 1 else len(SWARM_METRICS)
+    return 2 * ((7 * obstacles + 6 + 6 * agents) * itemsize + 2 * obstacles + agents - 1) + 3 * metrics * itemsize + 320
+
+
+def step_cost_us(mpc: MPCConfig, obstacles: int, agents: int = 1) -> float:
+    """Cost model of one episode step on one CPU device [µs] (see :data:`STEP_COST_US`); a swarm's step is
+    ``agents`` UAVs' steps, each among ``obstacles`` slots (:func:`seen_slots`)."""
     c0, c_qp, c_obs, c_n = STEP_COST_US
     n = mpc.horizon
-    return c0 + c_qp * n * mpc.iters + c_obs * n * obstacles + c_n * n
+    return agents * (c0 + c_qp * n * mpc.iters + c_obs * n * obstacles + c_n * n)
 
 
-def _block(sim: SimConfig, mpc: MPCConfig, obstacles: int, settings: int, fields: int, *, devices: int,
+def _block(sim: SimConfig, mpc: MPCConfig, obstacles: int, agents: int, settings: int, fields: int, *, devices: int,
            width: int, itemsize: int, budget: int, chunk_fields: int | None) -> Block:
     """Chunk shapes of one (variant, family) at the sweep's vmap ``width``, or at the largest power
     of two whose batch working set fits :data:`WIDTH_BUDGET` if that is less (long episodes).
@@ -186,10 +201,11 @@ def _block(sim: SimConfig, mpc: MPCConfig, obstacles: int, settings: int, fields
     the fields are split into the fewest chunks that fit the memory budget and the
     :data:`CALLS_PER_PART` cap, balanced, and each chunk is filled up to its padded size.
     """
-    fits = WIDTH_BUDGET // working_set_bytes(1, sim.episode.steps, obstacles, itemsize)
+    seen = seen_slots(sim, obstacles, agents)
+    fits = WIDTH_BUDGET // working_set_bytes(1, sim.episode.steps, seen, itemsize, agents)
     width = min(width, max(1, 1 << (fits.bit_length() - 1)))
-    fixed = devices * working_set_bytes(width, sim.episode.steps, obstacles, itemsize)
-    per_field = settings * episode_bytes(obstacles, itemsize)
+    fixed = devices * working_set_bytes(width, sim.episode.steps, seen, itemsize, agents)
+    per_field = settings * episode_bytes(obstacles, itemsize, agents)
     if chunk_fields is None:
         fit = (budget - fixed) // per_field
         if fit < 1:
@@ -203,7 +219,7 @@ def _block(sim: SimConfig, mpc: MPCConfig, obstacles: int, settings: int, fields
     padded = per_device * devices
     if chunk_fields is None:
         block = min(padded, fields)
-    return Block(sim, mpc, obstacles, settings, block, per_device, padded, fixed + padded * per_field, width)
+    return Block(sim, mpc, obstacles, settings, agents, block, per_device, padded, fixed + padded * per_field, width)
 
 
 def _gaps(done: Iterable[tuple[int, int]], fields: int) -> list[tuple[int, int]]:
@@ -273,7 +289,8 @@ class Plan:
         run = 0.0
         for c in self.chunks:
             b = self.blocks[(c.variant, c.family)]
-            run += b.settings * b.padded * b.sim.episode.steps * step_cost_us(b.mpc, b.obstacles) * 1e-6
+            seen = seen_slots(b.sim, b.obstacles, b.agents)
+            run += b.settings * b.padded * b.sim.episode.steps * step_cost_us(b.mpc, seen, b.agents) * 1e-6
         programs = len({_program(self.blocks[(c.variant, c.family)]) for c in self.chunks})
         return run / (self.devices * self.processes), programs * COMPILE_S * self.devices
 
@@ -328,8 +345,10 @@ def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: in
     for v in groups:
         for family in spec.families:
             sim, mpc = spec.configs(v.static, family)
-            obstacles = spec.family_params(family).max_obstacles
-            block = _block(sim, mpc, obstacles, len(v.simulated), spec.fields, devices=devices, width=width,
+            params = spec.family_params(family)
+            agents = params.agents if spec.swarm else 1
+            block = _block(sim, mpc, params.max_obstacles, agents, len(v.simulated), spec.fields, devices=devices,
+                           width=width,
                            itemsize=dtype.itemsize, budget=memory_budget, chunk_fields=chunk_fields)
             blocks[(v.index, family)] = block
     count = sum(-(-spec.fields // b.fields) for b in blocks.values())
@@ -343,7 +362,7 @@ def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: in
             for lo, hi in _gaps(finished, spec.fields):
                 chunks += [Chunk(v.index, family, a, min(a + block.fields, hi)) for a in range(lo, hi, block.fields)]
     return Plan(spec, tuple(groups), blocks, tuple(chunks), tuple(done), devices, processes, width, str(dtype),
-                METRICS.names())
+                SWARM_METRICS.names() if spec.swarm else METRICS.names())
 
 
 def describe_plan(plan: Plan) -> str:
@@ -375,7 +394,8 @@ def describe_plan(plan: Plan) -> str:
                          + (f" (of {len(v.settings)}; the others repeat one)" if v.duplicates else "")
                          + f" × {b.fields} fields per "
                          f"chunk (padded {b.padded}), {b.sim.episode.steps} steps, N={b.mpc.horizon}, I={b.mpc.iters}, "
-                         f"M={b.obstacles}" + (f", vmap width {b.width}" if b.width != plan.width else ""))
+                         f"M={b.obstacles}" + (f", A={b.agents}" if spec.swarm else "")
+                         + (f", vmap width {b.width}" if b.width != plan.width else ""))
     lines += [
         f"  time estimate:     up to {format_seconds(run_s)} of simulation + up to {format_seconds(compile_s)} of "
         "compilation (~0 with a warm compilation cache)",

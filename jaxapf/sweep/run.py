@@ -93,29 +93,36 @@ class _Devices:
         """Start the chunk (asynchronously); returns global (G, padded) metric arrays, the fields'
         kinds and, with the spec's ``oracle``, whether each real field is solvable (computed on the
         host while the devices run)."""
+        from ..engine import evaluate_program
+        from ..engine.swarm import evaluate_swarms
         from ..scenarios import make_scenarios
+        from ..scenarios.swarms import make_swarms
 
         plan = self.plan
         block = plan.blocks[(chunk.variant, chunk.family)]
         indices = np.full(block.padded, chunk.start, np.int64)
         indices[: chunk.stop - chunk.start] = np.arange(chunk.start, chunk.stop)
-        fields = make_scenarios(plan.spec.seed, plan.spec.family_params(chunk.family), jnp.asarray(indices))
+        make, program = (make_swarms, evaluate_swarms) if plan.spec.swarm else (make_scenarios, evaluate_program)
+        fields = make(plan.spec.seed, plan.spec.family_params(chunk.family), jnp.asarray(indices))
         metrics = self.batch.evaluate(fields, self._variant_gains(plan.variants[chunk.variant]), block.sim,
-                                      block.mpc, block.width, plan.metrics)
+                                      block.mpc, block.width, plan.metrics, program)
         return metrics, fields.kind, self._solvable(chunk, fields, block.sim) if plan.spec.oracle else None
 
     def _solvable(self, chunk: Chunk, fields: Any, sim: Any) -> np.ndarray:
         """:func:`~jaxapf.scenarios.solvable` of the chunk's real fields, once per field and vehicle
-        (variants that differ only in method or gains share the answer)."""
+        (variants that differ only in method or gains share the answer); of a swarm field, whether every
+        UAV passes it alone (:func:`~jaxapf.scenarios.swarms.agents_solvable`)."""
         from ..scenarios import solvable
+        from ..scenarios.swarms import agents_solvable
 
+        oracle = (lambda real, **v: agents_solvable(real, **v).all(axis=-1)) if self.plan.spec.swarm else solvable
         vehicle = dict(r_uav=sim.vehicle.r_uav, v_max=sim.vehicle.v_max, t_max=sim.episode.t_max,
                        r_goal=sim.episode.r_goal)
         key = (chunk.family, chunk.start, chunk.stop, *vehicle.values())
         if key not in self._oracle:
             n = chunk.stop - chunk.start
             real = jax.tree_util.tree_map(lambda a: np.asarray(a)[:n], fields)
-            self._oracle[key] = solvable(real, **vehicle)
+            self._oracle[key] = oracle(real, **vehicle)
         return self._oracle[key]
 
 

@@ -11,8 +11,9 @@ import jax
 import numpy as np
 
 from ..config import STATIC_KEYS
-from ..metrics import METRICS
+from ..metrics import find_metric
 from ..scenarios import FAMILIES
+from ..scenarios.swarms import SWARM_FAMILIES
 from ..validation import ConfigError, first_line
 from .plan import Chunk, Plan
 from .spec import AXIS_WEIGHT_KEYS, SweepSpec
@@ -74,11 +75,12 @@ def schema(plan: Plan, meta: Mapping[str, Any]):
     fields += [pa.field(k, _column_type(spec, k)) for k in static_columns(spec)]
     fields += [pa.field(k, pa.string() if isinstance(v, str) else pa.int64()) for k, v in
                (spec.tags[0] if spec.tags else ())]
-    fields += [pa.field("family", pa.string()), pa.field("kind", pa.string()), pa.field("field", pa.int64()),
-               pa.field("seed", pa.int64())]
+    fields += [pa.field("family", pa.string()), pa.field("kind", pa.string())]
+    fields += [pa.field("agents", pa.int32())] if spec.swarm else []
+    fields += [pa.field("field", pa.int64()), pa.field("seed", pa.int64())]
     if spec.oracle:
         fields.append(pa.field("solvable", pa.bool_()))
-    fields += [pa.field(m, getattr(pa, _ARROW_TYPES[METRICS.get(m).dtype])() if METRICS.get(m).dtype in _ARROW_TYPES
+    fields += [pa.field(m, getattr(pa, _ARROW_TYPES[find_metric(m).dtype])() if find_metric(m).dtype in _ARROW_TYPES
                         else float_type) for m in plan.metrics]
     return pa.schema(fields, metadata={META_KEY: json.dumps(meta, sort_keys=True).encode()})
 
@@ -103,11 +105,12 @@ def part_table(plan: Plan, layout, chunk: Chunk, metrics: Mapping[str, np.ndarra
     n = chunk.stop - chunk.start
     rows = n * len(variant.settings)
     static = dict(variant.static)
+    params = spec.family_params(chunk.family)
     constant = {"method": sim.planner.method, "convention": sim.planner.convention, "family": chunk.family,
-                "seed": spec.seed}
+                "seed": spec.seed, **({"agents": params.agents} if spec.swarm else {})}
     for k in static_columns(spec):  # only t_max can be unnamed, and it is a SimConfig field
         constant[k] = _cell(k, static[k] if k in static else sim.flat()[k], pa.types.is_string(layout.field(k).type))
-    names = np.asarray(FAMILIES.get(spec.family_params(chunk.family).family).kinds, dtype=object)
+    names = np.asarray((SWARM_FAMILIES if spec.swarm else FAMILIES).get(params.family).kinds, dtype=object)
     cols: dict[str, Any] = {"setting": np.repeat(np.array([s.index for s in variant.settings], np.int32), n),
                             "field": np.tile(np.arange(chunk.start, chunk.stop, dtype=np.int64), len(variant.settings)),
                             "kind": np.tile(names[np.asarray(kinds)[:n]], len(variant.settings))}

@@ -59,6 +59,7 @@ from ..io.plugins import check_plugins, load_plugins
 from ..io.spec import OMIT, REQUIRED, SEED, Key, Table, boolean, given, integer, spec_name, value_grid
 from ..metrics import METRICS
 from ..scenarios import FAMILIES, FamilyParams, family_params
+from ..scenarios.swarms import SWARM_FAMILIES, SwarmParams, swarm_params
 from ..validation import (
     MAX_FIELDS,
     MAX_SETTINGS,
@@ -94,7 +95,7 @@ AXIS_WEIGHT_KEYS: frozenset[str] = frozenset({"q_pos", "q_vel", "f_pos", "f_vel"
 _RANDOM_KEYS = ("n", "seed")
 _TAG = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 #: Columns of every sweep row that a tag may not shadow.
-_RESERVED_COLUMNS = frozenset({"setting", "family", "kind", "field", "seed", "solvable"})
+_RESERVED_COLUMNS = frozenset({"setting", "family", "kind", "agents", "field", "seed", "solvable"})
 
 
 # --------------------------------------------------------------------------------------------
@@ -377,7 +378,12 @@ class SweepSpec:
     def family_params(self, family: str) -> FamilyParams:
         """The validated :class:`~jaxapf.scenarios.FamilyParams` of ``family`` (a family or a variant)
         with the spec's overrides."""
-        return spec_family_params(family, self.params.get(family, {}))
+        return spec_family_params(family, self.params.get(family, {}), swarms=True)
+
+    @property
+    def swarm(self) -> bool:
+        """Whether the spec flies swarm families (every family is one, or none)."""
+        return isinstance(self.family_params(self.families[0]), SwarmParams)
 
     def components(self, key: str) -> tuple[str, ...]:
         """The names the spec's settings give a component key (:data:`COMPONENTS`; its default if unnamed)."""
@@ -423,28 +429,32 @@ def variant_names(params: Any) -> tuple[str, ...]:
     if not isinstance(params, dict):
         return ()
     return tuple(label for label, table in params.items()
-                 if isinstance(table, dict) and "family" in table and label not in FAMILIES)
+                 if isinstance(table, dict) and "family" in table and label not in FAMILIES
+                 and label not in SWARM_FAMILIES)
 
 
-def spec_family_params(label: str, overrides: Any) -> FamilyParams:
+def spec_family_params(label: str, overrides: Any, *, swarms: bool = False) -> FamilyParams:
     """A spec's ``[scenario.params.LABEL]`` table applied to a family's defaults (shared by sweep and
     tune specs); a bad value is reported at ``scenario.params.LABEL.KEY``.
 
     ``LABEL`` is a registered family, or a *variant*: a name of its own whose table names the family
     it varies, ``family = "crossing"``; a variant's rows carry its name in the ``family`` column.
+    With ``swarms`` (sweep specs), a swarm family (:data:`~jaxapf.scenarios.swarms.SWARM_FAMILIES`) too,
+    giving its :class:`~jaxapf.scenarios.swarms.SwarmParams`.
     """
     where = f"scenario.params.{label}"
     overrides = dict(check_table(where, overrides))
     base = overrides.pop("family", label)
-    if label in FAMILIES and base != label:
+    registered = FAMILIES.names() + (SWARM_FAMILIES.names() if swarms else ())
+    if label in registered and base != label:
         raise ConfigError(f"{where}.family = {base!r}: {label} is a registered family; give the variant a name "
                           "of its own")
-    if label not in FAMILIES:
+    if label not in registered:
         if not _VARIANT.match(label):
             raise ConfigError(f"{where}: a variant's name is letters, digits and '_', starting with a letter")
-        check_choice(f"{where}.family", base, FAMILIES.names())
+        check_choice(f"{where}.family", base, registered)
     try:
-        return family_params(base, **overrides)
+        return swarm_params(base, **overrides) if base in SWARM_FAMILIES else family_params(base, **overrides)
     except ConfigError as err:
         raise relocated(err, f"scenario.{base}", where) from None
 
@@ -454,7 +464,7 @@ def _scenario(where: str, table: Any) -> tuple[tuple[str, ...], int, int, dict[s
                       "seed": Key(SEED, 0), "params": Key(check_table, {}),
                       "oracle": Key(boolean, True)})(where, table)
     families, tables = scenario["families"], scenario["params"]
-    choices = FAMILIES.names() + variant_names(tables)
+    choices = FAMILIES.names() + SWARM_FAMILIES.names() + variant_names(tables)
     if not isinstance(families, list):
         raise ConfigError(f"scenario.families = {families!r} must be a non-empty list of family names; "
                           f"allowed: {', '.join(choices)}")
@@ -463,9 +473,14 @@ def _scenario(where: str, table: Any) -> tuple[tuple[str, ...], int, int, dict[s
     for label, overrides in tables.items():
         if label not in families:
             raise ConfigError(f"scenario.params.{label} is not one of scenario.families ({', '.join(families)})")
-        resolved = spec_family_params(label, overrides)
+        resolved = spec_family_params(label, overrides, swarms=True)
         params[label] = {k: (list(v) if isinstance(v, tuple) else v) if k != "family" else overrides[k]
                          for k, v in ((k, getattr(resolved, k, None)) for k in overrides)}
+    swarm = {f: isinstance(spec_family_params(f, tables.get(f, {}), swarms=True), SwarmParams) for f in families}
+    if len(set(swarm.values())) > 1:
+        raise ConfigError(f"scenario.families mixes swarm families ({', '.join(f for f in families if swarm[f])}) "
+                          f"with single-UAV ones ({', '.join(f for f in families if not swarm[f])}): their rows "
+                          "have different metrics; sweep them in two specs")
     return tuple(families), scenario["fields"], scenario["seed"], params, scenario["oracle"]
 
 

@@ -65,7 +65,7 @@ def test_neighbours_stand_where_the_uavs_are_and_leave_out_itself_and_padding():
     np.testing.assert_allclose(np.asarray(at[3]), [7.0, 0.5, 2.0], atol=1e-6)  # where UAV 1 is at t
     np.testing.assert_allclose(np.asarray(seen.velocity[:, 3]), [-1.5, 0.25, 0.0])
     assert float(seen.radius[3]) == 0.25 and not bool(seen.cylinder[3])
-    assert with_neighbours(swarm.obstacles, 1) is swarm.obstacles
+    assert with_neighbours(swarm.obstacles, 0) is swarm.obstacles
 
 
 def test_each_uav_has_its_own_key_and_uav_0_the_fields():
@@ -87,6 +87,32 @@ def test_reciprocal_velocity_obstacles_swap_two_uavs_head_on_sharing_the_avoidan
     np.testing.assert_allclose(p[0, :, 0] + p[1, :, 0], 10.0, atol=1e-3)  # point symmetry about the midpoint
     np.testing.assert_allclose(p[0, :, 1] + p[1, :, 1], 0.0, atol=1e-3)
     assert np.abs(p[0, :, 1]).max() > 0.1  # each swerved
+
+
+def test_without_reciprocity_each_uav_takes_the_whole_avoidance():
+    """ORCA's half-space against another UAV asks for half the velocity change ``u`` that a passive
+    obstacle at the same place asks for; ``velocity_obstacle_unilateral`` asks for all of it. One UAV
+    alone flies the same numbers with either planner."""
+    from jaxapf.planners import PLANNERS
+    from jaxapf.planners.velocity_obstacle import orca_half_spaces
+
+    x = jnp.array([0.0, 0.0, 2.0, 1.0, 0.0, 0.0])
+    here = Obstacles(position=jnp.array([[4.0, 0.1, 2.0]] * 2), velocity=jnp.array([[-1.0, 0.0, 0.0]] * 2),
+                     radius=jnp.array([0.3, 0.3]), cylinder=jnp.array([False, False]), valid=jnp.array([True, True]),
+                     agent=jnp.array([False, True]))
+    config = SimConfig.from_flat(method="velocity_obstacle")
+    for reciprocal, share in ((True, 0.5), (False, 1.0)):
+        n, bound = orca_half_spaces(x, jnp.float32(0.0), here.columns(), Gains().as_arrays(jnp.float32), config,
+                                    reciprocal)
+        push = np.asarray(bound) - np.asarray(n) @ np.asarray(x[3:])  # n·u of each slot
+        assert push[0] > 0.1  # on a collision course: a real change is asked for
+        np.testing.assert_allclose(push[1], share * push[0], rtol=1e-6)
+    assert not PLANNERS.get("velocity_obstacle_unilateral").reciprocal
+    field = make_scenarios(3, family_params("clutter"), 1).take(0)
+    runs = [jax.jit(lambda s, m=m: rollout(s, Gains(), SimConfig.from_flat(t_max=4.0, method=m), MPC))(field)
+            for m in ("velocity_obstacle", "velocity_obstacle_unilateral")]
+    for a, b in zip(*(jax.tree_util.tree_leaves(r) for r in runs)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
 @pytest.mark.slow
@@ -119,3 +145,30 @@ def test_a_padded_uav_is_invisible():
         shown, _ = _fly(_swap(jnp.float64, valid=(True, True, True)), method="velocity_obstacle")
     np.testing.assert_allclose(three[:2], two, atol=1e-9)
     assert np.abs(shown[:2] - two).max() > 0.1  # the same UAV, valid, is avoided
+
+
+def test_with_max_neighbours_a_uav_sees_the_nearest_others_nearest_first():
+    swarm = _swap(valid=(True, True, True))
+    x = jnp.array([[0.0, 0.0, 2.0, 0, 0, 0], [10.0, 0.0, 2.0, -1.0, 0, 0], [3.0, 0.0, 2.0, 0, 0.5, 0]])
+    view = agent_view(swarm, 0, 0.25, max_neighbours=1)
+    assert view.obstacles.radius.shape == (2 + 1,)  # one neighbour slot
+    seen = neighbours(view.obstacles.columns(), swarm, x, jnp.float32(0.0), 0, 0.25, max_neighbours=1)
+    np.testing.assert_allclose(np.asarray(seen.position[:, 2]), [3.0, 0.0, 2.0])  # UAV 2 at 3 m, not UAV 1 at 10 m
+    np.testing.assert_allclose(np.asarray(seen.velocity[:, 2]), [0.0, 0.5, 0.0])
+    assert np.asarray(seen.valid).tolist() == [False, False, True]
+    # K >= A - 1: every other UAV, the layout of max_neighbours = 0
+    full = agent_view(swarm, 0, 0.25, max_neighbours=2)
+    assert full.obstacles.radius.shape == (2 + 3,)
+
+
+def test_max_neighbours_culls_far_uavs_from_the_stack():
+    """Four UAVs in a line swapping pairwise: with every neighbour seen, UAV 0 reacts to the far pair
+    too; with max_neighbours = 1 only to its partner, so its flight differs, and the swap stays safe."""
+    start = np.array([[0.0, 0.0, 2.0], [8.0, 0.0, 2.0], [0.0, 3.0, 2.0], [8.0, 3.0, 2.0]])
+    swarm = Swarm(start=jnp.asarray(start, jnp.float32), goal=jnp.asarray(start[[1, 0, 3, 2]], jnp.float32),
+                  valid=jnp.ones(4, bool), obstacles=Obstacles.empty(2, jnp.float32))
+    every, config = _fly(swarm, method="velocity_obstacle", t_max=12.0)
+    near, _ = _fly(swarm, method="velocity_obstacle", t_max=12.0, max_neighbours=1)
+    assert not np.array_equal(every, near)
+    pairs = np.linalg.norm(near[:, None] - near[None, :], axis=-1) - 2 * config.vehicle.r_uav
+    assert pairs[~np.eye(4, dtype=bool)].min() > 0.0
