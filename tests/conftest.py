@@ -91,12 +91,12 @@ def assert_same_episodes(a, b, dt: float, *, flips: int = 0, rtol: float = 1e-2,
     """
     import numpy as np
 
-    from jaxapf.metrics import METRICS
+    from jaxapf.metrics import find_metric, is_metric
 
     names = list(a.keys()) if isinstance(a, dict) else list(a.columns)
     assert sorted(names) == sorted(b.keys() if isinstance(b, dict) else b.columns), "the same columns"
     col = lambda t, n: np.asarray(t[n])  # noqa: E731
-    metrics = {n: METRICS.get(n) for n in names if n in METRICS.names()}
+    metrics = {n: find_metric(n) for n in names if is_metric(n)}  # single-UAV or swarm metrics
     rates = [n for n, m in metrics.items() if m.kind == "rate"]
     differ = np.zeros(np.shape(col(a, names[0])), bool)
     for n in rates:

@@ -38,7 +38,7 @@ buffer copies at the boundaries and the narrower vmaps of the tail.
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from typing import Any, Callable, NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -51,7 +51,7 @@ from ..metrics import episode_metrics
 from ..metrics.context import certainly_at_goal, certainly_ended
 from .loop import closed_loop, episode_loop, loop_init, loop_step, record_trajectory
 
-__all__ = ["SEGMENT", "stream_slots", "stream_metrics"]
+__all__ = ["SEGMENT", "stream_slots", "stream_metrics", "EpisodeKind", "single_uav"]
 
 #: Control steps between two refills of the slots.
 SEGMENT = 10
@@ -88,38 +88,39 @@ def _write(tree: Any, block: Any, row: Array, column: Array | int) -> Any:
         x, b, tuple(jnp.asarray(i, jnp.int32) for i in start + (0,) * (x.ndim - 2))), tree, block)
 
 
-def stream_metrics(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, slots: int,
-                   metrics: Sequence[str]) -> dict[str, Array]:
-    """The ``metrics`` of every (setting, field) episode, arrays (G, F), by episode streaming.
+class EpisodeKind(NamedTuple):
+    """What one slot of the streaming engine flies, as three pure functions:
 
-    Args:
-      scenarios: F fields (leading axis F).
-      gains: G settings, every leaf with leading axis G.
-      slots: episodes flown side by side (:func:`stream_slots`).
-    """
-    dtype = scenarios.start.dtype
-    gains = gains.as_arrays(dtype)
+    * ``start(field, gains)``: the slot at the start of an episode on ``field`` with the setting
+      ``gains``: a dict holding at least ``k`` (control steps flown, int32), ``ended`` (whether the
+      episode has certainly ended) and ``x0`` (its first sample);
+    * ``step(slot)``: one control step, ``(slot, record)``;
+    * ``measure(x0, records, field)``: the metrics of a finished episode from its first sample and
+      its records (``T`` on the leading axis).
+
+    :func:`single_uav` is one UAV among the field's obstacles;
+    :func:`~jaxapf.engine.swarm.swarm_episodes` a swarm, which ends when every UAV has ended."""
+
+    start: Callable[[Any, Gains], dict[str, Any]]
+    step: Callable[[dict[str, Any]], tuple[dict[str, Any], Any]]
+    measure: Callable[[Array, Any, Any], dict[str, Array]]
+
+
+def single_uav(sim: SimConfig, mpc: MPCConfig, dtype: Any, metrics: Sequence[str]) -> EpisodeKind:
+    """One UAV per episode (:class:`~jaxapf.datatypes.Scenario` fields): :func:`~jaxapf.engine.loop.loop_step`
+    per control step, ended when :func:`~jaxapf.metrics.context.certainly_ended` fires, measured by
+    :func:`~jaxapf.metrics.episode_metrics`."""
     loop = closed_loop(sim, mpc, dtype)
-    n_fields = scenarios.start.shape[0]
-    n_gains = next((leaf.shape[0] for leaf in jax.tree_util.tree_leaves(gains)), 1)  # no gain read: one setting
-    total, steps, dt = n_gains * n_fields, sim.episode.steps, sim.episode.dt
-    levels = tuple(sorted({max(slots >> i, min(slots, NARROWEST)) for i in range(3)}, reverse=True))
-    moves = max(slots // 4, 1)  # finished episodes handed to the store per boundary, oldest first
-    # the record ring: a finished episode waits at most ceil(slots / moves) boundaries for its move,
-    # so its T records are still in the ring (R a whole number of segments)
-    ring = SEGMENT * -(-(steps + SEGMENT * (2 + -(-slots // moves))) // SEGMENT)
+    dt = sim.episode.dt
 
-    def episode(e: Array) -> dict[str, Any]:
-        """A slot at the start of episode ``e``: its field, gains, carry and first sample."""
-        scenario = _rows(scenarios, e % n_fields)
-        g = _rows(gains, e // n_fields)
+    def start(scenario: Scenario, g: Gains) -> dict[str, Any]:
         carry = loop_init(loop, scenario, g, sim, mpc)
         own = {} if loop.prob is not None else {"prob": episode_loop(loop, g, sim, mpc, dtype).prob}
         return {**own, "scenario": scenario, "obstacles": scenario.obstacles.columns(), "gains": g, "carry": carry,
                 "k": jnp.zeros((), jnp.int32), "ended": certainly_at_goal(scenario.start, scenario, sim),
                 "x0": loop.plant.kinematics(carry[0])}
 
-    def step(slot: dict[str, Any], _) -> tuple[dict[str, Any], tuple]:
+    def step(slot: dict[str, Any]) -> tuple[dict[str, Any], tuple]:
         """One control step of one slot and its record (the plant's ``[p, v]`` after it, the
         applied acceleration, the components' diagnostics)."""
         k = slot["k"]
@@ -129,6 +130,42 @@ def stream_metrics(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCCo
                                   slot["gains"], sim, mpc)
         ended = slot["ended"] | certainly_ended(p0, record[0][:3], k.astype(dtype) * dt, slot["scenario"], sim)
         return {**slot, "carry": carry, "k": k + 1, "ended": ended}, record
+
+    def measure(x0: Array, record: tuple, field: Scenario) -> dict[str, Array]:
+        return episode_metrics(record_trajectory(x0, record, sim), field, sim, metrics)
+
+    return EpisodeKind(start, step, measure)
+
+
+def stream_metrics(fields: Any, gains: Gains, sim: SimConfig, mpc: MPCConfig, slots: int,
+                   metrics: Sequence[str], kind: Callable[..., EpisodeKind] = single_uav) -> dict[str, Array]:
+    """The ``metrics`` of every (setting, field) episode, arrays (G, F), by episode streaming.
+
+    Args:
+      fields: F fields (leading axis F): :class:`~jaxapf.datatypes.Scenario` fields, or what ``kind`` flies.
+      gains: G settings, every leaf with leading axis G.
+      slots: episodes flown side by side (:func:`stream_slots`).
+      kind: ``kind(sim, mpc, dtype, metrics)`` is the :class:`EpisodeKind` of the episodes
+        (:func:`single_uav`, :func:`~jaxapf.engine.swarm.swarm_episodes`).
+    """
+    dtype = fields.start.dtype
+    gains = gains.as_arrays(dtype)
+    flying = kind(sim, mpc, dtype, metrics)
+    n_fields = fields.start.shape[0]
+    n_gains = next((leaf.shape[0] for leaf in jax.tree_util.tree_leaves(gains)), 1)  # no gain read: one setting
+    total, steps = n_gains * n_fields, sim.episode.steps
+    levels = tuple(sorted({max(slots >> i, min(slots, NARROWEST)) for i in range(3)}, reverse=True))
+    moves = max(slots // 4, 1)  # finished episodes handed to the store per boundary, oldest first
+    # the record ring: a finished episode waits at most ceil(slots / moves) boundaries for its move,
+    # so its T records are still in the ring (R a whole number of segments)
+    ring = SEGMENT * -(-(steps + SEGMENT * (2 + -(-slots // moves))) // SEGMENT)
+
+    def episode(e: Array) -> dict[str, Any]:
+        """A slot at the start of episode ``e``: its field, gains, carry and first sample."""
+        return flying.start(_rows(fields, e % n_fields), _rows(gains, e // n_fields))
+
+    def step(slot: dict[str, Any], _) -> tuple[dict[str, Any], tuple]:
+        return flying.step(slot)
 
     def segment(width: int):
         """``SEGMENT`` steps of the first ``width`` slots; their records go to the ring."""
@@ -145,15 +182,13 @@ def stream_metrics(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCCo
         return jax.tree_util.tree_map(lambda r: jnp.zeros((length, episodes) + r.shape, r.dtype), record)
 
     def measure(start: Array, flown: tuple, ids: Array) -> dict[str, Array]:
-        """:func:`~jaxapf.metrics.episode_metrics` of ``slots`` stored episodes: their first samples
-        ``start`` (slots, 6) and records ``flown`` (T, slots, ...)."""
-        fields = _rows(scenarios, jnp.clip(ids, 0, total - 1) % n_fields)
+        """The metrics of ``slots`` stored episodes: their first samples ``start`` (slots, ...) and
+        records ``flown`` (T, slots, ...)."""
+        return jax.vmap(flying.measure, in_axes=(0, 1, 0))(start, flown,
+                                                            _rows(fields, jnp.clip(ids, 0, total - 1) % n_fields))
 
-        def one(x0, record, field):
-            return episode_metrics(record_trajectory(x0, record, sim), field, sim, metrics)
-        return jax.vmap(one, in_axes=(0, 1, 0))(start, flown, fields)
-
-    out_shape = jax.eval_shape(measure, jnp.zeros((slots, 6), dtype), records(steps, slots),
+    first_sample = jax.eval_shape(lambda: episode(jnp.zeros((), jnp.int32))["x0"])
+    out_shape = jax.eval_shape(measure, jnp.zeros((slots,) + first_sample.shape, dtype), records(steps, slots),
                                jnp.zeros((slots,), jnp.int32))
     first = jnp.arange(slots)
     fly = jax.vmap(episode)(jnp.minimum(first, total - 1))
@@ -163,7 +198,7 @@ def stream_metrics(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCCo
         "fly": fly,
         "clock": jnp.zeros((), jnp.int32),  # control steps flown by the slots so far
         "ring": records(ring, slots),
-        "store": (jnp.zeros((slots + moves, 6), dtype), records(steps, slots + moves)),
+        "store": (jnp.zeros((slots + moves,) + first_sample.shape, dtype), records(steps, slots + moves)),
         "store_id": jnp.full((slots + moves,), total, jnp.int32),  # ``total``: no episode (dropped on output)
         "stored": jnp.zeros((), jnp.int32),
         "next": jnp.asarray(min(slots, total), jnp.int32),

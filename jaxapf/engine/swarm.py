@@ -8,25 +8,31 @@ interaction is ``O(A²)`` per step: each UAV's planner, filter and sensor see ``
 slots (``M + K`` with ``sim.world.max_neighbours = K``: the nearest ``K`` only). A one-UAV swarm is
 :func:`~jaxapf.engine.loop.rollout` itself (the same program, bit for bit).
 :func:`evaluate_swarms` flies every (gain setting, swarm field) pair of a batch in one compiled call
-(fixed-length episodes) and returns the swarm metrics (:mod:`jaxapf.metrics.swarm`).
+and returns the swarm metrics (:mod:`jaxapf.metrics.swarm`): streamed by default
+(:func:`swarm_episodes` in :mod:`jaxapf.engine.stream`: a swarm ends when every UAV has ended), or
+in fixed-length episodes.
 """
 
 from __future__ import annotations
+
+from typing import Any, Sequence
 
 import jax
 import jax.numpy as jnp
 from jax import Array
 
 from ..config import MPCConfig, SimConfig
-from ..datatypes import Trajectory
+from ..datatypes import Scenario, Trajectory
 from ..datatypes.swarm import Swarm, agent_view, neighbours
 from ..gains import Gains
-from ..metrics.swarm import swarm_metrics
+from ..metrics.context import certainly_at_goal, certainly_ended
+from ..metrics.swarm import SWARM_METRICS, swarm_metrics
 from .batch import fixed_batches, program, settings_read
 from .components import gains_read
 from .loop import closed_loop, episode_loop, loop_init, loop_step, record_trajectory, rollout
+from .stream import EpisodeKind, stream_metrics, stream_slots
 
-__all__ = ["swarm_rollout", "evaluate_swarms"]
+__all__ = ["swarm_rollout", "evaluate_swarms", "swarm_episodes"]
 
 
 def swarm_rollout(swarm: Swarm, gains: Gains, sim: SimConfig, mpc: MPCConfig, *, remat: bool = False) -> Trajectory:
@@ -60,15 +66,66 @@ def swarm_rollout(swarm: Swarm, gains: Gains, sim: SimConfig, mpc: MPCConfig, *,
     return jax.vmap(lambda x, r: record_trajectory(x, r, sim), in_axes=(0, 1))(x0, records)
 
 
-@program(static_argnames=("sim", "mpc", "width", "metrics"))
+def swarm_episodes(sim: SimConfig, mpc: MPCConfig, dtype: Any, metrics: Sequence[str] | None) -> EpisodeKind:
+    """A swarm per slot of the streaming engine (:class:`~jaxapf.engine.stream.EpisodeKind`): the control
+    step of :func:`swarm_rollout`, every UAV at once; a UAV has ended once
+    :func:`~jaxapf.metrics.context.certainly_ended` fires against the field's obstacles (a collision
+    between two UAVs ends nobody here: the swarm flies on, and the metrics find it in the records), and
+    the swarm once every UAV has; measured by :func:`~jaxapf.metrics.swarm.swarm_metrics`."""
+    loop = closed_loop(sim, mpc, dtype)
+    r_uav, near, dt = sim.vehicle.r_uav, sim.world.max_neighbours, sim.episode.dt
+
+    def alone(swarm: Swarm) -> Scenario:
+        """Each UAV's start and goal among the field's obstacles (leading axis A)."""
+        return Scenario(start=swarm.start, goal=swarm.goal,
+                        obstacles=jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (swarm.agents,) + x.shape),
+                                                         swarm.obstacles))
+
+    def start(swarm: Swarm, g: Gains) -> dict[str, Any]:
+        ids = jnp.arange(swarm.agents)
+        views = jax.vmap(lambda a: agent_view(swarm, a, r_uav, near))(ids)
+        carry = jax.vmap(lambda view: loop_init(loop, view, g, sim, mpc))(views)
+        own = {} if loop.prob is not None else {"prob": episode_loop(loop, g, sim, mpc, dtype).prob}
+        done = ~swarm.valid | jax.vmap(lambda p, s: certainly_at_goal(p, s, sim))(swarm.start, alone(swarm))
+        return {**own, "swarm": swarm, "views": views, "columns": jax.vmap(lambda v: v.obstacles.columns())(views),
+                "gains": g, "carry": carry, "k": jnp.zeros((), jnp.int32), "done": done, "ended": jnp.all(done),
+                "x0": jax.vmap(loop.plant.kinematics)(carry[0])}
+
+    def step(slot: dict[str, Any]) -> tuple[dict[str, Any], tuple]:
+        swarm, k = slot["swarm"], slot["k"]
+        flown = loop if loop.prob is not None else loop._replace(prob=slot["prob"])
+        x = jax.vmap(loop.plant.kinematics)(slot["carry"][0])
+        t = k.astype(dtype) * dt
+
+        def one(c, view, cols, a):
+            seen = cols if swarm.agents == 1 else neighbours(cols, swarm, x, t, a, r_uav, near)
+            return loop_step(flown, c, k.astype(dtype), view, seen, slot["gains"], sim, mpc)
+        carry, record = jax.vmap(one)(slot["carry"], slot["views"], slot["columns"], jnp.arange(swarm.agents))
+        hit = jax.vmap(lambda p0, p1, s: certainly_ended(p0, p1, t, s, sim))(x[:, :3], record[0][:, :3], alone(swarm))
+        done = slot["done"] | hit
+        return {**slot, "carry": carry, "k": k + 1, "done": done, "ended": jnp.all(done)}, record
+
+    def measure(x0: Array, record: tuple, swarm: Swarm) -> dict[str, Array]:
+        traj = jax.vmap(lambda x, r: record_trajectory(x, r, sim), in_axes=(0, 1))(x0, record)
+        return swarm_metrics(traj, swarm, sim, metrics)
+
+    return EpisodeKind(start, step, measure)
+
+
+@program(static_argnames=("sim", "mpc", "width", "metrics", "streaming"))
 def evaluate_swarms(swarms: Swarm, gains: Gains, sim: SimConfig, mpc: MPCConfig, width: int | None = None,
-                    metrics: tuple[str, ...] | None = None) -> dict[str, Array]:
+                    metrics: tuple[str, ...] | None = None, streaming: bool = True) -> dict[str, Array]:
     """The swarm ``metrics`` (default: all of :data:`~jaxapf.metrics.swarm.SWARM_METRICS`) of every
     (setting, field) pair: arrays (G, F). ``swarms``: F fields (leading axis F); ``gains``: G settings
-    (leading axis G on every array leaf; scalars are shared). The G·F swarm episodes run in the
-    fixed-length engine (:func:`~jaxapf.engine.batch.fixed_batches`), ``width`` of them vmapped
-    together (default: all)."""
+    (leading axis G on every array leaf; scalars are shared). The G·F swarm episodes are streamed
+    (:mod:`jaxapf.engine.stream`: a swarm stops when every UAV has ended; at most ``width`` flown side
+    by side), or with ``streaming=False`` run in the fixed-length engine
+    (:func:`~jaxapf.engine.batch.fixed_batches`, ``width`` vmapped together). ``width`` default: all."""
     n_gains, gains = settings_read(gains, sim)
-    width = n_gains * swarms.start.shape[0] if width is None else width
-    return fixed_batches(lambda s, g: swarm_metrics(swarm_rollout(s, g, sim, mpc), s, sim, metrics), swarms, gains,
+    total = n_gains * swarms.start.shape[0]
+    width = total if width is None else width
+    names = SWARM_METRICS.names() if metrics is None else metrics
+    if streaming:
+        return stream_metrics(swarms, gains, sim, mpc, stream_slots(total, width), names, swarm_episodes)
+    return fixed_batches(lambda s, g: swarm_metrics(swarm_rollout(s, g, sim, mpc), s, sim, names), swarms, gains,
                          n_gains, width)

@@ -172,3 +172,42 @@ def test_max_neighbours_culls_far_uavs_from_the_stack():
     assert not np.array_equal(every, near)
     pairs = np.linalg.norm(near[:, None] - near[None, :], axis=-1) - 2 * config.vehicle.r_uav
     assert pairs[~np.eye(4, dtype=bool)].min() > 0.0
+
+
+@pytest.mark.parametrize("family, method", [("circle_swap", "velocity_obstacle"),
+                                            pytest.param("swarm_clutter", "basic", marks=pytest.mark.slow)])
+def test_streamed_swarms_are_the_fixed_engines_swarms(family, method):
+    """The streaming engine stops a swarm once every UAV has certainly ended; its metrics are those of the
+    fixed-length engine up to rounding (two gain settings, the second's repulsion too weak to keep off
+    the obstacles; 24 fields of 4 UAVs)."""
+    from conftest import assert_same_episodes
+
+    from jaxapf.engine.swarm import evaluate_swarms
+    from jaxapf.scenarios.swarms import make_swarms, swarm_params
+
+    swarms = make_swarms(1, swarm_params(family, agents=4), 24)
+    gains = Gains(eta=np.array([0.5, 0.8], np.float32), k_rep=np.array([10.0, 0.2], np.float32))  # weak: collides
+    sim = SimConfig.from_flat(method=method, t_max=25.0)
+    mpc = MPCConfig(horizon=10, iters=15)
+    fixed = jax.device_get(evaluate_swarms(swarms, gains, sim, mpc, 64, streaming=False))
+    streamed = jax.device_get(evaluate_swarms(swarms, gains, sim, mpc, 64))
+    assert_same_episodes(fixed, streamed, sim.episode.dt)
+    assert np.nanmin(streamed["makespan"]) < 0.8 * 25.0, "swarms must end early for the test to bite"
+    assert streamed["obstacle_collision"].any() or family != "swarm_clutter", "and some UAVs hit obstacles"
+
+
+@pytest.mark.slow
+def test_a_streamed_swarms_numbers_do_not_depend_on_its_queue():
+    """The first 8 fields alone and inside a queue of 40 (the same slots): bit for bit the same numbers,
+    also for the potential fields, whose swarms carry a rounding difference far (another program gives
+    other numbers, not this one)."""
+    from jaxapf.engine.swarm import evaluate_swarms
+    from jaxapf.scenarios.swarms import make_swarms, swarm_params
+
+    swarms = make_swarms(2, swarm_params("circle_swap", agents=6), 40)
+    sim = SimConfig.from_flat(method="direction_velocity", t_max=20.0)
+    mpc = MPCConfig(horizon=10, iters=15)
+    whole = evaluate_swarms(swarms, Gains(), sim, mpc, 64)
+    part = evaluate_swarms(jax.tree_util.tree_map(lambda x: x[:8], swarms), Gains(), sim, mpc, 64)
+    for name in whole:
+        np.testing.assert_array_equal(np.asarray(whole[name])[:, :8], np.asarray(part[name]), err_msg=name)
