@@ -208,6 +208,8 @@ class TuneSpec:
         out["search"]["grid"] = {n: list(v) for n, v in self.search.grid}
         out["reparam"]["upper"] = dict(self.reparam.upper)
         out["scenario"] = {f: plain(p) | {"family": p.family} for f, p in self.scenario}
+        if not self.sim.world.max_neighbours:  # a swarm setting newer than the digests: at its default, the digest
+            del out["sim"]["world"]["max_neighbours"]  # every spec had before (its checkpoints still resume)
         return out
 
     def digest(self) -> str:

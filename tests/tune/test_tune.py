@@ -440,3 +440,17 @@ def test_a_tune_spec_traces_the_mpc_weights_it_tunes_or_scales():
     assert mode({"tune": {"params": ["k_rep", "mpc_pos"]}}) == "gains"
     assert mode({"init": {"mpc_input": 2.0}}) == "gains"
     assert mode({"search": MICRO["search"] | {"grid": {"mpc_vel": [0.5, 1.0]}}}) == "gains"
+
+
+def test_a_tune_specs_digest_stays_when_a_newer_setting_is_at_its_default():
+    """A checkpoint belongs to its spec's digest: a static setting added later (``max_neighbours``, for
+    swarms) at its default leaves every digest as it was, so runs started before it still resume."""
+    import dataclasses
+    import pathlib
+
+    from jaxapf.tune.spec import load_tune_spec
+
+    spec, _ = load_tune_spec(pathlib.Path(__file__).resolve().parents[2] / "sweeps" / "tune-tiny.toml")
+    assert spec.digest() == "b105fd45ad4cc8be85c938c37ec6fb2a8eb595f7e5830b08a2e462379bcf34c9"
+    swarm = dataclasses.replace(spec, sim=spec.sim.replace(max_neighbours=8))
+    assert swarm.digest() != spec.digest()
