@@ -88,8 +88,7 @@ def run_compare_spec(spec: CompareSpec, text: str, out: str | pathlib.Path, *, q
                      resamples: int = 2000, gallery: int = 0) -> dict[str, Any]:
     """:func:`run_compare` on a validated spec; ``text`` is recorded as the spec file."""
     out = pathlib.Path(out)
-    note = lambda line: _say(quiet, f"note: {line}")  # noqa: E731
-    with writing(out, "jaxapf compare", "finished selections and test parts are kept", note):
+    with writing(out, "finished selections and test parts are kept"):
         return _run(spec, text, out, quiet=quiet, resamples=resamples, gallery=gallery)
 
 

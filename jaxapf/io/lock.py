@@ -1,18 +1,30 @@
-"""Output folders: checked writable before any work, one writer each (a lock file naming its owner),
-and files written atomically (:func:`write_atomic`).
+"""Output folders: checked writable before any work, one writer each (a lock the kernel keeps), and
+files written atomically and durably (:func:`write_atomic`).
 
 A command that writes into a folder (``jaxapf sweep``, ``tune``, ``compare``) holds ``FOLDER/.lock``
-while it runs: a file created atomically (``O_CREAT | O_EXCL``) holding the owner's pid, host,
-process start time and command line. A second writer finds it and refuses with one line naming the
-owner. A lock whose owner is provably gone -- same host, and no process with that pid and start
-time -- is *stale*: it is removed with a note (a ``kill -9`` leaves one behind). A lock from another
-host cannot be checked from here; the refusal then gives the command that clears it.
+while it runs: an exclusive ``fcntl.flock`` on that file, which the operating system releases when
+the process ends however it ends (``kill -9`` included), so no lock outlives its writer and none is
+ever judged stale by hand. The file carries an *owner note* (pid, host, start, command) written
+after the lock is taken; a second writer is refused in one line naming that owner (or saying the
+owner has not written its note yet). The holder removes the file as it releases; a process that
+opened the old file meanwhile finds, after locking it, that the path no longer names what it locked,
+and tries again, so two writers never both hold the lock.
+
+What holds where: on a local file system (ext4, xfs, btrfs, tmpfs) and between containers that share
+one (whatever their PID namespaces or host names), ``flock`` excludes any other writer. On NFS, Linux
+maps ``flock`` onto NFS byte-range locks (NFSv4, or v3 with ``lockd``): writers on different clients
+exclude each other, and a client that dies loses its lock when its lease expires (NFSv4: about 90 s).
+Mounted with ``nolock`` (or ``local_lock=flock``) the lock only excludes writers on the same client;
+Lustre and GPFS honour ``flock`` when mounted with ``-o flock`` (the Lustre default is ``localflock``:
+per node only). Where locks cannot be trusted, give each writer its own output.
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
+import fcntl
 import json
 import os
 import pathlib
@@ -23,31 +35,55 @@ from typing import IO, Any, Callable, Iterator
 
 from ..validation import ConfigError, Interrupted, first_line
 
-__all__ = ["LOCK_NAME", "OutputLock", "LockInfo", "check_writable", "write_atomic", "writing"]
+__all__ = ["LOCK_NAME", "OutputLock", "LockInfo", "check_writable", "write_atomic", "writing", "fsync_folder"]
 
 #: Name of the lock file inside the output folder.
 LOCK_NAME = ".lock"
+#: Bytes :func:`check_writable` writes (and syncs) to see that the folder takes data, not only names.
+PROBE_BYTES = 64 * 1024
+
+
+def _no_space(err: OSError) -> bool:
+    return err.errno in (errno.ENOSPC, errno.EDQUOT)
 
 
 def check_writable(folder: str | os.PathLike, option: str = "--out") -> None:
-    """Refuse, before any work, an output folder that cannot be created or written."""
+    """Refuse, before any work, an output folder that cannot be created or written, or whose file
+    system has no room left (a probe of :data:`PROBE_BYTES` bytes is written, synced and removed)."""
     folder = pathlib.Path(folder)
     if folder.exists() and not folder.is_dir():
         raise ConfigError(f"{option} {folder} is a file; give a folder")
+    probe = folder / f".write-test-{os.getpid()}"
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        probe = folder / f".write-test-{os.getpid()}"
-        probe.write_bytes(b"")
-        probe.unlink()
+        fd = os.open(probe, os.O_CREAT | os.O_WRONLY | os.O_TRUNC, 0o644)
+        try:
+            os.write(fd, b"\0" * PROBE_BYTES)
+            os.fsync(fd)
+        finally:
+            os.close(fd)
     except OSError as err:
-        raise ConfigError(f"{option} {folder} cannot be written: {err.strerror or first_line(err)}") from None
+        full = " (the file system is full)" if _no_space(err) else ""
+        raise ConfigError(f"{option} {folder} cannot be written: {err.strerror or first_line(err)}{full}") from None
+    finally:
+        with contextlib.suppress(OSError):
+            probe.unlink()
+
+
+def fsync_folder(folder: str | os.PathLike) -> None:
+    """Make the names in ``folder`` durable (a rename or unlink survives a power cut once this returns)."""
+    fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 def write_atomic(path: str | os.PathLike, write: Callable[[IO[bytes]], Any]) -> None:
-    """Write ``path`` completely or not at all: ``write(fh)`` fills the hidden temporary file
-    ``.NAME.tmp-PID`` beside it, which is fsynced and renamed over ``path``. An exception or Ctrl-C
-    on the way removes the temporary file; a killed writer leaves at most it, never a partial
-    ``path``."""
+    """Write ``path`` completely or not at all, durably: ``write(fh)`` fills the hidden temporary file
+    ``.NAME.tmp-PID`` beside it, which is fsynced and renamed over ``path``, and the folder is fsynced
+    so the new name survives a crash. An exception or Ctrl-C on the way removes the temporary file; a
+    killed writer leaves at most it, never a partial ``path``."""
     path = pathlib.Path(path)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     try:
@@ -56,119 +92,104 @@ def write_atomic(path: str | os.PathLike, write: Callable[[IO[bytes]], Any]) -> 
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
+        fsync_folder(path.parent)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
 
 
-def _start_time(pid: int) -> str | None:
-    """The start time of process ``pid`` in clock ticks since boot (Linux), None where unknown."""
-    try:
-        stat = pathlib.Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return None
-    return stat.rsplit(")", 1)[1].split()[19]  # field 22; the command name may hold spaces
-
-
-def _alive(pid: int, start: str | None) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # exists, owned by someone else
-        pass
-    return start is None or _start_time(pid) in (None, start)
-
-
 @dataclasses.dataclass(frozen=True)
 class LockInfo:
-    """Who holds a lock."""
+    """Who holds a lock: the owner note of the lock file."""
 
     pid: int
     host: str
-    start: str | None
     since: float
     command: str
 
     @classmethod
     def mine(cls) -> "LockInfo":
-        pid = os.getpid()
-        return cls(pid, socket.gethostname(), _start_time(pid), time.time(), " ".join(sys.argv) or "python")
+        return cls(os.getpid(), socket.gethostname(), time.time(), " ".join(sys.argv) or "python")
 
     def describe(self) -> str:
         when = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(self.since))
         return f"pid {self.pid} on {self.host} since {when} ({self.command})"
 
-    def stale(self) -> bool:
-        """Provably gone: same host and no live process with this pid and start time."""
-        return self.host == socket.gethostname() and not _alive(self.pid, self.start)
-
 
 class OutputLock:
-    """``with OutputLock(folder, "jaxapf sweep"):`` -- hold ``folder/.lock`` for the block.
+    """``with OutputLock(folder):`` -- hold ``folder/.lock`` for the block (module docstring).
 
-    Raises :class:`ConfigError` when another live writer holds it, or when its owner cannot be
-    checked (another host); ``note`` receives one line when a stale lock is removed.
+    Raises :class:`ConfigError` in one line when another writer holds it, naming it from its owner note.
     """
 
-    def __init__(self, folder: str | os.PathLike, what: str, note: Callable[[str], None] | None = None) -> None:
+    def __init__(self, folder: str | os.PathLike) -> None:
         self.path = pathlib.Path(folder) / LOCK_NAME
-        self.what = what
-        self.note = note
-        self.held = False
+        self.fd: int | None = None
 
-    def _read(self) -> LockInfo | None:
+    @property
+    def held(self) -> bool:
+        return self.fd is not None
+
+    def owner(self) -> LockInfo | None:
+        """The owner note in the lock file; None if there is none (yet) or it cannot be read."""
         try:
             data: dict[str, Any] = json.loads(self.path.read_text())
-            return LockInfo(int(data["pid"]), str(data["host"]), data.get("start"), float(data["since"]),
-                            str(data.get("command", "")))
-        except FileNotFoundError:
-            return None
+            return LockInfo(int(data["pid"]), str(data["host"]), float(data["since"]), str(data.get("command", "")))
         except (OSError, ValueError, KeyError, TypeError):
-            try:
-                since = self.path.stat().st_mtime
-            except OSError:
-                return None
-            return LockInfo(-1, "?", None, since, "unreadable lock file")
+            return None
 
     def acquire(self) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        for _ in range(3):
+        while True:
             try:
-                fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-            except FileExistsError:
-                self._refuse_or_clear()
-                continue
-            with os.fdopen(fd, "w") as fh:
-                json.dump(dataclasses.asdict(LockInfo.mine()), fh)
-                fh.flush()
-                os.fsync(fh.fileno())
-            self.held = True
-            return
-        raise ConfigError(f"{self.path.parent}: could not take the lock {self.path} (contended); try again")
+                fd = os.open(self.path, os.O_CREAT | os.O_RDWR, 0o644)
+            except OSError as err:
+                raise ConfigError(f"{self.path.parent}: cannot create the lock {self.path}: "
+                                  f"{err.strerror or first_line(err)}") from None
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                os.close(fd)
+                self._refuse()
+            try:
+                same = os.stat(self.path).st_ino == os.fstat(fd).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                break
+            os.close(fd)  # the holder removed it as we opened it: lock the file that is there now
+        self.fd = fd
+        try:
+            note = json.dumps(dataclasses.asdict(LockInfo.mine())).encode()
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, note, 0)
+            os.fsync(fd)
+        except OSError as err:
+            self.release()
+            full = " (the file system is full)" if _no_space(err) else ""
+            raise ConfigError(f"{self.path.parent}: cannot write the lock's owner note: "
+                              f"{err.strerror or first_line(err)}{full}; nothing was written") from None
 
-    def _refuse_or_clear(self) -> None:
-        """Another lock is there: remove it if stale, else refuse naming its owner."""
-        owner = self._read()
+    def _refuse(self) -> None:
+        """Another writer holds the lock: refuse, naming it."""
+        owner = self.owner()
         if owner is None:
-            return  # released between our two calls: try again
+            raise ConfigError(f"{self.path.parent} is being written by another process (it has not written its "
+                              "owner note yet); wait for it to finish or write elsewhere (one writer per output)")
         if owner.pid == os.getpid() and owner.host == socket.gethostname():
             raise ConfigError(f"{self.path.parent} is already being written by this process")
-        if owner.stale():
-            self.path.unlink(missing_ok=True)
-            if self.note is not None:
-                self.note(f"removed the stale lock of {owner.describe()}: that process is gone")
-            return
-        if owner.host != socket.gethostname() or owner.pid < 0:
-            raise ConfigError(f"{self.path.parent} is locked by {owner.describe()}, which cannot be checked "
-                              f"from here; if no such run is going on, clear it with: rm '{self.path}'")
         raise ConfigError(f"{self.path.parent} is being written by {owner.describe()}; wait for it to "
                           f"finish or write elsewhere (one writer per output)")
 
     def release(self) -> None:
-        if self.held:
-            self.path.unlink(missing_ok=True)
-            self.held = False
+        """Remove the lock file (while still holding it) and let the lock go; only the holder's call acts."""
+        if self.fd is None:
+            return
+        with contextlib.suppress(OSError):
+            if os.stat(self.path).st_ino == os.fstat(self.fd).st_ino:
+                self.path.unlink()
+        os.close(self.fd)  # closing releases the flock
+        self.fd = None
 
     def __enter__(self) -> "OutputLock":
         self.acquire()
@@ -179,13 +200,12 @@ class OutputLock:
 
 
 @contextlib.contextmanager
-def writing(folder: str | os.PathLike, what: str, kept: str, note: Callable[[str], None] | None = None
-            ) -> Iterator[None]:
+def writing(folder: str | os.PathLike, kept: str) -> Iterator[None]:
     """The block as the one writer of ``folder``: checked writable first (:func:`check_writable`),
     the lock held (:class:`OutputLock`), and Ctrl-C turned into :class:`Interrupted` saying what
     was ``kept`` there and how to resume."""
     check_writable(folder)
-    with OutputLock(folder, what, note):
+    with OutputLock(folder):
         try:
             yield
         except KeyboardInterrupt:

@@ -17,7 +17,7 @@ import numpy as np
 from ..engine.devices import DeviceBatch
 from ..gains import Gains
 from ..io.lock import OutputLock, check_writable
-from ..validation import ConfigError, Interrupted
+from ..validation import ConfigError, Interrupted, first_line
 from .output import prepare_output, write_part
 from .plan import DEFAULT_MEMORY_BUDGET, Chunk, Plan, Variant, describe_plan, plan_sweep
 from .schema import part_table, schema, sweep_meta
@@ -213,7 +213,7 @@ def run_sweep(
                        processes=processes)
     meta = sweep_meta(spec, probe, out)
     note = (lambda line: None) if quiet else (lambda line: print(f"note: {line}", file=sys.stderr, flush=True))
-    lock = OutputLock(out, "jaxapf sweep", note)
+    lock = OutputLock(out)
     if process == 0:
         check_writable(out)
         lock.acquire()
@@ -261,8 +261,13 @@ def _run(spec: SweepSpec, out: pathlib.Path, meta: Mapping[str, Any], start: flo
                 done_chunk, (arrays, kinds, solvable) = pending
                 inverse = np.asarray(plan.variants[done_chunk.variant].inverse)  # identical settings
                 metrics = {m: np.asarray(a)[inverse] for m, a in arrays.items()}
-                write_part(out, done_chunk.name,
-                           part_table(plan, layout, done_chunk, metrics, np.asarray(kinds), solvable))
+                try:
+                    write_part(out, done_chunk.name,
+                               part_table(plan, layout, done_chunk, metrics, np.asarray(kinds), solvable))
+                except OSError as err:  # a full disk, a quota, a vanished mount: what was kept, how to go on
+                    raise ConfigError(f"cannot write {out / done_chunk.name}: {err.strerror or first_line(err)}; "
+                                      f"{kept + written} finished part(s) are kept in {out}; rerun the same command "
+                                      "to resume once it can be written") from None
                 written += 1
                 bar.update(plan.episodes_of([done_chunk]))
                 if after_part is not None:

@@ -136,8 +136,7 @@ def _search(tuner: Tuner, label: str, budget: int, out: pathlib.Path, digest: st
 def run_tune_spec(spec: TuneSpec, text: str, out: str | pathlib.Path, *, quiet: bool = False) -> dict[str, Any]:
     """:func:`run_tune` on a validated spec; ``text`` is recorded as the spec file."""
     out = pathlib.Path(out)
-    note = lambda line: _say(quiet, f"note: {line}")  # noqa: E731
-    with writing(out, "jaxapf tune", "the last training checkpoint and finished searches are kept", note):
+    with writing(out, "the last training checkpoint and finished searches are kept"):
         return _run(spec, text, out, quiet)
 
 

@@ -106,25 +106,51 @@ def test_a_second_sweep_on_the_same_output_refuses_and_the_first_finishes(refere
     assert not (out / LOCK_NAME).exists()
 
 
-def test_a_stale_lock_is_removed_with_a_note_and_a_foreign_one_names_the_command(reference, tmp_path, capsys):
+def test_a_dead_writers_lock_file_does_not_block_the_next_run(reference, tmp_path, capsys):
+    """A writer killed with ``kill -9`` leaves its lock file and owner note behind (from this host or
+    another); the kernel released its lock, so the next run takes it without a word and resumes."""
     out = _copy(reference[0], tmp_path / "stale.parquet")
-    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
-    lock = {"pid": int(dead.stdout), "host": socket.gethostname(), "start": "1", "since": time.time(),
-            "command": "jaxapf sweep old.toml"}
-    (out / LOCK_NAME).write_text(json.dumps(lock))
-    result = run_sweep(parse_spec(SPEC), out, quiet=False)
-    assert result.episodes == 0 and result.skipped == ROWS
-    assert f"removed the stale lock of pid {lock['pid']}" in capsys.readouterr().err
-    assert not (out / LOCK_NAME).exists()
-    (out / LOCK_NAME).write_text(json.dumps(lock | {"host": "another-host", "pid": 1}))
-    with pytest.raises(ConfigError, match=r"locked by pid 1 on another-host .* cannot be checked from here; .*rm '"):
-        run_sweep(parse_spec(SPEC), out, quiet=True)
+    for host in (socket.gethostname(), "another-host"):
+        lock = {"pid": 1, "host": host, "since": time.time(), "command": "jaxapf sweep old.toml"}
+        (out / LOCK_NAME).write_text(json.dumps(lock))
+        result = run_sweep(parse_spec(SPEC), out, quiet=False)
+        assert result.episodes == 0 and result.skipped == ROWS
+        assert "lock" not in capsys.readouterr().err
+        assert not (out / LOCK_NAME).exists()
+
+
+def test_a_disk_that_fills_during_a_sweep_gives_one_line_keeps_every_finished_part_and_no_lock(
+        reference, tmp_path, monkeypatch):
+    """The old run ended in a traceback. Here: one line saying what was kept, no lock left behind, and
+    the rerun on a disk with room completes the same rows."""
+    import jaxapf.sweep.output as output
+
+    real, writes = output.write_atomic, []
+
+    def fills(path, write):
+        if len(writes) == 2:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        writes.append(path)
+        return real(path, write)
+
+    monkeypatch.setattr(output, "write_atomic", fills)
+    out = tmp_path / "full.parquet"
+    with pytest.raises(ConfigError) as err:
+        run_sweep(parse_spec(SPEC), out, chunk_fields=3, quiet=True)
+    line = str(err.value)
+    assert "No space left on device; 2 finished part(s) are kept" in line and "\n" not in line
+    assert not (out / LOCK_NAME).exists() and len(part_files(out)) == 2
+    monkeypatch.undo()
+    run_sweep(parse_spec(SPEC), out, chunk_fields=3, quiet=True)
+    df, meta = read_sweep(out)
+    assert meta["complete"]
+    pd.testing.assert_frame_equal(df, reference[1])
 
 
 def test_the_lock_of_a_live_process_is_kept(tmp_path):
-    with OutputLock(tmp_path, "test"):
+    with OutputLock(tmp_path):
         with pytest.raises(ConfigError, match="already being written by this process"):
-            OutputLock(tmp_path, "test").acquire()
+            OutputLock(tmp_path).acquire()
         assert (tmp_path / LOCK_NAME).exists()
     assert not (tmp_path / LOCK_NAME).exists()
 
@@ -209,10 +235,14 @@ def test_a_read_only_output_folder_is_refused_before_any_work(tmp_path, capsys):
 @pytest.mark.parametrize("command", ["sweep", "report", "simulate"])
 def test_a_read_only_file_system_is_one_line(command, tmp_path, capsys, monkeypatch):
     """The same refusal on a read-only file system (EROFS, faked: tests may run as root)."""
-    def refuse(self, data):
-        raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(self))
+    real = os.open
 
-    monkeypatch.setattr(pathlib.Path, "write_bytes", refuse)
+    def refuse(path, flags, *args, **kwargs):
+        if flags & (os.O_WRONLY | os.O_RDWR):
+            raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(path))
+        return real(path, flags, *args, **kwargs)
+
+    monkeypatch.setattr(os, "open", refuse)
     spec = tmp_path / "faults.toml"
     spec.write_text(SPEC_TOML)
     out = str(tmp_path / "out")

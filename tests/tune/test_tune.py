@@ -354,7 +354,7 @@ def test_a_second_tune_on_the_same_folder_refuses(tmp_path, capsys):
     from jaxapf.io.lock import OutputLock
 
     (tmp_path / "micro.toml").write_text(MICRO_TOML)
-    with OutputLock(tmp_path / "out", "jaxapf tune"):
+    with OutputLock(tmp_path / "out"):
         lock = json.loads((tmp_path / "out" / ".lock").read_text())
         lock["pid"], lock["start"] = 1, None  # a live process that is not this one
         (tmp_path / "out" / ".lock").write_text(json.dumps(lock))

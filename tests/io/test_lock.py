@@ -1,0 +1,189 @@
+"""One writer per output, kept by the kernel (``fcntl.flock``): each defect the hand-judged lock had,
+reproduced, and what a full disk does.
+
+The old lock judged staleness by pid and start time and then unlinked the path: two newcomers racing
+over a stale lock both took it, ``release()`` deleted whatever lock was there, a live writer in
+another PID namespace was judged dead, a lock read before its owner note was called unreadable (and
+its removal advised), and a full disk left an empty lock that blocked every later run.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import multiprocessing as mp
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from jaxapf.io.lock import LOCK_NAME, OutputLock, check_writable, write_atomic
+from jaxapf.validation import ConfigError
+
+HOLD = """
+import fcntl, json, os, sys, time
+path = sys.argv[1]
+fd = os.open(path, os.O_CREAT | os.O_RDWR, 0o644)
+fcntl.flock(fd, fcntl.LOCK_EX)
+note = sys.argv[2].replace("SELF", str(os.getpid()))
+if note:
+    os.write(fd, note.encode())
+print("held", flush=True)
+time.sleep(600)
+"""
+
+
+def _holder(folder: pathlib.Path, note: str = "") -> subprocess.Popen:
+    """A process holding ``folder/.lock`` the way a writer does, with ``note`` as its owner note."""
+    folder.mkdir(parents=True, exist_ok=True)
+    proc = subprocess.Popen([sys.executable, "-c", HOLD, str(folder / LOCK_NAME), note], stdout=subprocess.PIPE,
+                            text=True)
+    assert proc.stdout.readline().strip() == "held"
+    return proc
+
+
+def _race(folder: str, barrier, results) -> None:
+    lock = OutputLock(folder)
+    barrier.wait()
+    try:
+        lock.acquire()
+    except ConfigError:
+        results.put(0)
+        return
+    results.put(1)
+    time.sleep(0.2)  # hold it while the other one tries
+    lock.release()
+
+
+def test_two_newcomers_over_a_dead_writers_lock_never_both_take_it(tmp_path):
+    """The old lock: 26 of 60 races over a stale lock let both in. Here a writer dies holding the lock
+    (``kill -9``: its note stays, the kernel drops the lock), then two processes start together, 30 times:
+    exactly one gets in each time."""
+    note = {"pid": "SELF", "host": os.uname().nodename, "since": time.time(), "command": "jaxapf sweep x.toml"}
+    holder = _holder(tmp_path, json.dumps(note).replace('"SELF"', "SELF"))
+    holder.send_signal(signal.SIGKILL)
+    holder.wait()
+    assert (tmp_path / LOCK_NAME).exists()  # the note outlives its writer; the lock does not
+    ctx = mp.get_context("fork")
+    for _ in range(30):
+        barrier, results = ctx.Barrier(2), ctx.Queue()
+        procs = [ctx.Process(target=_race, args=(str(tmp_path), barrier, results)) for _ in range(2)]
+        for p in procs:
+            p.start()
+        for p in procs:
+            p.join(30)
+        assert sorted(results.get(timeout=5) for _ in procs) == [0, 1]
+
+
+def test_a_lock_file_replaced_between_open_and_lock_is_not_taken(tmp_path, monkeypatch):
+    """The interleaving behind the old race, forced: a newcomer opens the lock file; before it locks,
+    the holder releases (removing the file) and another writer creates and locks a new one. The newcomer
+    then locks the removed file; it must see that the path names another file now, and refuse."""
+    import fcntl
+
+    holder: list[subprocess.Popen] = []
+    real = fcntl.flock
+
+    def replaced_first(fd, op):
+        if not holder:  # the first flock of the newcomer: the file changes under it
+            (tmp_path / LOCK_NAME).unlink()
+            holder.append(_holder(tmp_path, json.dumps({"pid": 7, "host": "h", "since": 0.0, "command": "new"})))
+        return real(fd, op)
+
+    (tmp_path / LOCK_NAME).write_text("")
+    monkeypatch.setattr(fcntl, "flock", replaced_first)
+    try:
+        with pytest.raises(ConfigError, match=r"being written by pid 7 on h"):
+            OutputLock(tmp_path).acquire()
+    finally:
+        holder[0].kill()
+        holder[0].wait()
+
+
+def test_a_failed_acquire_never_releases_the_holders_lock(tmp_path):
+    """The old ``release()`` deleted whatever lock was there, letting a third writer in."""
+    with OutputLock(tmp_path):
+        other = OutputLock(tmp_path)
+        with pytest.raises(ConfigError, match="already being written by this process"):
+            other.acquire()
+        other.release()
+        assert (tmp_path / LOCK_NAME).exists()
+        with pytest.raises(ConfigError):
+            OutputLock(tmp_path).acquire()
+    assert not (tmp_path / LOCK_NAME).exists()
+    with OutputLock(tmp_path):  # free again
+        pass
+
+
+def test_a_live_writer_is_refused_whatever_its_note_says(tmp_path):
+    """A writer in another PID namespace (a container) with the same host name: its note names a pid
+    this host does not have; the old lock judged it dead and removed it (128 rows doubled)."""
+    note = {"pid": 4_000_000, "host": os.uname().nodename, "since": time.time(), "command": "jaxapf sweep x.toml"}
+    holder = _holder(tmp_path, json.dumps(note))
+    try:
+        with pytest.raises(ConfigError, match=r"is being written by pid 4000000 on .*jaxapf sweep x\.toml.*one writer"):
+            OutputLock(tmp_path).acquire()
+    finally:
+        holder.kill()
+        holder.wait()
+
+
+def test_a_lock_taken_but_not_yet_noted_is_a_live_writer_and_no_removal_is_advised(tmp_path):
+    holder = _holder(tmp_path)  # locked, the owner note not written yet
+    try:
+        with pytest.raises(ConfigError) as err:
+            OutputLock(tmp_path).acquire()
+        line = str(err.value)
+        assert "has not written its owner note yet" in line and "rm" not in line and "\n" not in line
+    finally:
+        holder.kill()
+        holder.wait()
+    with OutputLock(tmp_path):  # its writer gone, the kernel let the lock go
+        pass
+
+
+def test_a_full_disk_when_the_note_is_written_gives_one_line_and_leaves_no_lock(tmp_path, monkeypatch):
+    def full(*args):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(os, "pwrite", full)
+    with pytest.raises(ConfigError, match="No space left on device.*full.*nothing was written") as err:
+        OutputLock(tmp_path).acquire()
+    assert "\n" not in str(err.value)
+    assert not (tmp_path / LOCK_NAME).exists()
+    monkeypatch.undo()
+    with OutputLock(tmp_path):  # nothing blocks the next run
+        pass
+
+
+def test_check_writable_refuses_a_full_disk(tmp_path, monkeypatch):
+    """The old probe wrote 0 bytes, so it passed on a full disk."""
+    real = os.fsync
+
+    def full(fd):
+        if "write-test" in os.readlink(f"/proc/self/fd/{fd}"):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return real(fd)
+
+    monkeypatch.setattr(os, "fsync", full)
+    with pytest.raises(ConfigError, match=r"cannot be written: No space left on device \(the file system is full\)"):
+        check_writable(tmp_path / "out")
+    assert list((tmp_path / "out").iterdir()) == []  # the probe removed
+
+
+def test_write_atomic_syncs_the_folder_after_the_rename(tmp_path, monkeypatch):
+    """A renamed file survives a crash only once its folder is synced."""
+    synced = []
+    real = os.fsync
+
+    def record(fd):
+        synced.append(os.readlink(f"/proc/self/fd/{fd}"))
+        return real(fd)
+
+    monkeypatch.setattr(os, "fsync", record)
+    write_atomic(tmp_path / "part.bin", lambda fh: fh.write(b"x"))
+    assert synced[-1] == str(tmp_path) and (tmp_path / "part.bin").read_bytes() == b"x"
