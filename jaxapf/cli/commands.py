@@ -30,6 +30,8 @@ _KEPT = {
     "compare": "finished selections and test parts are kept; rerun the same command to resume",
     "bench": "nothing was written",
     "list": "nothing was written",
+    "sweep-verify": "nothing was written",
+    "sweep-merge": "every part copied so far is complete (copied atomically); rerun the same command to finish",
 }
 
 
@@ -242,8 +244,22 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _add_sweep_parser(sub: argparse._SubParsersAction) -> None:
-    sw = sub.add_parser("sweep", help="run a study stated in a TOML spec into a Parquet dataset (docs/sweep.md)",
-                        description="Run a study stated in a TOML spec into a Parquet dataset; a rerun resumes.")
+    ver = sub.add_parser("sweep-verify", prog="jaxapf sweep verify",
+                         description="Say whether a sweep's output is complete and sound: every expected episode "
+                                     "exactly once, every part's checksum, one spec and format; list what is not. "
+                                     "Exit status 0: complete and sound; 1: not.")
+    ver.add_argument("out", type=pathlib.Path, help="the sweep's output folder, runs/NAME.parquet")
+    mrg = sub.add_parser("sweep-merge", prog="jaxapf sweep merge",
+                         description="Combine sweep outputs written apart (shard folders) into one; refuses folders "
+                                     "of another spec or version, never doubles a row.")
+    mrg.add_argument("sources", type=pathlib.Path, nargs="+", help="the folders to merge")
+    mrg.add_argument("--out", type=pathlib.Path, required=True, help="the merged output folder")
+    sw = sub.add_parser("sweep", help="run a study stated in a TOML spec into a Parquet dataset (docs/sweep.md); "
+                                      "`jaxapf sweep verify OUT` checks one, `jaxapf sweep merge A B --out OUT` "
+                                      "combines folders",
+                        description="Run a study stated in a TOML spec into a Parquet dataset; a rerun resumes. "
+                                    "`jaxapf sweep verify OUT` says whether an output is complete and sound; "
+                                    "`jaxapf sweep merge A B ... --out OUT` combines outputs written apart.")
     sw.add_argument("spec", type=pathlib.Path, help="sweep spec TOML, e.g. sweeps/compare-small.toml")
     sw.add_argument("--out", type=pathlib.Path, help="output dataset directory (default runs/NAME.parquet)")
     sw.add_argument("--dry-run", action="store_true",
@@ -480,6 +496,26 @@ def _sweep(args: argparse.Namespace) -> int:
     return 0
 
 
+def _sweep_verify(args: argparse.Namespace) -> int:
+    from ..sweep.audit import audit_output, describe_audit, read_parts, reference_meta
+    from ..validation import ConfigError
+
+    if not args.out.is_dir():
+        raise ConfigError(f"{args.out} is not a folder")
+    _, metas, _ = read_parts(args.out)
+    meta = reference_meta(args.out, metas)
+    found = audit_output(args.out, meta)
+    print(describe_audit(args.out, found, meta))
+    return 0 if found.complete else 1
+
+
+def _sweep_merge(args: argparse.Namespace) -> int:
+    from ..sweep.merge import merge_outputs
+
+    print(merge_outputs(args.sources, args.out).summary())
+    return 0
+
+
 def _list(args: argparse.Namespace) -> int:
     """One line per entry; under a component, one line per gain it reads, worded as ``list gains``."""
     cat = _catalog()
@@ -514,30 +550,34 @@ def main(argv: Sequence[str] | None = None) -> int:
     # with plugins, or with the registries imported already (their entries may have changed in this process),
     # read them live: that costs nothing more then
     _CATALOG = catalog(fresh=bool(known.plugin) or "jaxapf.engine.components" in sys.modules)
+    if argv[:2] in (["sweep", "verify"], ["sweep", "merge"]):  # `jaxapf sweep verify|merge ...`
+        argv = [f"sweep-{argv[1]}"] + argv[2:]
     args = build_parser().parse_args(argv)
+    command = args.command.replace("-", " ")  # `sweep-verify` is `jaxapf sweep verify`
     import warnings
 
     from ..validation import Interrupted
 
     def one_line(message, category, filename, lineno, file=None, line=None):
-        print(f"jaxapf {args.command}: warning: {str(message).strip().splitlines()[0]}", file=sys.stderr)
+        print(f"jaxapf {command}: warning: {str(message).strip().splitlines()[0]}", file=sys.stderr)
 
     try:
         with warnings.catch_warnings():
             warnings.showwarning = one_line
             return {"simulate": _simulate, "bench": _bench, "tune": _tune, "compare": _compare, "report": _report,
-                    "sweep": _sweep, "list": _list}[args.command](args)
+                    "sweep": _sweep, "sweep-verify": _sweep_verify, "sweep-merge": _sweep_merge,
+                    "list": _list}[args.command](args)
     except ConfigError as err:
-        print(f"jaxapf {args.command}: error: {err}", file=sys.stderr)
+        print(f"jaxapf {command}: error: {err}", file=sys.stderr)
         return 2
     except Interrupted as err:
-        print(f"jaxapf {args.command}: {err}", file=sys.stderr)
+        print(f"jaxapf {command}: {err}", file=sys.stderr)
         return 130
     except KeyboardInterrupt:
-        print(f"jaxapf {args.command}: interrupted; {_KEPT[args.command]}", file=sys.stderr)
+        print(f"jaxapf {command}: interrupted; {_KEPT[args.command]}", file=sys.stderr)
         return 130
     except ImportError as err:
-        print(f"jaxapf {args.command}: error: {err}", file=sys.stderr)
+        print(f"jaxapf {command}: error: {err}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # the reader went away (`jaxapf ... | head`): stop quietly, as Python's docs advise
         import os

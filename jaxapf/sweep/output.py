@@ -110,22 +110,28 @@ def part_files(out: pathlib.Path) -> list[pathlib.Path]:
     return sorted(p for p in out.iterdir() if Chunk.from_name(p.name) is not None)
 
 
-def prepare_output(out: pathlib.Path, meta: Mapping[str, Any], *, overwrite: bool, clean: bool,
+def prepare_output(out: pathlib.Path, meta: Mapping[str, Any], spec: Any, *, overwrite: bool, clean: bool,
                    repair: bool = False) -> list[Chunk]:
-    """Check ``out`` against this sweep and return the chunks already finished there.
+    """Check ``out`` against this sweep (``meta``, ``spec``) and return the chunks already finished there.
 
-    Every part is verified (:func:`verify_part`). Refuses (:class:`ConfigError`) a path that is a
-    file, a directory holding other files, damaged parts (unless ``repair``, which removes exactly
-    them so that their chunks run again), or parts of a different sweep (spec hash, dtype, vmap
-    width, metrics, format) unless ``overwrite``, which deletes the parts (and nothing else). With
-    ``clean`` (the lock's holder only), temporary files of a dead writer are removed.
+    Every part is read and checked against its name and this sweep (:func:`~jaxapf.sweep.audit.audit_output`).
+    Refuses (:class:`ConfigError`) a path that is a file, a directory holding other files, an output of
+    a different sweep (spec hash, dtype, vmap width, metrics, format) unless ``overwrite`` (which
+    deletes the parts, and nothing else), and parts that cannot be trusted -- damaged, foreign
+    (another sweep's, outside this plan, or holding other rows than their names say) or overlapping
+    another -- unless ``repair``, which removes the damaged and overlapping ones (their chunks run
+    again) and moves the foreign ones to ``OUT/.set-aside/``. With ``clean`` (the lock's holder only),
+    temporary files of a dead writer are removed and repairs are carried out.
     """
+    from .audit import SET_ASIDE, audit_output
+
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out} is a file; a sweep writes a directory of Parquet parts")
     if not out.exists():
         return []
-    foreign = [p.name for p in out.iterdir()
-               if Chunk.from_name(p.name) is None and not _TMP.match(p.name) and p.name != LOCK_NAME]
+    kept = (LOCK_NAME, SET_ASIDE)
+    foreign = [p.name for p in out.iterdir() if Chunk.from_name(p.name) is None and not _TMP.match(p.name)
+               and p.name not in kept and not p.name.startswith(LOCK_NAME)]
     if foreign:
         raise ConfigError(f"--out {out} holds files that are not sweep parts ({', '.join(sorted(foreign)[:3])}); "
                           "choose another --out")
@@ -139,21 +145,31 @@ def prepare_output(out: pathlib.Path, meta: Mapping[str, Any], *, overwrite: boo
             for p in parts:
                 p.unlink(missing_ok=True)
         return []
-    damaged = {p: problem for p in parts if (problem := verify_part(p)) is not None}
-    if damaged and not repair:
-        listed = "; ".join(damaged[p] for p in sorted(damaged)[:3]) + (
-            f"; and {len(damaged) - 3} more" if len(damaged) > 3 else "")
-        raise ConfigError(f"--out {out}: {len(damaged)} damaged part(s): {listed}. Rerun the same command with "
-                          "--repair to remove exactly those parts and recompute their chunks")
-    if damaged and clean:
-        for p in damaged:
-            p.unlink(missing_ok=True)
-    good = [p for p in parts if p not in damaged]
-    if good:
-        old = identity(read_meta(good[0]))
+    if not parts:
+        return []
+    found = audit_output(out, meta, spec)
+    other = {n: why for n, why in found.foreign.items() if why.startswith("of another sweep")}
+    if other and not found.sound and len(other) == len(parts) - len(found.damaged):
+        old = identity(read_meta(out / sorted(other)[0]))
         new = identity(meta)
-        if old != new:
-            what = "; ".join(f"{k} {old[k]!s:.12} here, {new[k]!s:.12} now" for k in new if old[k] != new[k])
-            raise ConfigError(f"--out {out} holds a different sweep ({what}); rerun with --overwrite to replace it, "
-                              "or choose another --out")
-    return [Chunk.from_name(p.name) for p in good]
+        what = "; ".join(f"{k} {old[k]!s:.12} here, {new[k]!s:.12} now" for k in new if old[k] != new[k])
+        raise ConfigError(f"--out {out} holds a different sweep ({what}); rerun with --overwrite to replace it, "
+                          "or choose another --out")
+    problems = found.problems
+    if problems and not repair:
+        listed = "; ".join(f"{n}: {problems[n]}" for n in sorted(problems)[:3]) + (
+            f"; and {len(problems) - 3} more" if len(problems) > 3 else "")
+        if not found.foreign and not found.overlapping:
+            raise ConfigError(f"--out {out}: {len(problems)} damaged part(s): {listed}. Rerun the same command with "
+                              "--repair to remove exactly those parts and recompute their chunks")
+        raise ConfigError(f"--out {out}: {len(problems)} part(s) cannot be trusted: {listed}. Rerun the same command "
+                          f"with --repair to remove the damaged and overlapping ones (their chunks are recomputed) "
+                          f"and move the foreign ones to {out / SET_ASIDE}")
+    if problems and clean:
+        for name in {**found.damaged, **found.overlapping}:
+            (out / name).unlink(missing_ok=True)
+        if found.foreign:
+            (out / SET_ASIDE).mkdir(exist_ok=True)
+            for name in found.foreign:
+                (out / name).replace(out / SET_ASIDE / name)
+    return list(found.sound)

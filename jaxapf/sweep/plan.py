@@ -40,6 +40,7 @@ __all__ = [
     "episode_bytes",
     "step_cost_us",
     "seen_slots",
+    "gaps",
 ]
 
 #: Default memory budget of one chunk's working set [bytes].
@@ -222,16 +223,17 @@ def _block(sim: SimConfig, mpc: MPCConfig, obstacles: int, agents: int, settings
     return Block(sim, mpc, obstacles, settings, agents, block, per_device, padded, fixed + padded * per_field, width)
 
 
-def _gaps(done: Iterable[tuple[int, int]], fields: int) -> list[tuple[int, int]]:
-    """The sub-intervals of ``[0, fields)`` not covered by the ``done`` intervals."""
-    gaps, at = [], 0
+def gaps(done: Iterable[tuple[int, int]], fields: int) -> list[tuple[int, int]]:
+    """The sub-intervals of ``[0, fields)`` not covered by the ``done`` intervals (those reaching past
+    ``fields`` cover no more than ``fields``)."""
+    out, at = [], 0
     for start, stop in sorted(done):
         if start > at:
-            gaps.append((at, start))
+            out.append((at, min(start, fields)))
         at = max(at, stop)
     if at < fields:
-        gaps.append((at, fields))
-    return gaps
+        out.append((at, fields))
+    return [(a, b) for a, b in out if a < b]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -359,7 +361,7 @@ def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: in
         for family in spec.families:
             block = blocks[(v.index, family)]
             finished = [(c.start, c.stop) for c in done if (c.variant, c.family) == (v.index, family)]
-            for lo, hi in _gaps(finished, spec.fields):
+            for lo, hi in gaps(finished, spec.fields):
                 chunks += [Chunk(v.index, family, a, min(a + block.fields, hi)) for a in range(lo, hi, block.fields)]
     return Plan(spec, tuple(groups), blocks, tuple(chunks), tuple(done), devices, processes, width, str(dtype),
                 SWARM_METRICS.names() if spec.swarm else METRICS.names())

@@ -13,6 +13,7 @@ from ..gains import Gains
 from ..scenarios import FamilyParams
 from ..validation import ConfigError, first_line
 from .output import read_part
+from .plan import Chunk
 from .schema import identity, read_meta
 from .spec import SweepSpec
 
@@ -25,46 +26,71 @@ def read_sweep(path: str | os.PathLike) -> tuple["pd.DataFrame", dict[str, Any]]
     ``path`` is the output directory (every visible ``*.parquet`` in it is a part) or one part file.
     The metadata is the parts' ``jaxapf`` object (docs/sweep-format.md) plus ``parts`` (number of
     part files), ``rows_expected`` (from the spec; None if the spec cannot be expanded),
-    ``complete`` (every (setting, family, field) present) and ``location`` (the output folder,
-    absolute: a ``.py`` plugin is looked for there first, :func:`sweep_spec`). Every part is verified (its page CRCs
-    and content hash, :func:`~jaxapf.sweep.output.read_part`). Raises :class:`ConfigError` for a
-    path that is not a sweep output, a damaged part, or parts of different sweeps.
+    ``complete`` (every expected (setting, family, field) exactly once, read from the parts' rows) and
+    ``location`` (the output folder, absolute: a ``.py`` plugin is looked for there first,
+    :func:`sweep_spec`). Every part is verified (its page CRCs and content hash,
+    :func:`~jaxapf.sweep.output.read_part`) and, in a directory, checked against its name and the
+    sweep (:mod:`jaxapf.sweep.audit`). Raises :class:`ConfigError` for a path that is not a sweep
+    output, a damaged part, parts of different sweeps, or parts whose rows another part holds too or
+    that are not those their names say.
     """
     import pyarrow as pa
+
+    from .audit import judge, read_parts, reference_meta
 
     path = pathlib.Path(path)
     if not path.exists():
         raise ConfigError(f"{path}: no such file or directory")
-    parts = sorted(p for p in path.glob("*.parquet") if p.is_file() and not p.name.startswith((".", "_"))) \
+    files = sorted(p for p in path.glob("*.parquet") if p.is_file() and not p.name.startswith((".", "_"))) \
         if path.is_dir() else [path]
-    if not parts:
-        raise ConfigError(f"{path} is not the output of jaxapf sweep: the directory holds no Parquet part file")
-    metas, tables = [], []
-    for p in parts:  # every part verified before the parts are compared with each other
-        metas.append(read_meta(p))
+    named = all(Chunk.from_name(p.name) is not None for p in files)  # parts named by their chunks, as a sweep writes
+    if path.is_dir():
+        tables, metas, damaged = read_parts(path, files)
+        if damaged:
+            name = sorted(damaged)[0]
+            raise ConfigError(f"{path}: damaged part {name}: {damaged[name]}; rerun the sweep with --repair to "
+                              "recompute it")
+        if not tables:
+            raise ConfigError(f"{path} is not the output of jaxapf sweep: the directory holds no Parquet part file")
+        if len({json.dumps(identity(m), sort_keys=True) for m in metas.values()}) > 1:
+            raise ConfigError(f"{path} mixes parts of different sweeps (their spec_hash, dtype, vmap_width or "
+                              "metrics differ); `jaxapf sweep verify` lists them")
+        meta = reference_meta(path, metas)
+        parts = len(tables)
+    else:
+        meta = {**read_meta(path), "location": str(path.parent.resolve())}
         try:
-            tables.append(read_part(p))
+            tables = {path.name: read_part(path)}
         except ConfigError as err:
             raise ConfigError(f"{path}: damaged part {err}; rerun the sweep with --repair to recompute it") from None
-    if len({json.dumps(identity(m), sort_keys=True) for m in metas}) > 1:
-        raise ConfigError(f"{path} mixes parts of different sweeps (their spec_hash, dtype, vmap_width or metrics "
-                          "differ)")
+        parts = 1
     try:
-        df = pa.concat_tables(tables).to_pandas()
+        spec = sweep_spec(meta)
+        expected = len(spec.settings()) * len(spec.families) * spec.fields
+    except (KeyError, TypeError, ConfigError):
+        spec, expected = None, None
+    complete = False
+    if path.is_dir() and named and spec is not None:
+        found = judge(tables, metas, {}, meta, spec)
+        if found.problems:
+            name = sorted(found.problems)[0]
+            raise ConfigError(f"{path}: part {name} {found.problems[name]} ({len(found.problems)} part(s) cannot be "
+                              "trusted; `jaxapf sweep verify` lists them, and rerunning the sweep with --repair "
+                              "sets them aside and recomputes their chunks)")
+        complete = found.complete
+    try:
+        df = pa.concat_tables(list(tables.values())).to_pandas()
     except (OSError, pa.ArrowException) as err:
         raise ConfigError(f"{path} is not a readable sweep output (Parquet): {first_line(err)}") from None
-    meta = {**metas[0], "location": str((path if path.is_dir() else path.parent).resolve())}
     if {"setting", "family", "field"} <= set(df.columns):
         families = list(meta.get("spec", {}).get("scenario", {}).get("families", []))
         rank = {f: i for i, f in enumerate(families + sorted(set(df["family"]) - set(families)))}
         df = (df.assign(_rank=df["family"].map(rank)).sort_values(["setting", "_rank", "field"], kind="stable")
               .drop(columns="_rank").reset_index(drop=True))
-    try:
-        spec = sweep_spec(meta)
-        expected = len(spec.settings()) * len(spec.families) * spec.fields
-    except (KeyError, TypeError, ConfigError):
-        expected = None
-    return df, {**meta, "parts": len(parts), "rows_expected": expected, "complete": len(df) == expected}
+    if not (path.is_dir() and named and spec is not None):  # complete if the rows are the whole sweep, once
+        complete = expected is not None and len(df) == expected and not df.duplicated(["setting", "family",
+                                                                                        "field"]).any()
+    return df, {**meta, "parts": parts, "rows_expected": expected, "complete": complete}
 
 
 @dataclasses.dataclass(frozen=True)

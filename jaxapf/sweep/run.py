@@ -179,7 +179,7 @@ def dry_run(spec: SweepSpec, out: str | os.PathLike, *, overwrite: bool = False,
     """:func:`describe_plan` of what :func:`run_sweep` would do with ``out`` as it is now
     (refusing, like the run, an output of a different sweep or with damaged parts, unless
     ``repair``); ``plan``: :func:`plan_sweep` options."""
-    done = prepare_output(pathlib.Path(out), sweep_meta(spec, plan_sweep(spec, **plan), out), overwrite=overwrite,
+    done = prepare_output(pathlib.Path(out), sweep_meta(spec, plan_sweep(spec, **plan), out), spec, overwrite=overwrite,
                           clean=False, repair=repair)
     return describe_plan(plan_sweep(spec, done=done, **plan))
 
@@ -232,10 +232,10 @@ def _run(spec: SweepSpec, out: pathlib.Path, meta: Mapping[str, Any], start: flo
     """The body of :func:`run_sweep`, under the lock; ``note`` prints one line (unless quiet)."""
     process, processes = jax.process_index(), jax.process_count()
     if process == 0:
-        done = prepare_output(out, meta, overwrite=overwrite, clean=True, repair=repair)
+        done = prepare_output(out, meta, spec, overwrite=overwrite, clean=True, repair=repair)
     _sync("jaxapf-sweep-prepared")
     if process != 0:
-        done = prepare_output(out, meta, overwrite=False, clean=False)
+        done = prepare_output(out, meta, spec, overwrite=False, clean=False)
     _sync("jaxapf-sweep-listed")
     plan = plan_sweep(spec, done=done, memory_budget=memory_budget, chunk_fields=chunk_fields, devices=devices,
                       processes=processes)

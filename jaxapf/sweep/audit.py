@@ -1,0 +1,190 @@
+"""What a sweep's output holds, read from its parts' contents, not their names.
+
+Every part is read back (:func:`~jaxapf.sweep.output.read_part`: page CRCs and content hash) and
+checked against the sweep it should belong to:
+
+- **damaged**: unreadable, truncated or changed after it was written;
+- **foreign**: of another sweep (spec, dtype, vmap width, metrics or format differ), outside this
+  sweep's plan (a variant, family or fields the spec does not have), or holding rows other than
+  those its name says (a part copied over another's name);
+- **overlapping**: holding episodes another sound part holds too (two runs that chunked the same
+  fields differently);
+- **sound**: everything else; what the sound parts do not cover is **missing**.
+
+Resume trusts only sound parts and never extends the plan with a foreign one; ``--repair`` removes
+damaged and overlapping parts (their chunks are recomputed) and moves foreign ones to
+``OUT/.set-aside/``; ``jaxapf sweep verify`` prints the audit and says by its exit status whether the
+dataset is complete and sound.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..validation import ConfigError
+from .output import part_files, read_part
+from .plan import Chunk, gaps, variants
+from .schema import identity, read_meta
+from .spec import SweepSpec
+
+__all__ = ["Audit", "audit_output", "read_parts", "reference_meta", "judge", "describe_audit", "SET_ASIDE"]
+
+#: Where ``--repair`` moves foreign parts (hidden: Parquet readers skip it).
+SET_ASIDE = ".set-aside"
+
+
+@dataclasses.dataclass(frozen=True)
+class Audit:
+    """The parts of an output by what they hold (module docstring); ``missing``: the (variant, family,
+    start, stop) field ranges no sound part covers; ``rows``: rows in sound parts; ``expected``: rows of
+    the whole sweep."""
+
+    sound: tuple[Chunk, ...]
+    damaged: Mapping[str, str]
+    foreign: Mapping[str, str]
+    overlapping: Mapping[str, str]
+    missing: tuple[tuple[int, str, int, int], ...]
+    rows: int
+    expected: int
+
+    @property
+    def problems(self) -> dict[str, str]:
+        """Every part that is not sound, with what is wrong with it."""
+        return {**self.damaged, **self.foreign, **self.overlapping}
+
+    @property
+    def complete(self) -> bool:
+        """Sound and complete: every expected episode exactly once, nothing else."""
+        return not self.problems and not self.missing and self.rows == self.expected
+
+
+def _rows_problem(table: Any, chunk: Chunk, settings: list[int], family: str) -> str | None:
+    """What is wrong with a part's rows for its name, or None: ``settings`` the setting indices of its
+    variant, every one of them for every field ``start … stop-1`` of ``family``."""
+    n = chunk.stop - chunk.start
+    want = len(settings) * n
+    if table.num_rows != want:
+        return f"holds {table.num_rows} rows where its name says {want}"
+    columns = {c: table.column(c).to_numpy(zero_copy_only=False) for c in ("setting", "family", "field")
+               if c in table.column_names}
+    if len(columns) < 3:
+        return "lacks the setting, family or field column"
+    if not np.array_equal(columns["setting"], np.repeat(np.asarray(settings), n)):
+        return "holds rows of other settings than its name says"
+    if not np.all(columns["family"] == family):
+        return f"holds rows of family {sorted(set(columns['family']))[0]!s}, its name says {family}"
+    if not np.array_equal(columns["field"], np.tile(np.arange(chunk.start, chunk.stop), len(settings))):
+        lo, hi = int(columns["field"].min()), int(columns["field"].max())
+        return f"holds fields {lo}-{hi}, its name says {chunk.start}-{chunk.stop - 1}"
+    return None
+
+
+def read_parts(out: pathlib.Path, files: list[pathlib.Path] | None = None
+               ) -> tuple[dict[str, Any], dict[str, dict], dict[str, str]]:
+    """``(tables, metas, damaged)`` of every part file in ``out`` (or of ``files``): the verified tables
+    and their ``jaxapf`` metadata by part name, and what is wrong with each part that does not read back
+    intact."""
+    damaged, tables, metas = {}, {}, {}
+    for p in files if files is not None else part_files(out) if out.is_dir() else []:
+        try:
+            tables[p.name] = read_part(p)
+            metas[p.name] = read_meta(p)
+        except ConfigError as err:
+            damaged[p.name] = str(err).split(": ", 1)[-1]
+            tables.pop(p.name, None)
+    return tables, metas, damaged
+
+
+def reference_meta(out: pathlib.Path, metas: Mapping[str, dict]) -> dict:
+    """The metadata of the sweep most of the readable parts belong to (``location``: ``out``)."""
+    counts: dict[str, int] = {}
+    for m in metas.values():
+        key = json.dumps(identity(m), sort_keys=True)
+        counts[key] = counts.get(key, 0) + 1
+    if not counts:
+        raise ConfigError(f"{out} is not the output of jaxapf sweep: no readable part file")
+    reference = max(counts, key=counts.get)
+    meta = next(m for m in metas.values() if json.dumps(identity(m), sort_keys=True) == reference)
+    return {**meta, "location": str(out.resolve())}
+
+
+def judge(tables: Mapping[str, Any], metas: Mapping[str, dict], damaged: Mapping[str, str], meta: Mapping[str, Any],
+          spec: SweepSpec) -> Audit:
+    """The :class:`Audit` of parts read by :func:`read_parts`, against the sweep of ``meta`` and ``spec``."""
+    groups = variants(spec)
+    settings = {v.index: [s.index for s in v.settings] for v in groups}
+    want = identity(meta)
+    foreign, sound = {}, []
+    for name, table in tables.items():
+        chunk = Chunk.from_name(name)
+        other = identity(metas[name])
+        if other != want:
+            differ = ", ".join(k for k in want if other[k] != want[k])
+            foreign[name] = f"of another sweep ({differ} differ)"
+        elif chunk.variant not in settings or chunk.family not in spec.families or chunk.stop > spec.fields:
+            foreign[name] = (f"outside this sweep's plan (variants 0-{len(groups) - 1}, families "
+                             f"{', '.join(spec.families)}, fields 0-{spec.fields - 1})")
+        elif (problem := _rows_problem(table, chunk, settings[chunk.variant], chunk.family)) is not None:
+            foreign[name] = problem
+        else:
+            sound.append(chunk)
+    overlapping = {}
+    by_block: dict[tuple[int, str], list[Chunk]] = {}
+    for c in sound:
+        by_block.setdefault((c.variant, c.family), []).append(c)
+    for block in by_block.values():
+        block.sort(key=lambda c: (c.start, c.stop))
+        for a, b in zip(block, block[1:]):
+            if b.start < a.stop:
+                overlapping[a.name] = f"shares fields {b.start}-{min(a.stop, b.stop) - 1} with {b.name}"
+                overlapping[b.name] = f"shares fields {b.start}-{min(a.stop, b.stop) - 1} with {a.name}"
+    sound = [c for c in sound if c.name not in overlapping]
+    missing = []
+    for v in groups:
+        for family in spec.families:
+            done = [(c.start, c.stop) for c in sound if (c.variant, c.family) == (v.index, family)]
+            missing += [(v.index, family, a, b) for a, b in gaps(done, spec.fields)]
+    rows = sum(len(settings[c.variant]) * (c.stop - c.start) for c in sound)
+    expected = sum(len(s) for s in settings.values()) * len(spec.families) * spec.fields
+    return Audit(tuple(sorted(sound, key=lambda c: c.name)), dict(damaged), foreign, overlapping, tuple(missing),
+                 rows, expected)
+
+
+def audit_output(out: pathlib.Path, meta: Mapping[str, Any] | None = None, spec: SweepSpec | None = None) -> Audit:
+    """The audit of the output ``out`` against the sweep of ``meta`` (:func:`~jaxapf.sweep.schema.sweep_meta`)
+    and ``spec``; without them, against the sweep most of its readable parts belong to."""
+    from .read import sweep_spec
+
+    tables, metas, damaged = read_parts(out)
+    meta = meta if meta is not None else reference_meta(out, metas)
+    return judge(tables, metas, damaged, meta, spec or sweep_spec(meta))
+
+
+def describe_audit(out: pathlib.Path, found: Audit, meta: Mapping[str, Any], limit: int = 10) -> str:
+    """What ``jaxapf sweep verify`` prints: one line saying whether the dataset is complete and sound,
+    then each part that cannot be trusted and each missing range (the first ``limit`` of each)."""
+    head = (f"{out}: {len(found.sound):,} sound part(s), {found.rows:,} of {found.expected:,} episodes "
+            f"(spec_hash {str(meta.get('spec_hash'))[:12]}, {meta.get('format')}, {meta.get('dtype')})")
+    if found.complete:
+        return f"{head}: complete and sound, every episode exactly once"
+    lines = [f"{head}: NOT complete and sound"]
+    for kind, parts in (("damaged", found.damaged), ("foreign", found.foreign), ("overlapping", found.overlapping)):
+        for name in sorted(parts)[:limit]:
+            lines.append(f"  {kind}: {name}: {parts[name]}")
+        if len(parts) > limit:
+            lines.append(f"  … and {len(parts) - limit} more {kind} part(s)")
+    for variant, family, start, stop in found.missing[:limit]:
+        lines.append(f"  missing: variant v{variant:03d}, {family}, fields {start}-{stop - 1}")
+    if len(found.missing) > limit:
+        lines.append(f"  … and {len(found.missing) - limit} more missing range(s)")
+    if found.problems:
+        lines.append("  rerunning the sweep with --repair removes the damaged and overlapping parts, sets the foreign "
+                     "ones aside and recomputes their chunks")
+    elif found.missing:
+        lines.append("  rerunning the sweep (or its missing shards) computes the missing ranges")
+    return "\n".join(lines)

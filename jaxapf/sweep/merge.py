@@ -1,0 +1,118 @@
+"""``jaxapf sweep merge A B … --out OUT``: one dataset from shard folders written apart.
+
+Folders written on machines without a shared file system (each a shard's, or a resumed copy) are
+combined part by part: every source is audited first (:mod:`jaxapf.sweep.audit`) and must be sound
+and of the same sweep and jaxapf version as the others and as ``OUT``; a part whose name is already in
+``OUT`` (or in another source) with the same content is taken once, one with other content, or
+parts that chunk the same fields differently, refuse the merge before anything is copied. Parts are
+copied atomically and read back, so a merge never doubles a row, and a merge repeated or resumed
+after an interruption copies only what is not there yet.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+import shutil
+from typing import Sequence
+
+from ..io.lock import OutputLock, check_writable, write_atomic
+from ..validation import ConfigError
+from .audit import Audit, audit_output, read_parts, reference_meta
+from .output import PART_KEY, verify_part
+from .plan import Chunk
+from .schema import identity
+
+__all__ = ["MergeResult", "merge_outputs"]
+
+
+@dataclasses.dataclass(frozen=True)
+class MergeResult:
+    """What a merge did: parts copied, parts already there, and the audit of ``OUT`` after it."""
+
+    out: pathlib.Path
+    copied: int
+    present: int
+    audit: Audit
+
+    def summary(self) -> str:
+        state = "complete and sound" if self.audit.complete else (
+            f"{self.audit.rows:,} of {self.audit.expected:,} episodes; `jaxapf sweep verify {self.out}` lists the rest")
+        return (f"merged into {self.out}: {self.copied} part(s) copied, {self.present} already there; "
+                f"{len(self.audit.sound)} part(s), {state}")
+
+
+def _part_hash(path: pathlib.Path) -> str:
+    import pyarrow.parquet as pq
+
+    return json.loads((pq.read_schema(path).metadata or {})[PART_KEY])["sha256"]
+
+
+def merge_outputs(sources: Sequence[str | pathlib.Path], out: str | pathlib.Path) -> MergeResult:
+    """Merge the sweep outputs ``sources`` into ``out`` (module docstring); :class:`ConfigError` in one
+    line, before anything is copied, for a source that is not sound or of another sweep or version,
+    or parts that conflict."""
+    out = pathlib.Path(out)
+    sources = [pathlib.Path(s) for s in sources]
+    if not sources:
+        raise ConfigError("sweep merge: name at least one folder to merge")
+    for s in sources:
+        if not s.is_dir():
+            raise ConfigError(f"sweep merge: {s} is not a folder")
+        if s.resolve() == out.resolve():
+            raise ConfigError(f"sweep merge: {s} is the output itself")
+    audits, metas = [], []
+    for s in sources:
+        _, part_metas, _ = read_parts(s)
+        meta = reference_meta(s, part_metas)
+        found = audit_output(s, meta)
+        if found.problems:
+            raise ConfigError(f"sweep merge: {s} has {len(found.problems)} part(s) that cannot be trusted "
+                              f"(`jaxapf sweep verify {s}` lists them); nothing merged")
+        audits.append(found)
+        metas.append(meta)
+    first = identity(metas[0]) | {"jaxapf": metas[0].get("versions", {}).get("jaxapf")}
+    for s, meta in zip(sources[1:], metas[1:]):
+        other = identity(meta) | {"jaxapf": meta.get("versions", {}).get("jaxapf")}
+        if other != first:
+            differ = ", ".join(k for k in first if other[k] != first[k])
+            raise ConfigError(f"sweep merge: {s} is of another sweep or version than {sources[0]} ({differ} differ); "
+                              "nothing merged")
+    check_writable(out)
+    with OutputLock(out):
+        here = audit_output(out, metas[0]) if any(Chunk.from_name(p.name) for p in out.iterdir()) else None
+        if here is not None and here.problems:
+            raise ConfigError(f"sweep merge: {out} has {len(here.problems)} part(s) that cannot be trusted or of "
+                              f"another sweep (`jaxapf sweep verify {out}` lists them); nothing merged")
+        # every part by name, once; a name with two contents, or two names over the same fields, conflict
+        chosen: dict[str, pathlib.Path] = {c.name: out / c.name for c in (here.sound if here else ())}
+        for s, found in zip(sources, audits):
+            for c in found.sound:
+                if c.name in chosen:
+                    if _part_hash(chosen[c.name]) != _part_hash(s / c.name):
+                        raise ConfigError(f"sweep merge: {c.name} differs between {chosen[c.name].parent} and {s}; "
+                                          "nothing merged")
+                    continue
+                chosen[c.name] = s / c.name
+        chunks = sorted((Chunk.from_name(n) for n in chosen), key=lambda c: (c.variant, c.family, c.start))
+        for a, b in zip(chunks, chunks[1:]):
+            if (a.variant, a.family) == (b.variant, b.family) and b.start < a.stop:
+                raise ConfigError(f"sweep merge: {chosen[a.name]} and {chosen[b.name]} hold the same fields, chunked "
+                                  "differently; merge folders of one chunking (or rerun one of them); nothing merged")
+        copied = 0
+        for name, src in chosen.items():
+            if src.parent == out:
+                continue
+            def copy(fh, src=src):
+                with open(src, "rb") as part:
+                    shutil.copyfileobj(part, fh)
+            write_atomic(out / name, copy)
+            problem = verify_part(out / name)
+            if problem is not None:
+                (out / name).unlink(missing_ok=True)
+                raise ConfigError(f"sweep merge: the copy of {src} did not read back ({problem}); "
+                                  f"{copied} part(s) were copied before it")
+            copied += 1
+        result = audit_output(out, metas[0])
+    return MergeResult(out, copied, len(chosen) - copied, result)
