@@ -280,12 +280,11 @@ def _add_sweep_parser(sub: argparse._SubParsersAction) -> None:
     sw.add_argument("--cache-dir", type=pathlib.Path, metavar="DIR",
                     help="persistent XLA compilation cache (default ~/.cache/jaxapf/xla)")
     sw.add_argument("--no-cache", action="store_true", help="no persistent compilation cache")
-    sw.add_argument("--distributed", action="store_true",
-                    help="jax.distributed.initialize(); each process runs and writes its own chunks "
-                         "(the cluster is detected on Slurm, Open MPI and TPU pods; elsewhere give the next three)")
-    sw.add_argument("--coordinator", metavar="HOST:PORT", help="with --distributed: address of process 0")
-    sw.add_argument("--num-processes", type=int, metavar="N", help="with --distributed: number of processes")
-    sw.add_argument("--process-id", type=int, metavar="I", help="with --distributed: this process, 0 … N-1")
+    sw.add_argument("--shard", metavar="I/N",
+                    help="run only shard I of N (0 <= I < N): a fixed, cost-balanced share of the chunks, the same "
+                         "for every process reading the spec; shards run at any time, on one output or each in "
+                         "its own folder (then `jaxapf sweep merge`), e.g. a Slurm array task: "
+                         "--shard $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT")
     sw.add_argument("--quiet", action="store_true", help="no progress bar")
     sw.add_argument("--x64", action="store_true", help="run in float64")
 
@@ -465,33 +464,25 @@ def _margins(texts: Sequence[str]) -> tuple[tuple[str, float], ...]:
 
 def _sweep(args: argparse.Namespace) -> int:
     from ..sweep import configure_jax, default_cache_dir, dry_run, load_spec, parse_size, run_sweep
-    from ..validation import ConfigError, check_int
+    from ..sweep.plan import parse_shard
+    from ..validation import check_int
 
     budget = parse_size(args.memory_budget)
-    cluster = {k: v for k, v in (("coordinator_address", args.coordinator), ("num_processes", args.num_processes),
-                                 ("process_id", args.process_id)) if v is not None}
-    if cluster and not args.distributed:
-        raise ConfigError("--coordinator, --num-processes and --process-id need --distributed")
-    if args.num_processes is not None:
-        check_int("--num-processes", args.num_processes, 1)
-        if args.process_id is not None and not 0 <= args.process_id < args.num_processes:
-            raise ConfigError(f"--process-id = {args.process_id} is out of range; "
-                              f"allowed: 0 … {args.num_processes - 1}")
+    shard = parse_shard(args.shard) if args.shard is not None else None
     if args.devices is not None:
         check_int("--devices", args.devices, 1)
     if args.chunk_fields is not None:
         check_int("--chunk-fields", args.chunk_fields, 1)
     configure_jax(x64=args.x64, cache_dir=None if args.no_cache else args.cache_dir or default_cache_dir(),
-                  cpu_devices=args.devices or 1, distributed=args.distributed,
-                  cluster=cluster)
+                  cpu_devices=args.devices or 1)
     spec = load_spec(args.spec, args.gains)
     out = args.out or pathlib.Path("runs") / f"{spec.name}.parquet"
     if args.dry_run:
-        print(dry_run(spec, out, overwrite=args.overwrite, repair=args.repair, memory_budget=budget,
+        print(dry_run(spec, out, overwrite=args.overwrite, repair=args.repair, shard=shard, memory_budget=budget,
                       chunk_fields=args.chunk_fields))
         return 0
     result = run_sweep(spec, out, memory_budget=budget, chunk_fields=args.chunk_fields, overwrite=args.overwrite,
-                       repair=args.repair, quiet=args.quiet)
+                       repair=args.repair, quiet=args.quiet, shard=shard, devices=args.devices)
     print(result.summary(spec.name))
     return 0
 

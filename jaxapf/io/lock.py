@@ -116,48 +116,74 @@ class LockInfo:
         return f"pid {self.pid} on {self.host} since {when} ({self.command})"
 
 
+def _take(path: pathlib.Path, exclusive: bool) -> int | None:
+    """An open descriptor of ``path`` holding its ``flock`` (exclusive or shared), or None if another
+    process holds it in a conflicting mode; the file is created if missing and locked only while
+    ``path`` still names it (a holder may remove it as it releases)."""
+    while True:
+        try:
+            fd = os.open(path, os.O_CREAT | os.O_RDWR, 0o644)
+        except OSError as err:
+            raise ConfigError(f"{path.parent}: cannot create the lock {path}: "
+                              f"{err.strerror or first_line(err)}") from None
+        try:
+            fcntl.flock(fd, (fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH) | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            return None
+        try:
+            same = os.stat(path).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            return fd
+        os.close(fd)  # the holder removed it as we opened it: lock the file that is there now
+
+
+def _read_note(path: pathlib.Path) -> LockInfo | None:
+    try:
+        data: dict[str, Any] = json.loads(path.read_text())
+        return LockInfo(int(data["pid"]), str(data["host"]), float(data["since"]), str(data.get("command", "")))
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
 class OutputLock:
     """``with OutputLock(folder):`` -- hold ``folder/.lock`` for the block (module docstring).
 
-    Raises :class:`ConfigError` in one line when another writer holds it, naming it from its owner note.
+    With ``shard = (i, n)`` the block is one shard of a sweep written by several processes: it holds
+    ``folder/.lock`` *shared* (shards write side by side; a whole-output writer, which holds it
+    exclusively, excludes them all and they it) and ``folder/.lock-shard-I-of-N`` exclusively (one
+    process per shard). Raises :class:`ConfigError` in one line when another writer holds what is
+    wanted, naming it from its owner note.
     """
 
-    def __init__(self, folder: str | os.PathLike) -> None:
-        self.path = pathlib.Path(folder) / LOCK_NAME
+    def __init__(self, folder: str | os.PathLike, shard: tuple[int, int] | None = None) -> None:
+        self.folder = pathlib.Path(folder)
+        self.path = self.folder / LOCK_NAME
+        self.shard = shard
+        self.own = self.folder / f"{LOCK_NAME}-shard-{shard[0]:04d}-of-{shard[1]:04d}" if shard else self.path
         self.fd: int | None = None
+        self.shared: int | None = None
 
     @property
     def held(self) -> bool:
         return self.fd is not None
 
     def owner(self) -> LockInfo | None:
-        """The owner note in the lock file; None if there is none (yet) or it cannot be read."""
-        try:
-            data: dict[str, Any] = json.loads(self.path.read_text())
-            return LockInfo(int(data["pid"]), str(data["host"]), float(data["since"]), str(data.get("command", "")))
-        except (OSError, ValueError, KeyError, TypeError):
-            return None
+        """The owner note of the lock this one wants; None if there is none (yet) or it cannot be read."""
+        return _read_note(self.own)
 
     def acquire(self) -> None:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        while True:
-            try:
-                fd = os.open(self.path, os.O_CREAT | os.O_RDWR, 0o644)
-            except OSError as err:
-                raise ConfigError(f"{self.path.parent}: cannot create the lock {self.path}: "
-                                  f"{err.strerror or first_line(err)}") from None
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                os.close(fd)
-                self._refuse()
-            try:
-                same = os.stat(self.path).st_ino == os.fstat(fd).st_ino
-            except FileNotFoundError:
-                same = False
-            if same:
-                break
-            os.close(fd)  # the holder removed it as we opened it: lock the file that is there now
+        self.folder.mkdir(parents=True, exist_ok=True)
+        if self.shard is not None:
+            self.shared = _take(self.path, exclusive=False)
+            if self.shared is None:
+                self._refuse(self.path, "the whole output")
+        fd = _take(self.own, exclusive=True)
+        if fd is None:
+            self._release_shared()
+            self._refuse(self.own, f"shard {self.shard[0]}/{self.shard[1]}" if self.shard else None)
         self.fd = fd
         try:
             note = json.dumps(dataclasses.asdict(LockInfo.mine())).encode()
@@ -167,29 +193,43 @@ class OutputLock:
         except OSError as err:
             self.release()
             full = " (the file system is full)" if _no_space(err) else ""
-            raise ConfigError(f"{self.path.parent}: cannot write the lock's owner note: "
+            raise ConfigError(f"{self.folder}: cannot write the lock's owner note: "
                               f"{err.strerror or first_line(err)}{full}; nothing was written") from None
 
-    def _refuse(self) -> None:
-        """Another writer holds the lock: refuse, naming it."""
-        owner = self.owner()
+    def _refuse(self, path: pathlib.Path, what: str | None) -> None:
+        """Another writer holds ``path``: refuse, naming it (a whole-output lock held shared names its shards)."""
+        owner = _read_note(path)
+        if owner is None and path == self.path:
+            shards = sorted(self.folder.glob(f"{LOCK_NAME}-shard-*"))
+            notes = [(p.name.split("shard-")[1].split("-of-"), _read_note(p)) for p in shards]
+            names = [f"shard {int(i)}/{int(n)} ({note.describe()})" for (i, n), note in notes if note is not None]
+            if names:
+                raise ConfigError(f"{self.folder} is being written by {len(names)} shard(s): {'; '.join(names[:3])}"
+                                  f"{' …' if len(names) > 3 else ''}; wait for them or write elsewhere")
+        where = f"{self.folder}" + (f" ({what})" if what else "")
         if owner is None:
-            raise ConfigError(f"{self.path.parent} is being written by another process (it has not written its "
-                              "owner note yet); wait for it to finish or write elsewhere (one writer per output)")
+            raise ConfigError(f"{where} is being written by another process (it has not written its owner note "
+                              "yet); wait for it to finish or write elsewhere (one writer per output)")
         if owner.pid == os.getpid() and owner.host == socket.gethostname():
-            raise ConfigError(f"{self.path.parent} is already being written by this process")
-        raise ConfigError(f"{self.path.parent} is being written by {owner.describe()}; wait for it to "
+            raise ConfigError(f"{where} is already being written by this process")
+        raise ConfigError(f"{where} is being written by {owner.describe()}; wait for it to "
                           f"finish or write elsewhere (one writer per output)")
+
+    def _release_shared(self) -> None:
+        if self.shared is not None:  # a shared hold never removes the file: others may hold it too
+            os.close(self.shared)
+            self.shared = None
 
     def release(self) -> None:
         """Remove the lock file (while still holding it) and let the lock go; only the holder's call acts."""
         if self.fd is None:
             return
         with contextlib.suppress(OSError):
-            if os.stat(self.path).st_ino == os.fstat(self.fd).st_ino:
-                self.path.unlink()
+            if os.stat(self.own).st_ino == os.fstat(self.fd).st_ino:
+                self.own.unlink()
         os.close(self.fd)  # closing releases the flock
         self.fd = None
+        self._release_shared()
 
     def __enter__(self) -> "OutputLock":
         self.acquire()

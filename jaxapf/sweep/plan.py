@@ -41,6 +41,9 @@ __all__ = [
     "step_cost_us",
     "seen_slots",
     "gaps",
+    "parse_shard",
+    "shard_chunks",
+    "chunk_cost",
 ]
 
 #: Default memory budget of one chunk's working set [bytes].
@@ -241,7 +244,7 @@ class Plan:
     """Everything a run needs, decided before it starts.
 
     Attributes:
-      chunks: the chunks still to run, in run order (all processes).
+      chunks: the chunks still to run, in run order.
       done: chunks found finished in the output.
       blocks: shapes per (variant index, family).
       width: the sweep's vmap width.
@@ -254,7 +257,6 @@ class Plan:
     chunks: tuple[Chunk, ...]
     done: tuple[Chunk, ...]
     devices: int
-    processes: int
     width: int
     dtype: str
     metrics: tuple[str, ...]
@@ -294,7 +296,7 @@ class Plan:
             seen = seen_slots(b.sim, b.obstacles, b.agents)
             run += b.settings * b.padded * b.sim.episode.steps * step_cost_us(b.mpc, seen, b.agents) * 1e-6
         programs = len({_program(self.blocks[(c.variant, c.family)]) for c in self.chunks})
-        return run / (self.devices * self.processes), programs * COMPILE_S * self.devices
+        return run / self.devices, programs * COMPILE_S * self.devices
 
     def padding_note(self) -> str | None:
         """One line when more than 10 % of the episodes still to simulate are padding (chunks
@@ -328,8 +330,7 @@ MAX_CHUNKS = 1_000_000
 
 
 def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: int = DEFAULT_MEMORY_BUDGET,
-               chunk_fields: int | None = None, devices: int | None = None, processes: int = 1,
-               width: int | None = None) -> Plan:
+               chunk_fields: int | None = None, devices: int | None = None, width: int | None = None) -> Plan:
     """Cut the spec's work into chunks (skipping the ``done`` ones), as docs/sweep.md says."""
     from ..engine import default_width
 
@@ -363,8 +364,38 @@ def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: in
             finished = [(c.start, c.stop) for c in done if (c.variant, c.family) == (v.index, family)]
             for lo, hi in gaps(finished, spec.fields):
                 chunks += [Chunk(v.index, family, a, min(a + block.fields, hi)) for a in range(lo, hi, block.fields)]
-    return Plan(spec, tuple(groups), blocks, tuple(chunks), tuple(done), devices, processes, width, str(dtype),
+    return Plan(spec, tuple(groups), blocks, tuple(chunks), tuple(done), devices, width, str(dtype),
                 SWARM_METRICS.names() if spec.swarm else METRICS.names())
+
+
+def parse_shard(text: str) -> tuple[int, int]:
+    """``(i, n)`` from ``"I/N"`` (``--shard``; ``0 <= I < N``), or :class:`ConfigError` in one line."""
+    match = re.fullmatch(r"\s*(\d+)\s*/\s*(\d+)\s*", str(text))
+    if match is None or int(match[2]) < 1 or int(match[1]) >= int(match[2]):
+        raise ConfigError(f"--shard = {text!r} must be I/N with 0 <= I < N, e.g. 3/64 (a Slurm array task: "
+                          "--shard $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT)")
+    return int(match[1]), int(match[2])
+
+
+def chunk_cost(plan: Plan, chunk: Chunk) -> float:
+    """The cost model's upper estimate of one chunk [s] (every episode flying its whole ``t_max``)."""
+    b = plan.blocks[(chunk.variant, chunk.family)]
+    seen = seen_slots(b.sim, b.obstacles, b.agents)
+    return b.settings * (chunk.stop - chunk.start) * b.sim.episode.steps * step_cost_us(b.mpc, seen, b.agents) * 1e-6
+
+
+def shard_chunks(plan: Plan, shard: int, shards: int) -> tuple[Chunk, ...]:
+    """The chunks of shard ``shard`` of ``shards``: the plan's chunks dealt by cost, the costliest first,
+    each to the shard with the least cost so far (ties: the lower shard; Graham's LPT rule), in plan
+    order. A function of the plan alone, so every process reading the same spec deals the same way."""
+    chunks = plan.chunks
+    cost = [chunk_cost(plan, c) for c in chunks]
+    load, owner = [0.0] * shards, {}
+    for i in sorted(range(len(chunks)), key=lambda i: (-cost[i], i)):
+        s = min(range(shards), key=lambda k: (load[k], k))
+        owner[i] = s
+        load[s] += cost[i]
+    return tuple(c for i, c in enumerate(chunks) if owner[i] == shard)
 
 
 def describe_plan(plan: Plan) -> str:
@@ -385,7 +416,7 @@ def describe_plan(plan: Plan) -> str:
         f"  compiled variants: {plan.static_variants} distinct (SimConfig, MPCConfig); {plan.programs} evaluate "
         f"program(s) with their shapes, each compiled once per device",
         f"  chunks:            {len(plan.chunks)} to run" + (f", {len(plan.done)} done" if plan.done else "")
-        + f" (one Parquet part each), on {plan.devices} device(s) × {plan.processes} process(es), "
+        + f" (one Parquet part each), on {plan.devices} device(s), "
           f"vmap width {plan.width}, {plan.dtype}",
     ]
     for v in plan.variants:

@@ -17,9 +17,11 @@ import numpy as np
 from ..engine.devices import DeviceBatch
 from ..gains import Gains
 from ..io.lock import OutputLock, check_writable
+from ..text import format_seconds
 from ..validation import ConfigError, Interrupted, first_line
-from .output import prepare_output, write_part
-from .plan import DEFAULT_MEMORY_BUDGET, Chunk, Plan, Variant, describe_plan, plan_sweep
+from .audit import audit_output
+from .output import part_files, prepare_output, write_part
+from .plan import DEFAULT_MEMORY_BUDGET, Chunk, Plan, Variant, chunk_cost, describe_plan, plan_sweep, shard_chunks
 from .schema import part_table, schema, sweep_meta
 from .spec import SweepSpec
 
@@ -33,8 +35,7 @@ def default_cache_dir() -> pathlib.Path:
 
 
 def configure_jax(*, x64: bool = False, cache_dir: str | os.PathLike | None = None,
-                  cpu_devices: int | None = None, distributed: bool = False,
-                  cluster: Mapping[str, Any] | None = None) -> None:
+                  cpu_devices: int | None = None) -> None:
     """Process-wide JAX settings for a sweep; call before anything runs on a device.
 
     Args:
@@ -43,12 +44,7 @@ def configure_jax(*, x64: bool = False, cache_dir: str | os.PathLike | None = No
         more than 0.1 s to compile are stored there and loaded by later runs. ``None``: no cache.
       cpu_devices: split the host CPU into this many JAX devices (``jax_num_cpu_devices``), one
         per core being the useful setting; ignored when ``XLA_FLAGS`` already forces a count.
-      distributed: ``jax.distributed.initialize(**cluster)`` (multi-process runs). Without
-        ``cluster`` JAX detects the cluster (Slurm, Open MPI, TPU pods); elsewhere pass
-        ``coordinator_address``, ``num_processes`` and ``process_id``.
     """
-    if distributed:
-        jax.distributed.initialize(**(cluster or {}))
     if x64:
         jax.config.update("jax_enable_x64", True)
     if cache_dir is not None:
@@ -136,51 +132,35 @@ class SweepResult:
     parts: int
     seconds: float
     duplicates: int = 0  # settings identical to an earlier one in every gain read, not simulated again
+    shard: tuple[int, int] | None = None
 
     def summary(self, name: str) -> str:
         rate = self.episodes / self.seconds if self.seconds > 0 else 0.0
         skipped = f" ({self.skipped:,} already done)" if self.skipped else ""
         same = (f"; {self.duplicates} setting(s) repeat an earlier one in every gain their method reads: "
                 "simulated once, rows copied" if self.duplicates else "")
-        return (f"sweep {name}: {self.episodes:,} episodes{skipped} in {self.seconds:.1f} s, "
+        shard = f" shard {self.shard[0]}/{self.shard[1]}" if self.shard else ""
+        return (f"sweep {name}{shard}: {self.episodes:,} episodes{skipped} in {self.seconds:.1f} s, "
                 f"{rate:,.1f} episodes/s -> {self.out}{same}")
 
 
-_CONNECTED = False
-
-
-def _sync(name: str) -> None:
-    """A barrier of all processes (nothing with one). The first one connects the processes' CPU
-    collectives (Gloo), which print ``[Gloo] Rank r is connected to n peer ranks ...`` on the C++
-    standard output with no setting to turn it off; that line is dropped (file descriptor 1 goes to
-    /dev/null during the first barrier, when nothing else writes there)."""
-    global _CONNECTED
-    if jax.process_count() > 1:
-        from jax.experimental import multihost_utils
-
-        if _CONNECTED:
-            multihost_utils.sync_global_devices(name)
-            return
-        sys.stdout.flush()
-        saved = os.dup(1)
-        try:
-            null = os.open(os.devnull, os.O_WRONLY)
-            os.dup2(null, 1)
-            os.close(null)
-            multihost_utils.sync_global_devices(name)
-            _CONNECTED = True
-        finally:
-            os.dup2(saved, 1)
-            os.close(saved)
-
-
 def dry_run(spec: SweepSpec, out: str | os.PathLike, *, overwrite: bool = False, repair: bool = False,
-            **plan: Any) -> str:
+            shard: tuple[int, int] | None = None, **plan: Any) -> str:
     """:func:`describe_plan` of what :func:`run_sweep` would do with ``out`` as it is now
-    (refusing, like the run, an output of a different sweep or with damaged parts, unless
-    ``repair``); ``plan``: :func:`plan_sweep` options."""
-    done = prepare_output(pathlib.Path(out), sweep_meta(spec, plan_sweep(spec, **plan), out), spec, overwrite=overwrite,
-                          clean=False, repair=repair)
+    (refusing, like the run, an output of a different sweep or with parts that cannot be trusted,
+    unless ``repair``); with ``shard``, what that shard would run; ``plan``: :func:`plan_sweep` options."""
+    if shard is not None:
+        whole = plan_sweep(spec, **(plan | {"devices": 1}))
+        mine = shard_chunks(whole, *shard)
+        done = [] if not pathlib.Path(out).exists() else list(
+            audit_output(pathlib.Path(out), sweep_meta(spec, whole, out), spec).sound)
+        todo = [c for c in mine if c not in set(done)]
+        run_s = sum(chunk_cost(whole, c) for c in todo)
+        return (describe_plan(whole) + f"\n  shard {shard[0]}/{shard[1]}:        {len(mine)} of {len(whole.chunks)} "
+                f"chunks ({whole.episodes_of(mine):,} episodes), {len(todo)} still to run in {out}, up to "
+                f"{format_seconds(run_s)} of simulation")
+    done = prepare_output(pathlib.Path(out), sweep_meta(spec, plan_sweep(spec, **plan), out), spec,
+                          overwrite=overwrite, clean=False, repair=repair)
     return describe_plan(plan_sweep(spec, done=done, **plan))
 
 
@@ -194,68 +174,106 @@ def run_sweep(
     repair: bool = False,
     quiet: bool = False,
     devices: int | None = None,
+    shard: tuple[int, int] | None = None,
     after_part: Callable[[Chunk], None] | None = None,
 ) -> SweepResult:
     """Run (or resume) ``spec`` into the Parquet dataset directory ``out``.
 
-    Finished parts already in ``out`` are verified and kept, and their chunks skipped; the fields
-    they do not cover are cut into chunks of the current size. A damaged part is refused, or with
-    ``repair`` removed and its chunk recomputed. The run holds ``out/.lock`` (one writer per
-    output, :class:`jaxapf.io.lock.OutputLock`). ``after_part`` is called after each part is written
-    (tests use it to interrupt a run). Ctrl-C raises :class:`~jaxapf.validation.Interrupted`
-    saying what was kept. In a multi-process run (``jax.distributed``), process ``p`` runs chunks
-    ``p, p + P, p + 2P, …`` of the plan; process 0 holds the lock.
+    Finished parts already in ``out`` are read back and checked (:mod:`jaxapf.sweep.audit`) and their
+    chunks skipped; the fields they do not cover are cut into chunks of the current size. Parts that
+    cannot be trusted are refused, or with ``repair`` removed (damaged, overlapping: recomputed) or
+    set aside (foreign). The run holds ``out/.lock`` (one writer per output,
+    :class:`jaxapf.io.lock.OutputLock`). ``after_part`` is called after each part is written (tests
+    use it to interrupt a run). Ctrl-C raises :class:`~jaxapf.validation.Interrupted` saying what was kept.
+
+    With ``shard = (i, n)`` only shard ``i`` of ``n`` runs (:func:`~jaxapf.sweep.plan.shard_chunks`: the
+    chunks of the plan on one device, dealt by cost, the same for every process that reads the
+    spec), writing only its own parts: shards run side by side or hours apart, on one output or
+    each in its own folder (combined by :func:`~jaxapf.sweep.merge.merge_outputs`), and a shard rerun
+    after a crash computes only its missing parts.
     """
     start = time.perf_counter()
     out = pathlib.Path(out)
-    process, processes = jax.process_index(), jax.process_count()
-    probe = plan_sweep(spec, memory_budget=memory_budget, chunk_fields=chunk_fields, devices=devices,
-                       processes=processes)
+    if shard is not None:
+        if overwrite:
+            raise ConfigError("--overwrite replaces a whole output; a shard writes only its own parts (remove the "
+                              "output, or write the shards elsewhere)")
+        if devices not in (None, 1):
+            raise ConfigError(f"--devices = {devices}: a shard runs on one device (the shards' chunks must not depend "
+                              "on the machine); run more shards instead")
+        devices = 1
+    probe = plan_sweep(spec, memory_budget=memory_budget, chunk_fields=chunk_fields, devices=devices)
     meta = sweep_meta(spec, probe, out)
     note = (lambda line: None) if quiet else (lambda line: print(f"note: {line}", file=sys.stderr, flush=True))
-    lock = OutputLock(out)
-    if process == 0:
-        check_writable(out)
-        lock.acquire()
-    try:
-        return _run(spec, out, meta, start, memory_budget=memory_budget, chunk_fields=chunk_fields,
-                    overwrite=overwrite, repair=repair, quiet=quiet, devices=devices, after_part=after_part,
-                    note=note)
-    finally:
-        lock.release()
+    check_writable(out)
+    with OutputLock(out, shard):
+        if shard is None:
+            done = prepare_output(out, meta, spec, overwrite=overwrite, clean=True, repair=repair)
+            plan = plan_sweep(spec, done=done, memory_budget=memory_budget, chunk_fields=chunk_fields,
+                              devices=devices)
+            todo = plan.chunks
+        else:
+            plan, todo = _shard_plan(spec, out, meta, probe, shard, repair)
+        padding = plan.padding_note()
+        if padding:
+            note(padding)
+        written = _write_chunks(plan, todo, out, meta, quiet, after_part)
+    scope = plan.episodes if shard is None else plan.episodes_of(shard_chunks(plan, *shard))  # this run's part
+    return SweepResult(out, plan.episodes_of(todo), scope - plan.episodes_of(todo), written,
+                       time.perf_counter() - start, plan.duplicates, shard)
 
 
-def _run(spec: SweepSpec, out: pathlib.Path, meta: Mapping[str, Any], start: float, *,
-         memory_budget: int, chunk_fields: int | None, overwrite: bool, repair: bool, quiet: bool,
-         devices: int | None, after_part: Callable[[Chunk], None] | None, note: Callable[[str], None]
-         ) -> SweepResult:
-    """The body of :func:`run_sweep`, under the lock; ``note`` prints one line (unless quiet)."""
-    process, processes = jax.process_index(), jax.process_count()
-    if process == 0:
-        done = prepare_output(out, meta, spec, overwrite=overwrite, clean=True, repair=repair)
-    _sync("jaxapf-sweep-prepared")
-    if process != 0:
-        done = prepare_output(out, meta, spec, overwrite=False, clean=False)
-    _sync("jaxapf-sweep-listed")
-    plan = plan_sweep(spec, done=done, memory_budget=memory_budget, chunk_fields=chunk_fields, devices=devices,
-                      processes=processes)
-    mine = plan.chunks[process::processes]
-    padding = plan.padding_note() if process == 0 else None
-    if padding:
-        note(padding)
+def _shard_plan(spec: SweepSpec, out: pathlib.Path, meta: Mapping[str, Any], plan: Plan, shard: tuple[int, int],
+                repair: bool) -> tuple[Plan, tuple[Chunk, ...]]:
+    """The plan and the chunks shard ``shard`` still has to run in ``out``: its chunks no sound part
+    holds. Only the shard's own parts are touched: its damaged, foreign or overlapping parts are
+    refused, or with ``repair`` removed or set aside; any other part is another shard's business
+    (`jaxapf sweep verify` reports it), but parts chunked otherwise than this plan are refused."""
+    from .audit import SET_ASIDE, audit_output
+
+    mine = shard_chunks(plan, *shard)
+    names = {c.name for c in mine}
+    if not out.exists() or not part_files(out):
+        return plan, mine
+    found = audit_output(out, meta, spec)
+    other = [c.name for c in found.sound if c not in set(plan.chunks)]
+    if other:
+        raise ConfigError(f"--out {out} holds parts chunked otherwise than this plan (e.g. {other[0]}): give every "
+                          "shard the same --chunk-fields and --memory-budget as the runs that wrote them")
+    problems = {n: why for n, why in found.problems.items() if n in names}
+    if problems and not repair:
+        listed = "; ".join(f"{n}: {problems[n]}" for n in sorted(problems)[:3])
+        raise ConfigError(f"--out {out}: {len(problems)} part(s) of shard {shard[0]}/{shard[1]} cannot be trusted: "
+                          f"{listed}. Rerun the same command with --repair to recompute them")
+    for name in problems:
+        if name in found.foreign:
+            (out / SET_ASIDE).mkdir(exist_ok=True)
+            (out / name).replace(out / SET_ASIDE / name)
+        else:
+            (out / name).unlink(missing_ok=True)
+    for tmp in out.iterdir():  # a dead run of this shard left these; other shards' are theirs
+        if tmp.name.startswith(".part-") and tmp.name.split(".tmp-")[0][1:] in names:
+            tmp.unlink(missing_ok=True)
+    sound = {c.name for c in found.sound} - set(problems)
+    return plan, tuple(c for c in mine if c.name not in sound)
+
+
+def _write_chunks(plan: Plan, chunks: tuple[Chunk, ...], out: pathlib.Path, meta: Mapping[str, Any], quiet: bool,
+                  after_part: Callable[[Chunk], None] | None) -> int:
+    """Run ``chunks`` of ``plan`` and write each as a part as it finishes (the next chunk runs while one is
+    written); returns the parts written. Ctrl-C and a full disk end it with one line saying what was kept."""
     out.mkdir(parents=True, exist_ok=True)
     layout = schema(plan, meta)
-    total = plan.episodes_of(mine)
+    kept = len(part_files(out))
     from tqdm import tqdm
 
-    bar = tqdm(total=total, unit="ep", unit_scale=True, desc=spec.name, dynamic_ncols=True,
+    bar = tqdm(total=plan.episodes_of(chunks), unit="ep", unit_scale=True, desc=plan.spec.name, dynamic_ncols=True,
                disable=quiet or not sys.stderr.isatty())
     runner = _Devices(plan)
     written = 0
-    kept = len(done)
     try:
         pending: tuple[Chunk, tuple[dict[str, jax.Array], jax.Array, np.ndarray | None]] | None = None
-        for chunk in (*mine, None):
+        for chunk in (*chunks, None):
             running = None if chunk is None else (chunk, runner.dispatch(chunk))
             if pending is not None:  # write the previous chunk while this one runs
                 done_chunk, (arrays, kinds, solvable) = pending
@@ -279,7 +297,4 @@ def _run(spec: SweepSpec, out: pathlib.Path, meta: Mapping[str, Any], start: flo
     finally:
         runner.close()
         bar.close()
-    return SweepResult(out, total, plan.episodes_of(done), written, time.perf_counter() - start,
-                       plan.duplicates)
-
-
+    return written

@@ -520,43 +520,14 @@ def test_four_devices_give_the_rows_of_one(tmp_path):
     assert_same_episodes(a, b, SimConfig().episode.dt)  # TINY flies the default dt
 
 
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as sock:
-        sock.bind(("localhost", 0))
-        return sock.getsockname()[1]
-
-
-@pytest.mark.slow
-def test_two_processes_give_the_rows_of_one(tmp_path, reference):
-    # `jaxapf sweep --distributed` with two local processes (jax.distributed over localhost):
-    # each runs every other chunk and writes its own parts; together exactly the reference rows
+def test_a_bad_shard_is_one_line(tmp_path, capsys):
     spec = _toml(tmp_path / "tiny.toml", TINY)
-    out = tmp_path / "two.parquet"
-    port = _free_port()
-    env = {**os.environ, "JAX_PLATFORMS": "cpu"}
-    procs = [subprocess.Popen([sys.executable, "-m", "jaxapf", "sweep", str(spec), "--out", str(out),
-                               "--distributed", "--coordinator", f"localhost:{port}", "--num-processes", "2",
-                               "--process-id", str(i), "--devices", "1", "--no-cache", "--quiet",
-                               "--chunk-fields", "2"],
-                              env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for i in range(2)]
-    logs = [p.communicate(timeout=240)[0] for p in procs]
-    assert [p.returncode for p in procs] == [0, 0], logs
-    assert all(f"{ROWS // 2} episodes" in log for log in logs), logs  # 12 chunks, 6 per process
-    assert not any("[Gloo]" in log for log in logs), logs  # the CPU collectives' connection line is dropped
-    rows, meta = read_sweep(out)
-    assert meta["complete"] and meta["parts"] == 12
-    pd.testing.assert_frame_equal(reference[1], rows)
-
-
-def test_cluster_flags_need_distributed_and_a_valid_id(tmp_path, capsys):
-    spec = _toml(tmp_path / "tiny.toml", TINY)
-    assert main(["sweep", str(spec), "--num-processes", "2", "--no-cache", "--dry-run"]) == 2
-    assert "need --distributed" in capsys.readouterr().err
-    assert main(["sweep", str(spec), "--distributed", "--num-processes", "2", "--process-id", "2",
-                 "--no-cache", "--dry-run"]) == 2
-    assert "--process-id = 2 is out of range; allowed: 0 … 1" in capsys.readouterr().err
+    for bad in ("2/2", "1", "-1/4", "a/b", "0/0"):
+        assert main(["sweep", str(spec), f"--shard={bad}", "--no-cache", "--dry-run"]) == 2
+        assert "--shard = " in capsys.readouterr().err
+    assert main(["sweep", str(spec), "--shard", "0/2", "--devices", "2", "--no-cache", "--out",
+                 str(tmp_path / "o")]) == 2
+    assert "a shard runs on one device" in capsys.readouterr().err
 
 
 def test_a_grid_over_an_mpc_weight_traces_the_weights(tmp_path):
