@@ -300,7 +300,7 @@ def _simulate(args: argparse.Namespace) -> int:
     from ..scenarios import family_params
     from ..scenarios.swarms import swarm_params
     from ..simulate import format_metrics_table, simulate_runs, write_outputs
-    from ..simulate.swarm import format_swarm_table, simulate_swarm, write_swarm_outputs
+    from ..simulate.swarm import simulate_swarm, write_swarm_outputs
     from ..sweep.spec import traced_weights
     from ..validation import MAX_FIELDS, MAX_SEED, ConfigError, check_int
 
@@ -328,7 +328,7 @@ def _simulate(args: argparse.Namespace) -> int:
         field, runs, table = simulate_swarm(args.family, args.seed, args.field, args.methods, gains, sim, mpc,
                                             overrides)
         paths = write_swarm_outputs(args.out, field, runs, table, config)
-        title, metrics = field.field.title, format_swarm_table(runs)
+        title, metrics = field.field.title, format_metrics_table(runs)
     else:
         field, runs, table = simulate_runs(args.family, args.seed, args.field, args.methods, gains, sim, mpc)
         paths = write_outputs(args.out, field, runs, table, config)

@@ -15,7 +15,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import pathlib
-from typing import Sequence
+from typing import Any, Sequence
 
 import jax
 import numpy as np
@@ -26,7 +26,7 @@ from ..datatypes import Scenario
 from ..engine import program, rollout
 from ..gains import Gains
 from ..io.versions import versions
-from ..metrics import METRICS, clearance_history, episode_end, episode_metrics
+from ..metrics import METRICS, all_metrics, clearance_history, episode_end, episode_metrics, find_metric
 from ..scenarios import family_params, make_scenarios
 from .figures import Field, Run, plot_all
 
@@ -96,15 +96,16 @@ def simulate_runs(
     return _field(scenario, sim, title), runs, pd.concat(tables, ignore_index=True)
 
 
-def format_metrics_table(runs: Sequence[Run]) -> str:
-    """A fixed-width table: one row per registered metric (with its unit), one column per run."""
+def format_metrics_table(runs: Sequence[Any]) -> str:
+    """A fixed-width table: one row per registered metric the runs have (a single UAV's or a swarm's,
+    with its unit), one column per run (anything with a ``label`` and a ``metrics`` dict)."""
     def cell(value) -> str:
         if isinstance(value, bool):
             return str(value).lower()
         return f"{value:.3g}" if isinstance(value, float) else str(value)
 
-    names = [n for n in METRICS.names() if all(n in r.metrics for r in runs)]
-    rows = {f"{n} [{METRICS.get(n).unit}]" if METRICS.get(n).unit else n: [cell(r.metrics[n]) for r in runs]
+    names = [n for n, _ in all_metrics() if all(n in r.metrics for r in runs)]
+    rows = {f"{n} [{find_metric(n).unit}]" if find_metric(n).unit else n: [cell(r.metrics[n]) for r in runs]
             for n in names}
     return pd.DataFrame(rows, index=[r.label for r in runs]).T.to_string()
 

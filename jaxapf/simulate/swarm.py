@@ -36,7 +36,7 @@ from ..metrics.swarm import SWARM_METRICS, agent_outcomes, swarm_metrics
 from ..scenarios.swarms import make_swarms, swarm_params
 from .figures import DPI, Field, _aspect, _draw_obstacles_xy, _legend_below, _suptitle, _title, _xy_bounds, panel_grid
 
-__all__ = ["SwarmRun", "SwarmField", "simulate_swarm", "write_swarm_outputs", "format_swarm_table",
+__all__ = ["SwarmRun", "SwarmField", "simulate_swarm", "write_swarm_outputs",
            "plot_swarm_trajectories", "plot_swarm_snapshots", "SWARM_FIGURES"]
 
 _PYTHON = {"bool": bool, "int32": int, "float": float}
@@ -138,18 +138,6 @@ def simulate_swarm(family: str, seed: int, field_index: int, methods: Sequence[s
                   obstacle_cylinder=obs.cylinder[keep], r_uav=sim.vehicle.r_uav, r_goal=sim.episode.r_goal,
                   d_safe=sim.metrics.d_safe, title=title)
     return SwarmField(starts, goals, field), runs, pd.concat(tables, ignore_index=True)
-
-
-def format_swarm_table(runs: Sequence[SwarmRun]) -> str:
-    """A fixed-width table: one row per swarm metric (with its unit), one column per method."""
-    def cell(value) -> str:
-        if isinstance(value, bool):
-            return str(value).lower()
-        return f"{value:.3g}" if isinstance(value, float) else str(value)
-
-    rows = {f"{n} [{SWARM_METRICS.get(n).unit}]" if SWARM_METRICS.get(n).unit else n: [cell(r.metrics[n]) for r in runs]
-            for n in SWARM_METRICS.names()}
-    return pd.DataFrame(rows, index=[r.label for r in runs]).T.to_string()
 
 
 # --------------------------------------------------------------------------------------------
