@@ -38,6 +38,7 @@ RECORDS: dict[str, tuple[str, int]] = {
     "xla-region-analysis": (
         "python benchmarks/xla_options.py --xla-option xla_cpu_copy_insertion_use_region_analysis=false --json", 1),
     "faults": ("python benchmarks/faults.py --json", 1),
+    "shards": ("python benchmarks/shards.py --json", 1),
 }
 
 

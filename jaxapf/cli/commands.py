@@ -541,8 +541,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     # with plugins, or with the registries imported already (their entries may have changed in this process),
     # read them live: that costs nothing more then
     _CATALOG = catalog(fresh=bool(known.plugin) or "jaxapf.engine.components" in sys.modules)
-    if argv[:2] in (["sweep", "verify"], ["sweep", "merge"]):  # `jaxapf sweep verify|merge ...`
-        argv = [f"sweep-{argv[1]}"] + argv[2:]
+    at = 0  # `jaxapf [--plugin X ...] sweep verify|merge ...` is the command sweep-verify|sweep-merge
+    while at < len(argv) and argv[at].startswith("--plugin"):
+        at += 1 if "=" in argv[at] else 2
+    if argv[at:at + 2] in (["sweep", "verify"], ["sweep", "merge"]):
+        argv = argv[:at] + [f"sweep-{argv[at + 1]}"] + argv[at + 2:]
     args = build_parser().parse_args(argv)
     command = args.command.replace("-", " ")  # `sweep-verify` is `jaxapf sweep verify`
     import warnings

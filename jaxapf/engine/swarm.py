@@ -27,6 +27,7 @@ from ..datatypes.swarm import Swarm, agent_view, neighbours
 from ..gains import Gains
 from ..metrics.context import certainly_at_goal, certainly_ended
 from ..metrics.swarm import SWARM_METRICS, swarm_metrics
+from ..validation import ConfigError
 from .batch import fixed_batches, program, settings_read
 from .components import gains_read
 from .loop import closed_loop, episode_loop, loop_init, loop_step, record_trajectory, rollout
@@ -35,9 +36,20 @@ from .stream import EpisodeKind, stream_metrics, stream_slots
 __all__ = ["swarm_rollout", "evaluate_swarms", "swarm_episodes"]
 
 
+def check_neighbours(sim: SimConfig) -> None:
+    """Refuse ``max_neighbours`` with a sensor other than ``ideal``: the nearest neighbours are re-picked
+    into the slots every step, and a sensor that remembers each slot (dropout, latency, range) would
+    carry one UAV's reading into another's slot."""
+    if sim.world.max_neighbours and sim.world.sensor != "ideal":
+        raise ConfigError(f"sim.max_neighbours = {sim.world.max_neighbours} needs sensor = \"ideal\" (the nearest "
+                          f"UAVs change slots every step, and sensor = \"{sim.world.sensor}\" remembers each slot); "
+                          "use max_neighbours = 0 (every UAV, each in its own slot) with it")
+
+
 def swarm_rollout(swarm: Swarm, gains: Gains, sim: SimConfig, mpc: MPCConfig, *, remat: bool = False) -> Trajectory:
     """Simulate every UAV of ``swarm`` from rest at its start; returns their trajectories, a
     :class:`~jaxapf.datatypes.Trajectory` with a leading UAV axis (A, ...) on every leaf."""
+    check_neighbours(sim)
     r_uav = sim.vehicle.r_uav
     if swarm.agents == 1:  # nobody else to see: today's single-UAV program
         return jax.tree_util.tree_map(lambda x: x[None], rollout(agent_view(swarm, 0, r_uav), gains, sim, mpc,
@@ -72,6 +84,7 @@ def swarm_episodes(sim: SimConfig, mpc: MPCConfig, dtype: Any, metrics: Sequence
     :func:`~jaxapf.metrics.context.certainly_ended` fires against the field's obstacles (a collision
     between two UAVs ends nobody here: the swarm flies on, and the metrics find it in the records), and
     the swarm once every UAV has; measured by :func:`~jaxapf.metrics.swarm.swarm_metrics`."""
+    check_neighbours(sim)
     loop = closed_loop(sim, mpc, dtype)
     r_uav, near, dt = sim.vehicle.r_uav, sim.world.max_neighbours, sim.episode.dt
 

@@ -140,6 +140,21 @@ def _take(path: pathlib.Path, exclusive: bool) -> int | None:
         os.close(fd)  # the holder removed it as we opened it: lock the file that is there now
 
 
+def _held(path: pathlib.Path) -> bool:
+    """Whether some process holds ``path``'s lock now (a lock file left by a dead writer is not held)."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        return False
+    except BlockingIOError:
+        return True
+    finally:
+        os.close(fd)
+
+
 def _read_note(path: pathlib.Path) -> LockInfo | None:
     try:
         data: dict[str, Any] = json.loads(path.read_text())
@@ -180,7 +195,11 @@ class OutputLock:
             self.shared = _take(self.path, exclusive=False)
             if self.shared is None:
                 self._refuse(self.path, "the whole output")
-        fd = _take(self.own, exclusive=True)
+        try:
+            fd = _take(self.own, exclusive=True)
+        except ConfigError:
+            self._release_shared()
+            raise
         if fd is None:
             self._release_shared()
             self._refuse(self.own, f"shard {self.shard[0]}/{self.shard[1]}" if self.shard else None)
@@ -198,14 +217,15 @@ class OutputLock:
 
     def _refuse(self, path: pathlib.Path, what: str | None) -> None:
         """Another writer holds ``path``: refuse, naming it (a whole-output lock held shared names its shards)."""
-        owner = _read_note(path)
-        if owner is None and path == self.path:
-            shards = sorted(self.folder.glob(f"{LOCK_NAME}-shard-*"))
-            notes = [(p.name.split("shard-")[1].split("-of-"), _read_note(p)) for p in shards]
-            names = [f"shard {int(i)}/{int(n)} ({note.describe()})" for (i, n), note in notes if note is not None]
+        if path == self.path:  # live shards hold it shared (its note may be a dead writer's): name them
+            live = [(p, _read_note(p)) for p in sorted(self.folder.glob(f"{LOCK_NAME}-shard-*")) if _held(p)]
+            names = [f"shard {int(p.name.split('shard-')[1].split('-of-')[0])}/"
+                     f"{int(p.name.split('-of-')[1])} ({note.describe() if note else 'no owner note yet'})"
+                     for p, note in live]
             if names:
                 raise ConfigError(f"{self.folder} is being written by {len(names)} shard(s): {'; '.join(names[:3])}"
                                   f"{' …' if len(names) > 3 else ''}; wait for them or write elsewhere")
+        owner = _read_note(path)
         where = f"{self.folder}" + (f" ({what})" if what else "")
         if owner is None:
             raise ConfigError(f"{where} is being written by another process (it has not written its owner note "

@@ -8,7 +8,8 @@ checked against the sweep it should belong to:
   sweep's plan (a variant, family or fields the spec does not have), or holding rows other than
   those its name says (a part copied over another's name);
 - **overlapping**: holding episodes another sound part holds too (two runs that chunked the same
-  fields differently);
+  fields differently): of such parts the widest are kept, and each part overlapping a kept one is
+  overlapping;
 - **sound**: everything else; what the sound parts do not cover is **missing**.
 
 Resume trusts only sound parts and never extends the plan with a foreign one; ``--repair`` removes
@@ -27,7 +28,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..validation import ConfigError
-from .output import part_files, read_part
+from .output import PartUnreadable, part_files, read_part
 from .plan import Chunk, gaps, variants
 from .schema import identity, read_meta
 from .spec import SweepSpec
@@ -94,6 +95,8 @@ def read_parts(out: pathlib.Path, files: list[pathlib.Path] | None = None
         try:
             tables[p.name] = read_part(p)
             metas[p.name] = read_meta(p)
+        except PartUnreadable:  # cannot be read now (permissions, I/O): not damage, nothing is judged
+            raise
         except ConfigError as err:
             damaged[p.name] = str(err).split(": ", 1)[-1]
             tables.pop(p.name, None)
@@ -137,12 +140,15 @@ def judge(tables: Mapping[str, Any], metas: Mapping[str, dict], damaged: Mapping
     by_block: dict[tuple[int, str], list[Chunk]] = {}
     for c in sound:
         by_block.setdefault((c.variant, c.family), []).append(c)
-    for block in by_block.values():
-        block.sort(key=lambda c: (c.start, c.stop))
-        for a, b in zip(block, block[1:]):
-            if b.start < a.stop:
-                overlapping[a.name] = f"shares fields {b.start}-{min(a.stop, b.stop) - 1} with {b.name}"
-                overlapping[b.name] = f"shares fields {b.start}-{min(a.stop, b.stop) - 1} with {a.name}"
+    for block in by_block.values():  # keep the widest part first, then every part that overlaps no kept one
+        kept: list[Chunk] = []
+        for c in sorted(block, key=lambda c: (c.start - c.stop, c.start)):
+            clash = next((k for k in kept if c.start < k.stop and k.start < c.stop), None)
+            if clash is None:
+                kept.append(c)
+            else:
+                overlapping[c.name] = (f"shares fields {max(c.start, clash.start)}-{min(c.stop, clash.stop) - 1} "
+                                       f"with {clash.name}")
     sound = [c for c in sound if c.name not in overlapping]
     missing = []
     for v in groups:

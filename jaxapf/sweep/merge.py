@@ -22,7 +22,7 @@ from ..validation import ConfigError
 from .audit import Audit, audit_output, read_parts, reference_meta
 from .output import PART_KEY, verify_part
 from .plan import Chunk
-from .schema import identity
+from .schema import identity, read_meta
 
 __all__ = ["MergeResult", "merge_outputs"]
 
@@ -82,6 +82,11 @@ def merge_outputs(sources: Sequence[str | pathlib.Path], out: str | pathlib.Path
     check_writable(out)
     with OutputLock(out):
         here = audit_output(out, metas[0]) if any(Chunk.from_name(p.name) for p in out.iterdir()) else None
+        if here is not None and here.sound:
+            version = read_meta(out / here.sound[0].name).get("versions", {}).get("jaxapf")
+            if version != first["jaxapf"]:
+                raise ConfigError(f"sweep merge: {out} was written by jaxapf {version}, the folders by "
+                                  f"{first['jaxapf']}; nothing merged")
         if here is not None and here.problems:
             raise ConfigError(f"sweep merge: {out} has {len(here.problems)} part(s) that cannot be trusted or of "
                               f"another sweep (`jaxapf sweep verify {out}` lists them); nothing merged")

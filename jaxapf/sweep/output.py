@@ -28,9 +28,15 @@ from .plan import Chunk
 from .schema import LEGACY_FORMAT, META_KEY, identity, read_meta
 
 __all__ = ["PART_KEY", "prepare_output", "write_part", "part_files", "content_hash", "verify_part",
-           "read_part"]
+           "read_part", "check_folder", "repair_parts", "PartUnreadable", "part_record"]
 
 _TMP = re.compile(r"^\.part-.*\.tmp-\d+$")
+#: The probe :func:`jaxapf.io.lock.check_writable` writes and removes (a process starting beside us).
+_PROBE = re.compile(r"^\.write-test-\d+$")
+
+
+class PartUnreadable(ConfigError):
+    """A part that cannot be read now (permissions, an I/O error): unlike a damaged one, it is left alone."""
 #: Parquet metadata key of a part's own record: ``{"sha256": ..., "rows": ...}``.
 PART_KEY = b"jaxapf_part"
 
@@ -56,12 +62,14 @@ def content_hash(table) -> str:
     return h.hexdigest()
 
 
-def write_part(out: pathlib.Path, name: str, table) -> None:
+def write_part(out: pathlib.Path, name: str, table, shard: tuple[int, int] | None = None) -> None:
     """Write ``table`` to ``out/name`` atomically (:func:`jaxapf.io.lock.write_atomic`), with its
-    content hash in the metadata and a CRC on every data page."""
+    content hash in the metadata (and ``shard``, the ``(i, n)`` of the shard that wrote it) and a CRC on
+    every data page."""
     import pyarrow.parquet as pq
 
-    record = json.dumps({"sha256": content_hash(table), "rows": table.num_rows}).encode()
+    record = {"sha256": content_hash(table), "rows": table.num_rows} | ({"shard": list(shard)} if shard else {})
+    record = json.dumps(record).encode()
     table = table.replace_schema_metadata({**(table.schema.metadata or {}), PART_KEY: record})
     write_atomic(out / name, lambda fh: pq.write_table(table, fh, write_page_checksum=True))
 
@@ -75,7 +83,12 @@ def read_part(path: pathlib.Path):
 
     try:
         table = pq.read_table(path, page_checksum_verification=True)
-    except (OSError, pa.ArrowException, ValueError) as err:
+    except OSError as err:
+        if err.errno is not None:  # permissions, I/O errors, too many open files: the file is not judged
+            raise PartUnreadable(f"{path}: cannot be read now ({err.strerror or first_line(err)}); nothing was "
+                                 "changed") from None
+        raise ConfigError(f"{path.name}: unreadable ({first_line(err)})") from None
+    except (pa.ArrowException, ValueError) as err:
         raise ConfigError(f"{path.name}: unreadable ({first_line(err)})") from None
     metadata = dict(table.schema.metadata or {})
     try:
@@ -95,6 +108,18 @@ def read_part(path: pathlib.Path):
     if content_hash(table.replace_schema_metadata(metadata)) != expected:
         raise ConfigError(f"{path.name}: content hash mismatch (the file was changed after it was written)")
     return table.replace_schema_metadata(metadata)
+
+
+def part_record(path: pathlib.Path) -> dict[str, Any]:
+    """A part's own record (``jaxapf_part``: its content hash, rows, and the shard that wrote it), from its
+    schema alone; empty if it has none."""
+    import pyarrow.parquet as pq
+
+    try:
+        record = json.loads((pq.read_schema(path).metadata or {}).get(PART_KEY, b"{}"))
+    except (OSError, ValueError):
+        return {}
+    return record if isinstance(record, dict) else {}
 
 
 def verify_part(path: pathlib.Path) -> str | None:
@@ -129,12 +154,7 @@ def prepare_output(out: pathlib.Path, meta: Mapping[str, Any], spec: Any, *, ove
         raise ConfigError(f"--out {out} is a file; a sweep writes a directory of Parquet parts")
     if not out.exists():
         return []
-    kept = (LOCK_NAME, SET_ASIDE)
-    foreign = [p.name for p in out.iterdir() if Chunk.from_name(p.name) is None and not _TMP.match(p.name)
-               and p.name not in kept and not p.name.startswith(LOCK_NAME)]
-    if foreign:
-        raise ConfigError(f"--out {out} holds files that are not sweep parts ({', '.join(sorted(foreign)[:3])}); "
-                          "choose another --out")
+    check_folder(out)
     parts = part_files(out)
     if clean:
         for p in out.iterdir():
@@ -166,10 +186,33 @@ def prepare_output(out: pathlib.Path, meta: Mapping[str, Any], spec: Any, *, ove
                           f"with --repair to remove the damaged and overlapping ones (their chunks are recomputed) "
                           f"and move the foreign ones to {out / SET_ASIDE}")
     if problems and clean:
-        for name in {**found.damaged, **found.overlapping}:
-            (out / name).unlink(missing_ok=True)
-        if found.foreign:
-            (out / SET_ASIDE).mkdir(exist_ok=True)
-            for name in found.foreign:
-                (out / name).replace(out / SET_ASIDE / name)
+        repair_parts(out, found, problems)
     return list(found.sound)
+
+
+def check_folder(out: pathlib.Path) -> None:
+    """Refuse a folder holding files that are neither parts nor what a sweep keeps beside them."""
+    from .audit import SET_ASIDE
+
+    foreign = [p.name for p in out.iterdir() if Chunk.from_name(p.name) is None and not _TMP.match(p.name)
+               and not _PROBE.match(p.name) and p.name != SET_ASIDE and not p.name.startswith(LOCK_NAME)]
+    if foreign:
+        raise ConfigError(f"--out {out} holds files that are not sweep parts ({', '.join(sorted(foreign)[:3])}); "
+                          "choose another --out")
+
+
+def repair_parts(out: pathlib.Path, found: Any, names: Any) -> None:
+    """What ``--repair`` does to the parts ``names`` of the audit ``found``: damaged and overlapping ones are
+    removed (their chunks run again), foreign ones moved to ``OUT/.set-aside/`` under a name not taken there."""
+    from .audit import SET_ASIDE
+
+    for name in names:
+        if name in found.foreign:
+            aside = out / SET_ASIDE
+            aside.mkdir(exist_ok=True)
+            target, n = aside / name, 1
+            while target.exists():  # never over an earlier set-aside part
+                target, n = aside / f"{name}.{n}", n + 1
+            (out / name).replace(target)
+        else:
+            (out / name).unlink(missing_ok=True)

@@ -68,7 +68,7 @@ STEP_COST_US = (3.002, 0.009114, 0.006484, 0.09848)
 #: for families with many obstacle slots.
 COMPILE_S = 6.0
 
-_PART = re.compile(r"^part-v(\d{3,})-([a-z_][a-z0-9_]*)-f(\d{8,})-(\d{8,})\.parquet$")
+_PART = re.compile(r"^part-v(\d{3,})-([A-Za-z_][A-Za-z0-9_]*)-f(\d{8,})-(\d{8,})\.parquet$")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -388,13 +388,16 @@ def shard_chunks(plan: Plan, shard: int, shards: int) -> tuple[Chunk, ...]:
     """The chunks of shard ``shard`` of ``shards``: the plan's chunks dealt by cost, the costliest first,
     each to the shard with the least cost so far (ties: the lower shard; Graham's LPT rule), in plan
     order. A function of the plan alone, so every process reading the same spec deals the same way."""
+    import heapq
+
     chunks = plan.chunks
     cost = [chunk_cost(plan, c) for c in chunks]
-    load, owner = [0.0] * shards, {}
+    load = [(0.0, k) for k in range(shards)]  # (cost so far, shard): the least loaded, lower index first
+    owner = {}
     for i in sorted(range(len(chunks)), key=lambda i: (-cost[i], i)):
-        s = min(range(shards), key=lambda k: (load[k], k))
+        total, s = heapq.heappop(load)
         owner[i] = s
-        load[s] += cost[i]
+        heapq.heappush(load, (total + cost[i], s))
     return tuple(c for i, c in enumerate(chunks) if owner[i] == shard)
 
 

@@ -83,13 +83,15 @@ def read_sweep(path: str | os.PathLike) -> tuple["pd.DataFrame", dict[str, Any]]
     except (OSError, pa.ArrowException) as err:
         raise ConfigError(f"{path} is not a readable sweep output (Parquet): {first_line(err)}") from None
     if {"setting", "family", "field"} <= set(df.columns):
+        doubled = int(df.duplicated(["setting", "family", "field"]).sum())
+        if doubled:  # parts a sweep did not name (stray copies) are not audited, but never read twice
+            raise ConfigError(f"{path} holds {doubled} episode row(s) twice; `jaxapf sweep verify` lists the parts")
         families = list(meta.get("spec", {}).get("scenario", {}).get("families", []))
         rank = {f: i for i, f in enumerate(families + sorted(set(df["family"]) - set(families)))}
         df = (df.assign(_rank=df["family"].map(rank)).sort_values(["setting", "_rank", "field"], kind="stable")
               .drop(columns="_rank").reset_index(drop=True))
-    if not (path.is_dir() and named and spec is not None):  # complete if the rows are the whole sweep, once
-        complete = expected is not None and len(df) == expected and not df.duplicated(["setting", "family",
-                                                                                        "field"]).any()
+    if not (path.is_dir() and named and spec is not None):  # complete if the rows are the whole sweep (once)
+        complete = expected is not None and len(df) == expected
     return df, {**meta, "parts": parts, "rows_expected": expected, "complete": complete}
 
 

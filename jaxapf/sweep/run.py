@@ -20,7 +20,7 @@ from ..io.lock import OutputLock, check_writable
 from ..text import format_seconds
 from ..validation import ConfigError, Interrupted, first_line
 from .audit import audit_output
-from .output import part_files, prepare_output, write_part
+from .output import check_folder, part_files, part_record, prepare_output, repair_parts, write_part
 from .plan import DEFAULT_MEMORY_BUDGET, Chunk, Plan, Variant, chunk_cost, describe_plan, plan_sweep, shard_chunks
 from .schema import part_table, schema, sweep_meta
 from .spec import SweepSpec
@@ -154,7 +154,8 @@ def dry_run(spec: SweepSpec, out: str | os.PathLike, *, overwrite: bool = False,
         mine = shard_chunks(whole, *shard)
         done = [] if not pathlib.Path(out).exists() else list(
             audit_output(pathlib.Path(out), sweep_meta(spec, whole, out), spec).sound)
-        todo = [c for c in mine if c not in set(done)]
+        finished = set(done)
+        todo = [c for c in mine if c not in finished]
         run_s = sum(chunk_cost(whole, c) for c in todo)
         return (describe_plan(whole) + f"\n  shard {shard[0]}/{shard[1]}:        {len(mine)} of {len(whole.chunks)} "
                 f"chunks ({whole.episodes_of(mine):,} episodes), {len(todo)} still to run in {out}, up to "
@@ -217,7 +218,7 @@ def run_sweep(
         padding = plan.padding_note()
         if padding:
             note(padding)
-        written = _write_chunks(plan, todo, out, meta, quiet, after_part)
+        written = _write_chunks(plan, todo, out, meta, quiet, after_part, shard)
     scope = plan.episodes if shard is None else plan.episodes_of(shard_chunks(plan, *shard))  # this run's part
     return SweepResult(out, plan.episodes_of(todo), scope - plan.episodes_of(todo), written,
                        time.perf_counter() - start, plan.duplicates, shard)
@@ -226,32 +227,43 @@ def run_sweep(
 def _shard_plan(spec: SweepSpec, out: pathlib.Path, meta: Mapping[str, Any], plan: Plan, shard: tuple[int, int],
                 repair: bool) -> tuple[Plan, tuple[Chunk, ...]]:
     """The plan and the chunks shard ``shard`` still has to run in ``out``: its chunks no sound part
-    holds. Only the shard's own parts are touched: its damaged, foreign or overlapping parts are
-    refused, or with ``repair`` removed or set aside; any other part is another shard's business
-    (`jaxapf sweep verify` reports it), but parts chunked otherwise than this plan are refused."""
-    from .audit import SET_ASIDE, audit_output
+    holds. Refused: a folder of another sweep (the vmap width, hence the kind of device, is part of a
+    sweep's identity), parts chunked otherwise than this plan, or written by a division into another
+    number of shards. Only the shard's own parts are touched: its damaged, foreign or overlapping parts
+    are refused, or with ``repair`` removed or set aside; any other part is another shard's business
+    (`jaxapf sweep verify` reports it)."""
+    from .audit import audit_output
 
     mine = shard_chunks(plan, *shard)
     names = {c.name for c in mine}
-    if not out.exists() or not part_files(out):
+    if not out.exists():
+        return plan, mine
+    check_folder(out)
+    if not part_files(out):
         return plan, mine
     found = audit_output(out, meta, spec)
-    other = [c.name for c in found.sound if c not in set(plan.chunks)]
+    other = sorted(n for n, why in found.foreign.items() if why.startswith("of another sweep"))
     if other:
-        raise ConfigError(f"--out {out} holds parts chunked otherwise than this plan (e.g. {other[0]}): give every "
-                          "shard the same --chunk-fields and --memory-budget as the runs that wrote them")
+        raise ConfigError(f"--out {out} holds parts of another sweep (e.g. {other[0]}: {found.foreign[other[0]]}); "
+                          "every shard must run the same spec, float type and kind of device")
+    planned = set(plan.chunks)
+    otherwise = [c.name for c in found.sound if c not in planned]
+    if otherwise:
+        raise ConfigError(f"--out {out} holds parts chunked otherwise than this plan (e.g. {otherwise[0]}): shards "
+                          "chunk on one device; give every shard the same --chunk-fields and --memory-budget, and "
+                          "write a sweep run otherwise elsewhere")
+    divisions = {tuple(r["shard"]) for c in found.sound if "shard" in (r := part_record(out / c.name))}
+    if any(n != shard[1] for _, n in divisions):
+        counts = sorted({n for _, n in divisions})
+        raise ConfigError(f"--out {out} is being written as {', '.join(map(str, counts))} shard(s), not "
+                          f"{shard[1]}: every shard of one output must give the same N in --shard I/N")
     problems = {n: why for n, why in found.problems.items() if n in names}
     if problems and not repair:
         listed = "; ".join(f"{n}: {problems[n]}" for n in sorted(problems)[:3])
         raise ConfigError(f"--out {out}: {len(problems)} part(s) of shard {shard[0]}/{shard[1]} cannot be trusted: "
                           f"{listed}. Rerun the same command with --repair to recompute them")
-    for name in problems:
-        if name in found.foreign:
-            (out / SET_ASIDE).mkdir(exist_ok=True)
-            (out / name).replace(out / SET_ASIDE / name)
-        else:
-            (out / name).unlink(missing_ok=True)
-    for tmp in out.iterdir():  # a dead run of this shard left these; other shards' are theirs
+    repair_parts(out, found, problems)
+    for tmp in out.iterdir():  # a dead run of this shard left these (the shard lock is ours); others' are theirs
         if tmp.name.startswith(".part-") and tmp.name.split(".tmp-")[0][1:] in names:
             tmp.unlink(missing_ok=True)
     sound = {c.name for c in found.sound} - set(problems)
@@ -259,7 +271,7 @@ def _shard_plan(spec: SweepSpec, out: pathlib.Path, meta: Mapping[str, Any], pla
 
 
 def _write_chunks(plan: Plan, chunks: tuple[Chunk, ...], out: pathlib.Path, meta: Mapping[str, Any], quiet: bool,
-                  after_part: Callable[[Chunk], None] | None) -> int:
+                  after_part: Callable[[Chunk], None] | None, shard: tuple[int, int] | None = None) -> int:
     """Run ``chunks`` of ``plan`` and write each as a part as it finishes (the next chunk runs while one is
     written); returns the parts written. Ctrl-C and a full disk end it with one line saying what was kept."""
     out.mkdir(parents=True, exist_ok=True)
@@ -281,7 +293,7 @@ def _write_chunks(plan: Plan, chunks: tuple[Chunk, ...], out: pathlib.Path, meta
                 metrics = {m: np.asarray(a)[inverse] for m, a in arrays.items()}
                 try:
                     write_part(out, done_chunk.name,
-                               part_table(plan, layout, done_chunk, metrics, np.asarray(kinds), solvable))
+                               part_table(plan, layout, done_chunk, metrics, np.asarray(kinds), solvable), shard)
                 except OSError as err:  # a full disk, a quota, a vanished mount: what was kept, how to go on
                     raise ConfigError(f"cannot write {out / done_chunk.name}: {err.strerror or first_line(err)}; "
                                       f"{kept + written} finished part(s) are kept in {out}; rerun the same command "

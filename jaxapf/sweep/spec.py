@@ -628,7 +628,11 @@ def parse_spec(data: Mapping[str, Any], gains_file: str | os.PathLike | None = N
                      oracle=oracle, explicit=explicit, tags=tags, plugin_paths=paths)
     for static in {s.static for s in spec.settings()}:
         for family in families:
-            spec.configs(static, family)
+            sim_config, _ = spec.configs(static, family)
+            if spec.swarm:
+                from ..engine.swarm import check_neighbours
+
+                check_neighbours(sim_config)
     return spec
 
 

@@ -97,12 +97,16 @@ def test_duplicate_episodes_are_found_and_repair_removes_them(reference, tmp_pat
     out = _copy(reference[0], tmp_path / "dup.parquet")
     shutil.copy(other / "part-v000-crossing-f00000004-00000008.parquet", out)
     rc, text = _verify(out)
-    assert rc == 1 and "overlapping: part-v000-crossing-f00000004-00000008.parquet: shares fields" in text
+    # the widest part is kept; the two it overlaps are not trusted
+    assert rc == 1 and ("overlapping: part-v000-crossing-f00000003-00000006.parquet: shares fields 4-5 with "
+                        "part-v000-crossing-f00000004-00000008.parquet") in text
+    assert "overlapping: part-v000-crossing-f00000006-00000009.parquet: shares fields 6-7" in text
     with pytest.raises(ConfigError, match="cannot be trusted"):
         run_sweep(_spec(), out, chunk_fields=3, quiet=True)
     with pytest.raises(ConfigError, match="shares fields"):
         read_sweep(out)
-    run_sweep(_spec(), out, chunk_fields=3, quiet=True, repair=True)
+    result = run_sweep(_spec(), out, chunk_fields=3, quiet=True, repair=True)
+    assert result.episodes == 2 * 2  # fields 3 and 8, which only the removed parts held
     df, meta = read_sweep(out)
     assert meta["complete"] and not df.duplicated(["setting", "family", "field"]).any()
     pd.testing.assert_frame_equal(df, reference[1])
@@ -155,3 +159,44 @@ def test_merge_refuses_folders_chunked_differently(reference, tmp_path):
     with pytest.raises(ConfigError, match="hold the same fields, chunked differently; .*nothing merged"):
         merge_outputs([reference[0], other], tmp_path / "m")
     assert not part_files(tmp_path / "m")
+
+
+def test_a_part_that_cannot_be_read_now_is_not_damage_and_repair_keeps_it(reference, tmp_path, monkeypatch):
+    """A permission or I/O error is not damage: the run stops in one line and --repair deletes nothing."""
+    import errno
+    import os
+
+    import pyarrow.parquet as pq
+
+    out = _copy(reference[0], tmp_path / "eio.parquet")
+    real = pq.read_table
+
+    def flaky(path, *args, **kwargs):
+        if str(path).endswith("f00000003-00000006.parquet"):
+            raise OSError(errno.EIO, os.strerror(errno.EIO))
+        return real(path, *args, **kwargs)
+
+    monkeypatch.setattr(pq, "read_table", flaky)
+    with pytest.raises(ConfigError, match="cannot be read now .*Input/output error.*nothing was changed"):
+        run_sweep(_spec(), out, chunk_fields=3, quiet=True, repair=True)
+    assert len(part_files(out)) == len(part_files(reference[0]))
+
+
+def test_a_set_aside_part_never_replaces_an_earlier_one(reference, tmp_path):
+    from jaxapf.sweep.audit import audit_output
+    from jaxapf.sweep.output import repair_parts
+
+    out = _copy(reference[0], tmp_path / "aside.parquet")
+    name = "part-v000-trap-f00000003-00000006.parquet"
+    for _ in range(2):
+        shutil.copy(out / "part-v000-trap-f00000000-00000003.parquet", out / name)  # misnamed: foreign
+        found = audit_output(out, spec=_spec())
+        repair_parts(out, found, [name])
+    assert sorted(p.name for p in (out / SET_ASIDE).iterdir()) == [name, f"{name}.1"]
+
+
+def test_a_stray_copy_of_a_part_is_never_read_twice(reference, tmp_path):
+    out = _copy(reference[0], tmp_path / "stray.parquet")
+    shutil.copy(out / "part-v000-trap-f00000000-00000003.parquet", out / "copy.parquet")
+    with pytest.raises(ConfigError, match="holds 6 episode row.s. twice"):
+        read_sweep(out)

@@ -135,3 +135,30 @@ def test_the_slurm_array_of_the_docs_runs(reference, tmp_path):
     rc, stdout, _ = capture(main, ["sweep", "verify", str(out)])
     assert rc == 0, stdout
     pd.testing.assert_frame_equal(read_sweep(out)[0], reference)
+
+
+def test_a_shard_refuses_another_sweeps_output_and_another_division(tmp_path):
+    out = tmp_path / "out"
+    run_sweep(_spec(), out, chunk_fields=3, quiet=True, shard=(0, 4))
+    other = copy.deepcopy(SPEC)
+    other["scenario"]["seed"] = 6
+    with pytest.raises(ConfigError, match="parts of another sweep .*same spec"):
+        run_sweep(parse_spec(other), out, chunk_fields=3, quiet=True, shard=(1, 4))
+    with pytest.raises(ConfigError, match="being written as 4 shard.s., not 3"):
+        run_sweep(_spec(), out, chunk_fields=3, quiet=True, shard=(1, 3))
+
+
+def test_a_refusal_names_the_live_shards_not_a_dead_writers_note(tmp_path):
+    import json
+    import time
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / ".lock").write_text(json.dumps({"pid": 1, "host": "gone", "since": time.time(), "command": "dead run"}))
+    (out / ".lock-shard-0002-of-0004").write_text(json.dumps({"pid": 2, "host": "gone", "since": 0.0,
+                                                              "command": "a dead shard"}))
+    with OutputLock(out, (1, 4)):
+        with pytest.raises(ConfigError) as err:
+            OutputLock(out).acquire()
+    line = str(err.value)
+    assert "1 shard(s): shard 1/4 (pid" in line and "dead run" not in line and "a dead shard" not in line

@@ -241,3 +241,11 @@ def test_the_outcome_of_each_uav_agrees_with_the_swarm_metrics():
     assert float(metrics["at_goal"]) == pytest.approx(float(jnp.mean(outcome["success"])))
     assert bool(metrics["swarm_success"]) == bool(jnp.all(outcome["success"]))
     assert (outcome["end"] <= sim.episode.steps).all()
+
+
+def test_max_neighbours_with_a_sensor_that_remembers_slots_is_refused():
+    """The nearest neighbours change slots every step; a noisy sensor's per-slot memory would carry one
+    UAV's reading into another's slot."""
+    with pytest.raises(ConfigError, match=r"sim\.max_neighbours = 4 needs sensor = \"ideal\""):
+        _spec(sim={"t_max": 3.0, "max_neighbours": 4, "sensor": "noisy"})
+    _spec(sim={"t_max": 3.0, "max_neighbours": 4})
