@@ -10,7 +10,7 @@ two differ in nothing else, so their paired difference is what reciprocity buys.
 
 Every UAV of a swarm flies the same stack and sees its 8 nearest neighbours (``max_neighbours = 8``,
 RVO2's ``maxNeighbors``) as obstacles of radius ``r_uav``. Swarms of A = 2, 4, 8, 16 and 32 UAVs fly
-held-out fields (seed 300, ``FIELDS`` per family and A) of the four swarm families: ``circle_swap``
+held-out fields (seed 300, 64 per family and A) of the four swarm families: ``circle_swap``
 and ``crossing_flows`` (two flows) with every method; ``formation_gap`` (formation columns: min(4, A))
 and ``swarm_clutter`` with the methods that do not solve an exact projection every step: the CBF
 filter and the velocity obstacles project onto every obstacle slot's constraint each step (fixed

@@ -2,6 +2,10 @@
 
 import sys
 
-from .cli import console
+try:
+    from .cli import console
+except KeyboardInterrupt:  # Ctrl-C while the command line is still being imported
+    print("jaxapf: interrupted; nothing was written", file=sys.stderr)
+    sys.exit(130)
 
 sys.exit(console())

@@ -564,12 +564,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as err:
         print(f"jaxapf {command}: error: {err}", file=sys.stderr)
         return 2
-    except Interrupted as err:
-        print(f"jaxapf {command}: {err}", file=sys.stderr)
-        return 130
-    except KeyboardInterrupt:
-        print(f"jaxapf {command}: interrupted; {_KEPT[args.command]}", file=sys.stderr)
-        return 130
+    except Interrupted as err:  # a runner's own line of what it kept
+        stop = err.__context__ if isinstance(err.__context__, KeyboardInterrupt) else err
+        return _stopped(stop, f"jaxapf {command}", str(err).removeprefix("interrupted; "))
+    except KeyboardInterrupt as stop:
+        return _stopped(stop, f"jaxapf {command}", _KEPT[args.command])
     except ImportError as err:
         print(f"jaxapf {command}: error: {err}", file=sys.stderr)
         return 2
@@ -580,11 +579,32 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (a scheduler's time limit, ``kill``): handled like Ctrl-C, so the run says what it kept."""
+
+
+def _terminate(signum: int, frame: Any) -> None:
+    raise Terminated
+
+
 def console() -> int:
     """The ``jaxapf`` program: :func:`main`, then an exit that skips the last garbage collection of
-    everything imported (``gc.freeze``), which is work for nothing at exit."""
+    everything imported (``gc.freeze``), which is work for nothing at exit. SIGTERM ends a command as
+    Ctrl-C does (one line saying what was kept; status 143), also before the command has begun."""
     import gc
+    import signal
 
-    code = main()
+    signal.signal(signal.SIGTERM, _terminate)
+    try:
+        code = main()
+    except KeyboardInterrupt as stop:  # while starting (imports, parsing): nothing was written yet
+        code = _stopped(stop, "jaxapf", "nothing was written")
     gc.freeze()
     return code
+
+
+def _stopped(stop: BaseException, who: str, kept: str) -> int:
+    """Print the one line of an interrupted (status 130) or terminated (SIGTERM, status 143) command."""
+    how = "terminated (SIGTERM)" if isinstance(stop, Terminated) else "interrupted"
+    print(f"{who}: {how}; {kept}", file=sys.stderr)
+    return 143 if isinstance(stop, Terminated) else 130

@@ -266,17 +266,20 @@ def test_output_paths_that_are_files_are_refused(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_sigint_ends_a_sweep_with_one_line_and_the_rerun_completes_it(reference, tmp_path):
-    out = tmp_path / "sigint.parquet"
+@pytest.mark.parametrize("sig, status, word", [(signal.SIGINT, 130, "interrupted"),
+                                               (signal.SIGTERM, 143, "terminated (SIGTERM)")])
+def test_a_signal_ends_a_sweep_with_one_line_and_the_rerun_completes_it(reference, tmp_path, sig, status, word):
+    """Ctrl-C, and SIGTERM (a scheduler's time limit), which used to end a run without a word."""
+    out = tmp_path / "signal.parquet"
     run = _cli(["--out", str(out), "--chunk-fields", "1"], tmp_path)
     _wait_for(lambda: out.exists() and len(part_files(out)) >= 2)
-    run.send_signal(signal.SIGINT)
+    run.send_signal(sig)
     _, err = run.communicate(timeout=120)
     if run.returncode == 0:
         pytest.skip("the sweep finished before the signal arrived")
-    assert run.returncode == 130
+    assert run.returncode == status
     line = _one_line(err)
-    assert line.startswith("jaxapf sweep: interrupted; ") and "finished part(s) are kept" in line
+    assert line.startswith(f"jaxapf sweep: {word}; ") and "finished part(s) are kept" in line
     assert "rerun the same command to resume" in line
     kept = part_files(out)
     assert kept and all(verify_part(p) is None for p in kept)
@@ -287,6 +290,21 @@ def test_sigint_ends_a_sweep_with_one_line_and_the_rerun_completes_it(reference,
     df, meta = read_sweep(out)
     assert meta["complete"] and not df.duplicated(KEY).any()
     pd.testing.assert_frame_equal(df, reference[1])
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_while_the_command_starts_is_one_line(tmp_path, sig):
+    """Ctrl-C in the first half second (imports) used to print a traceback."""
+    for delay in (0.05, 0.3, 0.8):
+        run = _cli(["--out", str(tmp_path / f"early-{delay}")], tmp_path)
+        time.sleep(delay)
+        run.send_signal(sig)
+        _, err = run.communicate(timeout=120)
+        if run.returncode == 0:
+            continue
+        assert run.returncode in (130, 143, -sig), err  # -sig: the signal came before Python handles it
+        if run.returncode > 0:
+            _one_line(err)
 
 
 @pytest.mark.parametrize("command", ["report", "simulate", "compare"])
