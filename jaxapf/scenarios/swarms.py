@@ -11,12 +11,15 @@ whatever batch it is computed in (elementwise arithmetic only).
 ``circle_swap`` (:class:`CircleSwapParams`)
     RVO2's standard first test: ``agents`` UAVs evenly on a circle of diameter ``distance``
     (12–16 m; a random rotation), each flying to the antipodal point, so every path crosses the
-    centre at about the same time. No obstacles.
+    centre at about the same time; a circle too small for its UAVs (neighbours closer than
+    ``2 r_uav`` plus the jitter: from 43 UAVs on at 12 m) grows until they fit. No obstacles.
 ``crossing_flows`` (:class:`CrossingFlowsParams`)
     ``groups`` (2–4) flows of ``agents / groups`` UAVs abreast (``spacing`` 1.5 m apart) entering a
     common square from the directions ``0°, 90°, 180°, 270°`` (the first ``groups``), each flying
     straight through it to ``distance`` beyond its start; each UAV starts up to ``stagger`` (2 m)
-    further back. No obstacles.
+    further back. A flow too wide for the square (``(agents/groups - 1)·spacing/2 + stagger +
+    √2 r_uav + 2 jitter > distance/2``) starts that far from the centre instead and flies twice that,
+    so that no two UAVs of perpendicular flows start or end inside each other. No obstacles.
 ``formation_gap`` (:class:`FormationGapParams`)
     ``agents`` UAVs in a formation ``columns`` abreast (``spacing`` apart) flying ``distance`` (20–24 m)
     through a gap of width ``gap`` (3–5 m, centre offset up to ``offset``) in a wall of touching
@@ -182,6 +185,9 @@ def _circle(d: Draws, p: CircleSwapParams, length: Array) -> SwarmLayout:
     fixed = 2 * np.pi * np.arange(p.agents) / p.agents
     c, s = jnp.cos(turn), jnp.sin(turn)
     cos, sin = jnp.asarray(np.cos(fixed), length.dtype), jnp.asarray(np.sin(fixed), length.dtype)
+    # a circle too small for its UAVs grows until neighbours are 2 r_uav apart whatever the jitter
+    length = jnp.maximum(length, (2.0 * p.r_uav + 2.0 * math.sqrt(2.0) * p.jitter) / math.sin(math.pi / p.agents)
+                         if p.agents > 1 else 0.0)
     ring = 0.5 * length * jnp.stack([c * cos - s * sin, s * cos + c * sin], axis=-1)
     return SwarmLayout(ring, -ring, _no_obstacles(p.max_obstacles, length.dtype))
 
@@ -192,9 +198,13 @@ def _flows(d: Draws, p: CrossingFlowsParams, length: Array) -> SwarmLayout:
     quarter = np.repeat(np.arange(p.groups), per)  # the flows' directions: k · 90°
     along = jnp.asarray(np.stack([[1, 0], [0, 1], [-1, 0], [0, -1]])[quarter], length.dtype)
     left = jnp.stack([-along[:, 1], along[:, 0]], -1)
-    back = 0.5 * length + d.uniform((0.0, p.stagger), (p.agents,))
+    # half the run; at least so far that perpendicular flows' starts, and their staggered goals, keep
+    # 2 r_uav apart at the corners whatever the jitter (wide flows of many UAVs push the square out)
+    half = 0.5 * (per - 1) * p.spacing + p.stagger + math.sqrt(2.0) * p.r_uav + 2.0 * p.jitter
+    base = jnp.maximum(0.5 * length, half)
+    back = base + d.uniform((0.0, p.stagger), (p.agents,))
     start = -back[:, None] * along + lateral[:, None] * left
-    goal = start + length * along
+    goal = start + 2.0 * base * along
     return SwarmLayout(start, goal, _no_obstacles(p.max_obstacles, length.dtype))
 
 

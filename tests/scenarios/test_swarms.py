@@ -111,3 +111,16 @@ def test_the_oracle_answers_for_every_uav_alone():
                                                                                        [10, 4, 2]]),
                   valid=np.array([True, True, False]), obstacles=block)
     assert agents_solvable(swarm, **oracle).tolist() == [True, False, True]
+
+
+@pytest.mark.parametrize("family", ["circle_swap", "crossing_flows", "formation_gap", "swarm_clutter"])
+@pytest.mark.parametrize("agents", [2, 8, 32, 64])
+def test_no_two_uavs_start_or_end_inside_each_other(family, agents):
+    """Every pair of starts and every pair of goals is at least 2 r_uav apart, jitter included: wide
+    crossing flows push their square out and a crowded circle grows (32 UAVs in two crossing flows
+    used to start inside each other in about half the fields)."""
+    params = swarm_params(family, agents=agents, **({"columns": min(4, agents)} if family == "formation_gap" else {}))
+    swarms = jax.device_get(make_swarms(300, params, 32))
+    for points in (np.asarray(swarms.start), np.asarray(swarms.goal)):
+        gap = np.linalg.norm(points[:, :, None] - points[:, None, :], axis=-1) + 1e9 * np.eye(agents)
+        assert gap.min() >= 2 * params.r_uav
