@@ -23,7 +23,7 @@ paired on the same fields, per (family, A, selection seed): every method against
 selection seed, and ``velocity_obstacle`` against ``velocity_obstacle_unilateral``, on the swarm's
 success (every UAV at its goal), a collision between two UAVs and deadlock.
 
-    python analysis/swarm_study.py     # ~75 min on 2 cores (cached per cell under runs/swarm-study-fN/)
+    python analysis/swarm_study.py     # ~70 min on 2 cores (cached per cell under runs/swarm-study-fN/)
 """
 
 from __future__ import annotations
@@ -236,6 +236,13 @@ def findings(rates: pd.DataFrame, comparisons: pd.DataFrame) -> list[str]:
             f"{100 * top['agent_collision'].min():.1f}–{100 * top['agent_collision'].max():.1f} % of the swarms"
             f"{most('agent_collision')}, and {100 * top['deadlock'].min():.1f}–{100 * top['deadlock'].max():.1f} % "
             f"deadlock{most('deadlock')}.")
+    vs = comparisons[comparisons["question"] == "vs basic"]
+    for metric, _ in OUTCOMES:
+        r = vs[vs["metric"] == metric]
+        n = {v: int((r["verdict"] == v).sum()) for v in MARK}
+        out.append(f"**Against `basic`, {metric}** (each method at the same selection seed, every family and A): "
+                   f"{len(r)} comparisons, better {n['better']}, worse {n['worse']}, equivalent {n['equivalent']}, "
+                   f"inconclusive {n['inconclusive']}.")
     rec = comparisons[comparisons["question"] == "reciprocity"]
     for metric, _ in OUTCOMES:
         r = rec[rec["metric"] == metric]
