@@ -511,6 +511,8 @@ def _list(args: argparse.Namespace) -> int:
     """One line per entry; under a component, one line per gain it reads, worded as ``list gains``."""
     cat = _catalog()
     entries = cat["lists"][args.what]
+    if args.what == "families":  # the swarm families are families too (jaxapf list swarm-families alone)
+        entries = entries + [{**e, "describe": f"swarm: {e['describe']}"} for e in cat["lists"]["swarm-families"]]
     gains = {e["name"]: e["describe"] for e in cat["lists"]["gains"]}
     width = max(len(e["name"]) for e in entries)
     for entry in entries:
