@@ -14,6 +14,7 @@ import argparse
 import json
 import pathlib
 import sys
+import threading
 import time
 from typing import Any, Sequence
 
@@ -557,6 +558,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     def one_line(message, category, filename, lineno, file=None, line=None):
         print(f"jaxapf {command}: warning: {str(message).strip().splitlines()[0]}", file=sys.stderr)
 
+    import signal
+
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _terminate) if main_thread else None  # SIGTERM: a stop, one line
     try:
         with warnings.catch_warnings():
             warnings.showwarning = one_line
@@ -579,6 +584,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 1
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGTERM, previous)
 
 
 class Terminated(KeyboardInterrupt):
@@ -591,12 +599,10 @@ def _terminate(signum: int, frame: Any) -> None:
 
 def console() -> int:
     """The ``jaxapf`` program: :func:`main`, then an exit that skips the last garbage collection of
-    everything imported (``gc.freeze``), which is work for nothing at exit. SIGTERM ends a command as
-    Ctrl-C does (one line saying what was kept; status 143), also before the command has begun."""
+    everything imported (``gc.freeze``), which is work for nothing at exit. Once a command runs, SIGTERM
+    ends it as Ctrl-C does (one line saying what was kept; status 143)."""
     import gc
-    import signal
 
-    signal.signal(signal.SIGTERM, _terminate)
     try:
         code = main()
     except KeyboardInterrupt as stop:  # while starting (imports, parsing): nothing was written yet

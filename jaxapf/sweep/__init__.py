@@ -12,8 +12,8 @@ rows in memory.
 """
 
 from ..validation import MAX_SEED
+from .audit import prepare_output
 from .frame import evaluate_frame
-from .output import prepare_output
 from .plan import (
                    CALLS_PER_PART,
                    DEFAULT_MEMORY_BUDGET,

@@ -27,13 +27,15 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from ..io.lock import LOCK_NAME
 from ..validation import ConfigError
-from .output import PartUnreadable, part_files, read_part
+from .output import _PROBE, _TMP, PartUnreadable, part_files, read_part
 from .plan import Chunk, gaps, variants
-from .schema import identity, read_meta
+from .schema import identity, read_meta, sweep_spec
 from .spec import SweepSpec
 
-__all__ = ["Audit", "audit_output", "read_parts", "reference_meta", "judge", "describe_audit", "SET_ASIDE"]
+__all__ = ["Audit", "audit_output", "read_parts", "reference_meta", "judge", "describe_audit", "SET_ASIDE",
+           "prepare_output", "check_folder", "repair_parts"]
 
 #: Where ``--repair`` moves foreign parts (hidden: Parquet readers skip it).
 SET_ASIDE = ".set-aside"
@@ -164,8 +166,6 @@ def judge(tables: Mapping[str, Any], metas: Mapping[str, dict], damaged: Mapping
 def audit_output(out: pathlib.Path, meta: Mapping[str, Any] | None = None, spec: SweepSpec | None = None) -> Audit:
     """The audit of the output ``out`` against the sweep of ``meta`` (:func:`~jaxapf.sweep.schema.sweep_meta`)
     and ``spec``; without them, against the sweep most of its readable parts belong to."""
-    from .read import sweep_spec
-
     tables, metas, damaged = read_parts(out)
     meta = meta if meta is not None else reference_meta(out, metas)
     return judge(tables, metas, damaged, meta, spec or sweep_spec(meta))
@@ -194,3 +194,80 @@ def describe_audit(out: pathlib.Path, found: Audit, meta: Mapping[str, Any], lim
     elif found.missing:
         lines.append("  rerunning the sweep (or its missing shards) computes the missing ranges")
     return "\n".join(lines)
+
+
+def prepare_output(out: pathlib.Path, meta: Mapping[str, Any], spec: Any, *, overwrite: bool, clean: bool,
+                   repair: bool = False) -> list[Chunk]:
+    """Check ``out`` against this sweep (``meta``, ``spec``) and return the chunks already finished there.
+
+    Every part is read and checked against its name and this sweep (:func:`~jaxapf.sweep.audit.audit_output`).
+    Refuses (:class:`ConfigError`) a path that is a file, a directory holding other files, an output of
+    a different sweep (spec hash, dtype, vmap width, metrics, format) unless ``overwrite`` (which
+    deletes the parts, and nothing else), and parts that cannot be trusted -- damaged, foreign
+    (another sweep's, outside this plan, or holding other rows than their names say) or overlapping
+    another -- unless ``repair``, which removes the damaged and overlapping ones (their chunks run
+    again) and moves the foreign ones to ``OUT/.set-aside/``. With ``clean`` (the lock's holder only),
+    temporary files of a dead writer are removed and repairs are carried out.
+    """
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out} is a file; a sweep writes a directory of Parquet parts")
+    if not out.exists():
+        return []
+    check_folder(out)
+    parts = part_files(out)
+    if clean:
+        for p in out.iterdir():
+            if _TMP.match(p.name):
+                p.unlink(missing_ok=True)
+    if overwrite:
+        if clean:
+            for p in parts:
+                p.unlink(missing_ok=True)
+        return []
+    if not parts:
+        return []
+    found = audit_output(out, meta, spec)
+    other = {n: why for n, why in found.foreign.items() if why.startswith("of another sweep")}
+    if other and not found.sound and len(other) == len(parts) - len(found.damaged):
+        old = identity(read_meta(out / sorted(other)[0]))
+        new = identity(meta)
+        what = "; ".join(f"{k} {old[k]!s:.12} here, {new[k]!s:.12} now" for k in new if old[k] != new[k])
+        raise ConfigError(f"--out {out} holds a different sweep ({what}); rerun with --overwrite to replace it, "
+                          "or choose another --out")
+    problems = found.problems
+    if problems and not repair:
+        listed = "; ".join(f"{n}: {problems[n]}" for n in sorted(problems)[:3]) + (
+            f"; and {len(problems) - 3} more" if len(problems) > 3 else "")
+        if not found.foreign and not found.overlapping:
+            raise ConfigError(f"--out {out}: {len(problems)} damaged part(s): {listed}. Rerun the same command with "
+                              "--repair to remove exactly those parts and recompute their chunks")
+        raise ConfigError(f"--out {out}: {len(problems)} part(s) cannot be trusted: {listed}. Rerun the same command "
+                          f"with --repair to remove the damaged and overlapping ones (their chunks are recomputed) "
+                          f"and move the foreign ones to {out / SET_ASIDE}")
+    if problems and clean:
+        repair_parts(out, found, problems)
+    return list(found.sound)
+
+
+def check_folder(out: pathlib.Path) -> None:
+    """Refuse a folder holding files that are neither parts nor what a sweep keeps beside them."""
+    foreign = [p.name for p in out.iterdir() if Chunk.from_name(p.name) is None and not _TMP.match(p.name)
+               and not _PROBE.match(p.name) and p.name != SET_ASIDE and not p.name.startswith(LOCK_NAME)]
+    if foreign:
+        raise ConfigError(f"--out {out} holds files that are not sweep parts ({', '.join(sorted(foreign)[:3])}); "
+                          "choose another --out")
+
+
+def repair_parts(out: pathlib.Path, found: Any, names: Any) -> None:
+    """What ``--repair`` does to the parts ``names`` of the audit ``found``: damaged and overlapping ones are
+    removed (their chunks run again), foreign ones moved to ``OUT/.set-aside/`` under a name not taken there."""
+    for name in names:
+        if name in found.foreign:
+            aside = out / SET_ASIDE
+            aside.mkdir(exist_ok=True)
+            target, n = aside / name, 1
+            while target.exists():  # never over an earlier set-aside part
+                target, n = aside / f"{name}.{n}", n + 1
+            (out / name).replace(target)
+        else:
+            (out / name).unlink(missing_ok=True)

@@ -18,17 +18,17 @@ import hashlib
 import json
 import pathlib
 import re
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
-from ..io.lock import LOCK_NAME, write_atomic
+from ..io.lock import write_atomic
 from ..validation import ConfigError, first_line
 from .plan import Chunk
-from .schema import LEGACY_FORMAT, META_KEY, identity, read_meta
+from .schema import LEGACY_FORMAT, META_KEY
 
-__all__ = ["PART_KEY", "prepare_output", "write_part", "part_files", "content_hash", "verify_part",
-           "read_part", "check_folder", "repair_parts", "PartUnreadable", "part_record"]
+__all__ = ["PART_KEY", "write_part", "part_files", "content_hash", "verify_part", "read_part", "PartUnreadable",
+           "part_record"]
 
 _TMP = re.compile(r"^\.part-.*\.tmp-\d+$")
 #: The probe :func:`jaxapf.io.lock.check_writable` writes and removes (a process starting beside us).
@@ -133,86 +133,3 @@ def verify_part(path: pathlib.Path) -> str | None:
 
 def part_files(out: pathlib.Path) -> list[pathlib.Path]:
     return sorted(p for p in out.iterdir() if Chunk.from_name(p.name) is not None)
-
-
-def prepare_output(out: pathlib.Path, meta: Mapping[str, Any], spec: Any, *, overwrite: bool, clean: bool,
-                   repair: bool = False) -> list[Chunk]:
-    """Check ``out`` against this sweep (``meta``, ``spec``) and return the chunks already finished there.
-
-    Every part is read and checked against its name and this sweep (:func:`~jaxapf.sweep.audit.audit_output`).
-    Refuses (:class:`ConfigError`) a path that is a file, a directory holding other files, an output of
-    a different sweep (spec hash, dtype, vmap width, metrics, format) unless ``overwrite`` (which
-    deletes the parts, and nothing else), and parts that cannot be trusted -- damaged, foreign
-    (another sweep's, outside this plan, or holding other rows than their names say) or overlapping
-    another -- unless ``repair``, which removes the damaged and overlapping ones (their chunks run
-    again) and moves the foreign ones to ``OUT/.set-aside/``. With ``clean`` (the lock's holder only),
-    temporary files of a dead writer are removed and repairs are carried out.
-    """
-    from .audit import SET_ASIDE, audit_output
-
-    if out.exists() and not out.is_dir():
-        raise ConfigError(f"--out {out} is a file; a sweep writes a directory of Parquet parts")
-    if not out.exists():
-        return []
-    check_folder(out)
-    parts = part_files(out)
-    if clean:
-        for p in out.iterdir():
-            if _TMP.match(p.name):
-                p.unlink(missing_ok=True)
-    if overwrite:
-        if clean:
-            for p in parts:
-                p.unlink(missing_ok=True)
-        return []
-    if not parts:
-        return []
-    found = audit_output(out, meta, spec)
-    other = {n: why for n, why in found.foreign.items() if why.startswith("of another sweep")}
-    if other and not found.sound and len(other) == len(parts) - len(found.damaged):
-        old = identity(read_meta(out / sorted(other)[0]))
-        new = identity(meta)
-        what = "; ".join(f"{k} {old[k]!s:.12} here, {new[k]!s:.12} now" for k in new if old[k] != new[k])
-        raise ConfigError(f"--out {out} holds a different sweep ({what}); rerun with --overwrite to replace it, "
-                          "or choose another --out")
-    problems = found.problems
-    if problems and not repair:
-        listed = "; ".join(f"{n}: {problems[n]}" for n in sorted(problems)[:3]) + (
-            f"; and {len(problems) - 3} more" if len(problems) > 3 else "")
-        if not found.foreign and not found.overlapping:
-            raise ConfigError(f"--out {out}: {len(problems)} damaged part(s): {listed}. Rerun the same command with "
-                              "--repair to remove exactly those parts and recompute their chunks")
-        raise ConfigError(f"--out {out}: {len(problems)} part(s) cannot be trusted: {listed}. Rerun the same command "
-                          f"with --repair to remove the damaged and overlapping ones (their chunks are recomputed) "
-                          f"and move the foreign ones to {out / SET_ASIDE}")
-    if problems and clean:
-        repair_parts(out, found, problems)
-    return list(found.sound)
-
-
-def check_folder(out: pathlib.Path) -> None:
-    """Refuse a folder holding files that are neither parts nor what a sweep keeps beside them."""
-    from .audit import SET_ASIDE
-
-    foreign = [p.name for p in out.iterdir() if Chunk.from_name(p.name) is None and not _TMP.match(p.name)
-               and not _PROBE.match(p.name) and p.name != SET_ASIDE and not p.name.startswith(LOCK_NAME)]
-    if foreign:
-        raise ConfigError(f"--out {out} holds files that are not sweep parts ({', '.join(sorted(foreign)[:3])}); "
-                          "choose another --out")
-
-
-def repair_parts(out: pathlib.Path, found: Any, names: Any) -> None:
-    """What ``--repair`` does to the parts ``names`` of the audit ``found``: damaged and overlapping ones are
-    removed (their chunks run again), foreign ones moved to ``OUT/.set-aside/`` under a name not taken there."""
-    from .audit import SET_ASIDE
-
-    for name in names:
-        if name in found.foreign:
-            aside = out / SET_ASIDE
-            aside.mkdir(exist_ok=True)
-            target, n = aside / name, 1
-            while target.exists():  # never over an earlier set-aside part
-                target, n = aside / f"{name}.{n}", n + 1
-            (out / name).replace(target)
-        else:
-            (out / name).unlink(missing_ok=True)

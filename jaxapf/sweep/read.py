@@ -14,8 +14,7 @@ from ..scenarios import FamilyParams
 from ..validation import ConfigError, first_line
 from .output import read_part
 from .plan import Chunk
-from .schema import identity, read_meta
-from .spec import SweepSpec
+from .schema import identity, read_meta, sweep_spec
 
 __all__ = ["read_sweep", "RowConfig", "row_config", "sweep_spec"]
 
@@ -112,27 +111,6 @@ class RowConfig:
     sim: SimConfig
     mpc: MPCConfig
     dtype: str
-
-
-def sweep_spec(meta: Mapping[str, Any]) -> SweepSpec:
-    """The spec of a sweep's metadata (``meta`` from :func:`read_sweep`), its plugins imported: a
-    ``.py`` plugin from its path relative to the output folder (``location``) if it is there (a
-    dataset moved together with its plugin), else from the absolute path recorded by the sweep;
-    metadata without ``plugin_files`` (older sweeps) reads relative paths from the current directory."""
-    files = meta.get("plugin_files") or []
-    names = list(meta["spec"].get("plugins", []))
-    if not files or len(files) != len(names):
-        return SweepSpec.from_json(meta["spec"])
-    location = meta.get("location")
-    paths = []
-    for name, rec in zip(names, files):
-        if not isinstance(rec, Mapping) or "path" not in rec:
-            paths.append(name)
-            continue
-        near = ([str((pathlib.Path(location) / rec["from_output"]).resolve())]
-                if location and rec.get("from_output") else [])
-        paths.append(next((c for c in near if pathlib.Path(c).is_file()), str(rec["path"])))
-    return SweepSpec.from_json(meta["spec"], plugin_paths=paths)
 
 
 def row_config(meta: Mapping[str, Any], row: Mapping[str, Any]) -> RowConfig:

@@ -19,8 +19,8 @@ from ..gains import Gains
 from ..io.lock import OutputLock, check_writable
 from ..text import format_seconds
 from ..validation import ConfigError, Interrupted, first_line
-from .audit import audit_output
-from .output import check_folder, part_files, part_record, prepare_output, repair_parts, write_part
+from .audit import audit_output, check_folder, prepare_output, repair_parts
+from .output import part_files, part_record, write_part
 from .plan import DEFAULT_MEMORY_BUDGET, Chunk, Plan, Variant, chunk_cost, describe_plan, plan_sweep, shard_chunks
 from .schema import part_table, schema, sweep_meta
 from .spec import SweepSpec
@@ -232,8 +232,6 @@ def _shard_plan(spec: SweepSpec, out: pathlib.Path, meta: Mapping[str, Any], pla
     number of shards. Only the shard's own parts are touched: its damaged, foreign or overlapping parts
     are refused, or with ``repair`` removed or set aside; any other part is another shard's business
     (`jaxapf sweep verify` reports it)."""
-    from .audit import audit_output
-
     mine = shard_chunks(plan, *shard)
     names = {c.name for c in mine}
     if not out.exists():

@@ -18,8 +18,8 @@ from ..validation import ConfigError, first_line
 from .plan import Chunk, Plan
 from .spec import AXIS_WEIGHT_KEYS, SweepSpec
 
-__all__ = ["FORMAT", "LEGACY_FORMAT", "META_KEY", "PRNG", "sweep_meta", "schema", "part_table", "read_meta", "identity",
-           "static_columns"]
+__all__ = ["sweep_spec", "FORMAT", "LEGACY_FORMAT", "META_KEY", "PRNG", "sweep_meta", "schema", "part_table",
+           "read_meta", "identity", "static_columns"]
 
 FORMAT = "jaxapf.sweep/2"
 #: The format before kinds, solvability and content hashes; still read (its parts are not verified).
@@ -178,3 +178,22 @@ def plugin_files(spec: SweepSpec, out: str | pathlib.Path | None) -> list[dict[s
             for name, path in zip(spec.plugins, paths)]
 
 
+def sweep_spec(meta: Mapping[str, Any]) -> SweepSpec:
+    """The spec of a sweep's metadata (``meta`` from :func:`read_sweep`), its plugins imported: a
+    ``.py`` plugin from its path relative to the output folder (``location``) if it is there (a
+    dataset moved together with its plugin), else from the absolute path recorded by the sweep;
+    metadata without ``plugin_files`` (older sweeps) reads relative paths from the current directory."""
+    files = meta.get("plugin_files") or []
+    names = list(meta["spec"].get("plugins", []))
+    if not files or len(files) != len(names):
+        return SweepSpec.from_json(meta["spec"])
+    location = meta.get("location")
+    paths = []
+    for name, rec in zip(names, files):
+        if not isinstance(rec, Mapping) or "path" not in rec:
+            paths.append(name)
+            continue
+        near = ([str((pathlib.Path(location) / rec["from_output"]).resolve())]
+                if location and rec.get("from_output") else [])
+        paths.append(next((c for c in near if pathlib.Path(c).is_file()), str(rec["path"])))
+    return SweepSpec.from_json(meta["spec"], plugin_paths=paths)

@@ -89,6 +89,7 @@ def test_reciprocal_velocity_obstacles_swap_two_uavs_head_on_sharing_the_avoidan
     assert np.abs(p[0, :, 1]).max() > 0.1  # each swerved
 
 
+@pytest.mark.slow
 def test_without_reciprocity_each_uav_takes_the_whole_avoidance():
     """ORCA's half-space against another UAV asks for half the velocity change ``u`` that a passive
     obstacle at the same place asks for; ``velocity_obstacle_unilateral`` asks for all of it. One UAV
@@ -161,6 +162,7 @@ def test_with_max_neighbours_a_uav_sees_the_nearest_others_nearest_first():
     assert full.obstacles.radius.shape == (2 + 3,)
 
 
+@pytest.mark.slow
 def test_max_neighbours_culls_far_uavs_from_the_stack():
     """Four UAVs in a line swapping pairwise: with every neighbour seen, UAV 0 reacts to the far pair
     too; with max_neighbours = 1 only to its partner, so its flight differs, and the swap stays safe."""
@@ -174,8 +176,8 @@ def test_max_neighbours_culls_far_uavs_from_the_stack():
     assert pairs[~np.eye(4, dtype=bool)].min() > 0.0
 
 
-@pytest.mark.parametrize("family, method", [("circle_swap", "velocity_obstacle"),
-                                            pytest.param("swarm_clutter", "basic", marks=pytest.mark.slow)])
+@pytest.mark.slow
+@pytest.mark.parametrize("family, method", [("circle_swap", "velocity_obstacle"), ("swarm_clutter", "basic")])
 def test_streamed_swarms_are_the_fixed_engines_swarms(family, method):
     """The streaming engine stops a swarm once every UAV has certainly ended; its metrics are those of the
     fixed-length engine up to rounding (two gain settings, the second's repulsion too weak to keep off

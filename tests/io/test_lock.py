@@ -59,6 +59,7 @@ def _race(folder: str, barrier, results) -> None:
     lock.release()
 
 
+@pytest.mark.slow
 def test_two_newcomers_over_a_dead_writers_lock_never_both_take_it(tmp_path):
     """The old lock: 26 of 60 races over a stale lock let both in. Here a writer dies holding the lock
     (``kill -9``: its note stays, the kernel drops the lock), then two processes start together, 30 times:

@@ -112,6 +112,7 @@ def test_duplicate_episodes_are_found_and_repair_removes_them(reference, tmp_pat
     pd.testing.assert_frame_equal(df, reference[1])
 
 
+@pytest.mark.slow
 def test_a_part_of_another_spec_never_extends_the_plan(reference, tmp_path):
     """A part of a 20-field sweep (fields 16-19) in this 12-field output made resume simulate fields
     outside the spec and exit 0."""
@@ -183,8 +184,7 @@ def test_a_part_that_cannot_be_read_now_is_not_damage_and_repair_keeps_it(refere
 
 
 def test_a_set_aside_part_never_replaces_an_earlier_one(reference, tmp_path):
-    from jaxapf.sweep.audit import audit_output
-    from jaxapf.sweep.output import repair_parts
+    from jaxapf.sweep.audit import audit_output, repair_parts
 
     out = _copy(reference[0], tmp_path / "aside.parquet")
     name = "part-v000-trap-f00000003-00000006.parquet"

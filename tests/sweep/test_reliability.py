@@ -300,8 +300,8 @@ def test_a_signal_while_the_command_starts_is_one_line(tmp_path, sig):
         time.sleep(delay)
         run.send_signal(sig)
         _, err = run.communicate(timeout=120)
-        if run.returncode == 0:
-            continue
+        if run.returncode == 0 or err.startswith("Fatal Python error: init_import_site"):
+            continue  # finished, or the signal came while the interpreter itself started: Python's own
         assert run.returncode in (130, 143, -sig), err  # -sig: the signal came before Python handles it
         if run.returncode > 0:
             _one_line(err)

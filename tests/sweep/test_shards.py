@@ -48,6 +48,7 @@ def test_the_shards_deal_every_chunk_once_balanced_by_cost():
     assert dealt == [shard_chunks(plan_sweep(_spec(), chunk_fields=3, devices=1), i, 3) for i in range(3)]
 
 
+@pytest.mark.slow
 def test_shards_run_apart_killed_and_rerun_give_the_one_process_rows(reference, tmp_path):
     out = tmp_path / "out"
 
@@ -71,6 +72,7 @@ def test_shards_run_apart_killed_and_rerun_give_the_one_process_rows(reference, 
     pd.testing.assert_frame_equal(df, reference)
 
 
+@pytest.mark.slow
 def test_shards_in_their_own_folders_merge_to_the_one_process_rows(reference, tmp_path):
     folders = [tmp_path / f"shard{i}" for i in range(3)]
     for i, folder in enumerate(folders):

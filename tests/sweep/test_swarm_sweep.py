@@ -119,6 +119,7 @@ def test_a_swarm_sweep_writes_one_row_per_episode_with_the_swarm_metrics(swept):
         assert rows["solvable"].tolist() == alone.tolist()
 
 
+@pytest.mark.slow
 def test_a_swarm_sweep_row_is_evaluate_swarms_of_its_field(swept):
     # the rows are the engine's numbers bit for bit: same fields, same program, same vmap width
     spec, _, (df, meta) = swept
@@ -227,6 +228,7 @@ def test_simulate_refuses_agents_for_a_single_uav_family(tmp_path):
     assert rc == 2 and "--agents: trap is a single-UAV family" in stderr and "Traceback" not in stderr
 
 
+@pytest.mark.slow
 def test_the_outcome_of_each_uav_agrees_with_the_swarm_metrics():
     from jaxapf.config import MPCConfig, SimConfig
     from jaxapf.engine.swarm import swarm_rollout
