@@ -236,21 +236,21 @@ def findings(rates: pd.DataFrame, comparisons: pd.DataFrame) -> list[str]:
             f"{100 * top['agent_collision'].min():.1f}–{100 * top['agent_collision'].max():.1f} % of the swarms"
             f"{most('agent_collision')}, and {100 * top['deadlock'].min():.1f}–{100 * top['deadlock'].max():.1f} % "
             f"deadlock{most('deadlock')}.")
-    vs = comparisons[comparisons["question"] == "vs basic"]
-    for metric, _ in OUTCOMES:
-        r = vs[vs["metric"] == metric]
-        n = {v: int((r["verdict"] == v).sum()) for v in MARK}
-        out.append(f"**Against `basic`, {metric}** (each method at the same selection seed, every family and A): "
-                   f"{len(r)} comparisons, better {n['better']}, worse {n['worse']}, equivalent {n['equivalent']}, "
-                   f"inconclusive {n['inconclusive']}.")
-    rec = comparisons[comparisons["question"] == "reciprocity"]
-    for metric, _ in OUTCOMES:
-        r = rec[rec["metric"] == metric]
-        n = {v: int((r["verdict"] == v).sum()) for v in MARK}
-        change = 100 * r["change"]
-        out.append(f"**Reciprocity, {metric}**: `velocity_obstacle` against `{UNILATERAL}` over {len(r)} (family, A, "
-                   f"selection) cells: change {change.min():+.1f} to {change.max():+.1f} points; better {n['better']}, "
-                   f"worse {n['worse']}, equivalent {n['equivalent']}, inconclusive {n['inconclusive']}.")
+    for question in ("vs basic", "reciprocity"):
+        part = comparisons[comparisons["question"] == question]
+        for metric, _ in OUTCOMES:
+            r = part[part["metric"] == metric]
+            n = {v: int((r["verdict"] == v).sum()) for v in MARK}
+            counts = (f"better {n['better']}, worse {n['worse']}, equivalent {n['equivalent']}, "
+                      f"inconclusive {n['inconclusive']}.")
+            if question == "vs basic":
+                out.append(f"**Against `basic`, {metric}** (each method at the same selection seed, every family and "
+                           f"A): {len(r)} comparisons, {counts}")
+            else:
+                change = 100 * r["change"]
+                out.append(f"**Reciprocity, {metric}**: `velocity_obstacle` against `{UNILATERAL}` over {len(r)} "
+                           f"(family, A, selection) cells: change {change.min():+.1f} to {change.max():+.1f} points; "
+                           f"{counts}")
     return out
 
 

@@ -119,3 +119,17 @@ def assert_same_episodes(a, b, dt: float, *, flips: int = 0, rtol: float = 1e-2,
                                           err_msg=n)
         elif metrics[n].kind != "rate":
             np.testing.assert_allclose(x[same_end], y[same_end], rtol=rtol, atol=atol, err_msg=n)
+
+
+def changed(table: dict, **changes) -> dict:
+    """A deep copy of the spec ``table`` with ``changes`` given by dotted keys (``"scenario.fields"``)."""
+    import copy
+
+    data = copy.deepcopy(table)
+    for dotted, value in changes.items():
+        *path, key = dotted.split(".")
+        at = data
+        for part in path:
+            at = at.setdefault(part, {})
+        at[key] = value
+    return data

@@ -1,6 +1,5 @@
 """Sweeps, simulations and reports of swarm families: one row per swarm episode with the swarm metrics."""
 
-import copy
 
 import jax
 import jax.numpy as jnp
@@ -8,6 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 from cli_capture import capture
+from conftest import changed
 
 from jaxapf.cli import main
 from jaxapf.config import SimConfig
@@ -30,14 +30,7 @@ SWARM = {
 
 
 def _spec(**changes):
-    data = copy.deepcopy(SWARM)
-    for dotted, value in changes.items():
-        *path, key = dotted.split(".")
-        table = data
-        for p in path:
-            table = table.setdefault(p, {})
-        table[key] = value
-    return parse_spec(data)
+    return parse_spec(changed(SWARM, **changes))
 
 
 # --------------------------------------------------------------------------------------------

@@ -15,7 +15,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from conftest import assert_same_episodes
+from conftest import assert_same_episodes, changed
 
 from jaxapf.cli import main
 from jaxapf.config import MPCConfig, SimConfig
@@ -50,14 +50,7 @@ ROWS = 4 * 2 * 6
 
 
 def _spec(**changes) -> SweepSpec:
-    data = copy.deepcopy(TINY)
-    for dotted, value in changes.items():
-        *path, key = dotted.split(".")
-        table = data
-        for p in path:
-            table = table.setdefault(p, {})
-        table[key] = value
-    return parse_spec(data)
+    return parse_spec(changed(TINY, **changes))
 
 
 def _toml(path: pathlib.Path, data: dict) -> pathlib.Path:
