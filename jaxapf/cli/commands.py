@@ -489,14 +489,12 @@ def _sweep(args: argparse.Namespace) -> int:
 
 
 def _sweep_verify(args: argparse.Namespace) -> int:
-    from ..sweep.audit import audit_output, describe_audit, read_parts, reference_meta
+    from ..sweep.audit import audit_folder, describe_audit
     from ..validation import ConfigError
 
     if not args.out.is_dir():
         raise ConfigError(f"{args.out} is not a folder")
-    _, metas, _ = read_parts(args.out)
-    meta = reference_meta(args.out, metas)
-    found = audit_output(args.out, meta)
+    found, meta = audit_folder(args.out)
     print(describe_audit(args.out, found, meta))
     return 0 if found.complete else 1
 

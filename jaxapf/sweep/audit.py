@@ -34,8 +34,8 @@ from .plan import Chunk, gaps, variants
 from .schema import identity, read_meta, sweep_spec
 from .spec import SweepSpec
 
-__all__ = ["Audit", "audit_output", "read_parts", "reference_meta", "judge", "describe_audit", "SET_ASIDE",
-           "prepare_output", "check_folder", "repair_parts"]
+__all__ = ["Audit", "audit_output", "audit_folder", "read_parts", "reference_meta", "judge", "describe_audit",
+           "SET_ASIDE", "prepare_output", "check_folder", "repair_parts"]
 
 #: Where ``--repair`` moves foreign parts (hidden: Parquet readers skip it).
 SET_ASIDE = ".set-aside"
@@ -45,7 +45,7 @@ SET_ASIDE = ".set-aside"
 class Audit:
     """The parts of an output by what they hold (module docstring); ``missing``: the (variant, family,
     start, stop) field ranges no sound part covers; ``rows``: rows in sound parts; ``expected``: rows of
-    the whole sweep."""
+    the whole sweep; ``other_sweep``: the foreign parts that belong to another sweep altogether."""
 
     sound: tuple[Chunk, ...]
     damaged: Mapping[str, str]
@@ -54,6 +54,7 @@ class Audit:
     missing: tuple[tuple[int, str, int, int], ...]
     rows: int
     expected: int
+    other_sweep: frozenset[str] = frozenset()
 
     @property
     def problems(self) -> dict[str, str]:
@@ -124,13 +125,14 @@ def judge(tables: Mapping[str, Any], metas: Mapping[str, dict], damaged: Mapping
     groups = variants(spec)
     settings = {v.index: [s.index for s in v.settings] for v in groups}
     want = identity(meta)
-    foreign, sound = {}, []
+    foreign, sound, other_sweep = {}, [], set()
     for name, table in tables.items():
         chunk = Chunk.from_name(name)
         other = identity(metas[name])
         if other != want:
             differ = ", ".join(k for k in want if other[k] != want[k])
             foreign[name] = f"of another sweep ({differ} differ)"
+            other_sweep.add(name)
         elif chunk.variant not in settings or chunk.family not in spec.families or chunk.stop > spec.fields:
             foreign[name] = (f"outside this sweep's plan (variants 0-{len(groups) - 1}, families "
                              f"{', '.join(spec.families)}, fields 0-{spec.fields - 1})")
@@ -160,15 +162,22 @@ def judge(tables: Mapping[str, Any], metas: Mapping[str, dict], damaged: Mapping
     rows = sum(len(settings[c.variant]) * (c.stop - c.start) for c in sound)
     expected = sum(len(s) for s in settings.values()) * len(spec.families) * spec.fields
     return Audit(tuple(sorted(sound, key=lambda c: c.name)), dict(damaged), foreign, overlapping, tuple(missing),
-                 rows, expected)
+                 rows, expected, frozenset(other_sweep))
 
 
 def audit_output(out: pathlib.Path, meta: Mapping[str, Any] | None = None, spec: SweepSpec | None = None) -> Audit:
     """The audit of the output ``out`` against the sweep of ``meta`` (:func:`~jaxapf.sweep.schema.sweep_meta`)
     and ``spec``; without them, against the sweep most of its readable parts belong to."""
+    return audit_folder(out, meta, spec)[0]
+
+
+def audit_folder(out: pathlib.Path, meta: Mapping[str, Any] | None = None, spec: SweepSpec | None = None
+                 ) -> tuple[Audit, dict]:
+    """:func:`audit_output` and the metadata it judged against (without ``meta``, that of the sweep most
+    of the readable parts belong to), every part read once."""
     tables, metas, damaged = read_parts(out)
-    meta = meta if meta is not None else reference_meta(out, metas)
-    return judge(tables, metas, damaged, meta, spec or sweep_spec(meta))
+    meta = dict(meta) if meta is not None else reference_meta(out, metas)
+    return judge(tables, metas, damaged, meta, spec or sweep_spec(meta)), meta
 
 
 def describe_audit(out: pathlib.Path, found: Audit, meta: Mapping[str, Any], limit: int = 10) -> str:
@@ -227,7 +236,7 @@ def prepare_output(out: pathlib.Path, meta: Mapping[str, Any], spec: Any, *, ove
     if not parts:
         return []
     found = audit_output(out, meta, spec)
-    other = {n: why for n, why in found.foreign.items() if why.startswith("of another sweep")}
+    other = found.other_sweep
     if other and not found.sound and len(other) == len(parts) - len(found.damaged):
         old = identity(read_meta(out / sorted(other)[0]))
         new = identity(meta)

@@ -12,15 +12,14 @@ after an interruption copies only what is not there yet.
 from __future__ import annotations
 
 import dataclasses
-import json
 import pathlib
 import shutil
 from typing import Sequence
 
 from ..io.lock import OutputLock, check_writable, write_atomic
 from ..validation import ConfigError
-from .audit import Audit, audit_output, read_parts, reference_meta
-from .output import PART_KEY, verify_part
+from .audit import Audit, audit_folder, audit_output
+from .output import part_record, verify_part
 from .plan import Chunk
 from .schema import identity, read_meta
 
@@ -43,12 +42,6 @@ class MergeResult:
                 f"{len(self.audit.sound)} part(s), {state}")
 
 
-def _part_hash(path: pathlib.Path) -> str:
-    import pyarrow.parquet as pq
-
-    return json.loads((pq.read_schema(path).metadata or {})[PART_KEY])["sha256"]
-
-
 def merge_outputs(sources: Sequence[str | pathlib.Path], out: str | pathlib.Path) -> MergeResult:
     """Merge the sweep outputs ``sources`` into ``out`` (module docstring); :class:`ConfigError` in one
     line, before anything is copied, for a source that is not sound or of another sweep or version,
@@ -64,9 +57,7 @@ def merge_outputs(sources: Sequence[str | pathlib.Path], out: str | pathlib.Path
             raise ConfigError(f"sweep merge: {s} is the output itself")
     audits, metas = [], []
     for s in sources:
-        _, part_metas, _ = read_parts(s)
-        meta = reference_meta(s, part_metas)
-        found = audit_output(s, meta)
+        found, meta = audit_folder(s)
         if found.problems:
             raise ConfigError(f"sweep merge: {s} has {len(found.problems)} part(s) that cannot be trusted "
                               f"(`jaxapf sweep verify {s}` lists them); nothing merged")
@@ -95,7 +86,7 @@ def merge_outputs(sources: Sequence[str | pathlib.Path], out: str | pathlib.Path
         for s, found in zip(sources, audits):
             for c in found.sound:
                 if c.name in chosen:
-                    if _part_hash(chosen[c.name]) != _part_hash(s / c.name):
+                    if part_record(chosen[c.name]).get("sha256") != part_record(s / c.name).get("sha256"):
                         raise ConfigError(f"sweep merge: {c.name} differs between {chosen[c.name].parent} and {s}; "
                                           "nothing merged")
                     continue

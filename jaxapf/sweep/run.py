@@ -214,33 +214,33 @@ def run_sweep(
                               devices=devices)
             todo = plan.chunks
         else:
-            plan, todo = _shard_plan(spec, out, meta, probe, shard, repair)
+            plan, mine = probe, shard_chunks(probe, *shard)
+            todo = _shard_todo(spec, out, meta, plan, mine, shard, repair)
         padding = plan.padding_note()
         if padding:
             note(padding)
         written = _write_chunks(plan, todo, out, meta, quiet, after_part, shard)
-    scope = plan.episodes if shard is None else plan.episodes_of(shard_chunks(plan, *shard))  # this run's part
+    scope = plan.episodes if shard is None else plan.episodes_of(mine)  # this run's part
     return SweepResult(out, plan.episodes_of(todo), scope - plan.episodes_of(todo), written,
                        time.perf_counter() - start, plan.duplicates, shard)
 
 
-def _shard_plan(spec: SweepSpec, out: pathlib.Path, meta: Mapping[str, Any], plan: Plan, shard: tuple[int, int],
-                repair: bool) -> tuple[Plan, tuple[Chunk, ...]]:
-    """The plan and the chunks shard ``shard`` still has to run in ``out``: its chunks no sound part
+def _shard_todo(spec: SweepSpec, out: pathlib.Path, meta: Mapping[str, Any], plan: Plan, mine: tuple[Chunk, ...],
+                shard: tuple[int, int], repair: bool) -> tuple[Chunk, ...]:
+    """The chunks of shard ``shard`` (``mine``, of ``plan``) still to run in ``out``: those no sound part
     holds. Refused: a folder of another sweep (the vmap width, hence the kind of device, is part of a
     sweep's identity), parts chunked otherwise than this plan, or written by a division into another
     number of shards. Only the shard's own parts are touched: its damaged, foreign or overlapping parts
     are refused, or with ``repair`` removed or set aside; any other part is another shard's business
     (`jaxapf sweep verify` reports it)."""
-    mine = shard_chunks(plan, *shard)
     names = {c.name for c in mine}
     if not out.exists():
-        return plan, mine
+        return mine
     check_folder(out)
     if not part_files(out):
-        return plan, mine
+        return mine
     found = audit_output(out, meta, spec)
-    other = sorted(n for n, why in found.foreign.items() if why.startswith("of another sweep"))
+    other = sorted(found.other_sweep)
     if other:
         raise ConfigError(f"--out {out} holds parts of another sweep (e.g. {other[0]}: {found.foreign[other[0]]}); "
                           "every shard must run the same spec, float type and kind of device")
@@ -265,7 +265,7 @@ def _shard_plan(spec: SweepSpec, out: pathlib.Path, meta: Mapping[str, Any], pla
         if tmp.name.startswith(".part-") and tmp.name.split(".tmp-")[0][1:] in names:
             tmp.unlink(missing_ok=True)
     sound = {c.name for c in found.sound} - set(problems)
-    return plan, tuple(c for c in mine if c.name not in sound)
+    return tuple(c for c in mine if c.name not in sound)
 
 
 def _write_chunks(plan: Plan, chunks: tuple[Chunk, ...], out: pathlib.Path, meta: Mapping[str, Any], quiet: bool,
