@@ -286,6 +286,14 @@ def _add_sweep_parser(sub: argparse._SubParsersAction) -> None:
                          "for every process reading the spec; shards run at any time, on one output or each in "
                          "its own folder (then `jaxapf sweep merge`), e.g. a Slurm array task: "
                          "--shard $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT")
+    sw.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
+                    help="run the chunks as tasks on a Ray cluster (pip install 'jaxapf[ray]'): ADDRESS as "
+                         "`ray start` prints it, or `auto` for the one started on this machine; without ADDRESS, "
+                         "RAY_ADDRESS or a Ray instance started for this run")
+    sw.add_argument("--ray-cpus", type=float, default=1.0, metavar="C",
+                    help="CPUs of one chunk's Ray task (default 1)")
+    sw.add_argument("--ray-gpus", type=float, default=0.0, metavar="G",
+                    help="GPUs of one chunk's Ray task (default 0; 1 on GPU workers)")
     sw.add_argument("--quiet", action="store_true", help="no progress bar")
     sw.add_argument("--x64", action="store_true", help="run in float64")
 
@@ -465,8 +473,9 @@ def _margins(texts: Sequence[str]) -> tuple[tuple[str, float], ...]:
 
 def _sweep(args: argparse.Namespace) -> int:
     from ..sweep import configure_jax, default_cache_dir, dry_run, load_spec, parse_size, run_sweep
+    from ..sweep.cluster import RayCluster, RaySession
     from ..sweep.plan import parse_shard
-    from ..validation import check_int
+    from ..validation import ConfigError, check_int
 
     budget = parse_size(args.memory_budget)
     shard = parse_shard(args.shard) if args.shard is not None else None
@@ -476,14 +485,20 @@ def _sweep(args: argparse.Namespace) -> int:
         check_int("--chunk-fields", args.chunk_fields, 1)
     configure_jax(x64=args.x64, cache_dir=None if args.no_cache else args.cache_dir or default_cache_dir(),
                   cpu_devices=args.devices or 1)
+    cluster = None if args.ray is None else RayCluster(args.ray or None, args.ray_cpus, args.ray_gpus)
+    if cluster is None and (args.ray_cpus, args.ray_gpus) != (1.0, 0.0):
+        raise ConfigError("--ray-cpus and --ray-gpus size the tasks of --ray; give --ray too")
     spec = load_spec(args.spec, args.gains)
     out = args.out or pathlib.Path("runs") / f"{spec.name}.parquet"
     if args.dry_run:
-        print(dry_run(spec, out, overwrite=args.overwrite, repair=args.repair, shard=shard, memory_budget=budget,
-                      chunk_fields=args.chunk_fields))
+        options = dict(memory_budget=budget, chunk_fields=args.chunk_fields)
+        if cluster is not None:  # planned for the workers' backend, one device per task
+            with RaySession(cluster) as session:
+                options |= dict(devices=1, backend=session.backend())
+        print(dry_run(spec, out, overwrite=args.overwrite, repair=args.repair, shard=shard, **options))
         return 0
     result = run_sweep(spec, out, memory_budget=budget, chunk_fields=args.chunk_fields, overwrite=args.overwrite,
-                       repair=args.repair, quiet=args.quiet, shard=shard, devices=args.devices)
+                       repair=args.repair, quiet=args.quiet, shard=shard, devices=args.devices, ray=cluster)
     print(result.summary(spec.name))
     return 0
 

@@ -4,7 +4,8 @@ A spec (:mod:`.spec`) expands into settings; settings with the same static part 
 compiled program whose gains are vmapped inside :func:`jaxapf.engine.evaluate`. The work is cut
 into chunks, each a block of fields of one family × a variant's settings, one ``evaluate`` call per
 device and one Parquet part (:mod:`.plan` variants, chunks and estimates; :mod:`.schema` the
-layout; :mod:`.output` the output directory; :mod:`.run` the runner; :mod:`.read` reading back). An
+layout; :mod:`.output` the output directory; :mod:`.run` the runner; :mod:`.execute` where chunks
+run, :mod:`.cluster` as Ray tasks; :mod:`.read` reading back). An
 episode's numbers do not depend on the chunking, the memory budget, the devices or what was
 resumed. docs/sweep.md says how and why (variants, chunks, the memory estimate, devices,
 determinism); docs/sweep-format.md gives the dataset's layout. :mod:`.frame` gives a notebook the same
@@ -13,6 +14,7 @@ rows in memory.
 
 from ..validation import MAX_SEED
 from .audit import prepare_output
+from .execute import configure_jax, default_cache_dir
 from .frame import evaluate_frame
 from .plan import (
                    CALLS_PER_PART,
@@ -26,7 +28,7 @@ from .plan import (
                    variants,
 )
 from .read import RowConfig, read_sweep, row_config, sweep_spec
-from .run import SweepResult, configure_jax, default_cache_dir, dry_run, parse_size, run_sweep
+from .run import SweepResult, dry_run, parse_size, run_sweep
 from .schema import FORMAT, sweep_meta
 from .spec import STATIC_KEYS, RandomRange, Setting, SweepSpec, load_spec, parse_spec, read_toml
 

@@ -330,8 +330,10 @@ MAX_CHUNKS = 1_000_000
 
 
 def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: int = DEFAULT_MEMORY_BUDGET,
-               chunk_fields: int | None = None, devices: int | None = None, width: int | None = None) -> Plan:
-    """Cut the spec's work into chunks (skipping the ``done`` ones), as docs/sweep.md says."""
+               chunk_fields: int | None = None, devices: int | None = None, width: int | None = None,
+               backend: str | None = None) -> Plan:
+    """Cut the spec's work into chunks (skipping the ``done`` ones), as docs/sweep.md says; ``backend``:
+    the JAX backend the chunks will run on (default this process's; a Ray run's is its workers')."""
     from ..engine import default_width
 
     if chunk_fields is not None:
@@ -343,7 +345,7 @@ def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: in
     # the spec only, so every chunking, device count and memory budget uses the same kernels);
     # each (variant, family) narrows it further if its episodes are long (_block)
     needed = max(len(v.simulated) for v in groups) * spec.fields
-    width = width or default_width(needed)
+    width = width or default_width(needed, backend)
     blocks, chunks = {}, []
     for v in groups:
         for family in spec.families:

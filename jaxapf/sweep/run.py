@@ -2,61 +2,29 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import pathlib
 import re
 import sys
 import time
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Iterator, Mapping
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
-from ..engine.devices import DeviceBatch
-from ..gains import Gains
 from ..io.lock import OutputLock, check_writable
 from ..text import format_seconds
 from ..validation import ConfigError, Interrupted, first_line
 from .audit import audit_output, check_folder, prepare_output, repair_parts
+from .cluster import RayCluster, RaySession
+from .execute import ChunkFailed, Finished, local_results
 from .output import part_files, part_record, write_part
-from .plan import DEFAULT_MEMORY_BUDGET, Chunk, Plan, Variant, chunk_cost, describe_plan, plan_sweep, shard_chunks
+from .plan import DEFAULT_MEMORY_BUDGET, Chunk, Plan, chunk_cost, describe_plan, plan_sweep, shard_chunks
 from .schema import part_table, schema, sweep_meta
 from .spec import SweepSpec
 
-__all__ = ["configure_jax", "default_cache_dir", "parse_size", "SweepResult", "dry_run", "run_sweep"]
-
-
-def default_cache_dir() -> pathlib.Path:
-    """``$XDG_CACHE_HOME/jaxapf/xla`` (default ``~/.cache/jaxapf/xla``)."""
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return pathlib.Path(base) / "jaxapf" / "xla"
-
-
-def configure_jax(*, x64: bool = False, cache_dir: str | os.PathLike | None = None,
-                  cpu_devices: int | None = None) -> None:
-    """Process-wide JAX settings for a sweep; call before anything runs on a device.
-
-    Args:
-      x64: float64 everywhere (``jax_enable_x64``).
-      cache_dir: persistent compilation cache (``jax_compilation_cache_dir``); programs that took
-        more than 0.1 s to compile are stored there and loaded by later runs. ``None``: no cache.
-      cpu_devices: split the host CPU into this many JAX devices (``jax_num_cpu_devices``), one
-        per core being the useful setting; ignored when ``XLA_FLAGS`` already forces a count.
-    """
-    if x64:
-        jax.config.update("jax_enable_x64", True)
-    if cache_dir is not None:
-        pathlib.Path(cache_dir).mkdir(parents=True, exist_ok=True)
-        jax.config.update("jax_compilation_cache_dir", str(cache_dir))
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.1)
-        jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
-    if cpu_devices is not None and "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
-        try:
-            jax.config.update("jax_num_cpu_devices", int(cpu_devices))
-        except RuntimeError:  # JAX already ran something in this process: keep its devices
-            pass
+__all__ = ["parse_size", "SweepResult", "dry_run", "run_sweep"]
 
 
 def parse_size(text: str) -> int:
@@ -66,60 +34,6 @@ def parse_size(text: str) -> int:
         raise ConfigError(f"--memory-budget = {text!r} is not a size; write e.g. 256M, 2G or a number of bytes")
     unit = match[2].upper() if match[2] else ""
     return int(float(match[1]) * 1024 ** ("_KMGT".index(unit) if unit else 0))
-
-
-class _Devices:
-    """Runs the chunks of a plan on the local devices (:class:`~jaxapf.engine.devices.DeviceBatch`)."""
-
-    def __init__(self, plan: Plan):
-        self.batch = DeviceBatch(jax.local_devices()[: plan.devices])
-        self.plan = plan
-        self._gains: dict[int, list[Gains]] = {}
-        self._oracle: dict[tuple, np.ndarray] = {}
-
-    def close(self) -> None:
-        self.batch.close()
-
-    def _variant_gains(self, variant: Variant) -> list[Gains]:
-        if variant.index not in self._gains:
-            self._gains[variant.index] = self.batch.put_gains(variant.gains(self.plan.dtype))
-        return self._gains[variant.index]
-
-    def dispatch(self, chunk: Chunk) -> tuple[dict[str, jax.Array], jax.Array, np.ndarray | None]:
-        """Start the chunk (asynchronously); returns global (G, padded) metric arrays, the fields'
-        kinds and, with the spec's ``oracle``, whether each real field is solvable (computed on the
-        host while the devices run)."""
-        from ..engine import evaluate_program
-        from ..engine.swarm import evaluate_swarms
-        from ..scenarios import make_scenarios
-        from ..scenarios.swarms import make_swarms
-
-        plan = self.plan
-        block = plan.blocks[(chunk.variant, chunk.family)]
-        indices = np.full(block.padded, chunk.start, np.int64)
-        indices[: chunk.stop - chunk.start] = np.arange(chunk.start, chunk.stop)
-        make, program = (make_swarms, evaluate_swarms) if plan.spec.swarm else (make_scenarios, evaluate_program)
-        fields = make(plan.spec.seed, plan.spec.family_params(chunk.family), jnp.asarray(indices))
-        metrics = self.batch.evaluate(fields, self._variant_gains(plan.variants[chunk.variant]), block.sim,
-                                      block.mpc, block.width, plan.metrics, program)
-        return metrics, fields.kind, self._solvable(chunk, fields, block.sim) if plan.spec.oracle else None
-
-    def _solvable(self, chunk: Chunk, fields: Any, sim: Any) -> np.ndarray:
-        """:func:`~jaxapf.scenarios.solvable` of the chunk's real fields, once per field and vehicle
-        (variants that differ only in method or gains share the answer); of a swarm field, whether every
-        UAV passes it alone (:func:`~jaxapf.scenarios.swarms.agents_solvable`)."""
-        from ..scenarios import solvable
-        from ..scenarios.swarms import agents_solvable
-
-        oracle = (lambda real, **v: agents_solvable(real, **v).all(axis=-1)) if self.plan.spec.swarm else solvable
-        vehicle = dict(r_uav=sim.vehicle.r_uav, v_max=sim.vehicle.v_max, t_max=sim.episode.t_max,
-                       r_goal=sim.episode.r_goal)
-        key = (chunk.family, chunk.start, chunk.stop, *vehicle.values())
-        if key not in self._oracle:
-            n = chunk.stop - chunk.start
-            real = jax.tree_util.tree_map(lambda a: np.asarray(a)[:n], fields)
-            self._oracle[key] = oracle(real, **vehicle)
-        return self._oracle[key]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -176,6 +90,7 @@ def run_sweep(
     quiet: bool = False,
     devices: int | None = None,
     shard: tuple[int, int] | None = None,
+    ray: RayCluster | None = None,
     after_part: Callable[[Chunk], None] | None = None,
 ) -> SweepResult:
     """Run (or resume) ``spec`` into the Parquet dataset directory ``out``.
@@ -192,9 +107,32 @@ def run_sweep(
     spec), writing only its own parts: shards run side by side or hours apart, on one output or
     each in its own folder (combined by :func:`~jaxapf.sweep.merge.merge_outputs`), and a shard rerun
     after a crash computes only its missing parts.
+
+    With ``ray`` the chunks run as tasks on a Ray cluster (:mod:`jaxapf.sweep.cluster`: one device per
+    task, the plan of the workers' backend) and this process writes the parts as they arrive.
     """
     start = time.perf_counter()
     out = pathlib.Path(out)
+    if ray is not None:
+        if shard is not None:
+            raise ConfigError("--ray and --shard: Ray deals the chunks itself; give one of them")
+        if devices not in (None, 1):
+            raise ConfigError(f"--devices = {devices}: with --ray each task runs on one device; ask Ray for more "
+                              "workers instead")
+    with contextlib.ExitStack() as stack:
+        session = None if ray is None else stack.enter_context(RaySession(ray))
+        result = _run(spec, out, memory_budget, chunk_fields, overwrite, repair, quiet, devices, shard, session,
+                      after_part)
+    return dataclasses.replace(result, seconds=time.perf_counter() - start)
+
+
+def _run(spec: SweepSpec, out: pathlib.Path, memory_budget: int, chunk_fields: int | None, overwrite: bool,
+         repair: bool, quiet: bool, devices: int | None, shard: tuple[int, int] | None, session: RaySession | None,
+         after_part: Callable[[Chunk], None] | None) -> SweepResult:
+    """:func:`run_sweep` once its Ray session, if any, is open."""
+    backend = None
+    if session is not None:
+        devices, backend = 1, session.backend()
     if shard is not None:
         if overwrite:
             raise ConfigError("--overwrite replaces a whole output; a shard writes only its own parts (remove the "
@@ -203,7 +141,7 @@ def run_sweep(
             raise ConfigError(f"--devices = {devices}: a shard runs on one device (the shards' chunks must not depend "
                               "on the machine); run more shards instead")
         devices = 1
-    probe = plan_sweep(spec, memory_budget=memory_budget, chunk_fields=chunk_fields, devices=devices)
+    probe = plan_sweep(spec, memory_budget=memory_budget, chunk_fields=chunk_fields, devices=devices, backend=backend)
     meta = sweep_meta(spec, probe, out)
     note = (lambda line: None) if quiet else (lambda line: print(f"note: {line}", file=sys.stderr, flush=True))
     check_writable(out)
@@ -211,7 +149,7 @@ def run_sweep(
         if shard is None:
             done = prepare_output(out, meta, spec, overwrite=overwrite, clean=True, repair=repair)
             plan = plan_sweep(spec, done=done, memory_budget=memory_budget, chunk_fields=chunk_fields,
-                              devices=devices)
+                              devices=devices, backend=backend)
             todo = plan.chunks
         else:
             plan, mine = probe, shard_chunks(probe, *shard)
@@ -219,10 +157,11 @@ def run_sweep(
         padding = plan.padding_note()
         if padding:
             note(padding)
-        written = _write_chunks(plan, todo, out, meta, quiet, after_part, shard)
+        written = _write_chunks(plan, todo, out, meta, quiet, after_part, shard,
+                                local_results if session is None else session.results)
     scope = plan.episodes if shard is None else plan.episodes_of(mine)  # this run's part
-    return SweepResult(out, plan.episodes_of(todo), scope - plan.episodes_of(todo), written,
-                       time.perf_counter() - start, plan.duplicates, shard)
+    return SweepResult(out, plan.episodes_of(todo), scope - plan.episodes_of(todo), written, 0.0, plan.duplicates,
+                       shard)
 
 
 def _shard_todo(spec: SweepSpec, out: pathlib.Path, meta: Mapping[str, Any], plan: Plan, mine: tuple[Chunk, ...],
@@ -269,9 +208,11 @@ def _shard_todo(spec: SweepSpec, out: pathlib.Path, meta: Mapping[str, Any], pla
 
 
 def _write_chunks(plan: Plan, chunks: tuple[Chunk, ...], out: pathlib.Path, meta: Mapping[str, Any], quiet: bool,
-                  after_part: Callable[[Chunk], None] | None, shard: tuple[int, int] | None = None) -> int:
-    """Run ``chunks`` of ``plan`` and write each as a part as it finishes (the next chunk runs while one is
-    written); returns the parts written. Ctrl-C and a full disk end it with one line saying what was kept."""
+                  after_part: Callable[[Chunk], None] | None, shard: tuple[int, int] | None = None,
+                  results: Callable[[Plan, tuple[Chunk, ...]], Iterator[Finished]] = local_results) -> int:
+    """Run ``chunks`` of ``plan`` (``results``: on this process's devices, or elsewhere) and write each as a
+    part as it finishes; returns the parts written. Ctrl-C and a full disk end it with one line saying
+    what was kept."""
     out.mkdir(parents=True, exist_ok=True)
     layout = schema(plan, meta)
     kept = len(part_files(out))
@@ -279,32 +220,30 @@ def _write_chunks(plan: Plan, chunks: tuple[Chunk, ...], out: pathlib.Path, meta
 
     bar = tqdm(total=plan.episodes_of(chunks), unit="ep", unit_scale=True, desc=plan.spec.name, dynamic_ncols=True,
                disable=quiet or not sys.stderr.isatty())
-    runner = _Devices(plan)
     written = 0
+    finished = results(plan, chunks)
     try:
-        pending: tuple[Chunk, tuple[dict[str, jax.Array], jax.Array, np.ndarray | None]] | None = None
-        for chunk in (*chunks, None):
-            running = None if chunk is None else (chunk, runner.dispatch(chunk))
-            if pending is not None:  # write the previous chunk while this one runs
-                done_chunk, (arrays, kinds, solvable) = pending
-                inverse = np.asarray(plan.variants[done_chunk.variant].inverse)  # identical settings
-                metrics = {m: np.asarray(a)[inverse] for m, a in arrays.items()}
-                try:
-                    write_part(out, done_chunk.name,
-                               part_table(plan, layout, done_chunk, metrics, np.asarray(kinds), solvable), shard)
-                except OSError as err:  # a full disk, a quota, a vanished mount: what was kept, how to go on
-                    raise ConfigError(f"cannot write {out / done_chunk.name}: {err.strerror or first_line(err)}; "
-                                      f"{kept + written} finished part(s) are kept in {out}; rerun the same command "
-                                      "to resume once it can be written") from None
-                written += 1
-                bar.update(plan.episodes_of([done_chunk]))
-                if after_part is not None:
-                    after_part(done_chunk)
-            pending = running
+        for chunk, arrays, kinds, solvable in finished:
+            inverse = np.asarray(plan.variants[chunk.variant].inverse)  # identical settings
+            metrics = {m: np.asarray(a)[inverse] for m, a in arrays.items()}
+            try:
+                write_part(out, chunk.name, part_table(plan, layout, chunk, metrics, np.asarray(kinds), solvable),
+                           shard)
+            except OSError as err:  # a full disk, a quota, a vanished mount: what was kept, how to go on
+                raise ConfigError(f"cannot write {out / chunk.name}: {err.strerror or first_line(err)}; "
+                                  f"{kept + written} finished part(s) are kept in {out}; rerun the same command "
+                                  "to resume once it can be written") from None
+            written += 1
+            bar.update(plan.episodes_of([chunk]))
+            if after_part is not None:
+                after_part(chunk)
     except KeyboardInterrupt:
         raise Interrupted(f"interrupted; {kept + written} finished part(s) are kept in {out} ({written} written "
                           f"now); rerun the same command to resume") from None
+    except ChunkFailed as err:  # a chunk that could not run elsewhere: what was kept
+        raise ConfigError(f"{err}; {kept + written} finished part(s) are kept in {out}; rerun the same command "
+                          "to resume") from None
     finally:
-        runner.close()
+        finished.close()
         bar.close()
     return written

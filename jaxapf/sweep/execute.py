@@ -1,0 +1,129 @@
+"""Where a sweep's chunks run: JAX's process-wide set-up, a runner of chunks on this process's devices,
+and what every place that runs chunks yields (:func:`local_results` here; Ray tasks in
+:mod:`jaxapf.sweep.cluster`)."""
+
+from __future__ import annotations
+
+import os
+import pathlib
+from typing import Any, Iterator, Mapping
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..engine.devices import DeviceBatch
+from ..gains import Gains
+from .plan import Chunk, Plan, Variant
+
+__all__ = ["configure_jax", "default_cache_dir", "ChunkRunner", "ChunkFailed", "Finished", "local_results"]
+
+
+def default_cache_dir() -> pathlib.Path:
+    """``$XDG_CACHE_HOME/jaxapf/xla`` (default ``~/.cache/jaxapf/xla``)."""
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return pathlib.Path(base) / "jaxapf" / "xla"
+
+
+def configure_jax(*, x64: bool = False, cache_dir: str | os.PathLike | None = None,
+                  cpu_devices: int | None = None) -> None:
+    """Process-wide JAX settings for a sweep; call before anything runs on a device.
+
+    Args:
+      x64: float64 everywhere (``jax_enable_x64``).
+      cache_dir: persistent compilation cache (``jax_compilation_cache_dir``); programs that took
+        more than 0.1 s to compile are stored there and loaded by later runs. ``None``: no cache.
+      cpu_devices: split the host CPU into this many JAX devices (``jax_num_cpu_devices``), one
+        per core being the useful setting; ignored when ``XLA_FLAGS`` already forces a count.
+    """
+    if x64:
+        jax.config.update("jax_enable_x64", True)
+    if cache_dir is not None:
+        pathlib.Path(cache_dir).mkdir(parents=True, exist_ok=True)
+        jax.config.update("jax_compilation_cache_dir", str(cache_dir))
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.1)
+        jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    if cpu_devices is not None and "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
+        try:
+            jax.config.update("jax_num_cpu_devices", int(cpu_devices))
+        except RuntimeError:  # JAX already ran something in this process: keep its devices
+            pass
+
+
+class ChunkRunner:
+    """Runs the chunks of a plan on this process's devices (:class:`~jaxapf.engine.devices.DeviceBatch`),
+    keeping the gains it put on them and the oracle's answers for the plan's next chunks."""
+
+    def __init__(self, plan: Plan):
+        self.batch = DeviceBatch(jax.local_devices()[: plan.devices])
+        self.plan = plan
+        self._gains: dict[int, list[Gains]] = {}
+        self._oracle: dict[tuple, np.ndarray] = {}
+
+    def close(self) -> None:
+        self.batch.close()
+
+    def _variant_gains(self, variant: Variant) -> list[Gains]:
+        if variant.index not in self._gains:
+            self._gains[variant.index] = self.batch.put_gains(variant.gains(self.plan.dtype))
+        return self._gains[variant.index]
+
+    def dispatch(self, chunk: Chunk) -> tuple[dict[str, jax.Array], jax.Array, np.ndarray | None]:
+        """Start the chunk (asynchronously); returns global (G, padded) metric arrays, the fields'
+        kinds and, with the spec's ``oracle``, whether each real field is solvable (computed on the
+        host while the devices run)."""
+        from ..engine import evaluate_program
+        from ..engine.swarm import evaluate_swarms
+        from ..scenarios import make_scenarios
+        from ..scenarios.swarms import make_swarms
+
+        plan = self.plan
+        block = plan.blocks[(chunk.variant, chunk.family)]
+        indices = np.full(block.padded, chunk.start, np.int64)
+        indices[: chunk.stop - chunk.start] = np.arange(chunk.start, chunk.stop)
+        make, program = (make_swarms, evaluate_swarms) if plan.spec.swarm else (make_scenarios, evaluate_program)
+        fields = make(plan.spec.seed, plan.spec.family_params(chunk.family), jnp.asarray(indices))
+        metrics = self.batch.evaluate(fields, self._variant_gains(plan.variants[chunk.variant]), block.sim,
+                                      block.mpc, block.width, plan.metrics, program)
+        return metrics, fields.kind, self._solvable(chunk, fields, block.sim) if plan.spec.oracle else None
+
+    def _solvable(self, chunk: Chunk, fields: Any, sim: Any) -> np.ndarray:
+        """:func:`~jaxapf.scenarios.solvable` of the chunk's real fields, once per field and vehicle
+        (variants that differ only in method or gains share the answer); of a swarm field, whether every
+        UAV passes it alone (:func:`~jaxapf.scenarios.swarms.agents_solvable`)."""
+        from ..scenarios import solvable
+        from ..scenarios.swarms import agents_solvable
+
+        oracle = (lambda real, **v: agents_solvable(real, **v).all(axis=-1)) if self.plan.spec.swarm else solvable
+        vehicle = dict(r_uav=sim.vehicle.r_uav, v_max=sim.vehicle.v_max, t_max=sim.episode.t_max,
+                       r_goal=sim.episode.r_goal)
+        key = (chunk.family, chunk.start, chunk.stop, *vehicle.values())
+        if key not in self._oracle:
+            n = chunk.stop - chunk.start
+            real = jax.tree_util.tree_map(lambda a: np.asarray(a)[:n], fields)
+            self._oracle[key] = oracle(real, **vehicle)
+        return self._oracle[key]
+
+
+class ChunkFailed(Exception):
+    """A chunk could not be run (e.g. its Ray task failed for good); the message says which and why."""
+
+
+#: What a chunk's run yields: the chunk, its (G, padded) metric arrays, the fields' kinds and, with the
+#: spec's ``oracle``, whether each real field is solvable.
+Finished = tuple[Chunk, Mapping[str, Any], Any, "np.ndarray | None"]
+
+
+def local_results(plan: Plan, chunks: tuple[Chunk, ...]) -> Iterator[Finished]:
+    """Run ``chunks`` on this process's devices, yielding each as it finishes; the next chunk is
+    dispatched before the previous one is yielded, so it runs while that one is written."""
+    runner = ChunkRunner(plan)
+    try:
+        pending = None
+        for chunk in (*chunks, None):
+            running = None if chunk is None else (chunk, *runner.dispatch(chunk))
+            if pending is not None:
+                yield pending
+            pending = running
+    finally:
+        runner.close()

@@ -1,0 +1,138 @@
+"""`jaxapf sweep SPEC --ray [ADDRESS]`: the chunks run as Ray tasks on a local two-worker cluster and the
+rows are a one-process run's, bit for bit, also when a worker is killed with SIGKILL mid-run; a task
+that fails for good stops the run in one line keeping every finished part; bad options are one line."""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+
+import pandas as pd
+import pytest
+from cli_capture import capture
+from test_shards import SPEC, _spec
+
+from jaxapf.cli import main
+from jaxapf.sweep import read_sweep, run_sweep
+from jaxapf.sweep.cluster import RayCluster
+from jaxapf.validation import ConfigError, Interrupted
+
+
+def busy_workers() -> list[int]:
+    """PIDs of the Ray worker processes running a chunk now (Ray titles them ``ray::_run_chunk``)."""
+    pids = []
+    for entry in pathlib.Path("/proc").iterdir():
+        try:
+            if entry.name.isdigit() and (entry / "cmdline").read_bytes().startswith(b"ray::_run_chunk"):
+                pids.append(int(entry.name))
+        except OSError:
+            continue
+    return pids
+
+
+def killer(killed: list[int]):
+    """An ``after_part`` that kills one busy worker with SIGKILL after the first part it can."""
+    def after(chunk):
+        if not killed and (pids := busy_workers()):
+            os.kill(pids[0], signal.SIGKILL)
+            killed.append(pids[0])
+    return after
+
+
+def _spec_file(folder: pathlib.Path) -> pathlib.Path:
+    import json
+
+    lines = [f"name = {json.dumps(SPEC['name'])}"]
+    for table in ("scenario", "sim", "grid"):
+        lines += [f"[{table}]"] + [f"{k} = {json.dumps(v)}" for k, v in SPEC[table].items()]
+    (folder / "shards.toml").write_text("\n".join(lines) + "\n")
+    return folder / "shards.toml"
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    """A local Ray cluster with two worker slots, started by this test process; its address for others."""
+    import ray
+
+    ray.init(num_cpus=2, include_dashboard=False, logging_level="ERROR")
+    yield ray.get_runtime_context().gcs_address
+    ray.shutdown()
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    out = tmp_path_factory.mktemp("ref") / "ref.parquet"
+    run_sweep(_spec(), out, chunk_fields=3, quiet=True)
+    return read_sweep(out)[0]
+
+
+@pytest.mark.slow
+def test_a_worker_killed_mid_run_loses_and_doubles_nothing(cluster, reference, tmp_path):
+    killed: list[int] = []
+    result = run_sweep(_spec(), tmp_path / "out", chunk_fields=3, quiet=True, ray=RayCluster(),
+                       after_part=killer(killed))
+    assert killed, "no worker was busy to kill"
+    assert result.episodes == len(reference) and result.parts == 16
+    rc, stdout, _ = capture(main, ["sweep", "verify", str(tmp_path / "out")])
+    assert rc == 0, stdout
+    pd.testing.assert_frame_equal(read_sweep(tmp_path / "out")[0], reference)
+
+
+@pytest.mark.slow
+def test_a_task_failing_for_good_stops_in_one_line_and_a_rerun_resumes(cluster, reference, tmp_path):
+    out, killed = tmp_path / "out", []
+    with pytest.raises(ConfigError, match=r"chunk part-v\d+-\w+-f\d+-\d+\.parquet failed on the Ray cluster \(.*\); "
+                                          r"\d+ finished part\(s\) are kept in .*rerun the same command"):
+        run_sweep(_spec(), out, chunk_fields=3, quiet=True, ray=RayCluster(retries=0), after_part=killer(killed))
+    assert killed
+
+    def stop(chunk):
+        raise KeyboardInterrupt
+
+    with pytest.raises(Interrupted, match="finished part"):  # Ctrl-C: the tasks in flight are cancelled
+        run_sweep(_spec(), out, chunk_fields=3, quiet=True, ray=RayCluster(), after_part=stop)
+    again = run_sweep(_spec(), out, chunk_fields=3, quiet=True, ray=RayCluster())
+    assert again.skipped > 0 and again.episodes + again.skipped == len(reference)
+    pd.testing.assert_frame_equal(read_sweep(out)[0], reference)
+
+
+@pytest.mark.slow
+def test_the_cli_runs_on_a_cluster_at_its_address(cluster, reference, tmp_path):
+    spec = _spec_file(tmp_path)
+    out = tmp_path / "out.parquet"
+    cmd = [sys.executable, "-m", "jaxapf", "sweep", str(spec), "--out", str(out), "--chunk-fields", "3",
+           "--cache-dir", str(tmp_path / "xla"), "--ray", cluster]
+    env = {**os.environ, "JAX_PLATFORMS": "cpu"}
+    dry = subprocess.run(cmd + ["--dry-run"], env=env, capture_output=True, text=True, timeout=300)
+    assert dry.returncode == 0, dry.stderr
+    assert "16 to run (one Parquet part each), on 1 device(s), vmap width 16" in dry.stdout
+    run = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert f"sweep shards: {len(reference)} episodes in" in run.stdout
+    assert "Traceback" not in run.stderr
+    pd.testing.assert_frame_equal(read_sweep(out)[0], reference)
+    again = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0 and f"0 episodes ({len(reference)} already done)" in again.stdout
+
+
+@pytest.mark.parametrize("flags, message", [
+    (["--ray-cpus", "2"], "--ray-cpus and --ray-gpus size the tasks of --ray; give --ray too"),
+    (["--ray", "--ray-cpus", "0"], "--ray-cpus and --ray-gpus are both 0"),
+    (["--ray", "--ray-gpus", "-1"], "--ray-gpus = -1.0 is out of range"),
+    (["--ray", "--shard", "0/2"], "--ray and --shard: Ray deals the chunks itself"),
+    (["--ray", "--devices", "2"], "--devices = 2: with --ray each task runs on one device"),
+    (["--ray", "127.0.0.1:1"], "--ray 127.0.0.1:1: nothing answers there"),
+])
+def test_ray_options_are_checked_in_one_line(tmp_path, flags, message):
+    rc, stdout, stderr = capture(main, ["sweep", str(_spec_file(tmp_path)), "--out", str(tmp_path / "o"), *flags])
+    assert rc == 2 and message in stderr and "Traceback" not in stderr, stderr
+    assert not (tmp_path / "o").exists()
+
+
+def test_without_ray_installed_the_option_says_how_to_get_it(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray raises ImportError
+    rc, _, stderr = capture(main, ["sweep", str(_spec_file(tmp_path)), "--out", str(tmp_path / "o"), "--ray"])
+    assert rc == 2 and "--ray needs Ray: pip install 'jaxapf[ray]'" in stderr
