@@ -15,6 +15,7 @@ import argparse
 import datetime
 import json
 import pathlib
+import re
 import shlex
 import subprocess
 import sys
@@ -39,6 +40,7 @@ RECORDS: dict[str, tuple[str, int]] = {
         "python benchmarks/xla_options.py --xla-option xla_cpu_copy_insertion_use_region_analysis=false --json", 1),
     "faults": ("python benchmarks/faults.py --json", 1),
     "shards": ("python benchmarks/shards.py --json", 1),
+    "ray": ("python benchmarks/ray_cluster.py --json", 1),
 }
 
 
@@ -53,7 +55,8 @@ def record(name: str) -> dict:
         proc = subprocess.run(argv, cwd=ROOT, capture_output=True, text=True)
         if proc.returncode != 0:
             raise SystemExit(f"record.py: {command} failed: {(proc.stderr.strip().splitlines() or [''])[-1]}")
-        out.append(json.loads(proc.stdout[proc.stdout.index("{"):]))
+        start = re.search(r"^\{", proc.stdout, re.M)  # the object, after any lines of the tools it runs
+        out.append(json.JSONDecoder().raw_decode(proc.stdout[start.start():])[0])
         print(f"{name}: run {i + 1} of {runs} done", file=sys.stderr)
     return {"command": command, "date": datetime.date.today().isoformat(), "runs": out}
 
