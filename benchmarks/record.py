@@ -41,6 +41,7 @@ RECORDS: dict[str, tuple[str, int]] = {
     "faults": ("python benchmarks/faults.py --json", 1),
     "shards": ("python benchmarks/shards.py --json", 1),
     "ray": ("python benchmarks/ray_cluster.py --json", 1),
+    "scale": ("python benchmarks/scale.py --json", 1),
 }
 
 

@@ -88,12 +88,14 @@ def main(argv: list[str] | None = None) -> int:
     import pyarrow.parquet as pq
 
     from jaxapf.sweep import parse_spec, plan_sweep
-    from jaxapf.sweep.plan import chunk_cost
+    from jaxapf.sweep.plan import MAX_CHUNKS, chunk_cost
 
     spec = parse_spec(spec_table(args.fields))
     plan = plan_sweep(spec, devices=1, chunk_fields=args.chunk_fields)
     default = plan_sweep(spec, devices=1)
-    result = {"episodes": plan.episodes, "settings": plan.settings, "machines": args.machines,
+    result = {"episodes": plan.episodes, "settings": plan.settings,
+              "gain_settings": len(spec_table(1)["grid"]["k_att"]), "families": len(spec.families),
+              "fields": args.fields, "machines": args.machines,
               "chunk_fields": args.chunk_fields, "parts": len(plan.chunks),
               "parts_at_default_chunking": len(default.chunks),
               "estimated_simulation_cpu_core_hours": round(sum(chunk_cost(plan, c) for c in plan.chunks) / 3600, 1)}
@@ -108,6 +110,7 @@ def main(argv: list[str] | None = None) -> int:
         result["part_rows"] = footer.num_rows
         result["bytes_on_disk"] = sum(f.stat().st_size for folder in folders for f in folder.iterdir())
         result["footer_bytes_total"] = result["part_footer_bytes"] * result["parts"]
+        result["footer_gb_at_max_parts"] = round(result["part_footer_bytes"] * MAX_CHUNKS / 1e9, 1)
         seconds, proc = timed(["sweep", "verify", str(folders[0])])
         result["verify_one_shard_s"], result["verify_one_shard_exit_status"] = round(seconds, 1), proc.returncode
         merged = tmp / "merged"
@@ -127,6 +130,7 @@ def main(argv: list[str] | None = None) -> int:
         assert proc.returncode == 0, proc.stderr
         result |= {"report_episodes": small.episodes, "report_s": round(seconds, 1),
                    "report_s_per_million_rows": round(seconds / small.episodes * 1e6, 1)}
+        result["report_s_at_all_episodes_linear"] = round(result["report_s_per_million_rows"] * plan.episodes / 1e6)
     print(json.dumps(result) if args.json else "\n".join(f"{k}: {v}" for k, v in result.items()))
     return 0 if result["verify_merged_exit_status"] == 0 else 1
 

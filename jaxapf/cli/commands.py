@@ -180,6 +180,10 @@ def build_parser() -> argparse.ArgumentParser:
     cmp.add_argument("--resamples", type=int, default=2000, help="bootstrap resamples of the report (default 2000)")
     cmp.add_argument("--gallery", type=int, default=0, help="worst test episodes to re-simulate and draw (default 0)")
     cmp.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
+    cmp.add_argument("--shard", metavar="I/N",
+                     help="run only shard I of N: every N-th selection and, once all selections are in --out, "
+                          "shard I/N of the test sweep; then the command without --shard writes the report "
+                          "(docs/compare.md)")
     cmp.add_argument("--quiet", action="store_true", help="no progress bar or messages")
 
     bench = sub.add_parser("bench", help="speed: the engine against a vectorised numpy peer and the numpy + OSQP "
@@ -403,11 +407,14 @@ def _tune(args: argparse.Namespace) -> int:
 def _compare(args: argparse.Namespace) -> int:
     from ..compare import run_compare
     from ..sweep import configure_jax, default_cache_dir
+    from ..sweep.plan import parse_shard
     from ..tune import TuneError
 
+    shard = parse_shard(args.shard) if args.shard is not None else None
     configure_jax(cache_dir=None if args.no_cache else default_cache_dir())
     try:
-        run_compare(args.spec, args.out, quiet=args.quiet, resamples=args.resamples, gallery=args.gallery)
+        run_compare(args.spec, args.out, quiet=args.quiet, resamples=args.resamples, gallery=args.gallery,
+                    shard=shard)
     except TuneError as err:
         print(f"jaxapf compare: error: {err}", file=sys.stderr)
         return 1

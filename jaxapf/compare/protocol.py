@@ -15,6 +15,13 @@
 same spec, and a gradient search resumes from its checkpoint), ``selection.csv`` and
 ``summary.json``. Rerunning the command resumes whatever is missing; the command holds
 ``DIR/.lock`` while it runs (one writer per folder, :mod:`jaxapf.io.lock`).
+
+**Shards** (``--shard I/N``, e.g. the tasks of a job array): shard ``I`` runs every ``N``-th selection
+(seed-major, methods in the spec's order, from the ``I``-th) and, once every selection is in
+``DIR`` whoever ran it, shard ``I`` of the test sweep (:func:`jaxapf.sweep.run_sweep`'s shards). A
+shard whose selections are done but others' are not says so and ends; run the array again once
+they are (docs/compare.md). The report is written by the command without ``--shard``, which then
+finds everything done and runs nothing else.
 """
 
 from __future__ import annotations
@@ -31,7 +38,7 @@ import pandas as pd
 from ..io.lock import writing
 from ..io.versions import versions
 from ..validation import ConfigError
-from .select import Selection, select, spec_digest
+from .select import Selection, saved_selection, select, spec_digest
 from .spec import CompareSpec, load_compare_spec
 
 __all__ = ["run_compare", "run_compare_spec", "test_sweep_spec", "baseline_filter", "rows_of", "DEFAULT"]
@@ -76,25 +83,27 @@ def test_sweep_spec(spec: CompareSpec, selections: Sequence[Selection]):
 
 
 def run_compare(spec_path: str | pathlib.Path, out: str | pathlib.Path | None = None, *, quiet: bool = False,
-                resamples: int = 2000, gallery: int = 0) -> dict[str, Any]:
+                resamples: int = 2000, gallery: int = 0, shard: tuple[int, int] | None = None) -> dict[str, Any]:
     """Run the protocol on the spec file at ``spec_path`` (module docstring); ``out`` defaults to
-    ``runs/compare-NAME``. Returns the summary written to ``summary.json``."""
+    ``runs/compare-NAME``. Returns the summary written to ``summary.json`` (with ``shard``: what the
+    shard did)."""
     spec, text = load_compare_spec(spec_path)
     return run_compare_spec(spec, text, out if out is not None else pathlib.Path("runs") / f"compare-{spec.name}",
-                            quiet=quiet, resamples=resamples, gallery=gallery)
+                            quiet=quiet, resamples=resamples, gallery=gallery, shard=shard)
 
 
 def run_compare_spec(spec: CompareSpec, text: str, out: str | pathlib.Path, *, quiet: bool = False,
-                     resamples: int = 2000, gallery: int = 0) -> dict[str, Any]:
+                     resamples: int = 2000, gallery: int = 0, shard: tuple[int, int] | None = None) -> dict[str, Any]:
     """:func:`run_compare` on a validated spec; ``text`` is recorded as the spec file."""
     out = pathlib.Path(out)
-    with writing(out, "finished selections and test parts are kept"):
-        return _run(spec, text, out, quiet=quiet, resamples=resamples, gallery=gallery)
+    with writing(out, "finished selections and test parts are kept", shard):
+        return _run(spec, text, out, quiet=quiet, resamples=resamples, gallery=gallery, shard=shard)
 
 
-def _run(spec: CompareSpec, text: str, out: pathlib.Path, *, quiet: bool, resamples: int, gallery: int
-         ) -> dict[str, Any]:
+def _run(spec: CompareSpec, text: str, out: pathlib.Path, *, quiet: bool, resamples: int, gallery: int,
+         shard: tuple[int, int] | None) -> dict[str, Any]:
     """The body of :func:`run_compare_spec`, under the lock."""
+    from ..io.lock import write_atomic
     from ..report import ReportOptions, build_report
     from ..sweep import run_sweep
 
@@ -102,15 +111,33 @@ def _run(spec: CompareSpec, text: str, out: pathlib.Path, *, quiet: bool, resamp
     stamp = out / "spec_digest"
     if stamp.exists() and stamp.read_text().strip() != digest:
         raise ConfigError(f"{out} holds a comparison of another spec; use another --out or delete it")
-    stamp.write_text(digest + "\n")
+    write_atomic(stamp, lambda fh: fh.write((digest + "\n").encode()))  # shards write it side by side
 
-    selections = []
-    for seed in spec.selection.seeds:
-        for method in spec.methods:
+    jobs = [(seed, method) for seed in spec.selection.seeds for method in spec.methods]
+    mine = set(jobs if shard is None else jobs[shard[0]::shard[1]])
+    selections, missing = [], 0
+    for seed, method in jobs:
+        if (seed, method) in mine:
             s = select(spec, method, seed, out / "selection", quiet=quiet)
-            selections.append(s)
             _say(quiet, f"selection {method} seed {seed}: {s.chosen} of {s.candidates} ({s.search}), "
                         f"{s.episodes} episodes in {s.seconds:.1f} s, training success {s.selection_success:.3f}")
+        else:
+            s = saved_selection(spec, method, seed, out / "selection")
+        selections.append(s)
+        missing += s is None
+    if missing:  # only a shard gets here: the test needs every selection
+        done = f"its {len(mine)} selection(s) are done"
+        _say(quiet, f"compare {spec.name} shard {shard[0]}/{shard[1]}: {done}; {missing} selection(s) of other "
+                    f"shards are not yet in {out}, so the test waits: run the shards again once they are")
+        return {"name": spec.name, "shard": list(shard), "selections_done": len(jobs) - missing,
+                "selections_missing": missing}
+    if shard is not None:
+        test = test_sweep_spec(spec, selections)
+        result = run_sweep(test, out / "test.parquet", quiet=quiet, shard=shard)
+        _say(quiet, result.summary(test.name) + "; `jaxapf compare` without --shard writes the report once every "
+                    "shard's test parts are there")
+        return {"name": spec.name, "shard": list(shard), "selections_done": len(jobs), "selections_missing": 0,
+                "test": {"episodes": result.episodes + result.skipped, "seconds": result.seconds}}
     table = pd.DataFrame([{k: v for k, v in s.to_json().items() if k != "gains"}
                           | {g: s.gains[g] for g in spec.method_gains(s.method)} for s in selections])
     table.to_csv(out / "selection.csv", index=False)

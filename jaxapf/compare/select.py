@@ -40,7 +40,7 @@ from ..tune.proof import select_best, tuning_budget
 from .spec import CompareSpec
 
 __all__ = ["Selection", "tune_spec", "random_candidates", "grid_candidates", "gradient_steps", "select",
-           "spec_digest"]
+           "saved_selection", "spec_digest"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -152,6 +152,15 @@ def _write_json(path: pathlib.Path, data: dict) -> None:
     write_atomic(path, lambda fh: fh.write(text.encode("utf-8")))
 
 
+def saved_selection(spec: CompareSpec, method: str, seed: int, out: pathlib.Path) -> Selection | None:
+    """The finished selection of ``method`` with seed ``seed`` of this spec in ``out``, or None."""
+    path = out / f"{method}-seed{seed}.json"
+    if not path.exists():
+        return None
+    saved = json.loads(path.read_text(encoding="utf-8"))
+    return Selection(**saved["selection"]) if saved.get("spec_digest") == spec_digest(spec) else None
+
+
 def select(spec: CompareSpec, method: str, seed: int, out: pathlib.Path, *, quiet: bool = True) -> Selection:
     """The selection of ``method`` with seed ``seed``; read from ``out/<method>-seed<seed>.json`` if a
     finished one of this spec is there, else run and written there (a gradient search checkpoints
@@ -159,10 +168,9 @@ def select(spec: CompareSpec, method: str, seed: int, out: pathlib.Path, *, quie
     out.mkdir(parents=True, exist_ok=True)
     digest = spec_digest(spec)
     path = out / f"{method}-seed{seed}.json"
-    if path.exists():
-        saved = json.loads(path.read_text(encoding="utf-8"))
-        if saved.get("spec_digest") == digest:
-            return Selection(**saved["selection"])
+    saved = saved_selection(spec, method, seed, out)
+    if saved is not None:
+        return saved
     sel = spec.selection
     start = time.perf_counter()
     if sel.search == "gradient":

@@ -260,12 +260,12 @@ class OutputLock:
 
 
 @contextlib.contextmanager
-def writing(folder: str | os.PathLike, kept: str) -> Iterator[None]:
-    """The block as the one writer of ``folder``: checked writable first (:func:`check_writable`),
-    the lock held (:class:`OutputLock`), and Ctrl-C turned into :class:`Interrupted` saying what
-    was ``kept`` there and how to resume."""
+def writing(folder: str | os.PathLike, kept: str, shard: tuple[int, int] | None = None) -> Iterator[None]:
+    """The block as the one writer of ``folder`` (with ``shard``, as that shard, beside the others):
+    checked writable first (:func:`check_writable`), the lock held (:class:`OutputLock`), and Ctrl-C
+    turned into :class:`Interrupted` saying what was ``kept`` there and how to resume."""
     check_writable(folder)
-    with OutputLock(folder):
+    with OutputLock(folder, shard):
         try:
             yield
         except KeyboardInterrupt:

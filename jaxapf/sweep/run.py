@@ -63,13 +63,10 @@ def dry_run(spec: SweepSpec, out: str | os.PathLike, *, overwrite: bool = False,
     """:func:`describe_plan` of what :func:`run_sweep` would do with ``out`` as it is now
     (refusing, like the run, an output of a different sweep or with parts that cannot be trusted,
     unless ``repair``); with ``shard``, what that shard would run; ``plan``: :func:`plan_sweep` options."""
-    if shard is not None:
+    if shard is not None:  # the shard run's own checks, changing nothing
         whole = plan_sweep(spec, **(plan | {"devices": 1}))
         mine = shard_chunks(whole, *shard)
-        done = [] if not pathlib.Path(out).exists() else list(
-            audit_output(pathlib.Path(out), sweep_meta(spec, whole, out), spec).sound)
-        finished = set(done)
-        todo = [c for c in mine if c not in finished]
+        todo = _shard_todo(spec, pathlib.Path(out), sweep_meta(spec, whole, out), whole, mine, shard, repair, dry=True)
         run_s = sum(chunk_cost(whole, c) for c in todo)
         return (describe_plan(whole) + f"\n  shard {shard[0]}/{shard[1]}:        {len(mine)} of {len(whole.chunks)} "
                 f"chunks ({whole.episodes_of(mine):,} episodes), {len(todo)} still to run in {out}, up to "
@@ -165,13 +162,13 @@ def _run(spec: SweepSpec, out: pathlib.Path, memory_budget: int, chunk_fields: i
 
 
 def _shard_todo(spec: SweepSpec, out: pathlib.Path, meta: Mapping[str, Any], plan: Plan, mine: tuple[Chunk, ...],
-                shard: tuple[int, int], repair: bool) -> tuple[Chunk, ...]:
+                shard: tuple[int, int], repair: bool, dry: bool = False) -> tuple[Chunk, ...]:
     """The chunks of shard ``shard`` (``mine``, of ``plan``) still to run in ``out``: those no sound part
     holds. Refused: a folder of another sweep (the vmap width, hence the kind of device, is part of a
     sweep's identity), parts chunked otherwise than this plan, or written by a division into another
     number of shards. Only the shard's own parts are touched: its damaged, foreign or overlapping parts
     are refused, or with ``repair`` removed or set aside; any other part is another shard's business
-    (`jaxapf sweep verify` reports it)."""
+    (`jaxapf sweep verify` reports it). ``dry``: check and answer, change nothing (``--dry-run``)."""
     names = {c.name for c in mine}
     if not out.exists():
         return mine
@@ -199,11 +196,12 @@ def _shard_todo(spec: SweepSpec, out: pathlib.Path, meta: Mapping[str, Any], pla
         listed = "; ".join(f"{n}: {problems[n]}" for n in sorted(problems)[:3])
         raise ConfigError(f"--out {out}: {len(problems)} part(s) of shard {shard[0]}/{shard[1]} cannot be trusted: "
                           f"{listed}. Rerun the same command with --repair to recompute them")
-    repair_parts(out, found, problems)
-    for tmp in out.iterdir():  # a dead run of this shard left these (the shard lock is ours); others' are theirs
-        if tmp.name.startswith(".part-") and tmp.name.split(".tmp-")[0][1:] in names:
-            tmp.unlink(missing_ok=True)
     sound = {c.name for c in found.sound} - set(problems)
+    if not dry:
+        repair_parts(out, found, problems)
+        for tmp in out.iterdir():  # a dead run of this shard left these (the shard lock is ours); others' are theirs
+            if tmp.name.startswith(".part-") and tmp.name.split(".tmp-")[0][1:] in names:
+                tmp.unlink(missing_ok=True)
     return tuple(c for c in mine if c.name not in sound)
 
 

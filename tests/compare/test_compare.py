@@ -267,3 +267,26 @@ def test_a_searched_mpc_weight_traces_the_mpcs_weights_in_selection_and_test():
     test = test_sweep_spec(spec, chosen)
     assert test.configs(test.settings()[0].static, "trap")[0].planner.mpc_weights == "gains"
     assert "mpc_weights" not in _spec().sim  # no scale named: the spec (and its digest) as before
+
+
+def test_shards_of_a_comparison_give_the_one_process_selections_and_test_rows(run, tmp_path):
+    """Four shards run twice in a shuffled order (as two passes of a job array): a shard whose
+    selections are done waits for the others' before the test; then the command without --shard
+    finds every selection and test part there and writes the report; selections and test rows are
+    the one-process run's."""
+    from jaxapf.sweep.output import part_files, part_record
+
+    spec, reference, summary = run
+    out = tmp_path / "sharded"
+    first = {i: run_compare_spec(spec, "(test)", out, quiet=True, shard=(i, 4)) for i in (3, 1, 0, 2)}
+    assert [first[i]["selections_missing"] for i in (3, 1, 0)] == [5, 3, 1] and "test" in first[2]
+    assert all(first[i]["selections_done"] + first[i]["selections_missing"] == 6 for i in first)
+    second = {i: run_compare_spec(spec, "(test)", out, quiet=True, shard=(i, 4)) for i in (3, 1, 0, 2)}
+    assert all("test" in r for r in second.values()) and second[2]["test"]["seconds"] < first[2]["test"]["seconds"]
+    parts = part_files(out / "test.parquet")
+    assert parts and all(part_record(p)["shard"][1] == 4 for p in parts)
+    final = run_compare_spec(spec, "(test)", out, quiet=True, resamples=200)
+    assert (out / "report" / "report.md").exists() and (out / "compare.md").exists()
+    drop = lambda sels: [{k: v for k, v in s.items() if k != "seconds"} for s in sels]  # noqa: E731
+    assert drop(final["selections"]) == drop(summary["selections"])
+    pd.testing.assert_frame_equal(read_sweep(out / "test.parquet")[0], read_sweep(reference / "test.parquet")[0])

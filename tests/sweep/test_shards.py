@@ -164,3 +164,20 @@ def test_a_refusal_names_the_live_shards_not_a_dead_writers_note(tmp_path):
             OutputLock(out).acquire()
     line = str(err.value)
     assert "1 shard(s): shard 1/4 (pid" in line and "dead run" not in line and "a dead shard" not in line
+
+
+def test_a_shards_dry_run_makes_the_runs_checks_and_changes_nothing(tmp_path):
+    from jaxapf.sweep import dry_run
+
+    out = tmp_path / "out"
+    run_sweep(_spec(), out, chunk_fields=3, quiet=True, shard=(0, 2))
+    with pytest.raises(ConfigError, match="is being written as 2 shard"):
+        dry_run(_spec(), out, shard=(0, 3), chunk_fields=3)
+    with pytest.raises(ConfigError, match="chunked otherwise than this plan"):
+        dry_run(_spec(), out, shard=(1, 2), chunk_fields=4)
+    part = part_files(out)[0]
+    part.write_bytes(part.read_bytes()[:-100])  # truncated
+    with pytest.raises(ConfigError, match="cannot be trusted"):
+        dry_run(_spec(), out, shard=(0, 2), chunk_fields=3)
+    assert "1 still to run in" in dry_run(_spec(), out, shard=(0, 2), chunk_fields=3, repair=True)
+    assert part.exists() and len(part_files(out)) == 8  # nothing removed
