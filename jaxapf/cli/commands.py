@@ -500,8 +500,9 @@ def _sweep(args: argparse.Namespace) -> int:
     if args.dry_run:
         options = dict(memory_budget=budget, chunk_fields=args.chunk_fields)
         if cluster is not None:  # planned for the workers' backend, one device per task
+            cluster.check(shard, args.devices)
             with RaySession(cluster) as session:
-                options |= dict(devices=1, backend=session.backend())
+                options |= dict(devices=1, backend=session.probe()["backend"])
         print(dry_run(spec, out, overwrite=args.overwrite, repair=args.repair, shard=shard, **options))
         return 0
     result = run_sweep(spec, out, memory_budget=budget, chunk_fields=args.chunk_fields, overwrite=args.overwrite,

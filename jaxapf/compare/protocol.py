@@ -111,7 +111,8 @@ def _run(spec: CompareSpec, text: str, out: pathlib.Path, *, quiet: bool, resamp
     stamp = out / "spec_digest"
     if stamp.exists() and stamp.read_text().strip() != digest:
         raise ConfigError(f"{out} holds a comparison of another spec; use another --out or delete it")
-    write_atomic(stamp, lambda fh: fh.write((digest + "\n").encode()))  # shards write it side by side
+    if not stamp.exists():  # shards of one spec would write the same; written once
+        write_atomic(stamp, lambda fh: fh.write((digest + "\n").encode()))
 
     jobs = [(seed, method) for seed in spec.selection.seeds for method in spec.methods]
     mine = set(jobs if shard is None else jobs[shard[0]::shard[1]])

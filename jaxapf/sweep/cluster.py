@@ -51,6 +51,14 @@ class RayCluster:
         if self.cpus == 0 and self.gpus == 0:
             raise ConfigError("--ray-cpus and --ray-gpus are both 0: a task needs some resource")
 
+    def check(self, shard: tuple[int, int] | None, devices: int | None) -> None:
+        """Refuse the options a Ray run cannot take (a run and its ``--dry-run`` alike)."""
+        if shard is not None:
+            raise ConfigError("--ray and --shard: Ray deals the chunks itself; give one of them")
+        if devices not in (None, 1):
+            raise ConfigError(f"--devices = {devices}: with --ray each task runs on one device; ask Ray for more "
+                              "workers instead")
+
 
 def _ray():
     try:
@@ -67,34 +75,50 @@ _RUNNER: dict[str, Any] = {}
 
 
 def _configure(settings: dict[str, Any]) -> None:
-    """The driver's JAX settings and plugins, in a worker (once per process and run is enough; cheap to repeat)."""
+    """The driver's JAX settings and plugins, in a worker (cheap to repeat). A task that asks for no GPU
+    keeps JAX on the CPU (Ray shows such a task every GPU of its node)."""
+    import jax
+
     from ..io.plugins import load_plugin
     from .execute import configure_jax
 
+    if settings["cpu_only"]:
+        try:
+            jax.config.update("jax_platforms", "cpu")
+        except RuntimeError:  # JAX already started in this worker
+            pass
     try:
-        configure_jax(x64=settings["x64"], cache_dir=settings["cache_dir"], cpu_devices=1)
+        configure_jax(cache_dir=settings["cache_dir"], cpu_devices=1)
     except OSError:  # the driver's cache folder cannot be made on this node: compile without it
-        configure_jax(x64=settings["x64"], cpu_devices=1)
+        configure_jax(cpu_devices=1)
+    jax.config.update("jax_enable_x64", settings["x64"])  # both ways: a worker may serve runs of either
     for name, path in settings["plugins"]:
         load_plugin(name, "plugin", path)
 
 
-def _backend(settings: dict[str, Any]) -> str:
-    """The JAX backend a chunk's task runs on."""
+def _probe(settings: dict[str, Any]) -> dict[str, Any]:
+    """The JAX backend a chunk's task runs on, and the versions its parts record."""
     import jax
 
+    from ..io.versions import versions
+
     _configure(settings)
-    return jax.default_backend()
+    return {"backend": jax.default_backend(), "versions": versions()}
 
 
 def _run_chunk(settings: dict[str, Any], token: str, boxed_plan: list, chunk: Chunk) -> tuple:
     """One chunk on this worker's device: ``(chunk, metrics, kinds, solvable)`` as NumPy arrays. The
-    runner (compiled programs, gains on the device, oracle answers) is kept for the run's next chunks."""
+    runner (compiled programs, gains on the device, oracle answers) is kept for the run's next chunks.
+    A worker whose backend is not the plan's refuses (its rows would not be the plan's)."""
+    import jax
     import numpy as np
 
     from .execute import ChunkRunner
 
     _configure(settings)
+    if jax.default_backend() != settings["backend"]:
+        raise ConfigError(f"a worker runs JAX on {jax.default_backend()}, the plan on {settings['backend']}: give "
+                          "--ray-gpus so that every task lands on the same kind of device")
     if token not in _RUNNER:  # a new run: the last one's device buffers go
         for runner in _RUNNER.values():
             runner.close()
@@ -111,8 +135,6 @@ class RaySession:
     stopped on exit)."""
 
     def __init__(self, cluster: RayCluster):
-        import logging
-
         import jax
 
         from ..io.plugins import LOADED
@@ -121,22 +143,42 @@ class RaySession:
         ray = self.ray = _ray()
         self.started = False
         self.settings = {"x64": bool(jax.config.jax_enable_x64), "cache_dir": jax.config.jax_compilation_cache_dir,
-                         "plugins": list(LOADED)}
-        if not ray.is_initialized():
-            import os
+                         "plugins": list(LOADED), "cpu_only": cluster.gpus == 0}
+        options = {"num_cpus": cluster.cpus, "num_gpus": cluster.gpus, "max_retries": cluster.retries}
+        try:  # checked before anything starts
+            self._probe = ray.remote(**options)(_probe)
+            self._chunk = ray.remote(**options)(_run_chunk)
+        except ValueError as err:
+            raise ConfigError(f"--ray-cpus/--ray-gpus: {first_line(err)}") from None
+        if ray.is_initialized():  # this process is a driver already (a notebook, a test)
+            here = ray.get_runtime_context().gcs_address
+            if cluster.address not in (None, "auto", here):
+                _check_reachable(cluster.address)
+                raise ConfigError(f"--ray {cluster.address}: this process is connected to the Ray cluster at {here}")
+            return
+        self._connect()
 
-            local = cluster.address is None and not os.environ.get("RAY_ADDRESS")
-            _check_reachable(cluster.address or os.environ.get("RAY_ADDRESS"))
-            try:
-                ray.init(address=cluster.address, logging_level=logging.ERROR, log_to_driver=True,
-                         **({"include_dashboard": False} if local else {}))
-            except (ConnectionError, RuntimeError, ValueError) as err:
-                raise ConfigError(f"--ray {cluster.address or ''}: cannot reach a Ray cluster ("
-                                  f"{first_line(err)})".replace("--ray :", "--ray:")) from None
-            self.started = local
-        options = {"num_cpus": cluster.cpus, "num_gpus": cluster.gpus}
-        self._backend = ray.remote(**options, max_retries=cluster.retries)(_backend)
-        self._chunk = ray.remote(**options, max_retries=cluster.retries)(_run_chunk)
+    def _connect(self) -> None:
+        import logging
+        import os
+        import signal
+
+        ray, cluster = self.ray, self.cluster
+        local = cluster.address is None and not os.environ.get("RAY_ADDRESS")
+        _check_reachable(cluster.address or os.environ.get("RAY_ADDRESS"))
+        sigterm = signal.getsignal(signal.SIGTERM)
+        try:
+            ray.init(address=cluster.address, logging_level=logging.ERROR, log_to_driver=True,
+                     **({"include_dashboard": False} if local else {}))
+        except KeyboardInterrupt:
+            raise
+        except Exception as err:  # noqa: BLE001 - Ray raises many kinds here; each is one line for the user
+            raise ConfigError(f"--ray {cluster.address or ''}: cannot start or reach a Ray cluster ("
+                              f"{first_line(err)})".replace("--ray :", "--ray:")) from None
+        finally:  # Ray's own SIGTERM handler exits without a word; the CLI's says what was kept
+            if sigterm is not None:
+                signal.signal(signal.SIGTERM, sigterm)
+        self.started = local
 
     def __enter__(self) -> "RaySession":
         return self
@@ -145,12 +187,20 @@ class RaySession:
         if self.started:
             self.ray.shutdown()
 
-    def backend(self) -> str:
-        """The JAX backend of the workers (a task with the chunks' resources reports it)."""
+    def probe(self) -> dict[str, Any]:
+        """The workers' JAX backend and versions (a task with the chunks' resources reports them);
+        refused in one line when no node could ever run such a task (Ray would wait for ever)."""
+        ray, need = self.ray, {"CPU": self.cluster.cpus, "GPU": self.cluster.gpus}
+        nodes = [n.get("Resources", {}) for n in ray.nodes() if n.get("Alive")]
+        if not any(all(r.get(k, 0.0) >= v for k, v in need.items()) for r in nodes):
+            raise ConfigError(f"--ray: no node of the cluster has {need['CPU']:g} CPU(s) and {need['GPU']:g} GPU(s) "
+                              "for one task; give --ray-cpus and --ray-gpus that a node has")
         try:
-            return self.ray.get(self._backend.remote(self.settings))
-        except self.ray.exceptions.RayError as err:
-            raise ConfigError(f"--ray: a worker could not start JAX ({first_line(err)})") from None
+            found = ray.get(self._probe.remote(self.settings))
+        except ray.exceptions.RayError as err:
+            raise ConfigError(f"--ray: a worker could not start JAX ({_reason(err)})") from None
+        self.settings["backend"] = found["backend"]
+        return found
 
     def _slots(self) -> int:
         """Tasks the cluster can run at once with each task's resources (at least one)."""
@@ -165,6 +215,8 @@ class RaySession:
         good raises :class:`~jaxapf.sweep.execute.ChunkFailed`; on exit the tasks still running are cancelled."""
         from .execute import ChunkFailed
 
+        if "backend" not in self.settings:
+            self.probe()
         ray = self.ray
         slim = dataclasses.replace(plan, chunks=(), done=())  # what a worker needs: shapes, variants, spec
         boxed = [ray.put(slim)]  # inside a list, so a worker fetches it only when its runner is new

@@ -111,11 +111,7 @@ def run_sweep(
     start = time.perf_counter()
     out = pathlib.Path(out)
     if ray is not None:
-        if shard is not None:
-            raise ConfigError("--ray and --shard: Ray deals the chunks itself; give one of them")
-        if devices not in (None, 1):
-            raise ConfigError(f"--devices = {devices}: with --ray each task runs on one device; ask Ray for more "
-                              "workers instead")
+        ray.check(shard, devices)
     with contextlib.ExitStack() as stack:
         session = None if ray is None else stack.enter_context(RaySession(ray))
         result = _run(spec, out, memory_budget, chunk_fields, overwrite, repair, quiet, devices, shard, session,
@@ -127,9 +123,10 @@ def _run(spec: SweepSpec, out: pathlib.Path, memory_budget: int, chunk_fields: i
          repair: bool, quiet: bool, devices: int | None, shard: tuple[int, int] | None, session: RaySession | None,
          after_part: Callable[[Chunk], None] | None) -> SweepResult:
     """:func:`run_sweep` once its Ray session, if any, is open."""
-    backend = None
-    if session is not None:
-        devices, backend = 1, session.backend()
+    backend = versions = None
+    if session is not None:  # the workers' backend and versions, not this process's
+        found = session.probe()
+        devices, backend, versions = 1, found["backend"], found["versions"]
     if shard is not None:
         if overwrite:
             raise ConfigError("--overwrite replaces a whole output; a shard writes only its own parts (remove the "
@@ -139,7 +136,7 @@ def _run(spec: SweepSpec, out: pathlib.Path, memory_budget: int, chunk_fields: i
                               "on the machine); run more shards instead")
         devices = 1
     probe = plan_sweep(spec, memory_budget=memory_budget, chunk_fields=chunk_fields, devices=devices, backend=backend)
-    meta = sweep_meta(spec, probe, out)
+    meta = sweep_meta(spec, probe, out, versions)
     note = (lambda line: None) if quiet else (lambda line: print(f"note: {line}", file=sys.stderr, flush=True))
     check_writable(out)
     with OutputLock(out, shard):

@@ -152,12 +152,15 @@ def identity(meta: Mapping[str, Any]) -> dict[str, Any]:
     return {k: meta.get(k) for k in ("format", "spec_hash", "dtype", "vmap_width", "metrics")}
 
 
-def sweep_meta(spec: SweepSpec, plan: Plan, out: str | pathlib.Path | None = None) -> dict[str, Any]:
+def sweep_meta(spec: SweepSpec, plan: Plan, out: str | pathlib.Path | None = None,
+               versions: Mapping[str, str] | None = None) -> dict[str, Any]:
     """The ``jaxapf`` metadata of every part (docs/sweep-format.md); with ``.py`` plugins and the
-    output folder ``out``, ``plugin_files`` records where each was imported from."""
-    from ..io.versions import versions
+    output folder ``out``, ``plugin_files`` records where each was imported from. ``versions``: of the
+    process that computes the chunks (default this one's; a Ray run's are a worker's)."""
+    from ..io.versions import versions as here
 
-    meta = {"format": FORMAT, "spec": spec.to_json(), "spec_hash": spec.hash, "versions": versions(),
+    meta = {"format": FORMAT, "spec": spec.to_json(), "spec_hash": spec.hash,
+            "versions": dict(versions) if versions is not None else here(),
             "prng": PRNG, "dtype": plan.dtype, "vmap_width": plan.width, "metrics": list(plan.metrics)}
     files = plugin_files(spec, out)
     return meta | ({"plugin_files": files} if files else {})

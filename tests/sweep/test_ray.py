@@ -123,6 +123,7 @@ def test_the_cli_runs_on_a_cluster_at_its_address(cluster, reference, tmp_path):
     (["--ray", "--ray-cpus", "0"], "--ray-cpus and --ray-gpus are both 0"),
     (["--ray", "--ray-gpus", "-1"], "--ray-gpus = -1.0 is out of range"),
     (["--ray", "--shard", "0/2"], "--ray and --shard: Ray deals the chunks itself"),
+    (["--ray", "--shard", "0/2", "--dry-run"], "--ray and --shard: Ray deals the chunks itself"),
     (["--ray", "--devices", "2"], "--devices = 2: with --ray each task runs on one device"),
     (["--ray", "127.0.0.1:1"], "--ray 127.0.0.1:1: nothing answers there"),
 ])
@@ -136,3 +137,20 @@ def test_without_ray_installed_the_option_says_how_to_get_it(tmp_path, monkeypat
     monkeypatch.setitem(sys.modules, "ray", None)  # import ray raises ImportError
     rc, _, stderr = capture(main, ["sweep", str(_spec_file(tmp_path)), "--out", str(tmp_path / "o"), "--ray"])
     assert rc == 2 and "--ray needs Ray: pip install 'jaxapf[ray]'" in stderr
+
+
+@pytest.mark.slow
+def test_a_task_no_node_can_run_is_refused_not_left_waiting(cluster, tmp_path):
+    with pytest.raises(ConfigError, match=r"no node of the cluster has 1 CPU\(s\) and 1 GPU\(s\) for one task"):
+        run_sweep(_spec(), tmp_path / "out", chunk_fields=3, quiet=True, ray=RayCluster(gpus=1))
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+@pytest.mark.slow
+def test_the_parts_record_a_workers_versions(cluster, tmp_path):
+    from jaxapf.sweep.output import part_files
+    from jaxapf.sweep.schema import read_meta
+
+    run_sweep(_spec(), tmp_path / "out", chunk_fields=6, quiet=True, ray=RayCluster())
+    meta = read_meta(part_files(tmp_path / "out")[0])
+    assert meta["versions"]["device"].startswith("cpu") and meta["versions"]["device_count"] == "1"
