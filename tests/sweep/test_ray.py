@@ -13,6 +13,7 @@ import sys
 import pandas as pd
 import pytest
 from cli_capture import capture
+from conftest import ROOT
 from test_shards import SPEC, _spec
 
 from jaxapf.cli import main
@@ -20,17 +21,8 @@ from jaxapf.sweep import read_sweep, run_sweep
 from jaxapf.sweep.cluster import RayCluster
 from jaxapf.validation import ConfigError, Interrupted
 
-
-def busy_workers() -> list[int]:
-    """PIDs of the Ray worker processes running a chunk now (Ray titles them ``ray::_run_chunk``)."""
-    pids = []
-    for entry in pathlib.Path("/proc").iterdir():
-        try:
-            if entry.name.isdigit() and (entry / "cmdline").read_bytes().startswith(b"ray::_run_chunk"):
-                pids.append(int(entry.name))
-        except OSError:
-            continue
-    return pids
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from ray_cluster import busy_workers  # noqa: E402  (the benchmark's: Ray titles a busy worker ray::_run_chunk)
 
 
 def killer(killed: list[int]):
