@@ -48,11 +48,11 @@ method = ["basic", "direction_velocity"]
 
 
 def busy_workers() -> list[int]:
-    """PIDs of the Ray worker processes running a chunk now (titled ``ray::_run_chunk``)."""
+    """PIDs of the Ray worker processes running a chunk now (titled ``ray::ChunkWorker.run``)."""
     pids = []
     for entry in pathlib.Path("/proc").iterdir():
         try:
-            if entry.name.isdigit() and (entry / "cmdline").read_bytes().startswith(b"ray::_run_chunk"):
+            if entry.name.isdigit() and (entry / "cmdline").read_bytes().startswith(b"ray::ChunkWorker.run"):
                 pids.append(int(entry.name))
         except OSError:
             continue

@@ -1,27 +1,29 @@
-"""Running a sweep's chunks as Ray tasks: ``jaxapf sweep SPEC --ray [ADDRESS]``.
+"""Running a sweep's chunks on a Ray cluster: ``jaxapf sweep SPEC --ray [ADDRESS]``.
 
-This process (Ray's driver) plans the sweep, holds the output's lock and is its one writer; each
-chunk runs as one Ray task on a worker with one JAX device and returns its metrics, and the driver
-writes the part as it arrives. Ray balances the load (a task goes to whichever worker is free) and
-reruns the task of a worker process or node that died (``retries``); a part once written is never
-recomputed, and a rerun of the command resumes like any sweep. The chunks are those of the
-one-device plan for the workers' backend, so the rows equal a one-process run's on one device of
-that kind, bit for bit. docs/sweep.md ("On a Ray cluster") says how to start a cluster.
+This process (Ray's driver) plans the sweep, holds the output's lock and is its one writer. Each slot
+of the cluster (a node's share of ``--ray-cpus`` CPUs and ``--ray-gpus`` GPUs) holds one
+:class:`ChunkWorker`, a Ray actor with one JAX device that keeps its device and its compiled programs
+for every chunk it runs and returns each chunk's metrics; the driver writes the part as it arrives.
+Chunks go to whichever worker is free (two in flight per worker), and workers are added as the
+cluster grows. A worker whose process or node dies is restarted by Ray and its chunks run again
+(``retries``); a part once written is never recomputed, and a rerun of the command resumes like any
+sweep. The chunks are those of the one-device plan for the workers' backend, so the rows equal a
+one-process run's on one device of that kind, bit for bit. docs/sweep.md ("A Ray cluster") says how
+to start a cluster.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import time
-import uuid
 from typing import Any, Iterator
 
 from ..validation import ConfigError, check_int, check_range, first_line
 from .plan import Chunk, Plan
 
-__all__ = ["RayCluster", "RaySession"]
+__all__ = ["RayCluster", "RaySession", "ChunkWorker"]
 
-#: How often the driver rereads the cluster's size to keep this many tasks per slot in flight.
+#: Chunks in flight per worker, and how often the driver rereads the cluster's size for new workers.
 IN_FLIGHT_PER_SLOT = 2
 RESIZE_EVERY_S = 5.0
 
@@ -70,13 +72,9 @@ def _ray():
 
 # -- on the workers ------------------------------------------------------------------------------
 
-#: The worker's runner of the current run: {run token: :class:`jaxapf.sweep.execute.ChunkRunner`}.
-_RUNNER: dict[str, Any] = {}
-
-
 def _configure(settings: dict[str, Any]) -> None:
-    """The driver's JAX settings and plugins, in a worker (cheap to repeat). A task that asks for no GPU
-    keeps JAX on the CPU (Ray shows such a task every GPU of its node)."""
+    """The driver's JAX settings and plugins, in a worker. A worker that asks for no GPU keeps JAX on the
+    CPU (Ray shows such a process every GPU of its node)."""
     import jax
 
     from ..io.plugins import load_plugin
@@ -85,47 +83,52 @@ def _configure(settings: dict[str, Any]) -> None:
     if settings["cpu_only"]:
         try:
             jax.config.update("jax_platforms", "cpu")
-        except RuntimeError:  # JAX already started in this worker
+        except RuntimeError:  # JAX already started in this process
             pass
     try:
         configure_jax(cache_dir=settings["cache_dir"], cpu_devices=1)
     except OSError:  # the driver's cache folder cannot be made on this node: compile without it
         configure_jax(cpu_devices=1)
-    jax.config.update("jax_enable_x64", settings["x64"])  # both ways: a worker may serve runs of either
+    jax.config.update("jax_enable_x64", settings["x64"])
     for name, path in settings["plugins"]:
         load_plugin(name, "plugin", path)
 
 
-def _probe(settings: dict[str, Any]) -> dict[str, Any]:
-    """The JAX backend a chunk's task runs on, and the versions its parts record."""
-    import jax
+class ChunkWorker:
+    """One slot's worker for one run (a Ray actor: it holds its CPUs and GPU for its life, so JAX keeps
+    its device, and the runner, with its compiled programs, serves every chunk it is given)."""
 
-    from ..io.versions import versions
+    def __init__(self, settings: dict[str, Any]):
+        _configure(settings)
+        self.runner, self.plan = None, None
 
-    _configure(settings)
-    return {"backend": jax.default_backend(), "versions": versions()}
+    def probe(self) -> dict[str, Any]:
+        """The JAX backend this worker runs on, and the versions its parts record."""
+        import jax
 
+        from ..io.versions import versions
 
-def _run_chunk(settings: dict[str, Any], token: str, boxed_plan: list, chunk: Chunk) -> tuple:
-    """One chunk on this worker's device: ``(chunk, metrics, kinds, solvable)`` as NumPy arrays. The
-    runner (compiled programs, gains on the device, oracle answers) is kept for the run's next chunks.
-    A worker whose backend is not the plan's refuses (its rows would not be the plan's)."""
-    import jax
-    import numpy as np
+        return {"backend": jax.default_backend(), "versions": versions()}
 
-    from .execute import ChunkRunner
+    def run(self, boxed_plan: list, chunk: Chunk, backend: str) -> tuple:
+        """One chunk on this worker's device: ``(chunk, metrics, kinds, solvable)`` as NumPy arrays.
+        ``boxed_plan``: ``[ObjectRef of the plan]`` (boxed, so Ray does not fetch it for every call; a
+        worker fetches it once). A worker whose JAX backend is not the plan's ``backend`` refuses (e.g.
+        a node where JAX finds no GPU): its rows would not be the plan's."""
+        import jax
+        import numpy as np
 
-    _configure(settings)
-    if jax.default_backend() != settings["backend"]:
-        raise ConfigError(f"a worker runs JAX on {jax.default_backend()}, the plan on {settings['backend']}: give "
-                          "--ray-gpus so that every task lands on the same kind of device")
-    if token not in _RUNNER:  # a new run: the last one's device buffers go
-        for runner in _RUNNER.values():
-            runner.close()
-        _RUNNER.clear()
-        _RUNNER[token] = ChunkRunner(_ray().get(boxed_plan[0]))
-    metrics, kinds, solvable = _RUNNER[token].dispatch(chunk)
-    return chunk, {m: np.asarray(a) for m, a in metrics.items()}, np.asarray(kinds), solvable
+        from .execute import ChunkRunner
+
+        if jax.default_backend() != backend:
+            raise ConfigError(f"a worker runs JAX on {jax.default_backend()}, the plan on {backend}: every worker "
+                              "must have the same kind of device")
+        if self.plan != boxed_plan[0].hex():  # a new plan: its own runner
+            if self.runner is not None:
+                self.runner.close()
+            self.runner, self.plan = ChunkRunner(_ray().get(boxed_plan[0])), boxed_plan[0].hex()
+        metrics, kinds, solvable = self.runner.dispatch(chunk)
+        return chunk, {m: np.asarray(a) for m, a in metrics.items()}, np.asarray(kinds), solvable
 
 
 # -- on the driver -------------------------------------------------------------------------------
@@ -144,10 +147,10 @@ class RaySession:
         self.started = False
         self.settings = {"x64": bool(jax.config.jax_enable_x64), "cache_dir": jax.config.jax_compilation_cache_dir,
                          "plugins": list(LOADED), "cpu_only": cluster.gpus == 0}
-        options = {"num_cpus": cluster.cpus, "num_gpus": cluster.gpus, "max_retries": cluster.retries}
+        self.workers: list[Any] = []
         try:  # checked before anything starts
-            self._probe = ray.remote(**options)(_probe)
-            self._chunk = ray.remote(**options)(_run_chunk)
+            self._worker = ray.remote(num_cpus=cluster.cpus, num_gpus=cluster.gpus, max_restarts=cluster.retries,
+                                      max_task_retries=cluster.retries)(ChunkWorker)
         except ValueError as err:
             raise ConfigError(f"--ray-cpus/--ray-gpus: {first_line(err)}") from None
         if ray.is_initialized():  # this process is a driver already (a notebook, a test)
@@ -184,62 +187,77 @@ class RaySession:
         return self
 
     def __exit__(self, *exc) -> None:
+        for worker in self.workers:  # their CPUs and GPUs go back to the cluster
+            self.ray.kill(worker)
         if self.started:
             self.ray.shutdown()
 
     def probe(self) -> dict[str, Any]:
-        """The workers' JAX backend and versions (a task with the chunks' resources reports them);
-        refused in one line when no node could ever run such a task (Ray would wait for ever)."""
+        """The workers' JAX backend and versions (the first worker reports them); refused in one line when
+        no node could ever hold a worker (Ray would wait for ever)."""
         ray, need = self.ray, {"CPU": self.cluster.cpus, "GPU": self.cluster.gpus}
         nodes = [n.get("Resources", {}) for n in ray.nodes() if n.get("Alive")]
         if not any(all(r.get(k, 0.0) >= v for k, v in need.items()) for r in nodes):
             raise ConfigError(f"--ray: no node of the cluster has {need['CPU']:g} CPU(s) and {need['GPU']:g} GPU(s) "
                               "for one task; give --ray-cpus and --ray-gpus that a node has")
+        self._grow()
         try:
-            found = ray.get(self._probe.remote(self.settings))
+            found = ray.get(self.workers[0].probe.remote())
         except ray.exceptions.RayError as err:
             raise ConfigError(f"--ray: a worker could not start JAX ({_reason(err)})") from None
-        self.settings["backend"] = found["backend"]
+        self.backend = found["backend"]
         return found
 
-    def _slots(self) -> int:
-        """Tasks the cluster can run at once with each task's resources (at least one)."""
+    def _grow(self) -> list[Any]:
+        """Start a worker for every slot of the cluster that has none (at least one); returns the new ones."""
         total = self.ray.cluster_resources()
         fits = [total.get(k, 0.0) / need for k, need in (("CPU", self.cluster.cpus), ("GPU", self.cluster.gpus))
                 if need > 0]
-        return max(1, int(min(fits)))
+        new = [self._worker.remote(self.settings) for _ in range(max(1, int(min(fits))) - len(self.workers))]
+        self.workers += new
+        return new
 
     def results(self, plan: Plan, chunks: tuple[Chunk, ...]) -> Iterator[tuple]:
-        """Run ``chunks`` as Ray tasks, yielding each as it finishes (any order). A few tasks per slot
-        are in flight, so a worker never waits and a cluster that grows is used. A task that fails for
-        good raises :class:`~jaxapf.sweep.execute.ChunkFailed`; on exit the tasks still running are cancelled."""
+        """Run ``chunks`` on the workers, yielding each as it finishes (any order). Each worker has
+        :data:`IN_FLIGHT_PER_SLOT` chunks in flight, so it never waits for the driver; workers are added
+        as the cluster grows. A chunk that fails for good (its exception, or its worker dead more than
+        ``retries`` times) raises :class:`~jaxapf.sweep.execute.ChunkFailed`."""
         from .execute import ChunkFailed
 
-        if "backend" not in self.settings:
-            self.probe()
         ray = self.ray
-        slim = dataclasses.replace(plan, chunks=(), done=())  # what a worker needs: shapes, variants, spec
-        boxed = [ray.put(slim)]  # inside a list, so a worker fetches it only when its runner is new
-        token = uuid.uuid4().hex
+        if not self.workers:
+            self.probe()
+        boxed = [ray.put(dataclasses.replace(plan, chunks=(), done=()))]  # shapes, variants, spec
         queue, running = list(reversed(chunks)), {}
-        limit, resized = IN_FLIGHT_PER_SLOT * self._slots(), time.monotonic()
-        try:
-            while queue or running:
-                while queue and len(running) < limit:
-                    chunk = queue.pop()
-                    running[self._chunk.remote(self.settings, token, boxed, chunk)] = chunk
-                ready, _ = ray.wait(list(running), num_returns=1)
-                chunk = running.pop(ready[0])
+        free = [self.workers[0]] * IN_FLIGHT_PER_SLOT  # the probed one; the others once they have started
+        starting = {w.probe.remote(): w for w in self.workers[1:]}  # a worker waiting for room gets no chunk
+        resized = time.monotonic()
+        while queue or running:
+            while queue and free:
+                worker, chunk = free.pop(), queue.pop()
+                running[worker.run.remote(boxed, chunk, self.backend)] = (worker, chunk)
+            waiting = list(running) + (list(starting) if queue else [])
+            if not waiting:
+                raise ChunkFailed(f"no Ray worker could start to run chunk {queue[-1].name}")
+            (ref,), _ = ray.wait(waiting, num_returns=1)
+            if ref in starting:
+                worker = starting.pop(ref)
                 try:
-                    finished = ray.get(ready[0])
-                except ray.exceptions.RayError as err:
-                    raise ChunkFailed(f"chunk {chunk.name} failed on the Ray cluster ({_reason(err)})") from None
-                yield finished
-                if time.monotonic() - resized > RESIZE_EVERY_S:
-                    limit, resized = IN_FLIGHT_PER_SLOT * self._slots(), time.monotonic()
-        finally:
-            for ref in running:
-                ray.cancel(ref, force=True)
+                    ray.get(ref)
+                    free += [worker] * IN_FLIGHT_PER_SLOT
+                except ray.exceptions.RayError:  # it could not start: the others go on
+                    pass
+                continue
+            worker, chunk = running.pop(ref)
+            try:
+                finished = ray.get(ref)
+            except ray.exceptions.RayError as err:
+                raise ChunkFailed(f"chunk {chunk.name} failed on the Ray cluster ({_reason(err)})") from None
+            free.append(worker)
+            yield finished
+            if time.monotonic() - resized > RESIZE_EVERY_S:
+                starting |= {w.probe.remote(): w for w in self._grow()}
+                resized = time.monotonic()
 
 
 def _check_reachable(address: str | None, timeout_s: float = 10.0) -> None:

@@ -22,7 +22,7 @@ from jaxapf.sweep.cluster import RayCluster
 from jaxapf.validation import ConfigError, Interrupted
 
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from ray_cluster import busy_workers  # noqa: E402  (the benchmark's: Ray titles a busy worker ray::_run_chunk)
+from ray_cluster import busy_workers  # noqa: E402  (the benchmark's: Ray titles a busy worker ray::ChunkWorker.run)
 
 
 def killer(killed: list[int]):
