@@ -295,9 +295,9 @@ def _add_sweep_parser(sub: argparse._SubParsersAction) -> None:
                          "`ray start` prints it, or `auto` for the one started on this machine; without ADDRESS, "
                          "RAY_ADDRESS or a Ray instance started for this run")
     sw.add_argument("--ray-cpus", type=float, default=1.0, metavar="C",
-                    help="CPUs of one chunk's Ray task (default 1)")
+                    help="CPUs of one Ray worker (default 1; one worker per slot runs the chunks)")
     sw.add_argument("--ray-gpus", type=float, default=0.0, metavar="G",
-                    help="GPUs of one chunk's Ray task (default 0; 1 on GPU workers)")
+                    help="GPUs of one Ray worker (default 0; 1 on GPU nodes)")
     sw.add_argument("--quiet", action="store_true", help="no progress bar")
     sw.add_argument("--x64", action="store_true", help="run in float64")
 
@@ -494,7 +494,7 @@ def _sweep(args: argparse.Namespace) -> int:
                   cpu_devices=args.devices or 1)
     cluster = None if args.ray is None else RayCluster(args.ray or None, args.ray_cpus, args.ray_gpus)
     if cluster is None and (args.ray_cpus, args.ray_gpus) != (1.0, 0.0):
-        raise ConfigError("--ray-cpus and --ray-gpus size the tasks of --ray; give --ray too")
+        raise ConfigError("--ray-cpus and --ray-gpus size the workers of --ray; give --ray too")
     spec = load_spec(args.spec, args.gains)
     out = args.out or pathlib.Path("runs") / f"{spec.name}.parquet"
     if args.dry_run:

@@ -4,12 +4,12 @@ This process (Ray's driver) plans the sweep, holds the output's lock and is its 
 of the cluster (a node's share of ``--ray-cpus`` CPUs and ``--ray-gpus`` GPUs) holds one
 :class:`ChunkWorker`, a Ray actor with one JAX device that keeps its device and its compiled programs
 for every chunk it runs and returns each chunk's metrics; the driver writes the part as it arrives.
-Chunks go to whichever worker is free (two in flight per worker), and workers are added as the
-cluster grows. A worker whose process or node dies is restarted by Ray and its chunks run again
-(``retries``); a part once written is never recomputed, and a rerun of the command resumes like any
-sweep. The chunks are those of the one-device plan for the workers' backend, so the rows equal a
-one-process run's on one device of that kind, bit for bit. docs/sweep.md ("A Ray cluster") says how
-to start a cluster.
+Chunks go to whichever worker is up and free (two in flight per worker), and workers are added as
+the cluster grows. When a worker's process or node dies its chunks go back to the queue (each at most
+``retries`` times) and Ray restarts the worker; a part once written is never recomputed, and a rerun
+of the command resumes like any sweep. The chunks are those of the one-device plan for the workers'
+backend, so the rows equal a one-process run's on one device of that kind, bit for bit.
+docs/sweep.md ("A Ray cluster") says how to start a cluster.
 """
 
 from __future__ import annotations
@@ -36,9 +36,9 @@ class RayCluster:
       address: a Ray cluster's address (``HOST:PORT``, ``auto`` for the one started on this machine
         with ``ray start --head``, ``ray://…`` for Ray Client); ``None``: ``RAY_ADDRESS`` if set, else
         a Ray instance started here for this run and stopped after it.
-      cpus, gpus: Ray resources of one chunk's task (a GPU worker: ``gpus = 1``; on CPU nodes, cores
-        per task: XLA spreads one device's kernels over the cores it may use).
-      retries: how often a task whose worker or node died is run again before the run stops.
+      cpus, gpus: Ray resources of one worker (a GPU worker: ``gpus = 1``; on CPU nodes, cores per
+        worker: XLA spreads one device's kernels over the cores it may use).
+      retries: how often a chunk whose worker or node died is run again before the run stops.
     """
 
     address: str | None = None
@@ -99,8 +99,11 @@ class ChunkWorker:
     its device, and the runner, with its compiled programs, serves every chunk it is given)."""
 
     def __init__(self, settings: dict[str, Any]):
-        _configure(settings)
-        self.runner, self.plan = None, None
+        self.runner, self.plan, self.error = None, None, None
+        try:
+            _configure(settings)
+        except Exception as err:  # noqa: BLE001 - raised by probe and run, where the driver reads it in one line
+            self.error = err
 
     def probe(self) -> dict[str, Any]:
         """The JAX backend this worker runs on, and the versions its parts record."""
@@ -108,6 +111,8 @@ class ChunkWorker:
 
         from ..io.versions import versions
 
+        if self.error is not None:
+            raise self.error
         return {"backend": jax.default_backend(), "versions": versions()}
 
     def run(self, boxed_plan: list, chunk: Chunk, backend: str) -> tuple:
@@ -120,6 +125,8 @@ class ChunkWorker:
 
         from .execute import ChunkRunner
 
+        if self.error is not None:
+            raise self.error
         if jax.default_backend() != backend:
             raise ConfigError(f"a worker runs JAX on {jax.default_backend()}, the plan on {backend}: every worker "
                               "must have the same kind of device")
@@ -147,10 +154,12 @@ class RaySession:
         self.started = False
         self.settings = {"x64": bool(jax.config.jax_enable_x64), "cache_dir": jax.config.jax_compilation_cache_dir,
                          "plugins": list(LOADED), "cpu_only": cluster.gpus == 0}
-        self.workers: list[Any] = []
+        self.workers: list[Any] = []  # every worker started, and those not known to be up: {probe ref: worker}
+        self.starting: dict[Any, Any] = {}
         try:  # checked before anything starts
-            self._worker = ray.remote(num_cpus=cluster.cpus, num_gpus=cluster.gpus, max_restarts=cluster.retries,
-                                      max_task_retries=cluster.retries)(ChunkWorker)
+            # Ray restarts a dead worker; its chunks fail at once and go back to the queue (results)
+            self._worker = ray.remote(num_cpus=cluster.cpus, num_gpus=cluster.gpus, max_restarts=-1,
+                                      max_task_retries=0)(ChunkWorker)
         except ValueError as err:
             raise ConfigError(f"--ray-cpus/--ray-gpus: {first_line(err)}") from None
         if ray.is_initialized():  # this process is a driver already (a notebook, a test)
@@ -188,76 +197,98 @@ class RaySession:
 
     def __exit__(self, *exc) -> None:
         for worker in self.workers:  # their CPUs and GPUs go back to the cluster
-            self.ray.kill(worker)
+            try:
+                self.ray.kill(worker)
+            except Exception:  # noqa: BLE001 - the cluster is gone already: nothing to give back
+                pass
         if self.started:
             self.ray.shutdown()
 
     def probe(self) -> dict[str, Any]:
-        """The workers' JAX backend and versions (the first worker reports them); refused in one line when
-        no node could ever hold a worker (Ray would wait for ever)."""
-        ray, need = self.ray, {"CPU": self.cluster.cpus, "GPU": self.cluster.gpus}
-        nodes = [n.get("Resources", {}) for n in ray.nodes() if n.get("Alive")]
-        if not any(all(r.get(k, 0.0) >= v for k, v in need.items()) for r in nodes):
-            raise ConfigError(f"--ray: no node of the cluster has {need['CPU']:g} CPU(s) and {need['GPU']:g} GPU(s) "
-                              "for one task; give --ray-cpus and --ray-gpus that a node has")
+        """The workers' JAX backend and versions (the first worker up reports them); refused in one line
+        when no node could ever hold a worker (Ray would wait for ever)."""
+        ray = self.ray
+        if self._slots() == 0:
+            raise ConfigError(f"--ray: no node of the cluster has {self.cluster.cpus:g} CPU(s) and "
+                              f"{self.cluster.gpus:g} GPU(s) for one worker; give --ray-cpus and --ray-gpus that a "
+                              "node has")
         self._grow()
+        (ref,), _ = ray.wait(list(self.starting), num_returns=1)
         try:
-            found = ray.get(self.workers[0].probe.remote())
+            found = ray.get(ref)
         except ray.exceptions.RayError as err:
             raise ConfigError(f"--ray: a worker could not start JAX ({_reason(err)})") from None
+        self.first = self.starting.pop(ref)
         self.backend = found["backend"]
         return found
 
-    def _grow(self) -> list[Any]:
-        """Start a worker for every slot of the cluster that has none (at least one); returns the new ones."""
-        total = self.ray.cluster_resources()
-        fits = [total.get(k, 0.0) / need for k, need in (("CPU", self.cluster.cpus), ("GPU", self.cluster.gpus))
-                if need > 0]
-        new = [self._worker.remote(self.settings) for _ in range(max(1, int(min(fits))) - len(self.workers))]
-        self.workers += new
-        return new
+    def _slots(self) -> int:
+        """Workers the cluster's live nodes can hold at once, node by node."""
+        need = {"CPU": self.cluster.cpus, "GPU": self.cluster.gpus}
+        return sum(int(min(r.get(k, 0.0) / v for k, v in need.items() if v > 0))
+                   for r in (n.get("Resources", {}) for n in self.ray.nodes() if n.get("Alive")))
+
+    def _grow(self) -> None:
+        """Start a worker for every slot of the cluster that has none; each is asked to report once up."""
+        for _ in range(self._slots() - len(self.workers)):
+            worker = self._worker.remote(self.settings)
+            self.workers.append(worker)
+            self.starting[worker.probe.remote()] = worker
 
     def results(self, plan: Plan, chunks: tuple[Chunk, ...]) -> Iterator[tuple]:
-        """Run ``chunks`` on the workers, yielding each as it finishes (any order). Each worker has
-        :data:`IN_FLIGHT_PER_SLOT` chunks in flight, so it never waits for the driver; workers are added
-        as the cluster grows. A chunk that fails for good (its exception, or its worker dead more than
-        ``retries`` times) raises :class:`~jaxapf.sweep.execute.ChunkFailed`."""
+        """Run ``chunks`` on the workers, yielding each as it finishes (any order). A worker gets chunks
+        once it is up, :data:`IN_FLIGHT_PER_SLOT` at a time; workers are added as the cluster grows. When a
+        worker dies its chunks go back to the queue (each at most ``retries`` times) and it gets chunks
+        again once Ray has restarted it. A chunk's own exception, or a chunk dead ``retries + 1``
+        times, raises :class:`~jaxapf.sweep.execute.ChunkFailed`."""
         from .execute import ChunkFailed
 
         ray = self.ray
         if not self.workers:
             self.probe()
         boxed = [ray.put(dataclasses.replace(plan, chunks=(), done=()))]  # shapes, variants, spec
-        queue, running = list(reversed(chunks)), {}
-        free = [self.workers[0]] * IN_FLIGHT_PER_SLOT  # the probed one; the others once they have started
-        starting = {w.probe.remote(): w for w in self.workers[1:]}  # a worker waiting for room gets no chunk
+        queue, running, deaths = list(reversed(chunks)), {}, {}
+        free = [self.first] * IN_FLIGHT_PER_SLOT
         resized = time.monotonic()
         while queue or running:
             while queue and free:
                 worker, chunk = free.pop(), queue.pop()
                 running[worker.run.remote(boxed, chunk, self.backend)] = (worker, chunk)
-            waiting = list(running) + (list(starting) if queue else [])
+            waiting = list(running) + (list(self.starting) if queue else [])
             if not waiting:
-                raise ChunkFailed(f"no Ray worker could start to run chunk {queue[-1].name}")
-            (ref,), _ = ray.wait(waiting, num_returns=1)
-            if ref in starting:
-                worker = starting.pop(ref)
+                raise ChunkFailed(f"no Ray worker is up to run chunk {queue[-1].name}")
+            ready, _ = ray.wait(waiting, num_returns=1, timeout=RESIZE_EVERY_S)
+            if time.monotonic() - resized > RESIZE_EVERY_S:
+                self._grow()
+                resized = time.monotonic()
+            if not ready:
+                continue
+            ref = ready[0]
+            if ref in self.starting:  # a worker is up; one that could not start, or on another backend, gets none
+                worker = self.starting.pop(ref)
                 try:
-                    ray.get(ref)
-                    free += [worker] * IN_FLIGHT_PER_SLOT
-                except ray.exceptions.RayError:  # it could not start: the others go on
+                    if ray.get(ref)["backend"] == self.backend:
+                        free += [worker] * IN_FLIGHT_PER_SLOT
+                except ray.exceptions.RayError:
                     pass
                 continue
             worker, chunk = running.pop(ref)
             try:
                 finished = ray.get(ref)
+            except ray.exceptions.RayActorError as err:  # the worker died: the chunk again, elsewhere or later
+                deaths[chunk] = deaths.get(chunk, 0) + 1
+                if deaths[chunk] > self.cluster.retries:
+                    raise ChunkFailed(f"chunk {chunk.name} failed on the Ray cluster: its worker died "
+                                      f"{deaths[chunk]} time(s) ({_reason(err)})") from None
+                queue.append(chunk)
+                free = [w for w in free if w is not worker]
+                if worker not in self.starting.values():
+                    self.starting[worker.probe.remote()] = worker  # chunks again once Ray has restarted it
+                continue
             except ray.exceptions.RayError as err:
                 raise ChunkFailed(f"chunk {chunk.name} failed on the Ray cluster ({_reason(err)})") from None
             free.append(worker)
             yield finished
-            if time.monotonic() - resized > RESIZE_EVERY_S:
-                starting |= {w.probe.remote(): w for w in self._grow()}
-                resized = time.monotonic()
 
 
 def _check_reachable(address: str | None, timeout_s: float = 10.0) -> None:

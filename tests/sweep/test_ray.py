@@ -76,7 +76,8 @@ def test_a_worker_killed_mid_run_loses_and_doubles_nothing(cluster, reference, t
 @pytest.mark.slow
 def test_a_task_failing_for_good_stops_in_one_line_and_a_rerun_resumes(cluster, reference, tmp_path):
     out, killed = tmp_path / "out", []
-    with pytest.raises(ConfigError, match=r"chunk part-v\d+-\w+-f\d+-\d+\.parquet failed on the Ray cluster \(.*\); "
+    with pytest.raises(ConfigError, match=r"chunk part-v\d+-\w+-f\d+-\d+\.parquet failed on the Ray cluster: its "
+                                          r"worker died 1 time\(s\) \(.*\); "
                                           r"\d+ finished part\(s\) are kept in .*rerun the same command"):
         run_sweep(_spec(), out, chunk_fields=3, quiet=True, ray=RayCluster(retries=0), after_part=killer(killed))
     assert killed
@@ -111,7 +112,7 @@ def test_the_cli_runs_on_a_cluster_at_its_address(cluster, reference, tmp_path):
 
 
 @pytest.mark.parametrize("flags, message", [
-    (["--ray-cpus", "2"], "--ray-cpus and --ray-gpus size the tasks of --ray; give --ray too"),
+    (["--ray-cpus", "2"], "--ray-cpus and --ray-gpus size the workers of --ray; give --ray too"),
     (["--ray", "--ray-cpus", "0"], "--ray-cpus and --ray-gpus are both 0"),
     (["--ray", "--ray-gpus", "-1"], "--ray-gpus = -1.0 is out of range"),
     (["--ray", "--shard", "0/2"], "--ray and --shard: Ray deals the chunks itself"),
@@ -133,7 +134,7 @@ def test_without_ray_installed_the_option_says_how_to_get_it(tmp_path, monkeypat
 
 @pytest.mark.slow
 def test_a_task_no_node_can_run_is_refused_not_left_waiting(cluster, tmp_path):
-    with pytest.raises(ConfigError, match=r"no node of the cluster has 1 CPU\(s\) and 1 GPU\(s\) for one task"):
+    with pytest.raises(ConfigError, match=r"no node of the cluster has 1 CPU\(s\) and 1 GPU\(s\) for one worker"):
         run_sweep(_spec(), tmp_path / "out", chunk_fields=3, quiet=True, ray=RayCluster(gpus=1))
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
 
