@@ -50,13 +50,23 @@ method = ["basic", "direction_velocity"]
 
 
 def busy_workers() -> list[int]:
-    """PIDs of the Ray worker processes running a chunk now (titled ``ray::ChunkWorker.run``)."""
-    pids = []
+    """PIDs of the Ray worker processes running a chunk now (titled ``ray::ChunkWorker.run``) of the
+    cluster this process started (its descendants: another process's cluster is left alone)."""
+    def parent(pid: int) -> int:
+        stat = pathlib.Path(f"/proc/{pid}/stat").read_text()
+        return int(stat[stat.rindex(")") + 2:].split()[1])
+
+    pids, me = [], os.getpid()
     for entry in pathlib.Path("/proc").iterdir():
         try:
-            if entry.name.isdigit() and (entry / "cmdline").read_bytes().startswith(b"ray::ChunkWorker.run"):
+            if not (entry.name.isdigit() and (entry / "cmdline").read_bytes().startswith(b"ray::ChunkWorker.run")):
+                continue
+            pid = int(entry.name)
+            while pid > 1 and pid != me:
+                pid = parent(pid)
+            if pid == me:
                 pids.append(int(entry.name))
-        except OSError:
+        except (OSError, ValueError):
             continue
     return pids
 
