@@ -147,3 +147,17 @@ def test_the_parts_record_a_workers_versions(cluster, tmp_path):
     run_sweep(_spec(), tmp_path / "out", chunk_fields=6, quiet=True, ray=RayCluster())
     meta = read_meta(part_files(tmp_path / "out")[0])
     assert meta["versions"]["device"].startswith("cpu") and meta["versions"]["device_count"] == "1"
+
+
+@pytest.mark.slow
+def test_a_worker_that_cannot_start_says_why_in_one_line(cluster):
+    """A plugin missing on a worker's node: the driver's error names it, without Ray's process ids."""
+    from jaxapf.sweep.cluster import RaySession
+
+    with RaySession(RayCluster()) as session:
+        session.settings["plugins"] = [("lost.py", "/nonexistent/lost.py")]
+        with pytest.raises(ConfigError) as err:
+            session.probe()
+    message = str(err.value)
+    assert message.startswith("--ray: a worker could not start JAX (plugin = 'lost.py': no such file")
+    assert "\n" not in message and "pid=" not in message
