@@ -46,6 +46,23 @@ def check_neighbours(sim: SimConfig) -> None:
                           "use max_neighbours = 0 (every UAV, each in its own slot) with it")
 
 
+def at_rest(swarm: Swarm, sim: SimConfig) -> Array:
+    """The UAVs' states before the episode, as the others' sensors remember them: at rest at their
+    starts, ``sim.world.max_latency + 1`` steps of them (L+1, A, 6)."""
+    x = jnp.concatenate([swarm.start, jnp.zeros_like(swarm.start)], axis=-1)
+    return jnp.broadcast_to(x, (sim.world.max_latency + 1,) + x.shape)
+
+
+def remember(history: Array, x: Array, k: Array, delay: Array, dt: float) -> tuple[Array, Array, Array]:
+    """``(history, then, t_j)``: the last L+1 true states of every UAV with ``x`` (A, 6), those of step
+    ``j = k - delay`` and its time. What a UAV's sensor measures of the others with latency is their
+    true past state (placed at ``t_j`` by :func:`~jaxapf.datatypes.swarm.neighbours`); with no latency,
+    their states now."""
+    history = jnp.concatenate([history[1:], x[None]], axis=0)
+    then = jax.lax.dynamic_index_in_dim(history, history.shape[0] - 1 - delay, keepdims=False)
+    return history, then, (k - delay).astype(x.dtype) * dt
+
+
 def swarm_rollout(swarm: Swarm, gains: Gains, sim: SimConfig, mpc: MPCConfig, *, remat: bool = False) -> Trajectory:
     """Simulate every UAV of ``swarm`` from rest at its start; returns their trajectories, a
     :class:`~jaxapf.datatypes.Trajectory` with a leading UAV axis (A, ...) on every leaf."""
@@ -61,19 +78,22 @@ def swarm_rollout(swarm: Swarm, gains: Gains, sim: SimConfig, mpc: MPCConfig, *,
     near = sim.world.max_neighbours
     views = jax.vmap(lambda a: agent_view(swarm, a, r_uav, near))(ids)
     columns = jax.vmap(lambda v: v.obstacles.columns())(views)
+    delay = loop.sensor.delay(gains, sim)
 
     def control_step(carry, k):
-        x = jax.vmap(loop.plant.kinematics)(carry[0])  # the truth of every UAV, (A, 6)
-        t = k * sim.episode.dt
+        agents, history = carry
+        x = jax.vmap(loop.plant.kinematics)(agents[0])  # the truth of every UAV, (A, 6)
+        history, then, t = remember(history, x, k, delay, sim.episode.dt)
 
         def one(c, view, cols, a):
-            seen = neighbours(cols, swarm, x, t, a, r_uav, near)
+            seen = neighbours(cols, swarm, then, t, a, r_uav, near)
             return loop_step(loop, c, k, view, seen, gains, sim, mpc)
-        return jax.vmap(one)(carry, views, columns, ids)
+        agents, record = jax.vmap(one)(agents, views, columns, ids)
+        return (agents, history), record
 
     carry0 = jax.vmap(lambda view: loop_init(loop, view, gains, sim, mpc))(views)
     body = jax.checkpoint(control_step, prevent_cse=False) if remat else control_step
-    _, records = jax.lax.scan(body, carry0, jnp.arange(sim.episode.steps, dtype=dtype))
+    _, records = jax.lax.scan(body, (carry0, at_rest(swarm, sim)), jnp.arange(sim.episode.steps, dtype=dtype))
     x0 = jax.vmap(loop.plant.kinematics)(carry0[0])
     return jax.vmap(lambda x, r: record_trajectory(x, r, sim), in_axes=(0, 1))(x0, records)
 
@@ -102,21 +122,23 @@ def swarm_episodes(sim: SimConfig, mpc: MPCConfig, dtype: Any, metrics: Sequence
         done = ~swarm.valid | jax.vmap(lambda p, s: certainly_at_goal(p, s, sim))(swarm.start, alone(swarm))
         return {**own, "swarm": swarm, "views": views, "columns": jax.vmap(lambda v: v.obstacles.columns())(views),
                 "gains": g, "carry": carry, "k": jnp.zeros((), jnp.int32), "done": done, "ended": jnp.all(done),
-                "x0": jax.vmap(loop.plant.kinematics)(carry[0])}
+                "x0": jax.vmap(loop.plant.kinematics)(carry[0]), "history": at_rest(swarm, sim),
+                "delay": loop.sensor.delay(g, sim)}
 
     def step(slot: dict[str, Any]) -> tuple[dict[str, Any], tuple]:
         swarm, k = slot["swarm"], slot["k"]
         flown = loop if loop.prob is not None else loop._replace(prob=slot["prob"])
         x = jax.vmap(loop.plant.kinematics)(slot["carry"][0])
         t = k.astype(dtype) * dt
+        history, then, t_j = remember(slot["history"], x, k, slot["delay"], dt)
 
         def one(c, view, cols, a):
-            seen = cols if swarm.agents == 1 else neighbours(cols, swarm, x, t, a, r_uav, near)
+            seen = cols if swarm.agents == 1 else neighbours(cols, swarm, then, t_j, a, r_uav, near)
             return loop_step(flown, c, k.astype(dtype), view, seen, slot["gains"], sim, mpc)
         carry, record = jax.vmap(one)(slot["carry"], slot["views"], slot["columns"], jnp.arange(swarm.agents))
         hit = jax.vmap(lambda p0, p1, s: certainly_ended(p0, p1, t, s, sim))(x[:, :3], record[0][:, :3], alone(swarm))
         done = slot["done"] | hit
-        return {**slot, "carry": carry, "k": k + 1, "done": done, "ended": jnp.all(done)}, record
+        return {**slot, "carry": carry, "k": k + 1, "done": done, "ended": jnp.all(done), "history": history}, record
 
     def measure(x0: Array, record: tuple, swarm: Swarm) -> dict[str, Array]:
         traj = jax.vmap(lambda x, r: record_trajectory(x, r, sim), in_axes=(0, 1))(x0, record)

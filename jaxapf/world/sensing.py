@@ -49,6 +49,11 @@ class Sensor(Stage, abc.ABC):
         component-first). The observed obstacles are in the same form: a planner extrapolates them
         at their (observed) velocity from ``t = 0`` as it does the truth."""
 
+    def delay(self, gains: "Gains", sim: "SimConfig") -> Array:
+        """How many control steps old the obstacle measurements are (the swarm engine hands each UAV the
+        others' true states of that age); none by default."""
+        return jnp.zeros((), jnp.int32)
+
 
 @dataclasses.dataclass(frozen=True)
 class Ideal(Sensor):
@@ -119,12 +124,11 @@ class NoisySensor(Sensor):
         if sim.world.velocity_estimate == "differenced":
             # the latency is fixed for an episode, so step k measures j = k - d and the previous raw
             # position noise is carried from step to step (one draw per step); before step 0: j = -d - 1
-            first = -self._delay(gains, sim) - 1
+            first = -self.delay(gains, sim) - 1
             state["last_noise"] = self._noise(scenario, first, obstacles.position.shape)[0]
         return state
 
-    @staticmethod
-    def _delay(gains: "Gains", sim: "SimConfig") -> Array:
+    def delay(self, gains: "Gains", sim: "SimConfig") -> Array:
         """The latency in control steps, ``clip(round(latency/dt), 0, max_latency)``."""
         return jnp.clip(jnp.round(gains.latency / sim.episode.dt), 0, sim.world.max_latency).astype(jnp.int32)
 
@@ -141,7 +145,7 @@ class NoisySensor(Sensor):
                  ) -> tuple[Array, ObstacleColumns, dict[str, Array], dict[str, Array]]:
         dt, longest = sim.episode.dt, sim.world.max_latency
         history = jnp.concatenate([state["history"][1:], x[None, :3]], axis=0)  # positions of steps k-L..k
-        d = self._delay(gains, sim)
+        d = self.delay(gains, sim)
         j = k - d
         t_k = k.astype(x.dtype) * dt
         lag = -d.astype(x.dtype) * dt  # t_j - t_k

@@ -213,3 +213,55 @@ def test_a_streamed_swarms_numbers_do_not_depend_on_its_queue():
     part = evaluate_swarms(jax.tree_util.tree_map(lambda x: x[:8], swarms), Gains(), sim, mpc, 64)
     for name in whole:
         np.testing.assert_array_equal(np.asarray(whole[name])[:, :8], np.asarray(part[name]), err_msg=name)
+
+
+def test_with_latency_a_uav_sees_where_the_others_truly_were():
+    """Latency of 3 steps: at step 6 UAV 0's sensor shows UAV 1 where it truly was at step 3 (its true
+    past state, not its present one extrapolated back), also when UAV 1 turns; before the episode the
+    others stand at rest at their starts."""
+    from jaxapf.engine.swarm import at_rest, remember
+    from jaxapf.world.sensing import SENSORS
+
+    swarm, dt = _swap(), 0.1
+    config = SimConfig.from_flat({"t_max": 20.0, "sensor": "noisy", "dt": dt})
+    gains, sensor = Gains(latency=0.3), SENSORS.get("noisy")
+    assert int(sensor.delay(gains, config)) == 3 and int(SENSORS.get("ideal").delay(gains, config)) == 0
+
+    def truth(k):  # UAV 0 still at its start; UAV 1 on a curve, its velocity the derivative
+        s = k * dt
+        return jnp.array([[0.0, 0.0, 2.0, 0.0, 0.0, 0.0],
+                          [10.0 - 2.0 * s * s, 1.5 * s, 2.0, -4.0 * s, 1.5, 0.0]], jnp.float32)
+
+    view = agent_view(swarm, 0, config.vehicle.r_uav)
+    state = sensor.init(view, gains, config)
+    history = at_rest(swarm, config)
+    for k in range(7):
+        x = truth(k)
+        history, then, t_j = remember(history, x, jnp.int32(k), sensor.delay(gains, config), dt)
+        seen = neighbours(view.obstacles.columns(), swarm, then, t_j, 0, config.vehicle.r_uav)
+        _, observed, state, _ = sensor(state, x[0], jnp.int32(k), view, seen, gains, config)
+        shown = np.asarray(observed.position[:, 3] + observed.velocity[:, 3] * (k * dt))  # as the stack sees it at t_k
+        past = np.asarray(truth(k - 3)[1, :3]) if k >= 3 else np.asarray(swarm.start[1])
+        np.testing.assert_allclose(shown, past, atol=1e-5)
+    back = np.asarray(truth(6)[1, :3] - truth(6)[1, 3:] * 0.3)  # the present extrapolated back is elsewhere
+    assert np.abs(back - np.asarray(truth(3)[1, :3])).max() > 0.1
+
+
+@pytest.mark.slow
+def test_streamed_swarms_carry_the_others_past_states_like_the_fixed_engine():
+    """With latency the streaming engine keeps the UAVs' past states per swarm as the fixed engine does:
+    the same metrics up to rounding, and other ones than without latency."""
+    from conftest import assert_same_episodes
+
+    from jaxapf.engine.swarm import evaluate_swarms
+    from jaxapf.scenarios.swarms import make_swarms, swarm_params
+
+    swarms = make_swarms(2, swarm_params("circle_swap", agents=4), 16)
+    sim = SimConfig.from_flat(method="velocity_obstacle", sensor="noisy", t_max=25.0)
+    mpc = MPCConfig(horizon=10, iters=15)
+    late, now = Gains(latency=np.float32(0.5)), Gains()
+    fixed = jax.device_get(evaluate_swarms(swarms, late, sim, mpc, 16, streaming=False))
+    streamed = jax.device_get(evaluate_swarms(swarms, late, sim, mpc, 16))
+    assert_same_episodes(fixed, streamed, sim.episode.dt)
+    prompt = jax.device_get(evaluate_swarms(swarms, now, sim, mpc, 16))
+    assert not np.allclose(prompt["min_agent_clearance"], streamed["min_agent_clearance"])
