@@ -215,6 +215,7 @@ def test_a_streamed_swarms_numbers_do_not_depend_on_its_queue():
         np.testing.assert_array_equal(np.asarray(whole[name])[:, :8], np.asarray(part[name]), err_msg=name)
 
 
+@pytest.mark.slow
 def test_with_latency_a_uav_sees_where_the_others_truly_were():
     """Latency of 3 steps: at step 6 UAV 0's sensor shows UAV 1 where it truly was at step 3 (its true
     past state, not its present one extrapolated back), also when UAV 1 turns; before the episode the
