@@ -28,6 +28,7 @@ from ..gains import Gains
 from ..metrics.context import certainly_at_goal, certainly_ended
 from ..metrics.swarm import SWARM_METRICS, swarm_metrics
 from ..validation import ConfigError
+from ..world.sensing import delay_line
 from .batch import fixed_batches, program, settings_read
 from .components import gains_read
 from .loop import closed_loop, episode_loop, loop_init, loop_step, record_trajectory, rollout
@@ -58,8 +59,7 @@ def remember(history: Array, x: Array, k: Array, delay: Array, dt: float) -> tup
     ``j = k - delay`` and its time. What a UAV's sensor measures of the others with latency is their
     true past state (placed at ``t_j`` by :func:`~jaxapf.datatypes.swarm.neighbours`); with no latency,
     their states now."""
-    history = jnp.concatenate([history[1:], x[None]], axis=0)
-    then = jax.lax.dynamic_index_in_dim(history, history.shape[0] - 1 - delay, keepdims=False)
+    history, then = delay_line(history, x, delay)
     return history, then, (k - delay).astype(x.dtype) * dt
 
 

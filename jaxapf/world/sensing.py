@@ -35,7 +35,7 @@ if TYPE_CHECKING:
     from ..datatypes import Scenario
     from ..gains import Gains
 
-__all__ = ["Sensor", "Ideal", "NoisySensor", "SENSORS", "register_sensor"]
+__all__ = ["Sensor", "Ideal", "NoisySensor", "SENSORS", "register_sensor", "delay_line"]
 
 
 class Sensor(Stage, abc.ABC):
@@ -62,6 +62,14 @@ class Ideal(Sensor):
     def __call__(self, state: Any, x: Array, k: Array, scenario: Any, obstacles: ObstacleColumns, gains: Any,
                  sim: Any) -> tuple[Array, ObstacleColumns, Any, dict[str, Array]]:
         return x, obstacles, state, {}
+
+
+def delay_line(history: Array, x: Array, delay: Array) -> tuple[Array, Array]:
+    """``(history, then)``: the last ``L + 1`` values (leading axis) with ``x`` the newest, and the one
+    ``delay`` steps old: the memory behind a latency (the noisy sensor's own positions, the swarm
+    engine's UAV states)."""
+    history = jnp.concatenate([history[1:], x[None]], axis=0)
+    return history, jax.lax.dynamic_index_in_dim(history, history.shape[0] - 1 - delay, keepdims=False)
 
 
 def _surface_distance(p: Array, centres: Array, obstacles: ObstacleColumns, r_uav: float) -> Array:
@@ -143,9 +151,9 @@ class NoisySensor(Sensor):
     def __call__(self, state: dict[str, Array], x: Array, k: Array, scenario: "Scenario",
                  obstacles: ObstacleColumns, gains: "Gains", sim: "SimConfig"
                  ) -> tuple[Array, ObstacleColumns, dict[str, Array], dict[str, Array]]:
-        dt, longest = sim.episode.dt, sim.world.max_latency
-        history = jnp.concatenate([state["history"][1:], x[None, :3]], axis=0)  # positions of steps k-L..k
+        dt = sim.episode.dt
         d = self.delay(gains, sim)
+        history, uav_then = delay_line(state["history"], x[:3], d)  # positions of steps k-L..k; of step k-d
         j = k - d
         t_k = k.astype(x.dtype) * dt
         lag = -d.astype(x.dtype) * dt  # t_j - t_k
@@ -163,7 +171,6 @@ class NoisySensor(Sensor):
         # (with no noise and no latency exactly the truth, bit for bit)
         position = obstacles.position + obstacles.velocity * lag + noise_p - noise_v * t_k
         velocity = obstacles.velocity + noise_v
-        uav_then = jax.lax.dynamic_index_in_dim(history, longest - d, keepdims=False)
         truth_then = obstacles.position + obstacles.velocity * (t_k + lag)
         in_range = _surface_distance(uav_then, truth_then, obstacles, sim.vehicle.r_uav) <= gains.sense_range
         detected = obstacles.valid & in_range & ~(drop < gains.dropout)
