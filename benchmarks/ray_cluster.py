@@ -132,8 +132,7 @@ def main(argv: list[str] | None = None) -> int:
             local = part_intervals(lambda after: run_sweep(spec, fresh("local"), devices=1, after_part=after, **sweep))
         reference = fresh("reference")
         run_sweep(spec, reference, devices=1, **sweep)
-        rows, _ = read_sweep(reference)
-        chunks = 64
+        rows, meta = read_sweep(reference)
 
         one_slot = []
         for _ in range(2):
@@ -174,7 +173,7 @@ def main(argv: list[str] | None = None) -> int:
         chunk_s = default_chunk_s()
     local_ms, ray_ms = 1e3 * statistics.median(local), 1e3 * statistics.median(one_slot)
     overhead_ms = ray_ms - local_ms
-    result = {"chunks": chunks, "episodes": int(len(rows)), "local_part_interval_ms": round(local_ms, 1),
+    result = {"chunks": meta["parts"], "episodes": int(len(rows)), "local_part_interval_ms": round(local_ms, 1),
               "ray_part_interval_ms": round(ray_ms, 1), "ray_overhead_per_chunk_ms": round(overhead_ms, 1),
               "default_chunk_s": round(chunk_s, 2),
               "overhead_of_default_chunk_percent": round(100 * overhead_ms / 1e3 / chunk_s, 2),

@@ -291,7 +291,7 @@ def _add_sweep_parser(sub: argparse._SubParsersAction) -> None:
                          "its own folder (then `jaxapf sweep merge`), e.g. a Slurm array task: "
                          "--shard $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT")
     sw.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
-                    help="run the chunks as tasks on a Ray cluster (pip install 'jaxapf[ray]'): ADDRESS as "
+                    help="run the chunks on a Ray cluster's workers (pip install 'jaxapf[ray]'): ADDRESS as "
                          "`ray start` prints it, or `auto` for the one started on this machine; without ADDRESS, "
                          "RAY_ADDRESS or a Ray instance started for this run")
     sw.add_argument("--ray-cpus", type=float, default=1.0, metavar="C",
@@ -499,7 +499,7 @@ def _sweep(args: argparse.Namespace) -> int:
     out = args.out or pathlib.Path("runs") / f"{spec.name}.parquet"
     if args.dry_run:
         options = dict(memory_budget=budget, chunk_fields=args.chunk_fields)
-        if cluster is not None:  # planned for the workers' backend, one device per task
+        if cluster is not None:  # planned for the workers' backend, one device per worker
             cluster.check(shard, args.devices)
             with RaySession(cluster) as session:
                 options |= dict(devices=1, backend=session.probe()["backend"])

@@ -154,8 +154,8 @@ class RaySession:
         self.started = False
         self.settings = {"x64": bool(jax.config.jax_enable_x64), "cache_dir": jax.config.jax_compilation_cache_dir,
                          "plugins": list(LOADED), "cpu_only": cluster.gpus == 0}
-        self.workers: list[Any] = []  # every worker started, and those not known to be up: {probe ref: worker}
-        self.starting: dict[Any, Any] = {}
+        self.workers: list[Any] = []  # every worker started
+        self.starting: dict[Any, Any] = {}  # those not known to be up: {ref of their probe: worker}
         try:  # checked before anything starts
             # Ray restarts a dead worker; its chunks fail at once and go back to the queue (results)
             self._worker = ray.remote(num_cpus=cluster.cpus, num_gpus=cluster.gpus, max_restarts=-1,

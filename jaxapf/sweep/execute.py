@@ -1,5 +1,5 @@
 """Where a sweep's chunks run: JAX's process-wide set-up, a runner of chunks on this process's devices,
-and what every place that runs chunks yields (:func:`local_results` here; Ray tasks in
+and what every place that runs chunks yields (:func:`local_results` here; a Ray cluster's workers in
 :mod:`jaxapf.sweep.cluster`)."""
 
 from __future__ import annotations
@@ -106,7 +106,7 @@ class ChunkRunner:
 
 
 class ChunkFailed(Exception):
-    """A chunk could not be run (e.g. its Ray task failed for good); the message says which and why."""
+    """A chunk could not be run (e.g. on a Ray worker, for good); the message says which and why."""
 
 
 #: What a chunk's run yields: the chunk, its (G, padded) metric arrays, the fields' kinds and, with the

@@ -105,8 +105,8 @@ def run_sweep(
     each in its own folder (combined by :func:`~jaxapf.sweep.merge.merge_outputs`), and a shard rerun
     after a crash computes only its missing parts.
 
-    With ``ray`` the chunks run as tasks on a Ray cluster (:mod:`jaxapf.sweep.cluster`: one device per
-    task, the plan of the workers' backend) and this process writes the parts as they arrive.
+    With ``ray`` the chunks run on a Ray cluster's workers (:mod:`jaxapf.sweep.cluster`: one device per
+    worker, the plan of the workers' backend) and this process writes the parts as they arrive.
     """
     start = time.perf_counter()
     out = pathlib.Path(out)
@@ -210,13 +210,16 @@ def _write_chunks(plan: Plan, chunks: tuple[Chunk, ...], out: pathlib.Path, meta
     what was kept."""
     out.mkdir(parents=True, exist_ok=True)
     layout = schema(plan, meta)
-    kept = len(part_files(out))
+    kept_before = len(part_files(out))
     from tqdm import tqdm
 
     bar = tqdm(total=plan.episodes_of(chunks), unit="ep", unit_scale=True, desc=plan.spec.name, dynamic_ncols=True,
                disable=quiet or not sys.stderr.isatty())
     written = 0
     finished = results(plan, chunks)
+
+    def kept() -> str:
+        return f"{kept_before + written} finished part(s) are kept in {out}"
     try:
         for chunk, arrays, kinds, solvable in finished:
             inverse = np.asarray(plan.variants[chunk.variant].inverse)  # identical settings
@@ -225,19 +228,16 @@ def _write_chunks(plan: Plan, chunks: tuple[Chunk, ...], out: pathlib.Path, meta
                 write_part(out, chunk.name, part_table(plan, layout, chunk, metrics, np.asarray(kinds), solvable),
                            shard)
             except OSError as err:  # a full disk, a quota, a vanished mount: what was kept, how to go on
-                raise ConfigError(f"cannot write {out / chunk.name}: {err.strerror or first_line(err)}; "
-                                  f"{kept + written} finished part(s) are kept in {out}; rerun the same command "
-                                  "to resume once it can be written") from None
+                raise ConfigError(f"cannot write {out / chunk.name}: {err.strerror or first_line(err)}; {kept()}; "
+                                  "rerun the same command to resume once it can be written") from None
             written += 1
             bar.update(plan.episodes_of([chunk]))
             if after_part is not None:
                 after_part(chunk)
     except KeyboardInterrupt:
-        raise Interrupted(f"interrupted; {kept + written} finished part(s) are kept in {out} ({written} written "
-                          f"now); rerun the same command to resume") from None
+        raise Interrupted(f"interrupted; {kept()} ({written} written now); rerun the same command to resume") from None
     except ChunkFailed as err:  # a chunk that could not run elsewhere: what was kept
-        raise ConfigError(f"{err}; {kept + written} finished part(s) are kept in {out}; rerun the same command "
-                          "to resume") from None
+        raise ConfigError(f"{err}; {kept()}; rerun the same command to resume") from None
     finally:
         finished.close()
         bar.close()

@@ -161,3 +161,16 @@ def test_a_worker_that_cannot_start_says_why_in_one_line(cluster):
     message = str(err.value)
     assert message.startswith("--ray: a worker could not start JAX (plugin = 'lost.py': no such file")
     assert "\n" not in message and "pid=" not in message
+
+
+def test_the_sweep_page_states_the_ray_backends_own_numbers():
+    """docs/sweep.md's "A Ray cluster" quotes the retries per chunk and the chunks in flight per worker:
+    they are the code's."""
+    from conftest import ROOT
+
+    from jaxapf.sweep.cluster import IN_FLIGHT_PER_SLOT
+
+    text = " ".join((ROOT / "docs" / "sweep.md").read_text().split())
+    words = {1: "one", 2: "two", 3: "three", 4: "four"}
+    assert f"a chunk at most {RayCluster().retries} times again" in text
+    assert f"{words[IN_FLIGHT_PER_SLOT]} are in flight per worker" in text
