@@ -10,12 +10,13 @@ two differ in nothing else, so their paired difference is what reciprocity buys.
 
 Every UAV of a swarm flies the same stack and sees its 8 nearest neighbours (``max_neighbours = 8``,
 RVO2's ``maxNeighbors``) as obstacles of radius ``r_uav``. Swarms of A = 2, 4, 8, 16 and 32 UAVs fly
-held-out fields (seed 300, 64 per family and A) of the four swarm families: ``circle_swap``
-and ``crossing_flows`` (two flows) with every method; ``formation_gap`` (formation columns: min(4, A))
-and ``swarm_clutter`` with the methods that do not solve an exact projection every step: the CBF
-filter and the velocity obstacles project onto every obstacle slot's constraint each step (fixed
-``O(K⁴)`` work for ``K`` slots, :mod:`jaxapf.projection`), which among those families' 24 obstacle slots
-and 8 neighbours is too slow for a 2-core machine; they are left to a machine with a GPU.
+held-out fields (seed 300, 64 per family and A) of the four swarm families, every method on each:
+``circle_swap``, ``crossing_flows`` (two flows), ``formation_gap`` (formation columns: min(4, A)) and
+``swarm_clutter``. The CBF filter and the velocity obstacles solve an exact projection every step whose
+work grows with the fourth power of its rows (:mod:`jaxapf.projection`); among the 24 obstacle slots and
+8 neighbours of the last two families they keep the rows that bind soonest (``sim.projection_rows``: 8
+for the CBF filter, 16 for the velocity obstacles; the open families have at most 8 rows, all kept), and
+every UAV-step whose answer a row left out violates is counted (``truncated_steps``, reported below).
 
 Verdicts (:func:`jaxapf.stats.verdicts`, the verdict function every study uses: exact McNemar and TOST
 within the metric's margin, 2 points, both Holm-adjusted over all of the study's comparisons at once),
@@ -41,10 +42,9 @@ AGENTS = (2, 4, 8, 16, 32)
 NEIGHBOURS = 8
 #: The methods of study 11 and the unilateral velocity obstacles (``velocity_obstacle``'s selections).
 UNILATERAL = "velocity_obstacle_unilateral"
-#: Methods whose exact projection (CBF filter, velocity obstacles) is flown only where the fields have no obstacles.
-EXACT = ("velocity_obstacle", UNILATERAL, "basic+cbf", "direction_velocity+cbf")
+#: The rows each exact projection keeps (``sim.projection_rows``); the other methods solve none.
+ROWS = {"velocity_obstacle": 16, UNILATERAL: 16, "basic+cbf": 8, "direction_velocity+cbf": 8}
 FAMILIES = ("circle_swap", "crossing_flows", "formation_gap", "swarm_clutter")
-OPEN = ("circle_swap", "crossing_flows")
 #: The outcomes compared, each with its direction (higher is better?).
 OUTCOMES = (("swarm_success", True), ("agent_collision", False), ("deadlock", False))
 MARK = {"worse": "↓", "better": "↑", "equivalent": "=", "inconclusive": "·"}
@@ -78,7 +78,8 @@ def cell(method: str, family: str, agents: int, count: int) -> pd.DataFrame:
 
     planner, _, safety = method.partition("+")
     p = params(family, agents)
-    sim = SimConfig.from_flat(method=planner, filter=safety or "none", t_max=p.t_max, max_neighbours=NEIGHBOURS)
+    sim = SimConfig.from_flat(method=planner, filter=safety or "none", t_max=p.t_max, max_neighbours=NEIGHBOURS,
+                              projection_rows=ROWS.get(method, 0))
     seeds = robustness.seeds()
     gains = jax.tree_util.tree_map(lambda *x: np.asarray(x, np.float32), *[Gains(**tuned(method, s)) for s in seeds])
     metrics = jax.device_get(evaluate_swarms(make_swarms(SEED, p, count), gains, sim, MPCConfig(),
@@ -89,20 +90,16 @@ def cell(method: str, family: str, agents: int, count: int) -> pd.DataFrame:
 
 
 def run(count: int, cache: pathlib.Path) -> pd.DataFrame:
-    """Every cell, each cached in ``cache`` as soon as it is done (a rerun computes only what is missing)."""
+    """Every cell, each cached in ``cache`` as soon as it is done (a rerun computes only what is missing;
+    the missing ones smallest swarm first)."""
     cache.mkdir(parents=True, exist_ok=True)
-    frames = []
-    for family in FAMILIES:
-        for agents in AGENTS:
-            for method in methods():
-                if method in EXACT and family not in OPEN:
-                    continue
-                path = cache / f"{family}-a{agents:02d}-{method.replace('+', '_')}.parquet"
-                if not path.exists():
-                    cell(method, family, agents, count).to_parquet(path, index=False)
-                    print(f"  {family} A={agents} {method}: done", flush=True)
-                frames.append(pd.read_parquet(path))
-    return pd.concat(frames, ignore_index=True)
+    cells = [(family, agents, method) for family in FAMILIES for agents in AGENTS for method in methods()]
+    path = {c: cache / f"{c[0]}-a{c[1]:02d}-{c[2].replace('+', '_')}.parquet" for c in cells}
+    for family, agents, method in sorted((c for c in cells if not path[c].exists()), key=lambda c: c[1]):
+        cell(method, family, agents, count).to_parquet(path[family, agents, method], index=False)
+        print(f"  {family} A={agents} {method}: done", flush=True)
+    # cells flown before ``truncated_steps`` existed kept every row: none was truncated
+    return pd.concat([pd.read_parquet(path[c]) for c in cells], ignore_index=True).fillna({"truncated_steps": 0})
 
 
 def paired(now: pd.DataFrame, then: pd.DataFrame) -> list[dict]:
@@ -179,13 +176,13 @@ def rate_table(rates: pd.DataFrame, comparisons: pd.DataFrame, family: str, metr
 
 
 def reciprocity_table(rates: pd.DataFrame, comparisons: pd.DataFrame) -> str:
-    """Markdown: per open family and A, each outcome of the reciprocal and the unilateral velocity obstacles
+    """Markdown: per family and A, each outcome of the reciprocal and the unilateral velocity obstacles
     (mean over the seeds) and the seeds' verdicts of reciprocal against unilateral."""
     lines = ["| family | A | " + " | ".join(f"{m}: reciprocal / unilateral, verdicts" for m, _ in OUTCOMES) + " |",
              "|---|---|" + "---|" * len(OUTCOMES)]
     rec = comparisons[comparisons["question"] == "reciprocity"]
     mean = rates.groupby(["method", "family", "agents"])[[m for m, _ in OUTCOMES]].mean()
-    for family in OPEN:
+    for family in FAMILIES:
         for a in AGENTS:
             cells = []
             for metric, _ in OUTCOMES:
@@ -197,7 +194,15 @@ def reciprocity_table(rates: pd.DataFrame, comparisons: pd.DataFrame) -> str:
     return "\n".join(lines)
 
 
-def facts(rates: pd.DataFrame, comparisons: pd.DataFrame) -> dict:
+def truncation(df: pd.DataFrame) -> dict:
+    """Per method that keeps rows (:data:`ROWS`): the UAV-steps not certified exact and the swarm episodes
+    holding any, of how many."""
+    part = df[df["method"].isin(list(ROWS))]
+    return {m: {"uav_steps": int(g["truncated_steps"].sum()), "episodes": int((g["truncated_steps"] > 0).sum()),
+                "of": len(g)} for m, g in part.groupby("method", sort=False)}
+
+
+def facts(df: pd.DataFrame, rates: pd.DataFrame, comparisons: pd.DataFrame) -> dict:
     """The numbers the README and the project README quote (``facts.json``)."""
     mean = rates.groupby(["method", "family", "agents"])[[m for m, _ in OUTCOMES]].mean()
     out = {"comparisons": int(len(comparisons)),
@@ -207,13 +212,14 @@ def facts(rates: pd.DataFrame, comparisons: pd.DataFrame) -> dict:
     rec = comparisons[comparisons["question"] == "reciprocity"]
     out["reciprocity_verdicts"] = {f"{m}/{v}": int(((rec["metric"] == m) & (rec["verdict"] == v)).sum())
                                    for m, _ in OUTCOMES for v in MARK}
+    out["truncated_steps"] = truncation(df)
     vs = comparisons[comparisons["question"] == "vs basic"]
     out["vs_basic_verdicts"] = {f"{m}/{v}": int(((vs["metric"] == m) & (vs["verdict"] == v)).sum())
                                 for m, _ in OUTCOMES for v in MARK}
     return out
 
 
-def findings(rates: pd.DataFrame, comparisons: pd.DataFrame) -> list[str]:
+def findings(df: pd.DataFrame, rates: pd.DataFrame, comparisons: pd.DataFrame) -> list[str]:
     """Sentences computed from the tables: who keeps the swarm whole as it grows, who collides, who
     deadlocks, and what reciprocity changes."""
     mean = rates.groupby(["method", "family", "agents"])[[m for m, _ in OUTCOMES]].mean()
@@ -236,6 +242,10 @@ def findings(rates: pd.DataFrame, comparisons: pd.DataFrame) -> list[str]:
             f"{100 * top['agent_collision'].min():.1f}–{100 * top['agent_collision'].max():.1f} % of the swarms"
             f"{most('agent_collision')}, and {100 * top['deadlock'].min():.1f}–{100 * top['deadlock'].max():.1f} % "
             f"deadlock{most('deadlock')}.")
+    cut = truncation(df)
+    out.append("**Exact projections**: UAV-steps whose answer a row left out violated (`truncated_steps`): "
+               + "; ".join(f"`{m}` {t['uav_steps']:,} (in {t['episodes']} of {t['of']} swarms)" for m, t in cut.items())
+               + ".")
     for question in ("vs basic", "reciprocity"):
         part = comparisons[comparisons["question"] == question]
         for metric, _ in OUTCOMES:
@@ -308,7 +318,7 @@ def main() -> None:
              "Protocol: " + " ".join(__doc__.split("\n\n")[1:4]).replace("\n", " ").replace("``", "`")
              .replace(":func:", "").replace(":mod:", ""), "",
              f"{len(comparisons)} paired comparisons; {VERDICT_RULE}.", "", "## Findings", ""]
-    lines += [f"- {line}" for line in findings(rates, comparisons)]
+    lines += [f"- {line}" for line in findings(df, rates, comparisons)]
     for metric, _ in OUTCOMES:
         lines += ["", f"## {metric} [%]: mean over the three selections [min, max]; the selections' verdicts "
                       "against `basic` in seed order (↑ better, ↓ worse, = equivalent, · inconclusive)", ""]
@@ -320,8 +330,8 @@ def main() -> None:
               "`rates.csv`: per method, family, A and selection every outcome's rate with its Wilson interval, the "
               "mean fraction of UAVs at their goals and the median closest approach between UAVs; `comparisons.csv`: "
               "every paired comparison with its interval, raw and Holm-adjusted p-values and verdict."]
-    study.write_results(out, lines, facts(rates, comparisons))
-    print("\n".join(findings(rates, comparisons)))
+    study.write_results(out, lines, facts(df, rates, comparisons))
+    print("\n".join(findings(df, rates, comparisons)))
 
 
 if __name__ == "__main__":

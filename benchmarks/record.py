@@ -42,6 +42,7 @@ RECORDS: dict[str, tuple[str, int]] = {
     "shards": ("python benchmarks/shards.py --json", 1),
     "ray": ("python benchmarks/ray_cluster.py --json", 1),
     "scale": ("python benchmarks/scale.py --json", 1),
+    "projection-rows": ("python benchmarks/projection_rows.py --json", 1),
 }
 
 

@@ -36,6 +36,13 @@ candidate is scored by its actual largest violation and ``t^*`` is the least sco
 ``S``. A feasible problem has ``t^* <= 0`` and is solved exactly as before (``b`` unshifted); an
 infeasible one is solved with ``b - t^*`` (plus a rounding margin of ``4e-6 (1 + L)``). The
 violation returned is the largest of the rows at the returned point.
+
+The work is ``O(M⁴)`` in the ``M`` rows. Among many obstacles most rows hold everywhere in ``S``
+(``b_j + L‖g_j‖ <= 0``, the 1-norm for the box) and cannot change the answer; ``rows = R`` solves with
+the ``R`` rows of largest ``b_j + L‖g_j‖`` only. If every row left out holds at that answer as well as
+the kept ones do, it is the full problem's (feasible: a relaxation's minimiser that satisfies every
+row is the minimiser; infeasible: the least violation cannot be below the relaxation's, and the point
+attains it); the call says whether it does.
 """
 
 from __future__ import annotations
@@ -44,6 +51,7 @@ import itertools
 from functools import cache
 from typing import Literal
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
@@ -246,18 +254,32 @@ def _nearest(x0: Array, g: Array, b: Array, usable_rows: Array, limit: float | A
     return x * jnp.minimum(1.0, limit / safe_norm(x))
 
 
-def nearest_feasible(x0: Array, g: Array, b: Array, limit: float | Array,
-                     region: Literal["box", "ball"]) -> tuple[Array, Array]:
+def nearest_feasible(x0: Array, g: Array, b: Array, limit: float | Array, region: Literal["box", "ball"],
+                     rows: int = 0) -> tuple[Array, Array, Array]:
     """``argmin ½|x - x0|²`` s.t. ``g x >= b`` (rows (M, 3) of unit length; zero rows ignored) and
     ``x`` in the box ``|x_i| <= limit`` or the ball ``|x| <= limit``; if they cannot all hold, the
-    point nearest ``x0`` among those of least largest violation. Returns ``(x, largest violation of
-    the rows at x)`` (module docstring)."""
+    point nearest ``x0`` among those of least largest violation (module docstring).
+
+    ``rows`` (0: all): solve with only the ``rows`` rows that can bind soonest in the region, those of
+    largest ``b_j + limit·‖g_j‖`` (1-norm for the box): a row whose value is <= 0 holds everywhere in
+    the region and never changes the answer. The work falls from ``O(M⁴)`` to ``O(rows⁴)``. The answer is
+    the full problem's whenever every row left out holds at it as well as the kept ones do (a
+    relaxation's answer that is feasible for the whole problem solves it); whether it does is returned.
+
+    Returns ``(x, largest violation of all rows at x, exact)``; ``exact`` is True without ``rows``."""
     if region not in ("box", "ball"):
         raise ValueError(f"region must be 'box' or 'ball', not {region!r}")
     usable_rows = jnp.any(g != 0, axis=1)
-    least = _least_violation(g, b, usable_rows, limit, region)
+    kept_g, kept_b, kept_usable = g, b, usable_rows
+    if 0 < rows < g.shape[0]:
+        reach = jnp.sum(jnp.abs(g), axis=1) if region == "box" else safe_norm(g)  # max over the region of -g·x / L
+        soonest = jnp.where(usable_rows, b + limit * reach, -jnp.inf)
+        index = jax.lax.top_k(soonest, rows)[1]
+        kept_g, kept_b, kept_usable = g[index], b[index], usable_rows[index]
+    least = _least_violation(kept_g, kept_b, kept_usable, limit, region)
     infeasible = least > 0.0
     level = jnp.where(infeasible, least + 4e-6 * (1.0 + limit), 0.0)
-    x = _nearest(x0, g, jnp.where(usable_rows, b - level, b), usable_rows, limit, region)
+    x = _nearest(x0, kept_g, jnp.where(kept_usable, kept_b - level, kept_b), kept_usable, limit, region)
     violation = jnp.max(jnp.where(usable_rows, b - g @ x, 0.0), initial=0.0)
-    return x, violation
+    kept = jnp.max(jnp.where(kept_usable, kept_b - kept_g @ x, 0.0), initial=0.0)
+    return x, violation, violation <= kept + 1e-6 * (1.0 + limit)

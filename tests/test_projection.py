@@ -1,7 +1,8 @@
 """The nearest feasible point (jaxapf.projection): against OSQP (box; ball through its multiplier)
 on random feasible problems; on random infeasible ones the least largest violation, against
 scipy's linprog (box) and SLSQP (ball); infeasibility reported, gradients against finite
-differences."""
+differences; with only the rows that bind soonest kept, the full problem's answer whenever it is
+certified exact, and a hand-made case it cannot be."""
 
 from __future__ import annotations
 
@@ -78,7 +79,7 @@ def test_box_matches_osqp_on_feasible_problems(seed):
     """The box problem (the CBF filter's): OSQP's solution, every constraint within the tolerance
     that counts a step infeasible."""
     x0, g, b, _ = _problem(seed, "box")
-    x, worst = PROJECT(jnp.asarray(x0, jnp.float32), *_padded(g, b), LIMIT, "box")
+    x, worst, _ = PROJECT(jnp.asarray(x0, jnp.float32), *_padded(g, b), LIMIT, "box")
     np.testing.assert_allclose(np.asarray(x), _osqp(x0, g, b, LIMIT), atol=1e-4)
     assert float(worst) <= INFEASIBLE_TOL
     assert np.all(np.abs(np.asarray(x)) <= LIMIT + 1e-6)
@@ -89,7 +90,7 @@ def test_ball_matches_the_dual_solution_on_feasible_problems(seed):
     """The ball problem (the velocity-obstacle planner's): the solution by duality and OSQP, within
     the ball."""
     x0, g, b, _ = _problem(seed, "ball")
-    x, worst = PROJECT(jnp.asarray(x0, jnp.float32), *_padded(g, b), LIMIT, "ball")
+    x, worst, _ = PROJECT(jnp.asarray(x0, jnp.float32), *_padded(g, b), LIMIT, "ball")
     np.testing.assert_allclose(np.asarray(x), _ball_by_duality(x0, g, b, LIMIT), atol=2e-4)
     assert float(worst) <= INFEASIBLE_TOL
     assert np.linalg.norm(np.asarray(x)) <= LIMIT * (1 + 1e-6)
@@ -98,7 +99,7 @@ def test_ball_matches_the_dual_solution_on_feasible_problems(seed):
 @pytest.mark.parametrize("region", ["box", "ball"])
 def test_a_feasible_point_passes_unchanged(region):
     g = jnp.asarray([[1.0, 0.0, 0.0]])
-    x, worst = PROJECT(jnp.asarray([1.0, 1.5, -1.0]), *_padded(np.asarray(g), np.asarray([0.5])), LIMIT, region)
+    x, worst, _ = PROJECT(jnp.asarray([1.0, 1.5, -1.0]), *_padded(np.asarray(g), np.asarray([0.5])), LIMIT, region)
     np.testing.assert_array_equal(np.asarray(x), [1.0, 1.5, -1.0])
     assert float(worst) == 0.0
 
@@ -107,7 +108,7 @@ def test_a_feasible_point_passes_unchanged(region):
 def test_incompatible_constraints_are_reported(region):
     """``x_1 >= 1`` and ``-x_1 >= 1`` cannot both hold; nor can ``x_1 >= 5`` within the region."""
     for g, b in [([[1.0, 0, 0], [-1.0, 0, 0]], [1.0, 1.0]), ([[1.0, 0, 0]], [5.0])]:
-        _, worst = PROJECT(jnp.zeros(3), *_padded(np.asarray(g), np.asarray(b)), LIMIT, region)
+        _, worst, _ = PROJECT(jnp.zeros(3), *_padded(np.asarray(g), np.asarray(b)), LIMIT, region)
         assert float(worst) > INFEASIBLE_TOL
 
 
@@ -157,7 +158,7 @@ def test_infeasible_problems_get_the_least_largest_violation(region):
     assert len(problems) == 60  # (the ball lies in the box: infeasible in the box, infeasible in the ball)
     solve = jax.jit(jax.vmap(nearest_feasible, in_axes=(0, 0, 0, None, None)), static_argnums=(3, 4))
     padded = [_padded(g, b) for _, g, b in problems]
-    x, worst = solve(jnp.asarray(np.array([x0 for x0, _, _ in problems]), jnp.float32),
+    x, worst, _ = solve(jnp.asarray(np.array([x0 for x0, _, _ in problems]), jnp.float32),
                      jnp.stack([g for g, _ in padded]), jnp.stack([b for _, b in padded]), LIMIT, region)
     x, worst = np.asarray(x, np.float64), np.asarray(worst, np.float64)
     for i, (_, g, b) in enumerate(problems):
@@ -175,7 +176,7 @@ def test_among_the_least_violating_points_the_nearest_is_returned(region):
     """Hand-made: ``x_1 >= 1`` and ``-x_1 >= 1`` are violated by 1 at best, on the whole plane
     ``x_1 = 0``; from ``x0 = (2, 1, -1)`` the point returned is its projection ``(0, 1, -1)``."""
     g, b = np.asarray([[1.0, 0, 0], [-1.0, 0, 0]]), np.asarray([1.0, 1.0])
-    x, worst = PROJECT(jnp.asarray([2.0, 1.0, -1.0]), *_padded(g, b), LIMIT, region)
+    x, worst, _ = PROJECT(jnp.asarray([2.0, 1.0, -1.0]), *_padded(g, b), LIMIT, region)
     np.testing.assert_allclose(np.asarray(x), [0.0, 1.0, -1.0], atol=1e-4)
     assert float(worst) == pytest.approx(1.0, abs=1e-4)
 
@@ -196,3 +197,54 @@ def test_gradient_matches_finite_differences(region, x0):
         fd = [(f(x0.at[i].add(eps)) - f(x0.at[i].add(-eps))) / (2 * eps) for i in range(3)]
         np.testing.assert_allclose(grad, np.asarray(fd), rtol=1e-4, atol=1e-6)
         assert np.all(np.isfinite(grad))
+
+
+def _crowded(seed: int, region: str, rows: int = 40):
+    """Many unit rows (``rows``), most of them holding everywhere in the region (far obstacles): a few
+    binding ones through a known feasible point, the rest with ``b`` below ``-L‖g‖`` by up to 3."""
+    rng = np.random.default_rng(seed)
+    g = rng.normal(size=(rows, 3))
+    g /= np.linalg.norm(g, axis=1, keepdims=True)
+    inside = rng.uniform(-0.5, 0.5, 3) * LIMIT
+    reach = np.abs(g).sum(axis=1) if region == "box" else np.ones(rows)
+    b = -LIMIT * reach - rng.uniform(0.0, 3.0, rows)
+    binding = rng.choice(rows, int(rng.integers(1, 7)), replace=False)
+    b[binding] = g[binding] @ inside - rng.uniform(0.0, 0.5, binding.size)
+    return rng.uniform(-2 * LIMIT, 2 * LIMIT, 3), g, b
+
+
+@pytest.mark.parametrize("region", ["box", "ball"])
+def test_keeping_the_rows_that_bind_soonest_gives_the_full_answer(region):
+    """40 rows, at most 6 of which can bind in the region: with 8 rows kept every answer is certified
+    exact and is the full solve's, up to rounding (the kept rows' candidates are formed in another
+    order); with every row kept (``rows`` >= 40 or 0) the program is the full one, bit for bit."""
+    problems = [_crowded(seed, region) for seed in range(30)]
+    x0 = jnp.asarray(np.array([p[0] for p in problems]), jnp.float32)
+    g = jnp.asarray(np.array([p[1] for p in problems]), jnp.float32)
+    b = jnp.asarray(np.array([p[2] for p in problems]), jnp.float32)
+    solve = jax.jit(jax.vmap(nearest_feasible, in_axes=(0, 0, 0, None, None, None)), static_argnums=(3, 4, 5))
+    full, full_worst, full_exact = solve(x0, g, b, LIMIT, region, 0)
+    kept, kept_worst, kept_exact = solve(x0, g, b, LIMIT, region, 8)
+    assert np.all(np.asarray(full_exact)) and np.all(np.asarray(kept_exact))
+    np.testing.assert_allclose(np.asarray(kept), np.asarray(full), atol=2e-5)
+    np.testing.assert_allclose(np.asarray(kept_worst), np.asarray(full_worst), atol=2e-5)
+    every = solve(x0, g, b, LIMIT, region, 40)
+    np.testing.assert_array_equal(np.asarray(every[0]), np.asarray(full))
+
+
+@pytest.mark.parametrize("region", ["box", "ball"])
+def test_a_row_left_out_that_the_answer_violates_is_reported(region):
+    """Hand-made: four rows that can all bind, ``x_1 >= 1.0, 1.1, 1.2`` and ``x_2 >= 1.05``; with the two
+    that bind soonest kept (``x_1 >= 1.2`` and ``x_1 >= 1.1``, by ``b + L‖g‖``) the answer from the origin
+    is ``(1.2, 0, 0)``, which ``x_2 >= 1.05`` (left out) violates: not certified exact; with three kept it
+    is, ``(1.2, 1.05, 0)``, the full answer (``x_1 >= 1.0``, left out, holds)."""
+    g = np.asarray([[1.0, 0, 0], [1.0, 0, 0], [1.0, 0, 0], [0, 1.0, 0]])
+    b = np.asarray([1.0, 1.1, 1.2, 1.05])
+    x, worst, exact = nearest_feasible(jnp.zeros(3), jnp.asarray(g, jnp.float32), jnp.asarray(b, jnp.float32),
+                                       LIMIT, region, 2)
+    np.testing.assert_allclose(np.asarray(x), [1.2, 0.0, 0.0], atol=1e-6)
+    assert not bool(exact) and float(worst) == pytest.approx(1.05, abs=1e-6)
+    x, worst, exact = nearest_feasible(jnp.zeros(3), jnp.asarray(g, jnp.float32), jnp.asarray(b, jnp.float32),
+                                       LIMIT, region, 3)
+    np.testing.assert_allclose(np.asarray(x), [1.2, 1.05, 0.0], atol=1e-6)
+    assert bool(exact) and float(worst) == 0.0

@@ -107,8 +107,9 @@ def test_gains_and_metrics_are_listed_alike_whichever_module_is_imported_first(f
                                     text=True, check=True).stdout.splitlines()
     assert [gains, metrics] == canonical
     assert gains.split()[:2] == ["gamma", "k"]  # the planners' first
-    assert metrics.split()[-5:] == ["vo_infeasible_steps", "cbf_infeasible_steps", "max_tilt", "saturation_time",
-                                    "unseen_steps"]  # the episode's own first, then by component kind
+    # the episode's own first, then by component kind
+    assert metrics.split()[-7:] == ["vo_infeasible_steps", "vo_truncated_steps", "cbf_infeasible_steps",
+                                    "cbf_truncated_steps", "max_tilt", "saturation_time", "unseen_steps"]
 
 
 _OWNER = """

@@ -39,7 +39,9 @@ length): in R³ at most three constraints are active, so the solution is the nea
 of the candidates that every set of up to three active constraints gives -- a fixed amount of work
 that vmaps and differentiates. When the constraints and the box cannot all hold, the step is
 counted as infeasible (diagnostic ``cbf_infeasible``, metric ``cbf_infeasible_steps``) and the acceleration
-in the box with the least largest violation (nearest ``a_mpc`` among those) is applied.
+in the box with the least largest violation (nearest ``a_mpc`` among those) is applied. Among many
+obstacles, ``sim.projection_rows`` keeps only the rows that can bind soonest; a step whose answer a
+row left out violates is counted (``cbf_truncated``, metric ``cbf_truncated_steps``).
 
 The condition is the continuous-time one, applied with the control held for ``dt``: it guarantees
 nothing between samples, which the swept clearance of the metrics measures.
@@ -178,7 +180,11 @@ class CBF(SafetyFilter):
     metrics = (Metric("cbf_infeasible_steps", lambda ctx: ctx.extra("cbf_infeasible"), dtype="int32", kind="count",
                       higher_is_better=False, per_step=True,
                       doc="control steps at which the CBF filter's constraints and the acceleration box could not "
-                          "all hold (0 without this filter)"),)
+                          "all hold (0 without this filter)"),
+               Metric("cbf_truncated_steps", lambda ctx: ctx.extra("cbf_truncated"), dtype="int32", kind="count",
+                      higher_is_better=False, per_step=True,
+                      doc="control steps at which an obstacle row the CBF filter left out (sim.projection_rows) "
+                          "is violated at its answer: not the exact projection (0 with every row kept)"))
 
     @property
     def summary(self) -> str:
@@ -205,8 +211,8 @@ class CBF(SafetyFilter):
             g, b = cbf_constraints(x, t, obstacles, gains, sim)
             if self.robust:  # unit rows: the worst unknown acceleration of norm δ takes δ off g·a
                 b = jnp.where(obstacles.valid, b + gains.cbf_margin, b)
-        applied, worst = nearest_feasible(accel, g, b, sim.vehicle.a_max, "box")
-        return applied, state, {"cbf_infeasible": worst > INFEASIBLE_TOL}
+        applied, worst, exact = nearest_feasible(accel, g, b, sim.vehicle.a_max, "box", sim.planner.projection_rows)
+        return applied, state, {"cbf_infeasible": worst > INFEASIBLE_TOL, "cbf_truncated": ~exact}
 
 
 register_filter("cbf", CBF())

@@ -27,6 +27,10 @@ Metrics (one scalar each per episode):
 - ``arrival_fairness``: Jain's index ``(Σ s_a)² / (n Σ s_a²)`` of the arrived UAVs' slowdowns
   ``s_a = t_a / |g_a - start_a|`` (seconds per metre of straight line), in ``(0, 1]``, 1 when every
   UAV is held up alike; NaN if none arrives.
+- ``truncated_steps``: the UAV-steps (before each UAV's end) at which an exact projection of the stack
+  (the CBF filter's, the velocity obstacles') solved with ``sim.projection_rows`` rows only left out a
+  row that its answer violates (``cbf_truncated_steps`` plus ``vo_truncated_steps`` of every UAV); 0
+  means every projection of the episode was exact.
 
 Each is a :class:`~jaxapf.metrics.Metric` of :data:`SWARM_METRICS` whose function reads the
 :class:`SwarmContext`, which computes every shared quantity once (as
@@ -135,6 +139,15 @@ class SwarmContext:
     def arrived(self) -> Array:
         return jnp.sum(self.success)
 
+    def extra(self, name: str) -> Array:
+        """The per-step diagnostic ``name`` the UAVs' components record, summed over every UAV's intervals
+        before its end (0 if the stack records no ``name``)."""
+        values = self.traj.extras.get(name)
+        if values is None:
+            return jnp.zeros((), jnp.int32)
+        before = jnp.arange(self.steps)[None] < self.ends[:, None]
+        return jnp.sum(jnp.where(before & self.swarm.valid[:, None], values, 0))
+
 
 def _deadlock(ctx: SwarmContext) -> Array:
     goal_index, obstacle_index, distance = ctx.own
@@ -187,6 +200,10 @@ for _metric in (
            doc="mean arrival time of the UAVs that arrive"),
     Metric("arrival_fairness", _fairness, higher_is_better=True, margin=0.02,
            doc="Jain's index of the arrived UAVs' slowdowns (s per m of straight line)"),
+    Metric("truncated_steps", lambda c: c.extra("cbf_truncated") + c.extra("vo_truncated"), dtype="int32",
+           kind="count", higher_is_better=False, per_step=True,
+           doc="UAV-steps at which the CBF filter or the velocity obstacles left out a row (sim.projection_rows) "
+               "that their answer violates: not the exact projection (0 with every row kept)"),
 ):
     if _metric.name in METRICS:
         raise ConfigError(f"swarm metric {_metric.name!r} is a single-UAV metric's name")

@@ -39,13 +39,15 @@ and the ball have no common point (crowded, or already inside an obstacle) the v
 in the ball whose largest violation is least (nearest ``v_pref`` among those), as RVO2's fallback;
 the step is counted as infeasible (its largest violation above
 :data:`~jaxapf.projection.INFEASIBLE_TOL`; diagnostic ``vo_infeasible``, metric
-``vo_infeasible_steps``), as the CBF filter counts its own.
+``vo_infeasible_steps``), as the CBF filter counts its own. With ``sim.projection_rows`` only the
+half-spaces that can bind soonest in the ball are kept; a step whose answer a half-space left out
+violates is counted (``vo_truncated``, metric ``vo_truncated_steps``).
 
 The reference for the MPC holds ``v*`` over the horizon, ``p_i = p + i Δt v*``, assembled like the
 potential-field planners' (:func:`~jaxapf.planners.base.reference_states`); the receding horizon
-re-solves every control step. The planner's state is the last step's ``vo_infeasible`` flag (read
-by :meth:`VelocityObstacle.diagnostics`). Every valid obstacle counts, static or moving, at its true position
-and velocity; a static obstacle is an agent of velocity zero.
+re-solves every control step. The planner's state is the last step's ``vo_infeasible`` and
+``vo_truncated`` flags (read by :meth:`VelocityObstacle.diagnostics`). Every valid obstacle counts,
+static or moving, at its true position and velocity; a static obstacle is an agent of velocity zero.
 
 Registered planners: ``velocity_obstacle`` (gains ``vo_tau``, ``vo_margin``, ``k_att``, ``eta``), and
 ``velocity_obstacle_unilateral``, the same but taking the whole avoidance against other UAVs too (ORCA
@@ -140,7 +142,12 @@ class VelocityObstacle(Planner):
     metrics = (Metric("vo_infeasible_steps", lambda ctx: ctx.extra("vo_infeasible"), dtype="int32", kind="count",
                       higher_is_better=False, per_step=True,
                       doc="control steps at which the velocity obstacles' half-spaces and the speed ball could not "
-                          "all hold (0 for other planners)"),)
+                          "all hold (0 for other planners)"),
+               Metric("vo_truncated_steps", lambda ctx: ctx.extra("vo_truncated"), dtype="int32", kind="count",
+                      higher_is_better=False, per_step=True,
+                      doc="control steps at which a half-space the velocity obstacles left out "
+                          "(sim.projection_rows) is violated at their answer: not the exact projection (0 with every "
+                          "row kept)"))
 
     @property
     def description(self) -> str:
@@ -158,27 +165,31 @@ class VelocityObstacle(Planner):
         return ("att_cap", "reference_velocity")
 
     def init(self, scenario: Any, gains: "Gains", sim: "SimConfig", horizon: int) -> Array:
-        """The state: whether the last step's half-spaces and speed ball had no common point."""
-        return jnp.zeros((), bool)
+        """The state: whether the last step's half-spaces and speed ball had no common point, and whether
+        a half-space left out (``sim.projection_rows``) was violated at its answer."""
+        return jnp.zeros((2,), bool)
 
     def diagnostics(self, state: Array) -> dict[str, Array]:
-        return {"vo_infeasible": state}
+        return {"vo_infeasible": state[0], "vo_truncated": state[1]}
 
     def velocity(self, x: Array, t: Array, goal: Array, obstacles: ObstacleColumns, gains: "Gains",
                  sim: "SimConfig") -> tuple[Array, Array]:
-        """``(v*, largest violation of the half-spaces)`` at the state ``x`` and time ``t``."""
+        """``(v*, largest violation of the half-spaces, exact)`` at the state ``x`` and time ``t``
+        (:func:`~jaxapf.projection.nearest_feasible`)."""
         attraction = -jax.grad(attractive_potential)(x[:3], goal, gains.k_att, sim.planner.att_cap)
         preferred = saturate(gains.eta * attraction, sim.vehicle.v_max)
         n, bound = orca_half_spaces(x, t, obstacles, gains, sim, self.reciprocal)
-        return nearest_feasible(preferred, n, bound, sim.vehicle.v_max, "ball")
+        return nearest_feasible(preferred, n, bound, sim.vehicle.v_max, "ball", sim.planner.projection_rows)
 
     def reference(self, state: Any, x: Array, t: Array, goal: Array, obstacles: Obstacles | ObstacleColumns,
                   gains: "Gains", sim: "SimConfig", horizon: int) -> tuple[Array, Any]:
-        """``v*`` held over the horizon (module docstring); the state is whether this step was infeasible."""
-        velocity, worst = self.velocity(x, t, goal, obstacles.columns(), gains, sim)
+        """``v*`` held over the horizon (module docstring); the state is whether this step was infeasible
+        and whether it was truncated."""
+        velocity, worst, exact = self.velocity(x, t, goal, obstacles.columns(), gains, sim)
         steps = jnp.arange(1, horizon + 1, dtype=x.dtype)[:, None]
         points = x[:3] + steps * sim.episode.dt * velocity
-        return reference_states(x, points, jnp.broadcast_to(velocity, points.shape), sim), worst > INFEASIBLE_TOL
+        return (reference_states(x, points, jnp.broadcast_to(velocity, points.shape), sim),
+                jnp.stack([worst > INFEASIBLE_TOL, ~exact]))
 
 
 register_planner("velocity_obstacle", VelocityObstacle())

@@ -208,8 +208,11 @@ class TuneSpec:
         out["search"]["grid"] = {n: list(v) for n, v in self.search.grid}
         out["reparam"]["upper"] = dict(self.reparam.upper)
         out["scenario"] = {f: plain(p) | {"family": p.family} for f, p in self.scenario}
-        if not self.sim.world.max_neighbours:  # a swarm setting newer than the digests: at its default, the digest
-            del out["sim"]["world"]["max_neighbours"]  # every spec had before (its checkpoints still resume)
+        # settings newer than the digests: at their defaults, the digest every spec had before (its checkpoints resume)
+        if not self.sim.world.max_neighbours:
+            del out["sim"]["world"]["max_neighbours"]
+        if not self.sim.planner.projection_rows:
+            del out["sim"]["planner"]["projection_rows"]
         return out
 
     def digest(self) -> str:

@@ -165,7 +165,7 @@ def test_one_obstacle_never_makes_a_braking_step_infeasible_from_the_boundary(se
                     cylinder=jnp.asarray([False]), valid=jnp.asarray([True]))
     g, b = braking_constraints(jnp.asarray(np.concatenate([p, v]), jnp.float32), jnp.float32(0.0), obs.columns(),
                                Gains(cbf_brake=brake, cbf_margin=margin), sim)
-    _, worst = nearest_feasible(jnp.asarray(rng.uniform(-3, 3, 3), jnp.float32), g, b, sim.vehicle.a_max, "box")
+    _, worst, _ = nearest_feasible(jnp.asarray(rng.uniform(-3, 3, 3), jnp.float32), g, b, sim.vehicle.a_max, "box")
     assert float(worst) <= INFEASIBLE_TOL
 
 

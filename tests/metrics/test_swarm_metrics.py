@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -83,6 +85,26 @@ def test_parallel_flights_arrive_and_their_times_are_fair():
     np.testing.assert_allclose(m["min_agent_clearance"], 2 - 2 * R, rtol=1e-6)
     np.testing.assert_allclose([m["makespan"], m["mean_time_to_goal"], m["arrival_fairness"]], [10.0, 10.0, 1.0],
                                rtol=1e-5)
+
+
+def test_truncated_steps_sum_both_projections_over_the_uavs_before_each_end():
+    """Hand-made extras: UAV 0 arrives at step 50 (10 m in 5 s, then hovers), UAV 1 at step 100; the CBF
+    filter flags steps 10, 49 and 60 of UAV 0 and 99 of UAV 1, the velocity obstacles step 20 of UAV 1: four
+    of them before their UAV's end (UAV 0's step 60 is after it), so 4; a padded third slot flagged on every
+    step adds nothing, and a stack that records neither flag gives 0."""
+    fast, slow = _straight([[0, 5, 2]], [[10, 5, 2]], 50), _straight([[0, 0, 2]], [[10, 0, 2]], 100)
+    pad = lambda x, n: jnp.concatenate([x, jnp.repeat(x[:, -1:], n, axis=1)], axis=1)  # noqa: E731
+    position = jnp.concatenate([pad(fast.position, 50), slow.position, slow.position + 20.0])
+    cbf, vo = np.zeros((3, 100), bool), np.zeros((3, 100), bool)
+    cbf[0, [10, 49, 60]] = True
+    cbf[1, 99] = vo[1, 20] = True
+    cbf[2] = vo[2] = True
+    bare = Trajectory(time=slow.time.repeat(3, 0), position=position, velocity=jnp.zeros_like(position),
+                      control=jnp.zeros((3, 100, 3)))
+    traj = dataclasses.replace(bare, extras={"cbf_truncated": jnp.asarray(cbf), "vo_truncated": jnp.asarray(vo)})
+    swarm = _swarm([[0, 5, 2], [0, 0, 2], [20, 20, 22]], [[10, 5, 2], [10, 0, 2], [30, 20, 22]], [True, True, False])
+    assert int(_metrics(traj, swarm)["truncated_steps"]) == 4
+    assert int(_metrics(bare, swarm)["truncated_steps"]) == 0
 
 
 def test_unequal_slowdowns_lower_the_fairness_to_jains_index():

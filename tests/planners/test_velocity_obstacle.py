@@ -144,7 +144,7 @@ def test_a_feasible_velocity_collides_with_no_obstacle_within_tau(seed):
     x = np.concatenate([np.zeros(3), rng.uniform(-1.5, 1.5, 3)])
     obstacles = _obstacles(p_o, v_o, radius, cylinder).columns()
     goal = rng.normal(size=3) * 20.0
-    v_star, worst = _velocity(jnp.asarray(x, jnp.float32), jnp.asarray(goal, jnp.float32), obstacles, Gains())
+    v_star, worst, _ = _velocity(jnp.asarray(x, jnp.float32), jnp.asarray(goal, jnp.float32), obstacles, Gains())
     v_star = np.asarray(v_star, np.float64)
     assert np.linalg.norm(v_star) <= SIM.vehicle.v_max * (1 + 1e-5)
     if float(worst) > INFEASIBLE_TOL:
@@ -231,7 +231,7 @@ def test_a_pincer_is_infeasible_flown_at_least_violation_and_counted():
     scenario = _pincer()
     x = jnp.asarray([0.0, 0.0, 2.0, 0.0, 0.0, 0.0])
     obstacles = scenario.obstacles.columns()
-    v_star, worst = _velocity(x, scenario.goal, obstacles, Gains())
+    v_star, worst, _ = _velocity(x, scenario.goal, obstacles, Gains())
     n, bound = (np.asarray(a, np.float64) for a in _half_spaces(x, 0.0, obstacles, Gains()))
     assert float(worst) > INFEASIBLE_TOL
     assert float(worst) == pytest.approx(np.max(bound - n @ np.asarray(v_star, np.float64)), abs=1e-5)

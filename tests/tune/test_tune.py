@@ -443,8 +443,9 @@ def test_a_tune_spec_traces_the_mpc_weights_it_tunes_or_scales():
 
 
 def test_a_tune_specs_digest_stays_when_a_newer_setting_is_at_its_default():
-    """A checkpoint belongs to its spec's digest: a static setting added later (``max_neighbours``, for
-    swarms) at its default leaves every digest as it was, so runs started before it still resume."""
+    """A checkpoint belongs to its spec's digest: a static setting added later (``max_neighbours`` for
+    swarms, ``projection_rows``) at its default leaves every digest as it was, so runs started before it
+    still resume."""
     import dataclasses
     import pathlib
 
@@ -454,3 +455,4 @@ def test_a_tune_specs_digest_stays_when_a_newer_setting_is_at_its_default():
     assert spec.digest() == "b105fd45ad4cc8be85c938c37ec6fb2a8eb595f7e5830b08a2e462379bcf34c9"
     swarm = dataclasses.replace(spec, sim=spec.sim.replace(max_neighbours=8))
     assert swarm.digest() != spec.digest()
+    assert dataclasses.replace(spec, sim=spec.sim.replace(projection_rows=8)).digest() != spec.digest()
