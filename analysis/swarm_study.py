@@ -15,8 +15,9 @@ held-out fields (seed 300, 64 per family and A) of the four swarm families, ever
 ``swarm_clutter``. The CBF filter and the velocity obstacles solve an exact projection every step whose
 work grows with the fourth power of its rows (:mod:`jaxapf.projection`); among the 24 obstacle slots and
 8 neighbours of the last two families they keep the rows that bind soonest (``sim.projection_rows``: 8
-for the CBF filter, 16 for the velocity obstacles; the open families have at most 8 rows, all kept), and
-every UAV-step whose answer a row left out violates is counted (``truncated_steps``, reported below).
+for the CBF filter, 16 for the velocity obstacles; on the open families, at most 8 neighbours and a padded
+slot, every row), and every UAV-step whose answer a row left out violates is counted
+(``truncated_steps``, reported below).
 
 Verdicts (:func:`jaxapf.stats.verdicts`, the verdict function every study uses: exact McNemar and TOST
 within the metric's margin, 2 points, both Holm-adjusted over all of the study's comparisons at once),
@@ -42,9 +43,11 @@ AGENTS = (2, 4, 8, 16, 32)
 NEIGHBOURS = 8
 #: The methods of study 11 and the unilateral velocity obstacles (``velocity_obstacle``'s selections).
 UNILATERAL = "velocity_obstacle_unilateral"
-#: The rows each exact projection keeps (``sim.projection_rows``); the other methods solve none.
+#: The rows each exact projection keeps among obstacles (``sim.projection_rows``); the other methods solve none.
 ROWS = {"velocity_obstacle": 16, UNILATERAL: 16, "basic+cbf": 8, "direction_velocity+cbf": 8}
 FAMILIES = ("circle_swap", "crossing_flows", "formation_gap", "swarm_clutter")
+#: The families with obstacles, where the projections keep :data:`ROWS` rows (elsewhere every row).
+CLUTTERED = ("formation_gap", "swarm_clutter")
 #: The outcomes compared, each with its direction (higher is better?).
 OUTCOMES = (("swarm_success", True), ("agent_collision", False), ("deadlock", False))
 MARK = {"worse": "↓", "better": "↑", "equivalent": "=", "inconclusive": "·"}
@@ -79,7 +82,7 @@ def cell(method: str, family: str, agents: int, count: int) -> pd.DataFrame:
     planner, _, safety = method.partition("+")
     p = params(family, agents)
     sim = SimConfig.from_flat(method=planner, filter=safety or "none", t_max=p.t_max, max_neighbours=NEIGHBOURS,
-                              projection_rows=ROWS.get(method, 0))
+                              projection_rows=ROWS.get(method, 0) if family in CLUTTERED else 0)
     seeds = robustness.seeds()
     gains = jax.tree_util.tree_map(lambda *x: np.asarray(x, np.float32), *[Gains(**tuned(method, s)) for s in seeds])
     metrics = jax.device_get(evaluate_swarms(make_swarms(SEED, p, count), gains, sim, MPCConfig(),

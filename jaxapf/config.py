@@ -97,8 +97,9 @@ class PlannerConfig:
         episode, so a grid over them is one vmap and ``jaxapf tune`` differentiates through them).
       projection_rows: the exact projections (the CBF filter's, the velocity obstacles') solve with only
         the ``projection_rows`` obstacle rows that can bind soonest in the box or ball (0, default: all),
-        ``O(rows⁴)`` work instead of ``O(M⁴)``; the steps where a row left out is violated at the answer
-        are counted (``cbf_truncated_steps``, ``vo_truncated_steps``), :func:`jaxapf.projection.nearest_feasible`.
+        ``O(rows⁴)`` work instead of ``O(M⁴)``; the steps where a row left out is violated at the answer by
+        more than the kept rows are counted (``cbf_truncated_steps``, ``vo_truncated_steps``;
+        :func:`jaxapf.projection.nearest_feasible`).
     """
 
     method: str = "direction_velocity"

@@ -40,9 +40,9 @@ violation returned is the largest of the rows at the returned point.
 The work is ``O(M⁴)`` in the ``M`` rows. Among many obstacles most rows hold everywhere in ``S``
 (``b_j + L‖g_j‖ <= 0``, the 1-norm for the box) and cannot change the answer; ``rows = R`` solves with
 the ``R`` rows of largest ``b_j + L‖g_j‖`` only. If every row left out holds at that answer as well as
-the kept ones do, it is the full problem's (feasible: a relaxation's minimiser that satisfies every
-row is the minimiser; infeasible: the least violation cannot be below the relaxation's, and the point
-attains it); the call says whether it does.
+the kept ones do (up to the solver's rounding slack ``1e-6 (1 + L)``), it is the full problem's
+(feasible: a relaxation's minimiser that satisfies every row is the minimiser; infeasible: the least
+violation cannot be below the relaxation's, and the point attains it); the call says whether it does.
 """
 
 from __future__ import annotations
@@ -263,15 +263,17 @@ def nearest_feasible(x0: Array, g: Array, b: Array, limit: float | Array, region
     ``rows`` (0: all): solve with only the ``rows`` rows that can bind soonest in the region, those of
     largest ``b_j + limit·‖g_j‖`` (1-norm for the box): a row whose value is <= 0 holds everywhere in
     the region and never changes the answer. The work falls from ``O(M⁴)`` to ``O(rows⁴)``. The answer is
-    the full problem's whenever every row left out holds at it as well as the kept ones do (a
-    relaxation's answer that is feasible for the whole problem solves it); whether it does is returned.
+    the full problem's whenever no row left out is violated at it by more than the kept rows are (up to
+    ``1e-6 (1 + limit)``: a relaxation's answer that is feasible for the whole problem solves it);
+    whether that holds is returned.
 
     Returns ``(x, largest violation of all rows at x, exact)``; ``exact`` is True without ``rows``."""
     if region not in ("box", "ball"):
         raise ValueError(f"region must be 'box' or 'ball', not {region!r}")
     usable_rows = jnp.any(g != 0, axis=1)
     kept_g, kept_b, kept_usable = g, b, usable_rows
-    if 0 < rows < g.shape[0]:
+    truncated = 0 < rows < g.shape[0]
+    if truncated:
         reach = jnp.sum(jnp.abs(g), axis=1) if region == "box" else safe_norm(g)  # max over the region of -g·x / L
         soonest = jnp.where(usable_rows, b + limit * reach, -jnp.inf)
         index = jax.lax.top_k(soonest, rows)[1]
@@ -281,5 +283,7 @@ def nearest_feasible(x0: Array, g: Array, b: Array, limit: float | Array, region
     level = jnp.where(infeasible, least + 4e-6 * (1.0 + limit), 0.0)
     x = _nearest(x0, kept_g, jnp.where(kept_usable, kept_b - level, kept_b), kept_usable, limit, region)
     violation = jnp.max(jnp.where(usable_rows, b - g @ x, 0.0), initial=0.0)
+    if not truncated:
+        return x, violation, jnp.ones((), bool)
     kept = jnp.max(jnp.where(kept_usable, kept_b - kept_g @ x, 0.0), initial=0.0)
     return x, violation, violation <= kept + 1e-6 * (1.0 + limit)

@@ -197,6 +197,11 @@ def test_gradient_matches_finite_differences(region, x0):
         fd = [(f(x0.at[i].add(eps)) - f(x0.at[i].add(-eps))) / (2 * eps) for i in range(3)]
         np.testing.assert_allclose(grad, np.asarray(fd), rtol=1e-4, atol=1e-6)
         assert np.all(np.isfinite(grad))
+        # four rows that hold everywhere in the region added, the two that bind soonest kept: the same gradient
+        far = jnp.concatenate([g, jnp.asarray([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0], [-1.0, 0, 0]])])
+        kept = jax.jit(lambda x: jnp.sum(nearest_feasible(x, far, jnp.concatenate([b, jnp.full(4, -10.0)]), LIMIT,
+                                                          region, 2)[0] * jnp.asarray([1.0, 2.0, 3.0])))
+        np.testing.assert_allclose(np.asarray(jax.jit(jax.grad(kept))(x0)), grad, rtol=1e-12, atol=1e-12)
 
 
 def _crowded(seed: int, region: str, rows: int = 40):
@@ -248,3 +253,28 @@ def test_a_row_left_out_that_the_answer_violates_is_reported(region):
                                        LIMIT, region, 3)
     np.testing.assert_allclose(np.asarray(x), [1.2, 1.05, 0.0], atol=1e-6)
     assert bool(exact) and float(worst) == 0.0
+
+
+@pytest.mark.parametrize("region", ["box", "ball"])
+def test_on_an_infeasible_problem_a_row_left_out_that_the_answer_violates_more_is_reported(region):
+    """Hand-made: ``x_1 >= 1`` and ``-x_1 >= 1`` are violated by 1 at best (on ``x_1 = 0``), ``x_2 >= 0.5``
+    can hold there. From ``(0, -2, 0)`` the full answer keeps the least violation 1 for every row:
+    ``(0, -0.5, 0)``; with the two rows that bind soonest kept (the first two) the answer stays at
+    ``(0, -2, 0)``, where the row left out is violated by 2.5 > 1: not certified exact."""
+    g = jnp.asarray([[1.0, 0, 0], [-1.0, 0, 0], [0, 1.0, 0]])
+    b = jnp.asarray([1.0, 1.0, 0.5])
+    x0 = jnp.asarray([0.0, -2.0, 0.0])
+    x, worst, exact = nearest_feasible(x0, g, b, LIMIT, region)
+    np.testing.assert_allclose(np.asarray(x), [0.0, -0.5, 0.0], atol=1e-4)
+    assert bool(exact) and float(worst) == pytest.approx(1.0, abs=1e-4)
+    x, worst, exact = nearest_feasible(x0, g, b, LIMIT, region, 2)
+    np.testing.assert_allclose(np.asarray(x), [0.0, -2.0, 0.0], atol=1e-4)
+    assert not bool(exact) and float(worst) == pytest.approx(2.5, abs=1e-4)
+
+
+def test_every_row_kept_is_exact_whatever_the_input():
+    """Without rows left out the answer is the full problem's by construction: ``exact`` is True even for
+    a NaN input (its NaN answer is not a truncation)."""
+    g = jnp.asarray([[1.0, 0, 0]])
+    for rows in (0, 1, 5):
+        assert bool(nearest_feasible(jnp.asarray([jnp.nan, 0.0, 0.0]), g, jnp.asarray([0.5]), LIMIT, "box", rows)[2])

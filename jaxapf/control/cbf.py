@@ -41,7 +41,9 @@ that vmaps and differentiates. When the constraints and the box cannot all hold,
 counted as infeasible (diagnostic ``cbf_infeasible``, metric ``cbf_infeasible_steps``) and the acceleration
 in the box with the least largest violation (nearest ``a_mpc`` among those) is applied. Among many
 obstacles, ``sim.projection_rows`` keeps only the rows that can bind soonest; a step whose answer a
-row left out violates is counted (``cbf_truncated``, metric ``cbf_truncated_steps``).
+row left out violates by more than the kept rows is counted (``cbf_truncated``, metric
+``cbf_truncated_steps``; its largest violation then counts in ``cbf_infeasible`` too when above the
+tolerance, though the full problem may have been feasible).
 
 The condition is the continuous-time one, applied with the control held for ``dt``: it guarantees
 nothing between samples, which the swept clearance of the metrics measures.
@@ -184,7 +186,8 @@ class CBF(SafetyFilter):
                Metric("cbf_truncated_steps", lambda ctx: ctx.extra("cbf_truncated"), dtype="int32", kind="count",
                       higher_is_better=False, per_step=True,
                       doc="control steps at which an obstacle row the CBF filter left out (sim.projection_rows) "
-                          "is violated at its answer: not the exact projection (0 with every row kept)"))
+                          "is violated at its answer by more than the kept rows: not certified the exact projection "
+                          "(0 with every row kept)"))
 
     @property
     def summary(self) -> str:

@@ -29,8 +29,8 @@ Metrics (one scalar each per episode):
   UAV is held up alike; NaN if none arrives.
 - ``truncated_steps``: the UAV-steps (before each UAV's end) at which an exact projection of the stack
   (the CBF filter's, the velocity obstacles') solved with ``sim.projection_rows`` rows only left out a
-  row that its answer violates (``cbf_truncated_steps`` plus ``vo_truncated_steps`` of every UAV); 0
-  means every projection of the episode was exact.
+  row that its answer violates by more than the kept ones (``cbf_truncated_steps`` plus
+  ``vo_truncated_steps`` of every UAV); 0 means every projection of the episode was certified exact.
 
 Each is a :class:`~jaxapf.metrics.Metric` of :data:`SWARM_METRICS` whose function reads the
 :class:`SwarmContext`, which computes every shared quantity once (as
@@ -203,7 +203,8 @@ for _metric in (
     Metric("truncated_steps", lambda c: c.extra("cbf_truncated") + c.extra("vo_truncated"), dtype="int32",
            kind="count", higher_is_better=False, per_step=True,
            doc="UAV-steps at which the CBF filter or the velocity obstacles left out a row (sim.projection_rows) "
-               "that their answer violates: not the exact projection (0 with every row kept)"),
+               "that their answer violates by more than the kept ones: not certified the exact projection "
+               "(0 with every row kept)"),
 ):
     if _metric.name in METRICS:
         raise ConfigError(f"swarm metric {_metric.name!r} is a single-UAV metric's name")

@@ -41,7 +41,8 @@ the step is counted as infeasible (its largest violation above
 :data:`~jaxapf.projection.INFEASIBLE_TOL`; diagnostic ``vo_infeasible``, metric
 ``vo_infeasible_steps``), as the CBF filter counts its own. With ``sim.projection_rows`` only the
 half-spaces that can bind soonest in the ball are kept; a step whose answer a half-space left out
-violates is counted (``vo_truncated``, metric ``vo_truncated_steps``).
+violates by more than the kept ones is counted (``vo_truncated``, metric ``vo_truncated_steps``; its
+largest violation then counts in ``vo_infeasible`` too when above the tolerance).
 
 The reference for the MPC holds ``v*`` over the horizon, ``p_i = p + i Δt v*``, assembled like the
 potential-field planners' (:func:`~jaxapf.planners.base.reference_states`); the receding horizon
@@ -146,8 +147,8 @@ class VelocityObstacle(Planner):
                Metric("vo_truncated_steps", lambda ctx: ctx.extra("vo_truncated"), dtype="int32", kind="count",
                       higher_is_better=False, per_step=True,
                       doc="control steps at which a half-space the velocity obstacles left out "
-                          "(sim.projection_rows) is violated at their answer: not the exact projection (0 with every "
-                          "row kept)"))
+                          "(sim.projection_rows) is violated at their answer by more than the kept ones: not "
+                          "certified the exact projection (0 with every row kept)"))
 
     @property
     def description(self) -> str:
