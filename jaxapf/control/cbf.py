@@ -179,15 +179,13 @@ class CBF(SafetyFilter):
     def __post_init__(self) -> None:
         if self.barrier == "braking" and not self.robust:
             raise ValueError("the braking CBF holds its margin δ by construction: CBF(barrier='braking', robust=True)")
-    metrics = (Metric("cbf_infeasible_steps", lambda ctx: ctx.extra("cbf_infeasible"), dtype="int32", kind="count",
-                      higher_is_better=False, per_step=True,
-                      doc="control steps at which the CBF filter's constraints and the acceleration box could not "
-                          "all hold (0 without this filter)"),
-               Metric("cbf_truncated_steps", lambda ctx: ctx.extra("cbf_truncated"), dtype="int32", kind="count",
-                      higher_is_better=False, per_step=True,
-                      doc="control steps at which an obstacle row the CBF filter left out (sim.projection_rows) "
-                          "is violated at its answer by more than the kept rows: not certified the exact projection "
-                          "(0 with every row kept)"))
+    metrics = (Metric.flagged_steps("cbf_infeasible_steps", "cbf_infeasible",
+                                    "control steps at which the CBF filter's constraints and the acceleration box "
+                                    "could not all hold (0 without this filter)"),
+               Metric.flagged_steps("cbf_truncated_steps", "cbf_truncated",
+                                    "control steps at which an obstacle row the CBF filter left out "
+                                    "(sim.projection_rows) is violated at its answer by more than the kept rows: not "
+                                    "certified the exact projection (0 with every row kept)"))
 
     @property
     def summary(self) -> str:

@@ -76,6 +76,13 @@ class Metric:
         if self.margin is not None and not self.margin > 0:
             raise ConfigError(f"metric {self.name!r}: margin = {self.margin!r} must be > 0 or None")
 
+    @classmethod
+    def flagged_steps(cls, name: str, flag: str, doc: str) -> "Metric":
+        """The control steps at which a component's per-step diagnostic ``flag`` is set (a count, lower is
+        better): the CBF filter's and the velocity obstacles' infeasible and truncated steps."""
+        return cls(name, lambda ctx: ctx.extra(flag), dtype="int32", kind="count", higher_is_better=False,
+                   per_step=True, doc=doc)
+
     def cast(self, value: Array, float_dtype) -> Array:
         """``value`` in the metric's dtype (``float``: ``float_dtype``)."""
         if self.dtype == "bool":

@@ -140,15 +140,13 @@ class VelocityObstacle(Planner):
     color: str | None = "tab:brown"
     reciprocal: bool = True
     linestyle: str | None = "-"
-    metrics = (Metric("vo_infeasible_steps", lambda ctx: ctx.extra("vo_infeasible"), dtype="int32", kind="count",
-                      higher_is_better=False, per_step=True,
-                      doc="control steps at which the velocity obstacles' half-spaces and the speed ball could not "
-                          "all hold (0 for other planners)"),
-               Metric("vo_truncated_steps", lambda ctx: ctx.extra("vo_truncated"), dtype="int32", kind="count",
-                      higher_is_better=False, per_step=True,
-                      doc="control steps at which a half-space the velocity obstacles left out "
-                          "(sim.projection_rows) is violated at their answer by more than the kept ones: not "
-                          "certified the exact projection (0 with every row kept)"))
+    metrics = (Metric.flagged_steps("vo_infeasible_steps", "vo_infeasible",
+                                    "control steps at which the velocity obstacles' half-spaces and the speed ball "
+                                    "could not all hold (0 for other planners)"),
+               Metric.flagged_steps("vo_truncated_steps", "vo_truncated",
+                                    "control steps at which a half-space the velocity obstacles left out "
+                                    "(sim.projection_rows) is violated at their answer by more than the kept ones: "
+                                    "not certified the exact projection (0 with every row kept)"))
 
     @property
     def description(self) -> str:
