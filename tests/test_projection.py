@@ -16,7 +16,7 @@ from jaxapf.projection import nearest_feasible
 
 LIMIT = 3.0
 ROWS = 16  # problems padded to 16 rows (zero rows are ignored): one compiled solver for all
-PROJECT = jax.jit(nearest_feasible, static_argnums=(3, 4))
+PROJECT = jax.jit(nearest_feasible, static_argnums=(3, 4, 5))
 
 
 def _padded(g: np.ndarray, b: np.ndarray) -> tuple[jax.Array, jax.Array]:
@@ -245,12 +245,10 @@ def test_a_row_left_out_that_the_answer_violates_is_reported(region):
     is, ``(1.2, 1.05, 0)``, the full answer (``x_1 >= 1.0``, left out, holds)."""
     g = np.asarray([[1.0, 0, 0], [1.0, 0, 0], [1.0, 0, 0], [0, 1.0, 0]])
     b = np.asarray([1.0, 1.1, 1.2, 1.05])
-    x, worst, exact = nearest_feasible(jnp.zeros(3), jnp.asarray(g, jnp.float32), jnp.asarray(b, jnp.float32),
-                                       LIMIT, region, 2)
+    x, worst, exact = PROJECT(jnp.zeros(3), jnp.asarray(g, jnp.float32), jnp.asarray(b, jnp.float32), LIMIT, region, 2)
     np.testing.assert_allclose(np.asarray(x), [1.2, 0.0, 0.0], atol=1e-6)
     assert not bool(exact) and float(worst) == pytest.approx(1.05, abs=1e-6)
-    x, worst, exact = nearest_feasible(jnp.zeros(3), jnp.asarray(g, jnp.float32), jnp.asarray(b, jnp.float32),
-                                       LIMIT, region, 3)
+    x, worst, exact = PROJECT(jnp.zeros(3), jnp.asarray(g, jnp.float32), jnp.asarray(b, jnp.float32), LIMIT, region, 3)
     np.testing.assert_allclose(np.asarray(x), [1.2, 1.05, 0.0], atol=1e-6)
     assert bool(exact) and float(worst) == 0.0
 
@@ -264,10 +262,10 @@ def test_on_an_infeasible_problem_a_row_left_out_that_the_answer_violates_more_i
     g = jnp.asarray([[1.0, 0, 0], [-1.0, 0, 0], [0, 1.0, 0]])
     b = jnp.asarray([1.0, 1.0, 0.5])
     x0 = jnp.asarray([0.0, -2.0, 0.0])
-    x, worst, exact = nearest_feasible(x0, g, b, LIMIT, region)
+    x, worst, exact = PROJECT(x0, g, b, LIMIT, region, 0)
     np.testing.assert_allclose(np.asarray(x), [0.0, -0.5, 0.0], atol=1e-4)
     assert bool(exact) and float(worst) == pytest.approx(1.0, abs=1e-4)
-    x, worst, exact = nearest_feasible(x0, g, b, LIMIT, region, 2)
+    x, worst, exact = PROJECT(x0, g, b, LIMIT, region, 2)
     np.testing.assert_allclose(np.asarray(x), [0.0, -2.0, 0.0], atol=1e-4)
     assert not bool(exact) and float(worst) == pytest.approx(2.5, abs=1e-4)
 
@@ -277,4 +275,4 @@ def test_every_row_kept_is_exact_whatever_the_input():
     a NaN input (its NaN answer is not a truncation)."""
     g = jnp.asarray([[1.0, 0, 0]])
     for rows in (0, 1, 5):
-        assert bool(nearest_feasible(jnp.asarray([jnp.nan, 0.0, 0.0]), g, jnp.asarray([0.5]), LIMIT, "box", rows)[2])
+        assert bool(PROJECT(jnp.asarray([jnp.nan, 0.0, 0.0]), g, jnp.asarray([0.5]), LIMIT, "box", rows)[2])
