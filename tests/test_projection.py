@@ -218,6 +218,7 @@ def _crowded(seed: int, region: str, rows: int = 40):
     return rng.uniform(-2 * LIMIT, 2 * LIMIT, 3), g, b
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("region", ["box", "ball"])
 def test_keeping_the_rows_that_bind_soonest_gives_the_full_answer(region):
     """40 rows, at most 6 of which can bind in the region: with 8 rows kept every answer is certified
