@@ -333,7 +333,8 @@ def main() -> None:
              "Protocol: " + " ".join(__doc__.split("\n\n")[1:4]).replace("\n", " ").replace("``", "`")
              .replace(":func:", "").replace(":mod:", ""), "",
              f"{len(comparisons)} paired comparisons; {VERDICT_RULE}.", "", "## Findings", ""]
-    lines += [f"- {line}" for line in findings(flown, rates, comparisons)]
+    found = findings(flown, rates, comparisons)
+    lines += [f"- {line}" for line in found]
     for metric, _ in OUTCOMES:
         lines += ["", f"## {metric} [%]: mean over the three selections [min, max]; the selections' verdicts "
                       "against `basic` in seed order (↑ better, ↓ worse, = equivalent, · inconclusive)", ""]
@@ -346,7 +347,7 @@ def main() -> None:
               "mean fraction of UAVs at their goals and the median closest approach between UAVs; `comparisons.csv`: "
               "every paired comparison with its interval, raw and Holm-adjusted p-values and verdict."]
     study.write_results(out, lines, facts(flown, rates, comparisons))
-    print("\n".join(findings(flown, rates, comparisons)))
+    print("\n".join(found))
 
 
 if __name__ == "__main__":
