@@ -39,10 +39,16 @@ violation returned is the largest of the rows at the returned point.
 
 The work is ``O(M⁴)`` in the ``M`` rows. Among many obstacles most rows hold everywhere in ``S``
 (``b_j + L‖g_j‖ <= 0``, the 1-norm for the box) and cannot change the answer; ``rows = R`` solves with
-the ``R`` rows of largest ``b_j + L‖g_j‖`` only. If every row left out holds at that answer as well as
-the kept ones do (up to the solver's rounding slack ``1e-6 (1 + L)``), it is the full problem's
-(feasible: a relaxation's minimiser that satisfies every row is the minimiser; infeasible: the least
-violation cannot be below the relaxation's, and the point attains it); the call says whether it does.
+``R`` rows at a time, first those of largest ``b_j + L‖g_j‖``. A relaxation's answer that every row left
+out satisfies as well as the kept ones (up to the solver's rounding slack ``1e-6 (1 + L)``) is the full
+problem's (feasible: a relaxation's minimiser that satisfies every row is the minimiser; infeasible:
+the least violation cannot be below the relaxation's, and the point attains it). Otherwise the next
+solve keeps the rows active at that answer and takes the most violated in the other places
+(constraint generation): its problem contains the one the answer solves plus a row it violates, so
+its answer is strictly worse (a larger least violation, or as large and farther from ``x_0``), and no
+set of rows comes back. Up to :data:`ROUNDS` solves (a ``while_loop``: a batch pays only the rounds its
+hardest problem needs); the call says whether the answer is certified. The rows are chosen without gradients; the answer differentiates as the full
+problem's through the rows kept.
 """
 
 from __future__ import annotations
@@ -254,36 +260,57 @@ def _nearest(x0: Array, g: Array, b: Array, usable_rows: Array, limit: float | A
     return x * jnp.minimum(1.0, limit / safe_norm(x))
 
 
+def _solve(x0: Array, g: Array, b: Array, usable_rows: Array, limit: float | Array,
+           region: Literal["box", "ball"]) -> Array:
+    """The answer of :func:`nearest_feasible` with the rows ``g, b`` (every one of them)."""
+    least = _least_violation(g, b, usable_rows, limit, region)
+    level = jnp.where(least > 0.0, least + 4e-6 * (1.0 + limit), 0.0)
+    return _nearest(x0, g, jnp.where(usable_rows, b - level, b), usable_rows, limit, region)
+
+
+#: The most solves :func:`nearest_feasible` spends on the rows it keeps before it reports a truncation.
+ROUNDS = 8
+
+
 def nearest_feasible(x0: Array, g: Array, b: Array, limit: float | Array, region: Literal["box", "ball"],
                      rows: int = 0) -> tuple[Array, Array, Array]:
     """``argmin ½|x - x0|²`` s.t. ``g x >= b`` (rows (M, 3) of unit length; zero rows ignored) and
     ``x`` in the box ``|x_i| <= limit`` or the ball ``|x| <= limit``; if they cannot all hold, the
     point nearest ``x0`` among those of least largest violation (module docstring).
 
-    ``rows`` (0: all): solve with only the ``rows`` rows that can bind soonest in the region, those of
-    largest ``b_j + limit·‖g_j‖`` (1-norm for the box): a row whose value is <= 0 holds everywhere in
-    the region and never changes the answer. The work falls from ``O(M⁴)`` to ``O(rows⁴)``. The answer is
-    the full problem's whenever no row left out is violated at it by more than the kept rows are (up to
-    ``1e-6 (1 + limit)``: a relaxation's answer that is feasible for the whole problem solves it);
-    whether that holds is returned.
+    ``rows`` (0: all): solve with ``rows`` rows at a time, ``O(rows⁴)`` work instead of ``O(M⁴)``. The
+    first are those that can bind soonest in the region (largest ``b_j + limit·‖g_j‖``, 1-norm for the
+    box). While a row left out is violated at the answer by more than the kept ones (beyond
+    ``1e-6 (1 + limit)``), the next solve keeps the rows active at it and fills the other places with
+    the most violated rows, up to :data:`ROUNDS` solves (constraint generation). Whether the answer is
+    certified the full problem's is returned.
 
     Returns ``(x, largest violation of all rows at x, exact)``; ``exact`` is True without ``rows``."""
     if region not in ("box", "ball"):
         raise ValueError(f"region must be 'box' or 'ball', not {region!r}")
     usable_rows = jnp.any(g != 0, axis=1)
-    kept_g, kept_b, kept_usable = g, b, usable_rows
-    truncated = 0 < rows < g.shape[0]
-    if truncated:
-        reach = jnp.sum(jnp.abs(g), axis=1) if region == "box" else safe_norm(g)  # max over the region of -g·x / L
-        soonest = jnp.where(usable_rows, b + limit * reach, -jnp.inf)
-        index = jax.lax.top_k(soonest, rows)[1]
-        kept_g, kept_b, kept_usable = g[index], b[index], usable_rows[index]
-    least = _least_violation(kept_g, kept_b, kept_usable, limit, region)
-    infeasible = least > 0.0
-    level = jnp.where(infeasible, least + 4e-6 * (1.0 + limit), 0.0)
-    x = _nearest(x0, kept_g, jnp.where(kept_usable, kept_b - level, kept_b), kept_usable, limit, region)
+    if not 0 < rows < g.shape[0]:
+        x = _solve(x0, g, b, usable_rows, limit, region)
+        return x, jnp.max(jnp.where(usable_rows, b - g @ x, 0.0), initial=0.0), jnp.ones((), bool)
+    slack = 1e-6 * (1.0 + limit)
+    fixed_g, fixed_b, fixed_x0 = jax.lax.stop_gradient((g, b, x0))  # the rows are chosen, not differentiated
+
+    def rounds(carry: tuple) -> tuple:
+        count, index, _, _ = carry
+        x = _solve(fixed_x0, fixed_g[index], fixed_b[index], usable_rows[index], limit, region)
+        v = jnp.where(usable_rows, fixed_b - fixed_g @ x, -jnp.inf)
+        kept = jnp.zeros(v.shape, bool).at[index].set(True)
+        worst = jnp.maximum(jnp.max(jnp.where(kept, v, -jnp.inf)), 0.0)
+        certified = jnp.max(v) <= worst + slack
+        # the next rows: those active at x (so the next answer is no nearer x0), then the most violated
+        following = jax.lax.top_k(jnp.where(kept & (v >= worst - slack), jnp.inf, v), rows)[1]
+        return count + 1, jnp.where(certified, index, following), index, certified
+
+    reach = jnp.sum(jnp.abs(fixed_g), axis=1) if region == "box" else safe_norm(fixed_g)
+    first = jax.lax.top_k(jnp.where(usable_rows, fixed_b + limit * reach, -jnp.inf), rows)[1]
+    start = (jnp.zeros((), jnp.int32), first, first, jnp.zeros((), bool))
+    _, _, index, _ = jax.lax.while_loop(lambda c: ~c[3] & (c[0] < ROUNDS), rounds, start)
+    x = _solve(x0, g[index], b[index], usable_rows[index], limit, region)
     violation = jnp.max(jnp.where(usable_rows, b - g @ x, 0.0), initial=0.0)
-    if not truncated:
-        return x, violation, jnp.ones((), bool)
-    kept = jnp.max(jnp.where(kept_usable, kept_b - kept_g @ x, 0.0), initial=0.0)
-    return x, violation, violation <= kept + 1e-6 * (1.0 + limit)
+    kept = jnp.max(jnp.where(usable_rows[index], b[index] - g[index] @ x, 0.0), initial=0.0)
+    return x, violation, violation <= kept + slack

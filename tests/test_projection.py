@@ -6,6 +6,8 @@ certified exact, and a hand-made case it cannot be."""
 
 from __future__ import annotations
 
+from unittest import mock
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -204,9 +206,12 @@ def test_gradient_matches_finite_differences(region, x0):
         np.testing.assert_allclose(np.asarray(jax.jit(jax.grad(kept))(x0)), grad, rtol=1e-12, atol=1e-12)
 
 
-def _crowded(seed: int, region: str, rows: int = 40):
+def _crowded(seed: int, region: str, rows: int = 40, decoys: int = 0):
     """Many unit rows (``rows``), most of them holding everywhere in the region (far obstacles): a few
-    binding ones through a known feasible point, the rest with ``b`` below ``-L‖g‖`` by up to 3."""
+    binding ones through a known feasible point, the rest with ``b`` below ``-L‖g‖`` by up to 3. With
+    ``decoys``, that many of the rest can bind in a corner of the region away from the feasible point
+    (``b + L‖g‖`` up to ``2 L‖g‖``, above the binding rows' often; held with slack 0.1 there): the rows
+    kept first miss rows the answer needs."""
     rng = np.random.default_rng(seed)
     g = rng.normal(size=(rows, 3))
     g /= np.linalg.norm(g, axis=1, keepdims=True)
@@ -215,6 +220,8 @@ def _crowded(seed: int, region: str, rows: int = 40):
     b = -LIMIT * reach - rng.uniform(0.0, 3.0, rows)
     binding = rng.choice(rows, int(rng.integers(1, 7)), replace=False)
     b[binding] = g[binding] @ inside - rng.uniform(0.0, 0.5, binding.size)
+    rest = np.setdiff1d(np.arange(rows), binding)[:decoys]
+    b[rest] = np.minimum(g[rest] @ inside - 0.1, LIMIT * reach[rest] * (rng.uniform(1.0, 2.0, rest.size) - 1.0))
     return rng.uniform(-2 * LIMIT, 2 * LIMIT, 3), g, b
 
 
@@ -238,28 +245,53 @@ def test_keeping_the_rows_that_bind_soonest_gives_the_full_answer(region):
     np.testing.assert_array_equal(np.asarray(every[0]), np.asarray(full))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("region", ["box", "ball"])
-def test_a_row_left_out_that_the_answer_violates_is_reported(region):
-    """Hand-made: four rows that can all bind, ``x_1 >= 1.0, 1.1, 1.2`` and ``x_2 >= 1.05``; with the two
-    that bind soonest kept (``x_1 >= 1.2`` and ``x_1 >= 1.1``, by ``b + L‖g‖``) the answer from the origin
-    is ``(1.2, 0, 0)``, which ``x_2 >= 1.05`` (left out) violates: not certified exact; with three kept it
-    is, ``(1.2, 1.05, 0)``, the full answer (``x_1 >= 1.0``, left out, holds)."""
-    g = np.asarray([[1.0, 0, 0], [1.0, 0, 0], [1.0, 0, 0], [0, 1.0, 0]])
-    b = np.asarray([1.0, 1.1, 1.2, 1.05])
-    x, worst, exact = PROJECT(jnp.zeros(3), jnp.asarray(g, jnp.float32), jnp.asarray(b, jnp.float32), LIMIT, region, 2)
+def test_the_rounds_take_in_the_rows_the_answer_needs(region):
+    """40 rows, 16 of them decoys that can bind in a far corner of the region, 8 kept (float64): the
+    first solve alone misses the full answer on most problems (by up to the region's size); with the
+    rounds every answer is certified exact and is the full solve's, up to rounding."""
+    problems = [_crowded(seed, region, decoys=16) for seed in range(30)]
+    with jax.enable_x64(True):
+        x0, g, b = (jnp.asarray(np.array([p[i] for p in problems]), jnp.float64) for i in range(3))
+        solve = jax.jit(jax.vmap(nearest_feasible, in_axes=(0, 0, 0, None, None, None)), static_argnums=(3, 4, 5))
+        full, full_worst, _ = solve(x0, g, b, LIMIT, region, 0)
+        kept, kept_worst, exact = solve(x0, g, b, LIMIT, region, 8)
+        with mock.patch("jaxapf.projection.ROUNDS", 1):
+            first = jax.jit(jax.vmap(nearest_feasible, in_axes=(0, 0, 0, None, None, None)),
+                            static_argnums=(3, 4, 5))(x0, g, b, LIMIT, region, 8)
+    missed = np.abs(np.asarray(first[0]) - np.asarray(full)).max(axis=1) > 0.1
+    assert missed.sum() >= 15 and not np.any(np.asarray(first[2])[missed])
+    assert np.all(np.asarray(exact))
+    np.testing.assert_allclose(np.asarray(kept), np.asarray(full), atol=1e-9)
+    np.testing.assert_allclose(np.asarray(kept_worst), np.asarray(full_worst), atol=1e-9)
+
+
+@pytest.mark.parametrize("region", ["box", "ball"])
+def test_a_row_left_out_that_the_answer_violates_is_taken_in_or_reported(region):
+    """Hand-made: four rows that can all bind, ``x_1 >= 1.0, 1.1, 1.2`` and ``x_2 >= 1.05``. With two kept,
+    the first solve (``x_1 >= 1.2`` and ``x_1 >= 1.1``, largest ``b + L‖g‖``) answers ``(1.2, 0, 0)``, which
+    ``x_2 >= 1.05`` violates; the second keeps the active ``x_1 >= 1.2`` and takes ``x_2 >= 1.05`` in:
+    ``(1.2, 1.05, 0)``, the full answer, certified. With one kept, the active row holds the only place
+    every round: ``(1.2, 0, 0)`` is returned, violated by 1.05, not certified exact."""
+    g = jnp.asarray([[1.0, 0, 0], [1.0, 0, 0], [1.0, 0, 0], [0, 1.0, 0]])
+    b = jnp.asarray([1.0, 1.1, 1.2, 1.05])
+    for rows in (0, 2, 3):
+        x, worst, exact = PROJECT(jnp.zeros(3), g, b, LIMIT, region, rows)
+        np.testing.assert_allclose(np.asarray(x), [1.2, 1.05, 0.0], atol=1e-6)
+        assert bool(exact) and float(worst) == 0.0
+    x, worst, exact = PROJECT(jnp.zeros(3), g, b, LIMIT, region, 1)
     np.testing.assert_allclose(np.asarray(x), [1.2, 0.0, 0.0], atol=1e-6)
     assert not bool(exact) and float(worst) == pytest.approx(1.05, abs=1e-6)
-    x, worst, exact = PROJECT(jnp.zeros(3), jnp.asarray(g, jnp.float32), jnp.asarray(b, jnp.float32), LIMIT, region, 3)
-    np.testing.assert_allclose(np.asarray(x), [1.2, 1.05, 0.0], atol=1e-6)
-    assert bool(exact) and float(worst) == 0.0
 
 
 @pytest.mark.parametrize("region", ["box", "ball"])
 def test_on_an_infeasible_problem_a_row_left_out_that_the_answer_violates_more_is_reported(region):
     """Hand-made: ``x_1 >= 1`` and ``-x_1 >= 1`` are violated by 1 at best (on ``x_1 = 0``), ``x_2 >= 0.5``
     can hold there. From ``(0, -2, 0)`` the full answer keeps the least violation 1 for every row:
-    ``(0, -0.5, 0)``; with the two rows that bind soonest kept (the first two) the answer stays at
-    ``(0, -2, 0)``, where the row left out is violated by 2.5 > 1: not certified exact."""
+    ``(0, -0.5, 0)``; with two rows kept, the first two (they bind soonest) stay at ``(0, -2, 0)``, where
+    the row left out is violated by 2.5 > 1, and both are active there, so no round takes the third in:
+    not certified exact."""
     g = jnp.asarray([[1.0, 0, 0], [-1.0, 0, 0], [0, 1.0, 0]])
     b = jnp.asarray([1.0, 1.0, 0.5])
     x0 = jnp.asarray([0.0, -2.0, 0.0])
