@@ -14,9 +14,10 @@ held-out fields (seed 300, 64 per family and A) of the four swarm families, ever
 ``circle_swap``, ``crossing_flows`` (two flows), ``formation_gap`` (formation columns: min(4, A)) and
 ``swarm_clutter``. The CBF filter and the velocity obstacles solve an exact projection every step whose
 work grows with the fourth power of its rows (:mod:`jaxapf.projection`); among the 24 obstacle slots and
-8 neighbours of the last two families they keep the rows that bind soonest (``sim.projection_rows``: 8
+8 neighbours of the last two families they solve with a few rows at a time (``sim.projection_rows``: 8
 for the CBF filter, 16 for the velocity obstacles; on the open families, at most 8 neighbours and a padded
-slot, every row), and every UAV-step whose answer a row left out violates is counted
+slot, every row): those that bind soonest, then, while a row left out is violated at the answer, the rows
+active there and the most violated. Every UAV-step whose answer a row left out still violates is counted
 (``truncated_steps``). A method whose projections on a family were not all certified exact is flown
 and its count reported, but it is left out of that family's tables and comparisons: its answers were
 not the method's.

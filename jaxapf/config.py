@@ -95,10 +95,11 @@ class PlannerConfig:
         matrices built once for every episode); ``gains``: those weights times the traced scale gains
         ``mpc_pos``, ``mpc_vel``, ``mpc_terminal``, ``mpc_input``, ``mpc_speed`` (matrices built per
         episode, so a grid over them is one vmap and ``jaxapf tune`` differentiates through them).
-      projection_rows: the exact projections (the CBF filter's, the velocity obstacles') solve with only
-        the ``projection_rows`` obstacle rows that can bind soonest in the box or ball (0, default: all),
-        ``O(rows⁴)`` work instead of ``O(M⁴)``; the steps where a row left out is violated at the answer by
-        more than the kept rows are counted (``cbf_truncated_steps``, ``vo_truncated_steps``;
+      projection_rows: the exact projections (the CBF filter's, the velocity obstacles') solve with
+        ``projection_rows`` obstacle rows at a time (0, default: all), ``O(rows⁴)`` work instead of
+        ``O(M⁴)``: first those that can bind soonest in the box or ball, then, while a row left out is
+        violated at the answer, the rows active there and the most violated (up to 8 solves); the steps
+        still not certified exact are counted (``cbf_truncated_steps``, ``vo_truncated_steps``;
         :func:`jaxapf.projection.nearest_feasible`).
     """
 

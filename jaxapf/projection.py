@@ -46,9 +46,9 @@ the least violation cannot be below the relaxation's, and the point attains it).
 solve keeps the rows active at that answer and takes the most violated in the other places
 (constraint generation): its problem contains the one the answer solves plus a row it violates, so
 its answer is strictly worse (a larger least violation, or as large and farther from ``x_0``), and no
-set of rows comes back. Up to :data:`ROUNDS` solves (a ``while_loop``: a batch pays only the rounds its
-hardest problem needs); the call says whether the answer is certified. The rows are chosen without gradients; the answer differentiates as the full
-problem's through the rows kept.
+set of rows comes back. Up to ``rounds`` solves (8 by default; a ``while_loop``: a batch pays only the
+rounds its hardest problem needs); the call says whether the answer is certified. The rows are chosen
+without gradients; the answer differentiates as the full problem's through the rows kept.
 """
 
 from __future__ import annotations
@@ -268,12 +268,8 @@ def _solve(x0: Array, g: Array, b: Array, usable_rows: Array, limit: float | Arr
     return _nearest(x0, g, jnp.where(usable_rows, b - level, b), usable_rows, limit, region)
 
 
-#: The most solves :func:`nearest_feasible` spends on the rows it keeps before it reports a truncation.
-ROUNDS = 8
-
-
 def nearest_feasible(x0: Array, g: Array, b: Array, limit: float | Array, region: Literal["box", "ball"],
-                     rows: int = 0) -> tuple[Array, Array, Array]:
+                     rows: int = 0, rounds: int = 8) -> tuple[Array, Array, Array]:
     """``argmin ½|x - x0|²`` s.t. ``g x >= b`` (rows (M, 3) of unit length; zero rows ignored) and
     ``x`` in the box ``|x_i| <= limit`` or the ball ``|x| <= limit``; if they cannot all hold, the
     point nearest ``x0`` among those of least largest violation (module docstring).
@@ -282,12 +278,14 @@ def nearest_feasible(x0: Array, g: Array, b: Array, limit: float | Array, region
     first are those that can bind soonest in the region (largest ``b_j + limit·‖g_j‖``, 1-norm for the
     box). While a row left out is violated at the answer by more than the kept ones (beyond
     ``1e-6 (1 + limit)``), the next solve keeps the rows active at it and fills the other places with
-    the most violated rows, up to :data:`ROUNDS` solves (constraint generation). Whether the answer is
+    the most violated rows, up to ``rounds`` solves (constraint generation). Whether the answer is
     certified the full problem's is returned.
 
     Returns ``(x, largest violation of all rows at x, exact)``; ``exact`` is True without ``rows``."""
     if region not in ("box", "ball"):
         raise ValueError(f"region must be 'box' or 'ball', not {region!r}")
+    if rounds < 1:
+        raise ValueError(f"rounds must be at least 1, not {rounds}")
     usable_rows = jnp.any(g != 0, axis=1)
     if not 0 < rows < g.shape[0]:
         x = _solve(x0, g, b, usable_rows, limit, region)
@@ -295,7 +293,7 @@ def nearest_feasible(x0: Array, g: Array, b: Array, limit: float | Array, region
     slack = 1e-6 * (1.0 + limit)
     fixed_g, fixed_b, fixed_x0 = jax.lax.stop_gradient((g, b, x0))  # the rows are chosen, not differentiated
 
-    def rounds(carry: tuple) -> tuple:
+    def solve_round(carry: tuple) -> tuple:
         count, index, _, _ = carry
         x = _solve(fixed_x0, fixed_g[index], fixed_b[index], usable_rows[index], limit, region)
         v = jnp.where(usable_rows, fixed_b - fixed_g @ x, -jnp.inf)
@@ -309,7 +307,7 @@ def nearest_feasible(x0: Array, g: Array, b: Array, limit: float | Array, region
     reach = jnp.sum(jnp.abs(fixed_g), axis=1) if region == "box" else safe_norm(fixed_g)
     first = jax.lax.top_k(jnp.where(usable_rows, fixed_b + limit * reach, -jnp.inf), rows)[1]
     start = (jnp.zeros((), jnp.int32), first, first, jnp.zeros((), bool))
-    _, _, index, _ = jax.lax.while_loop(lambda c: ~c[3] & (c[0] < ROUNDS), rounds, start)
+    _, _, index, _ = jax.lax.while_loop(lambda c: ~c[3] & (c[0] < rounds), solve_round, start)
     x = _solve(x0, g[index], b[index], usable_rows[index], limit, region)
     violation = jnp.max(jnp.where(usable_rows, b - g @ x, 0.0), initial=0.0)
     kept = jnp.max(jnp.where(usable_rows[index], b[index] - g[index] @ x, 0.0), initial=0.0)

@@ -6,8 +6,6 @@ certified exact, and a hand-made case it cannot be."""
 
 from __future__ import annotations
 
-from unittest import mock
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -257,9 +255,8 @@ def test_the_rounds_take_in_the_rows_the_answer_needs(region):
         solve = jax.jit(jax.vmap(nearest_feasible, in_axes=(0, 0, 0, None, None, None)), static_argnums=(3, 4, 5))
         full, full_worst, _ = solve(x0, g, b, LIMIT, region, 0)
         kept, kept_worst, exact = solve(x0, g, b, LIMIT, region, 8)
-        with mock.patch("jaxapf.projection.ROUNDS", 1):
-            first = jax.jit(jax.vmap(nearest_feasible, in_axes=(0, 0, 0, None, None, None)),
-                            static_argnums=(3, 4, 5))(x0, g, b, LIMIT, region, 8)
+        first = jax.jit(jax.vmap(nearest_feasible, in_axes=(0, 0, 0, None, None, None, None)),
+                        static_argnums=(3, 4, 5, 6))(x0, g, b, LIMIT, region, 8, 1)
     missed = np.abs(np.asarray(first[0]) - np.asarray(full)).max(axis=1) > 0.1
     assert missed.sum() >= 15 and not np.any(np.asarray(first[2])[missed])
     assert np.all(np.asarray(exact))

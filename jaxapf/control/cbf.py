@@ -40,8 +40,9 @@ of the candidates that every set of up to three active constraints gives -- a fi
 that vmaps and differentiates. When the constraints and the box cannot all hold, the step is
 counted as infeasible (diagnostic ``cbf_infeasible``, metric ``cbf_infeasible_steps``) and the acceleration
 in the box with the least largest violation (nearest ``a_mpc`` among those) is applied. Among many
-obstacles, ``sim.projection_rows`` keeps only the rows that can bind soonest; a step whose answer a
-row left out violates by more than the kept rows is counted (``cbf_truncated``, metric
+obstacles, ``sim.projection_rows`` solves with that many rows at a time (those that can bind soonest,
+then those the answer needs: :func:`~jaxapf.projection.nearest_feasible`); a step whose answer a row
+left out still violates by more than the kept rows is counted (``cbf_truncated``, metric
 ``cbf_truncated_steps``; its largest violation then counts in ``cbf_infeasible`` too when above the
 tolerance, though the full problem may have been feasible).
 

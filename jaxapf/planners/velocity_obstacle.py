@@ -39,8 +39,9 @@ and the ball have no common point (crowded, or already inside an obstacle) the v
 in the ball whose largest violation is least (nearest ``v_pref`` among those), as RVO2's fallback;
 the step is counted as infeasible (its largest violation above
 :data:`~jaxapf.projection.INFEASIBLE_TOL`; diagnostic ``vo_infeasible``, metric
-``vo_infeasible_steps``), as the CBF filter counts its own. With ``sim.projection_rows`` only the
-half-spaces that can bind soonest in the ball are kept; a step whose answer a half-space left out
+``vo_infeasible_steps``), as the CBF filter counts its own. With ``sim.projection_rows`` that many
+half-spaces are kept at a time (those that can bind soonest in the ball, then those the answer needs:
+:func:`~jaxapf.projection.nearest_feasible`); a step whose answer a half-space left out still
 violates by more than the kept ones is counted (``vo_truncated``, metric ``vo_truncated_steps``; its
 largest violation then counts in ``vo_infeasible`` too when above the tolerance).
 
