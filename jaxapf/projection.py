@@ -47,7 +47,11 @@ solve keeps the rows active at that answer and takes the most violated in the ot
 (constraint generation): its problem contains the one the answer solves plus a row it violates, so
 its answer is strictly worse (a larger least violation, or as large and farther from ``x_0``), and no
 set of rows comes back. Up to ``rounds`` solves (8 by default; a ``while_loop``: a batch pays only the
-rounds its hardest problem needs); the call says whether the answer is certified. The rows are chosen
+rounds its hardest problem needs). In float32 a relaxation with two nearly opposite rows (a thin
+wedge) can miss its minimiser by more than the slack and the rounds then cycle; a problem still not
+certified is solved once with ``2R`` rows (the last ``R`` and the ``R`` most violated) and takes the
+``R`` rows of largest value at that answer (a batch pays it only at the steps that need it). The call
+says whether the final answer is certified. The rows are chosen
 without gradients; the answer differentiates as the full problem's through the rows kept.
 """
 
@@ -278,8 +282,9 @@ def nearest_feasible(x0: Array, g: Array, b: Array, limit: float | Array, region
     first are those that can bind soonest in the region (largest ``b_j + limit·‖g_j‖``, 1-norm for the
     box). While a row left out is violated at the answer by more than the kept ones (beyond
     ``1e-6 (1 + limit)``), the next solve keeps the rows active at it and fills the other places with
-    the most violated rows, up to ``rounds`` solves (constraint generation). Whether the answer is
-    certified the full problem's is returned.
+    the most violated rows, up to ``rounds`` solves (constraint generation), then once with twice the
+    rows if still needed (module docstring). Whether the answer is certified the full problem's is
+    returned.
 
     Returns ``(x, largest violation of all rows at x, exact)``; ``exact`` is True without ``rows``."""
     if region not in ("box", "ball"):
@@ -293,21 +298,37 @@ def nearest_feasible(x0: Array, g: Array, b: Array, limit: float | Array, region
     slack = 1e-6 * (1.0 + limit)
     fixed_g, fixed_b, fixed_x0 = jax.lax.stop_gradient((g, b, x0))  # the rows are chosen, not differentiated
 
-    def solve_round(carry: tuple) -> tuple:
-        count, index, _, _ = carry
+    def kept_answer(index: Array) -> tuple[Array, Array, Array]:
+        """The answer with the rows ``index``, every row's violation there and whether it is certified."""
         x = _solve(fixed_x0, fixed_g[index], fixed_b[index], usable_rows[index], limit, region)
         v = jnp.where(usable_rows, fixed_b - fixed_g @ x, -jnp.inf)
         kept = jnp.zeros(v.shape, bool).at[index].set(True)
         worst = jnp.maximum(jnp.max(jnp.where(kept, v, -jnp.inf)), 0.0)
-        certified = jnp.max(v) <= worst + slack
-        # the next rows: those active at x (so the next answer is no nearer x0), then the most violated
-        following = jax.lax.top_k(jnp.where(kept & (v >= worst - slack), jnp.inf, v), rows)[1]
-        return count + 1, jnp.where(certified, index, following), index, certified
+        return v, kept & (v >= worst - slack), jnp.max(v) <= worst + slack
+
+    def solve_round(carry: tuple) -> tuple:
+        count, index, _, _, _ = carry
+        v, active, certified = kept_answer(index)
+        # the next rows: those active at the answer (so the next answer is worse), then the most violated
+        following = jax.lax.top_k(jnp.where(active, jnp.inf, v), rows)[1]
+        return count + 1, jnp.where(certified, index, following), index, v, certified
 
     reach = jnp.sum(jnp.abs(fixed_g), axis=1) if region == "box" else safe_norm(fixed_g)
     first = jax.lax.top_k(jnp.where(usable_rows, fixed_b + limit * reach, -jnp.inf), rows)[1]
-    start = (jnp.zeros((), jnp.int32), first, first, jnp.zeros((), bool))
-    _, _, index, _ = jax.lax.while_loop(lambda c: ~c[3] & (c[0] < rounds), solve_round, start)
+    start = (jnp.zeros((), jnp.int32), first, first, jnp.zeros(b.shape, b.dtype), jnp.zeros((), bool))
+    _, _, index, v, certified = jax.lax.while_loop(lambda c: ~c[4] & (c[0] < rounds), solve_round, start)
+
+    def wider(carry: tuple) -> tuple:
+        # float32 rounding on a thin wedge can make a relaxation miss its minimiser and the rounds cycle:
+        # solve once with twice the rows (the last ones and as many most violated), keep the rows of
+        # largest value at that answer (its active ones first)
+        index, v, _ = carry
+        kept = jnp.zeros(v.shape, bool).at[index].set(True)
+        both = jax.lax.top_k(jnp.where(kept, jnp.inf, v), min(2 * rows, g.shape[0]))[1]
+        x = _solve(fixed_x0, fixed_g[both], fixed_b[both], usable_rows[both], limit, region)
+        return jax.lax.top_k(jnp.where(usable_rows, fixed_b - fixed_g @ x, -jnp.inf), rows)[1], v, True
+
+    index = jax.lax.while_loop(lambda c: ~c[2], wider, (index, v, certified))[0]
     x = _solve(x0, g[index], b[index], usable_rows[index], limit, region)
     violation = jnp.max(jnp.where(usable_rows, b - g @ x, 0.0), initial=0.0)
     kept = jnp.max(jnp.where(usable_rows[index], b[index] - g[index] @ x, 0.0), initial=0.0)
