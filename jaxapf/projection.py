@@ -51,8 +51,8 @@ rounds its hardest problem needs). In float32 a relaxation with two nearly oppos
 wedge) can miss its minimiser by more than the slack and the rounds then cycle; a problem still not
 certified is solved once with ``2R`` rows (the last ``R`` and the ``R`` most violated) and takes the
 ``R`` rows of largest value at that answer (a batch pays it only at the steps that need it). The call
-says whether the final answer is certified. The rows are chosen
-without gradients; the answer differentiates as the full problem's through the rows kept.
+says whether the final answer is certified. The rows are chosen without gradients; the answer
+differentiates as the full problem's through the rows kept.
 """
 
 from __future__ import annotations
