@@ -99,8 +99,8 @@ class PlannerConfig:
         ``projection_rows`` obstacle rows at a time (0, default: all), ``O(rows⁴)`` work instead of
         ``O(M⁴)``: first those that can bind soonest in the box or ball, then, while a row left out is
         violated at the answer, the rows active there and the most violated (up to 8 solves, then one
-        with twice the rows); the steps still not certified exact are counted (``cbf_truncated_steps``, ``vo_truncated_steps``;
-        :func:`jaxapf.projection.nearest_feasible`).
+        with twice the rows); the steps still not certified exact are counted (``cbf_truncated_steps``,
+        ``vo_truncated_steps``; :func:`jaxapf.projection.nearest_feasible`).
     """
 
     method: str = "direction_velocity"
