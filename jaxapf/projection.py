@@ -298,17 +298,19 @@ def nearest_feasible(x0: Array, g: Array, b: Array, limit: float | Array, region
     slack = 1e-6 * (1.0 + limit)
     fixed_g, fixed_b, fixed_x0 = jax.lax.stop_gradient((g, b, x0))  # the rows are chosen, not differentiated
 
-    def kept_answer(index: Array) -> tuple[Array, Array, Array]:
-        """The answer with the rows ``index``, every row's violation there and whether it is certified."""
-        x = _solve(fixed_x0, fixed_g[index], fixed_b[index], usable_rows[index], limit, region)
+    def kept(index: Array) -> Array:
+        return jnp.zeros(b.shape, bool).at[index].set(True)
+
+    def standing(x: Array, index: Array) -> tuple[Array, Array, Array]:
+        """Every row's violation at ``x``, the kept rows active there, and whether ``x`` is certified."""
         v = jnp.where(usable_rows, fixed_b - fixed_g @ x, -jnp.inf)
-        kept = jnp.zeros(v.shape, bool).at[index].set(True)
-        worst = jnp.maximum(jnp.max(jnp.where(kept, v, -jnp.inf)), 0.0)
-        return v, kept & (v >= worst - slack), jnp.max(v) <= worst + slack
+        worst = jnp.maximum(jnp.max(jnp.where(kept(index), v, -jnp.inf)), 0.0)
+        return v, kept(index) & (v >= worst - slack), jnp.max(v) <= worst + slack
 
     def solve_round(carry: tuple) -> tuple:
         count, index, _, _, _ = carry
-        v, active, certified = kept_answer(index)
+        x = _solve(fixed_x0, fixed_g[index], fixed_b[index], usable_rows[index], limit, region)
+        v, active, certified = standing(x, index)
         # the next rows: those active at the answer (so the next answer is worse), then the most violated
         following = jax.lax.top_k(jnp.where(active, jnp.inf, v), rows)[1]
         return count + 1, jnp.where(certified, index, following), index, v, certified
@@ -323,13 +325,11 @@ def nearest_feasible(x0: Array, g: Array, b: Array, limit: float | Array, region
         # solve once with twice the rows (the last ones and as many most violated), keep the rows of
         # largest value at that answer (its active ones first)
         index, v, _ = carry
-        kept = jnp.zeros(v.shape, bool).at[index].set(True)
-        both = jax.lax.top_k(jnp.where(kept, jnp.inf, v), min(2 * rows, g.shape[0]))[1]
+        both = jax.lax.top_k(jnp.where(kept(index), jnp.inf, v), min(2 * rows, g.shape[0]))[1]
         x = _solve(fixed_x0, fixed_g[both], fixed_b[both], usable_rows[both], limit, region)
-        return jax.lax.top_k(jnp.where(usable_rows, fixed_b - fixed_g @ x, -jnp.inf), rows)[1], v, True
+        return jax.lax.top_k(standing(x, both)[0], rows)[1], v, True
 
     index = jax.lax.while_loop(lambda c: ~c[2], wider, (index, v, certified))[0]
     x = _solve(x0, g[index], b[index], usable_rows[index], limit, region)
     violation = jnp.max(jnp.where(usable_rows, b - g @ x, 0.0), initial=0.0)
-    kept = jnp.max(jnp.where(usable_rows[index], b[index] - g[index] @ x, 0.0), initial=0.0)
-    return x, violation, violation <= kept + slack
+    return x, violation, standing(x, index)[2]
