@@ -57,6 +57,7 @@ differentiates as the full problem's through the rows kept.
 
 from __future__ import annotations
 
+import functools
 import itertools
 from functools import cache
 from typing import Literal
@@ -308,28 +309,50 @@ def nearest_feasible(x0: Array, g: Array, b: Array, limit: float | Array, region
         return v, kept(index) & (v >= worst - slack), jnp.max(v) <= worst + slack
 
     def solve_round(carry: tuple) -> tuple:
-        count, index, _, _, _ = carry
+        count, index, _, _, _, _ = carry
         x = _solve(fixed_x0, fixed_g[index], fixed_b[index], usable_rows[index], limit, region)
         v, active, certified = standing(x, index)
         # the next rows: those active at the answer (so the next answer is worse), then the most violated
         following = jax.lax.top_k(jnp.where(active, jnp.inf, v), rows)[1]
-        return count + 1, jnp.where(certified, index, following), index, v, certified
+        return count + 1, jnp.where(certified, index, following), index, x, v, certified
 
     reach = jnp.sum(jnp.abs(fixed_g), axis=1) if region == "box" else safe_norm(fixed_g)
     first = jax.lax.top_k(jnp.where(usable_rows, fixed_b + limit * reach, -jnp.inf), rows)[1]
-    start = (jnp.zeros((), jnp.int32), first, first, jnp.zeros(b.shape, b.dtype), jnp.zeros((), bool))
-    _, _, index, v, certified = jax.lax.while_loop(lambda c: ~c[4] & (c[0] < rounds), solve_round, start)
+    start = (jnp.zeros((), jnp.int32), first, first, fixed_x0, jnp.zeros(b.shape, b.dtype), jnp.zeros((), bool))
+    _, _, index, x, v, certified = jax.lax.while_loop(lambda c: ~c[5] & (c[0] < rounds), solve_round, start)
 
     def wider(carry: tuple) -> tuple:
         # float32 rounding on a thin wedge can make a relaxation miss its minimiser and the rounds cycle:
         # solve once with twice the rows (the last ones and as many most violated), keep the rows of
-        # largest value at that answer (its active ones first)
-        index, v, _ = carry
+        # largest value at that answer (its active ones first) and solve with them; where only the wider
+        # answer is certified (a sliver of a feasible set the kept rows' float32 solve misses), it is the one
+        index, _, v, _, _ = carry
         both = jax.lax.top_k(jnp.where(kept(index), jnp.inf, v), min(2 * rows, g.shape[0]))[1]
-        x = _solve(fixed_x0, fixed_g[both], fixed_b[both], usable_rows[both], limit, region)
-        return jax.lax.top_k(standing(x, both)[0], rows)[1], v, True
+        wide = _solve(fixed_x0, fixed_g[both], fixed_b[both], usable_rows[both], limit, region)
+        v_wide, _, wide_certified = standing(wide, both)
+        index = jax.lax.top_k(v_wide, rows)[1]
+        x = _solve(fixed_x0, fixed_g[index], fixed_b[index], usable_rows[index], limit, region)
+        certified = standing(x, index)[2]
+        return index, jnp.where(certified | ~wide_certified, x, wide), v, True, certified | wide_certified
 
-    index = jax.lax.while_loop(lambda c: ~c[2], wider, (index, v, certified))[0]
-    x = _solve(x0, g[index], b[index], usable_rows[index], limit, region)
+    index, x, _, _, certified = jax.lax.while_loop(lambda c: ~c[3], wider, (index, x, v, certified, certified))
+    x = _kept_rows(region, x, x0, g[index], b[index], usable_rows[index], jnp.asarray(limit, x0.dtype))
     violation = jnp.max(jnp.where(usable_rows, b - g @ x, 0.0), initial=0.0)
-    return x, violation, standing(x, index)[2]
+    return x, violation, certified
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
+def _kept_rows(region: Literal["box", "ball"], answer: Array, x0: Array, g: Array, b: Array, usable_rows: Array,
+               limit: Array) -> Array:
+    """``answer`` (chosen without gradients), differentiated as the solve with the kept rows ``g, b``: the
+    common step solves once, and only a derivative pays for a second solve."""
+    return answer
+
+
+@_kept_rows.defjvp
+def _kept_rows_jvp(region: Literal["box", "ball"], primals: tuple, tangents: tuple) -> tuple[Array, Array]:
+    answer, x0, g, b, usable_rows, limit = primals
+    _, dx0, dg, db, _, dlimit = tangents
+    tangent = jax.jvp(lambda *a: _solve(*a[:3], usable_rows, a[3], region), (x0, g, b, limit),
+                      (dx0, dg, db, dlimit))[1]
+    return answer, tangent

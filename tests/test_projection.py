@@ -6,6 +6,8 @@ certified exact, and a hand-made case it cannot be."""
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -268,37 +270,44 @@ def test_the_rounds_take_in_the_rows_the_answer_needs(region):
 
 
 @pytest.mark.parametrize("region", ["box", "ball"])
-def test_a_row_left_out_that_the_answer_violates_is_taken_in_or_reported(region):
+def test_a_row_left_out_that_the_answer_violates_is_taken_in(region):
     """Hand-made: four rows that can all bind, ``x_1 >= 1.0, 1.1, 1.2`` and ``x_2 >= 1.05``. With two kept,
     the first solve (``x_1 >= 1.2`` and ``x_1 >= 1.1``, largest ``b + L‖g‖``) answers ``(1.2, 0, 0)``, which
     ``x_2 >= 1.05`` violates; the second keeps the active ``x_1 >= 1.2`` and takes ``x_2 >= 1.05`` in:
-    ``(1.2, 1.05, 0)``, the full answer, certified. With one kept, the active row holds the only place
-    every round: ``(1.2, 0, 0)`` is returned, violated by 1.05, not certified exact."""
+    ``(1.2, 1.05, 0)``, the full answer, certified, with the full answer's derivative (``∂x_1/∂b_3 =
+    ∂x_2/∂b_4 = 1``). With one kept, the active row holds the only place every round; the wider solve
+    (two rows) finds the full answer, certified and returned, but its derivative is the kept row's solve's
+    (``∂x_2/∂b_4 = 0``), as documented."""
     g = jnp.asarray([[1.0, 0, 0], [1.0, 0, 0], [1.0, 0, 0], [0, 1.0, 0]])
     b = jnp.asarray([1.0, 1.1, 1.2, 1.05])
-    for rows in (0, 2, 3):
+    full = np.zeros((3, 4))
+    full[0, 2] = full[1, 3] = 1.0
+    for rows in (0, 2, 3, 1):
         x, worst, exact = PROJECT(jnp.zeros(3), g, b, LIMIT, region, rows)
         np.testing.assert_allclose(np.asarray(x), [1.2, 1.05, 0.0], atol=1e-6)
         assert bool(exact) and float(worst) == 0.0
-    x, worst, exact = PROJECT(jnp.zeros(3), g, b, LIMIT, region, 1)
-    np.testing.assert_allclose(np.asarray(x), [1.2, 0.0, 0.0], atol=1e-6)
-    assert not bool(exact) and float(worst) == pytest.approx(1.05, abs=1e-6)
+    for rows, expected in ((2, full), (1, full * [[1], [0], [0]])):
+        answer = functools.partial(nearest_feasible, jnp.zeros(3), g, limit=LIMIT, region=region, rows=rows)
+        jacobian = jax.jit(jax.jacfwd(lambda b, answer=answer: answer(b=b)[0]))(b)
+        np.testing.assert_allclose(np.asarray(jacobian), expected, atol=1e-6)
 
 
 @pytest.mark.parametrize("region", ["box", "ball"])
 def test_on_an_infeasible_problem_a_row_left_out_that_the_answer_violates_more_is_reported(region):
     """Hand-made: ``x_1 >= 1`` and ``-x_1 >= 1`` are violated by 1 at best (on ``x_1 = 0``), ``x_2 >= 0.5``
     can hold there. From ``(0, -2, 0)`` the full answer keeps the least violation 1 for every row:
-    ``(0, -0.5, 0)``, all three rows active. With two rows kept no two hold that answer: ``x_1 >= 1`` and
-    ``-x_1 >= 1`` stay at ``(0, -2, 0)`` (the third violated by 2.5), either of them with ``x_2 >= 0.5``
-    moves to ``x_1 = ±1`` (the other violated by 2): not certified exact, whatever the rounds keep."""
+    ``(0, -0.5, 0)``, all three rows active. No two rows hold that answer: ``x_1 >= 1`` and ``-x_1 >= 1``
+    stay at ``(0, -2, 0)`` (the third violated by 2.5), either of them with ``x_2 >= 0.5`` moves to
+    ``x_1 = ±1`` (the other violated by 2). With one row kept (and so two in the wider solve) the answer
+    is not certified exact, whatever is kept; with two, the wider solve holds all three and certifies it."""
     g = jnp.asarray([[1.0, 0, 0], [-1.0, 0, 0], [0, 1.0, 0]])
     b = jnp.asarray([1.0, 1.0, 0.5])
     x0 = jnp.asarray([0.0, -2.0, 0.0])
-    x, worst, exact = PROJECT(x0, g, b, LIMIT, region, 0)
-    np.testing.assert_allclose(np.asarray(x), [0.0, -0.5, 0.0], atol=1e-4)
-    assert bool(exact) and float(worst) == pytest.approx(1.0, abs=1e-4)
-    x, worst, exact = PROJECT(x0, g, b, LIMIT, region, 2)
+    for rows in (0, 2):
+        x, worst, exact = PROJECT(x0, g, b, LIMIT, region, rows)
+        np.testing.assert_allclose(np.asarray(x), [0.0, -0.5, 0.0], atol=1e-4)
+        assert bool(exact) and float(worst) == pytest.approx(1.0, abs=1e-4)
+    x, worst, exact = PROJECT(x0, g, b, LIMIT, region, 1)
     assert not bool(exact) and float(worst) >= 2.0 - 1e-4
 
 
