@@ -17,8 +17,9 @@ work grows with the fourth power of its rows (:mod:`jaxapf.projection`); among t
 8 neighbours of the last two families they solve with a few rows at a time (``sim.projection_rows``: 8
 for the CBF filter, 16 for the velocity obstacles; on the open families, at most 8 neighbours and a padded
 slot, every row): those that bind soonest, then, while a row left out is violated at the answer, the rows
-active there and the most violated. Every UAV-step whose answer a row left out still violates is counted
-(``truncated_steps``). A method whose projections on a family were not all certified exact is flown
+active there and the most violated, and once twice the rows if that cycles. Every UAV-step whose answer
+a row left out still violates is counted (``truncated_steps``: ``cbf_truncated_steps`` plus
+``vo_truncated_steps``). A method whose projections on a family were not all certified exact is flown
 and its count reported, but it is left out of that family's tables and comparisons: its answers were
 not the method's.
 
@@ -28,7 +29,7 @@ paired on the same fields, per (family, A, selection seed): every method against
 selection seed, and ``velocity_obstacle`` against ``velocity_obstacle_unilateral``, on the swarm's
 success (every UAV at its goal), a collision between two UAVs and deadlock.
 
-    python analysis/swarm_study.py     # ~70 min on 2 cores (cached per cell under runs/swarm-study-fN/)
+    python analysis/swarm_study.py     # ~TBD min on 2 cores (cached per cell under runs/swarm-study-fN/)
 """
 
 from __future__ import annotations
@@ -92,7 +93,8 @@ def cell(method: str, family: str, agents: int, count: int) -> pd.DataFrame:
                                              max(1, 2048 // agents)))
     frames = [pd.DataFrame({k: np.asarray(v[i]) for k, v in metrics.items()}).assign(seed=s, field=np.arange(count))
               for i, s in enumerate(seeds)]
-    return pd.concat(frames, ignore_index=True).assign(method=method, family=family, agents=agents)
+    df = pd.concat(frames, ignore_index=True).assign(method=method, family=family, agents=agents)
+    return df.assign(truncated_steps=df["cbf_truncated_steps"] + df["vo_truncated_steps"])
 
 
 def run(count: int, cache: pathlib.Path) -> pd.DataFrame:

@@ -49,10 +49,14 @@ its answer is strictly worse (a larger least violation, or as large and farther 
 set of rows comes back. Up to ``rounds`` solves (8 by default; a ``while_loop``: a batch pays only the
 rounds its hardest problem needs). In float32 a relaxation with two nearly opposite rows (a thin
 wedge) can miss its minimiser by more than the slack and the rounds then cycle; a problem still not
-certified is solved once with ``2R`` rows (the last ``R`` and the ``R`` most violated) and takes the
-``R`` rows of largest value at that answer (a batch pays it only at the steps that need it). The call
-says whether the final answer is certified. The rows are chosen without gradients; the answer
-differentiates as the full problem's through the rows kept.
+certified is solved once with ``2R`` rows (the last ``R`` and the ``R`` most violated), keeps the
+``R`` rows of largest value at that answer and is solved with them (a batch pays it only at the steps
+that need it); where only the ``2R`` rows' answer is certified (a sliver of a feasible set that the
+``R`` rows' float32 solve misses, taking its infeasible branch), that answer is returned. The call
+says whether its answer is certified. The rows are chosen without gradients and the answer is the
+one the loop found: one solve per step when nothing is differentiated. Its derivative is that of the
+solve with the ``R`` rows kept (a ``custom_jvp``): the full problem's wherever those rows determine
+the answer; on a step that returns the ``2R`` rows' answer it can miss a row left out.
 """
 
 from __future__ import annotations
@@ -69,12 +73,26 @@ from jax import Array
 
 from .datatypes import safe_norm
 from .datatypes.obstacles import TINY
+from .metrics.base import Metric
 
-__all__ = ["nearest_feasible", "INFEASIBLE_TOL"]
+__all__ = ["nearest_feasible", "projection_metrics", "INFEASIBLE_TOL"]
 
 #: A problem counts as infeasible (the CBF filter's ``cbf_infeasible``, the velocity obstacles'
 #: ``vo_infeasible``) when the returned point misses some unit-scaled row by more than this.
 INFEASIBLE_TOL = 1e-3
+
+
+def projection_metrics(prefix: str, rows: str, region: str, absent: str) -> tuple[Metric, Metric]:
+    """The two counts of a component that projects every step: ``{prefix}_infeasible_steps``, the steps
+    at which its ``rows`` and the ``region`` could not all hold (its flag ``{prefix}_infeasible``), and
+    ``{prefix}_truncated_steps``, those whose answer was not certified exact with ``sim.projection_rows``
+    rows at a time (``{prefix}_truncated``). ``absent``: their value for a stack without the component."""
+    return (Metric.flagged_steps(f"{prefix}_infeasible_steps", f"{prefix}_infeasible",
+                                 f"control steps at which {rows} and {region} could not all hold ({absent})"),
+            Metric.flagged_steps(f"{prefix}_truncated_steps", f"{prefix}_truncated",
+                                 f"control steps at which one of {rows} left out (sim.projection_rows) is violated at "
+                                 "the answer by more than the kept ones: not certified the exact projection (0 with "
+                                 "every row kept)"))
 
 @cache
 def _subsets(count: int, largest: int) -> tuple[np.ndarray, ...]:
@@ -285,7 +303,7 @@ def nearest_feasible(x0: Array, g: Array, b: Array, limit: float | Array, region
     ``1e-6 (1 + limit)``), the next solve keeps the rows active at it and fills the other places with
     the most violated rows, up to ``rounds`` solves (constraint generation), then once with twice the
     rows if still needed (module docstring). Whether the answer is certified the full problem's is
-    returned.
+    returned; its derivative is the solve's with the rows kept.
 
     Returns ``(x, largest violation of all rows at x, exact)``; ``exact`` is True without ``rows``."""
     if region not in ("box", "ball"):

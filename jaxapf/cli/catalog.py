@@ -54,7 +54,7 @@ def live() -> dict[str, Any]:
     from ..engine.components import COMPONENTS
     from ..gains import GAINS
     from ..metrics import METRICS
-    from ..metrics.swarm import SWARM_METRICS
+    from ..metrics.swarm import SWARM_METRICS, swarm_metric_names
     from ..scenarios import FAMILIES
     from ..scenarios.swarms import SWARM_FAMILIES
 
@@ -66,6 +66,9 @@ def live() -> dict[str, Any]:
             if registry in COMPONENTS.values():
                 entry["gains"] = [g.name for g in registry.get(name).gains]
             entries.append(entry)
+        if registry is SWARM_METRICS:  # the components' counts, summed over the UAVs
+            entries += [{"name": n, "describe": f"{METRICS.describe(n)}; summed over the UAVs"}
+                        for n in swarm_metric_names() if n not in SWARM_METRICS]
         lists[registry.listed_as] = entries
     defaults = SimConfig().flat()
     return {

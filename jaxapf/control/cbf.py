@@ -96,9 +96,8 @@ from jax import Array
 
 from ..datatypes.obstacles import TINY
 from ..gains import GainSpec
-from ..metrics import Metric
 from ..planners.sight import dot, line_of_sight, norm
-from ..projection import INFEASIBLE_TOL, nearest_feasible
+from ..projection import INFEASIBLE_TOL, nearest_feasible, projection_metrics
 from .filters import SafetyFilter, register_filter
 
 if TYPE_CHECKING:
@@ -180,13 +179,7 @@ class CBF(SafetyFilter):
     def __post_init__(self) -> None:
         if self.barrier == "braking" and not self.robust:
             raise ValueError("the braking CBF holds its margin δ by construction: CBF(barrier='braking', robust=True)")
-    metrics = (Metric.flagged_steps("cbf_infeasible_steps", "cbf_infeasible",
-                                    "control steps at which the CBF filter's constraints and the acceleration box "
-                                    "could not all hold (0 without this filter)"),
-               Metric.flagged_steps("cbf_truncated_steps", "cbf_truncated",
-                                    "control steps at which an obstacle row the CBF filter left out "
-                                    "(sim.projection_rows) is violated at its answer by more than the kept rows: not "
-                                    "certified the exact projection (0 with every row kept)"))
+    metrics = projection_metrics("cbf", "the CBF filter's constraints", "the acceleration box", "0 without this filter")
 
     @property
     def summary(self) -> str:

@@ -26,7 +26,7 @@ from ..datatypes import Scenario, Trajectory
 from ..datatypes.swarm import Swarm, agent_view, neighbours
 from ..gains import Gains
 from ..metrics.context import certainly_at_goal, certainly_ended
-from ..metrics.swarm import SWARM_METRICS, swarm_metrics
+from ..metrics.swarm import swarm_metric_names, swarm_metrics
 from ..validation import ConfigError
 from ..world.sensing import delay_line
 from .batch import fixed_batches, program, settings_read
@@ -150,7 +150,7 @@ def swarm_episodes(sim: SimConfig, mpc: MPCConfig, dtype: Any, metrics: Sequence
 @program(static_argnames=("sim", "mpc", "width", "metrics", "streaming"))
 def evaluate_swarms(swarms: Swarm, gains: Gains, sim: SimConfig, mpc: MPCConfig, width: int | None = None,
                     metrics: tuple[str, ...] | None = None, streaming: bool = True) -> dict[str, Array]:
-    """The swarm ``metrics`` (default: all of :data:`~jaxapf.metrics.swarm.SWARM_METRICS`) of every
+    """The swarm ``metrics`` (default: all, :func:`~jaxapf.metrics.swarm.swarm_metric_names`) of every
     (setting, field) pair: arrays (G, F). ``swarms``: F fields (leading axis F); ``gains``: G settings
     (leading axis G on every array leaf; scalars are shared). The G·F swarm episodes are streamed
     (:mod:`jaxapf.engine.stream`: a swarm stops when every UAV has ended; at most ``width`` flown side
@@ -159,7 +159,7 @@ def evaluate_swarms(swarms: Swarm, gains: Gains, sim: SimConfig, mpc: MPCConfig,
     n_gains, gains = settings_read(gains, sim)
     total = n_gains * swarms.start.shape[0]
     width = total if width is None else width
-    names = SWARM_METRICS.names() if metrics is None else metrics
+    names = swarm_metric_names() if metrics is None else metrics
     if streaming:
         return stream_metrics(swarms, gains, sim, mpc, stream_slots(total, width), names, swarm_episodes)
     return fixed_batches(lambda s, g: swarm_metrics(swarm_rollout(s, g, sim, mpc), s, sim, names), swarms, gains,

@@ -52,6 +52,8 @@ class Metric:
       per_step: the value moves in whole control steps (a count of steps, or a time ``dt`` × a count):
         two programs that round a step's comparison apart may differ by one step in it.
       doc: one line of what it measures (its exact definition belongs in ``fn``'s docstring).
+      flag: the per-step diagnostic of a component that the metric sums (:meth:`flagged_steps`), or
+        ``None``; a swarm's rows sum it too, over every UAV (:func:`jaxapf.metrics.swarm.swarm_metric_names`).
     """
 
     name: str
@@ -65,6 +67,7 @@ class Metric:
     margin: float | None = None
     per_step: bool = False
     doc: str = ""
+    flag: str | None = None
 
     def __post_init__(self) -> None:
         if self.dtype not in DTYPES:
@@ -77,11 +80,13 @@ class Metric:
             raise ConfigError(f"metric {self.name!r}: margin = {self.margin!r} must be > 0 or None")
 
     @classmethod
-    def flagged_steps(cls, name: str, flag: str, doc: str) -> "Metric":
-        """The control steps at which a component's per-step diagnostic ``flag`` is set (a count, lower is
-        better): the CBF filter's and the velocity obstacles' infeasible and truncated steps."""
+    def flagged_steps(cls, name: str, flag: str, doc: str, per_step: bool = True) -> "Metric":
+        """The sum over the control steps of a component's per-step diagnostic ``flag`` (a count, lower is
+        better): the steps at which the CBF filter or the velocity obstacles were infeasible or not certified
+        exact, the obstacle-steps the sensor missed (``per_step=False``: not a count of steps). In a swarm's
+        rows, summed over the UAVs too, each UAV's steps before its end."""
         return cls(name, lambda ctx: ctx.extra(flag), dtype="int32", kind="count", higher_is_better=False,
-                   per_step=True, doc=doc)
+                   per_step=per_step, doc=doc, flag=flag)
 
     def cast(self, value: Array, float_dtype) -> Array:
         """``value`` in the metric's dtype (``float``: ``float_dtype``)."""

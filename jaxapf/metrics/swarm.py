@@ -27,10 +27,13 @@ Metrics (one scalar each per episode):
 - ``arrival_fairness``: Jain's index ``(Σ s_a)² / (n Σ s_a²)`` of the arrived UAVs' slowdowns
   ``s_a = t_a / |g_a - start_a|`` (seconds per metre of straight line), in ``(0, 1]``, 1 when every
   UAV is held up alike; NaN if none arrives.
-- ``truncated_steps``: the UAV-steps (before each UAV's end) at which an exact projection of the stack
-  (the CBF filter's, the velocity obstacles') solved with ``sim.projection_rows`` rows only left out a
-  row that its answer violates by more than the kept ones (``cbf_truncated_steps`` plus
-  ``vo_truncated_steps`` of every UAV); 0 means every projection of the episode was certified exact.
+
+A swarm's rows also hold every count of a component's per-step diagnostic
+(:meth:`Metric.flagged_steps <jaxapf.metrics.Metric.flagged_steps>`: ``cbf_infeasible_steps``,
+``cbf_truncated_steps``, ``vo_infeasible_steps``, ``vo_truncated_steps``, ``unseen_steps``), the
+single-UAV metric of that name summed over the UAVs too, each UAV's steps before its end
+(:func:`swarm_metric_names`); ``cbf_truncated_steps = vo_truncated_steps = 0`` means every
+projection of the episode was certified exact.
 
 Each is a :class:`~jaxapf.metrics.Metric` of :data:`SWARM_METRICS` whose function reads the
 :class:`SwarmContext`, which computes every shared quantity once (as
@@ -56,7 +59,7 @@ from ..validation import ConfigError
 from .base import METRICS, SWARM_NAMES, Metric, _describe
 from .context import EpisodeContext, stall_samples
 
-__all__ = ["SwarmContext", "SWARM_METRICS", "pair_clearance", "swarm_metrics", "agent_outcomes"]
+__all__ = ["SwarmContext", "SWARM_METRICS", "pair_clearance", "swarm_metrics", "swarm_metric_names", "agent_outcomes"]
 
 
 def _interval_pairs(p0: Array, p1: Array, valid: Array, r_uav: float) -> Array:
@@ -200,11 +203,6 @@ for _metric in (
            doc="mean arrival time of the UAVs that arrive"),
     Metric("arrival_fairness", _fairness, higher_is_better=True, margin=0.02,
            doc="Jain's index of the arrived UAVs' slowdowns (s per m of straight line)"),
-    Metric("truncated_steps", lambda c: c.extra("cbf_truncated") + c.extra("vo_truncated"), dtype="int32",
-           kind="count", higher_is_better=False, per_step=True,
-           doc="UAV-steps at which the CBF filter or the velocity obstacles left out a row (sim.projection_rows) "
-               "that their answer violates by more than the kept ones: not certified the exact projection "
-               "(0 with every row kept)"),
 ):
     if _metric.name in METRICS:
         raise ConfigError(f"swarm metric {_metric.name!r} is a single-UAV metric's name")
@@ -219,10 +217,25 @@ def agent_outcomes(traj: Trajectory, swarm: Swarm, sim: SimConfig) -> dict[str, 
     return {"end": ctx.ends, "success": ctx.success, "obstacle_index": ctx.own[1], "agent_index": ctx.agent_index}
 
 
+def swarm_metric_names() -> tuple[str, ...]:
+    """A swarm's columns: :data:`SWARM_METRICS`, then the registered components' counts of a per-step
+    diagnostic (the metrics with a ``flag``), each summed over the UAVs (module docstring)."""
+    return SWARM_METRICS.names() + tuple(n for n, m in METRICS.items() if m.flag is not None)
+
+
+def _swarm_metric(name: str) -> Metric:
+    if name in SWARM_METRICS:
+        return SWARM_METRICS.get(name)
+    if name in METRICS and METRICS.get(name).flag is not None:
+        return METRICS.get(name)
+    raise ConfigError(f"swarm metric = {name!r} is not a swarm's metric; choose one of "
+                      f"{', '.join(swarm_metric_names())}")
+
+
 def swarm_metrics(traj: Trajectory, swarm: Swarm, sim: SimConfig, names: Sequence[str] | None = None
                   ) -> dict[str, Array]:
-    """The swarm metrics ``names`` (default: all, :data:`SWARM_METRICS`) of one swarm episode."""
+    """The swarm metrics ``names`` (default: all, :func:`swarm_metric_names`) of one swarm episode."""
     ctx = SwarmContext(traj, swarm, sim)
     dtype = traj.position.dtype
-    return {n: SWARM_METRICS.get(n).cast(SWARM_METRICS.get(n).fn(ctx), dtype)
-            for n in (SWARM_METRICS.names() if names is None else names)}
+    metrics = {n: _swarm_metric(n) for n in (swarm_metric_names() if names is None else names)}
+    return {n: m.cast(m.fn(ctx), dtype) for n, m in metrics.items()}

@@ -68,8 +68,7 @@ from jax import Array
 from ..datatypes import ObstacleColumns, Obstacles, safe_norm
 from ..datatypes.obstacles import TINY
 from ..gains import GainSpec
-from ..metrics import Metric
-from ..projection import INFEASIBLE_TOL, nearest_feasible
+from ..projection import INFEASIBLE_TOL, nearest_feasible, projection_metrics
 from .apf import ETA, K_ATT, saturate
 from .base import Planner, reference_states, register_planner
 from .potentials import attractive_potential
@@ -141,13 +140,7 @@ class VelocityObstacle(Planner):
     color: str | None = "tab:brown"
     reciprocal: bool = True
     linestyle: str | None = "-"
-    metrics = (Metric.flagged_steps("vo_infeasible_steps", "vo_infeasible",
-                                    "control steps at which the velocity obstacles' half-spaces and the speed ball "
-                                    "could not all hold (0 for other planners)"),
-               Metric.flagged_steps("vo_truncated_steps", "vo_truncated",
-                                    "control steps at which a half-space the velocity obstacles left out "
-                                    "(sim.projection_rows) is violated at their answer by more than the kept ones: "
-                                    "not certified the exact projection (0 with every row kept)"))
+    metrics = projection_metrics("vo", "the velocity obstacles' half-spaces", "the speed ball", "0 for other planners")
 
     @property
     def description(self) -> str:

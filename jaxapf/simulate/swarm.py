@@ -5,7 +5,7 @@ program per method) on the same field (same key). The output folder receives
 
 - ``trajectories.parquet``: one row per (method, UAV, sample) up to the swarm's end ``E`` (the last
   UAV's end): time, position, velocity, applied control (NaN on the last sample), distance to goal;
-- ``metrics.csv``: one row per method with every swarm metric (:data:`~jaxapf.metrics.SWARM_METRICS`);
+- ``metrics.csv``: one row per method with every swarm metric (:func:`~jaxapf.metrics.swarm.swarm_metric_names`);
 - ``run.json``: the configuration, the field and the package versions;
 - ``swarm_trajectories.png`` (top view of all UAVs, one panel per method) and
   ``swarm_snapshots.png`` (per method, the swarm at 0.25, 0.5, 0.75 and 1 of ``E``).
@@ -32,7 +32,8 @@ from ..engine import program
 from ..engine.swarm import swarm_rollout
 from ..gains import Gains
 from ..io.versions import versions
-from ..metrics.swarm import SWARM_METRICS, agent_outcomes, swarm_metrics
+from ..metrics import find_metric
+from ..metrics.swarm import agent_outcomes, swarm_metrics
 from ..scenarios.swarms import make_swarms, swarm_params
 from .figures import DPI, Field, _aspect, _draw_obstacles_xy, _legend_below, _suptitle, _title, _xy_bounds, panel_grid
 
@@ -114,7 +115,7 @@ def simulate_swarm(family: str, seed: int, field_index: int, methods: Sequence[s
         n = last + 1
         hit = np.minimum(agents["obstacle_index"], agents["agent_index"])
         hit = np.where((hit <= agents["end"]) & ~agents["success"], hit, -1)
-        metrics = {k: _PYTHON[SWARM_METRICS.get(k).dtype](v) for k, v in metrics.items()}
+        metrics = {k: _PYTHON[find_metric(k).dtype](v) for k, v in metrics.items()}
         run = SwarmRun(method, np.asarray(traj.time[0, :n], np.float64), np.asarray(traj.position[:, :n], np.float64),
                        np.asarray(traj.velocity[:, :n], np.float64), np.asarray(agents["end"]),
                        np.asarray(agents["success"], bool), hit, metrics)

@@ -17,7 +17,8 @@ import numpy as np
 
 from ..config import MPCConfig, SimConfig
 from ..gains import GAINS, Gains
-from ..metrics import METRICS, SWARM_METRICS
+from ..metrics import METRICS
+from ..metrics.swarm import swarm_metric_names
 from ..text import format_bytes, format_seconds
 from ..validation import ConfigError, check_int
 from .spec import Setting, SweepSpec
@@ -183,7 +184,7 @@ def seen_slots(sim: SimConfig, obstacles: int, agents: int) -> int:
 def episode_bytes(obstacles: int, itemsize: int, agents: int = 1) -> int:
     """``E``: memory that grows with the episodes of a chunk, per episode (a swarm's: its fields hold
     ``agents`` starts and goals, its rows the swarm metrics)."""
-    metrics = len(METRICS) if agents == 1 else len(SWARM_METRICS)
+    metrics = len(METRICS) if agents == 1 else len(swarm_metric_names())
     return 2 * ((7 * obstacles + 6 + 6 * agents) * itemsize + 2 * obstacles + agents - 1) + 3 * metrics * itemsize + 320
 
 
@@ -367,7 +368,7 @@ def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: in
             for lo, hi in gaps(finished, spec.fields):
                 chunks += [Chunk(v.index, family, a, min(a + block.fields, hi)) for a in range(lo, hi, block.fields)]
     return Plan(spec, tuple(groups), blocks, tuple(chunks), tuple(done), devices, width, str(dtype),
-                SWARM_METRICS.names() if spec.swarm else METRICS.names())
+                swarm_metric_names() if spec.swarm else METRICS.names())
 
 
 def parse_shard(text: str) -> tuple[int, int]:

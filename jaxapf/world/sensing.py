@@ -103,9 +103,9 @@ class NoisySensor(Sensor):
     """
 
     metrics: ClassVar[tuple[Metric, ...]] = (
-        Metric("unseen_steps", lambda ctx: ctx.extra("unseen_near"), dtype="int32", kind="count",
-               higher_is_better=False,
-               doc="obstacle-steps with an obstacle within d_sense not detected by the sensor (0 for the ideal one)"),
+        Metric.flagged_steps("unseen_steps", "unseen_near", per_step=False,
+                             doc="obstacle-steps with an obstacle within d_sense not detected by the sensor (0 for the "
+                                 "ideal one)"),
     )
     gains: ClassVar[tuple[GainSpec, ...]] = (
         GainSpec("sigma_obs_p", 0.0, low=0.0, unit="m", symbol="σ_o", tunable=False,

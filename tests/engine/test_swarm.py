@@ -282,6 +282,6 @@ def test_the_cbf_filter_among_many_obstacles_keeps_only_the_rows_that_bind_soone
     mpc = MPCConfig(horizon=10, iters=15)
     out = {rows: jax.device_get(evaluate_swarms(swarms, Gains(), SimConfig.from_flat(
         method="basic", filter="cbf", t_max=20.0, projection_rows=rows), mpc, 16)) for rows in (0, 8, 1)}
-    assert int(out[0]["truncated_steps"].sum()) == 0 and int(out[8]["truncated_steps"].sum()) == 0
+    assert int(out[0]["cbf_truncated_steps"].sum()) == 0 and int(out[8]["cbf_truncated_steps"].sum()) == 0
     assert_same_episodes(out[0], out[8], 0.1)
-    assert int(out[1]["truncated_steps"].sum()) > 0
+    assert int(out[1]["cbf_truncated_steps"].sum()) > 0

@@ -16,7 +16,7 @@ from jaxapf.datatypes import Obstacles, Trajectory
 from jaxapf.datatypes.swarm import Swarm
 from jaxapf.engine.swarm import swarm_rollout
 from jaxapf.gains import Gains
-from jaxapf.metrics.swarm import SWARM_METRICS, pair_clearance, swarm_metrics
+from jaxapf.metrics.swarm import pair_clearance, swarm_metric_names, swarm_metrics
 
 R = 0.3
 
@@ -87,11 +87,11 @@ def test_parallel_flights_arrive_and_their_times_are_fair():
                                rtol=1e-5)
 
 
-def test_truncated_steps_sum_both_projections_over_the_uavs_before_each_end():
+def test_component_counts_sum_each_flag_over_the_uavs_before_each_end():
     """Hand-made extras: UAV 0 arrives at step 50 (10 m in 5 s, then hovers), UAV 1 at step 100; the CBF
-    filter flags steps 10, 49 and 60 of UAV 0 and 99 of UAV 1, the velocity obstacles step 20 of UAV 1: four
-    of them before their UAV's end (UAV 0's step 60 is after it), so 4; a padded third slot flagged on every
-    step adds nothing, and a stack that records neither flag gives 0."""
+    filter flags steps 10, 49 and 60 of UAV 0 and 99 of UAV 1 (three before their UAV's end: UAV 0's step 60
+    is after it), the velocity obstacles step 20 of UAV 1; a padded third slot flagged on every step adds
+    nothing, a flag the stack does not record counts 0, and so does a stack that records neither."""
     fast, slow = _straight([[0, 5, 2]], [[10, 5, 2]], 50), _straight([[0, 0, 2]], [[10, 0, 2]], 100)
     pad = lambda x, n: jnp.concatenate([x, jnp.repeat(x[:, -1:], n, axis=1)], axis=1)  # noqa: E731
     position = jnp.concatenate([pad(fast.position, 50), slow.position, slow.position + 20.0])
@@ -103,8 +103,10 @@ def test_truncated_steps_sum_both_projections_over_the_uavs_before_each_end():
                       control=jnp.zeros((3, 100, 3)))
     traj = dataclasses.replace(bare, extras={"cbf_truncated": jnp.asarray(cbf), "vo_truncated": jnp.asarray(vo)})
     swarm = _swarm([[0, 5, 2], [0, 0, 2], [20, 20, 22]], [[10, 5, 2], [10, 0, 2], [30, 20, 22]], [True, True, False])
-    assert int(_metrics(traj, swarm)["truncated_steps"]) == 4
-    assert int(_metrics(bare, swarm)["truncated_steps"]) == 0
+    counts = _metrics(traj, swarm)
+    assert [int(counts[n]) for n in ("cbf_truncated_steps", "vo_truncated_steps", "cbf_infeasible_steps")] == [3, 1, 0]
+    assert all(int(_metrics(bare, swarm)[n]) == 0 for n in ("cbf_truncated_steps", "vo_truncated_steps"))
+    assert counts["cbf_truncated_steps"].dtype == jnp.int32
 
 
 def test_unequal_slowdowns_lower_the_fairness_to_jains_index():
@@ -127,7 +129,7 @@ def test_flown_swaps_reciprocal_arrival_and_potential_field_deadlock():
     swarm = _swarm([[0, 0, 2], [10, 0, 2]], [[10, 0, 2], [0, 0, 2]])
     fly = lambda s: jax.jit(lambda w: swarm_rollout(w, Gains(), s, MPCConfig()))(swarm)  # noqa: E731
     m = {k: np.asarray(v) for k, v in swarm_metrics(fly(sim), swarm, sim).items()}
-    assert list(m) == list(SWARM_METRICS.names())
+    assert list(m) == list(swarm_metric_names())
     assert m["swarm_success"] and not m["deadlock"] and m["min_agent_clearance"] > 0.2
     np.testing.assert_allclose(m["arrival_fairness"], 1.0, atol=1e-6)  # a symmetric swap
     basic = sim.replace(method="basic")
@@ -153,7 +155,7 @@ def test_evaluate_swarms_is_the_metrics_of_each_setting_and_field():
     swarms = make_swarms(0, swarm_params("circle_swap", agents=3), 2)
     gains = Gains(vo_tau=jnp.array([1.0, 3.0]))
     grid = evaluate_swarms(swarms, gains, sim, mpc)
-    assert set(grid) == set(SWARM_METRICS.names()) and grid["at_goal"].shape == (2, 2)
+    assert set(grid) == set(swarm_metric_names()) and grid["at_goal"].shape == (2, 2)
     for g, tau in enumerate((1.0, 3.0)):
         for f in range(2):
             one = jax.tree_util.tree_map(lambda x, f=f: x[f], swarms)

@@ -13,7 +13,8 @@ from jaxapf.cli import main
 from jaxapf.config import SimConfig
 from jaxapf.engine.swarm import evaluate_swarms
 from jaxapf.gains import Gains
-from jaxapf.metrics import METRICS, SWARM_METRICS
+from jaxapf.metrics import METRICS
+from jaxapf.metrics.swarm import swarm_metric_names
 from jaxapf.scenarios.swarms import make_swarms
 from jaxapf.sweep import parse_spec, plan_sweep, read_sweep, row_config, run_sweep
 from jaxapf.sweep.plan import episode_bytes, seen_slots, working_set_bytes
@@ -98,8 +99,9 @@ def swept(tmp_path_factory):
 def test_a_swarm_sweep_writes_one_row_per_episode_with_the_swarm_metrics(swept):
     spec, _, (df, meta) = swept
     assert meta["complete"] and len(df) == 2 * 2 * 3
-    assert meta["metrics"] == list(SWARM_METRICS.names())
-    assert set(SWARM_METRICS.names()) <= set(df.columns) and not set(METRICS.names()) & set(df.columns)
+    assert meta["metrics"] == list(swarm_metric_names())
+    counts = {n for n, m in METRICS.items() if m.flag}  # the components' counts, summed over the UAVs
+    assert set(swarm_metric_names()) <= set(df.columns) and set(METRICS.names()) & set(df.columns) == counts
     agents = df.groupby("family")["agents"].unique()
     assert agents["circle_swap"].tolist() == [3] and agents["crossing_flows"].tolist() == [4]
     assert (df["kind"] == df["family"]).all()
@@ -127,7 +129,7 @@ def test_a_swarm_sweep_row_is_evaluate_swarms_of_its_field(swept):
             want = evaluate_swarms(fields, variant.gains(plan.dtype), block.sim, block.mpc, block.width,
                                    plan.metrics)
             rows = df[(df["method"] == method) & (df["family"] == family)].sort_values("field")
-            for m in SWARM_METRICS.names():
+            for m in swarm_metric_names():
                 np.testing.assert_array_equal(rows[m].to_numpy(), np.asarray(want[m])[0, : spec.fields], err_msg=m)
 
 
