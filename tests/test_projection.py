@@ -365,3 +365,28 @@ def test_every_row_kept_is_exact_whatever_the_input():
     g = jnp.asarray([[1.0, 0, 0]])
     for rows in (0, 1, 5):
         assert bool(PROJECT(jnp.asarray([jnp.nan, 0.0, 0.0]), g, jnp.asarray([0.5]), LIMIT, "box", rows)[2])
+
+
+@pytest.mark.slow
+def test_the_closed_loops_gradient_with_rows_kept_is_the_full_problems():
+    """``basic`` with the CBF filter on a ``clutter`` field, float64, 4 s: the gradient of the final
+    squared distance from the origin in ``cbf_p1`` with 4 rows kept (the loop's answer, differentiated as
+    the kept rows' solve) is the one with every row, and central differences'."""
+    from jaxapf import Gains
+    from jaxapf.config import MPCConfig, SimConfig
+    from jaxapf.engine.loop import rollout
+    from jaxapf.scenarios import family_params, make_scenarios
+
+    with jax.enable_x64(True):
+        field = jax.tree_util.tree_map(lambda x: jnp.asarray(x[3], jnp.float64) if x.dtype == jnp.float32 else x[3],
+                                       make_scenarios(0, family_params("clutter"), 8))
+        grads = []
+        for rows in (0, 4):
+            sim = SimConfig.from_flat(method="basic", filter="cbf", t_max=4.0, projection_rows=rows)
+            loss = jax.jit(lambda p1, sim=sim: jnp.sum(rollout(field, Gains(cbf_p1=p1), sim,
+                                                               MPCConfig(horizon=8, iters=10)).position[-1] ** 2))
+            p1, h = jnp.float64(1.0), 1e-6
+            grads.append((float(jax.jit(jax.grad(loss))(p1)), float((loss(p1 + h) - loss(p1 - h)) / (2 * h))))
+    assert abs(grads[0][0]) > 1.0  # the filter acts
+    np.testing.assert_allclose(grads[1][0], grads[0][0], rtol=1e-9)
+    np.testing.assert_allclose(grads[1][0], grads[1][1], rtol=1e-6)
