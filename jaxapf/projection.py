@@ -61,9 +61,8 @@ the answer; on a step that returns the ``2R`` rows' answer it can miss a row lef
 
 from __future__ import annotations
 
-import functools
 import itertools
-from functools import cache
+from functools import cache, partial
 from typing import Literal
 
 import jax
@@ -93,6 +92,7 @@ def projection_metrics(prefix: str, rows: str, region: str, absent: str) -> tupl
                                  f"control steps at which one of {rows} left out (sim.projection_rows) is violated at "
                                  "the answer by more than the kept ones: not certified the exact projection (0 with "
                                  "every row kept)"))
+
 
 @cache
 def _subsets(count: int, largest: int) -> tuple[np.ndarray, ...]:
@@ -359,7 +359,7 @@ def nearest_feasible(x0: Array, g: Array, b: Array, limit: float | Array, region
     return x, violation, certified
 
 
-@functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
+@partial(jax.custom_jvp, nondiff_argnums=(0,))
 def _kept_rows(region: Literal["box", "ball"], answer: Array, x0: Array, g: Array, b: Array, usable_rows: Array,
                limit: Array) -> Array:
     """``answer`` (chosen without gradients), differentiated as the solve with the kept rows ``g, b``: the
