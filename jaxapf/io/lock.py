@@ -35,7 +35,8 @@ from typing import IO, Any, Callable, Iterator
 
 from ..validation import ConfigError, Interrupted, first_line
 
-__all__ = ["LOCK_NAME", "OutputLock", "LockInfo", "check_writable", "write_atomic", "writing", "fsync_folder"]
+__all__ = ["LOCK_NAME", "OutputLock", "LockInfo", "check_writable", "write_atomic", "writing", "fsync_folder",
+           "live_shard_locks"]
 
 #: Name of the lock file inside the output folder.
 LOCK_NAME = ".lock"
@@ -155,6 +156,11 @@ def _held(path: pathlib.Path) -> bool:
         os.close(fd)
 
 
+def live_shard_locks(folder: pathlib.Path) -> list[pathlib.Path]:
+    """The shard locks (:class:`OutputLock` with ``shard``) some process holds in ``folder`` now."""
+    return [p for p in sorted(folder.glob(f"{LOCK_NAME}-shard-*")) if _held(p)]
+
+
 def _read_note(path: pathlib.Path) -> LockInfo | None:
     try:
         data: dict[str, Any] = json.loads(path.read_text())
@@ -218,7 +224,7 @@ class OutputLock:
     def _refuse(self, path: pathlib.Path, what: str | None) -> None:
         """Another writer holds ``path``: refuse, naming it (a whole-output lock held shared names its shards)."""
         if path == self.path:  # live shards hold it shared (its note may be a dead writer's): name them
-            live = [(p, _read_note(p)) for p in sorted(self.folder.glob(f"{LOCK_NAME}-shard-*")) if _held(p)]
+            live = [(p, _read_note(p)) for p in live_shard_locks(self.folder)]
             names = [f"shard {int(p.name.split('shard-')[1].split('-of-')[0])}/"
                      f"{int(p.name.split('-of-')[1])} ({note.describe() if note else 'no owner note yet'})"
                      for p, note in live]

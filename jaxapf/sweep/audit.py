@@ -29,6 +29,7 @@ import numpy as np
 
 from ..io.lock import LOCK_NAME
 from ..validation import ConfigError
+from .division import forget_division, is_division_file
 from .output import _PROBE, _TMP, PartUnreadable, part_files, read_part
 from .plan import Chunk, gaps, variants
 from .schema import identity, read_meta, sweep_spec
@@ -232,6 +233,7 @@ def prepare_output(out: pathlib.Path, meta: Mapping[str, Any], spec: Any, *, ove
         if clean:
             for p in parts:
                 p.unlink(missing_ok=True)
+            forget_division(out)
         return []
     if not parts:
         return []
@@ -261,7 +263,8 @@ def prepare_output(out: pathlib.Path, meta: Mapping[str, Any], spec: Any, *, ove
 def check_folder(out: pathlib.Path) -> None:
     """Refuse a folder holding files that are neither parts nor what a sweep keeps beside them."""
     foreign = [p.name for p in out.iterdir() if Chunk.from_name(p.name) is None and not _TMP.match(p.name)
-               and not _PROBE.match(p.name) and p.name != SET_ASIDE and not p.name.startswith(LOCK_NAME)]
+               and not _PROBE.match(p.name) and p.name != SET_ASIDE and not p.name.startswith(LOCK_NAME)
+               and not is_division_file(p.name)]
     if foreign:
         raise ConfigError(f"--out {out} holds files that are not sweep parts ({', '.join(sorted(foreign)[:3])}); "
                           "choose another --out")

@@ -18,6 +18,7 @@ from ..text import format_seconds
 from ..validation import ConfigError, Interrupted, first_line
 from .audit import audit_output, check_folder, prepare_output, repair_parts
 from .cluster import RayCluster, RaySession
+from .division import Division, agree_division
 from .execute import ChunkFailed, Finished, local_results
 from .output import part_files, part_record, write_part
 from .plan import DEFAULT_MEMORY_BUDGET, Chunk, Plan, chunk_cost, describe_plan, plan_sweep, shard_chunks
@@ -66,7 +67,9 @@ def dry_run(spec: SweepSpec, out: str | os.PathLike, *, overwrite: bool = False,
     if shard is not None:  # the shard run's own checks, changing nothing
         whole = plan_sweep(spec, **(plan | {"devices": 1}))
         mine = shard_chunks(whole, *shard)
-        todo = _shard_todo(spec, pathlib.Path(out), sweep_meta(spec, whole, out), whole, mine, shard, repair, dry=True)
+        meta = sweep_meta(spec, whole, out)
+        todo, _, _ = _shard_audit(spec, pathlib.Path(out), meta, whole, mine, shard, repair)
+        agree_division(pathlib.Path(out), _division(whole, meta, shard, plan), shard, dry=True)
         run_s = sum(chunk_cost(whole, c) for c in todo)
         return (describe_plan(whole) + f"\n  shard {shard[0]}/{shard[1]}:        {len(mine)} of {len(whole.chunks)} "
                 f"chunks ({whole.episodes_of(mine):,} episodes), {len(todo)} still to run in {out}, up to "
@@ -147,7 +150,10 @@ def _run(spec: SweepSpec, out: pathlib.Path, memory_budget: int, chunk_fields: i
             todo = plan.chunks
         else:
             plan, mine = probe, shard_chunks(probe, *shard)
-            todo = _shard_todo(spec, out, meta, plan, mine, shard, repair)
+            todo, found, problems = _shard_audit(spec, out, meta, plan, mine, shard, repair)
+            agree_division(out, _division(plan, meta, shard, {"memory_budget": memory_budget,
+                                                              "chunk_fields": chunk_fields}), shard)
+            _clean_shard(out, found, problems, mine)
         padding = plan.padding_note()
         if padding:
             note(padding)
@@ -158,20 +164,26 @@ def _run(spec: SweepSpec, out: pathlib.Path, memory_budget: int, chunk_fields: i
                        shard)
 
 
-def _shard_todo(spec: SweepSpec, out: pathlib.Path, meta: Mapping[str, Any], plan: Plan, mine: tuple[Chunk, ...],
-                shard: tuple[int, int], repair: bool, dry: bool = False) -> tuple[Chunk, ...]:
-    """The chunks of shard ``shard`` (``mine``, of ``plan``) still to run in ``out``: those no sound part
-    holds. Refused: a folder of another sweep (the vmap width, hence the kind of device, is part of a
+def _division(plan: Plan, meta: Mapping[str, Any], shard: tuple[int, int], options: Mapping[str, Any]) -> Division:
+    """This shard's :class:`~jaxapf.sweep.division.Division` of ``plan`` (``options``: what cut it)."""
+    return Division.of(plan, meta, shard[1], options.get("chunk_fields"),
+                       options.get("memory_budget", DEFAULT_MEMORY_BUDGET))
+
+
+def _shard_audit(spec: SweepSpec, out: pathlib.Path, meta: Mapping[str, Any], plan: Plan, mine: tuple[Chunk, ...],
+                 shard: tuple[int, int], repair: bool) -> tuple[tuple[Chunk, ...], Any, dict[str, str]]:
+    """The chunks of shard ``shard`` (``mine``, of ``plan``) still to run in ``out`` (those no sound part
+    holds), the audit of ``out`` and the shard's own parts that cannot be trusted; reads, changes
+    nothing. Refused: a folder of another sweep (the vmap width, hence the kind of device, is part of a
     sweep's identity), parts chunked otherwise than this plan, or written by a division into another
-    number of shards. Only the shard's own parts are touched: its damaged, foreign or overlapping parts
-    are refused, or with ``repair`` removed or set aside; any other part is another shard's business
-    (`jaxapf sweep verify` reports it). ``dry``: check and answer, change nothing (``--dry-run``)."""
+    number of shards, and, without ``repair``, damaged, foreign or overlapping parts of this shard; any
+    other part is another shard's business (`jaxapf sweep verify` reports it)."""
     names = {c.name for c in mine}
     if not out.exists():
-        return mine
+        return mine, None, {}
     check_folder(out)
     if not part_files(out):
-        return mine
+        return mine, None, {}
     found = audit_output(out, meta, spec)
     other = sorted(found.other_sweep)
     if other:
@@ -194,12 +206,19 @@ def _shard_todo(spec: SweepSpec, out: pathlib.Path, meta: Mapping[str, Any], pla
         raise ConfigError(f"--out {out}: {len(problems)} part(s) of shard {shard[0]}/{shard[1]} cannot be trusted: "
                           f"{listed}. Rerun the same command with --repair to recompute them")
     sound = {c.name for c in found.sound} - set(problems)
-    if not dry:
-        repair_parts(out, found, problems)
-        for tmp in out.iterdir():  # a dead run of this shard left these (the shard lock is ours); others' are theirs
-            if tmp.name.startswith(".part-") and tmp.name.split(".tmp-")[0][1:] in names:
-                tmp.unlink(missing_ok=True)
-    return tuple(c for c in mine if c.name not in sound)
+    return tuple(c for c in mine if c.name not in sound), found, problems
+
+
+def _clean_shard(out: pathlib.Path, found: Any, problems: Mapping[str, str], mine: tuple[Chunk, ...]) -> None:
+    """What ``--repair`` does to the shard's own ``problems`` (of the audit ``found``), and the temporary
+    parts a dead run of this shard left (the shard lock is ours; others' are theirs)."""
+    if found is None:
+        return
+    names = {c.name for c in mine}
+    repair_parts(out, found, problems)
+    for tmp in out.iterdir():
+        if tmp.name.startswith(".part-") and tmp.name.split(".tmp-")[0][1:] in names:
+            tmp.unlink(missing_ok=True)
 
 
 def _write_chunks(plan: Plan, chunks: tuple[Chunk, ...], out: pathlib.Path, meta: Mapping[str, Any], quiet: bool,

@@ -181,3 +181,129 @@ def test_a_shards_dry_run_makes_the_runs_checks_and_changes_nothing(tmp_path):
         dry_run(_spec(), out, shard=(0, 2), chunk_fields=3)
     assert "1 still to run in" in dry_run(_spec(), out, shard=(0, 2), chunk_fields=3, repair=True)
     assert part.exists() and len(part_files(out)) == 8  # nothing removed
+
+
+# ---- the division, agreed before any shard writes a part -------------------------------------------
+
+def test_the_first_shard_fixes_the_division_and_a_later_different_one_is_refused_before_any_work(tmp_path):
+    """Chunking and N used to be compared only with parts already present when a shard started."""
+    import json
+
+    from jaxapf.sweep import dry_run
+    from jaxapf.sweep.division import DIVISION_NAME
+
+    out = tmp_path / "out"
+    run_sweep(_spec(), out, chunk_fields=3, quiet=True, shard=(0, 2))
+    record = json.loads((out / DIVISION_NAME).read_text())
+    assert record["shards"] == 2 and record["chunking"] == "--chunk-fields 3" and record["fixed_by"]["shard"] == "0/2"
+    for part in part_files(out):  # as if no part were written yet: the division alone decides
+        part.unlink()
+    with OutputLock(out, (0, 2)):  # shard 0/2 still running (say, compiling)
+        for chunk_fields, shard, asks in ((4, (1, 2), "asks for 2 shard.s. of 12 chunks .--chunk-fields 4."),
+                                          (3, (1, 3), "asks for 3 shard.s. of 16 chunks .--chunk-fields 3.")):
+            with pytest.raises(ConfigError, match=f"is divided into 2 shard.s. of 16 chunks .--chunk-fields 3., "
+                                                  f"fixed by shard 0/2, pid .*; this shard .{shard[0]}/{shard[1]}. "
+                                                  f"{asks}: every shard"):
+                run_sweep(_spec(), out, chunk_fields=chunk_fields, quiet=True, shard=shard)
+            with pytest.raises(ConfigError, match="is divided into 2 shard"):
+                dry_run(_spec(), out, shard=shard, chunk_fields=chunk_fields)
+        assert not part_files(out)
+        other = copy.deepcopy(SPEC)
+        other["scenario"]["seed"] = 6
+        with pytest.raises(ConfigError, match="this shard .1/2. runs another sweep .spec_hash differ."):
+            run_sweep(parse_spec(other), out, chunk_fields=3, quiet=True, shard=(1, 2))
+    run_sweep(_spec(), out, chunk_fields=3, quiet=True, shard=(1, 2))  # the same division: runs
+
+
+def test_a_division_that_no_part_follows_and_no_live_shard_holds_is_replaced(tmp_path):
+    """Shards that died before writing a part do not bind the next ones; --overwrite forgets the division."""
+    import json
+
+    from jaxapf.sweep.division import DIVISION_NAME
+
+    out = tmp_path / "out"
+    run_sweep(_spec(), out, chunk_fields=3, quiet=True, shard=(0, 2))
+    for part in part_files(out):
+        part.unlink()
+    run_sweep(_spec(), out, chunk_fields=4, quiet=True, shard=(0, 3))  # nobody holds or follows the old one
+    assert json.loads((out / DIVISION_NAME).read_text())["shards"] == 3
+    run_sweep(_spec(), out, chunk_fields=4, quiet=True, overwrite=True)
+    assert not (out / DIVISION_NAME).exists()
+
+
+def _race_worker(barrier, tasks, results):
+    """One process of a shard race: for each task, wait at the barrier with the other process, then run
+    its shard; report ``(status, what)``: ``ok`` and the episodes run, or ``refused`` and the one line."""
+    import os
+
+    os.environ.setdefault("JAX_PLATFORMS", "cpu")
+    from jaxapf.sweep import parse_spec, run_sweep
+    from jaxapf.validation import ConfigError
+
+    spec = parse_spec(SPEC)
+    for out, shard, chunk_fields in iter(tasks.get, None):
+        barrier.wait()
+        try:
+            done = run_sweep(spec, out, chunk_fields=chunk_fields, quiet=True, shard=shard)
+            results.put(("ok", done.episodes))
+        except ConfigError as err:
+            results.put(("refused", str(err)))
+
+
+@pytest.mark.slow
+def test_shards_started_together_never_both_run_a_different_division(reference, tmp_path):
+    """Two shards behind a barrier, 50 times with different --chunk-fields and 50 times with different N
+    (and 10 that agree): never two exits without a refusal when they disagree, never a row lost,
+    doubled or changed; the one refused wrote nothing. (Before the division was agreed, both exited 0
+    with 24 of 96 rows missing and 24 doubled.)"""
+    import multiprocessing
+
+    import numpy as np
+
+    from jaxapf.sweep.audit import audit_output
+
+    ctx = multiprocessing.get_context("spawn")
+    barrier, results = ctx.Barrier(2), ctx.Queue()
+    queues = [ctx.Queue(), ctx.Queue()]
+    workers = [ctx.Process(target=_race_worker, args=(barrier, q, results), daemon=True) for q in queues]
+    for w in workers:
+        w.start()
+    rng = np.random.default_rng(0)
+    trials = ([("chunking", None)] * 50 + [("shards", None)] * 50 + [("agree", None)] * 10)
+    key = ["setting", "family", "field"]
+    try:
+        for i, (kind, _) in enumerate(trials):
+            out = tmp_path / f"race-{i}"
+            if kind == "chunking":
+                a, b = (int(x) for x in rng.choice([2, 3, 4, 5, 6, 12], 2, replace=False))
+                tasks = [((0, 2), a), ((1, 2), b)]
+            elif kind == "shards":
+                n, m = (int(x) for x in rng.choice([2, 3, 4, 5], 2, replace=False))
+                tasks = [((0, n), 3), ((1, m), 3)]
+            else:
+                tasks = [((0, 2), 3), ((1, 2), 3)]
+            for q, (shard, chunk_fields) in zip(queues, tasks):
+                q.put((out, shard, chunk_fields))
+            got = [results.get(timeout=300) for _ in tasks]
+            statuses = sorted(s for s, _ in got)
+            if kind == "agree":
+                assert statuses == ["ok", "ok"], got
+            else:
+                assert statuses == ["ok", "refused"], (kind, tasks, got)
+                refusal = next(what for s, what in got if s == "refused")
+                assert "is divided into" in refusal and "\n" not in refusal
+            found = audit_output(out, None, None) if part_files(out) else None
+            assert found is not None and not found.problems, found
+            df = read_sweep(out)[0]
+            assert not df.duplicated(key).any()
+            merged = df.merge(reference, on=key, suffixes=("", "_ref"))
+            assert len(merged) == len(df)  # every row is one of the one-process run's, with its numbers
+            for column in ("min_clearance", "path_length", "success", "steps"):
+                np.testing.assert_array_equal(merged[column], merged[f"{column}_ref"])
+            if kind == "agree":
+                assert found.complete
+    finally:
+        for q in queues:
+            q.put(None)
+        for w in workers:
+            w.join(timeout=60)
