@@ -1,5 +1,5 @@
-"""A spec's ``.py`` plugins are read from the spec file's folder, and a sweep's dataset finds them
-again from any working directory, also after the dataset and its plugin moved together."""
+"""A spec's ``.py`` plugins are read from the spec file's folder, and a sweep's dataset names them
+(never imports them) from any working directory, also after the dataset and its plugin moved together."""
 
 from __future__ import annotations
 
@@ -45,13 +45,13 @@ SCRIPT = textwrap.dedent("""
 """)
 
 
-def _run(cwd, *argv):
+def _run(cwd, *argv, rc=0):
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"} | {"JAX_PLATFORMS": "cpu"}
     proc = subprocess.run([sys.executable, "-c", SCRIPT, *map(str, argv)], cwd=cwd, env=env, capture_output=True,
                           text=True, timeout=400)
     assert proc.returncode == 0, proc.stderr[-3000:]
     result = json.loads(next(line for line in proc.stdout.splitlines() if line.startswith("RESULT "))[7:])
-    assert result["rc"] == 0, proc.stderr[-3000:]
+    assert result["rc"] == rc, proc.stderr[-3000:]
     return result["stdout"], proc.stderr
 
 
@@ -70,12 +70,16 @@ def test_spec_plugins_sweep_and_report_from_any_directory(tmp_path):
     assert meta["spec"]["plugins"] == ["plugins/sideways.py"]  # as written: the hash does not depend on where
     assert meta["plugin_files"] == [{"path": str((study / "plugins" / "sideways.py").resolve()),
                                      "from_output": os.path.join("..", "..", "plugins", "sideways.py")}]
-    # the study folder moved (the recorded absolute path is gone): the report finds the plugin next to the
-    # dataset, from yet another directory, and re-simulates the gallery
+    # the study folder moved (the recorded absolute path is gone): opening the dataset imports nothing, and
+    # its refusal names the plugin where it now lies, next to the dataset; named with --plugin, the report
+    # reads it from yet another directory and re-simulates the gallery
     moved = tmp_path / "moved"
     study.rename(moved)
-    stdout, _ = _run(elsewhere, "report", moved / "runs" / "ext.parquet", "--out", tmp_path / "report",
-                     "--resamples", "100", "--gallery", "1", "--heatmap", "none", "--no-cache")
+    report = ["report", moved / "runs" / "ext.parquet", "--out", tmp_path / "report", "--resamples", "100",
+              "--gallery", "1", "--heatmap", "none", "--no-cache"]
+    _, err = _run(elsewhere, *report, rc=2)
+    assert err.count("\n") == 1 and f"plugin(s) {(moved / 'plugins' / 'sideways.py').resolve()}, which" in err, err
+    stdout, _ = _run(elsewhere, "--plugin", moved / "plugins" / "sideways.py", *report)
     assert "could not re-simulate" not in stdout, stdout
     assert (tmp_path / "report" / "figures" / "gallery_1.png").is_file(), stdout
 

@@ -66,7 +66,11 @@ def read_sweep(path: str | os.PathLike) -> tuple["pd.DataFrame", dict[str, Any]]
     try:
         spec = sweep_spec(meta)
         expected = len(spec.settings()) * len(spec.families) * spec.fields
-    except (KeyError, TypeError, ConfigError):
+    except ConfigError:
+        if meta.get("spec", {}).get("plugins"):  # its plugins' components are not registered: say which to name
+            raise
+        spec, expected = None, None  # a spec this version cannot expand: the rows, unaudited
+    except (KeyError, TypeError, AttributeError):
         spec, expected = None, None
     complete = False
     if path.is_dir() and named and spec is not None:

@@ -182,21 +182,21 @@ def plugin_files(spec: SweepSpec, out: str | pathlib.Path | None) -> list[dict[s
 
 
 def sweep_spec(meta: Mapping[str, Any]) -> SweepSpec:
-    """The spec of a sweep's metadata (``meta`` from :func:`read_sweep`), its plugins imported: a
-    ``.py`` plugin from its path relative to the output folder (``location``) if it is there (a
-    dataset moved together with its plugin), else from the absolute path recorded by the sweep;
-    metadata without ``plugin_files`` (older sweeps) reads relative paths from the current directory."""
+    """The spec of a sweep's metadata (``meta`` from :func:`read_sweep`). A dataset is data: its plugins
+    are never imported here, only named (the components they register must be registered already:
+    ``--plugin``); a ``.py`` plugin is named by its path relative to the output folder (``location``) if
+    it is there (a dataset moved together with its plugin), else by the absolute path the sweep recorded."""
     files = meta.get("plugin_files") or []
     names = list(meta["spec"].get("plugins", []))
     if not files or len(files) != len(names):
-        return SweepSpec.from_json(meta["spec"])
+        return SweepSpec.from_json(meta["spec"], import_plugins=False)
     location = meta.get("location")
     paths = []
     for name, rec in zip(names, files):
-        if not isinstance(rec, Mapping) or "path" not in rec:
-            paths.append(name)
+        if not isinstance(rec, Mapping) or not isinstance(rec.get("path"), str):
+            paths.append(str(name))
             continue
-        near = ([str((pathlib.Path(location) / rec["from_output"]).resolve())]
-                if location and rec.get("from_output") else [])
-        paths.append(next((c for c in near if pathlib.Path(c).is_file()), str(rec["path"])))
-    return SweepSpec.from_json(meta["spec"], plugin_paths=paths)
+        near = ([str((pathlib.Path(location) / str(rec["from_output"])).resolve())]
+                if location and isinstance(rec.get("from_output"), str) else [])
+        paths.append(next((c for c in near if pathlib.Path(c).is_file()), rec["path"]))
+    return SweepSpec.from_json(meta["spec"], plugin_paths=paths, import_plugins=False)

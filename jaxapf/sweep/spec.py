@@ -284,6 +284,10 @@ class SweepSpec:
     tags: tuple[tuple[tuple[str, Any], ...], ...] = ()
     plugin_paths: tuple[str, ...] = dataclasses.field(default=(), compare=False)
 
+    def _replace_plugins(self, plugins: Sequence[str], paths: Sequence[str] | None) -> "SweepSpec":
+        """This spec naming ``plugins`` (imported by whoever registered their components)."""
+        return dataclasses.replace(self, plugins=tuple(plugins), plugin_paths=tuple(paths or plugins))
+
     # ---- canonical form -----------------------------------------------------------------
 
     def to_json(self) -> dict[str, Any]:
@@ -315,9 +319,11 @@ class SweepSpec:
         return hashlib.sha256(text.encode()).hexdigest()
 
     @classmethod
-    def from_json(cls, data: Mapping[str, Any], plugin_paths: Sequence[str] | None = None) -> "SweepSpec":
+    def from_json(cls, data: Mapping[str, Any], plugin_paths: Sequence[str] | None = None, *,
+                  import_plugins: bool = True) -> "SweepSpec":
         """Inverse of :meth:`to_json` (re-validates); ``plugin_paths``: what each plugin imports
-        (default: relative ``.py`` paths from the current directory)."""
+        (default: relative ``.py`` paths from the current directory); ``import_plugins=False``: import
+        none (a dataset's spec, :func:`parse_spec`)."""
         table: dict[str, Any] = {"name": data["name"], "scenario": dict(data["scenario"]), "sim": data["sim"],
                                  "gains": data["gains"]}
         if data.get("plugins"):
@@ -329,7 +335,7 @@ class SweepSpec:
                                **{key: r for key, r in data["random"]["ranges"]}}
         if data.get("setting"):
             table["setting"] = [dict(entry) for entry in data["setting"]]
-        return parse_spec(table, plugin_paths=plugin_paths)
+        return parse_spec(table, plugin_paths=plugin_paths, import_plugins=import_plugins)
 
     # ---- expansion ----------------------------------------------------------------------
 
@@ -591,11 +597,15 @@ def _random(table: Any, fixed: Mapping[str, str], grid: Iterable[str]) -> tuple[
 
 
 def parse_spec(data: Mapping[str, Any], gains_file: str | os.PathLike | None = None, *,
-               base: str | os.PathLike | None = None, plugin_paths: Sequence[str] | None = None) -> SweepSpec:
+               base: str | os.PathLike | None = None, plugin_paths: Sequence[str] | None = None,
+               import_plugins: bool = True) -> SweepSpec:
     """Validate a spec given as a mapping (parsed TOML) and return it as a :class:`SweepSpec`.
 
     ``base``: the folder relative ``.py`` plugin paths are read from (the spec file's;
     default the current directory); ``plugin_paths``: what each plugin imports, instead.
+    ``import_plugins=False`` (the spec stored in a dataset, which is data): the plugins are not
+    imported, their components must be registered already (``--plugin``), and a spec that needs
+    what is not says which plugin files to name.
 
     ``gains_file`` (``--gains FILE``, read by :func:`~jaxapf.gains.read_gains_file`) overrides the
     spec's ``[gains]``: the file's values on top of the spec's, every gain either names then fixed,
@@ -606,6 +616,17 @@ def parse_spec(data: Mapping[str, Any], gains_file: str | os.PathLike | None = N
     plugins = check_plugins("plugins", data.get("plugins", []))
     if plugin_paths is not None and len(plugin_paths) != len(plugins):
         raise ConfigError(f"plugins: {len(plugin_paths)} paths given for {len(plugins)} plugins")
+    if not import_plugins:
+        try:
+            return parse_spec({k: v for k, v in data.items() if k != "plugins"}, gains_file)._replace_plugins(
+                plugins, plugin_paths)
+        except ConfigError as err:
+            if not plugins:
+                raise
+            files = ", ".join(plugin_paths or plugins)
+            raise ConfigError(f"{err}; the dataset was written with the plugin(s) {files}, which opening a dataset "
+                              "never imports: name each one you trust, `jaxapf --plugin FILE COMMAND ...` (in Python "
+                              "jaxapf.io.plugins.load_plugin(FILE)), to read it") from None
     paths = load_plugins(plugins, base=base, paths=plugin_paths)
     d = _schema()("", data)
     name, (families, fields, seed, params, oracle), sim, gains = d["name"], d["scenario"], d["sim"], d["gains"]

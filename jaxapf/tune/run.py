@@ -15,7 +15,7 @@ with paired statistics (:mod:`jaxapf.tune.proof`). ``DIR`` receives
 - ``training.png`` (training curves), ``test.png`` (test rates with 95 % intervals);
 - ``checkpoint.npz``: the training state; rerunning the command resumes from it;
 - ``searches.json``: the black-box tuners' results, reused by a rerun with the same spec;
-  ``search-cmaes.pkl``, ``search-tpe.pkl``: their state while they run (a rerun resumes it).
+  ``search-cmaes.json``, ``search-tpe.json``: their state while they run (a rerun resumes it).
 
 The command holds ``DIR/.lock`` while it runs (one writer per folder, :mod:`jaxapf.io.lock`). Rerun
 on a finished folder of the same spec, it prints the test table again and recomputes nothing;

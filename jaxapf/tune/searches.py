@@ -16,17 +16,18 @@ and reports its wall-clock time; each result is a setting the held-out test then
   trials asked ``search.tpe_batch`` at a time (constant liar), each batch on fresh training fields,
   value = mean ``J``; ``⌊B/m⌋`` trials in whole batches; the result is the trial of lowest ``J``.
 
-Both save their state after every generation or batch (``search-NAME.pkl`` in the output folder, with
-the spec's digest) and resume from it exactly: CMA-ES pickles its optimiser and reseeds its sampling
-for generation ``g`` with ``(random_seed, g)`` (the library's pickle leaves its generator out), TPE
-replays its finished trials into a new study and seeds batch ``b``'s sampler with ``(random_seed, b)``.
+Both save their state after every generation or batch (``search-NAME.json`` in the output folder, with
+the spec's digest: data only, never a pickle) and resume from it exactly: CMA-ES stores its optimiser's
+state (the library's ``__getstate__``, arrays as typed lists) and reseeds its sampling for generation
+``g`` with ``(random_seed, g)`` (that state leaves its generator out), TPE replays its finished trials
+into a new study and seeds batch ``b``'s sampler with ``(random_seed, b)``.
 """
 
 from __future__ import annotations
 
+import json
 import math
 import pathlib
-import pickle
 import time
 import warnings
 from typing import Any, Callable
@@ -57,22 +58,59 @@ def _mean_loss(report: dict[str, np.ndarray]) -> np.ndarray:
 
 
 class _Checkpoint:
-    """A search's state in ``out/search-NAME.pkl``, belonging to one spec digest and budget."""
+    """A search's state in ``out/search-NAME.json``, belonging to one spec digest and budget: data only
+    (numbers, lists, arrays as typed lists), so resuming from a folder never runs code it holds."""
 
     def __init__(self, out: pathlib.Path, name: str, digest: str) -> None:
-        self.path, self.digest = out / f"search-{name}.pkl", digest
+        self.path, self.digest = out / f"search-{name}.json", digest
 
     def load(self) -> dict[str, Any] | None:
         try:
-            with open(self.path, "rb") as fh:
-                state = pickle.load(fh)
-        except (OSError, pickle.UnpicklingError, EOFError):
+            state = json.loads(self.path.read_text(), object_hook=_decode)
+        except (OSError, ValueError, TypeError, KeyError):
             return None
-        return state if state.get("digest") == self.digest else None
+        return state if isinstance(state, dict) and state.get("digest") == self.digest else None
 
     def save(self, state: dict[str, Any]) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        write_atomic(self.path, lambda fh: pickle.dump(state | {"digest": self.digest}, fh))
+        text = json.dumps(state | {"digest": self.digest}, default=_encode)
+        write_atomic(self.path, lambda fh: fh.write(text.encode()))
+
+
+def _encode(value: Any) -> Any:
+    """JSON for what a search's state holds besides plain numbers: numpy arrays and scalars (exact: a
+    float's JSON is its shortest round-trip text) and CMA-ES's optimiser (its own state protocol)."""
+    from cmaes import CMA
+
+    if isinstance(value, np.ndarray):
+        return {"__ndarray__": value.dtype.str, "shape": list(value.shape), "data": value.ravel().tolist()}
+    if isinstance(value, np.generic):
+        return {"__scalar__": value.dtype.str, "value": value.item()}
+    if isinstance(value, CMA):
+        return {"__cma__": value.__getstate__()}
+    raise TypeError(f"a search's state cannot hold {type(value).__name__}")
+
+
+def _numeric(text: str) -> np.dtype:
+    dtype = np.dtype(text)
+    if dtype.kind not in "biuf":
+        raise ValueError(f"not a numeric dtype: {text}")
+    return dtype
+
+
+def _decode(obj: dict[str, Any]) -> Any:
+    """The inverse of :func:`_encode`, for one JSON object (inner objects first)."""
+    if "__ndarray__" in obj:
+        return np.asarray(obj["data"], dtype=_numeric(obj["__ndarray__"])).reshape(obj["shape"])
+    if "__scalar__" in obj:
+        return _numeric(obj["__scalar__"]).type(obj["value"])
+    if "__cma__" in obj:
+        from cmaes import CMA
+
+        cma = CMA.__new__(CMA)
+        cma.__setstate__(dict(obj["__cma__"]))
+        return cma
+    return obj
 
 
 def _fields_per_setting(tuner: Tuner) -> int:
@@ -80,7 +118,7 @@ def _fields_per_setting(tuner: Tuner) -> int:
 
 
 def cmaes_search(tuner: Tuner, budget: int, out: pathlib.Path, digest: str) -> dict[str, Any]:
-    """CMA-ES on ``θ`` (module docstring); resumes from ``out/search-cmaes.pkl``."""
+    """CMA-ES on ``θ`` (module docstring); resumes from ``out/search-cmaes.json``."""
     from cmaes import CMA
 
     spec, rp = tuner.spec, tuner.spec.reparam
@@ -100,7 +138,7 @@ def cmaes_search(tuner: Tuner, budget: int, out: pathlib.Path, digest: str) -> d
     to_gains = lambda x: rp.gains({n: jnp.asarray(v, jnp.float32) for n, v in zip(rp.names, x)})  # noqa: E731
     while state["generation"] < generations:
         begin = time.perf_counter()
-        cma.reseed_rng(spec.search.random_seed * 1_000_003 + state["generation"])  # a pickle drops the generator
+        cma.reseed_rng(spec.search.random_seed * 1_000_003 + state["generation"])  # the state drops the generator
         xs = [cma.ask() for _ in range(cma.population_size)]
         values = _mean_loss(tuner.report(round_fields(tuner, state["generation"], m), [to_gains(x) for x in xs]))
         cma.tell(list(zip(xs, values.tolist())))
@@ -113,7 +151,7 @@ def cmaes_search(tuner: Tuner, budget: int, out: pathlib.Path, digest: str) -> d
 
 
 def tpe_search(tuner: Tuner, budget: int, out: pathlib.Path, digest: str) -> dict[str, Any]:
-    """TPE over the random search's ranges (module docstring); resumes from ``out/search-tpe.pkl``."""
+    """TPE over the random search's ranges (module docstring); resumes from ``out/search-tpe.json``."""
     import optuna
     from optuna.distributions import FloatDistribution
 

@@ -391,7 +391,7 @@ def test_black_box_tuners_find_a_known_minimum(tuner, tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("tuner", ["cmaes", "tpe"])
 def test_an_interrupted_black_box_tuner_resumes_to_the_uninterrupted_result(tuner, tmp_path, monkeypatch):
-    """Killed after its second generation or batch, the tuner's rerun (from ``search-NAME.pkl``) ends with
+    """Killed after its second generation or batch, the tuner's rerun (from ``search-NAME.json``) ends with
     the gains an uninterrupted run chose, bit for bit."""
     from jaxapf.tune.searches import SEARCHES
 
@@ -411,6 +411,10 @@ def test_an_interrupted_black_box_tuner_resumes_to_the_uninterrupted_result(tune
     with pytest.raises(KeyboardInterrupt):
         SEARCHES[tuner](Tuner(spec), 64, tmp_path / "part", spec.digest())
     monkeypatch.setattr(Tuner, "report", report)
+    import json
+
+    saved = json.loads((tmp_path / "part" / f"search-{tuner}.json").read_text())  # data: plain JSON, no pickle
+    assert saved["digest"].startswith(spec.digest()) and not list((tmp_path / "part").glob("*.pkl"))
     resumed = SEARCHES[tuner](Tuner(spec), 64, tmp_path / "part", spec.digest())
     assert resumed["gains"].floats() == whole["gains"].floats() and resumed["episodes"] == whole["episodes"]
 
