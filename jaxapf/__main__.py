@@ -1,11 +1,8 @@
-"""``python -m jaxapf``: the command line (:mod:`jaxapf.cli`)."""
+"""``python -m jaxapf``: the command line (:mod:`jaxapf.cli`), run by the program around it
+(:mod:`jaxapf.cli.program`: Ctrl-C at any moment is one line)."""
 
 import sys
 
-try:
-    from .cli import console
-except KeyboardInterrupt:  # Ctrl-C while the command line is still being imported
-    print("jaxapf: interrupted; nothing was written", file=sys.stderr)
-    sys.exit(130)
+from .cli.program import console
 
 sys.exit(console())

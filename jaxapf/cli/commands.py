@@ -18,7 +18,7 @@ import threading
 import time
 from typing import Any, Sequence
 
-__all__ = ["main", "console", "build_parser"]
+__all__ = ["main", "build_parser"]
 
 #: The registries' catalogue the parser is built from (:func:`jaxapf.cli.catalog.catalog`); set by :func:`main`.
 _CATALOG: dict | None = None
@@ -545,11 +545,31 @@ def _list(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """The command line on ``argv`` (default ``sys.argv[1:]``); returns the exit status. While it runs in
+    the main thread, SIGINT and SIGTERM stop it with one line saying what was kept (:mod:`.stops`)."""
+    import signal
+
+    from .stops import on_signal, stopped
+
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)} if main_thread else {}
+    running: list[str] = []  # the command, once it runs
+    try:
+        return _main(list(sys.argv[1:] if argv is None else argv), running)
+    except KeyboardInterrupt as stop:  # before the command ran (plugins, catalogue, parsing), or as it ended
+        return stopped(stop, f"jaxapf {running[0].replace('-', ' ')}" if running else "jaxapf",
+                       _KEPT[running[0]] if running else "nothing was written")
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+def _main(argv: list[str], running: list[str]) -> int:
     global _CATALOG
     from ..io.plugins import load_plugin
     from ..validation import ConfigError
+    from .stops import stopped
 
-    argv = list(sys.argv[1:] if argv is None else argv)
     # plugins register components (and their gain flags) before the parser is built from the registries
     early = argparse.ArgumentParser(add_help=False)
     early.add_argument("--plugin", action="append", default=[])
@@ -579,10 +599,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     def one_line(message, category, filename, lineno, file=None, line=None):
         print(f"jaxapf {command}: warning: {str(message).strip().splitlines()[0]}", file=sys.stderr)
 
-    import signal
-
-    main_thread = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGTERM, _terminate) if main_thread else None  # SIGTERM: a stop, one line
+    running.append(args.command)
     try:
         with warnings.catch_warnings():
             warnings.showwarning = one_line
@@ -594,9 +611,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except Interrupted as err:  # a runner's own line of what it kept
         stop = err.__context__ if isinstance(err.__context__, KeyboardInterrupt) else err
-        return _stopped(stop, f"jaxapf {command}", str(err).removeprefix("interrupted; "))
+        return stopped(stop, f"jaxapf {command}", str(err).removeprefix("interrupted; "))
     except KeyboardInterrupt as stop:
-        return _stopped(stop, f"jaxapf {command}", _KEPT[args.command])
+        return stopped(stop, f"jaxapf {command}", _KEPT[args.command])
     except ImportError as err:
         print(f"jaxapf {command}: error: {err}", file=sys.stderr)
         return 2
@@ -605,35 +622,3 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 1
-    finally:
-        if main_thread:
-            signal.signal(signal.SIGTERM, previous)
-
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM (a scheduler's time limit, ``kill``): handled like Ctrl-C, so the run says what it kept."""
-
-
-def _terminate(signum: int, frame: Any) -> None:
-    raise Terminated
-
-
-def console() -> int:
-    """The ``jaxapf`` program: :func:`main`, then an exit that skips the last garbage collection of
-    everything imported (``gc.freeze``), which is work for nothing at exit. Once a command runs, SIGTERM
-    ends it as Ctrl-C does (one line saying what was kept; status 143)."""
-    import gc
-
-    try:
-        code = main()
-    except KeyboardInterrupt as stop:  # while starting (imports, parsing): nothing was written yet
-        code = _stopped(stop, "jaxapf", "nothing was written")
-    gc.freeze()
-    return code
-
-
-def _stopped(stop: BaseException, who: str, kept: str) -> int:
-    """Print the one line of an interrupted (status 130) or terminated (SIGTERM, status 143) command."""
-    how = "terminated (SIGTERM)" if isinstance(stop, Terminated) else "interrupted"
-    print(f"{who}: {how}; {kept}", file=sys.stderr)
-    return 143 if isinstance(stop, Terminated) else 130
