@@ -195,3 +195,5 @@ def read_toml_file(path: str | os.PathLike, what: str = "spec file") -> tuple[di
         return tomllib.loads(text), text
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
         raise ConfigError(f"{what} {str(path)!r} is not valid TOML: {err}") from None
+    except RecursionError:  # tomllib reads nested arrays and tables recursively
+        raise ConfigError(f"{what} {str(path)!r} nests arrays or tables too deeply to read") from None

@@ -55,16 +55,23 @@ def check_writable(folder: str | os.PathLike, option: str = "--out") -> None:
     if folder.exists() and not folder.is_dir():
         raise ConfigError(f"{option} {folder} is a file; give a folder")
     probe = folder / f".write-test-{os.getpid()}"
+    made = not folder.exists()
     try:
         folder.mkdir(parents=True, exist_ok=True)
         fd = os.open(probe, os.O_CREAT | os.O_WRONLY | os.O_TRUNC, 0o644)
         try:
-            os.write(fd, b"\0" * PROBE_BYTES)
+            left = memoryview(b"\0" * PROBE_BYTES)
+            while left:  # a nearly full disk takes part of a write, then refuses the rest (ENOSPC)
+                left = left[os.write(fd, left):]
             os.fsync(fd)
         finally:
             os.close(fd)
     except OSError as err:
         full = " (the file system is full)" if _no_space(err) else ""
+        with contextlib.suppress(OSError):
+            probe.unlink()
+            if made:  # refused before any work: leave no empty folder behind
+                folder.rmdir()
         raise ConfigError(f"{option} {folder} cannot be written: {err.strerror or first_line(err)}{full}") from None
     finally:
         with contextlib.suppress(OSError):

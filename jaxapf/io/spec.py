@@ -118,12 +118,23 @@ SEED = integer(0, MAX_SEED)
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
 
+#: Longest spec ``name``: it names files and folders (``runs/compare-NAME``, ``runs/NAME.parquet``), whose names
+#: most file systems cap at 255 bytes.
+MAX_NAME = 128
+
+
 def spec_name(hint: str = "") -> Reader:
-    """The spec's ``name``: letters, digits, ``_``, ``.`` and ``-`` (it names outputs); ``hint`` says which."""
+    """The spec's ``name``: up to :data:`MAX_NAME` letters, digits, ``_``, ``.`` and ``-`` (it names outputs);
+    ``hint`` says which."""
     def read(where: str, value: Any) -> str:
         if not isinstance(value, str) or not _NAME.match(value):
-            raise ConfigError(f"{where} = {value!r} must be a string of letters, digits, '_', '.', '-'"
+            shown = (f"{value[:40]!r}… ({len(value):,} characters)" if isinstance(value, str) and len(value) > 40
+                     else repr(value))
+            raise ConfigError(f"{where} = {shown} must be a string of letters, digits, '_', '.', '-'"
                               + (f" ({hint})" if hint else ""))
+        if len(value) > MAX_NAME:
+            raise ConfigError(f"{where} = {value[:40]!r}… is {len(value):,} characters long; at most {MAX_NAME} "
+                              "(it names files and folders)")
         return value
     return read
 

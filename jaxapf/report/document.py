@@ -8,6 +8,7 @@ import dataclasses
 import html
 import io
 import pathlib
+import re
 from typing import Any, Sequence
 
 import pandas as pd
@@ -50,17 +51,27 @@ class Document:
         self.blocks.append(("figure", fig))
 
 
+#: What Markdown would read as HTML (a tag, comment, declaration or entity) or as a link's target.
+_MD_ACTIVE = re.compile(r"<(?=[A-Za-z/!?])|&(?=[A-Za-z#])|\](?=\()")
+
+
+def _md_text(text: Any) -> str:
+    """``text`` as Markdown shows it literally: no raw HTML (a sweep's tags are user text), no link."""
+    return _MD_ACTIVE.sub(lambda m: {"<": "&lt;", "&": "&amp;", "]": "]\\"}[m[0]], str(text))
+
+
 def _md_cell(v: Any) -> str:
-    return str(v).replace("|", "\\|").replace("\n", " ")
+    return _md_text(v).replace("|", "\\|").replace("\n", " ")
 
 
 def render_markdown(doc: Document) -> str:
+    """The document as Markdown; all text is shown literally (:func:`_md_text`), as the HTML page escapes it."""
     out = []
     for kind, value in doc.blocks:
         if kind == "h":
-            out.append(f"{'#' * value[0]} {value[1]}\n")
+            out.append(f"{'#' * value[0]} {_md_text(value[1])}\n")
         elif kind == "p":
-            out.append(f"{value}\n")
+            out.append(f"{_md_text(value)}\n")
         elif kind == "ul":
             out.append("\n".join(f"- {_md_cell(i)}" for i in value) + "\n")
         elif kind == "table":
@@ -70,7 +81,8 @@ def render_markdown(doc: Document) -> str:
             out.append("\n".join(lines) + "\n")
         elif kind == "figure":
             vector = f" (vector: `figures/{value.name}.svg`)" if value.svg else ""
-            out.append(f"![{value.caption}](figures/{value.name}.png)\n\n*{value.caption}*{vector}\n")
+            caption = _md_text(value.caption).replace("\n", " ")
+            out.append(f"![{caption}](figures/{value.name}.png)\n\n*{caption}*{vector}\n")
     return "\n".join(out)
 
 

@@ -291,18 +291,48 @@ class RaySession:
             yield finished
 
 
-def _check_reachable(address: str | None, timeout_s: float = 10.0) -> None:
-    """Refuse in one line a ``HOST:PORT`` nothing answers at (Ray itself retries for minutes)."""
+#: How long :func:`_check_reachable` waits for a connection and for a Ray head's first answer [s].
+PROBE_TIMEOUT_S = 10.0
+#: The HTTP/2 connection preface and an empty SETTINGS frame: what a gRPC client sends first.
+_H2_HELLO = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + b"\x00\x00\x00\x04\x00\x00\x00\x00\x00"
+
+
+def _check_reachable(address: str | None) -> None:
+    """Refuse in one line a ``HOST:PORT`` nothing answers at, or that does not answer as a Ray cluster
+    does: a Ray head's address is its GCS, a gRPC server, which answers a client's HTTP/2 preface with a
+    SETTINGS frame at once (Ray itself retries for minutes, and hung on a port that answered TCP but
+    was not Ray). Skipped with TLS (``RAY_USE_TLS``), where the preface is encrypted."""
+    import os
     import socket
 
+    timeout_s = PROBE_TIMEOUT_S
     host, sep, port = (address or "").rpartition(":")
     if not sep or "://" in address or not port.isdigit():
         return  # auto, ray://, or Ray's own error
     try:
-        socket.create_connection((host or "127.0.0.1", int(port)), timeout=timeout_s).close()
+        conn = socket.create_connection((host or "127.0.0.1", int(port)), timeout=timeout_s)
     except OSError as err:
         raise ConfigError(f"--ray {address}: nothing answers there ({err.strerror or first_line(err)}); start a "
                           "cluster with `ray start --head` and give the address it prints") from None
+    if os.environ.get("RAY_USE_TLS", "0").lower() in ("1", "true"):
+        conn.close()
+        return
+    try:
+        conn.sendall(_H2_HELLO)
+        head = b""
+        while len(head) < 9:
+            more = conn.recv(9 - len(head))
+            if not more:
+                break
+            head += more
+    except OSError:
+        head = b""
+    finally:
+        conn.close()
+    if len(head) < 9 or head[3] != 0x04:  # the server's first frame must be SETTINGS (type 4)
+        raise ConfigError(f"--ray {address}: something answers there, but not as a Ray cluster does (no gRPC "
+                          f"answer within {timeout_s:g} s); give the address `ray start --head` prints (its GCS "
+                          "port, 6379 by default)")
 
 
 def _reason(err: Exception) -> str:

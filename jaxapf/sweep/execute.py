@@ -14,6 +14,7 @@ import numpy as np
 
 from ..engine.devices import DeviceBatch
 from ..gains import Gains
+from ..validation import ConfigError, first_line
 from .plan import Chunk, Plan, Variant
 
 __all__ = ["configure_jax", "default_cache_dir", "ChunkRunner", "ChunkFailed", "Finished", "local_results"]
@@ -34,15 +35,26 @@ def configure_jax(*, x64: bool = False, cache_dir: str | os.PathLike | None = No
       cache_dir: persistent compilation cache (``jax_compilation_cache_dir``); programs that took
         more than 0.1 s to compile are stored there and loaded by later runs. ``None``: no cache.
       cpu_devices: split the host CPU into this many JAX devices (``jax_num_cpu_devices``), one
-        per core being the useful setting; ignored when ``XLA_FLAGS`` already forces a count.
+        per core being the useful setting (more are refused); ignored when ``XLA_FLAGS`` already forces
+        a count.
     """
     if x64:
         jax.config.update("jax_enable_x64", True)
     if cache_dir is not None:
-        pathlib.Path(cache_dir).mkdir(parents=True, exist_ok=True)
+        try:
+            pathlib.Path(cache_dir).mkdir(parents=True, exist_ok=True)
+        except FileExistsError:
+            raise ConfigError(f"--cache-dir {cache_dir} is a file; give a folder (or --no-cache)") from None
+        except OSError as err:
+            raise ConfigError(f"--cache-dir {cache_dir} cannot be made: {err.strerror or first_line(err)} "
+                              "(give another folder, or --no-cache)") from None
         jax.config.update("jax_compilation_cache_dir", str(cache_dir))
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.1)
         jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    if cpu_devices is not None and cpu_devices > cores:  # each device is memory and threads, and no faster
+        raise ConfigError(f"--devices = {cpu_devices} is more than the {cores} CPU core(s) this process may use; "
+                          f"at most {cores} (one device per core is the useful most)")
     if cpu_devices is not None and "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
         try:
             jax.config.update("jax_num_cpu_devices", int(cpu_devices))

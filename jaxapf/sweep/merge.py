@@ -18,7 +18,7 @@ from typing import Sequence
 
 from ..io.lock import OutputLock, check_writable, write_atomic
 from ..validation import ConfigError
-from .audit import Audit, audit_folder, audit_output
+from .audit import Audit, audit_folder, audit_output, check_folder
 from .output import part_record, verify_part
 from .plan import Chunk
 from .schema import identity, read_meta
@@ -70,6 +70,8 @@ def merge_outputs(sources: Sequence[str | pathlib.Path], out: str | pathlib.Path
             differ = ", ".join(k for k in first if other[k] != first[k])
             raise ConfigError(f"sweep merge: {s} is of another sweep or version than {sources[0]} ({differ} differ); "
                               "nothing merged")
+    if out.is_dir():
+        check_folder(out)  # a folder of other files is not a dataset to merge into
     check_writable(out)
     with OutputLock(out):
         here = audit_output(out, metas[0]) if any(Chunk.from_name(p.name) for p in out.iterdir()) else None

@@ -105,7 +105,11 @@ def read_part(path: pathlib.Path):
         return table.replace_schema_metadata(metadata)
     if expected is None:
         raise ConfigError(f"{path.name}: no content hash (damaged, or written before jaxapf checked its parts)")
-    if content_hash(table.replace_schema_metadata(metadata)) != expected:
+    try:
+        found = content_hash(table.replace_schema_metadata(metadata))
+    except (pa.ArrowException, ValueError) as err:  # e.g. a column name that is not UTF-8 any more
+        raise ConfigError(f"{path.name}: unreadable ({type(err).__name__}: {first_line(err)})") from None
+    if found != expected:
         raise ConfigError(f"{path.name}: content hash mismatch (the file was changed after it was written)")
     return table.replace_schema_metadata(metadata)
 
@@ -113,11 +117,12 @@ def read_part(path: pathlib.Path):
 def part_record(path: pathlib.Path) -> dict[str, Any]:
     """A part's own record (``jaxapf_part``: its content hash, rows, and the shard that wrote it), from its
     schema alone; empty if it has none."""
+    import pyarrow as pa
     import pyarrow.parquet as pq
 
     try:
         record = json.loads((pq.read_schema(path).metadata or {}).get(PART_KEY, b"{}"))
-    except (OSError, ValueError):
+    except (OSError, ValueError, pa.ArrowException):  # a damaged footer: no record (reading names the damage)
         return {}
     return record if isinstance(record, dict) else {}
 

@@ -197,7 +197,7 @@ def step_cost_us(mpc: MPCConfig, obstacles: int, agents: int = 1) -> float:
 
 
 def _block(sim: SimConfig, mpc: MPCConfig, obstacles: int, agents: int, settings: int, fields: int, *, devices: int,
-           width: int, itemsize: int, budget: int, chunk_fields: int | None) -> Block:
+           width: int, itemsize: int, budget: int, chunk_fields: int | None, family: str = "") -> Block:
     """Chunk shapes of one (variant, family) at the sweep's vmap ``width``, or at the largest power
     of two whose batch working set fits :data:`WIDTH_BUDGET` if that is less (long episodes).
 
@@ -207,10 +207,23 @@ def _block(sim: SimConfig, mpc: MPCConfig, obstacles: int, agents: int, settings
     :data:`CALLS_PER_PART` cap, balanced, and each chunk is filled up to its padded size.
     """
     seen = seen_slots(sim, obstacles, agents)
-    fits = WIDTH_BUDGET // working_set_bytes(1, sim.episode.steps, seen, itemsize, agents)
-    width = min(width, max(1, 1 << (fits.bit_length() - 1)))
-    fixed = devices * working_set_bytes(width, sim.episode.steps, seen, itemsize, agents)
+    steps = sim.episode.steps
     per_field = settings * episode_bytes(obstacles, itemsize, agents)
+    one = working_set_bytes(1, steps, seen, itemsize, agents)
+    if devices * one + per_field > budget:  # not even one episode at a time fits: a limit of the spec
+        per_step = working_set_bytes(1, 0, seen, itemsize, agents)  # one sample of one episode
+        most_steps = max((budget - per_field) // devices // per_step - 1, 0)
+        most_slots = max(((budget - per_field) // devices // ((steps + 1) * itemsize * agents) - 41) // 3
+                         - (seen - obstacles), 0)
+        raise ConfigError(
+            f"{family}: one episode of {steps:,} steps (t_max {sim.episode.t_max:g} s at dt {sim.episode.dt:g} s) "
+            f"among {obstacles:,} obstacle slots needs {format_bytes(devices * one + per_field)} of working memory, "
+            f"more than --memory-budget {format_bytes(budget)}: at most {most_steps:,} steps (t_max <= "
+            f"{most_steps * sim.episode.dt:g} s) with these slots, or at most {most_slots:,} obstacle slots at this "
+            "length; or a larger --memory-budget")
+    fits = WIDTH_BUDGET // one
+    width = min(width, 1 << max(fits.bit_length() - 1, 0))
+    fixed = devices * working_set_bytes(width, steps, seen, itemsize, agents)
     if chunk_fields is None:
         fit = (budget - fixed) // per_field
         if fit < 1:
@@ -354,8 +367,8 @@ def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: in
             params = spec.family_params(family)
             agents = params.agents if spec.swarm else 1
             block = _block(sim, mpc, params.max_obstacles, agents, len(v.simulated), spec.fields, devices=devices,
-                           width=width,
-                           itemsize=dtype.itemsize, budget=memory_budget, chunk_fields=chunk_fields)
+                           width=width, itemsize=dtype.itemsize, budget=memory_budget, chunk_fields=chunk_fields,
+                           family=family)
             blocks[(v.index, family)] = block
     count = sum(-(-spec.fields // b.fields) for b in blocks.values())
     if count > MAX_CHUNKS:

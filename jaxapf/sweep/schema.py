@@ -135,7 +135,7 @@ def read_meta(path: pathlib.Path) -> dict[str, Any]:
 
     try:
         raw = (pq.read_schema(path).metadata or {}).get(META_KEY)
-    except (OSError, pa.ArrowException) as err:
+    except (OSError, pa.ArrowException, ValueError) as err:
         raise ConfigError(f"{path} is not a readable sweep output (Parquet): {first_line(err)}") from None
     try:
         meta = json.loads(raw) if raw else None

@@ -173,7 +173,11 @@ def test_check_writable_refuses_a_full_disk(tmp_path, monkeypatch):
     monkeypatch.setattr(os, "fsync", full)
     with pytest.raises(ConfigError, match=r"cannot be written: No space left on device \(the file system is full\)"):
         check_writable(tmp_path / "out")
-    assert list((tmp_path / "out").iterdir()) == []  # the probe removed
+    assert not (tmp_path / "out").exists()  # the probe removed, and the folder it was made in
+    (tmp_path / "mine").mkdir()
+    with pytest.raises(ConfigError, match="the file system is full"):
+        check_writable(tmp_path / "mine")
+    assert list((tmp_path / "mine").iterdir()) == []  # a folder that was there stays
 
 
 def test_write_atomic_syncs_the_folder_after_the_rename(tmp_path, monkeypatch):

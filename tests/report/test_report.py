@@ -504,3 +504,25 @@ def test_pooling_families_of_unequal_sizes_is_said(tmp_path):
     balanced = build_report(write_sweep(tmp_path / "equal.parquet", make_rows()), tmp_path / "out2",
                             ReportOptions(gallery=0, resamples=100, heatmap=None))
     assert not any("unequal sizes" in n for n in balanced.notes)
+
+
+def test_swept_tags_named_like_the_reports_columns_and_holding_html_are_shown_as_text(tmp_path):
+    """A tag named `role` or `label` (docs/sweep.md's own example) crashed the report ("cannot insert role,
+    already exists"); tag text reached report.md raw, so a Markdown viewer ran `<script>` and `<img onerror>`."""
+    from markdown_it import MarkdownIt
+
+    df = make_rows(families=("trap",), fields=8)
+    evil = {s: f"<script>alert({s})</script>" for s in df["setting"].unique()}
+    df["role"] = df["setting"].map(evil)
+    df["label"] = df["setting"].map(lambda s: f"<img src=x onerror=alert({s})> [x](javascript:alert({s})) &amp;")
+    out = tmp_path / "out"
+    build_report(write_sweep(tmp_path / "tags.parquet", df), out, ReportOptions(gallery=0, resamples=100,
+                                                                                 heatmap=None))
+    markdown = (out / "report.md").read_text(encoding="utf-8")
+    rendered = MarkdownIt("commonmark").render(markdown)  # what a Markdown viewer makes of it
+    assert "<script" not in rendered and "<img src=x" not in rendered and 'href="javascript' not in rendered
+    assert "&lt;script&gt;alert(1)&lt;/script&gt;" in rendered  # shown, as text
+    page = (out / "report.html").read_text(encoding="utf-8")
+    assert "<script" not in page and "&lt;script&gt;alert(1)&lt;/script&gt;" in page
+    header = next(line for line in markdown.splitlines() if line.startswith("| setting | report label"))
+    assert "| role |" in header and "| label |" in header and "| report role |" in header

@@ -126,6 +126,43 @@ def test_ray_options_are_checked_in_one_line(tmp_path, flags, message):
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize("server", ["silent", "http"])
+def test_a_port_that_answers_but_is_not_ray_is_refused_in_one_line(server, tmp_path, monkeypatch):
+    """Ray hung for more than 120 s with its C++ warnings on a port that answered TCP but was not Ray."""
+    import socket
+    import threading
+
+    import jaxapf.sweep.cluster
+
+    monkeypatch.setattr(jaxapf.sweep.cluster, "PROBE_TIMEOUT_S", 1.0)
+    listener = socket.create_server(("127.0.0.1", 0))
+    held = []
+
+    def serve():
+        while True:
+            try:
+                conn, _ = listener.accept()
+            except OSError:
+                return
+            if server == "http":
+                conn.recv(64)
+                conn.sendall(b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n")
+                conn.close()
+            else:
+                held.append(conn)  # accepts and never answers
+
+    threading.Thread(target=serve, daemon=True).start()
+    address = f"127.0.0.1:{listener.getsockname()[1]}"
+    try:
+        rc, _, stderr = capture(main, ["sweep", str(_spec_file(tmp_path)), "--out", str(tmp_path / "o"), "--ray",
+                                       address])
+    finally:
+        listener.close()
+    assert rc == 2 and stderr.count("\n") == 1, stderr
+    assert f"--ray {address}: something answers there, but not as a Ray cluster does" in stderr
+    assert not (tmp_path / "o").exists()
+
+
 def test_without_ray_installed_the_option_says_how_to_get_it(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # import ray raises ImportError
     rc, _, stderr = capture(main, ["sweep", str(_spec_file(tmp_path)), "--out", str(tmp_path / "o"), "--ray"])

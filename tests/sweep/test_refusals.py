@@ -1,0 +1,121 @@
+"""Input a sweep cannot take, refused in one line with exit 2 before any work; what a user names in a
+dataset shown as text. Each case was a traceback, a hang or a crash once (the comment says which)."""
+
+from __future__ import annotations
+
+import errno
+import os
+
+import pytest
+from cli_capture import capture
+
+from jaxapf.cli import main
+
+SPEC = """name = "{name}"
+[scenario]
+families = ["clutter"]
+fields = 2
+{params}
+[sim]
+t_max = {t_max}
+horizon = 3
+iters = 3
+"""
+
+
+def _spec(tmp_path, name="refuse", params="", t_max=2.0):
+    path = tmp_path / "spec.toml"
+    path.write_text(SPEC.format(name=name, params=params, t_max=t_max))
+    return path
+
+
+def _refused(argv, *needles):
+    rc, stdout, stderr = capture(main, argv)
+    assert rc == 2 and stderr.count("\n") == 1 and "Traceback" not in stderr, stderr
+    for needle in needles:
+        assert needle in stderr, stderr
+    return stderr
+
+
+@pytest.mark.parametrize("params, t_max, limit", [
+    # "negative shift count" in the plan's width, both
+    ("[scenario.params.clutter]\nmax_obstacles = 100000", 60.0,
+     "clutter: one episode of 600 steps (t_max 60 s at dt 0.1 s) among 100,000 obstacle slots needs 693.6 MiB of "
+     "working memory, more than --memory-budget 256.0 MiB: at most 217 steps (t_max <= 21.7 s) with these slots, "
+     "or at most 36,374 obstacle slots at this length"),
+    ("", 100000.0, "clutter: one episode of 1,000,000 steps (t_max 100000 s at dt 0.1 s) among 16 obstacle slots "
+                   "needs 339.5 MiB of working memory, more than --memory-budget 256.0 MiB: at most 754,026 steps"),
+])
+def test_an_episode_no_memory_budget_holds_is_refused_with_the_limit(params, t_max, limit, tmp_path):
+    out = tmp_path / "o"
+    for extra in ([], ["--dry-run"], ["--chunk-fields", "1"]):
+        _refused(["sweep", str(_spec(tmp_path, params=params, t_max=t_max)), "--out", str(out), "--no-cache", *extra],
+                 limit)
+    assert not out.exists()
+
+
+def test_a_spec_nested_five_thousand_deep_is_one_line(tmp_path):
+    """RecursionError."""
+    path = tmp_path / "deep.toml"
+    path.write_text('name = "d"\nx = ' + "[" * 5000 + "]" * 5000 + "\n")
+    _refused(["sweep", str(path), "--out", str(tmp_path / "o")], "nests arrays or tables too deeply to read")
+
+
+def test_a_cache_dir_that_is_a_file_is_one_line(tmp_path):
+    """FileExistsError."""
+    (tmp_path / "cache").write_text("mine")
+    _refused(["sweep", str(_spec(tmp_path)), "--out", str(tmp_path / "o"), "--cache-dir", str(tmp_path / "cache")],
+             f"--cache-dir {tmp_path / 'cache'} is a file")
+    assert (tmp_path / "cache").read_text() == "mine"
+
+
+def test_a_name_too_long_for_a_file_name_is_refused_with_the_limit(tmp_path, monkeypatch):
+    """ENAMETOOLONG with the default --out runs/NAME.parquet."""
+    monkeypatch.chdir(tmp_path)
+    _refused(["sweep", str(_spec(tmp_path, name="a" * 5000))], "is 5,000 characters long; at most 128")
+    assert not (tmp_path / "runs").exists()
+    rc, _, stderr = capture(main, ["sweep", str(_spec(tmp_path, name="a" * 128)), "--dry-run", "--no-cache"])
+    assert rc == 0, stderr
+
+
+def test_more_devices_than_cores_are_refused_before_jax_makes_them(tmp_path):
+    """--devices 100000 was accepted and grew to 2.5 GB in 110 s."""
+    cores = len(os.sched_getaffinity(0))
+    for argv in (["sweep", str(_spec(tmp_path)), "--out", str(tmp_path / "o"), "--dry-run"],
+                 ["bench", "engine"]):
+        _refused(argv + ["--devices", "100000"],
+                 f"--devices = 100000 is more than the {cores} CPU core(s) this process may use; at most {cores}")
+
+
+def test_merge_into_a_folder_of_other_files_is_refused(tmp_path):
+    """`sweep merge --out` copied parts among unrelated files that `jaxapf sweep` then refused."""
+    from jaxapf.sweep import parse_spec, run_sweep
+
+    src = tmp_path / "src"
+    run_sweep(parse_spec({"name": "m", "scenario": {"families": ["trap"], "fields": 2},
+                          "sim": {"t_max": 1.0, "horizon": 3, "iters": 3}}), src, quiet=True)
+    home = tmp_path / "home"
+    home.mkdir()
+    (home / "thesis.tex").write_text("mine")
+    _refused(["sweep", "merge", str(src), "--out", str(home)], "holds files that are not sweep parts (thesis.tex)")
+    assert sorted(p.name for p in home.iterdir()) == ["thesis.tex"]
+
+
+def test_a_nearly_full_disk_that_takes_part_of_the_probe_is_refused_before_any_work(tmp_path, monkeypatch):
+    """8 KiB free: the 64 KiB probe's write was short (no error), the run failed only after a chunk."""
+    from jaxapf.io import lock
+
+    real, taken = os.write, {"bytes": 0}
+
+    def full(fd, data):  # what a file system with 8 KiB left does: takes 8 KiB, then ENOSPC
+        if taken["bytes"] >= 8192:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        n = real(fd, bytes(data[: 8192 - taken["bytes"]]))
+        taken["bytes"] += n
+        return n
+
+    monkeypatch.setattr(lock.os, "write", full)
+    out = tmp_path / "o"
+    _refused(["sweep", str(_spec(tmp_path)), "--out", str(out), "--no-cache"],
+             f"--out {out} cannot be written: No space left on device (the file system is full)")
+    assert not out.exists()
