@@ -17,12 +17,17 @@ import time
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import ROOT
 
 from jaxapf.cli import main
 from jaxapf.io.lock import LOCK_NAME, OutputLock
 from jaxapf.sweep import parse_spec, read_sweep, run_sweep
 from jaxapf.sweep.output import part_files, verify_part
 from jaxapf.validation import ConfigError
+
+sys.path.insert(0, str(ROOT / "benchmarks"))
+import faults  # noqa: E402  (the benchmark's program and sweep)
+from faults import program, startup_s  # noqa: E402
 
 SPEC = {
     "name": "faults",
@@ -339,12 +344,12 @@ def test_a_signal_while_the_command_starts_is_one_line(tmp_path):
     process (SIGSEGV, C++'s terminate, when raised inside an extension module's import) or be swallowed by
     JAX's garbage-collection callback (the run went on to exit 0). Only a signal while the interpreter itself
     starts (before any line of jaxapf) is Python's own."""
-    startup = 2 * _startup_s() + 0.02
+    startup = 2 * startup_s() + 0.02
     spec = tmp_path / "faults.toml"
     spec.write_text(SPEC_TOML)
     env = {**os.environ, "JAX_PLATFORMS": "cpu"}
     for i, delay in enumerate(np.linspace(0.03, 1.2, 14)):
-        run = subprocess.Popen(_program("script" if i % 2 else "module") + [
+        run = subprocess.Popen(program("script" if i % 2 else "module") + [
             "sweep", str(spec), "--out", str(tmp_path / f"early-{i}"), "--no-cache", "--quiet"], stdout=subprocess.PIPE,
             stderr=subprocess.PIPE, text=True, env=env)
         time.sleep(float(delay))
@@ -425,34 +430,7 @@ def test_an_unreadable_spec_file_is_one_line(command, bad, tmp_path, capsys):
                     "byte 0xff in position 0: invalid start byte")
 
 
-SIGINT_TOML = """name = "sigint"
-[scenario]
-families = ["trap", "crossing"]
-fields = 384
-seed = 4
-[sim]
-t_max = 3.0
-horizon = 4
-iters = 4
-[grid]
-k_rep = [5.0, 10.0]
-"""
-
-
-def _program(kind: str) -> list[str]:
-    """The ``jaxapf`` program as a user starts it: the installed script, or ``python -m jaxapf``."""
-    script = pathlib.Path(sys.executable).parent / "jaxapf"
-    return [str(script)] if kind == "script" and script.is_file() else [sys.executable, "-m", "jaxapf"]
-
-
-def _startup_s() -> float:
-    """The longest of five starts of this interpreter (its ``site`` and ``.pth`` files) doing nothing."""
-    times = []
-    for _ in range(5):
-        begin = time.perf_counter()
-        subprocess.run([sys.executable, "-c", "pass"], check=True)
-        times.append(time.perf_counter() - begin)
-    return max(times)
+SIGINT_TOML = faults.SPEC_TOML.replace("fields = 16", "fields = 384")  # faults.py's sweep, over 8 s a run
 
 
 def _sigint_stream(stream: int, trials: int, spec: pathlib.Path, cache: pathlib.Path, tmp: pathlib.Path,
@@ -468,14 +446,14 @@ def _sigint_stream(stream: int, trials: int, spec: pathlib.Path, cache: pathlib.
             out = tmp / f"sigint-{stream}-{i}.parquet"
             seen["outputs"].append(out)
         moment = float(rng.uniform(0.0, 8.0))
-        argv = _program("script" if i % 2 else "module") + [
+        argv = program("script" if i % 2 else "module") + [
             "sweep", str(spec), "--out", str(out), "--cache-dir", str(cache), "--quiet", "--chunk-fields", "2"]
         run = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
         time.sleep(moment)
         run.send_signal(signal.SIGINT)
         stdout, stderr = run.communicate(timeout=300)
         lines = [line for line in stderr.splitlines() if line.strip()]
-        if run.returncode == 0 and stdout.startswith("sweep sigint:") and not lines:
+        if run.returncode == 0 and stdout.startswith("sweep faults:") and not lines:
             seen["finished"] += 1  # done before the signal came
             out = None
         elif (run.returncode == 130 and len(lines) == 1 and "interrupted; " in lines[0]
@@ -500,7 +478,7 @@ def test_ctrl_c_at_fifty_random_moments_is_one_line_and_the_resumed_rows_are_exa
     spec = tmp_path / "sigint.toml"
     spec.write_text(SIGINT_TOML)
     cache = tmp_path / "cache"
-    startup = 2 * _startup_s() + 0.02
+    startup = 2 * startup_s() + 0.02
     with concurrent.futures.ThreadPoolExecutor(2) as pool:  # two streams side by side: 25 moments each
         streams = list(pool.map(lambda s: _sigint_stream(s, 25, spec, cache, tmp_path, startup), (0, 1)))
     bad = [b for s in streams for b in s["bad"]]
@@ -508,12 +486,12 @@ def test_ctrl_c_at_fifty_random_moments_is_one_line_and_the_resumed_rows_are_exa
     assert sum(s["stopped"] + s["finished"] + s["interpreter"] for s in streams) == 50
     assert sum(s["stopped"] for s in streams) >= 35  # most moments fall while it runs
     reference = tmp_path / "reference.parquet"
-    run_sweep(parse_spec({"name": "sigint", "scenario": {"families": ["trap", "crossing"], "fields": 384, "seed": 4},
-                          "sim": {"t_max": 3.0, "horizon": 4, "iters": 4}, "grid": {"k_rep": [5.0, 10.0]}}),
-              reference, chunk_fields=16, quiet=True)
+    import tomllib
+
+    run_sweep(parse_spec(tomllib.loads(SIGINT_TOML)), reference, chunk_fields=16, quiet=True)
     expected = read_sweep(reference)[0]
     for out in (o for s in streams for o in s["outputs"]):
-        done = subprocess.run(_program("module") + ["sweep", str(spec), "--out", str(out), "--cache-dir", str(cache),
+        done = subprocess.run(program("module") + ["sweep", str(spec), "--out", str(out), "--cache-dir", str(cache),
                                                     "--quiet", "--chunk-fields", "2"],
                               capture_output=True, text=True, env={**os.environ, "JAX_PLATFORMS": "cpu"}, timeout=300)
         assert done.returncode == 0, done.stderr
