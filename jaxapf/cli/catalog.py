@@ -92,7 +92,7 @@ def catalog(*, fresh: bool = False) -> dict[str, Any]:
         data = json.loads(path.read_text(encoding="utf-8"))
         if isinstance(data, dict) and data.get("lists"):
             return data
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         pass
     data = live()
     try:

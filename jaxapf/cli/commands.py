@@ -428,6 +428,11 @@ def _report(args: argparse.Namespace) -> int:
     pool = spawn() if args.gallery > 0 else None
     try:
         return _report_with(args, pool)
+    except BaseException:  # stopped or failed: the worker's work is not wanted any more
+        if pool is not None:
+            close(pool, stop=True)
+            pool = None
+        raise
     finally:
         if pool is not None:
             close(pool, wait=False)
@@ -482,6 +487,7 @@ def _sweep(args: argparse.Namespace) -> int:
     from ..sweep import configure_jax, default_cache_dir, dry_run, load_spec, parse_size, run_sweep
     from ..sweep.cluster import RayCluster, RaySession
     from ..sweep.plan import parse_shard
+    from ..sweep.run import check_options
     from ..validation import ConfigError, check_int
 
     budget = parse_size(args.memory_budget)
@@ -490,17 +496,17 @@ def _sweep(args: argparse.Namespace) -> int:
         check_int("--devices", args.devices, 1)
     if args.chunk_fields is not None:
         check_int("--chunk-fields", args.chunk_fields, 1)
-    configure_jax(x64=args.x64, cache_dir=None if args.no_cache else args.cache_dir or default_cache_dir(),
-                  cpu_devices=args.devices or 1)
     cluster = None if args.ray is None else RayCluster(args.ray or None, args.ray_cpus, args.ray_gpus)
     if cluster is None and (args.ray_cpus, args.ray_gpus) != (1.0, 0.0):
         raise ConfigError("--ray-cpus and --ray-gpus size the workers of --ray; give --ray too")
+    check_options(shard, args.devices, args.overwrite, cluster)
+    configure_jax(x64=args.x64, cache_dir=None if args.no_cache else args.cache_dir or default_cache_dir(),
+                  cpu_devices=args.devices or 1)
     spec = load_spec(args.spec, args.gains)
     out = args.out or pathlib.Path("runs") / f"{spec.name}.parquet"
     if args.dry_run:
         options = dict(memory_budget=budget, chunk_fields=args.chunk_fields)
         if cluster is not None:  # planned for the workers' backend, one device per worker
-            cluster.check(shard, args.devices)
             with RaySession(cluster) as session:
                 options |= dict(devices=1, backend=session.probe()["backend"])
         print(dry_run(spec, out, overwrite=args.overwrite, repair=args.repair, shard=shard, **options))

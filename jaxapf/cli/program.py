@@ -17,12 +17,7 @@ tries). A signal that arrives while the interpreter itself starts (Python's ``si
 ``.pth`` files, before any line of jaxapf runs) is Python's to handle (docs/sweep.md).
 """
 
-import signal
 import sys
-
-from .stops import on_signal, stopped, unraisable
-
-__all__ = ["console"]
 
 
 def _exit(code: int) -> None:
@@ -38,16 +33,48 @@ def _exit(code: int) -> None:
 
 
 def _last_resort(kind, value, tb) -> None:
-    """``sys.excepthook``: a stop that reached the top is one line and its status, at once."""
+    """``sys.excepthook``: a stop that reached the top is one line and its status, at once (``Terminated``,
+    :class:`jaxapf.cli.stops.Terminated`, is told by name: nothing is imported before this is in place)."""
     if issubclass(kind, KeyboardInterrupt):
-        _exit(stopped(value, "jaxapf", "nothing was written"))
+        sigterm = kind.__name__ == "Terminated"
+        print(f"jaxapf: {'terminated (SIGTERM)' if sigterm else 'interrupted'}; nothing was written", file=sys.stderr)
+        _exit(143 if sigterm else 130)
     _excepthook(kind, value, tb)
 
 
+# a process multiprocessing spawns runs the program's script again, as __mp_main__ beside its own __main__
+_spawned = "__mp_main__" in sys.modules and sys.modules["__mp_main__"] is not sys.modules.get("__main__")
 _excepthook = sys.excepthook
-sys.excepthook, sys.unraisablehook = _last_resort, unraisable(sys.unraisablehook)
-for _signum in (signal.SIGINT, signal.SIGTERM):
-    signal.signal(_signum, on_signal)
+if not _spawned:
+    sys.excepthook = _last_resort
+
+import signal  # noqa: E402  (after the hook: from here on an interrupt is one line)
+
+from .stops import on_signal, stopped, unraisable  # noqa: E402
+
+__all__ = ["console"]
+
+if not _spawned:
+    sys.unraisablehook = unraisable(sys.unraisablehook)
+    for _signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(_signum, on_signal)
+
+
+def _end_children() -> None:
+    """Stop the processes this one started (the report's worker; a stop skips the pools' own shutdown)."""
+    if "multiprocessing" not in sys.modules:
+        return
+    import multiprocessing
+    import multiprocessing.util
+
+    children = multiprocessing.active_children()
+    for child in children:
+        child.terminate()
+    for child in children:
+        child.join(timeout=2.0)
+        if child.is_alive():
+            child.kill()
+    multiprocessing.util._exit_function()  # what its own exit does: release its queues' semaphores
 
 
 def console() -> int:
@@ -65,6 +92,7 @@ def console() -> int:
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, signal.SIG_IGN)
     if code in (130, 143):  # stopped: end now, without tearing down what the stop left running (an XLA
-        _exit(code)  # compilation or computation on its threads, whose teardown can crash the process)
+        _end_children()  # compilation or computation on its threads, whose teardown can crash the process),
+        _exit(code)  # and with no process of ours left behind
     gc.freeze()
     return code

@@ -37,6 +37,7 @@ from ..gains import Gains
 from ..io.lock import write_atomic
 from ..tune import TuneError, Tuner, parse_tune_spec
 from ..tune.proof import select_best, tuning_budget
+from ..validation import ConfigError, first_line
 from .spec import CompareSpec
 
 __all__ = ["Selection", "tune_spec", "random_candidates", "grid_candidates", "gradient_steps", "select",
@@ -157,8 +158,12 @@ def saved_selection(spec: CompareSpec, method: str, seed: int, out: pathlib.Path
     path = out / f"{method}-seed{seed}.json"
     if not path.exists():
         return None
-    saved = json.loads(path.read_text(encoding="utf-8"))
-    return Selection(**saved["selection"]) if saved.get("spec_digest") == spec_digest(spec) else None
+    try:
+        saved = json.loads(path.read_text(encoding="utf-8"))
+        return Selection(**saved["selection"]) if saved.get("spec_digest") == spec_digest(spec) else None
+    except (OSError, ValueError, RecursionError, KeyError, TypeError, AttributeError) as err:
+        raise ConfigError(f"{path} is damaged ({type(err).__name__}: {first_line(err)}); remove it and rerun to "
+                          "select that method again") from None
 
 
 def select(spec: CompareSpec, method: str, seed: int, out: pathlib.Path, *, quiet: bool = True) -> Selection:

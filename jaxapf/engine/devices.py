@@ -50,7 +50,8 @@ class DeviceBatch:
         self.close()
 
     def close(self) -> None:
-        self.pool.shutdown()
+        """Stop the threads; one still running a program (a stopped run) is left to the process's end."""
+        self.pool.shutdown(wait=False, cancel_futures=True)
 
     def put_gains(self, gains: Gains) -> list[Gains]:
         """One copy of a gain batch on every device (reuse it across calls)."""

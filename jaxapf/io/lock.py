@@ -124,10 +124,16 @@ class LockInfo:
         return f"pid {self.pid} on {self.host} since {when} ({self.command})"
 
 
+#: How long :func:`_take` keeps trying a lock that is taken [s]: another process looking whether a lock is
+#: held (:func:`_held`) takes it for an instant, and must not make a writer give up.
+_PATIENCE_S = 0.1
+
+
 def _take(path: pathlib.Path, exclusive: bool) -> int | None:
     """An open descriptor of ``path`` holding its ``flock`` (exclusive or shared), or None if another
-    process holds it in a conflicting mode; the file is created if missing and locked only while
-    ``path`` still names it (a holder may remove it as it releases)."""
+    process holds it in a conflicting mode (for longer than :data:`_PATIENCE_S`); the file is created if
+    missing and locked only while ``path`` still names it (a holder may remove it as it releases)."""
+    give_up = time.monotonic() + _PATIENCE_S
     while True:
         try:
             fd = os.open(path, os.O_CREAT | os.O_RDWR, 0o644)
@@ -138,6 +144,9 @@ def _take(path: pathlib.Path, exclusive: bool) -> int | None:
             fcntl.flock(fd, (fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH) | fcntl.LOCK_NB)
         except BlockingIOError:
             os.close(fd)
+            if time.monotonic() < give_up:
+                time.sleep(0.005)
+                continue
             return None
         try:
             same = os.stat(path).st_ino == os.fstat(fd).st_ino
@@ -172,7 +181,7 @@ def _read_note(path: pathlib.Path) -> LockInfo | None:
     try:
         data: dict[str, Any] = json.loads(path.read_text())
         return LockInfo(int(data["pid"]), str(data["host"]), float(data["since"]), str(data.get("command", "")))
-    except (OSError, ValueError, KeyError, TypeError):
+    except (OSError, ValueError, KeyError, TypeError, RecursionError):
         return None
 
 
@@ -249,9 +258,21 @@ class OutputLock:
                           f"finish or write elsewhere (one writer per output)")
 
     def _release_shared(self) -> None:
-        if self.shared is not None:  # a shared hold never removes the file: others may hold it too
-            os.close(self.shared)
-            self.shared = None
+        """Let the shared hold of ``.lock`` go; the last shard to leave removes ``.lock`` and
+        ``.lock-division`` (it can take ``.lock`` exclusively only when no other shard holds it)."""
+        if self.shared is None:
+            return
+        try:
+            fcntl.flock(self.shared, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            pass  # other shards still write
+        else:
+            with contextlib.suppress(OSError):
+                if os.stat(self.path).st_ino == os.fstat(self.shared).st_ino:
+                    (self.folder / f"{LOCK_NAME}-division").unlink(missing_ok=True)
+                    self.path.unlink()
+        os.close(self.shared)
+        self.shared = None
 
     def release(self) -> None:
         """Remove the lock file (while still holding it) and let the lock go; only the holder's call acts."""

@@ -127,7 +127,7 @@ def spec_name(hint: str = "") -> Reader:
     """The spec's ``name``: up to :data:`MAX_NAME` letters, digits, ``_``, ``.`` and ``-`` (it names outputs);
     ``hint`` says which."""
     def read(where: str, value: Any) -> str:
-        if not isinstance(value, str) or not _NAME.match(value):
+        if not isinstance(value, str) or not _NAME.fullmatch(value):
             shown = (f"{value[:40]!r}… ({len(value):,} characters)" if isinstance(value, str) and len(value) > 40
                      else repr(value))
             raise ConfigError(f"{where} = {shown} must be a string of letters, digits, '_', '.', '-'"

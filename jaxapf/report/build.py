@@ -43,6 +43,7 @@ from .tables import (
     margins,
     rates_table,
     summarize,
+    swept_name,
 )
 from .worker import RowWorker
 
@@ -223,11 +224,10 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
     doc.h(2, "Settings")
     cols = [c for c in sel.swept]
     st = sel.table.loc[sel.settings, cols].reset_index() if cols else pd.DataFrame({"setting": sel.settings})
-    own = {"label": [sel.labels[s] for s in sel.settings],  # the report's columns, apart from swept ones of a name
-           "role": ["baseline" if s in sel.baseline_ids else (f"vs #{sel.pairs[s]}" if s in sel.pairs else "")
-                    for s in sel.settings]}
-    for at, (name, values) in enumerate(own.items(), start=1):
-        st.insert(at, name if name not in st.columns else f"report {name}", values)
+    st = st.rename(columns={c: swept_name(c) for c in cols})  # a tag named like the report's own columns
+    st.insert(1, "label", [sel.labels[s] for s in sel.settings])
+    st.insert(2, "role", ["baseline" if s in sel.baseline_ids else (f"vs #{sel.pairs[s]}" if s in sel.pairs else "")
+                          for s in sel.settings])
     doc.table(st.map(format_value))
 
     doc.h(2, "Rates")

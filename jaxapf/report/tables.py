@@ -29,10 +29,18 @@ from ..metrics import all_metrics, find_metric
 from .load import ROW_COLUMNS, SINGLE_ROLES, SWARM_ROLES, report_metrics
 
 __all__ = ["ALL", "groups", "group_rows", "pools", "summarize", "compare", "rates_table", "continuous_table",
-           "comparison_table", "findings", "margins"]
+           "comparison_table", "findings", "margins", "REPORT_COLUMNS", "swept_name"]
 
 #: The name of the group that pools every family of a report.
 ALL = "all"
+#: The report's own columns of a setting's rows; a swept column of one of these names (a sweep's tag) is
+#: shown as ``NAME (swept)`` beside them (:func:`swept_name`).
+REPORT_COLUMNS = frozenset({"setting", "label", "role", "family", "pools", "n", "n_solvable"})
+
+
+def swept_name(column: str) -> str:
+    """How a swept column is named beside the report's own (:data:`REPORT_COLUMNS`)."""
+    return f"{column} (swept)" if column in REPORT_COLUMNS else column
 
 
 def groups(data: pd.DataFrame) -> list[str]:
@@ -121,7 +129,7 @@ def summarize(data: pd.DataFrame, settings: Sequence[int], table: pd.DataFrame, 
             if n == 0:
                 continue
             rec: dict[str, Any] = {"setting": int(s), "label": labels[s]}
-            rec.update({c: table.at[s, c] for c in table.columns})
+            rec.update({swept_name(c): table.at[s, c] for c in table.columns})
             rec.update(family=group, pools=pooled[group], n=n)
             solvable = sub["solvable"].to_numpy(dtype=bool) if "solvable" in sub.columns else None
             if solvable is not None:

@@ -22,18 +22,38 @@ def _import() -> None:
 
 def spawn() -> concurrent.futures.ProcessPoolExecutor | None:
     """A one-process pool (spawned: JAX is not fork-safe) already importing what the worker needs,
-    or None where no process can be started here."""
-    try:
-        pool = concurrent.futures.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
-        pool.submit(_import)
-    except OSError:
-        return None
+    or None where no process can be started here. The worker ignores Ctrl-C; a stopped report ends it
+    (:mod:`jaxapf.cli.program`)."""
+    import contextlib
+    import signal
+    import threading
+
+    with contextlib.ExitStack() as stack:
+        if threading.current_thread() is threading.main_thread():
+            # the worker is started with Ctrl-C ignored (a child keeps an ignored signal across exec): Ctrl-C
+            # reaches only the report's process, which ends the worker itself (no second traceback); this
+            # process holds a Ctrl-C of that moment (blocked, it stays pending) and takes it once it is back
+            held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+            stack.callback(signal.pthread_sigmask, signal.SIG_SETMASK, held)
+            stack.callback(signal.signal, signal.SIGINT, signal.signal(signal.SIGINT, signal.SIG_IGN))
+        try:
+            pool = concurrent.futures.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+            pool.submit(_import)
+        except OSError:
+            return None
     return pool
 
 
-def close(pool: concurrent.futures.ProcessPoolExecutor, wait: bool = True) -> None:
+def close(pool: concurrent.futures.ProcessPoolExecutor, wait: bool = True, stop: bool = False) -> None:
     """Shut ``pool`` down, cancelling what has not started; its process exits without a last garbage
-    collection of everything it imported (``gc.freeze``), which is work for nothing at exit."""
+    collection of everything it imported (``gc.freeze``), which is work for nothing at exit. ``stop``: end
+    the work under way too (a stopped report): its process is terminated and the pool's own threads and
+    queues are wound down before this returns, so nothing of it outlives the report."""
+    if stop:
+        for process in multiprocessing.active_children():  # the pool's process: the report starts no other
+            process.terminate()
+        pool.shutdown(wait=True, cancel_futures=True)
+        return
     try:
         pool.submit(gc.freeze)
     except (RuntimeError, concurrent.futures.process.BrokenProcessPool):

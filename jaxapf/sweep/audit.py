@@ -132,7 +132,7 @@ def judge(tables: Mapping[str, Any], metas: Mapping[str, dict], damaged: Mapping
         other = identity(metas[name])
         if other != want:
             differ = ", ".join(k for k in want if other[k] != want[k])
-            foreign[name] = f"of another sweep ({differ} differ)"
+            foreign[name] = f"of another sweep ({differ} {'differs' if ',' not in differ else 'differ'})"
             other_sweep.add(name)
         elif chunk.variant not in settings or chunk.family not in spec.families or chunk.stop > spec.fields:
             foreign[name] = (f"outside this sweep's plan (variants 0-{len(groups) - 1}, families "
@@ -227,7 +227,7 @@ def prepare_output(out: pathlib.Path, meta: Mapping[str, Any], spec: Any, *, ove
     parts = part_files(out)
     if clean:
         for p in out.iterdir():
-            if _TMP.match(p.name):
+            if _TMP.fullmatch(p.name):
                 p.unlink(missing_ok=True)
     if overwrite:
         if clean:
@@ -262,11 +262,11 @@ def prepare_output(out: pathlib.Path, meta: Mapping[str, Any], spec: Any, *, ove
 
 def check_folder(out: pathlib.Path) -> None:
     """Refuse a folder holding files that are neither parts nor what a sweep keeps beside them."""
-    foreign = [p.name for p in out.iterdir() if Chunk.from_name(p.name) is None and not _TMP.match(p.name)
-               and not _PROBE.match(p.name) and p.name != SET_ASIDE and not p.name.startswith(LOCK_NAME)
+    foreign = [p.name for p in out.iterdir() if Chunk.from_name(p.name) is None and not _TMP.fullmatch(p.name)
+               and not _PROBE.fullmatch(p.name) and p.name != SET_ASIDE and not p.name.startswith(LOCK_NAME)
                and not is_division_file(p.name)]
     if foreign:
-        raise ConfigError(f"--out {out} holds files that are not sweep parts ({', '.join(sorted(foreign)[:3])}); "
+        raise ConfigError(f"--out {out} holds entries that are not sweep parts ({', '.join(sorted(foreign)[:3])}); "
                           "choose another --out")
 
 

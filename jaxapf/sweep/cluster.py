@@ -301,7 +301,8 @@ def _check_reachable(address: str | None) -> None:
     """Refuse in one line a ``HOST:PORT`` nothing answers at, or that does not answer as a Ray cluster
     does: a Ray head's address is its GCS, a gRPC server, which answers a client's HTTP/2 preface with a
     SETTINGS frame at once (Ray itself retries for minutes, and hung on a port that answered TCP but
-    was not Ray). Skipped with TLS (``RAY_USE_TLS``), where the preface is encrypted."""
+    was not Ray). Skipped with TLS (``RAY_USE_TLS``), where the preface is encrypted. A gRPC server that is
+    not Ray's passes this probe; Ray then retries, and Ctrl-C stops it."""
     import os
     import socket
 
@@ -317,22 +318,25 @@ def _check_reachable(address: str | None) -> None:
     if os.environ.get("RAY_USE_TLS", "0").lower() in ("1", "true"):
         conn.close()
         return
+    head, why = b"", "it closed the connection"
     try:
         conn.sendall(_H2_HELLO)
-        head = b""
         while len(head) < 9:
             more = conn.recv(9 - len(head))
             if not more:
                 break
             head += more
-    except OSError:
-        head = b""
+    except TimeoutError:
+        why = f"no answer within {timeout_s:g} s"
+    except OSError as err:
+        why = f"{err.strerror or first_line(err)}"
     finally:
         conn.close()
+    if len(head) >= 9 and head[3] != 0x04 or 0 < len(head) < 9:
+        why = "it answered, but not in gRPC (HTTP/2)"
     if len(head) < 9 or head[3] != 0x04:  # the server's first frame must be SETTINGS (type 4)
-        raise ConfigError(f"--ray {address}: something answers there, but not as a Ray cluster does (no gRPC "
-                          f"answer within {timeout_s:g} s); give the address `ray start --head` prints (its GCS "
-                          "port, 6379 by default)")
+        raise ConfigError(f"--ray {address}: something answers there, but not as a Ray cluster does ({why}); give "
+                          "the address `ray start --head` prints (its GCS port, 6379 by default)")
 
 
 def _reason(err: Exception) -> str:

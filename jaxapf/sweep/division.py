@@ -112,22 +112,23 @@ def agree_division(out: pathlib.Path, division: Division, shard: tuple[int, int]
             found, who = Division.from_json(json.loads(path.read_text()))
         except FileNotFoundError:
             found = who = None
-        except (OSError, ValueError) as err:  # not a record jaxapf wrote: judged like a different one
+        except (OSError, ValueError, RecursionError) as err:  # not a record jaxapf wrote: judged like another
             found, who = None, f"unreadable ({first_line(err)})"
         if found is not None and found.agrees(division):
             return
         if who is not None and (part_files(out) or any(p != _own(out, shard) for p in live_shard_locks(out))):
             if found is None:
-                raise ConfigError(f"--out {out}: its division into shards ({path.name}) is {who}; write this "
-                                  "sweep elsewhere, or remove the output")
+                raise ConfigError(f"--out {out}: its division into shards ({path}) is {who}; once no shard of this "
+                                  "output runs, remove that file (each part keeps its own record of its shard) and "
+                                  "rerun")
             if dict(found.identity) != dict(division.identity):
-                differ = ", ".join(k for k in division.identity if found.identity.get(k) != division.identity[k])
-                asks = f"runs another sweep ({differ} differ)"
+                differ = [k for k in division.identity if found.identity.get(k) != division.identity[k]]
+                asks = f"runs another sweep ({', '.join(differ)} {'differs' if len(differ) == 1 else 'differ'})"
             else:
                 asks = f"asks for {division.describe()}"
             raise ConfigError(f"--out {out} is divided into {found.describe()}, fixed by {who}; this shard "
                               f"({shard[0]}/{shard[1]}) {asks}: every shard of one output must run the same spec "
-                              "with the same --shard N, --chunk-fields and --memory-budget")
+                              "(and --x64 or not) with the same --shard N, --chunk-fields and --memory-budget")
         if not dry:
             write_atomic(path, lambda fh: fh.write(json.dumps(division.to_json(shard), indent=1).encode()))
 

@@ -34,32 +34,47 @@ def configure_jax(*, x64: bool = False, cache_dir: str | os.PathLike | None = No
       x64: float64 everywhere (``jax_enable_x64``).
       cache_dir: persistent compilation cache (``jax_compilation_cache_dir``); programs that took
         more than 0.1 s to compile are stored there and loaded by later runs. ``None``: no cache.
-      cpu_devices: split the host CPU into this many JAX devices (``jax_num_cpu_devices``), one
-        per core being the useful setting (more are refused); ignored when ``XLA_FLAGS`` already forces
-        a count.
+      cpu_devices: on the CPU platform, split the host into this many JAX devices
+        (``jax_num_cpu_devices``), one per core being the useful setting (more are refused); ignored when
+        ``XLA_FLAGS`` already forces a count, or when JAX runs on an accelerator.
     """
     if x64:
         jax.config.update("jax_enable_x64", True)
     if cache_dir is not None:
         try:
             pathlib.Path(cache_dir).mkdir(parents=True, exist_ok=True)
-        except FileExistsError:
-            raise ConfigError(f"--cache-dir {cache_dir} is a file; give a folder (or --no-cache)") from None
+        except FileExistsError:  # a file, or a link to nothing
+            raise ConfigError(f"the compilation cache {cache_dir} is not a folder; run with --no-cache, or give "
+                              "another folder (jaxapf sweep --cache-dir, or XDG_CACHE_HOME)") from None
         except OSError as err:
-            raise ConfigError(f"--cache-dir {cache_dir} cannot be made: {err.strerror or first_line(err)} "
-                              "(give another folder, or --no-cache)") from None
+            raise ConfigError(f"the compilation cache {cache_dir} cannot be made: {err.strerror or first_line(err)}; "
+                              "run with --no-cache, or give another folder (jaxapf sweep --cache-dir, or "
+                              "XDG_CACHE_HOME)") from None
         jax.config.update("jax_compilation_cache_dir", str(cache_dir))
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.1)
         jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    if cpu_devices is not None and cpu_devices > cores:  # each device is memory and threads, and no faster
-        raise ConfigError(f"--devices = {cpu_devices} is more than the {cores} CPU core(s) this process may use; "
-                          f"at most {cores} (one device per core is the useful most)")
-    if cpu_devices is not None and "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
+    forced = "xla_force_host_platform_device_count" in os.environ.get("XLA_FLAGS", "")
+    if cpu_devices is not None and not forced and _cpu_platform():
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+        if cpu_devices > cores:  # each device is memory and threads, and no faster
+            raise ConfigError(f"--devices = {cpu_devices} is more than the {cores} CPU core(s) this process may use; "
+                              f"at most {cores} (one device per core is the useful most)")
         try:
             jax.config.update("jax_num_cpu_devices", int(cpu_devices))
         except RuntimeError:  # JAX already ran something in this process: keep its devices
             pass
+
+
+def _cpu_platform() -> bool:
+    """Whether JAX will run on the CPU here: ``JAX_PLATFORMS`` says so, or no accelerator plugin is
+    installed (told without starting a backend, which would fix the CPU's device count too early)."""
+    import importlib.metadata
+    import importlib.util
+
+    platforms = (jax.config.jax_platforms or os.environ.get("JAX_PLATFORMS") or "").strip().lower()
+    if platforms:
+        return platforms.split(",")[0] == "cpu"
+    return not importlib.metadata.entry_points(group="jax_plugins") and importlib.util.find_spec("jax_plugins") is None
 
 
 class ChunkRunner:
@@ -126,16 +141,48 @@ class ChunkFailed(Exception):
 Finished = tuple[Chunk, Mapping[str, Any], Any, "np.ndarray | None"]
 
 
+#: How often the main thread looks whether a chunk it waits for has compiled or finished [s]: between
+#: looks Python runs its signal handlers, so Ctrl-C and SIGTERM stop a run within this, not after the chunk.
+WAIT_POLL_S = 0.05
+
+
+def _interruptible(future: Any) -> Any:
+    """``future``'s result, waited for in short steps (a wait inside XLA would hold off Ctrl-C)."""
+    import concurrent.futures
+
+    while True:
+        try:
+            return future.result(timeout=WAIT_POLL_S)
+        except concurrent.futures.TimeoutError:
+            continue
+
+
+def _until_ready(arrays: Any) -> None:
+    """Return once every JAX array of ``arrays`` is computed, looking every :data:`WAIT_POLL_S`."""
+    import time
+
+    pending = [a for a in jax.tree_util.tree_leaves(arrays) if isinstance(a, jax.Array)]
+    while not all(a.is_ready() for a in pending):
+        time.sleep(WAIT_POLL_S)
+
+
 def local_results(plan: Plan, chunks: tuple[Chunk, ...]) -> Iterator[Finished]:
     """Run ``chunks`` on this process's devices, yielding each as it finishes; the next chunk is
-    dispatched before the previous one is yielded, so it runs while that one is written."""
+    dispatched before the previous one is yielded, so it runs while that one is written. Dispatching
+    (which compiles a program the first time) runs on a helper thread and every wait is in short steps,
+    so a signal stops the run at once, not after the chunk (:data:`WAIT_POLL_S`)."""
+    import concurrent.futures
+
     runner = ChunkRunner(plan)
+    helper = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="jaxapf-dispatch")
     try:
         pending = None
         for chunk in (*chunks, None):
-            running = None if chunk is None else (chunk, *runner.dispatch(chunk))
+            running = None if chunk is None else (chunk, *_interruptible(helper.submit(runner.dispatch, chunk)))
             if pending is not None:
+                _until_ready(pending[1])
                 yield pending
             pending = running
     finally:
+        helper.shutdown(wait=False, cancel_futures=True)  # a compilation under way is left to the process's end
         runner.close()

@@ -93,13 +93,13 @@ def read_part(path: pathlib.Path):
     metadata = dict(table.schema.metadata or {})
     try:
         hashed = json.loads(metadata.get(META_KEY, b"{}")).get("format") != LEGACY_FORMAT
-    except (ValueError, AttributeError):
+    except (ValueError, AttributeError, RecursionError):
         hashed = True  # unreadable jaxapf metadata: the hash decides
     raw = metadata.pop(PART_KEY, None)
     try:
         record = json.loads(raw) if raw else None
         expected = record["sha256"] if isinstance(record, dict) else None
-    except (ValueError, KeyError, TypeError):
+    except (ValueError, KeyError, TypeError, RecursionError):
         expected = None
     if expected is None and not hashed:
         return table.replace_schema_metadata(metadata)
@@ -122,7 +122,7 @@ def part_record(path: pathlib.Path) -> dict[str, Any]:
 
     try:
         record = json.loads((pq.read_schema(path).metadata or {}).get(PART_KEY, b"{}"))
-    except (OSError, ValueError, pa.ArrowException):  # a damaged footer: no record (reading names the damage)
+    except (OSError, ValueError, RecursionError, pa.ArrowException):  # damaged: no record (reading names it)
         return {}
     return record if isinstance(record, dict) else {}
 

@@ -137,7 +137,7 @@ class Chunk:
 
     @classmethod
     def from_name(cls, name: str) -> "Chunk | None":
-        match = _PART.match(name)
+        match = _PART.fullmatch(name)
         return None if match is None else cls(int(match[1]), match[2], int(match[3]), int(match[4]))
 
 
@@ -225,10 +225,13 @@ def _block(sim: SimConfig, mpc: MPCConfig, obstacles: int, agents: int, settings
     width = min(width, 1 << max(fits.bit_length() - 1, 0))
     fixed = devices * working_set_bytes(width, steps, seen, itemsize, agents)
     if chunk_fields is None:
+        least = devices * math.ceil(width / settings)  # the fewest fields a chunk is padded to
+        if fixed + least * per_field > budget:
+            raise ConfigError(f"--memory-budget = {format_bytes(budget)} is too small: a chunk here needs at least "
+                              f"{format_bytes(fixed + least * per_field)} (one vmapped batch of {width} episodes on "
+                              f"each of {devices} device(s): {least} fields × {settings} settings, {steps} steps, "
+                              f"{obstacles} obstacle slots)")
         fit = (budget - fixed) // per_field
-        if fit < 1:
-            raise ConfigError(f"--memory-budget = {budget} bytes is too small: one field of {settings} settings needs "
-                              f"{fixed + per_field} bytes ({sim.episode.steps} steps, {obstacles} obstacle slots)")
         largest = min(fit, math.ceil(CALLS_PER_PART * width * devices / settings))
         block = math.ceil(fields / math.ceil(fields / largest))
     else:

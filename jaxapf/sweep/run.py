@@ -25,7 +25,7 @@ from .plan import DEFAULT_MEMORY_BUDGET, Chunk, Plan, chunk_cost, describe_plan,
 from .schema import part_table, schema, sweep_meta
 from .spec import SweepSpec
 
-__all__ = ["parse_size", "SweepResult", "dry_run", "run_sweep"]
+__all__ = ["parse_size", "SweepResult", "check_options", "dry_run", "run_sweep"]
 
 
 def parse_size(text: str) -> int:
@@ -59,11 +59,26 @@ class SweepResult:
                 f"{rate:,.1f} episodes/s -> {self.out}{same}")
 
 
+def check_options(shard: tuple[int, int] | None, devices: int | None, overwrite: bool,
+                  ray: RayCluster | None = None) -> None:
+    """Refuse, before anything is read or made, the options a run (and its ``--dry-run``) cannot take together."""
+    if ray is not None:
+        ray.check(shard, devices)
+    if shard is not None:
+        if overwrite:
+            raise ConfigError("--overwrite replaces a whole output; a shard writes only its own parts (remove the "
+                              "output, or write the shards elsewhere)")
+        if devices not in (None, 1):
+            raise ConfigError(f"--devices = {devices}: a shard runs on one device (the shards' chunks must not depend "
+                              "on the machine); run more shards instead")
+
+
 def dry_run(spec: SweepSpec, out: str | os.PathLike, *, overwrite: bool = False, repair: bool = False,
             shard: tuple[int, int] | None = None, **plan: Any) -> str:
     """:func:`describe_plan` of what :func:`run_sweep` would do with ``out`` as it is now
     (refusing, like the run, an output of a different sweep or with parts that cannot be trusted,
     unless ``repair``); with ``shard``, what that shard would run; ``plan``: :func:`plan_sweep` options."""
+    check_options(shard, plan.get("devices"), overwrite)
     if shard is not None:  # the shard run's own checks, changing nothing
         whole = plan_sweep(spec, **(plan | {"devices": 1}))
         mine = shard_chunks(whole, *shard)
@@ -113,8 +128,7 @@ def run_sweep(
     """
     start = time.perf_counter()
     out = pathlib.Path(out)
-    if ray is not None:
-        ray.check(shard, devices)
+    check_options(shard, devices, overwrite, ray)
     with contextlib.ExitStack() as stack:
         session = None if ray is None else stack.enter_context(RaySession(ray))
         result = _run(spec, out, memory_budget, chunk_fields, overwrite, repair, quiet, devices, shard, session,
@@ -131,12 +145,6 @@ def _run(spec: SweepSpec, out: pathlib.Path, memory_budget: int, chunk_fields: i
         found = session.probe()
         devices, backend, versions = 1, found["backend"], found["versions"]
     if shard is not None:
-        if overwrite:
-            raise ConfigError("--overwrite replaces a whole output; a shard writes only its own parts (remove the "
-                              "output, or write the shards elsewhere)")
-        if devices not in (None, 1):
-            raise ConfigError(f"--devices = {devices}: a shard runs on one device (the shards' chunks must not depend "
-                              "on the machine); run more shards instead")
         devices = 1
     probe = plan_sweep(spec, memory_budget=memory_budget, chunk_fields=chunk_fields, devices=devices, backend=backend)
     meta = sweep_meta(spec, probe, out, versions)
@@ -187,7 +195,7 @@ def _shard_audit(spec: SweepSpec, out: pathlib.Path, meta: Mapping[str, Any], pl
     found = audit_output(out, meta, spec)
     other = sorted(found.other_sweep)
     if other:
-        raise ConfigError(f"--out {out} holds parts of another sweep (e.g. {other[0]}: {found.foreign[other[0]]}); "
+        raise ConfigError(f"--out {out} holds parts {found.foreign[other[0]]} (e.g. {other[0]}); "
                           "every shard must run the same spec, float type and kind of device")
     planned = set(plan.chunks)
     otherwise = [c.name for c in found.sound if c not in planned]

@@ -139,7 +139,7 @@ def read_meta(path: pathlib.Path) -> dict[str, Any]:
         raise ConfigError(f"{path} is not a readable sweep output (Parquet): {first_line(err)}") from None
     try:
         meta = json.loads(raw) if raw else None
-    except ValueError:  # bad JSON, or bytes that are not UTF-8
+    except (ValueError, RecursionError):  # bad JSON, bytes that are not UTF-8, nesting no reader follows
         meta = None
     if not isinstance(meta, dict) or meta.get("format") not in READABLE_FORMATS:
         raise ConfigError(f"{path} is not the output of jaxapf sweep (no '{META_KEY.decode()}' metadata of format "

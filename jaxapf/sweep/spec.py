@@ -456,7 +456,7 @@ def spec_family_params(label: str, overrides: Any, *, swarms: bool = False) -> F
         raise ConfigError(f"{where}.family = {base!r}: {label} is a registered family; give the variant a name "
                           "of its own")
     if label not in registered:
-        if not _VARIANT.match(label):
+        if not _VARIANT.fullmatch(label):
             raise ConfigError(f"{where}: a variant's name is letters, digits and '_', starting with a letter")
         check_choice(f"{where}.family", base, registered)
     try:
@@ -529,7 +529,7 @@ def _explicit(value: Any, fixed: Mapping[str, str]) -> tuple[tuple, tuple]:
         entries.append(tuple((k, check_value(f"{where}.{k}", k, v)) for k, v in table.items() if k != "tags"))
         own = check_table(f"{where}.tags", table.get("tags", {}))
         for name, v in own.items():
-            if (not _TAG.match(name) or name in GAINS or name in STATIC_KEYS or name in _RESERVED_COLUMNS
+            if (not _TAG.fullmatch(name) or name in GAINS or name in STATIC_KEYS or name in _RESERVED_COLUMNS
                     or name in METRICS):
                 raise ConfigError(f"{where}.tags.{name}: a tag is letters, digits and '_' and not the name of a "
                                   "gain, setting or column")

@@ -106,7 +106,7 @@ def finished_summary(out: pathlib.Path, digest: str) -> dict[str, Any] | None:
     """The summary of a finished run of the spec with ``digest`` in ``out``, None if there is none."""
     try:
         summary = json.loads((out / "summary.json").read_text())
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         return None
     if summary.get("spec_digest") != digest or not all((out / name).is_file() for name in OUTPUTS):
         return None
@@ -119,7 +119,7 @@ def _search(tuner: Tuner, label: str, budget: int, out: pathlib.Path, digest: st
     path = out / "searches.json"
     try:
         stored = json.loads(path.read_text())
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         stored = {}
     if stored.get("spec_digest") != digest or stored.get("budget") != budget:
         stored = {"spec_digest": digest, "budget": budget}

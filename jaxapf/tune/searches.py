@@ -67,7 +67,7 @@ class _Checkpoint:
     def load(self) -> dict[str, Any] | None:
         try:
             state = json.loads(self.path.read_text(), object_hook=_decode)
-        except (OSError, ValueError, TypeError, KeyError):
+        except (OSError, ValueError, TypeError, KeyError, RecursionError):
             return None
         return state if isinstance(state, dict) and state.get("digest") == self.digest else None
 

@@ -29,6 +29,7 @@ import math
 import pathlib
 import sys
 import time
+import zipfile
 from functools import partial
 from typing import Any, Sequence
 
@@ -46,6 +47,7 @@ from ..gains import Gains
 from ..io.lock import write_atomic
 from ..metrics import METRICS, episode_metrics
 from ..scenarios import FamilyParams, make_scenarios
+from ..validation import first_line
 from .estimators import episode_gradient
 from .objective import TERMS, Objective, surrogate_loss, surrogate_terms
 from .spec import TuneSpec, split_count
@@ -174,6 +176,16 @@ class TrainState:
     @classmethod
     def load(cls, path: pathlib.Path, digest: str, like: "TrainState") -> "TrainState":
         """The state saved at ``path``; ``like`` (a fresh state) gives the pytree structure."""
+        try:
+            return cls._read(path, digest, like)
+        except TuneError:
+            raise
+        except (OSError, ValueError, KeyError, TypeError, RecursionError, zipfile.BadZipFile) as err:
+            raise TuneError(f"{path} is damaged ({type(err).__name__}: {first_line(err)}); remove it to train from "
+                            "the start") from None
+
+    @classmethod
+    def _read(cls, path: pathlib.Path, digest: str, like: "TrainState") -> "TrainState":
         with np.load(path) as data:
             meta = json.loads(str(data["meta"]))
             if meta.get("format") != _CHECKPOINT_FORMAT or meta.get("spec_digest") != digest:

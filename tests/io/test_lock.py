@@ -192,3 +192,32 @@ def test_write_atomic_syncs_the_folder_after_the_rename(tmp_path, monkeypatch):
     monkeypatch.setattr(os, "fsync", record)
     write_atomic(tmp_path / "part.bin", lambda fh: fh.write(b"x"))
     assert synced[-1] == str(tmp_path) and (tmp_path / "part.bin").read_bytes() == b"x"
+
+
+def test_a_look_at_a_lock_does_not_make_its_taker_give_up(tmp_path):
+    """Another shard looking whether a lock is held (it takes the lock shared for an instant) used to make a
+    writer taking it at that instant give up, refused as if a writer held it."""
+    import fcntl
+    import threading
+
+    path = tmp_path / f"{LOCK_NAME}-shard-0000-of-0002"
+    path.touch()
+    fd = os.open(path, os.O_RDONLY)
+    fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)  # the look, held a little longer than a look lasts
+    threading.Timer(0.03, os.close, (fd,)).start()
+    with OutputLock(tmp_path, (0, 2)) as lock:
+        assert lock.held
+
+
+def test_the_last_shard_to_leave_removes_the_shared_lock_files(tmp_path):
+    """`.lock` (held shared by shards) and `.lock-division` were left behind after every shard finished."""
+    first, second = OutputLock(tmp_path, (0, 2)), OutputLock(tmp_path, (1, 2))
+    first.acquire()
+    second.acquire()
+    (tmp_path / f"{LOCK_NAME}-division").touch()
+    first.release()
+    assert (tmp_path / LOCK_NAME).exists()  # the other shard still holds it
+    second.release()
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+    with OutputLock(tmp_path):  # and the output is free for a whole-output writer
+        pass

@@ -515,6 +515,7 @@ def test_swept_tags_named_like_the_reports_columns_and_holding_html_are_shown_as
     evil = {s: f"<script>alert({s})</script>" for s in df["setting"].unique()}
     df["role"] = df["setting"].map(evil)
     df["label"] = df["setting"].map(lambda s: f"<img src=x onerror=alert({s})> [x](javascript:alert({s})) &amp;")
+    df["n"] = df["setting"].map(lambda s: f"N{s}")  # a tag named like the summary's count
     out = tmp_path / "out"
     build_report(write_sweep(tmp_path / "tags.parquet", df), out, ReportOptions(gallery=0, resamples=100,
                                                                                  heatmap=None))
@@ -524,5 +525,8 @@ def test_swept_tags_named_like_the_reports_columns_and_holding_html_are_shown_as
     assert "&lt;script&gt;alert(1)&lt;/script&gt;" in rendered  # shown, as text
     page = (out / "report.html").read_text(encoding="utf-8")
     assert "<script" not in page and "&lt;script&gt;alert(1)&lt;/script&gt;" in page
-    header = next(line for line in markdown.splitlines() if line.startswith("| setting | report label"))
-    assert "| role |" in header and "| label |" in header and "| report role |" in header
+    header = next(line for line in markdown.splitlines() if line.startswith("| setting | label | role |"))
+    assert "| role (swept) |" in header and "| label (swept) |" in header
+    summary = pd.read_csv(out / "summary.csv")  # the report's own label stays the setting's, the tag beside it
+    assert summary["label"].str.startswith("#").all() and summary["label (swept)"].str.startswith("<img").all()
+    assert (summary["n"] == 8).all() and summary["n (swept)"].str.startswith("N").all()

@@ -159,7 +159,8 @@ def test_a_port_that_answers_but_is_not_ray_is_refused_in_one_line(server, tmp_p
     finally:
         listener.close()
     assert rc == 2 and stderr.count("\n") == 1, stderr
-    assert f"--ray {address}: something answers there, but not as a Ray cluster does" in stderr
+    why = "(it answered, but not in gRPC (HTTP/2))" if server == "http" else "(no answer within 1 s)"
+    assert f"--ray {address}: something answers there, but not as a Ray cluster does {why}" in stderr
     assert not (tmp_path / "o").exists()
 
 

@@ -65,7 +65,7 @@ def test_a_cache_dir_that_is_a_file_is_one_line(tmp_path):
     """FileExistsError."""
     (tmp_path / "cache").write_text("mine")
     _refused(["sweep", str(_spec(tmp_path)), "--out", str(tmp_path / "o"), "--cache-dir", str(tmp_path / "cache")],
-             f"--cache-dir {tmp_path / 'cache'} is a file")
+             f"the compilation cache {tmp_path / 'cache'} is not a folder")
     assert (tmp_path / "cache").read_text() == "mine"
 
 
@@ -97,7 +97,7 @@ def test_merge_into_a_folder_of_other_files_is_refused(tmp_path):
     home = tmp_path / "home"
     home.mkdir()
     (home / "thesis.tex").write_text("mine")
-    _refused(["sweep", "merge", str(src), "--out", str(home)], "holds files that are not sweep parts (thesis.tex)")
+    _refused(["sweep", "merge", str(src), "--out", str(home)], "holds entries that are not sweep parts (thesis.tex)")
     assert sorted(p.name for p in home.iterdir()) == ["thesis.tex"]
 
 
@@ -119,3 +119,76 @@ def test_a_nearly_full_disk_that_takes_part_of_the_probe_is_refused_before_any_w
     _refused(["sweep", str(_spec(tmp_path)), "--out", str(out), "--no-cache"],
              f"--out {out} cannot be written: No space left on device (the file system is full)")
     assert not out.exists()
+
+
+def test_a_name_ending_in_a_newline_is_refused(tmp_path):
+    """`name = "review\\n"` was accepted (a regex `$` matches before a final newline) and named the folder."""
+    _refused(["sweep", str(_spec(tmp_path, name="review\\n")), "--dry-run"], "must be a string of letters")
+
+
+def test_json_nested_past_any_reader_is_damage_not_a_traceback(tmp_path):
+    """RecursionError from a part's metadata, a division record or a tuner's checkpoint."""
+    import json
+
+    import pyarrow.parquet as pq
+
+    from jaxapf.sweep import parse_spec, run_sweep
+    from jaxapf.sweep.division import DIVISION_NAME
+    from jaxapf.sweep.output import part_files, verify_part
+    from jaxapf.tune.searches import _Checkpoint
+
+    deep = "[" * 100_000 + "]" * 100_000
+    out = tmp_path / "o"
+    spec = parse_spec({"name": "deep", "scenario": {"families": ["trap"], "fields": 2},
+                       "sim": {"t_max": 1.0, "horizon": 3, "iters": 3}})
+    run_sweep(spec, out, quiet=True)
+    part = part_files(out)[0]
+    table = pq.read_table(part)
+    meta = table.schema.metadata | {b"jaxapf": table.schema.metadata[b"jaxapf"][:-1] + b', "x": ' + deep.encode()
+                                    + b"}", b"jaxapf_part": deep.encode()}
+    pq.write_table(table.replace_schema_metadata(meta), part)
+    assert verify_part(part) is not None
+    stderr = _refused(["sweep", "verify", str(out)])
+    assert "is not the output of jaxapf sweep" in stderr or "damaged" in stderr
+    shard_out = tmp_path / "s"
+    shard_out.mkdir()
+    (shard_out / DIVISION_NAME).write_text(deep)
+    run_sweep(spec, shard_out, quiet=True, shard=(0, 2))  # no part follows it, no shard holds it: replaced
+    assert json.loads((shard_out / DIVISION_NAME).read_text())["shards"] == 2
+    (tmp_path / "search-cmaes.json").write_text(deep)
+    assert _Checkpoint(tmp_path, "cmaes", "digest").load() is None
+
+
+def test_devices_forced_by_xla_flags_and_a_shards_own_refusal_come_first(tmp_path, monkeypatch):
+    """The core count is the CPU platform's limit only where --devices makes the devices: XLA_FLAGS forcing a
+    count is left alone, and a shard's one-device rule is said before it."""
+    from jaxapf.sweep.execute import configure_jax
+
+    monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=4")
+    configure_jax(cpu_devices=100000)  # XLA_FLAGS decides: nothing to refuse
+    monkeypatch.delenv("XLA_FLAGS")
+    _refused(["sweep", str(_spec(tmp_path)), "--shard", "0/2", "--devices", "100000"],
+             "--devices = 100000: a shard runs on one device")
+    _refused(["sweep", str(_spec(tmp_path)), "--shard", "0/2", "--overwrite", "--dry-run"],
+             "--overwrite replaces a whole output; a shard writes only its own parts")
+
+
+def test_a_memory_budget_is_met_or_refused_never_exceeded():
+    """A budget between one field's memory and the smallest padded chunk's was accepted, and the plan's
+    chunks then needed more than it."""
+    from jaxapf.sweep import parse_spec, plan_sweep
+    from jaxapf.validation import ConfigError
+
+    spec = parse_spec({"name": "budget", "scenario": {"families": ["trap", "clutter"], "fields": 300},
+                       "sim": {"t_max": 20.0, "horizon": 3, "iters": 3}, "grid": {"k_rep": [5.0, 10.0, 20.0]}})
+    refused = met = 0
+    for budget in (2 ** k for k in range(17, 30)):
+        try:
+            plan = plan_sweep(spec, memory_budget=budget, devices=1)
+        except ConfigError as err:
+            assert "is too small: a chunk here needs at least" in str(err)
+            refused += 1
+        else:
+            assert plan.peak_bytes <= budget
+            met += 1
+    assert refused and met

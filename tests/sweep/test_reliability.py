@@ -498,3 +498,45 @@ def test_ctrl_c_at_fifty_random_moments_is_one_line_and_the_resumed_rows_are_exa
         df, meta = read_sweep(out)
         assert meta["complete"] and not df.duplicated(KEY).any()
         pd.testing.assert_frame_equal(df, expected)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig, status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_a_signal_stops_a_run_at_once_not_after_its_chunk(sig, status, tmp_path):
+    """While the main thread waited inside XLA for a chunk (or its compilation), Python could not run the signal
+    handler: the stop came only after the chunk, 7-9 s later here, never on an episode of 10^6 steps."""
+    spec = tmp_path / "long.toml"
+    spec.write_text(SPEC_TOML.replace("t_max = 2.0", "t_max = 3000.0"))  # one chunk of 30,000 steps: ~10 s
+    run = subprocess.Popen(program("script") + ["sweep", str(spec), "--out", str(tmp_path / "o"), "--no-cache",
+                                                "--quiet", "--chunk-fields", "12"],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                           env={**os.environ, "JAX_PLATFORMS": "cpu"})
+    for moment in (1.5, 4.0):  # compiling, then computing
+        time.sleep(moment)
+        if moment == 4.0:
+            sent = time.monotonic()
+            run.send_signal(sig)
+    _, err = run.communicate(timeout=120)
+    assert run.returncode == status, err
+    assert time.monotonic() - sent < 2.0
+    assert "0 finished part(s) are kept" in _one_line(err)
+
+
+@pytest.mark.slow
+def test_ctrl_c_on_a_report_leaves_no_process_and_one_line(reference, tmp_path):
+    """The report's worker process outlived a stopped report (and kept its output open), and printed its own
+    traceback when Ctrl-C reached the whole process group."""
+    for moment in (1.0, 2.0, 3.0):
+        run = subprocess.Popen(program("script") + [
+            "report", str(reference[0]), "--out", str(tmp_path / f"r{moment}"), "--resamples", "100", "--gallery", "2",
+            "--heatmap", "none", "--no-cache", "--baseline", "setting=0"], stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE, text=True, env={**os.environ, "JAX_PLATFORMS": "cpu"}, start_new_session=True)
+        time.sleep(moment)
+        os.killpg(run.pid, signal.SIGINT)  # as a terminal's Ctrl-C: to every process of the group
+        _, err = run.communicate(timeout=120)  # returns only once every process holding the pipes is gone
+        if run.returncode == 0:
+            continue  # finished first
+        assert run.returncode == 130 and _one_line(err).startswith("jaxapf report: interrupted"), err
+        session = subprocess.run(["ps", "-s", str(run.pid), "-o", "stat=,args="], capture_output=True, text=True)
+        live = [line for line in session.stdout.splitlines() if line.strip() and not line.lstrip().startswith("Z")]
+        assert not live, live  # (an exited child waiting for init to reap it is no process left running)

@@ -144,7 +144,7 @@ def test_a_shard_refuses_another_sweeps_output_and_another_division(tmp_path):
     run_sweep(_spec(), out, chunk_fields=3, quiet=True, shard=(0, 4))
     other = copy.deepcopy(SPEC)
     other["scenario"]["seed"] = 6
-    with pytest.raises(ConfigError, match="parts of another sweep .*same spec"):
+    with pytest.raises(ConfigError, match="holds parts of another sweep .spec_hash differs. .e.g. .*same spec"):
         run_sweep(parse_spec(other), out, chunk_fields=3, quiet=True, shard=(1, 4))
     with pytest.raises(ConfigError, match="being written as 4 shard.s., not 3"):
         run_sweep(_spec(), out, chunk_fields=3, quiet=True, shard=(1, 3))
@@ -210,7 +210,7 @@ def test_the_first_shard_fixes_the_division_and_a_later_different_one_is_refused
         assert not part_files(out)
         other = copy.deepcopy(SPEC)
         other["scenario"]["seed"] = 6
-        with pytest.raises(ConfigError, match="this shard .1/2. runs another sweep .spec_hash differ."):
+        with pytest.raises(ConfigError, match="this shard .1/2. runs another sweep .spec_hash differs."):
             run_sweep(parse_spec(other), out, chunk_fields=3, quiet=True, shard=(1, 2))
     run_sweep(_spec(), out, chunk_fields=3, quiet=True, shard=(1, 2))  # the same division: runs
 

@@ -402,7 +402,7 @@ def test_changed_spec_is_refused_unless_overwrite(reference, tmp_path):
     assert meta["spec_hash"] == changed.hash and len(df) == ROWS and set(df["seed"]) == {2}
     assert not np.array_equal(df["path_length"], reference[1]["path_length"])
     (out / "notes.txt").write_text("mine")
-    with pytest.raises(ConfigError, match="holds files that are not sweep parts"):
+    with pytest.raises(ConfigError, match="holds entries that are not sweep parts"):
         run_sweep(changed, out, overwrite=True, quiet=True)
 
 
