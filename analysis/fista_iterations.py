@@ -150,8 +150,27 @@ def findings(n: study.Numbers, table: pd.DataFrame) -> str:
     return "\n".join(lines), chosen
 
 
+def facts(table: pd.DataFrame, n: study.Numbers) -> dict:
+    """The named values the study's findings (and docs/performance.md) state."""
+    from jaxapf.config import MPCConfig
+
+    families = [f for f in dict.fromkeys(table["family"]) if f != "all"]
+    pooled = table[table["family"] == "all"].set_index("iters")
+    return {"reference": REFERENCE, "counts": list(COUNTS), "families": len(families),
+            "methods": 2, "fields_per_family": int(pooled["episodes"].iloc[0]) // (2 * len(families)),
+            "criterion": AGREEMENT, "default": MPCConfig().iters, "chosen": choose(table, n)[0],
+            "agree": {str(i): {r.family: float(r.agree) for r in table[table["iters"] == i].itertuples()}
+                      for i in COUNTS},
+            "changed": {str(i): {r.family: int(r.changed) for r in table[table["iters"] == i].itertuples()}
+                        for i in COUNTS},
+            "episodes": {str(i): int(pooled.loc[i, "episodes"]) for i in COUNTS}}
+
+
 def main() -> None:
     args, out = study.begin(__doc__, STUDY)
+    if args.facts_only:
+        study.write_facts(out, facts(pd.read_csv(out / "agreement.csv"), study.Numbers(study.committed_report(out))))
+        return
     parquet = study.run_spec(SPEC, args.fields)
     result = study.report(parquet, out, resamples=args.resamples, baseline=f"iters={REFERENCE}", heatmap=None,
                           gallery=0)
@@ -161,6 +180,7 @@ def main() -> None:
     table = agreement(df)
     table.to_csv(out / "agreement.csv", index=False)
     text, chosen = findings(study.Numbers(result), table)
+    study.write_facts(out, facts(table, study.Numbers(result)))
     sections = [text, "\n".join(speed(chosen))]
     command = f"python analysis/{STUDY}.py" + (f" --fields {args.fields}" if args.fields else "")
     study.write_readme(out, "Study 10 — how many FISTA iterations the MPC needs", command, parquet, sections,

@@ -45,6 +45,9 @@ def parser(doc: str) -> argparse.ArgumentParser:
                                                "wider intervals); the sweep then goes to runs/NAME-fN.parquet")
     p.add_argument("--resamples", type=positive, default=2000, help="bootstrap resamples of the report (default 2000)")
     p.add_argument("--out", type=pathlib.Path, help="results folder (default analysis/results/<study>)")
+    p.add_argument("--facts-only", action="store_true",
+                   help="rewrite facts.json from the committed results (the report's tables and the study's own), "
+                        "simulating nothing")
     return p
 
 
@@ -310,6 +313,29 @@ def write_results(out: pathlib.Path, lines: list[str], facts: dict) -> dict:
     (out / "README.md").write_text("\n".join(lines) + "\n")
     (out / "facts.json").write_text(json.dumps(facts, indent=1) + "\n")
     return facts
+
+
+def committed_report(out: pathlib.Path) -> Any:
+    """The report a study committed (``out/report/summary.csv`` and ``comparisons.csv``), as
+    :class:`Numbers` reads it: what ``--facts-only`` works from."""
+    import types
+
+    import pandas as pd
+
+    folder = out / "report"
+    return types.SimpleNamespace(summary=pd.read_csv(folder / "summary.csv"),
+                                 comparisons=pd.read_csv(folder / "comparisons.csv"))
+
+
+def write_facts(out: pathlib.Path, facts: Mapping[str, Any]) -> pathlib.Path:
+    """``out/facts.json``: the named values a study's findings state, for the docs to bind their numbers
+    to (tests/bindings.py); written with every run of the study, and by ``--facts-only`` from its
+    committed results."""
+    import json
+
+    path = out / "facts.json"
+    path.write_text(json.dumps(facts, indent=1, sort_keys=True, default=float) + "\n")
+    return path
 
 
 def write_readme(out: pathlib.Path, title: str, command: str, parquet: pathlib.Path, sections: list[str],

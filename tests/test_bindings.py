@@ -1,0 +1,71 @@
+"""Every number of a bound document is the fact it names (tests/bindings.py), and every ±1 change of a
+bound number's last digit or swap of a bound verdict word is caught: a mutation test over the documents
+bound so far (it replaces, for them, the check that a number appears *somewhere* in a study's results, which
+let 53 % of such changes through)."""
+
+from __future__ import annotations
+
+import pytest
+from bindings import ROOT, mutations, problems
+
+#: The documents whose every number is bound (strict), and those with some numbers bound.
+STRICT = ["docs/performance.md"]
+PARTLY = ["README.md", "analysis/README.md", "docs/tune.md", "docs/sweep.md"]
+
+
+def test_a_bound_number_is_its_fact_at_the_precision_written():
+    text = "ran 61,336<!--=bench/engine:runs.0.engine.steps_per_s--> steps/s, 294<!--=bench/engine:runs.0.speedup-->×"
+    assert problems(text) == []
+    assert problems(text.replace("61,336", "61,337")) and problems(text.replace("294", "295"))
+    assert problems("61,335.6<!--=bench/engine:runs.0.engine.steps_per_s-->") == []
+    assert problems("61,335.5<!--=bench/engine:runs.0.engine.steps_per_s-->")  # 61335.551: not this one
+    # a ratio of two facts, a scale, a sign
+    assert problems("294<!--=bench/engine:runs.0.engine.steps_per_s÷runs.0.oracle.steps_per_s-->") == []
+    assert problems("47.7<!--=bench/engine:runs.0.engine.success_rate×100--> %") == []
+    assert problems("−47.7<!--=bench/engine:-runs.0.engine.success_rate×100-->") == []
+    assert problems("+47.7<!--=bench/engine:-runs.0.engine.success_rate×100-->")  # the sign is the fact's
+    assert problems("falls by 47.7<!--=bench/engine:-runs.0.engine.success_rate×100-->") == []  # by size
+
+
+def test_unbound_numbers_and_unknown_facts_are_named():
+    found = problems("took 3.4 s and 7<!--=bench/engine:runs.0.nothing--> more, in study 11 (`N = 20`, 2026-11-25)")
+    assert any("3.4 is bound to no fact" in p for p in found)
+    assert any("no fact bench/engine:runs.0.nothing" in p for p in found)
+    assert len(found) == 2  # "study 11", inline code and the date are identifiers, not reported numbers
+    assert problems("took 3.4 s", strict=False) == []
+
+
+def test_a_bound_verdict_is_its_facts_word():
+    text = "CMA-ES is *inconclusive*<!--=study/tuner_study:pooled_verdicts_vs_gradient.d3/cmaes.inconclusive-->"
+    found = problems(text)
+    assert found and "the fact" in found[0] and "is 6" in found[0]  # a count is not a verdict word
+    assert problems("*worse*") and not problems("*worse*", strict=False)
+
+
+def test_every_mutation_of_a_number_or_verdict_changes_one_thing():
+    text = ("9<!--=bench/x:y--> and 10<!--=bench/x:y--> and 1,024<!--=bench/x:y--> and "
+            "0.05<!--=bench/x:y--> and *better*<!--=bench/x:y-->")
+    changed = {what for what, _ in mutations(text)}
+    assert changed == {"9 -> 10", "9 -> 8", "10 -> 11", "10 -> 9", "1,024 -> 1,025",
+                       "1,024 -> 1,023", "0.05 -> 0.06", "0.05 -> 0.04", "*better* -> *worse*",
+                       "*better* -> *equivalent*", "*better* -> *inconclusive*"}
+
+
+@pytest.mark.parametrize("page", STRICT + PARTLY)
+def test_every_bound_number_is_its_fact(page):
+    text = (ROOT / page).read_text()
+    found = problems(text, strict=page in STRICT)
+    assert not found, f"{page}: " + "\n".join(found[:20])
+
+
+def test_every_change_of_a_bound_number_or_verdict_is_caught():
+    """At least 500 mutations over the bound documents, all caught."""
+    missed, total = [], 0
+    for page in STRICT + PARTLY:
+        text = (ROOT / page).read_text()
+        for what, mutated in mutations(text):
+            total += 1
+            if not problems(mutated, strict=page in STRICT):
+                missed.append(f"{page}: {what}")
+    assert total >= 500, f"only {total} mutations: bind more of the documents"
+    assert not missed, missed[:20]
