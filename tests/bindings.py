@@ -23,6 +23,7 @@ the fact's text. In a strict document every number is bound, but identifiers: in
 of a bound number's last digit and every swap of a bound verdict word, each of which :func:`problems` must
 catch (tests/test_bindings.py).
 
+``python tests/bindings.py check FILE...`` lists what is wrong in each file (every number strict);
 ``python tests/bindings.py suggest FILE [SOURCE ...]`` prints, for each unbound number of FILE, the keys of
 the named sources whose value it is (a start for binding a document by hand).
 """
@@ -202,7 +203,13 @@ def suggest(path: pathlib.Path, sources: list[str]) -> Iterator[str]:
 
 
 if __name__ == "__main__":
-    if len(sys.argv) < 3 or sys.argv[1] != "suggest":
-        sys.exit("usage: python tests/bindings.py suggest FILE [SOURCE ...]   (SOURCE: bench/NAME or study/FOLDER)")
+    usage = ("usage: python tests/bindings.py check FILE...   (every number bound, every binding its fact)\n"
+             "       python tests/bindings.py suggest FILE [SOURCE ...]   (SOURCE: bench/NAME or study/FOLDER)")
+    if len(sys.argv) < 3 or sys.argv[1] not in ("check", "suggest"):
+        sys.exit(usage)
+    if sys.argv[1] == "check":
+        found = [f"{name}: {p}" for name in sys.argv[2:] for p in problems(pathlib.Path(name).read_text())]
+        print("\n".join(found) or "every number bound to its fact")
+        sys.exit(1 if found else 0)
     for line in suggest(pathlib.Path(sys.argv[2]), sys.argv[3:]):
         print(line)
