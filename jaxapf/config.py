@@ -71,6 +71,8 @@ def _name(where: str, value: Any) -> str:
 
 #: Where the MPC's weights come from (:attr:`PlannerConfig.mpc_weights`).
 MPC_WEIGHTS: tuple[str, ...] = ("static", "gains")
+#: How the planner's reference is followed (:attr:`PlannerConfig.tracking`).
+TRACKING: tuple[str, ...] = ("mpc", "ideal")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -101,6 +103,10 @@ class PlannerConfig:
         violated at the answer, the rows active there and the most violated (up to 8 solves, then one
         with twice the rows); the steps still not certified exact are counted (``cbf_truncated_steps``,
         ``vo_truncated_steps``; :func:`jaxapf.projection.nearest_feasible`).
+      tracking: ``mpc`` (default): the box-constrained MPC tracks the planner's reference; ``ideal``: an
+        ablation without it, the reference's first velocity ``(p_1 - p) / Δt`` (a velocity obstacle's
+        chosen velocity) reached within the step, whatever the acceleration it takes (no box; a safety
+        filter still keeps its own); no disturbance estimator.
     """
 
     method: str = "direction_velocity"
@@ -113,6 +119,7 @@ class PlannerConfig:
     reference_velocity: bool = False
     mpc_weights: str = "static"
     projection_rows: int = 0
+    tracking: str = "mpc"
 
     def __post_init__(self) -> None:
         _name("sim.method", self.method)
@@ -126,6 +133,10 @@ class PlannerConfig:
             raise ConfigError(f"sim.reference_velocity = {self.reference_velocity!r} must be true or false")
         check_choice("sim.mpc_weights", self.mpc_weights, MPC_WEIGHTS)
         check_int("sim.projection_rows", self.projection_rows, 0, 1000)
+        check_choice("sim.tracking", self.tracking, TRACKING)
+        if self.tracking == "ideal" and self.estimator != "none":
+            raise ConfigError(f"sim.tracking = 'ideal' flies without the MPC: sim.estimator must be 'none', "
+                              f"not {self.estimator!r}")
 
 
 @dataclasses.dataclass(frozen=True)

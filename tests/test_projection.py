@@ -7,6 +7,7 @@ certified exact, and a hand-made case it cannot be."""
 from __future__ import annotations
 
 import functools
+import pathlib
 
 import jax
 import jax.numpy as jnp
@@ -123,13 +124,13 @@ def _infeasible(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return rng.uniform(-2 * LIMIT, 2 * LIMIT, 3), g, rng.uniform(0.3 * LIMIT, 1.5 * LIMIT, m)
 
 
-def _least_violation_box(g, b):
+def _least_violation_box(g, b, limit=LIMIT):
     """``min t`` s.t. ``b_j - g_j·x <= t``, ``|x_i| <= L`` by scipy's linprog (HiGHS), float64."""
     from scipy.optimize import linprog
 
     m = g.shape[0]
     res = linprog(np.r_[0.0, 0.0, 0.0, 1.0], A_ub=np.hstack([-g, -np.ones((m, 1))]), b_ub=-b,
-                  bounds=[(-LIMIT, LIMIT)] * 3 + [(None, None)], method="highs")
+                  bounds=[(-limit, limit)] * 3 + [(None, None)], method="highs")
     assert res.status == 0
     return res.fun
 
@@ -357,6 +358,33 @@ def test_rounds_that_cycle_on_a_thin_wedge_end_in_the_full_answer():
     assert bool(exact) and float(full_worst) == pytest.approx(0.03715, abs=1e-4)
     np.testing.assert_allclose(np.asarray(kept), np.asarray(full), atol=1e-6)
     assert float(kept_worst) == pytest.approx(float(full_worst), abs=1e-6)
+
+
+def test_every_step_a_swarm_reported_infeasible_is_infeasible():
+    """The case read as float32 phantoms (``swarm_clutter``, 4 UAVs, seed 3, field 2, ``basic`` + CBF, N = 10,
+    15 iterations, every row): 11 ``cbf_infeasible_steps`` on AVX2 and SSE4.2 CPUs, 0 on AVX-512 and with 8
+    rows kept. Agent 0's 20 projections at steps 60-79 of that flight (tests/data): the float32 solve with
+    every row reports infeasible exactly the 11 that linprog (float64) finds infeasible, with its least
+    violation, and the certified 8-row solve agrees. The flights differ because their trajectories do (a
+    1e-6 rounding difference turns a decision at step 32), not because a feasible step was called infeasible."""
+    case = np.load(pathlib.Path(__file__).parent / "data" / "swarm_clutter_cbf_steps.npz")
+    limit = float(case["limit"])
+    solve = jax.jit(jax.vmap(nearest_feasible, in_axes=(0, 0, 0, None, None, None)), static_argnums=(3, 4, 5))
+    args = jnp.asarray(case["x0"]), jnp.asarray(case["g"]), jnp.asarray(case["b"])
+    _, full, _ = solve(*args, limit, "box", 0)
+    _, kept, exact = solve(*args, limit, "box", 8)
+    # the flight's own answers, up to the solver's rounding slack (another compiled program rounds otherwise)
+    np.testing.assert_allclose(np.asarray(full), case["violation"], atol=1e-6 * (1 + limit))
+    best = []
+    for g, b in zip(case["g"].astype(np.float64), case["b"].astype(np.float64)):
+        usable = np.any(g != 0, axis=1)
+        best.append(max(0.0, _least_violation_box(g[usable], b[usable], limit)))
+    best = np.asarray(best)
+    assert int(np.sum(best > INFEASIBLE_TOL)) == 11
+    np.testing.assert_array_equal(np.asarray(full) > INFEASIBLE_TOL, best > INFEASIBLE_TOL)
+    np.testing.assert_allclose(np.asarray(full), best, atol=5e-5 * (1 + limit))
+    assert bool(np.all(np.asarray(exact)))
+    np.testing.assert_allclose(np.asarray(kept), np.asarray(full), atol=1e-5)
 
 
 def test_every_row_kept_is_exact_whatever_the_input():

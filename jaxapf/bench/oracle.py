@@ -387,7 +387,7 @@ def oracle_rollout(scenario: Any, gains: Any, sim: Any, mpc: Any, *, eps: float 
     require_osqp()
     known = {"method": ("basic", "direction", "direction_velocity"), "filter": ("none",),
              "plant": ("double_integrator",), "sensor": ("ideal",), "disturbance": ("none",), "estimator": ("none",),
-             "mpc_weights": ("static",)}
+             "mpc_weights": ("static",), "tracking": ("mpc",)}
     for key, names in known.items():
         check_choice(f"sim.{key} (the numpy + OSQP oracle)", sim.flat()[key], names)
     # Padded slots contribute exactly zero (see total_force's mask), so drop them up front.

@@ -292,7 +292,7 @@ def vectorised_rollout(scenarios: Any, gains: Any, sim: Any, mpc: Any, *, dtype:
     """
     known = {"method": VECTORISED_METHODS, "filter": ("none",), "plant": ("double_integrator",), "sensor": ("ideal",),
              "disturbance": ("none",), "estimator": ("none",),
-             "mpc_weights": ("static",)}
+             "mpc_weights": ("static",), "tracking": ("mpc",)}
     for key, names in known.items():
         check_choice(f"sim.{key} (the vectorised numpy peer)", sim.flat()[key], names)
     import jax.numpy as jnp

@@ -11,7 +11,9 @@ Each control step ``k`` (time ``t_k = k Δt``), with the components named by ``s
    saturated gradient flow N steps ahead with the obstacles extrapolated at constant velocity
    (its diagnostics, :meth:`~jaxapf.planners.Planner.diagnostics`, are recorded);
 2. :func:`~jaxapf.control.mpc.solve_axes` solves the three per-axis condensed box QPs by FISTA,
-   warm started from the previous solution shifted by one step, on the plant's linear model;
+   warm started from the previous solution shifted by one step, on the plant's linear model (with
+   ``sim.planner.tracking = "ideal"``, an ablation, :func:`ideal_tracking` instead: the reference's
+   first velocity reached within the step);
 3. the safety filter (``sim.planner.filter``, :data:`~jaxapf.control.FILTERS`; ``none`` by default)
    maps the first acceleration to the applied one;
 4. the plant (``sim.vehicle.plant``, :data:`~jaxapf.world.PLANTS`; the exact double integrator
@@ -39,7 +41,8 @@ from ..gains import Gains
 from ..metrics import episode_metrics
 from .components import COMPONENTS, component_names, gains_read
 
-__all__ = ["rollout", "rollout_metrics", "closed_loop", "episode_loop", "loop_init", "loop_step", "record_trajectory"]
+__all__ = ["rollout", "rollout_metrics", "closed_loop", "episode_loop", "loop_init", "loop_step", "record_trajectory",
+           "ideal_tracking"]
 
 
 class ClosedLoop(NamedTuple):
@@ -97,8 +100,11 @@ def loop_step(loop: ClosedLoop, carry: tuple, k: Array, scenario: Scenario, obst
     d_hat, estimates = loop.estimator(estimated, x, gains, sim) if loop.estimator.active else (None, {})
     x_ref, plan = loop.planner.reference(plan, x, t, scenario.goal, observed, gains, sim, mpc.horizon)
     planned = loop.planner.diagnostics(plan)
-    u = solve_axes(loop.prob, x, x_ref, warm, a_max=sim.vehicle.a_max, v_max=sim.vehicle.v_max, iters=mpc.iters,
-                   shift=d_hat)
+    if sim.planner.tracking == "ideal":
+        u = ideal_tracking(x, x_ref, sim.episode.dt, mpc.horizon)
+    else:
+        u = solve_axes(loop.prob, x, x_ref, warm, a_max=sim.vehicle.a_max, v_max=sim.vehicle.v_max,
+                       iters=mpc.iters, shift=d_hat)
     accel, guard, filtered = loop.safety(guard, u[:, 0], x, t, observed, gains, sim)
     if loop.estimator.active:
         accel = jnp.clip(accel - d_hat, -sim.vehicle.a_max, sim.vehicle.a_max)
@@ -107,6 +113,13 @@ def loop_step(loop: ClosedLoop, carry: tuple, k: Array, scenario: Scenario, obst
     state, integrated = loop.plant.step(state, accel, push, gains, sim)
     return ((state, shift_warm_start(u), plan, guard, seen, gust, estimated),
             (loop.plant.kinematics(state), accel, sensed | estimates | planned | filtered | integrated))
+
+
+def ideal_tracking(x: Array, x_ref: Array, dt: float, horizon: int) -> Array:
+    """Inputs (3, N) whose first reaches the reference's first velocity ``(p_1 - p) / Δt`` within the step
+    (the acceleration unbounded), the others zero: the MPC taken out of the loop (``sim.planner.tracking``)."""
+    accel = ((x_ref[1, :3] - x[:3]) / dt - x[3:]) / dt
+    return jnp.zeros((3, horizon), x.dtype).at[:, 0].set(accel)
 
 
 def record_trajectory(x0: Array, records: tuple, sim: SimConfig) -> Trajectory:

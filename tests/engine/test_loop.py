@@ -212,3 +212,31 @@ def test_a_grid_over_mpc_weights_is_one_call_matching_single_runs():
     evaluate(scenarios, jax.tree_util.tree_map(lambda g: g * 0.9, batch), gains_mode, MPC,
              metrics=("final_distance", "min_clearance"))
     assert evaluate_program._cache_size() == size, "changing the MPC's weights must not recompile"
+
+
+def test_ideal_tracking_reaches_each_chosen_velocity_within_the_step():
+    """``tracking = "ideal"`` (the MPC ablation): after every step the plant's velocity is the one the velocity
+    obstacles chose at the step's start (their ``velocity`` evaluated independently there, the moving sphere
+    included), the position the exact integral of that one-step ramp, and the acceleration can exceed the
+    box (no MPC); with the MPC the box holds and the velocity lags."""
+    sim = SimConfig.from_flat(method="velocity_obstacle", tracking="ideal", t_max=8.0)
+    scenario = _scenario()
+    traj = _rollout(scenario, Gains(), sim, MPC)
+    planner, gains = PLANNERS.get("velocity_obstacle"), Gains().as_arrays(jnp.float32)
+    obstacles = scenario.obstacles.columns()
+    dt = sim.episode.dt
+    for k in range(0, 80, 7):
+        x = jnp.concatenate([traj.position[k], traj.velocity[k]])
+        chosen = planner.velocity(x, k * dt, scenario.goal, obstacles, gains, sim)[0]
+        np.testing.assert_allclose(traj.velocity[k + 1], chosen, atol=2e-5)
+        np.testing.assert_allclose(traj.position[k + 1], traj.position[k] + 0.5 * dt * (traj.velocity[k] + chosen),
+                                   atol=2e-5)
+    assert float(jnp.max(jnp.abs(traj.control))) > sim.vehicle.a_max  # the first step alone needs more
+    tracked = _rollout(scenario, Gains(), sim.replace(tracking="mpc"), MPC)
+    assert float(jnp.max(jnp.abs(tracked.control))) <= sim.vehicle.a_max + 1e-6
+    assert float(jnp.abs(tracked.velocity[1] - traj.velocity[1]).max()) > 0.1
+
+
+def test_ideal_tracking_refuses_an_estimator():
+    with pytest.raises(Exception, match="sim.estimator must be 'none'"):
+        SimConfig.from_flat(tracking="ideal", estimator="observer")
