@@ -19,12 +19,16 @@ This script measures each on the current code, so the fixes can be checked and t
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pandas as pd
 import study
 
 STUDY = "fairness_checks"
 METHODS = ("basic", "direction", "direction_velocity")
+#: Study 7's results: section 5 and the facts read its committed report.
+VARIANTS = study.RESULTS / "family_variants"
 
 
 def _rows(path) -> pd.DataFrame:
@@ -35,6 +39,15 @@ def _rows(path) -> pd.DataFrame:
 
 def _outcome(df: pd.DataFrame) -> pd.Series:
     return np.select([df["success"], df["collision"], df["stalled"]], ["success", "collision", "stalled"], "timeout")
+
+
+def same_outcome(df: pd.DataFrame) -> dict[str, float]:
+    """On ``trap``, the share of fields where ``direction_velocity`` at ``k_rep`` = 10 has the same outcome as
+    ``basic`` at ``k_rep`` = 10 and at 30."""
+    trap = df[df["family"] == "trap"].assign(outcome=lambda d: _outcome(d))
+    pick = lambda m, k: trap[(trap["method"] == m) & (trap["k_rep"] == k)].set_index("field")["outcome"]  # noqa: E731
+    dv10 = pick("direction_velocity", 10.0)
+    return {f"basic_k{k:g}": float((dv10 == pick("basic", k)).mean()) for k in (10.0, 30.0)}
 
 
 def strength(df: pd.DataFrame) -> str:
@@ -50,11 +63,8 @@ def strength(df: pd.DataFrame) -> str:
             cells = [100 * sub[(sub["method"] == m) & (sub["k_rep"] == k)][rate].mean()
                      for m in METHODS for k in (10.0, 20.0, 30.0)]
             lines.append(f"| {family} | {rate} | " + " | ".join(f"{c:.1f}" for c in cells) + " |")
-    trap = df[df["family"] == "trap"].assign(outcome=lambda d: _outcome(d))
-    pick = lambda m, k: trap[(trap["method"] == m) & (trap["k_rep"] == k)].set_index("field")["outcome"]  # noqa: E731
-    dv10 = pick("direction_velocity", 10.0)
-    same30 = float((dv10 == pick("basic", 30.0)).mean())
-    same10 = float((dv10 == pick("basic", 10.0)).mean())
+    same = same_outcome(df)
+    same10, same30 = same["basic_k10"], same["basic_k30"]
     reading = ("so the issue's reading holds: on `trap` \"the weighted APF stalls more\" is, field by field, "
                "\"stronger repulsion stalls more\"" if same30 > same10 else
                "so the data does not bear out the issue's reading on `trap`")
@@ -86,7 +96,10 @@ def kinds_and_ceilings(df: pd.DataFrame) -> str:
     return "\n".join(lines)
 
 
-def gnron_in_clutter(fields: int = 1024) -> str:
+def goal_clearance_shares(fields: int = 1024) -> dict:
+    """Shares of ``fields`` clutter fields of seed 0 (drawn, none flown) whose goal clearance (UAV clearance to the
+    nearest obstacle at t = 0) is below 1 m and below d_s = 4 m, with the old endpoint margin and the current
+    ``goal_margin`` default."""
     import jax
     import jax.numpy as jnp
 
@@ -97,29 +110,46 @@ def gnron_in_clutter(fields: int = 1024) -> str:
         s = make_scenarios(0, params, np.arange(fields))
         return np.asarray(jax.vmap(lambda g, o: jnp.min(clearance(g, o, 0.0, params.r_uav)))(s.goal, s.obstacles))
 
-    old = goal_clearance(family_params("clutter", goal_margin=0.25))
-    new = goal_clearance(family_params("clutter"))
+    near, d_s, old_margin = 1.0, 4.0, 0.25
+    params = family_params("clutter")
+    old, new = goal_clearance(family_params("clutter", goal_margin=old_margin)), goal_clearance(params)
+    return {"fields": fields, "near_m": near, "d_s": d_s, "old_margin": old_margin,
+            "new_margin": float(params.goal_margin),
+            "old": {"within_1m": float(np.mean(old < near)), "within_d_s": float(np.mean(old < d_s))},
+            "new": {"within_1m": float(np.mean(new < near)), "within_d_s": float(np.mean(new < d_s - 1e-4))}}
+
+
+def gnron_in_clutter(shares: dict) -> str:
+    old, new = shares["old"], shares["new"]
     return "\n".join([
         "## 3. GNRON hidden in `clutter`", "",
-        f"Goal clearance (UAV clearance to the nearest obstacle at t = 0) over {fields} clutter fields of seed 0:", "",
-        "| endpoint margin at the goal | clearance < 1 m | clearance < d_s = 4 m |", "|---|---|---|",
-        f"| 0.25 m (before) | {100 * np.mean(old < 1.0):.1f} % | {100 * np.mean(old < 4.0):.1f} % |",
-        f"| 4 m (`goal_margin` default now) | {100 * np.mean(new < 1.0):.1f} % | "
-        f"{100 * np.mean(new < 4.0 - 1e-4):.1f} % |",
-        "", f"With the old margin {100 * np.mean(old < 1.0):.0f} % of the clutter fields put an obstacle within 1 m "
-        "of the goal, i.e. were `trap`'s `gnron` kind in disguise; `goal_margin` (a family parameter) now keeps "
-        "the goal outside the default influence distance in every family that does not mean GNRON."])
+        f"Goal clearance (UAV clearance to the nearest obstacle at t = 0) over {shares['fields']} clutter fields of "
+        "seed 0:", "",
+        f"| endpoint margin at the goal | clearance < {shares['near_m']:g} m | clearance < d_s = {shares['d_s']:g} m |",
+        "|---|---|---|",
+        f"| {shares['old_margin']:g} m (before) | {100 * old['within_1m']:.1f} % | {100 * old['within_d_s']:.1f} % |",
+        f"| {shares['new_margin']:g} m (`goal_margin` default now) | {100 * new['within_1m']:.1f} % | "
+        f"{100 * new['within_d_s']:.1f} % |",
+        "", f"With the old margin {100 * old['within_1m']:.0f} % of the clutter fields put an obstacle within "
+        f"{shares['near_m']:g} m of the goal, i.e. were `trap`'s `gnron` kind in disguise; `goal_margin` (a family "
+        "parameter) now keeps the goal outside the default influence distance in every family that does not mean "
+        "GNRON."])
 
 
-def metrics(df: pd.DataFrame) -> str:
-    ok = df[df["success"]]
+def old_score(ok: pd.DataFrame) -> pd.Series:
+    """The old BARN ``score`` of successful episodes: ``1 / clip(t / t_opt, 2, 8)``, ``t_opt`` = distance / v_max."""
     straight = ok["path_length"] / ok["path_ratio"]
-    old_score = 1.0 / np.clip(ok["time_to_goal"] / (straight / 2.0), 2.0, 8.0)  # v_max = 2 m/s
+    return 1.0 / np.clip(ok["time_to_goal"] / (straight / 2.0), 2.0, 8.0)  # v_max = 2 m/s
+
+
+def metrics(df: pd.DataFrame, time_near: tuple[pd.Series, pd.Series]) -> str:
+    ok = df[df["success"]]
+    score = old_score(ok)
     by = df.assign(outcome=_outcome(df)).groupby("outcome")
     table = by[["time_near", "min_ttc", "path_ratio", "control_effort"]].median()
     lines = ["## 4. Metrics that mean what they say", "",
              "- The old BARN `score` (`1 / clip(t / t_opt, 2, 8)` on success, `t_opt` = distance / v_max) is "
-             f"exactly 0.5 in **{100 * np.isclose(old_score, 0.5).mean():.1f} %** of the {len(ok):,} successful "
+             f"exactly 0.5 in **{100 * np.isclose(score, 0.5).mean():.1f} %** of the {len(ok):,} successful "
              "episodes of this sweep: it repeats the success rate. Its replacement `spl` (success weighted by "
              f"path length, Anderson et al. 2018) takes {ok['spl'].round(4).nunique():,} distinct values there (median "
              f"{ok['spl'].median():.3f}, 5–95 % {ok['spl'].quantile(0.05):.3f}–{ok['spl'].quantile(0.95):.3f}).",
@@ -130,7 +160,7 @@ def metrics(df: pd.DataFrame) -> str:
     for outcome, r in table.iterrows():
         lines.append(f"| {outcome} | {int(by.size()[outcome]):,} | {r['time_near']:.2f} | {r['min_ttc']:.2f} | "
                      f"{r['path_ratio']:.3f} | {r['control_effort']:.2f} |")
-    old_time, new_time = _time_near_both_ways()
+    old_time, new_time = time_near
     stalled, success = old_time["stalled"], old_time["success"]
     lines += ["", "`time_near` and `min_ttc` are diagnostics, not in the default report. `time_near` used to count "
               "every interval within d_safe = 1 m of an obstacle, so a stalled UAV hovering in front of a trap "
@@ -182,15 +212,21 @@ def _time_near_both_ways(fields: int = 256) -> tuple[pd.Series, pd.Series]:
     return means["time_within_d_safe"], means["time_near"]
 
 
-def relevance() -> str:
-    path = study.RESULTS / "family_variants" / "report" / "comparisons.csv"
-    if not path.exists():
-        return "## 5. Significance and relevance\n\nRun `python analysis/family_variants.py` first."
-    c = pd.read_csv(path)
+def significant_and_equivalent(c: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame, pd.Series | None]:
+    """Of a report's comparisons: the Holm-significant ones, those of them that are *equivalent*, and the one of
+    those on minimum clearance with the smallest shift (None if there is none)."""
     sig = c[c["significant"]]
     eq = sig[sig["verdict"] == "equivalent"]
     clearance = eq[eq["metric"] == "min_clearance"]
-    small = clearance.loc[clearance["delta"].abs().idxmin()] if len(clearance) else None
+    return sig, eq, clearance.loc[clearance["delta"].abs().idxmin()] if len(clearance) else None
+
+
+def relevance() -> str:
+    path = VARIANTS / "report" / "comparisons.csv"
+    if not path.exists():
+        return "## 5. Significance and relevance\n\nRun `python analysis/family_variants.py` first."
+    c = pd.read_csv(path)
+    sig, eq, small = significant_and_equivalent(c)
     lines = ["## 5. Significance without relevance", "",
              f"Of the {len(c):,} paired comparisons in study 7's report, {len(sig):,} are Holm-significant; "
              f"**{len(eq):,}** of those are nonetheless *equivalent*: the whole interval of the difference lies "
@@ -204,16 +240,60 @@ def relevance() -> str:
     return "\n".join(lines)
 
 
+def run_facts(strength_rows: pd.DataFrame, variants: pd.DataFrame, time_near: tuple[pd.Series, pd.Series]) -> dict:
+    """The values only a run computes, from the episodes of the two sweeps and of ``time_near``."""
+    ok = variants[variants["success"]]
+    by = variants.assign(outcome=_outcome(variants)).groupby("outcome")
+    old_time, new_time = time_near
+    return {"same_outcome": same_outcome(strength_rows),
+            "score": {"at_half": float(np.isclose(old_score(ok), 0.5).mean()), "successes": len(ok),
+                      "spl_distinct": int(ok["spl"].round(4).nunique()), "spl_median": float(ok["spl"].median()),
+                      "spl_q05": float(ok["spl"].quantile(0.05)), "spl_q95": float(ok["spl"].quantile(0.95))},
+            "outcomes": {o: {"episodes": len(rows), **{m: float(rows[m].median()) for m in
+                                                       ("time_near", "min_ttc", "path_ratio", "control_effort")}}
+                         for o, rows in by},
+            "time_near": {"old": old_time.to_dict(), "new": new_time.to_dict(),
+                          "old_ratio": float(old_time["stalled"] / old_time["success"]),
+                          "new_ratio": float(new_time["stalled"] / new_time["success"])}}
+
+
+#: What facts.json keeps of the example of section 5.
+EXAMPLE = ["label", "family", "delta", "delta_lo", "delta_hi", "margin", "verdict"]
+
+
+def facts(shares: dict, run: dict) -> dict:
+    """The named values the findings state: the goal clearances of the clutter fields (``shares``), the episode
+    counts and the significant-but-equivalent comparisons of study 7's committed report, and ``run``: those only a
+    run computes (kept from the committed facts.json by ``--facts-only``)."""
+    report = study.committed_report(VARIANTS)
+    rows = report.summary[(report.summary["family"] != "all") & ~report.summary["family"].str.contains("/")]
+    sig, eq, example = significant_and_equivalent(report.comparisons)
+    return {"goal_clearance": shares,
+            "variants": {"episodes": int(rows["n"].sum()), "successes": int(rows["success_k"].sum()),
+                         "collisions": int(rows["collision_k"].sum())},
+            "relevance": {"comparisons": len(report.comparisons), "significant": len(sig), "equivalent": len(eq),
+                          **({} if example is None else {"example": example[EXAMPLE].to_dict()})},
+            "run": run}
+
+
 def main() -> None:
     args, out = study.begin(__doc__, STUDY)
+    shares = goal_clearance_shares()
+    if args.facts_only:
+        committed = out / "facts.json"
+        run = json.loads(committed.read_text()).get("run", {}) if committed.exists() else {}
+        study.write_facts(out, facts(shares, run))
+        return
     strength_path = study.run_spec("strength", args.fields)
     variants_path = study.run_spec("family-variants", args.fields)
-    variants = _rows(variants_path)
-    sections = [strength(_rows(strength_path)), kinds_and_ceilings(variants), gnron_in_clutter(),
-                metrics(variants), relevance()]
+    variants, strength_rows = _rows(variants_path), _rows(strength_path)
+    time_near = _time_near_both_ways()
+    sections = [strength(strength_rows), kinds_and_ceilings(variants), gnron_in_clutter(shares),
+                metrics(variants, time_near), relevance()]
     command = "python analysis/fairness_checks.py" + (f" --fields {args.fields}" if args.fields else "")
     study.write_readme(out, "Study 9 — do the comparisons compare what they say? (issue 15's checks)", command,
                        strength_path, sections, [])
+    study.write_facts(out, facts(shares, run_facts(strength_rows, variants, time_near)))
     print(f"wrote {out}/README.md")
 
 

@@ -101,14 +101,53 @@ def findings(n: study.Numbers) -> str:
     return "\n".join(lines)
 
 
+def facts(n: study.Numbers) -> dict:
+    """The named values the findings state: each method's rates per group, its paired change and verdict against
+    ``basic``, the groups that cannot separate the methods, what becomes of the paper-gain differences at matched
+    strength, and the fields the solvability oracle proves unsolvable."""
+    groups = _groups(n)
+    success = {g: [n.rate_value({"method": m}, g, "success") for m in METHODS] for g in groups}
+    top = [g for g in groups if min(success[g]) >= 1 - FLOOR]
+    bottom = [g for g in groups if max(success[g]) <= FLOOR]
+    deltas = {g: {m: {r: n.delta({"method": m}, g, r) for r in RATES} for m in METHODS[1:]} for g in groups}
+    rates = {(g, m): [r.split()[0] for r in _separates(n, g, m)] for g in groups for m in METHODS[1:]}
+    paper = [(g, m) for g in groups for m in PAPER if rates[g, m]]
+    survive = [(g, m) for g, m in paper if rates[g, NORMALISED[m]]]
+    vanish = [(g, m) for g, m in paper if (g, m) not in survive]
+    then = [deltas[g][NORMALISED[m]][r].verdict for g, m in vanish for r in rates[g, m]]
+    solvable = n.summary[n.summary["family"].isin([g for g in groups if "/" not in g])]
+    unsolvable = (solvable["n"] - solvable["n_solvable"]).groupby(solvable["family"]).max()
+    return {
+        "methods": len(METHODS), "groups": len(groups), "floor": FLOOR,
+        "fields": {g: int(n.row(BASIC, g)["n"]) for g in groups},
+        **{r: {g: {m: n.rate_value({"method": m}, g, r) for m in METHODS} for g in groups} for r in RATES},
+        "success_range": {g: {"min": min(s), "max": max(s), "spread": max(s) - min(s)} for g, s in success.items()},
+        "delta": {g: {m: {r: d.delta for r, d in by.items()} for m, by in ms.items()} for g, ms in deltas.items()},
+        "verdict": {g: {m: {r: d.verdict for r, d in by.items()} for m, by in ms.items()} for g, ms in deltas.items()},
+        "ceiling": {"count": len(top), "groups": ", ".join(top), "success_min": min(min(success[g]) for g in top)},
+        "bottom": {"count": len(bottom), "groups": ", ".join(bottom),
+                   "success_max": max(max(success[g]) for g in bottom)},
+        "open": len(groups) - len(top) - len(bottom),
+        "paper_differences": len(paper),
+        "survive": {"count": len(survive), "pairs": ", ".join(f"{m} on {g}" for g, m in survive)},
+        "not_found": {"count": len(vanish), "rates": len(then), "equivalent": then.count("equivalent"),
+                      "inconclusive": then.count("inconclusive")},
+        "only_matched": sum(bool(rates[g, NORMALISED[m]]) and not rates[g, m] for g in groups for m in PAPER),
+        "unsolvable": {g: int(k) for g, k in unsolvable.items()},
+    }
+
+
 def main() -> None:
-    study.run_study(__doc__, name=STUDY, spec="family-variants",
-                    title="Study 7 — which families separate the methods, at the paper's gains and at matched "
-                          "strength", findings=findings,
-                    figures=[study.RATES_FIGURE,
-                             ("report/figures/differences.png",
-                              "Paired differences to basic (filled: Holm-significant)")],
-                    heatmap=None, gallery=0)
+    args, out = study.begin(__doc__, STUDY)
+    if not args.facts_only:
+        study.run_study(__doc__, name=STUDY, spec="family-variants",
+                        title="Study 7 — which families separate the methods, at the paper's gains and at matched "
+                              "strength", findings=findings,
+                        figures=[study.RATES_FIGURE,
+                                 ("report/figures/differences.png",
+                                  "Paired differences to basic (filled: Holm-significant)")],
+                        heatmap=None, gallery=0)
+    study.write_facts(out, facts(study.Numbers(study.committed_report(out))))
 
 
 if __name__ == "__main__":

@@ -151,12 +151,26 @@ def findings(n: study.Numbers, table: pd.DataFrame) -> str:
 
 
 def facts(table: pd.DataFrame, n: study.Numbers) -> dict:
-    """The named values the study's findings (and docs/performance.md) state."""
+    """The named values the study's findings (and docs/performance.md) state: per count the outcome
+    agreement and, pooled over families, each metric's shift against the reference and its verdict."""
     from jaxapf.config import MPCConfig
 
     families = [f for f in dict.fromkeys(table["family"]) if f != "all"]
     pooled = table[table["family"] == "all"].set_index("iters")
-    return {"reference": REFERENCE, "counts": list(COUNTS), "families": len(families),
+    methods = ("basic", "direction_velocity")
+    metrics = (*study.RATE_METRICS, *CONTINUOUS)
+    deltas = {i: {m: {x: n.delta({"method": m, "iters": i}, "all", x) for x in metrics} for m in methods}
+              for i in COUNTS}
+    return {"shift": {str(i): {m: {x: d.delta for x, d in v.items()} for m, v in deltas[i].items()} for i in COUNTS},
+            "verdict": {str(i): {m: {x: d.verdict for x, d in v.items()} for m, v in deltas[i].items()}
+                        for i in COUNTS},
+            "continuous_equivalent": {str(i): sum(deltas[i][m][x].equivalent for m in methods for x in CONTINUOUS)
+                                      for i in COUNTS},
+            "continuous_shifted": {str(i): sum(deltas[i][m][x].better or deltas[i][m][x].worse for m in methods
+                                               for x in CONTINUOUS) for i in COUNTS},
+            "continuous_compared": len(methods) * len(CONTINUOUS),
+            "margin": n.comparisons.groupby("metric")["margin"].first().loc[list(metrics)].to_dict(),
+            "reference": REFERENCE, "counts": list(COUNTS), "families": len(families),
             "methods": 2, "fields_per_family": int(pooled["episodes"].iloc[0]) // (2 * len(families)),
             "criterion": AGREEMENT, "default": MPCConfig().iters, "chosen": choose(table, n)[0],
             "agree": {str(i): {r.family: float(r.agree) for r in table[table["iters"] == i].itertuples()}

@@ -101,14 +101,88 @@ def findings(n: study.Numbers) -> str:
     return "\n".join(lines)
 
 
+#: The largest k whose cells the conclusion calls moderate (only the paper's lower bound ω ≥ 1 fails above 1).
+MODERATE_K = 1.5
+METRICS = ("success", "collision", "stalled", "min_clearance")
+
+
+def cell(gamma: float, k: float) -> str:
+    """A cell's key in facts.json: ``g1_k0.5``."""
+    return f"g{gamma:g}_k{k:g}"
+
+
+def facts(n: study.Numbers) -> dict:
+    """The named values the findings (and the README's row) state: each cell's rates, paired change and verdict
+    against γ = 0, k = 0 per family, the true minimum of ω, and the summaries the conclusion draws from them."""
+    from jaxapf.gains import Gains
+    from jaxapf.planners.potentials import weight_bounds
+
+    s = n.summary
+    families = n.families()
+    groups = (*families, "all")
+    gammas, ks = sorted(s["gamma"].unique()), sorted(s["k"].unique())
+    cells = [(g, k) for g in gammas for k in ks]
+    others = [(g, k) for g, k in cells if {"gamma": g, "k": k} != REFERENCE]
+    setting = lambda g, k: {"gamma": g, "k": k}  # noqa: E731
+    pooled = s[s["family"] == "all"]
+    moderate, top = pooled[pooled["k"] <= MODERATE_K], pooled[pooled["k"] == max(ks)]
+    at_k0 = pooled[pooled["k"] == 0.0].set_index("gamma")["collision_rate"]
+    ratio = top.set_index("gamma")["collision_rate"] / at_k0
+    top_families = s[s["k"] == max(ks)].groupby("family")["collision_rate"].agg(["min", "max"])
+    deltas = {m: {f: {cell(g, k): n.delta(setting(g, k), f, m) for g, k in others} for f in groups} for m in METRICS}
+    best = {}
+    for f in groups:
+        row = s[s["family"] == f].sort_values(["success_rate", "collision_rate"], ascending=[False, True]).iloc[0]
+        g, k = float(row["gamma"]), float(row["k"])
+        d = None if setting(g, k) == REFERENCE else deltas["success"][f][cell(g, k)]
+        best[f] = {"gamma": g, "k": k, "success": float(row["success_rate"]), "collision": float(row["collision_rate"]),
+                   **({"delta_success": d.delta, "verdict_success": d.verdict} if d else {})}
+    default = Gains()
+    return {
+        "grid": {"gamma": [float(g) for g in gammas], "k": [float(k) for k in ks]},
+        "cells": len(cells), "cells_compared": len(others), "families": len([f for f in families if "/" not in f]),
+        "fields_per_family": int(s[s["family"] == families[0]]["n"].iloc[0]), "episodes": int(pooled["n"].sum()),
+        "reference": {k: float(v) for k, v in REFERENCE.items()},
+        "margin": {m: float(n.comparisons[n.comparisons["metric"] == m]["margin"].iloc[0]) for m in METRICS},
+        "default": {"gamma": float(default.gamma), "k": float(default.k)},
+        **{m: {f: {cell(g, k): n.rate_value(setting(g, k), f, m) for g, k in cells} for f in groups}
+           for m in ("success", "collision", "stalled")},
+        "delta": {m: {f: {c: d.delta for c, d in by.items()} for f, by in deltas[m].items()} for m in METRICS},
+        "verdict": {m: {f: {c: d.verdict for c, d in by.items()} for f, by in deltas[m].items()} for m in METRICS},
+        "verdicts": {m: {v: sum(d.verdict == v for d in deltas[m]["all"].values())
+                         for v in ("better", "worse", "equivalent", "inconclusive")} for m in METRICS},
+        "omega_min": {cell(g, k): float(weight_bounds("direction_velocity", gamma=g, k=k)[0]) for g, k in cells},
+        "range": {f: {"success_min": float(s[s["family"] == f]["success_rate"].min()),
+                      "success_max": float(s[s["family"] == f]["success_rate"].max())} for f in groups},
+        "best": best,
+        "moderate": {"k_max": MODERATE_K, "success_min": float(moderate["success_rate"].min()),
+                     "success_max": float(moderate["success_rate"].max()),
+                     "success_spread": float(moderate["success_rate"].max() - moderate["success_rate"].min()),
+                     "collision_min": float(moderate["collision_rate"].min()),
+                     "collision_max": float(moderate["collision_rate"].max())},
+        "top": {"k": float(max(ks)), "cells": len(top),
+                "worse": {m: sum(deltas[m]["all"][cell(g, max(ks))].worse for g in gammas) for m in METRICS},
+                "success_min": float(top["success_rate"].min()),
+                "success_max": float(top["success_rate"].max()), "collision_min": float(top["collision_rate"].min()),
+                "collision_max": float(top["collision_rate"].max()),
+                "collision_ratio_to_k0_min": float(ratio.min()), "collision_ratio_to_k0_max": float(ratio.max()),
+                "family": {f: {"collision_min": float(top_families.loc[f, "min"]),
+                               "collision_max": float(top_families.loc[f, "max"])} for f in families}},
+    }
+
+
 def heatmaps(out) -> list[tuple[str, str]]:
     names = sorted(p.name for p in (out / "report" / "figures").glob("heatmap*.png"))
     return [(f"report/figures/{h}", f"{h.removesuffix('.png').replace('_', ' ')} over γ × k per family") for h in names]
 
 
 def main() -> None:
-    study.run_study(__doc__, name=STUDY, spec="gamma-k", title="Study 5 — sensitivity to γ × k, including k > 1",
-                    findings=findings, figures=heatmaps, baseline="gamma=0,k=0", heatmap=("gamma", "k"), gallery=2)
+    args, out = study.begin(__doc__, STUDY)
+    if not args.facts_only:
+        study.run_study(__doc__, name=STUDY, spec="gamma-k", title="Study 5 — sensitivity to γ × k, including k > 1",
+                        findings=findings, figures=heatmaps, baseline="gamma=0,k=0", heatmap=("gamma", "k"),
+                        gallery=2)
+    study.write_facts(out, facts(study.Numbers(study.committed_report(out))))
 
 
 if __name__ == "__main__":

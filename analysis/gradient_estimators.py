@@ -69,8 +69,35 @@ def draws(spec, estimator: str, samples: int, theta, scenarios, count: int, seed
     return np.stack(out)
 
 
+def facts(table: pd.DataFrame) -> dict:
+    """The named values the findings state, from the per-episode table (``estimates.csv``): per estimator
+    (``NAME/PAIRS``) the median bias, spread and RMSE over the episodes, the Monte-Carlo error of a mean of
+    ``DRAWS`` draws (spread / sqrt(DRAWS)), the median RMSE by the episode's outcome and its range over the
+    stalls, and the reference's standard error relative to its norm."""
+    first = table[table["estimator"] == "pathwise"].sort_values("episode")
+    arm = table["estimator"] + "/" + table["pairs"].astype(str)
+    median = table.groupby(arm, sort=False)[["bias", "spread", "rmse"]].median()
+    by_outcome = table.groupby([arm, "outcome"], sort=False)["rmse"].median()
+    stalled = table[table["outcome"] == "stalled"].groupby(arm[table["outcome"] == "stalled"], sort=False)["rmse"]
+    return {"episodes": len(first), "families": first["family"].nunique(), "fields_per_family": FIELDS,
+            "outcomes": {k: int(v) for k, v in first["outcome"].value_counts().items()},
+            "reference_relative_se_median": float((first["reference_se"] / first["reference_norm"]).median()),
+            "reference_pairs": REFERENCE_PAIRS, "sigma": SIGMA, "draws": DRAWS,
+            "finite_min": float(table["finite"].min()),
+            "pairs": {a: int(p) for a, p in zip(arm, table["pairs"])},
+            "rollouts": {a: int(r) for a, r in zip(arm, table["rollouts"])},
+            "median": {a: {"bias": r.bias, "spread": r.spread, "rmse": r.rmse,
+                           **({"mc_error": r.spread / np.sqrt(DRAWS)} if not a.startswith("pathwise") else {})}
+                       for a, r in median.iterrows()},
+            "median_by_outcome": {a: by_outcome[a].to_dict() for a in median.index},
+            "stalled_rmse": {a: {"min": float(g.min()), "max": float(g.max())} for a, g in stalled}}
+
+
 def main() -> None:
     args, out = study.begin(__doc__, STUDY)
+    if args.facts_only:
+        study.write_facts(out, facts(pd.read_csv(out / "estimates.csv")))
+        return
     from jaxapf.tune.spec import load_tune_spec
     from jaxapf.tune.train import Tuner
 
@@ -109,15 +136,12 @@ def main() -> None:
                .reset_index())
     by_outcome = (table.groupby(["estimator", "pairs", "outcome"], sort=False)["rmse"].median().unstack("outcome")
                   .reset_index())
-    facts = {"episodes": int(len(family)), "outcomes": {k: int(v) for k, v in pd.Series(kind).value_counts().items()},
-             "reference_relative_se_median": float(np.median(reference_se / np.linalg.norm(reference, axis=-1))),
-             "median": {f"{r.estimator}/{r.pairs}": {"bias": round(r.bias, 3), "spread": round(r.spread, 3),
-                                                     "rmse": round(r.rmse, 3)} for r in summary.itertuples()}}
+    found = facts(table)
     lines = [f"# Study 14: bias and spread of the gradient estimators ({len(family)} closed-loop episodes)", "",
              "`python analysis/gradient_estimators.py`", "",
              "Protocol: " + " ".join(__doc__.split("\n\n")[1].split()), "",
-             "Outcomes at the start gains: " + ", ".join(f"{k} {v}" for k, v in facts["outcomes"].items())
-             + f". The reference's standard error is {100 * facts['reference_relative_se_median']:.1f} % of its norm "
+             "Outcomes at the start gains: " + ", ".join(f"{k} {v}" for k, v in found["outcomes"].items())
+             + f". The reference's standard error is {100 * found['reference_relative_se_median']:.1f} % of its norm "
              "(median over the episodes).", "",
              "## Median over the episodes, relative to the reference's norm", "",
              "| estimator | pairs | rollouts per episode | bias | spread | RMSE |", "|---|---|---|---|---|---|"]
@@ -135,7 +159,7 @@ def main() -> None:
     for r in first.itertuples():
         lines.append(f"| {r.episode} | {r.family} | {r.outcome} | {r.reference_norm:.3g} | {r.reference_se:.2g} | "
                      f"{r.pathwise_norm:.3g} |")
-    print(json.dumps(study.write_results(out, lines, facts), indent=1))
+    print(json.dumps(study.write_results(out, lines, found), indent=1))
 
 
 if __name__ == "__main__":

@@ -104,14 +104,58 @@ def findings(n: study.Numbers) -> str:
     return "\n".join(lines)
 
 
+def facts(n: study.Numbers) -> dict:
+    """The named values the findings state, for the docs to bind to: per group and method the success and
+    stall rates, each weight's paired difference to ``basic`` (rates as fractions; interval and the report's
+    verdict), how many of those are better or worse, the share of fields the solvability oracle solves, study
+    8's held-out success (defaults, mean over seeds) and the trap parameters the findings name."""
+    import tomllib
+
+    from jaxapf.scenarios import family_params
+
+    weights = (*PAPER, *MATCHED.values())
+    deltas = {(g, m, k): n.delta({"method": m}, g, k) for g in GROUPS for m in weights for k in ("success", "stalled")}
+
+    def compared(value) -> dict:
+        return {k: {g: {m: value(deltas[g, m, k]) for m in weights} for g in GROUPS} for k in ("success", "stalled")}
+
+    def count(verdict: str) -> dict:
+        return {m: sum(deltas[g, m, "success"].verdict == verdict or deltas[g, m, "stalled"].verdict == verdict
+                       for g in GROUPS) for m in weights}
+
+    tuned = pd.read_csv(study.RESULTS / "tuned_comparison" / "report" / "summary.csv")
+    tuned = tuned[tuned["family"].isin(GROUPS) & tuned["method"].isin(("basic", *PAPER))]
+    trap = family_params("trap")
+    spec = tomllib.loads((study.ROOT / "sweeps" / "family-variants.toml").read_text())["scenario"]["params"]
+    return {"fields": {g: int(n.row(BASIC, g)["n"]) for g in GROUPS},
+            "solvable": {g: float(n.row(BASIC, g)["n_solvable"] / n.row(BASIC, g)["n"]) for g in GROUPS},
+            **{k: {g: {m: n.rate_value({"method": m}, g, k) for m in ("basic", *weights)} for g in GROUPS}
+               for k in ("success", "stalled")},
+            "delta": compared(lambda d: d.delta), "delta_lo": compared(lambda d: d.lo),
+            "delta_hi": compared(lambda d: d.hi), "verdict": compared(lambda d: d.verdict),
+            "margin": float(n.comparisons.loc[n.comparisons["metric"] == "success", "margin"].iloc[0]),
+            "groups": len(GROUPS), "groups_better": count("better"), "groups_worse": count("worse"),
+            "comparisons": len(deltas), "comparisons_better": sum(d.better for d in deltas.values()),
+            "tuned": {g: {m: {"default": float(r[r["selection"] == "default"]["success_rate"].iloc[0]),
+                              "mean": float(r[r["selection"] != "default"]["success_rate"].mean())}
+                          for m, r in rows.groupby("method")} for g, rows in tuned.groupby("family")},
+            "spare": {"narrow_gap": {"lo": trap.gap_slack[0] / 2, "hi": trap.gap_slack[1] / 2},
+                      "trap_wide_gaps": {"lo": spec["trap_wide_gaps"]["gap_slack"][0] / 2,
+                                         "hi": spec["trap_wide_gaps"]["gap_slack"][1] / 2}},
+            "goal_clearance": {"lo": trap.goal_clearance[0], "hi": trap.goal_clearance[1]}}
+
+
 def main() -> None:
-    study.run_study(__doc__, name=STUDY, spec="family-variants",
-                    title="Study 2 — does the weighted APF resolve local minima?", findings=findings,
-                    figures=[study.RATES_FIGURE,
-                             ("report/figures/differences.png",
-                              "Paired differences to basic (filled: Holm-significant)"),
-                             ("report/figures/gallery_1.png", "The worst episode, re-simulated from its seed")],
-                    where=("family=" + ",".join(FAMILIES),), heatmap=None, gallery=2)
+    args, out = study.begin(__doc__, STUDY)
+    if not args.facts_only:  # run_study parses the same flags again
+        study.run_study(__doc__, name=STUDY, spec="family-variants",
+                        title="Study 2 — does the weighted APF resolve local minima?", findings=findings,
+                        figures=[study.RATES_FIGURE,
+                                 ("report/figures/differences.png",
+                                  "Paired differences to basic (filled: Holm-significant)"),
+                                 ("report/figures/gallery_1.png", "The worst episode, re-simulated from its seed")],
+                        where=("family=" + ",".join(FAMILIES),), heatmap=None, gallery=2)
+    study.write_facts(out, facts(study.Numbers(study.committed_report(out))))
 
 
 if __name__ == "__main__":

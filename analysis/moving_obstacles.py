@@ -14,6 +14,10 @@ condition, so only the shape of the weighting differs).
 
 from __future__ import annotations
 
+import pathlib
+import types
+
+import pandas as pd
 import study
 
 STUDY = "moving_obstacles"
@@ -81,8 +85,57 @@ def findings(numbers: dict[str, study.Numbers]) -> str:
     return "\n".join(lines)
 
 
+#: How the facts name the two cases.
+CASES = {"the paper's gains": "paper", "matched strength": "matched"}
+#: The families at their defaults, where every method sits at the ceiling.
+CEILING = ("crossing", "head_on", "dynamic")
+
+
+def facts(numbers: dict[str, study.Numbers]) -> dict:
+    """The named values the findings state, for the docs to bind to, per case (``paper``, ``matched``): each
+    method's collision rate and median minimum clearance per family, the velocity term's paired difference
+    (rates as fractions; interval and the report's verdict), and how many families it makes safer or wider."""
+    deltas = {(case, f, k): numbers[case].delta({"method": dv}, f, k)
+              for case, (_, dv) in PAIRS.items() for f in (*FAMILIES, "all") for k in METRICS}
+
+    def compared(value) -> dict:
+        return {CASES[case]: {f: {k: value(deltas[case, f, k]) for k in METRICS} for f in (*FAMILIES, "all")}
+                for case in PAIRS}
+
+    def families(case: str, metric: str, verdict: str) -> int:
+        return sum(deltas[case, f, metric].verdict == verdict for f in FAMILIES)
+
+    def per_method(column: str) -> dict:
+        return {CASES[case]: {f: {m: float(numbers[case].row({"method": m}, f)[column]) for m in pair}
+                              for f in (*FAMILIES, "all")} for case, pair in PAIRS.items()}
+
+    collision = per_method("collision_rate")
+    table = numbers["the paper's gains"].comparisons
+    return {"families": len(FAMILIES), "fields": int(deltas["the paper's gains", FAMILIES[0], "collision"].n_pairs),
+            "collision": collision, "clearance_median": per_method("min_clearance_median"),
+            "delta": compared(lambda d: d.delta), "delta_lo": compared(lambda d: d.lo),
+            "delta_hi": compared(lambda d: d.hi), "verdict": compared(lambda d: d.verdict),
+            "margin": {k: float(table.loc[table["metric"] == k, "margin"].iloc[0]) for k in METRICS},
+            "families_safer": {CASES[c]: families(c, "collision", "better") for c in PAIRS},
+            "families_riskier": {CASES[c]: families(c, "collision", "worse") for c in PAIRS},
+            "families_wider": {CASES[c]: families(c, "min_clearance", "better") for c in PAIRS},
+            "families_clearance_equivalent": {CASES[c]: families(c, "min_clearance", "equivalent") for c in PAIRS},
+            "ceiling_collision_max": max(collision[c][f][m] for c in collision for f in CEILING
+                                         for m in collision[c][f])}
+
+
+def committed(folder: pathlib.Path) -> types.SimpleNamespace:
+    """A committed report (``summary.csv``, ``comparisons.csv`` in ``folder``), as :class:`study.Numbers` reads
+    it: :func:`study.committed_report` for a folder not named ``report``."""
+    return types.SimpleNamespace(summary=pd.read_csv(folder / "summary.csv"),
+                                 comparisons=pd.read_csv(folder / "comparisons.csv"))
+
+
 def main() -> None:
     args, out = study.begin(__doc__, STUDY)
+    if args.facts_only:
+        study.write_facts(out, facts({case: study.Numbers(committed(out / FOLDERS[case])) for case in PAIRS}))
+        return
     parquet = study.run_spec("family-variants", args.fields)
     numbers = {}
     for case, (base, dv) in PAIRS.items():
@@ -98,6 +151,7 @@ def main() -> None:
                         ("report_matched/figures/differences.png",
                          "Paired differences to `direction_normalised`, matched strength"),
                         ("report/figures/gallery_1.png", "The worst episode, re-simulated from its seed")])
+    study.write_facts(out, facts(numbers))
     print(f"wrote {out}/README.md")
 
 

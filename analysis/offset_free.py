@@ -56,6 +56,10 @@ ROBUST = [("steady wind, robust CBF δ = 1.8", {"filter": "robust_cbf"}, STEADY 
            GUSTY | {"cbf_margin": 1.0}, "calm"),
           ("steady wind, braking CBF δ = 1.8", {"filter": "braking_cbf"}, STEADY | {"cbf_margin": 1.8}, "calm"),
           ("calm, braking CBF δ = 0", {"filter": "braking_cbf"}, {"cbf_margin": 0.0}, "calm")]
+#: Each arm's short name, its key in facts.json.
+KEYS = {"wind": "wind", "wind + observer": "observer", "calm": "calm", "wind, tuned in wind": "tuned_wind",
+        "wind + observer, tuned in wind + observer": "tuned_observer", ROBUST[0][0]: "robust_steady",
+        ROBUST[1][0]: "robust_observer", ROBUST[2][0]: "braking_steady", ROBUST[3][0]: "braking_calm"}
 #: The braking CBF's arms, whose guarantee is checked episode by episode (:func:`guarantee`).
 BRAKING = [arm for arm, static, _, _ in ROBUST if static.get("filter") == "braking_cbf"]
 METRICS = ("success", "collision", "stalled", "min_clearance", "final_distance", "cbf_infeasible_steps")
@@ -206,15 +210,50 @@ def guarantee(df: pd.DataFrame, spec) -> dict:
     return out
 
 
-def write(summary: pd.DataFrame, tuned: pd.DataFrame, held: dict, out) -> dict:
+def facts(summary: pd.DataFrame, tuned: pd.DataFrame, held: dict) -> dict:
+    """The named values the findings state, from the study's tables (``summary.csv``, ``selection_wind.csv``)
+    and the braking CBF's guarantee check ``held`` (:func:`guarantee`, which needs the episodes): the keys
+    the results README reads and, per arm under its short name (:data:`KEYS`), the pooled success (per-method
+    means and per selection), the verdicts (counted and per selection), median final distance and
+    collisions; the CBF stacks' success on ``crossing_fast``, their clearance per family, and the
+    guarantee check's counts with their totals."""
+    from jaxapf.config import SimConfig
+
     arms = list(dict.fromkeys(summary["arm"]))
-    families = [f for f in dict.fromkeys(summary["family"]) if f != "all"]
     pooled = summary[summary["family"] == "all"]
-    cbf = summary[summary["method"].str.endswith("+cbf") & (summary["family"] == "crossing_fast")]
+    cbf_stacks = summary[summary["method"].str.endswith("+cbf")]
+    cbf = cbf_stacks[cbf_stacks["family"] == "crossing_fast"]
     robust = summary[(summary["arm"] == ROBUST[0][0]) & (summary["family"] != "all")]
     by_family = robust.groupby("family", sort=False)
     clear = by_family["min_clearance"].min()
-    facts = {
+
+    def count(verdicts: pd.Series) -> dict[str, int]:
+        return {v: int((verdicts == v).sum()) for v in MARK}
+
+    def per_arm(arm: str) -> dict:
+        rows = pooled[pooled["arm"] == arm]
+        by_method = rows.groupby("method", sort=False)
+        mean = by_method["success"].mean()
+        better = {m: int((v == "better").sum()) for m, v in by_method["verdict"]}
+        out = {"selections": len(rows), "verdicts": count(rows["verdict"]),
+               "verdicts_all": count(summary.loc[summary["arm"] == arm, "verdict"]),
+               "verdict": {m: {str(r.seed): r.verdict for r in g.itertuples() if isinstance(r.verdict, str)}
+                           for m, g in by_method},
+               "better": better, "better_min": min(better.values()),
+               "worse": {m: int((v == "worse").sum()) for m, v in by_method["verdict"]},
+               **{x: {"selection_min": float(rows[x].min()), "selection_max": float(rows[x].max())}
+                  for x in ("success", "final_distance", "collision")}}
+        out["success"] |= {"method_mean": {m: float(v) for m, v in mean.items()},
+                           "method_mean_min": float(mean.min()), "method_mean_max": float(mean.max())}
+        return out
+
+    def checked(families: dict) -> dict:
+        inside = [v["inside_min_clearance"] for v in families.values() if v["inside_min_clearance"] is not None]
+        return families | {"total": {k: sum(v[k] for v in families.values())
+                                     for k in ("episodes", "negative", "negative_outside")}
+                           | {"inside_min_clearance": min(inside)}}
+
+    return {
         "crossing_fast_cbf_observer_success_min": float(cbf[cbf["arm"] == "wind + observer"]["success"].min()),
         "crossing_fast_cbf_wind_success_max": float(cbf[cbf["arm"] == "wind"]["success"].max()),
         "crossing_fast_cbf_tuned_in_wind": [float(cbf[cbf["arm"] == "wind, tuned in wind"]["success"].min()),
@@ -240,32 +279,56 @@ def write(summary: pd.DataFrame, tuned: pd.DataFrame, held: dict, out) -> dict:
         "braking": held,
         "verdicts": {k: int(v) for k, v in summary["verdict"].value_counts().items()},
         "verdicts_pooled": {k: int(v) for k, v in pooled["verdict"].value_counts().items()},
+        "setting": {"wind_speed": GUSTY["wind_speed"], "gust_sigma": GUSTY["gust_sigma"], "margin": MARGIN,
+                    "fields_per_family": int(summary.loc[summary["family"] != "all", "n"].iloc[0]),
+                    "seeds": int(summary["seed"].nunique()), "methods": int(summary["method"].nunique()),
+                    "cbf_stacks": int(cbf_stacks["method"].nunique()),
+                    "cbf_margin": {KEYS[name]: world["cbf_margin"] for name, _, world, _ in ROBUST},
+                    "goal_tolerance": SimConfig().episode.r_goal},
+        "comparisons": {"all": int(summary["verdict"].notna().sum()), "pooled": int(pooled["verdict"].notna().sum())},
+        "verdict_counts": {"all": count(summary["verdict"]), "pooled": count(pooled["verdict"])},
+        "arm": {KEYS[arm]: per_arm(arm) for arm in arms},
+        "crossing_fast_cbf": {KEYS[arm]: {"min": float(g["success"].min()), "max": float(g["success"].max())}
+                              for arm, g in cbf.groupby("arm", sort=False)},
+        "cbf": {KEYS[arm]: {f: {"min_clearance": float(x["min_clearance"].min()),
+                                "collision_max": float(x["collision"].max()),
+                                "infeasible_steps": int(x["infeasible_steps"].sum())}
+                            for f, x in g[g["family"] != "all"].groupby("family", sort=False)}
+                for arm, g in cbf_stacks.groupby("arm", sort=False)},
+        "guarantee": {KEYS[arm]: checked(families) for arm, families in held.items()},
     }
+
+
+def write(summary: pd.DataFrame, tuned: pd.DataFrame, held: dict, out) -> dict:
+    arms = list(dict.fromkeys(summary["arm"]))
+    families = [f for f in dict.fromkeys(summary["family"]) if f != "all"]
+    found = facts(summary, tuned, held)
+    clear = pd.Series(found["robust_steady_min_clearance"])
     kept = [f for f, v in clear.items() if v >= 0]
     lost = [f for f, v in clear.items() if v < 0]
     lines = [f"# Study 13: offset-free tracking and the robust CBF in wind ({FIELDS} held-out fields per family)", "",
              "`python analysis/offset_free.py` (" + __doc__.splitlines()[0].split(": ", 1)[1] + ")", "",
              "## Findings", "",
              f"- On `crossing_fast` the CBF stacks with the observer succeed on "
-             f"{100 * facts['crossing_fast_cbf_observer_success_min']:.1f} % of the fields or more (every selection "
-             f"of both), against at most {100 * facts['crossing_fast_cbf_wind_success_max']:.1f} % without an "
+             f"{100 * found['crossing_fast_cbf_observer_success_min']:.1f} % of the fields or more (every selection "
+             f"of both), against at most {100 * found['crossing_fast_cbf_wind_success_max']:.1f} % without an "
              "estimator in the same wind, calm-air selections both. Each at its tuned best in the wind the gap "
-             f"narrows: without an estimator {100 * facts['crossing_fast_cbf_tuned_in_wind'][0]:.1f}–"
-             f"{100 * facts['crossing_fast_cbf_tuned_in_wind'][1]:.1f} %, with the observer "
-             f"{100 * facts['crossing_fast_cbf_tuned_with_observer'][0]:.1f}–"
-             f"{100 * facts['crossing_fast_cbf_tuned_with_observer'][1]:.1f} % (the six selections of the two "
+             f"narrows: without an estimator {100 * found['crossing_fast_cbf_tuned_in_wind'][0]:.1f}–"
+             f"{100 * found['crossing_fast_cbf_tuned_in_wind'][1]:.1f} %, with the observer "
+             f"{100 * found['crossing_fast_cbf_tuned_with_observer'][0]:.1f}–"
+             f"{100 * found['crossing_fast_cbf_tuned_with_observer'][1]:.1f} % (the six selections of the two "
              "stacks): a selection tuned in the wind pulls harder toward the goal, which shrinks the offset "
-             f"(median η·k_att over every method's selections: {facts['pull_median']['calm']:.2f} tuned in calm air, "
-             f"{facts['pull_median']['wind']:.2f} in the wind, {facts['pull_median']['wind + observer']:.2f} in the "
+             f"(median η·k_att over every method's selections: {found['pull_median']['calm']:.2f} tuned in calm air, "
+             f"{found['pull_median']['wind']:.2f} in the wind, {found['pull_median']['wind + observer']:.2f} in the "
              "wind with the observer).",
              "- The robust CBF told the steady push (δ = 1.8 m/s², no estimator) keeps every episode clear on "
              + (", ".join(f"`{f}`" for f in kept) or "no family") + "; not on "
              + (", ".join(f"`{f}` (smallest clearance {clear[f]:.2f} m, "
-                          f"{facts['robust_steady_infeasible'][f]} infeasible steps)" for f in lost) or "none")
+                          f"{found['robust_steady_infeasible'][f]} infeasible steps)" for f in lost) or "none")
              + ": where the box cannot both absorb the push and brake for a moving obstacle the condition cannot "
              "hold, and its guarantee with it. The plain CBF in calm air does not keep these families clear "
              "either (smallest clearance "
-             + ", ".join(f"`{f}` {facts['calm_cbf_min_clearance'][f]:.3f} m" for f in lost)
+             + ", ".join(f"`{f}` {found['calm_cbf_min_clearance'][f]:.3f} m" for f in lost)
              + "): the limit is the filter's, met before any wind.",
              *(f"- The braking CBF ({arm}, α and κ at their declared defaults): clearance >= 0 on every episode "
                "inside its guarantee, i.e. started in its safe set with every step feasible (smallest "
@@ -282,14 +345,14 @@ def write(summary: pd.DataFrame, tuned: pd.DataFrame, held: dict, out) -> dict:
                + "; with an infeasible step (obstacles closing from two sides, or the first): "
                + ", ".join(f"`{f}` {v['infeasible']}" for f, v in held[arm].items()) + "." for arm in BRAKING),
              "- Pooled success, mean over the three selections, lowest to highest method: "
-             + "; ".join(f"{arm} {min(v):.1f}–{max(v):.1f} %" for arm, v in facts["pooled_success_by_arm"].items())
+             + "; ".join(f"{arm} {min(v):.1f}–{max(v):.1f} %" for arm, v in found["pooled_success_by_arm"].items())
              + ". Pooled verdicts against the calm-air selections in the wind without an estimator: "
              + "; ".join(f"{arm}: " + ", ".join(f"{k} {n}" for k, n in v.items())
-                         for arm, v in facts["pooled_verdicts_by_arm"].items()) + ".",
-             f"- Verdicts over all {sum(facts['verdicts'].values())} comparisons of the study (Holm; pooled and per "
-             "family): " + ", ".join(f"{k} {v}" for k, v in facts["verdicts"].items()) + "; of the "
-             f"{sum(facts['verdicts_pooled'].values())} pooled ones: "
-             + ", ".join(f"{k} {v}" for k, v in facts["verdicts_pooled"].items()) + ".", "",
+                         for arm, v in found["pooled_verdicts_by_arm"].items()) + ".",
+             f"- Verdicts over all {sum(found['verdicts'].values())} comparisons of the study (Holm; pooled and per "
+             "family): " + ", ".join(f"{k} {v}" for k, v in found["verdicts"].items()) + "; of the "
+             f"{sum(found['verdicts_pooled'].values())} pooled ones: "
+             + ", ".join(f"{k} {v}" for k, v in found["verdicts_pooled"].items()) + ".", "",
              "Protocol: " + " ".join(__doc__.split("\n\n")[1].split()), "",
              "## Success [%], all families pooled, per selection (seeds 1 / 2 / 3), and the verdicts against the "
              "same selection in the gusty wind without an estimator (↑ better, ↓ worse, = equivalent, · "
@@ -306,11 +369,18 @@ def write(summary: pd.DataFrame, tuned: pd.DataFrame, held: dict, out) -> dict:
         lines.append(f"| {r['method'].iloc[0]} | {r['arm'].iloc[0]} | {r['family'].iloc[0]} | {cell(r, 'collision')} | "
                      f"{cell(r, 'min_clearance', 1.0, 2)} | {cell(r, 'final_distance', 1.0, 2)} | "
                      f"{' / '.join(str(int(v)) for v in r.sort_values('seed')['infeasible_steps'])} |")
-    return study.write_results(out, lines, facts)
+    (out / "README.md").write_text("\n".join(lines) + "\n")
+    study.write_facts(out, found)
+    return found
 
 
 def main() -> None:
     args, out = study.begin(__doc__, STUDY)
+    if args.facts_only:  # the guarantee check ("braking") needs the episodes: kept from the committed facts
+        kept = json.loads((out / "facts.json").read_text())
+        study.write_facts(out, kept | facts(pd.read_csv(out / "summary.csv"), pd.read_csv(out / "selection_wind.csv"),
+                                            kept["braking"]))
+        return
     from jaxapf.compare.spec import load_compare_spec
 
     spec, _ = load_compare_spec(robustness.SPEC)

@@ -110,16 +110,56 @@ def single_runs(out) -> list[str]:
     return [single_runs_text(metrics)]
 
 
+#: The paired comparisons the findings cite, per scenario (``paper_static`` has no arrivals to time).
+COMPARED = {"paper_static": ("success", "stalled", "collision", "min_clearance"),
+            "paper_dynamic": ("success", "stalled", "collision", "min_clearance", "time_to_goal", "control_effort",
+                              "jerk_rms")}
+
+
+def facts(n: study.Numbers, out) -> dict:
+    """The named values the findings state, for the docs to bind to: per scenario and method the rates and IQMs
+    of the table, each weighted method's paired difference to ``basic`` (rates as fractions; its interval,
+    pairs and the report's verdict) and the single runs of ``single_runs.json``."""
+    methods = ("basic", DIR["method"], DV["method"])
+    c = n.comparisons
+    single = json.loads((out / "single_runs.json").read_text())
+    deltas = {(f, m): {k: n.delta({"method": m}, f, k) for k in COMPARED[f]} for f in COMPARED for m in methods[1:]}
+
+    def compared(value) -> dict:
+        return {f: {m: {k: value(d) for k, d in deltas[f, m].items()} for m in methods[1:]} for f in COMPARED}
+
+    def run(m: dict) -> dict:
+        outcome = next((o for o in ("success", "collision", "stalled") if m[o]), "none")
+        shown = ("min_clearance", "time_near", "jerk_rms", "time_to_goal" if m["success"] else "final_distance")
+        return {"outcome": outcome} | {k: float(m[k]) for k in shown}
+
+    return {"fields": {f: int(n.row({"method": "basic"}, f)["n"]) for f in COMPARED},
+            **{rate: {f: {m: n.rate_value({"method": m}, f, rate) for m in methods} for f in COMPARED}
+               for rate in ("success", "stalled", "collision")},
+            "min_clearance_iqm": {f: {m: float(n.row({"method": m}, f)["min_clearance_iqm"]) for m in methods}
+                                  for f in COMPARED},
+            "jerk_rms_iqm": {m: float(n.row({"method": m}, "paper_dynamic")["jerk_rms_iqm"]) for m in methods},
+            "delta": compared(lambda d: d.delta), "delta_lo": compared(lambda d: d.lo),
+            "delta_hi": compared(lambda d: d.hi), "verdict": compared(lambda d: d.verdict),
+            "pairs": compared(lambda d: d.n_pairs),
+            "margin": {k: float(c.loc[c["metric"] == k, "margin"].iloc[0]) for k in COMPARED["paper_dynamic"]},
+            "single": {f: {m: run(single[f][m]) for m in ("basic", DV["method"])} for f in COMPARED}}
+
+
 def main() -> None:
-    study.run_study(__doc__, name=STUDY, spec="paper-comparison",
-                    title="Study 1 — the paper's figures and its two scenarios, with statistics",
-                    findings=statistics_text, before=single_runs,
-                    figures=[("paper_static/trajectories.png", "Scenario 1 (paper_static, field 0): top view"),
-                             ("paper_dynamic/trajectories.png", "Scenario 2 (paper_dynamic, field 0): top view"),
-                             ("paper_dynamic/obstacle_distance.png", "Scenario 2: distance to the obstacles"),
-                             ("report/figures/rates.png", "Success, collision and stall rates, 512 jittered fields"),
-                             ("report/figures/ecdf_min_clearance.png", "Minimum clearance, ECDF per method")],
-                    where=("family=paper_static,paper_dynamic",), heatmap=None, gallery=2)
+    args, out = study.begin(__doc__, STUDY)
+    if not args.facts_only:  # run_study parses the same flags again
+        study.run_study(__doc__, name=STUDY, spec="paper-comparison",
+                        title="Study 1 — the paper's figures and its two scenarios, with statistics",
+                        findings=statistics_text, before=single_runs,
+                        figures=[("paper_static/trajectories.png", "Scenario 1 (paper_static, field 0): top view"),
+                                 ("paper_dynamic/trajectories.png", "Scenario 2 (paper_dynamic, field 0): top view"),
+                                 ("paper_dynamic/obstacle_distance.png", "Scenario 2: distance to the obstacles"),
+                                 ("report/figures/rates.png",
+                                  "Success, collision and stall rates, 512 jittered fields"),
+                                 ("report/figures/ecdf_min_clearance.png", "Minimum clearance, ECDF per method")],
+                        where=("family=paper_static,paper_dynamic",), heatmap=None, gallery=2)
+    study.write_facts(out, facts(study.Numbers(study.committed_report(out)), out))
 
 
 if __name__ == "__main__":

@@ -23,6 +23,7 @@ import pandas as pd
 import study
 
 STUDY = "planner_benchmark"
+SPEC = "planner-benchmark.toml"
 PAPER = "direction_velocity"
 RATES = ("success", "collision", "stalled")
 SEEDS = ("seed1", "seed2", "seed3")
@@ -197,15 +198,65 @@ def trajectory_figures(spec, runs, out) -> list[tuple[str, str]]:
     return figures
 
 
+def facts(spec, summary: pd.DataFrame, vs_basic: pd.DataFrame, vs_paper: pd.DataFrame) -> dict:
+    """The named values the findings and the leaderboard state: per group (family, trap kind, ``all``) and
+    method the rates at the defaults (``default``) and the tuned rates' mean over the seeds, pooled the seeds'
+    median clearance and time to goal (mean, lowest, highest), and the verdicts against ``basic`` and the
+    paper's ``direction_velocity``: per selection pooled (``verdict``), per group at the defaults
+    (``default_verdict``: with the same planner gains, ``basic+cbf`` against ``basic`` is the filter alone) and
+    the one verdict all three seeds give (``all_seeds``; ``mixed`` where they differ)."""
+    groups = list(dict.fromkeys(summary["family"]))
+    out: dict = {"methods": len(spec.methods), "seeds": len(SEEDS), "budget": spec.selection.budget,
+                 "fields_per_family": spec.test.fields, "default": {}, "verdict": {}, "default_verdict": {},
+                 "all_seeds": {}}
+    for rate in RATES:
+        out[rate] = {g: {m: float(np.mean(_tuned(summary, spec, m, g, f"{rate}_rate"))) for m in spec.methods}
+                     for g in groups}
+        out["default"][rate] = {g: {m: float(_rows(summary, spec, m, g).at["default", f"{rate}_rate"])
+                                    for m in spec.methods} for g in groups}
+    for name, column in (("clearance", "min_clearance_median"), ("time_to_goal", "time_to_goal_median")):
+        for m in spec.methods:
+            values = _tuned(summary, spec, m, "all", column)
+            out.setdefault(name, {})[m] = {"mean": float(np.mean(values)), "min": min(values), "max": max(values)}
+    out["methods_stopped"] = {g: sum(out["success"][g][m] == 0 for m in spec.methods) for g in groups}
+    for vs, base, table in (("basic", spec.baseline, vs_basic), ("paper", PAPER, vs_paper)):
+        for metric in ("success", "collision", "min_clearance", "time_to_goal"):
+            c = table[table["metric"] == metric].set_index(["family", "setting"])["verdict"]
+            for g in groups:
+                for m in spec.methods:
+                    if m == base:
+                        continue
+                    rows = _rows(summary, spec, m, g)
+                    marks = {s: c[(g, int(rows.at[s, "setting"]))] for s in ("default", *SEEDS)}
+                    if g == "all":
+                        out["verdict"].setdefault(vs, {}).setdefault(metric, {})[m] = marks
+                    out["default_verdict"].setdefault(vs, {}).setdefault(metric, {}).setdefault(g, {})[m] = (
+                        marks["default"])
+                    tuned = {marks[s] for s in SEEDS}
+                    out["all_seeds"].setdefault(vs, {}).setdefault(metric, {}).setdefault(g, {})[m] = (
+                        tuned.pop() if len(tuned) == 1 else "mixed")
+    return out
+
+
 def main() -> None:
     from jaxapf.compare.protocol import baseline_filter
 
-    args, out, spec, runs = study.run_compare_study(__doc__, STUDY, "planner-benchmark.toml")
+    args, out = study.begin(__doc__, STUDY)
+    if args.facts_only:
+        from jaxapf.compare.spec import load_compare_spec
+
+        spec = load_compare_spec(study.ROOT / "sweeps" / SPEC)[0]
+        report = study.committed_report(out)
+        vs_paper = pd.read_csv(out / "report_vs_paper" / "comparisons.csv")
+        study.write_facts(out, facts(spec, report.summary, report.comparisons, vs_paper))
+        return
+    args, out, spec, runs = study.run_compare_study(__doc__, STUDY, SPEC)
     paper = dataclasses.replace(spec, baseline=PAPER)
     vs_paper = study.report(runs / "test.parquet", out, resamples=args.resamples, folder="report_vs_paper",
                             baseline=baseline_filter(paper), pair_on=("selection",), heatmap=None).comparisons
     summary = pd.read_csv(out / "report" / "summary.csv")
     vs_basic = pd.read_csv(out / "report" / "comparisons.csv")
+    study.write_facts(out, facts(spec, summary, vs_basic, vs_paper))
     sections = ["Budgets, selected gains and every verdict against `basic` seed by seed: [`compare.md`](compare.md); "
                 "the full reports: [`report/report.md`](report/report.md) (against `basic`) and "
                 "[`report_vs_paper/report.md`](report_vs_paper/report.md) (against `direction_velocity`).",

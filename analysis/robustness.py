@@ -357,11 +357,62 @@ def write_readme(summary: pd.DataFrame, df: pd.DataFrame, out: pathlib.Path, cou
     (out / "README.md").write_text("\n".join(text) + "\n")
 
 
+def facts(summary: pd.DataFrame, families: int) -> dict:
+    """The named values the findings state, per imperfection at its strongest level (``wind``, ``latency``, ...):
+    its gains, the change in success and collisions against the ideal world per method (mean over the
+    selections) with their range and the most and least affected method, the per-selection range of the change,
+    the verdict counts (all and per method) and each method's success there (mean, lowest, highest); for the
+    wind also every selection's success, median final distance and η·k_att, their rank correlations, and the
+    final distances in calm air and in the wind (per selection and as per-method means)."""
+    from jaxapf.config import SimConfig
+
+    ideal = summary[summary["axis"] == "ideal"]
+    calm = ideal.groupby("method", sort=False)[["success", "collision", "final_distance"]].mean()
+    out = {"methods": len(calm), "seeds": len(seeds()), "fields": int(summary["n"].iloc[0]),
+           "goal_tolerance": SimConfig().episode.r_goal,
+           "fields_per_family": int(summary["n"].iloc[0]) // families,
+           "comparisons": int((summary["axis"] != "ideal").sum()), "ideal": calm["success"].to_dict()}
+    for axis, level in STRONGEST:
+        at = summary[(summary["axis"] == axis) & (summary["level"] == level)]
+        mean = at.groupby("method", sort=False)[["success", "collision", "final_distance"]].mean()
+        change, collide = mean["success"] - calm["success"], mean["collision"] - calm["collision"]
+        spread = over_seeds(at, "success")
+        out[axis.replace(" ", "_")] = {
+            "gains": next(w[3] for w in WORLDS if w[:2] == (axis, level)), "selections": len(at),
+            "change": change.to_dict(), "change_min": change.min(), "change_max": change.max(),
+            "most": change.idxmin(), "least": change.idxmax(),
+            "selection_change": {"min": at["success_change"].min(), "max": at["success_change"].max()},
+            "collision_change": {"min": collide.min(), "max": collide.max()},
+            "verdicts": counts(summary, axis, level),
+            "worse": {m: int((g["verdict"] == "worse").sum()) for m, g in at.groupby("method", sort=False)},
+            "success": {m: {"mean": r["mean"], "min": r["min"], "max": r["max"]}
+                        for (m, _, _), r in spread.iterrows()}}
+    wind = out["wind"]
+    at = summary[(summary["axis"] == "wind") & (summary["level"] == STRONGEST[AXES.index("wind")][1])]
+    flow = pd.Series([flow_gain(m, s) for m, s in zip(at["method"], at["seed"])], index=at.index)
+    wind["selection"] = {m: {str(r.seed): {"success": r.success, "change": r.success_change, "flow_gain": flow[i],
+                                           "final_distance": r.final_distance} for i, r in g.iterrows()}
+                         for m, g in at.groupby("method", sort=False)}
+    wind["flow_gain"] = {m: {"min": g.min(), "max": g.max()} for m, g in flow.groupby(at["method"], sort=False)}
+    wind["rank_correlation"] = {name: float(np.corrcoef(flow.rank(), at[column].rank())[0, 1])
+                                for name, column in (("flow_change", "success_change"),
+                                                     ("flow_final_distance", "final_distance"))}
+    wind["final_distance"] = {world: {"selection_min": t["final_distance"].min(),
+                                      "selection_max": t["final_distance"].max(),
+                                      "method_mean_min": t.groupby("method")["final_distance"].mean().min(),
+                                      "method_mean_max": t.groupby("method")["final_distance"].mean().max()}
+                              for world, t in (("calm", ideal), ("wind", at))}
+    return out
+
+
 def main() -> None:
     args, out = study.begin(__doc__, STUDY)
     from jaxapf.compare.spec import load_compare_spec
 
     spec, _ = load_compare_spec(SPEC)
+    if args.facts_only:
+        study.write_facts(out, facts(pd.read_csv(out / "summary.csv"), len(spec.test.families)))
+        return
     count = args.fields or FIELDS
     data = study.ROOT / "runs" / f"robustness-s{len(seeds())}-f{count}.parquet"  # git-ignored; a rerun only redraws
     if data.exists():
@@ -372,6 +423,7 @@ def main() -> None:
         df.to_parquet(data, index=False)
     summary = summarise(df, args.resamples)
     summary.to_csv(out / "summary.csv", index=False)
+    study.write_facts(out, facts(summary, len(spec.test.families)))
     figure(summary, out / "robustness.png")
     write_readme(summary, df, out, count)
     print("\n".join(findings(summary)))

@@ -64,14 +64,46 @@ def findings(n: study.Numbers) -> str:
     return "\n".join(lines)
 
 
+def facts(n: study.Numbers) -> dict:
+    """The named values the findings state, for the docs to bind to: per family (and pooled, ``all``) and method
+    the success and collision rates of each convention, the paired difference ``literal`` − ``intent`` (rates
+    as fractions; interval and the report's verdict), and how many families and kinds each verdict covers."""
+    groups = (*n.families(), "all")
+    metrics = ("success", "collision", "min_clearance")
+    deltas = {(g, m, k): n.delta({"method": m, "convention": "literal"}, g, k)
+              for g in groups for m in METHODS for k in metrics}
+
+    def compared(value) -> dict:
+        return {g: {m: {k: value(deltas[g, m, k]) for k in metrics} for m in METHODS} for g in groups}
+
+    def families(of: tuple[str, ...], verdict: str) -> dict:
+        return {m: sum(any(deltas[g, m, k].verdict == verdict for k in of) for g in groups[:-1])
+                for m in METHODS}
+
+    return {"fields": {g: int(n.row({"method": METHODS[0], "convention": "intent"}, g)["n"]) for g in groups},
+            **{k: {g: {m: {c: n.rate_value({"method": m, "convention": c}, g, k) for c in ("intent", "literal")}
+                       for m in METHODS} for g in groups} for k in ("success", "collision")},
+            "delta": compared(lambda d: d.delta), "delta_lo": compared(lambda d: d.lo),
+            "delta_hi": compared(lambda d: d.hi), "verdict": compared(lambda d: d.verdict),
+            "margin": {k: float(n.comparisons.loc[n.comparisons["metric"] == k, "margin"].iloc[0]) for k in metrics},
+            "groups": len(groups) - 1,
+            "groups_better": families(("success", "collision"), "better"),
+            "groups_worse": families(("success", "collision"), "worse"),
+            "groups_wider": families(("min_clearance",), "better"),
+            "groups_narrower": families(("min_clearance",), "worse")}
+
+
 def main() -> None:
-    study.run_study(__doc__, name=STUDY, spec="convention",
-                    title="Study 4 — sign convention: the paper's prose (intent) vs its formulas (literal)",
-                    findings=findings,
-                    figures=[study.RATES_FIGURE,
-                             ("report/figures/differences.png",
-                              "Paired differences literal − intent (filled: Holm-significant)")],
-                    baseline="convention=intent", heatmap=None, gallery=2)
+    args, out = study.begin(__doc__, STUDY)
+    if not args.facts_only:  # run_study parses the same flags again
+        study.run_study(__doc__, name=STUDY, spec="convention",
+                        title="Study 4 — sign convention: the paper's prose (intent) vs its formulas (literal)",
+                        findings=findings,
+                        figures=[study.RATES_FIGURE,
+                                 ("report/figures/differences.png",
+                                  "Paired differences literal − intent (filled: Holm-significant)")],
+                        baseline="convention=intent", heatmap=None, gallery=2)
+    study.write_facts(out, facts(study.Numbers(study.committed_report(out))))
 
 
 if __name__ == "__main__":

@@ -17,6 +17,7 @@ import pandas as pd
 import study
 
 STUDY = "tuned_comparison"
+SPEC = "tuned-comparison.toml"
 METRICS = ("success", "collision", "stalled")
 
 
@@ -92,10 +93,55 @@ def findings(spec, summary: pd.DataFrame, comparisons: pd.DataFrame) -> str:
     return "\n".join(lines)
 
 
+def facts(spec, summary: pd.DataFrame, comparisons: pd.DataFrame) -> dict:
+    """The named values the findings state: per rate and method the pooled held-out rate at the defaults and
+    at each seed's selection (mean, lowest, highest), the seeds' largest spread, every verdict against
+    ``basic`` per group, method, rate and selection, and how often the three seeds agree on one."""
+    methods = [m for m in spec.methods if m != spec.baseline]
+    seeds = [f"seed{s}" for s in spec.selection.seeds]
+    groups = [g for g in dict.fromkeys(summary["family"]) if "/" not in g]
+    rates: dict = {}
+    for metric in METRICS:
+        for m in spec.methods:
+            default, per_seed = _tuned(summary, "all", m, metric)
+            rates.setdefault(metric, {})[m] = {"default": default, "mean": float(np.mean(per_seed)),
+                                               "min": min(per_seed), "max": max(per_seed), **dict(zip(seeds, per_seed))}
+    spread = {m: r["max"] - r["min"] for m, r in rates["success"].items()}
+    label = summary.groupby("setting")[["method", "selection"]].first()
+    verdict: dict = {}
+    for c in comparisons[comparisons["metric"].isin(METRICS) & comparisons["family"].isin(groups)].itertuples():
+        m, selection = label.at[c.setting, "method"], label.at[c.setting, "selection"]
+        verdict.setdefault(c.family, {}).setdefault(m, {}).setdefault(c.metric, {})[selection] = c.verdict
+    tuned = {(g, m, metric): {verdict[g][m][metric][s] for s in seeds}
+             for g in groups for m in methods for metric in METRICS}
+    agree = {key: next(iter(v)) if len(v) == 1 else "mixed" for key, v in tuned.items()}
+    seeds_agree: dict = {}
+    for (g, m, metric), v in agree.items():
+        seeds_agree.setdefault(g, {}).setdefault(m, {})[metric] = v
+    cells = list(agree.values())
+    return {"methods": len(spec.methods), "seeds": len(seeds), "groups": len(groups),
+            "budget": spec.selection.budget, "fields_per_family": spec.test.fields, **rates,
+            "tuning_change": {m: {k: r[k] - r["default"] for k in ("mean", "min", "max")}
+                              for m, r in rates["success"].items()},
+            "spread": {"max": max(spread.values()), "method": max(spread, key=spread.get), **spread},
+            "verdict": verdict, "all_seeds": seeds_agree,
+            "all_seeds_count": {"cells": len(cells), "flips": sum({"better", "worse"} <= v for v in tuned.values()),
+                                **{v: cells.count(v) for v in ("better", "worse", "equivalent", "inconclusive")}}}
+
+
 def main() -> None:
-    args, out, spec, runs = study.run_compare_study(__doc__, STUDY, "tuned-comparison.toml")
+    args, out = study.begin(__doc__, STUDY)
+    if args.facts_only:
+        from jaxapf.compare.spec import load_compare_spec
+
+        report = study.committed_report(out)
+        study.write_facts(out, facts(load_compare_spec(study.ROOT / "sweeps" / SPEC)[0], report.summary,
+                                     report.comparisons))
+        return
+    args, out, spec, runs = study.run_compare_study(__doc__, STUDY, SPEC)
     summary = pd.read_csv(out / "report" / "summary.csv")
     comparisons = pd.read_csv(out / "report" / "comparisons.csv")
+    study.write_facts(out, facts(spec, summary, comparisons))
     sections = ["Budgets, selected gains, the test rates of every selection and every verdict seed by seed: "
                 "[`compare.md`](compare.md); the full report of the test: [`report/report.md`](report/report.md).",
                 findings(spec, summary, comparisons)]

@@ -231,14 +231,41 @@ def summarise(episodes: pd.DataFrame, cost: pd.DataFrame) -> pd.DataFrame:
 MARK = {"better": "↑", "worse": "↓", "equivalent": "=", "inconclusive": "·"}
 
 
-def write(table: pd.DataFrame, cost: pd.DataFrame, selection: pd.DataFrame, steps: dict[int, dict[str, float]],
-          episodes: pd.DataFrame, out) -> dict:
+def means(table: pd.DataFrame) -> pd.DataFrame:
+    """Per (dimension, tuner): success, episodes, seconds and points over the defaults, pooled over the
+    held-out kinds and averaged over mixes and seeds."""
     pooled = table[table["held_out"] == "all"]
-    mean = pooled.groupby(["dim", "tuner"], sort=False)[["success", "episodes", "seconds", "points_over_default"]
+    return pooled.groupby(["dim", "tuner"], sort=False)[["success", "episodes", "seconds", "points_over_default"]
                                                         ].mean().reset_index()
-    tuners = list(dict.fromkeys(pooled["tuner"]))
+
+
+def family_success(episodes: pd.DataFrame) -> pd.Series:
+    """Held-out success [%] per (dimension, tuner, family) at equal episodes, mean over mixes and seeds."""
+    equal = episodes[~episodes["setting"].str.endswith(" @ time")]
+    return (100 * equal.groupby(["dim", "setting", "family"])["success"].mean()).round(1)
+
+
+def committed_family_success(out) -> pd.Series:
+    """:func:`family_success` as the committed ``README.md`` states it (its per-family table): the test
+    episodes behind it are git-ignored, so ``--facts-only`` reads it there."""
+    section = (out / "README.md").read_text().split("## Per family")[1].split("\n## ")[0]
+    rows = [[c.strip() for c in line.strip().strip("|").split("|")] for line in section.splitlines()
+            if line.startswith("| ") and line[2].isdigit()]
+    return pd.Series({(int(r[0]), r[1], f): float(v) for r in rows for f, v in zip(FAMILIES, r[2:])})
+
+
+def facts(table: pd.DataFrame, cost: pd.DataFrame, selection: pd.DataFrame, family: pd.Series) -> dict:
+    """The named values the findings state, from the committed tables (``summary.csv``, ``costs.csv``,
+    ``selection.csv``) and the per-family success: means per gain space and tuner, the best black-box tuner,
+    every verdict against the gradient tuner (per run and held-out kind) and their counts, costs, the step
+    sizes tried and chosen."""
+    from jaxapf.tune.spec import TrainSpec
+
+    mean = means(table)
+    pooled = table[table["held_out"] == "all"]
     counts = {f"d{d}/{t}": {k: int(v) for k, v in g["verdict"].value_counts().items()}
               for (d, t), g in pooled[pooled["tuner"] != "gradient"].groupby(["dim", "tuner"], sort=False)}
+
     def best_of(dim: int, timed: bool) -> tuple[str, float]:
         rows = mean[(mean["dim"] == dim) & (mean["tuner"] != "gradient")
                     & (mean["tuner"].str.endswith(" @ time") == timed)]
@@ -246,44 +273,88 @@ def write(table: pd.DataFrame, cost: pd.DataFrame, selection: pd.DataFrame, step
 
     best = {dim: best_of(dim, False) for dim in SPACES}
     best_time = {dim: best_of(dim, True) for dim in SPACES}
-    facts = {"success_mean": {f"d{r.dim}/{r.tuner}": round(100 * r.success, 1) for r in mean.itertuples()},
-             "best_black_box": {f"d{d}": t for d, (t, _) in best.items()},
-             "best_black_box_at_equal_time": {f"d{d}": t for d, (t, _) in best_time.items()},
-             "seconds_mean": {f"d{r.dim}/{r.tuner}": round(r.seconds, 1) for r in mean.itertuples()},
-             "episodes": {f"d{r.dim}/{r.tuner}": int(round(r.episodes)) for r in mean.itertuples()},
-             "pooled_verdicts_vs_gradient": counts,
-             "gradient_still_improving": int(cost["still_improving"].sum()),
-             "chosen_steps": {f"d{d}": v for d, v in steps.items()},
-             "selection_success": {f"d{r.dim}/{r.tuner}/{r.step:g}": round(100 * r.success, 1)
-                                   for r in selection.groupby(["dim", "tuner", "step"], as_index=False)["success"]
-                                   .mean().itertuples()},
-             "runs": int((cost["tuner"] == "gradient").sum()),
-             "verdicts": {k: int(v) for k, v in table["verdict"].value_counts().items()},
-             "comparisons": int(table["verdict"].notna().sum())}
+    gradient = mean[mean["tuner"] == "gradient"].set_index("dim")["success"]
+    per_point = {f"d{r.dim}/{r.tuner}": r.seconds / r.points_over_default for r in mean.itertuples()
+                 if r.points_over_default > 0}
+    black_box = [v for k, v in per_point.items() if not k.endswith("/gradient") and not k.endswith(" @ time")]
+    compared = table[table["verdict"].notna()]
+    by_step = selection.groupby(["dim", "tuner", "step"], as_index=False)["success"].mean()
+    split = table[table["held_out"] != "all"].groupby(["dim", "tuner", "held_out"], sort=False)["success"].mean()
+    return {"success_mean": {f"d{r.dim}/{r.tuner}": round(100 * r.success, 1) for r in mean.itertuples()},
+            "best_black_box": {f"d{d}": t for d, (t, _) in best.items()},
+            "best_black_box_at_equal_time": {f"d{d}": t for d, (t, _) in best_time.items()},
+            "best_black_box_lead": {f"d{d}": 100 * (s - gradient[d]) for d, (_, s) in best.items()},
+            "best_black_box_lead_at_equal_time": {f"d{d}": 100 * (s - gradient[d]) for d, (_, s) in best_time.items()},
+            "seconds_mean": {f"d{r.dim}/{r.tuner}": round(r.seconds, 1) for r in mean.itertuples()},
+            "seconds_per_point": per_point,
+            "seconds_per_point_range": {"gradient": {"min": min(per_point[f"d{d}/gradient"] for d in SPACES),
+                                                     "max": max(per_point[f"d{d}/gradient"] for d in SPACES)},
+                                        "black_box": {"min": min(black_box), "max": max(black_box)}},
+            "episodes": {f"d{r.dim}/{r.tuner}": int(round(r.episodes)) for r in mean.itertuples()},
+            "episodes_range": {t: {"min": int(g.min()), "max": int(g.max())}
+                               for t, g in cost.groupby("tuner", sort=False)["episodes"]},
+            "pooled_verdicts_vs_gradient": counts,
+            "verdict": {f"d{d}": {t: {m: {f"s{s}": dict(zip(h["held_out"], h["verdict"]))
+                                          for s, h in g.groupby("seed")} for m, g in gt.groupby("mix", sort=False)}
+                                  for t, gt in gd.groupby("tuner", sort=False)}
+                        for d, gd in compared.groupby("dim")},
+            "verdicts_by_space": {f"d{d}": {k: int(v) for k, v in g["verdict"].value_counts().items()}
+                                  for d, g in compared.groupby("dim")},
+            "held_out_success": {f"d{d}/{t}": {h: 100 * split[(d, t, h)] for h in ("fields", "families")}
+                                 for d, t in zip(mean["dim"], mean["tuner"])},
+            "family_success": {f"d{d}": {t: {f: float(family[(d, t, f)]) for f in FAMILIES}
+                                         for t in dict.fromkeys(family[d].index.get_level_values(0))}
+                               for d in SPACES},
+            "gradient_still_improving": int(cost["still_improving"].sum()),
+            "chosen_steps": {f"d{d}": v for d, v in chosen(selection).items()},
+            "steps_tried": {"gradient": list(LEARNING_RATES), "cmaes": list(SIGMAS)},
+            "default_learning_rate": TrainSpec().learning_rate,
+            "selection_success": {f"d{r.dim}/{r.tuner}/{r.step:g}": round(100 * r.success, 1)
+                                  for r in by_step.itertuples()},
+            "selection_success_range": {f"{t}/{step:g}": {"min": 100 * g.min(), "max": 100 * g.max()}
+                                        for (t, step), g in by_step.groupby(["tuner", "step"])["success"]},
+            "train": {k: spec_data(3, FAMILIES, 0, 0.05, 1.0, "")["train"][k] for k in ("steps", "fields_per_step")},
+            "gains": {f"d{d}": d for d in SPACES}, "test_fields": TEST_FIELDS, "families": len(FAMILIES),
+            "check_fields": CHECK_FIELDS, "runs_per_space": int((cost["tuner"] == "gradient").sum()) // len(SPACES),
+            "runs": int((cost["tuner"] == "gradient").sum()),
+            "verdicts": {k: int(v) for k, v in table["verdict"].value_counts().items()},
+            "comparisons": int(table["verdict"].notna().sum())}
+
+
+def write(table: pd.DataFrame, cost: pd.DataFrame, selection: pd.DataFrame, steps: dict[int, dict[str, float]],
+          episodes: pd.DataFrame, out) -> dict:
+    pooled = table[table["held_out"] == "all"]
+    mean = means(table)
+    tuners = list(dict.fromkeys(pooled["tuner"]))
+    fam = family_success(episodes)
+    found = facts(table, cost, selection, fam)
+    counts = found["pooled_verdicts_vs_gradient"]
+    best = {dim: found["best_black_box"][f"d{dim}"] for dim in SPACES}
+    best_time = {dim: found["best_black_box_at_equal_time"][f"d{dim}"] for dim in SPACES}
     lines = ["# Study 15: the tuners of `jaxapf tune` by dimension of the gain space", "",
              "`python analysis/tuner_study.py`", "", "Protocol: " + " ".join(__doc__.split("\n\n")[1].split()), "",
              " ".join(__doc__.split("\n\n")[2].split()), "",
              "## Findings", "",
-             *(f"- {dim} gains: the gradient tuner {facts['success_mean'][f'd{dim}/gradient']:.1f} % held-out "
-               f"success (mean over mixes and seeds), the best black-box tuner `{best[dim][0]}` "
-               f"{facts['success_mean'][f'd{dim}/{best[dim][0]}']:.1f} %; pooled verdicts of each tuner against "
+             *(f"- {dim} gains: the gradient tuner {found['success_mean'][f'd{dim}/gradient']:.1f} % held-out "
+               f"success (mean over mixes and seeds), the best black-box tuner `{best[dim]}` "
+               f"{found['success_mean'][f'd{dim}/{best[dim]}']:.1f} %; pooled verdicts of each tuner against "
                "the gradient tuner over its 6 runs: "
                + "; ".join(f"`{t}` " + ", ".join(f"{k} {v}" for k, v in counts[f"d{dim}/{t}"].items())
                            for t in tuners if f"d{dim}/{t}" in counts and not t.endswith(" @ time")) + "."
                for dim in SPACES),
-             *(f"- {dim} gains at equal wall-clock time: the best black-box tuner `{best_time[dim][0]}` "
-               f"{facts['success_mean'][f'd{dim}/{best_time[dim][0]}']:.1f} %; its verdicts against the gradient "
-               "tuner: " + ", ".join(f"{k} {v}" for k, v in counts[f"d{dim}/{best_time[dim][0]}"].items()) + "."
+             *(f"- {dim} gains at equal wall-clock time: the best black-box tuner `{best_time[dim]}` "
+               f"{found['success_mean'][f'd{dim}/{best_time[dim]}']:.1f} %; its verdicts against the gradient "
+               "tuner: " + ", ".join(f"{k} {v}" for k, v in counts[f"d{dim}/{best_time[dim]}"].items()) + "."
                for dim in SPACES),
              "- The step sizes chosen on the selection problem (learning rate of the gradient tuner / CMA-ES's "
              "initial step, per gain space): " + "; ".join(f"{d} gains {steps[d]['gradient']:g} / "
                                                             f"{steps[d]['cmaes']:g}" for d in SPACES) + ". At its "
              f"chosen learning rate the gradient tuner's best validation loss was at its last step in "
-             f"{facts['gradient_still_improving']} of the {facts['runs']} runs (still improving when the budget "
+             f"{found['gradient_still_improving']} of the {found['runs']} runs (still improving when the budget "
              "ran out).",
              "",
-             f"Verdicts over all {facts['comparisons']} comparisons (Holm; pooled and per held-out kind): "
-             + ", ".join(f"{k} {v}" for k, v in facts["verdicts"].items()) + ".", "",
+             f"Verdicts over all {found['comparisons']} comparisons (Holm; pooled and per held-out kind): "
+             + ", ".join(f"{k} {v}" for k, v in found["verdicts"].items()) + ".", "",
              "## Held-out success [%], all four families pooled, per seed (1 / 2 / 3), and the verdict against "
              "the gradient tuner of the same run (↑ better, ↓ worse, = equivalent, · inconclusive)", ""]
     for mix in MIXES:
@@ -318,22 +389,25 @@ def write(table: pd.DataFrame, cost: pd.DataFrame, selection: pd.DataFrame, step
     lines += ["", "## Per family: held-out success [%] of each tuner at equal episodes (mean over mixes and seeds; "
               "a family is held out of training for one mix)", "",
               "| gains | tuner | " + " | ".join(FAMILIES) + " |", "|---|---|" + "---|" * len(FAMILIES)]
-    fam = episodes[~episodes["setting"].str.endswith(" @ time")].groupby(["dim", "setting", "family"])["success"].mean()
     for dim in SPACES:
         for tuner in ["default", *(t for t in tuners if not t.endswith(" @ time"))]:
             if (dim, tuner, FAMILIES[0]) in fam.index:
-                lines.append(f"| {dim} | {tuner} | " + " | ".join(f"{100 * fam[(dim, tuner, f)]:.1f}" for f in FAMILIES)
+                lines.append(f"| {dim} | {tuner} | " + " | ".join(f"{fam[(dim, tuner, f)]:.1f}" for f in FAMILIES)
                              + " |")
     lines += ["", "## Step-size selection: mean success [%] on the 64 check fields over the three selection seeds "
               "(chosen: bold)", "", "| gains | tuner | " + " | ".join(["step", "success"]) + " |", "|---|---|---|---|"]
     for r in selection.groupby(["dim", "tuner", "step"], as_index=False)["success"].mean().itertuples():
         mark = "**" if steps[r.dim][r.tuner] == r.step else ""
         lines.append(f"| {r.dim} | {r.tuner} | {mark}{r.step:g}{mark} | {100 * r.success:.1f} |")
-    return study.write_results(out, lines, facts)
+    return study.write_results(out, lines, found)
 
 
 def main() -> None:
     args, out = study.begin(__doc__, STUDY)
+    if args.facts_only:
+        study.write_facts(out, facts(pd.read_csv(out / "summary.csv"), pd.read_csv(out / "costs.csv"),
+                                     pd.read_csv(out / "selection.csv"), committed_family_success(out)))
+        return
     selection = select_step_sizes()
     selection.to_csv(out / "selection.csv", index=False)
     steps = chosen(selection)

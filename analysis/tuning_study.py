@@ -318,6 +318,63 @@ def write_markdown(out: pathlib.Path, spec_path: str, spec: TuneSpec, summary: d
     (out / "README.md").write_text("\n".join(text))
 
 
+def facts(out: pathlib.Path, run: dict) -> dict:
+    """The named values the findings state, from the results folder's tables (``summary.json``, ``history.csv``,
+    ``test_results.csv``, the two paired tables, ``remat.json``); ``run`` holds those only a run computes (the
+    bootstrap intervals of the transfer gains, the gradient norms by outcome) and is kept as it is."""
+    summary = json.loads((out / "summary.json").read_text())
+    history = pd.read_csv(out / "history.csv")
+    table = pd.read_csv(out / "test_results.csv")
+    pairs = {name: pd.read_csv(out / f"tuned_vs_{name}.csv") for name in ("grid", "default")}
+    spec = summary["spec"]
+    train = spec["train"]["families"]
+    held = [f for f in spec["test"]["families"] if f not in train]
+    val = history[np.isfinite(history.val_loss)]
+    best = val.loc[val.val_loss.idxmin()]
+    fields = spec["validation"]["fields"]
+    v_lo, v_hi = stats.wilson_interval(round(best.val_success * fields), fields)
+    tuned_train = table[(table.setting == "tuned") & table.family.isin(train)]
+    t_lo, t_hi = stats.wilson_interval(round((tuned_train.success * tuned_train.n).sum()), tuned_train.n.sum())
+    vs_default = pairs["default"].set_index("family")
+    steps = history[history.step > 0]
+    remat = {}
+    for r in json.loads((out / "remat.json").read_text()):
+        remat.setdefault(f"t{r['t_max']:g}", {"t_max": r["t_max"], "steps": r["steps"], "fields": r["fields"]})[
+            "with" if r["remat"] else "without"] = {"temp_mb": r["temp_mb"], "seconds": r["seconds"]}
+    columns = {"success": "success", "collision": "collision", "stalled": "stalled", "time_to_goal": "time_to_goal",
+               "surrogate_loss": "loss"}
+    return {
+        "method": spec["sim"]["planner"]["method"], "learning_rate": spec["train"]["learning_rate"],
+        "fields": {"test": spec["test"]["fields"], "validation": fields, "per_step": spec["train"]["fields_per_step"]},
+        "families": {"train": len(train), "test": len(spec["test"]["families"]), "held_out": len(held)},
+        "episodes_pooled": int(table[table.family == "all"].n.iloc[0]), "margin": MARGIN,
+        **{name: {f: dict(zip(rows.setting, rows[column].astype(float))) for f, rows in table.groupby("family")}
+           for name, column in columns.items()},
+        **{f"vs_{name}": {r.family: {"difference": r.difference, "lo": r.lo, "hi": r.hi, "wins": r.wins,
+                                     "losses": r.losses, "verdict": r.verdict} for r in frame.itertuples()}
+           for name, frame in pairs.items()},
+        "verdicts": {f"vs_{name}": {v: int((frame[frame.family != "all"].verdict == v).sum())
+                                    for v in ("better", "worse", "equivalent", "inconclusive")}
+                     for name, frame in pairs.items()},
+        "transfer": {name: float(np.average(vs_default.loc[group, "difference"], weights=vs_default.loc[group, "n"]))
+                     for name, group in (("train", train), ("held", held))},
+        "validation": {"validations": len(val), "best_step": int(best.step), "success": float(best.val_success),
+                       "lo": float(v_lo), "hi": float(v_hi)},
+        "test_on_train_families": {"success": float(np.average(tuned_train.success, weights=tuned_train.n)),
+                                   "lo": float(t_lo), "hi": float(t_hi)},
+        "training": {k: summary["training"][k] for k in ("steps_run", "best_step", "best_val_loss", "validations")}
+        | {"steps_max": spec["train"]["steps"], "start_val_loss": float(val.val_loss.iloc[0])},
+        "gains": {s: {n: summary["gains"][s][n] for n in spec["reparam"]["names"]} for s in summary["gains"]},
+        "budgets": {s: {k: v for k, v in b.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
+                    for s, b in summary["budgets"].items()},
+        "gradients": {"norm_median": float(steps.grad_norm_median.median()),
+                      "max_median": float(steps.grad_norm_max.median()), "clipped": float(steps.clipped.mean()),
+                      "episode_clip": spec["train"]["episode_clip"]},
+        "remat": remat,
+        "run": run,
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--spec", type=pathlib.Path, default=ROOT / "sweeps" / "tune-crossing-trap.toml")
@@ -326,7 +383,15 @@ def main(argv: list[str] | None = None) -> int:
     for flag in OVERRIDES:
         parser.add_argument(f"--{flag.replace('_', '-')}", type=int, help=f"override {'.'.join(OVERRIDES[flag])}")
     parser.add_argument("--quiet", action="store_true")
+    parser.add_argument("--facts-only", action="store_true",
+                        help="rewrite facts.json from the results in --out, simulating nothing (keeps the values "
+                             "only a run computes, under 'run', from the facts.json there)")
     args = parser.parse_args(argv)
+    if args.facts_only:
+        committed = args.out / "facts.json"
+        run = json.loads(committed.read_text()).get("run", {}) if committed.exists() else {}
+        study.write_facts(args.out, facts(args.out, run))
+        return 0
     start = time.perf_counter()
     spec, text, changed = load_spec(args.spec, args)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -349,6 +414,13 @@ def main(argv: list[str] | None = None) -> int:
     spec_path = args.spec.resolve().relative_to(ROOT) if args.spec.resolve().is_relative_to(ROOT) else args.spec
     write_markdown(args.out, str(spec_path), spec, summary, history, episodes, table, vs_grid, vs_default, remat,
                    diagnosis, command, changed, time.perf_counter() - start)
+    held = [f for f in families if f not in spec.train.families]
+    run = {"transfer": {name: dict(zip(("gain", "lo", "hi"), map(float, gain_ci(episodes, group))))
+                        for name, group in (("train", list(spec.train.families)), ("held", held))},
+           "diagnosis": {r.outcome: {"episodes": int(r.episodes), "median": float(r.median),
+                                     "largest": float(r.largest), "clipped": float(r.clipped)}
+                         for r in diagnosis.itertuples()}}
+    study.write_facts(args.out, facts(args.out, run))
     print(f"wrote {args.out / 'README.md'}", file=sys.stderr)
     return 0
 
