@@ -74,9 +74,12 @@ def params(family: str, agents: int):
     return swarm_params(family, agents=agents, **({"columns": min(4, agents)} if family == "formation_gap" else {}))
 
 
-def cell(method: str, family: str, agents: int, count: int) -> pd.DataFrame:
+def cell(method: str, family: str, agents: int, count: int, tracking: str = "mpc",
+         tau: float | None = None, neighbours: int = NEIGHBOURS) -> pd.DataFrame:
     """One row per (selection seed, field) of ``method`` on ``count`` fields of ``family`` with ``agents``
-    UAVs: the swarm metrics (one :func:`~jaxapf.engine.swarm.evaluate_swarms` call, the seeds as settings)."""
+    UAVs: the swarm metrics (one :func:`~jaxapf.engine.swarm.evaluate_swarms` call, the seeds as settings).
+    ``tracking``, ``tau`` (the velocity obstacles' ``vo_tau`` in place of the selections') and ``neighbours``
+    serve the reciprocity ablation (``reciprocity_ablation.py``)."""
     import jax
 
     from jaxapf import Gains
@@ -86,10 +89,12 @@ def cell(method: str, family: str, agents: int, count: int) -> pd.DataFrame:
 
     planner, _, safety = method.partition("+")
     p = params(family, agents)
-    sim = SimConfig.from_flat(method=planner, filter=safety or "none", t_max=p.t_max, max_neighbours=NEIGHBOURS,
-                              projection_rows=ROWS.get(method, 0) if family in CLUTTERED else 0)
+    crowded = family in CLUTTERED or neighbours > NEIGHBOURS
+    sim = SimConfig.from_flat(method=planner, filter=safety or "none", t_max=p.t_max, max_neighbours=neighbours,
+                              projection_rows=ROWS.get(method, 0) if crowded else 0, tracking=tracking)
     seeds = robustness.seeds()
-    gains = jax.tree_util.tree_map(lambda *x: np.asarray(x, np.float32), *[Gains(**tuned(method, s)) for s in seeds])
+    chosen = [tuned(method, s) | ({"vo_tau": tau} if tau is not None else {}) for s in seeds]
+    gains = jax.tree_util.tree_map(lambda *x: np.asarray(x, np.float32), *[Gains(**g) for g in chosen])
     metrics = jax.device_get(evaluate_swarms(make_swarms(SEED, p, count), gains, sim, MPCConfig(),
                                              max(1, 2048 // agents)))
     frames = [pd.DataFrame({k: np.asarray(v[i]) for k, v in metrics.items()}).assign(seed=s, field=np.arange(count))
@@ -231,7 +236,19 @@ def facts(df: pd.DataFrame, rates: pd.DataFrame, comparisons: pd.DataFrame) -> d
     vs = comparisons[comparisons["question"] == "vs basic"]
     out["vs_basic_verdicts"] = {f"{m}/{v}": int(((vs["metric"] == m) & (vs["verdict"] == v)).sum())
                                 for m, _ in OUTCOMES for v in MARK}
-    return out
+    return out | {"setting": setting()} | totals(out)
+
+
+def totals(out: dict) -> dict:
+    """How many comparisons of each outcome each question made (the sum of its verdict counts)."""
+    return {f"{question}_comparisons": {m: sum(n for k, n in out[f"{question}_verdicts"].items()
+                                              if k.startswith(f"{m}/")) for m, _ in OUTCOMES}
+            for question in ("reciprocity", "vs_basic")}
+
+
+def setting() -> dict:
+    """The protocol's numbers: swarm sizes, neighbours seen, held-out fields, the rows each projection keeps."""
+    return {"agents": list(AGENTS), "neighbours": NEIGHBOURS, "fields": FIELDS, "rows": dict(ROWS)}
 
 
 def findings(df: pd.DataFrame, rates: pd.DataFrame, comparisons: pd.DataFrame) -> list[str]:
@@ -323,6 +340,12 @@ def figure(rates: pd.DataFrame, path: pathlib.Path) -> None:
 
 def main() -> None:
     args, out = study.begin(__doc__, STUDY)
+    if args.facts_only:  # the per-swarm rows are not committed: the protocol's numbers join the committed facts
+        import json
+
+        committed = json.loads((out / "facts.json").read_text())
+        study.write_facts(out, committed | {"setting": setting()} | totals(committed))
+        return
     count = args.fields or FIELDS
     flown = run(count, study.ROOT / "runs" / f"swarm-study-f{count}")
     df = flown[exact(flown)]
