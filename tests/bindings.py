@@ -18,7 +18,9 @@ A bound number must be the fact rounded to the decimals written (strictly nearer
 number of that precision, or its correctly rounded text); a sign written before it (``−``, ``+``) must be
 the fact's, a number written without one is compared by size ("falls by 11.3" for a change of -0.113). A
 verdict word (``*better*``, ``*worse*``, ``*equivalent*``, ``*inconclusive*``) bound the same way must be
-the fact's text. In a strict document every number is bound, but identifiers: inline code, dates, "study
+the fact's text, or, bound to a count of verdicts, the last word of the count's key
+(``*worse* in 7<!--=…:reciprocity_verdicts.swarm_success/worse--> of 60`` binds both to the one count).
+In a strict document every number is bound, but identifiers: inline code, dates, "study
 11", "§3", "eq. 2". :func:`problems` says what is wrong with a text; :func:`mutations` gives every ±1 change
 of a bound number's last digit and every swap of a bound verdict word, each of which :func:`problems` must
 catch (tests/test_bindings.py).
@@ -124,7 +126,9 @@ def problems(text: str, strict: bool = True) -> list[str]:
             out.append(f"{where}: no fact {b['source']}:{b['expr']}")
             continue
         if verdict is not None:
-            if verdict[1] != fact:
+            # a verdict word is its fact's text, or (a count of verdicts) the last word of its count's key
+            counted = not isinstance(fact, str) and re.split(r"[./]", b["expr"])[-1] == verdict[1]
+            if verdict[1] != fact and not counted:
                 out.append(f"{where}: says *{verdict[1]}*, the fact {b['source']}:{b['expr']} is {fact!r}")
             continue
         if number is None:

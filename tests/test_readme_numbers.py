@@ -1,8 +1,8 @@
-"""Every number in README's "What the data says" (and in the docs sections that report a study) comes
-from the committed results of the studies its row names, and every number of its "Speed" section,
-of docs/performance.md and of docs/testing.md's cost from the committed benchmark runs
-(benchmarks/results/, written by benchmarks/record.py, quickstart.py and suite.py): a rerun that
-changes a number fails here until the text follows."""
+"""README's findings name every study; the docs sections that report a study state numbers of its
+committed results, and every number of README's "Speed" section and of docs/testing.md's cost comes from
+the committed benchmark runs (benchmarks/results/, written by benchmarks/record.py, quickstart.py and
+suite.py): a rerun that changes a number fails here until the text follows. The findings themselves,
+analysis/README.md and docs/performance.md bind each number to its fact (tests/test_bindings.py)."""
 
 from __future__ import annotations
 
@@ -15,8 +15,8 @@ from conftest import ROOT
 #: A number in prose: not part of a name (float32), an exponent (1e-14) or a date (dropped first).
 NUMBER = re.compile(r"(?<![\w.])(?<!e-)\d[\d,]*(?:\.\d+)?")
 DATE = re.compile(r"\d{4}-\d{2}-\d{2}")
-#: A study of analysis/README.md's table: its number, script stem and results folder.
-STUDY_ROW = re.compile(r"^\| (\d+) \| .*`python analysis/(\w+)\.py`.*\]\(results/(\w+)/README\.md\) \|$")
+#: A study of analysis/README.md's table: its number, script stems and results folders.
+STUDY_ROW = re.compile(r"^\| \[study (\d+)\]\(#study-\d+\) \| .* \| (`\w+\.py`(?:, `\w+\.py`)*) \| (.*) \|$")
 
 
 def numbers(text: str) -> set[str]:
@@ -44,11 +44,13 @@ def section(text: str, title: str) -> str:
 
 
 def studies() -> dict[str, tuple[str, str]]:
-    """Script stem -> (study number, results folder), from analysis/README.md's table."""
+    """Script stem -> (study number, results folder), from analysis/README.md's table (a study's scripts
+    and folders in the same order)."""
     out = {}
     for line in (ROOT / "analysis" / "README.md").read_text().splitlines():
         if m := STUDY_ROW.match(line):
-            out[m.group(2)] = (m.group(1), m.group(3))
+            folders = re.findall(r"\]\(results/(\w+)/README\.md\)", m.group(3))
+            out |= {stem: (m.group(1), folder) for stem, folder in zip(re.findall(r"`(\w+)\.py`", m.group(2)), folders)}
     return out
 
 
@@ -69,21 +71,13 @@ def data_rows() -> list[tuple[str, str]]:
 
 
 def test_the_table_has_a_row_per_study():
+    """README's findings name each study of analysis/README.md's table (its first script), and only those;
+    their numbers are bound to the studies' facts (tests/test_bindings.py)."""
     named = {m for q, _ in data_rows() for m in re.findall(r"`(\w+)\.py`", q)}
-    assert named == set(studies()), "every study has a row in README's 'What the data says', and only studies"
-
-
-@pytest.mark.parametrize("question, finding", data_rows(),
-                         ids=[re.findall(r"`(\w+)\.py`", q)[0] for q, _ in data_rows()])
-def test_every_number_of_a_finding_is_in_its_studies_results(question, finding):
-    """A row's numbers must each appear in the committed results of the study its question names, or
-    of a study its text cites ("study 11"); question cells may also state the protocol."""
-    table = studies()
-    by_number = {n: folder for n, folder in table.values()}
-    folders = [table[s][1] for s in re.findall(r"`(\w+)\.py`", question)]
-    folders += [by_number[n] for n in re.findall(r"study (\d+)", question + finding)]
-    missing = unmatched(numbers(question + " " + finding), numbers("\n".join(results_text(f) for f in folders)))
-    assert not missing, f"README numbers not in analysis/results/{{{','.join(folders)}}}: {missing}"
+    firsts = {stem for stem, (number, _) in studies().items()
+              if stem == min((s for s, (n, _) in studies().items() if n == number), key=list(studies()).index)}
+    assert len({n for n, _ in studies().values()}) == 16
+    assert named == firsts, "every study has a row in README's 'What the data says', and only studies"
 
 
 def _leaves(value) -> list[float]:
@@ -140,21 +134,6 @@ def test_speed_numbers_come_from_the_runs_they_cite(page, title):
     assert not missing, f"{page} '{title}': numbers not in the runs it names ({cited_runs(body)}): {missing}"
 
 
-PERFORMANCE = sections((ROOT / "docs" / "performance.md").read_text())
-
-
-@pytest.mark.parametrize("title, body", PERFORMANCE, ids=[title or "intro" for title, _ in PERFORMANCE])
-def test_every_number_of_the_performance_page_comes_from_the_runs_its_section_cites(title, body):
-    """docs/performance.md, section by section: every number in its prose is in the committed runs the
-    section names (``engine.json``), those of the section on FISTA iterations also in study 10's results;
-    code and commands are not claims and are left out. A section that names no run states no number."""
-    source = benchmark_numbers(cited_runs(body))
-    if title == "How many FISTA iterations":
-        source |= numbers(results_text("fista_iterations"))
-    missing = unmatched(numbers(prose(body)), source)
-    assert not missing, f"docs/performance.md '{title}': numbers in none of {sorted(cited_runs(body))}: {missing}"
-
-
 #: Sections of docs/ that report a study: (page, section, the study's results folder).
 STUDY_SECTIONS = [("docs/tune.md", "Measured results", "tuning"), ("docs/tune.md", "Which tuner", "tuner_study"),
                   ("docs/scenarios.md", "Which settings separate what", "family_variants")]
@@ -209,17 +188,6 @@ def test_the_dry_runs_cost_model_on_the_sweep_page_is_the_codes():
     assert (len(rows), min(r["horizon"] for r in rows), max(r["horizon"] for r in rows)) == (18, 10, 40)
     assert (min(r["iters"] for r in rows), max(r["iters"] for r in rows)) == (10, 60)
     assert {r["obstacles"] for r in rows} == {4, 16} and fit["fields"] == 1024
-
-
-def test_the_studies_summary_cites_their_results():
-    """analysis/README.md's "In short" paragraph: each number is in the results of a study it cites
-    ("study 11"), or of any study when the sentence cites none."""
-    text = (ROOT / "analysis" / "README.md").read_text()
-    paragraph = text[text.index("In short"):].split("\n\n", 1)[0]
-    folders = [folder for _, folder in studies().values()]
-    cited = numbers(re.sub(r"(study|studies|scenario) \d+", "", paragraph))
-    missing = unmatched(cited, numbers("\n".join(results_text(f) for f in folders)))
-    assert not missing, f"analysis/README.md 'In short': numbers in no study's results: {missing}"
 
 
 def test_the_quick_start_states_what_its_committed_run_measured():
