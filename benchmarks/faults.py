@@ -175,11 +175,16 @@ def flips(n: int, spec: pathlib.Path, tmp: pathlib.Path, ref_out: pathlib.Path, 
     return totals
 
 
+def _race_totals(n: int) -> dict[str, int]:
+    """The counters of a kind of race over ``n`` trials."""
+    return {"trials": n, "one_refused": 0, "both_ran": 0, "lost": 0, "duplicated": 0, "changed": 0, "tracebacks": 0,
+            "bad_refusals": 0}
+
+
 def races(n: int, spec: pathlib.Path, tmp: pathlib.Path, ref: pd.DataFrame, rng: np.random.Generator
           ) -> dict[str, Any]:
     """``n`` pairs of writers on one fresh output each."""
-    totals = {"trials": n, "one_refused": 0, "both_ran": 0, "lost": 0, "duplicated": 0, "changed": 0,
-              "tracebacks": 0, "bad_refusals": 0}
+    totals = _race_totals(n)
     for i in range(n):
         out = tmp / f"race-{i}.parquet"
         a = subprocess.Popen(_command(spec, out, 2), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
@@ -273,8 +278,7 @@ def sigints(n: int, spec: pathlib.Path, tmp: pathlib.Path, ref: pd.DataFrame, rn
 def shard_races(n: int, spec: pathlib.Path, tmp: pathlib.Path, ref: pd.DataFrame, rng: np.random.Generator
                 ) -> dict[str, Any]:
     """``n`` pairs of disagreeing shards started at the same moment on one fresh output each."""
-    totals = {"trials": n, "one_refused": 0, "both_ran": 0, "lost": 0, "duplicated": 0, "changed": 0,
-              "tracebacks": 0, "bad_refusals": 0}
+    totals = _race_totals(n)
     for i in range(n):
         out = tmp / f"shards-{i}.parquet"
         if i % 2:  # another number of shards
