@@ -75,10 +75,14 @@ def setup_jax() -> None:
     configure_jax(cache_dir=default_cache_dir(), cpu_devices=len(os.sched_getaffinity(0)))
 
 
-def begin(doc: str, name: str) -> tuple[argparse.Namespace, pathlib.Path]:
-    """What every study does first: parse the shared flags, set up JAX, and make the results
-    folder (``--out``, default ``analysis/results/<name>``); returns the flags and the folder."""
-    args = parser(doc).parse_args()
+def begin(doc: str, name: str, flags: dict[str, str] | None = None) -> tuple[argparse.Namespace, pathlib.Path]:
+    """What every study does first: parse the shared flags (and a study's own switches, ``flags``: name ->
+    help), set up JAX, and make the results folder (``--out``, default ``analysis/results/<name>``); returns
+    the flags and the folder."""
+    p = parser(doc)
+    for flag, text in (flags or {}).items():
+        p.add_argument(flag, action="store_true", help=text)
+    args = p.parse_args()
     setup_jax()
     out = args.out or RESULTS / name
     out.mkdir(parents=True, exist_ok=True)
