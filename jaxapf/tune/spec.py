@@ -213,6 +213,8 @@ class TuneSpec:
             del out["sim"]["world"]["max_neighbours"]
         if not self.sim.planner.projection_rows:
             del out["sim"]["planner"]["projection_rows"]
+        if self.sim.planner.tracking == "mpc":
+            del out["sim"]["planner"]["tracking"]
         return out
 
     def digest(self) -> str:

@@ -448,7 +448,7 @@ def test_a_tune_spec_traces_the_mpc_weights_it_tunes_or_scales():
 
 def test_a_tune_specs_digest_stays_when_a_newer_setting_is_at_its_default():
     """A checkpoint belongs to its spec's digest: a static setting added later (``max_neighbours`` for
-    swarms, ``projection_rows``) at its default leaves every digest as it was, so runs started before it
+    swarms, ``projection_rows``, ``tracking``) at its default leaves every digest as it was, so runs started before it
     still resume."""
     import dataclasses
     import pathlib
@@ -460,3 +460,4 @@ def test_a_tune_specs_digest_stays_when_a_newer_setting_is_at_its_default():
     swarm = dataclasses.replace(spec, sim=spec.sim.replace(max_neighbours=8))
     assert swarm.digest() != spec.digest()
     assert dataclasses.replace(spec, sim=spec.sim.replace(projection_rows=8)).digest() != spec.digest()
+    assert dataclasses.replace(spec, sim=spec.sim.replace(tracking="ideal")).digest() != spec.digest()
