@@ -218,7 +218,10 @@ def program(kind: str) -> list[str]:
 
 
 def _lines(stderr: str) -> list[str]:
-    return [line for line in stderr.splitlines() if line.strip()]
+    """What a run wrote to stderr besides how far it had got (jaxapf.progress)."""
+    from jaxapf.progress import without_progress
+
+    return [line for line in without_progress(stderr).splitlines() if line.strip()]
 
 
 def startup_s() -> float:

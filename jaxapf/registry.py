@@ -17,7 +17,7 @@ from __future__ import annotations
 from typing import Callable, Generic, Iterator, Sequence, TypeVar
 
 from .text import plain_text
-from .validation import ConfigError
+from .validation import ConfigError, did_you_mean
 
 __all__ = ["Registry", "LOOP", "loop_rank"]
 
@@ -81,7 +81,7 @@ class Registry(Generic[T]):
             return self._entries[name]
         except (KeyError, TypeError):
             at = where or self.what
-            raise ConfigError(f"{at} = {name!r} is not a registered {self.what}; "
+            raise ConfigError(f"{at} = {name!r} is not a registered {self.what}{did_you_mean(name, self.names())}; "
                               f"choose one of {', '.join(self.names()) or '(none registered)'}") from None
 
     __getitem__ = get

@@ -107,10 +107,22 @@ def check_int(where: str, value: Any, lo: int, hi: int | None = None) -> int:
     return int(value)
 
 
+def did_you_mean(value: Any, choices: Iterable[str]) -> str:
+    """`` (did you mean `gamma`?)`` for a misspelled name close to one of ``choices`` (difflib's ratio
+    >= 0.7: ``gama``, ``basc``, ``sise``; not ``magic`` for ``basic``), else ``""``."""
+    import difflib
+
+    if not isinstance(value, str):
+        return ""
+    close = difflib.get_close_matches(value, list(choices), n=1, cutoff=0.7)
+    return f" (did you mean `{close[0]}`?)" if close else ""
+
+
 def check_choice(where: str, value: Any, choices: Sequence[str]) -> str:
     """``value`` if it is one of ``choices``."""
     if not isinstance(value, str) or value not in choices:
-        raise ConfigError(f"{where} = {value!r} is not allowed; choose one of {', '.join(choices)}")
+        raise ConfigError(f"{where} = {value!r} is not allowed{did_you_mean(value, choices)}; "
+                          f"choose one of {', '.join(choices)}")
     return value
 
 
@@ -146,7 +158,8 @@ def check_names(where: str, value: Any, choices: Sequence[str], *, what: str = "
     for i, name in enumerate(names):
         at = f"{where}[{i}]" if isinstance(value, (list, tuple)) else where
         if not isinstance(name, str) or name not in choices:
-            raise ConfigError(f"{at} = {name!r} is not a {what}; allowed: {', '.join(choices)}")
+            raise ConfigError(f"{at} = {name!r} is not a {what}{did_you_mean(name, choices)}; "
+                              f"allowed: {', '.join(choices)}")
     if len(set(names)) != len(names):
         raise ConfigError(f"{where} = {value!r} lists a {what} twice")
     return tuple(c for c in choices if c in names) if canonical else tuple(names)
@@ -161,8 +174,8 @@ def check_table(where: str, value: Any, allowed: Iterable[str] | None = None) ->
         allowed = tuple(allowed)
         for key in value:
             if key not in allowed:
-                raise ConfigError(f"{where + '.' if where else ''}{key} is not a known key; "
-                                  f"allowed: {', '.join(allowed)}")
+                raise ConfigError(f"{where + '.' if where else ''}{key} is not a known key"
+                                  f"{did_you_mean(key, allowed)}; allowed: {', '.join(allowed)}")
     return value
 
 

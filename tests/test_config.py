@@ -93,7 +93,8 @@ def test_component_names_are_checked_where_a_program_is_built():
     from jaxapf import Obstacles, Scenario, rollout
 
     scenario = Scenario(jnp.zeros(3), jnp.ones(3), Obstacles.empty(1))
-    for key, message in (("method", r"sim\.method = 'vortx' is not a registered planner; choose one of basic, "
+    for key, message in (("method", r"sim\.method = 'vortx' is not a registered planner \(did you mean `vortex`\?\); "
+                                    r"choose one of basic, "
                                     r"direction, direction_velocity"),
                          ("filter", r"sim\.filter = 'vortx' is not a registered safety filter; choose one of none"),
                          ("plant", r"sim\.plant = 'vortx' is not a registered plant; choose one of double_integrator")):

@@ -24,7 +24,7 @@ def test_a_table_reads_given_keys_and_defaults_alike_in_order():
 
 
 @pytest.mark.parametrize("value, message", [
-    ({"size": 3, "sise": 1}, "t.sise is not a known key; allowed: size, scale, note, inner"),
+    ({"size": 3, "sise": 1}, "t.sise is not a known key (did you mean `size`?); allowed: size, scale, note, inner"),
     ({}, "t.size is missing; give the size"),
     ({"size": 11}, "t.size = 11 is out of range"),
     ({"size": 3, "scale": 0}, "t.scale = 0.0 is out of range; allowed: a finite number > 0"),

@@ -91,7 +91,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--plugin", action="append", default=[], metavar="MODULE",
                         help="import a module (or .py file) that registers components before the command runs "
                              "(repeatable; docs/extending.md)")
-    sub = parser.add_subparsers(dest="command", required=True)
+    # `jaxapf sweep verify|merge` are the parsers sweep-verify and sweep-merge: help names them as users type them
+    sub = parser.add_subparsers(dest="command", required=True,
+                                metavar="{simulate,sweep,sweep verify,sweep merge,report,tune,compare,bench,list}")
 
     sim = sub.add_parser("simulate", help="one field, several planners side by side, figures and trajectories",
                          description="Run planners on one field and write trajectories, metrics and the paper's "

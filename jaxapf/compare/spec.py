@@ -38,6 +38,7 @@ from ..validation import (
     check_choice,
     check_names,
     check_table,
+    did_you_mean,
     read_toml_file,
 )
 
@@ -159,11 +160,13 @@ def _methods(value: Any, sim: Mapping[str, Any]) -> tuple[str, ...]:
     for i, m in enumerate(value):
         planner, plus, safety_filter = m.partition("+")
         if planner not in PLANNERS.names():
-            raise ConfigError(f"methods[{i}] = {m!r} is not a registered planner; allowed: "
+            raise ConfigError(f"methods[{i}] = {m!r} is not a registered planner"
+                              f"{did_you_mean(planner, PLANNERS.names())}; allowed: "
                               f"{', '.join(PLANNERS.names())}, each optionally +FILTER ({', '.join(filters)})")
         if plus:
             if safety_filter not in filters:
-                raise ConfigError(f"methods[{i}] = {m!r}: {safety_filter!r} is not a registered safety filter; "
+                raise ConfigError(f"methods[{i}] = {m!r}: {safety_filter!r} is not a registered safety filter"
+                                  f"{did_you_mean(safety_filter, filters)}; "
                                   f"allowed after +: {', '.join(filters)}")
             if "filter" in sim:
                 raise ConfigError(f"methods[{i}] = {m!r} names a filter and [sim] sets filter = {sim['filter']!r}; "

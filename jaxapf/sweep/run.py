@@ -238,10 +238,9 @@ def _write_chunks(plan: Plan, chunks: tuple[Chunk, ...], out: pathlib.Path, meta
     out.mkdir(parents=True, exist_ok=True)
     layout = schema(plan, meta)
     kept_before = len(part_files(out))
-    from tqdm import tqdm
+    from ..progress import Progress
 
-    bar = tqdm(total=plan.episodes_of(chunks), unit="ep", unit_scale=True, desc=plan.spec.name, dynamic_ncols=True,
-               disable=quiet or not sys.stderr.isatty())
+    bar = Progress(plan.episodes_of(chunks), plan.spec.name, "ep", quiet=quiet)
     written = 0
     finished = results(plan, chunks)
 

@@ -27,7 +27,6 @@ import dataclasses
 import json
 import math
 import pathlib
-import sys
 import time
 import zipfile
 from functools import partial
@@ -38,7 +37,6 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 from jax import Array
-from tqdm.auto import tqdm
 
 from ..config import MPCConfig, SimConfig
 from ..datatypes import Obstacles, Scenario
@@ -46,6 +44,7 @@ from ..engine import default_width, episode_index, program, rollout
 from ..gains import Gains
 from ..io.lock import write_atomic
 from ..metrics import METRICS, episode_metrics
+from ..progress import Progress
 from ..scenarios import FamilyParams, make_scenarios
 from ..validation import first_line
 from .estimators import episode_gradient
@@ -365,8 +364,7 @@ class Tuner:
         if state.step >= spec.train.steps or state.stopped:
             return state
         train_fields = self.training_fields()
-        bar = tqdm(total=spec.train.steps, initial=state.step, desc=f"tune {spec.name}", unit="step",
-                   disable=quiet or not sys.stderr.isatty(), dynamic_ncols=True)
+        bar = Progress(spec.train.steps, f"tune {spec.name}", "step", quiet=quiet, initial=state.step)
         last_val = next(r for r in reversed(state.history) if math.isfinite(r["val_loss"]))
         start = time.perf_counter()
         while state.step < spec.train.steps and not state.stopped:

@@ -84,7 +84,10 @@ def _wait_for(predicate, timeout: float = 120.0) -> None:
 
 
 def _one_line(stderr: str) -> str:
-    lines = [line for line in stderr.splitlines() if line.strip()]
+    """The one line a refused or stopped run wrote (besides how far it had got: jaxapf.progress)."""
+    from jaxapf.progress import without_progress
+
+    lines = [line for line in without_progress(stderr).splitlines() if line.strip()]
     assert len(lines) == 1 and "Traceback" not in stderr, stderr
     return lines[0]
 

@@ -85,7 +85,8 @@ def reference(tmp_path_factory):
 # --------------------------------------------------------------------------------------------
 
 BAD = {
-    "top-level key": ({"nmae": "x"}, "nmae is not a known key; allowed: name, plugins, scenario"),
+    "top-level key": ({"nmae": "x"},
+                      "nmae is not a known key (did you mean `name`?); allowed: name, plugins, scenario"),
     "name": ({"name": "a b"}, "name = 'a b' must be a string"),
     "scenario key": ({"scenario.feilds": 3}, "scenario.feilds is not a known key"),
     "family": ({"scenario.families": ["trap", "forest"]},
