@@ -351,8 +351,23 @@ def _simulate(args: argparse.Namespace) -> int:
     print(f"{title}: {sim.episode.steps} steps of {sim.episode.dt:g} s, {len(runs)} methods "
           f"in {time.perf_counter() - start:.1f} s")
     print(metrics)
+    for note in ([] if swarm else stall_notes(args.family, runs)):
+        print(note)
     print(f"wrote {len(paths)} files to {args.out}/:", ", ".join(p.name for p in paths))
     return 0
+
+
+def stall_notes(family: str, runs: Sequence[Any]) -> list[str]:
+    """A line for each run that stalled (the metric ``stalled``): where, and that it is what the potential
+    does there, not a failure of the program; on ``paper_static`` that the paper's scenario 1 is not
+    reproduced (study 1: every method stalls on every one of its fields)."""
+    out = [f"note: {r.label} stalled {r.metrics['final_distance']:.1f} m from the goal: it stopped making progress "
+           "in a local minimum of its potential field (metric `stalled`)" for r in runs if r.metrics.get("stalled")]
+    if out and family == "paper_static":
+        out.append("note: on paper_static every method stalls, on every field (study 1, analysis/README.md): the "
+                   "paper's scenario 1 (where it reports the weighted APF going around) does not reproduce; try "
+                   "--family trap or clutter")
+    return out
 
 
 def _bench(args: argparse.Namespace) -> int:

@@ -28,7 +28,7 @@ from ..world.sensing import SENSORS
 if TYPE_CHECKING:
     from ..config import SimConfig
 
-__all__ = ["COMPONENTS", "components_read_gains", "component_names", "gains_read"]
+__all__ = ["COMPONENTS", "components_read_gains", "component_names", "gains_read", "metrics_in_use"]
 
 #: Static key of a simulation setting -> the registry of the components it names.
 COMPONENTS: Mapping[str, Registry[Any]] = {"method": PLANNERS, "filter": FILTERS, "plant": PLANTS,
@@ -54,3 +54,15 @@ def gains_read(sim: SimConfig) -> frozenset[str]:
     that agree on these fly the same episodes (a sweep runs them once)."""
     read = components_read_gains(component_names(sim))
     return read | {g.name for g in MPC_GAINS} if sim.planner.mpc_weights == "gains" else read
+
+
+def metrics_in_use(sim: SimConfig, names: tuple[str, ...]) -> tuple[str, ...]:
+    """The metrics of ``names`` that measure something ``sim`` flies: those no component owns, and those the
+    named components own (a filter's infeasible steps only where that filter flies; ``entry.metrics``)."""
+    named = component_names(sim)
+    owners: dict[str, set[tuple[str, str]]] = {}
+    for key, registry in COMPONENTS.items():
+        for name, entry in registry.items():
+            for m in getattr(entry, "metrics", ()):
+                owners.setdefault(m.name, set()).add((key, name))
+    return tuple(n for n in names if n not in owners or any(named[k] == c for k, c in owners[n]))

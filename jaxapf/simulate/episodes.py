@@ -5,7 +5,7 @@ runs differ only by the planner. The output folder receives
 
 - ``trajectories.parquet``: one row per (method, sample) with time, position, velocity, applied
   control (NaN on the last sample), distance to goal and clearance to every valid obstacle;
-- ``metrics.csv``: one row per method with every registered metric;
+- ``metrics.csv``: one row per method with every registered metric its components measure;
 - ``run.json``: the configuration, the field and the package versions, so the run can be traced;
 - the figures of :func:`jaxapf.simulate.figures.plot_all` (PNG).
 """
@@ -24,6 +24,7 @@ import pandas as pd
 from ..config import MPCConfig, SimConfig
 from ..datatypes import Scenario
 from ..engine import program, rollout
+from ..engine.components import metrics_in_use
 from ..gains import Gains
 from ..io.versions import versions
 from ..metrics import METRICS, all_metrics, clearance_history, episode_end, episode_metrics, find_metric
@@ -75,7 +76,8 @@ def simulate_runs(
     runs, tables = [], []
     for method in methods:
         msim = sim.replace(method=method)
-        traj, metrics, clear, end = jax.device_get(_episode(scenario, gains, msim, mpc, METRICS.names()))
+        traj, metrics, clear, end = jax.device_get(_episode(scenario, gains, msim, mpc,
+                                                            metrics_in_use(msim, METRICS.names())))
         n = int(end) + 1
         goal_distance = np.linalg.norm(traj.position - np.asarray(scenario.goal), axis=1)
         metrics = {k: _PYTHON[METRICS.get(k).dtype](v) for k, v in metrics.items()}
@@ -97,16 +99,17 @@ def simulate_runs(
 
 
 def format_metrics_table(runs: Sequence[Any]) -> str:
-    """A fixed-width table: one row per registered metric the runs have (a single UAV's or a swarm's,
-    with its unit), one column per run (anything with a ``label`` and a ``metrics`` dict)."""
+    """A fixed-width table: one row per registered metric some run has (a single UAV's or a swarm's, with
+    its unit; ``-`` where a run's components do not measure it), one column per run (anything with a
+    ``label`` and a ``metrics`` dict)."""
     def cell(value) -> str:
         if isinstance(value, bool):
             return str(value).lower()
         return f"{value:.3g}" if isinstance(value, float) else str(value)
 
-    names = [n for n, _ in all_metrics() if all(n in r.metrics for r in runs)]
-    rows = {f"{n} [{find_metric(n).unit}]" if find_metric(n).unit else n: [cell(r.metrics[n]) for r in runs]
-            for n in names}
+    names = [n for n, _ in all_metrics() if any(n in r.metrics for r in runs)]
+    rows = {f"{n} [{find_metric(n).unit}]" if find_metric(n).unit else n:
+            [cell(r.metrics[n]) if n in r.metrics else "-" for r in runs] for n in names}
     return pd.DataFrame(rows, index=[r.label for r in runs]).T.to_string()
 
 
