@@ -245,7 +245,7 @@ def test_a_checkpoint_of_another_spec_is_refused(command_run):
 @pytest.mark.parametrize(
     ("change", "message"),
     [
-        ({"trian": {}}, r"trian is not a known key; allowed: name, plugins"),
+        ({"trian": {}}, r"trian is not a known key \(did you mean `train`\?\); allowed: name, plugins"),
         ({"train": {"learning_rat": 0.1}}, r"train\.learning_rat is not a known key"),
         ({"train": {"learning_rate": -1.0}}, r"train\.learning_rate = -1\.0 is out of range"),
         ({"train": {"optimizer": "adamm"}}, r"train\.optimizer = 'adamm' is not an optax optimiser"),
