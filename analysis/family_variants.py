@@ -138,16 +138,13 @@ def facts(n: study.Numbers) -> dict:
 
 
 def main() -> None:
-    args, out = study.begin(__doc__, STUDY)
-    if not args.facts_only:
-        study.run_study(__doc__, name=STUDY, spec="family-variants",
-                        title="Study 7 — which families separate the methods, at the paper's gains and at matched "
-                              "strength", findings=findings,
-                        figures=[study.RATES_FIGURE,
-                                 ("report/figures/differences.png",
-                                  "Paired differences to basic (filled: Holm-significant)")],
-                        heatmap=None, gallery=0)
-    study.write_facts(out, facts(study.Numbers(study.committed_report(out))))
+    study.run_study(__doc__, name=STUDY, spec="family-variants",
+                    title="Study 7 — which families separate the methods, at the paper's gains and at matched "
+                          "strength", findings=findings,
+                    figures=[study.RATES_FIGURE,
+                             ("report/figures/differences.png",
+                              "Paired differences to basic (filled: Holm-significant)")],
+                    heatmap=None, gallery=0, facts=lambda n, _: facts(n))
 
 
 if __name__ == "__main__":

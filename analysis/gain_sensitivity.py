@@ -177,12 +177,9 @@ def heatmaps(out) -> list[tuple[str, str]]:
 
 
 def main() -> None:
-    args, out = study.begin(__doc__, STUDY)
-    if not args.facts_only:
-        study.run_study(__doc__, name=STUDY, spec="gamma-k", title="Study 5 — sensitivity to γ × k, including k > 1",
-                        findings=findings, figures=heatmaps, baseline="gamma=0,k=0", heatmap=("gamma", "k"),
-                        gallery=2)
-    study.write_facts(out, facts(study.Numbers(study.committed_report(out))))
+    study.run_study(__doc__, name=STUDY, spec="gamma-k", title="Study 5 — sensitivity to γ × k, including k > 1",
+                    findings=findings, figures=heatmaps, baseline="gamma=0,k=0", heatmap=("gamma", "k"),
+                    gallery=2, facts=lambda n, _: facts(n))
 
 
 if __name__ == "__main__":

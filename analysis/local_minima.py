@@ -146,16 +146,13 @@ def facts(n: study.Numbers) -> dict:
 
 
 def main() -> None:
-    args, out = study.begin(__doc__, STUDY)
-    if not args.facts_only:  # run_study parses the same flags again
-        study.run_study(__doc__, name=STUDY, spec="family-variants",
-                        title="Study 2 — does the weighted APF resolve local minima?", findings=findings,
-                        figures=[study.RATES_FIGURE,
-                                 ("report/figures/differences.png",
-                                  "Paired differences to basic (filled: Holm-significant)"),
-                                 ("report/figures/gallery_1.png", "The worst episode, re-simulated from its seed")],
-                        where=("family=" + ",".join(FAMILIES),), heatmap=None, gallery=2)
-    study.write_facts(out, facts(study.Numbers(study.committed_report(out))))
+    study.run_study(__doc__, name=STUDY, spec="family-variants",
+                    title="Study 2 — does the weighted APF resolve local minima?", findings=findings,
+                    figures=[study.RATES_FIGURE,
+                             ("report/figures/differences.png",
+                              "Paired differences to basic (filled: Holm-significant)"),
+                             ("report/figures/gallery_1.png", "The worst episode, re-simulated from its seed")],
+                    where=("family=" + ",".join(FAMILIES),), heatmap=None, gallery=2, facts=lambda n, _: facts(n))
 
 
 if __name__ == "__main__":

@@ -14,10 +14,6 @@ condition, so only the shape of the weighting differs).
 
 from __future__ import annotations
 
-import pathlib
-import types
-
-import pandas as pd
 import study
 
 STUDY = "moving_obstacles"
@@ -124,17 +120,11 @@ def facts(numbers: dict[str, study.Numbers]) -> dict:
                                          for m in collision[c][f])}
 
 
-def committed(folder: pathlib.Path) -> types.SimpleNamespace:
-    """A committed report (``summary.csv``, ``comparisons.csv`` in ``folder``), as :class:`study.Numbers` reads
-    it: :func:`study.committed_report` for a folder not named ``report``."""
-    return types.SimpleNamespace(summary=pd.read_csv(folder / "summary.csv"),
-                                 comparisons=pd.read_csv(folder / "comparisons.csv"))
-
-
 def main() -> None:
     args, out = study.begin(__doc__, STUDY)
     if args.facts_only:
-        study.write_facts(out, facts({case: study.Numbers(committed(out / FOLDERS[case])) for case in PAIRS}))
+        committed = {case: study.Numbers(study.committed_report(out, FOLDERS[case])) for case in PAIRS}
+        study.write_facts(out, facts(committed))
         return
     parquet = study.run_spec("family-variants", args.fields)
     numbers = {}

@@ -147,19 +147,16 @@ def facts(n: study.Numbers, out) -> dict:
 
 
 def main() -> None:
-    args, out = study.begin(__doc__, STUDY)
-    if not args.facts_only:  # run_study parses the same flags again
-        study.run_study(__doc__, name=STUDY, spec="paper-comparison",
-                        title="Study 1 — the paper's figures and its two scenarios, with statistics",
-                        findings=statistics_text, before=single_runs,
-                        figures=[("paper_static/trajectories.png", "Scenario 1 (paper_static, field 0): top view"),
-                                 ("paper_dynamic/trajectories.png", "Scenario 2 (paper_dynamic, field 0): top view"),
-                                 ("paper_dynamic/obstacle_distance.png", "Scenario 2: distance to the obstacles"),
-                                 ("report/figures/rates.png",
-                                  "Success, collision and stall rates, 512 jittered fields"),
-                                 ("report/figures/ecdf_min_clearance.png", "Minimum clearance, ECDF per method")],
-                        where=("family=paper_static,paper_dynamic",), heatmap=None, gallery=2)
-    study.write_facts(out, facts(study.Numbers(study.committed_report(out)), out))
+    study.run_study(__doc__, name=STUDY, spec="paper-comparison",
+                    title="Study 1 — the paper's figures and its two scenarios, with statistics",
+                    findings=statistics_text, before=single_runs,
+                    figures=[("paper_static/trajectories.png", "Scenario 1 (paper_static, field 0): top view"),
+                             ("paper_dynamic/trajectories.png", "Scenario 2 (paper_dynamic, field 0): top view"),
+                             ("paper_dynamic/obstacle_distance.png", "Scenario 2: distance to the obstacles"),
+                             ("report/figures/rates.png",
+                              "Success, collision and stall rates, 512 jittered fields"),
+                             ("report/figures/ecdf_min_clearance.png", "Minimum clearance, ECDF per method")],
+                    where=("family=paper_static,paper_dynamic",), heatmap=None, gallery=2, facts=facts)
 
 
 if __name__ == "__main__":

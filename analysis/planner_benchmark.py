@@ -250,7 +250,7 @@ def main() -> None:
         vs_paper = pd.read_csv(out / "report_vs_paper" / "comparisons.csv")
         study.write_facts(out, facts(spec, report.summary, report.comparisons, vs_paper))
         return
-    args, out, spec, runs = study.run_compare_study(__doc__, STUDY, SPEC)
+    spec, runs = study.run_compare_study(args, out, SPEC)
     paper = dataclasses.replace(spec, baseline=PAPER)
     vs_paper = study.report(runs / "test.parquet", out, resamples=args.resamples, folder="report_vs_paper",
                             baseline=baseline_filter(paper), pair_on=("selection",), heatmap=None).comparisons

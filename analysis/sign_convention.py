@@ -94,16 +94,13 @@ def facts(n: study.Numbers) -> dict:
 
 
 def main() -> None:
-    args, out = study.begin(__doc__, STUDY)
-    if not args.facts_only:  # run_study parses the same flags again
-        study.run_study(__doc__, name=STUDY, spec="convention",
-                        title="Study 4 — sign convention: the paper's prose (intent) vs its formulas (literal)",
-                        findings=findings,
-                        figures=[study.RATES_FIGURE,
-                                 ("report/figures/differences.png",
-                                  "Paired differences literal − intent (filled: Holm-significant)")],
-                        baseline="convention=intent", heatmap=None, gallery=2)
-    study.write_facts(out, facts(study.Numbers(study.committed_report(out))))
+    study.run_study(__doc__, name=STUDY, spec="convention",
+                    title="Study 4 — sign convention: the paper's prose (intent) vs its formulas (literal)",
+                    findings=findings,
+                    figures=[study.RATES_FIGURE,
+                             ("report/figures/differences.png",
+                              "Paired differences literal − intent (filled: Holm-significant)")],
+                    baseline="convention=intent", heatmap=None, gallery=2, facts=lambda n, _: facts(n))
 
 
 if __name__ == "__main__":

@@ -119,14 +119,12 @@ def report(parquet: pathlib.Path, out: pathlib.Path, *, resamples: int, folder: 
     return result
 
 
-def run_compare_study(doc: str, name: str, spec_file: str):
-    """What a ``jaxapf compare`` study does first: parse the shared flags, run the comparison of
-    ``sweeps/<spec_file>`` into ``runs/compare-NAME[-fN]`` (resuming what is finished), and copy its
-    report (without its HTML), ``compare.md`` and ``selection.csv`` into the results folder.
-    Returns ``(flags, results folder, spec, runs folder)``."""
+def run_compare_study(args: argparse.Namespace, out: pathlib.Path, spec_file: str):
+    """What a ``jaxapf compare`` study does after :func:`begin`: run the comparison of ``sweeps/<spec_file>``
+    into ``runs/compare-NAME[-fN]`` (resuming what is finished), and copy its report (without its HTML),
+    ``compare.md`` and ``selection.csv`` into the results folder ``out``. Returns ``(spec, runs folder)``."""
     from jaxapf.compare import load_compare_spec, run_compare_spec
 
-    args, out = begin(doc, name)
     spec, text = load_compare_spec(ROOT / "sweeps" / spec_file)
     suffix = ""
     if args.fields:
@@ -141,23 +139,29 @@ def run_compare_study(doc: str, name: str, spec_file: str):
     (target / "report.html").unlink(missing_ok=True)
     shutil.copy(runs / "compare.md", out / "compare.md")
     shutil.copy(runs / "selection.csv", out / "selection.csv")
-    return args, out, spec, runs
+    return spec, runs
 
 
 def run_study(doc: str, *, name: str, spec: str, title: str, findings: Callable[["Numbers"], str],
               figures: Callable[[pathlib.Path], list[tuple[str, str]]] | list[tuple[str, str]],
-              before: Callable[[pathlib.Path], list[str]] | None = None, **report_options: Any) -> None:
+              before: Callable[[pathlib.Path], list[str]] | None = None,
+              facts: Callable[["Numbers", pathlib.Path], dict] | None = None, **report_options: Any) -> None:
     """What every study's ``main`` is: parse the shared flags, run ``sweeps/<spec>.toml``, write its
     report with ``report_options``, and ``README.md`` with ``before(out)``'s sections (work that does
-    not come from the sweep, e.g. single runs), then ``findings(Numbers)`` and the figures."""
+    not come from the sweep, e.g. single runs), then ``findings(Numbers)`` and the figures; then
+    ``facts.json``, ``facts(Numbers, out)`` of the report as written (with ``--facts-only`` only that, from
+    the committed report)."""
     args, out = begin(doc, name)
-    sections = before(out) if before is not None else []
-    parquet = run_spec(spec, args.fields)
-    result = report(parquet, out, resamples=args.resamples, **report_options)
-    sections.append(findings(Numbers(result)))
-    command = f"python analysis/{name}.py" + (f" --fields {args.fields}" if args.fields else "")
-    write_readme(out, title, command, parquet, sections, figures(out) if callable(figures) else figures)
-    print(f"wrote {out}/README.md")
+    if not args.facts_only:
+        sections = before(out) if before is not None else []
+        parquet = run_spec(spec, args.fields)
+        result = report(parquet, out, resamples=args.resamples, **report_options)
+        sections.append(findings(Numbers(result)))
+        command = f"python analysis/{name}.py" + (f" --fields {args.fields}" if args.fields else "")
+        write_readme(out, title, command, parquet, sections, figures(out) if callable(figures) else figures)
+        print(f"wrote {out}/README.md")
+    if facts is not None:
+        write_facts(out, facts(Numbers(committed_report(out)), out))
 
 
 # --------------------------------------------------------------------------------------------
@@ -310,23 +314,21 @@ def mark_verdicts(rows: list[dict], margin: float):
 
 
 def write_results(out: pathlib.Path, lines: list[str], facts: dict) -> dict:
-    """A study's conclusion page (``README.md``, the ``lines``) and its numbers (``facts.json``) in ``out``;
-    returns the facts."""
-    import json
-
+    """A study's conclusion page (``README.md``, the ``lines``) and its numbers (:func:`write_facts`) in
+    ``out``; returns the facts."""
     (out / "README.md").write_text("\n".join(lines) + "\n")
-    (out / "facts.json").write_text(json.dumps(facts, indent=1) + "\n")
+    write_facts(out, facts)
     return facts
 
 
-def committed_report(out: pathlib.Path) -> Any:
-    """The report a study committed (``out/report/summary.csv`` and ``comparisons.csv``), as
+def committed_report(out: pathlib.Path, folder: str = "report") -> Any:
+    """The report a study committed (``out/<folder>/summary.csv`` and ``comparisons.csv``), as
     :class:`Numbers` reads it: what ``--facts-only`` works from."""
     import types
 
     import pandas as pd
 
-    folder = out / "report"
+    folder = out / folder
     return types.SimpleNamespace(summary=pd.read_csv(folder / "summary.csv"),
                                  comparisons=pd.read_csv(folder / "comparisons.csv"))
 

@@ -138,7 +138,7 @@ def main() -> None:
         study.write_facts(out, facts(load_compare_spec(study.ROOT / "sweeps" / SPEC)[0], report.summary,
                                      report.comparisons))
         return
-    args, out, spec, runs = study.run_compare_study(__doc__, STUDY, SPEC)
+    spec, runs = study.run_compare_study(args, out, SPEC)
     summary = pd.read_csv(out / "report" / "summary.csv")
     comparisons = pd.read_csv(out / "report" / "comparisons.csv")
     study.write_facts(out, facts(spec, summary, comparisons))
