@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import pytest
 from bindings import ROOT, mutations, problems
+from test_readme_numbers import section
 
 #: The documents (or a document's section, ``FILE#HEADING``) whose every number is bound (strict), and those
 #: with some numbers bound.
@@ -18,11 +19,7 @@ def text_of(page: str) -> str:
     """A document, or its section from the ``## HEADING`` to the next ``## ``."""
     name, _, heading = page.partition("#")
     text = (ROOT / name).read_text()
-    if not heading:
-        return text
-    start = text.index(f"\n## {heading}\n")
-    end = text.find("\n## ", start + 1)
-    return text[start:end if end >= 0 else None]
+    return section(text, heading) if heading else text
 
 
 def test_a_bound_number_is_its_fact_at_the_precision_written():

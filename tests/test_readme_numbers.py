@@ -119,12 +119,6 @@ def cited_runs(text: str) -> set[str]:
     return names
 
 
-def sections(text: str) -> list[tuple[str, str]]:
-    """(title, body) of the ``## `` sections of a markdown page; the part before the first is ``""``."""
-    parts = re.split(r"^## (.+)$", text, flags=re.M)
-    return [("", parts[0])] + list(zip(parts[1::2], parts[2::2]))
-
-
 @pytest.mark.parametrize("page, title", [("README.md", "Speed"), ("docs/testing.md", "Cost"),
                                          ("docs/testing.md", "Checking that the suite holds on other CPUs"),
                                          ("docs/sweep.md", "Measured figures")])
