@@ -27,13 +27,14 @@ import pandas as pd
 
 from .. import stats
 from ..metrics import all_metrics, find_metric, is_metric
-from .document import Document, render_html, render_markdown
+from .document import VERDICT_MARKS, Document, render_html, render_markdown
 from .figures import DEFAULT_HEATMAP, check_heatmap, table_figures
 from .latex import latex_tables
 from .load import ReportError, load_sweep, report_metrics, roles
 from .select import format_value, select
 from .tables import (
     ALL,
+    bottom_line,
     compare,
     comparison_table,
     continuous_table,
@@ -44,6 +45,7 @@ from .tables import (
     rates_table,
     summarize,
     swept_name,
+    verdict_matrix,
 )
 from .worker import RowWorker
 
@@ -181,7 +183,19 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
     doc.h(1, title)
     if incomplete:
         doc.p(f"**{incomplete[0].upper() + incomplete[1:]}.**")
-    # the conclusion and the figure that carries it come first, on the reader's first screen
+    # the conclusion, the verdicts and the figure that carries them come first, on the reader's first screen
+    families = [g for g in names if g != pooled and "/" not in g]
+    doc.h(2, "Bottom line")
+    doc.p(bottom_line(comparisons, pooled, families, rates))
+    if len(comparisons):
+        doc.h(2, "Verdict matrix")
+        doc.p("Every setting against its baseline, per family and pooled, per metric: "
+              + ", ".join(f"{VERDICT_MARKS[v]} {v}" for v in stats.VERDICTS)
+              + " (the rule: How this report was made; each kind of a family: the comparison tables). "
+              "Click a column's header in the other tables to sort them.")
+        doc.matrix(verdict_matrix(comparisons, rates + continuous, families + [pooled] * (pooled not in families)))
+    doc.h(2, "Contents")
+    doc.contents()
     doc.h(2, "Key findings")
     doc.items(findings(summary, comparisons, pooled, options) or ["nothing to summarise"])
     key = next((f for f in figures if f.name == ("differences" if len(comparisons) else "rates")), None)
@@ -249,7 +263,7 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
     for m in continuous:
         metric = find_metric(m)
         unit = f" [{metric.unit}]" if metric.unit else ""
-        doc.h(3, f"{m}{unit}" + (" — successful episodes only" if metric.on_success else ""))
+        doc.h(3, f"{m}{unit}: {metric.doc}" + (" (successful episodes only)" if metric.on_success else ""))
         doc.table(continuous_table(summary, m))
 
     doc.h(2, f"Paired comparisons with the baseline ({options.baseline})")
@@ -266,7 +280,8 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
               f"{', '.join(m for m in rates + continuous if not find_metric(m).higher_is_better)}. "
               f"p Holm: Holm-adjusted over all {n_tests} difference tests; * = significant at {options.alpha:.3g}.")
         for m in rates + continuous:
-            doc.h(3, m + (" (higher is better)" if find_metric(m).higher_is_better else " (lower is better)"))
+            doc.h(3, f"{m}: {find_metric(m).doc}" + (" (higher is better)" if find_metric(m).higher_is_better
+                                                      else " (lower is better)"))
             doc.table(comparison_table(comparisons, m))
     else:
         doc.p("No setting to compare: every reported setting is a baseline setting.")

@@ -7,6 +7,7 @@ import base64
 import dataclasses
 import html
 import io
+import itertools
 import pathlib
 import re
 from typing import Any, Sequence
@@ -15,7 +16,13 @@ import pandas as pd
 
 from ..simulate.figures import DPI
 
-__all__ = ["FigureFile", "Document", "render_markdown", "render_html", "save_figure"]
+__all__ = ["FigureFile", "Document", "VERDICT_COLORS", "render_markdown", "render_html", "save_figure"]
+
+#: One colour per verdict (:data:`jaxapf.stats.VERDICTS`), in every figure and in the page's verdict matrix.
+VERDICT_COLORS = {"better": "#2ca02c", "worse": "#d62728", "equivalent": "#1f77b4", "inconclusive": "#8c8c8c"}
+#: The verdict matrix's mark of each verdict.
+VERDICT_MARKS = {"better": "▲", "worse": "▼", "equivalent": "=", "inconclusive": "·"}
+_MARK_VERDICT = {m: v for v, m in VERDICT_MARKS.items()}
 
 
 @dataclasses.dataclass
@@ -50,6 +57,35 @@ class Document:
     def figure(self, fig: FigureFile) -> None:
         self.blocks.append(("figure", fig))
 
+    def matrix(self, frame: pd.DataFrame) -> None:
+        """A table whose cells are verdict words (or empty), each cell coloured by its verdict."""
+        self.blocks.append(("matrix", frame))
+
+    def contents(self) -> None:
+        """A table of contents of the level-2 headings, placed here."""
+        self.blocks.append(("contents", None))
+
+    def anchors(self) -> dict[int, str]:
+        """A unique id per heading block (its index), from its text."""
+        ids, used = {}, set()
+        for i, (kind, value) in enumerate(self.blocks):
+            if kind == "h":
+                base = re.sub(r"[^a-z0-9]+", "-", value[1].lower()).strip("-") or "section"
+                slug, n = base, 1
+                while slug in used:
+                    n += 1
+                    slug = f"{base}-{n}"
+                used.add(slug)
+                ids[i] = slug
+        return ids
+
+    def headings(self, level: int = 2) -> list[tuple[str, str]]:
+        """(text, id) of the headings of ``level``."""
+        ids = self.anchors()
+        marks = {i + 1 for i, (k, _) in enumerate(self.blocks) if k == "contents"}  # the contents' own heading
+        return [(v[1], ids[i]) for i, (k, v) in enumerate(self.blocks)
+                if k == "h" and v[0] == level and i + 1 not in marks]
+
 
 #: What Markdown would read as HTML (a tag, comment, declaration or entity) or as a link's target.
 _MD_ACTIVE = re.compile(r"<(?=[A-Za-z/!?])|&(?=[A-Za-z#])|\](?=\()")
@@ -68,14 +104,16 @@ def render_markdown(doc: Document) -> str:
     """The document as Markdown; all text is shown literally (:func:`_md_text`), as the HTML page escapes it."""
     out = []
     for kind, value in doc.blocks:
-        if kind == "h":
+        if kind == "contents":
+            out.append("\n".join(f"- [{_md_cell(text)}](#{slug})" for text, slug in doc.headings()) + "\n")
+        elif kind == "h":
             out.append(f"{'#' * value[0]} {_md_text(value[1])}\n")
         elif kind == "p":
             out.append(f"{_md_text(value)}\n")
         elif kind == "ul":
             out.append("\n".join(f"- {_md_cell(i)}" for i in value) + "\n")
-        elif kind == "table":
-            cols = list(value.columns)
+        elif kind in ("table", "matrix"):
+            cols = [" ".join(c).strip() if isinstance(c, tuple) else c for c in value.columns]
             lines = ["| " + " | ".join(_md_cell(c) for c in cols) + " |", "|" + "---|" * len(cols)]
             lines += ["| " + " | ".join(_md_cell(v) for v in row) + " |" for row in value.itertuples(index=False)]
             out.append("\n".join(lines) + "\n")
@@ -96,6 +134,27 @@ th{background:#f0f0f0}td:first-child,th:first-child{text-align:left}
 tr:nth-child(even){background:#fafafa}
 figure{margin:1.2em 0}figure img{max-width:100%;height:auto;border:1px solid #eee}
 figcaption{font-size:0.9em;color:#444}code{background:#f4f4f4;padding:0 3px}
+th.sort{cursor:pointer}th.sort:after{content:" \\2195";color:#999}
+nav.contents ul{columns:2;font-size:0.9em}
+td.v{text-align:center;padding:1px 3px}table.matrix th{padding:2px 3px}th.group{text-align:center}
+th.up span{writing-mode:vertical-rl;transform:rotate(180deg);font-weight:normal}
+""" + "".join(f"td.v-{v}{{background:{c}33;color:{c};font-weight:700}}" for v, c in VERDICT_COLORS.items())
+
+#: Click a column's header to sort the table by it (numbers as numbers, a second click reverses).
+_SORT = """
+document.querySelectorAll('table.sortable').forEach(function(t){
+  t.querySelectorAll('th').forEach(function(th,col){
+    th.classList.add('sort');
+    th.addEventListener('click',function(){
+      var body=t.tBodies[0],rows=Array.prototype.slice.call(body.rows),up=th.dataset.up!=='1';
+      var key=function(r){var s=r.cells[col].textContent.trim(),n=parseFloat(s.replace(/[^0-9eE+.\u2212-].*$/,'')
+        .replace('\u2212','-'));return isNaN(n)?s:n;};
+      rows.sort(function(a,b){var x=key(a),y=key(b);
+        var c=(typeof x===typeof y)?(x<y?-1:x>y?1:0):(typeof x==='number'?-1:1);return up?c:-c;});
+      th.dataset.up=up?'1':'0';rows.forEach(function(r){body.appendChild(r);});
+    });
+  });
+});
 """
 
 
@@ -103,9 +162,13 @@ def render_html(doc: Document, title: str) -> str:
     esc = html.escape
     out = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
            f"<title>{esc(title)}</title>", f"<style>{_CSS}</style></head><body>"]
-    for kind, value in doc.blocks:
-        if kind == "h":
-            out.append(f"<h{value[0]}>{esc(value[1])}</h{value[0]}>")
+    ids = doc.anchors()
+    for i, (kind, value) in enumerate(doc.blocks):
+        if kind == "contents":
+            out.append('<nav class="contents"><ul>' + "".join(f'<li><a href="#{slug}">{esc(text)}</a></li>'
+                                                              for text, slug in doc.headings()) + "</ul></nav>")
+        elif kind == "h":
+            out.append(f'<h{value[0]} id="{ids[i]}">{esc(value[1])}</h{value[0]}>')
         elif kind == "p":
             out.append(f"<p>{esc(value)}</p>")
         elif kind == "ul":
@@ -114,12 +177,22 @@ def render_html(doc: Document, title: str) -> str:
             head = "".join(f"<th>{esc(str(c))}</th>" for c in value.columns)
             body = "".join("<tr>" + "".join(f"<td>{esc(str(v))}</td>" for v in row) + "</tr>"
                            for row in value.itertuples(index=False))
-            out.append(f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>")
+            out.append(f'<table class="sortable"><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>')
+        elif kind == "matrix":
+            spans = [(g, sum(1 for _ in n)) for g, n in itertools.groupby(c[0] for c in value.columns)]
+            head = ("<tr>" + "".join(f'<th colspan="{n}" class="group">{esc(g)}</th>' for g, n in spans)
+                    + "</tr><tr>" + "".join(f'<th class="{"up" if c[0] else ""}"><span>{esc(c[1])}</span></th>'
+                                            for c in value.columns) + "</tr>")
+            body = "".join("<tr>" + "".join(
+                f'<td class="v v-{_MARK_VERDICT[v]}" title="{_MARK_VERDICT[v]}">{esc(v)}</td>'
+                if v in _MARK_VERDICT else f"<td>{esc(str(v))}</td>" for v in row) + "</tr>"
+                for row in value.itertuples(index=False))
+            out.append(f'<table class="matrix"><thead>{head}</thead><tbody>{body}</tbody></table>')
         elif kind == "figure":
             data = base64.b64encode(value.png).decode("ascii")
             out.append(f'<figure><img alt="{esc(value.caption)}" src="data:image/png;base64,{data}">'
                        f"<figcaption>{esc(value.caption)}</figcaption></figure>")
-    out.append("</body></html>")
+    out.append(f"<script>{_SORT}</script></body></html>")
     return "\n".join(out)
 
 

@@ -23,7 +23,7 @@ from .. import stats
 from ..metrics import find_metric
 from ..planners import PLANNERS
 from ..simulate.figures import panel_grid
-from .document import FigureFile, save_figure
+from .document import VERDICT_COLORS, FigureFile, save_figure
 from .load import SINGLE_ROLES, SWARM_ROLES, ReportError, report_metrics, roles
 from .select import Selection, format_value, ignored_columns, swept_columns, symbol
 from .tables import ALL, group_rows, groups, headline
@@ -200,8 +200,8 @@ def plot_performance_profile(taus: np.ndarray, curves: Mapping[str, Mapping[int,
     handles = [Line2D([], [], color=colors[s], linestyle=_linestyle(methods[s]), label=labels[s])
                for s in settings]
     _legend_below(fig, handles, ncol=min(len(handles), 3))
-    fig.suptitle(f"Performance profile of {metric}" + (" (bands: pointwise Wilson CI)" if bands else ""),
-                 fontsize=10)
+    fig.suptitle(f"Performance profile of {metric} ({find_metric(metric).doc})"
+                 + (" (bands: pointwise Wilson CI)" if bands else ""), fontsize=9)
     return fig
 
 
@@ -273,7 +273,8 @@ def plot_differences(comparisons: pd.DataFrame, labels: Mapping[int, str], metri
                      alpha: float, baseline: str) -> Figure:
     """Forest plot: paired difference (setting − ``baseline``) with its CI, one panel per metric; rates
     in percentage points as in the tables, continuous metrics in their units; grey band: the relevance
-    margin. Filled markers: Holm-adjusted p <= ``alpha``; open markers: not significant."""
+    margin. Colour: the comparison's verdict (:data:`~jaxapf.report.document.VERDICT_COLORS`, the words
+    of the key findings); filled markers: a verdict other than inconclusive."""
     settings = [s for s in labels if s in set(comparisons["setting"])]
     fig, axes = panel_grid(len(metrics), (3.4, 0.8 + 0.3 * max(len(settings), 1)), (2.6, 1.0), sharey=True)
     for ax, metric in zip(axes, metrics):
@@ -282,7 +283,7 @@ def plot_differences(comparisons: pd.DataFrame, labels: Mapping[int, str], metri
         scale = 100.0 if rate else 1.0
         if len(sub) and math.isfinite(float(sub["margin"].iloc[0])):
             margin = scale * float(sub["margin"].iloc[0])
-            ax.axvspan(-margin, margin, color="0.85", zorder=0, linewidth=0)
+            ax.axvspan(-margin, margin, color="0.88", zorder=0, linewidth=0)
         for i, s in enumerate(settings):
             if s not in sub.index:
                 continue
@@ -290,11 +291,10 @@ def plot_differences(comparisons: pd.DataFrame, labels: Mapping[int, str], metri
             d, lo, hi = (scale * float(r[c]) for c in ("delta", "delta_lo", "delta_hi"))
             if not math.isfinite(d):
                 continue
-            better = (d > 0) == bool(r["higher_is_better"]) and d != 0
-            color = "tab:green" if better else ("tab:red" if d != 0 else "gray")
-            sig = math.isfinite(float(r["p_holm"])) and float(r["p_holm"]) <= alpha
+            color = VERDICT_COLORS[str(r["verdict"])]
+            decided = str(r["verdict"]) != "inconclusive"
             ax.errorbar([d], [i], xerr=[[max(d - lo, 0.0)], [max(hi - d, 0.0)]] if math.isfinite(lo) else None,
-                        fmt="o", color=color, markerfacecolor=color if sig else "white", capsize=2)
+                        fmt="o", color=color, markerfacecolor=color if decided else "white", capsize=2)
         ax.axvline(0.0, color="black", linewidth=0.8)
         unit = "pp" if rate else find_metric(metric).unit
         name = f"Δ {metric}" if rate else f"HL shift {metric}"
@@ -306,8 +306,11 @@ def plot_differences(comparisons: pd.DataFrame, labels: Mapping[int, str], metri
         ax.set_xlabel(name, fontsize=8)
         ax.grid(True, axis="x", linewidth=0.4, alpha=0.5)
     _setting_ticks(axes, [labels[s] for s in settings])
-    fig.suptitle(f"Paired differences, setting − baseline ({baseline}); green: better, red: worse, filled: "
-                 f"Holm p ≤ {alpha:g}, grey band: relevance margin", fontsize=9)
+    handles = [Line2D([], [], color=c, marker="o", linestyle="", markerfacecolor=c if v != "inconclusive" else "white",
+                      label=v) for v, c in VERDICT_COLORS.items()]
+    _legend_below(fig, handles, ncol=4)
+    fig.suptitle(f"Paired differences, setting − baseline ({baseline}); colour: verdict (Holm α = {alpha:g}), "
+                 "grey band: relevance margin", fontsize=9)
     return fig
 
 
@@ -429,7 +432,9 @@ def row_figures(sel: Selection, options: Any, figdir: pathlib.Path) -> tuple[lis
             curves[g][s] = (frac, lo, hi)
     bands = len(sel.settings) <= 6
     figures.append(save_figure(plot_performance_profile(taus, curves, labels, methods, metric, bands),
-                               f"profile_{metric}", f"Performance profile: fraction of episodes with {metric} > τ"
+                               f"profile_{metric}", f"Performance profile: fraction of episodes with {metric} > τ, "
+                               f"{metric} being {find_metric(metric).doc}; at τ → 0 it is the rate of episodes "
+                               f"with {metric} > 0, beyond it how many keep a higher value"
                                + (" (bands: pointwise Wilson intervals)" if bands else ""), figdir, options.svg))
     return figures, notes
 
@@ -457,6 +462,6 @@ def table_figures(sel: Selection, summary: pd.DataFrame, comparisons: pd.DataFra
                                    "differences", f"Paired differences to the baseline {baseline} ({group}): rates "
                                    "as the difference in proportions in percentage points (Newcombe interval), "
                                    "continuous metrics as the Hodges-Lehmann shift in their units (signed-rank "
-                                   "interval); filled = Holm-significant, grey band = relevance margin", figdir,
-                                   options.svg))
+                                   "interval); colour = the verdict of the key findings, grey band = relevance "
+                                   "margin", figdir, options.svg))
     return figures

@@ -96,7 +96,7 @@ def gallery(sel: Selection, episodes: list[tuple[str, pd.Series, Any]], options:
         return [], ["gallery skipped (--gallery 0)"]
     if not episodes:
         return [], ["gallery: no failed episode among the reported settings"]
-    from ..simulate import plot_trajectories
+    from ..simulate.figures import failure_cause, plot_failure
     from ..simulate.swarm import plot_swarm_snapshots, plot_swarm_trajectories
 
     role = roles(sel.data.columns)
@@ -126,9 +126,12 @@ def gallery(sel: Selection, episodes: list[tuple[str, pd.Series, Any]], options:
             figures.append(save_figure(plot_swarm_snapshots(runs, field), f"gallery_{i}_snapshots",
                                        f"Worst episode #{i}, the swarm at fractions of its end", figdir, options.svg))
             continue
-        fig = plot_trajectories(runs, field, title=f"Worst episode #{i} ({kind}): {what}")
-        caption = (f"{kind}: {what} (seed {cfg.seed}); recorded min clearance "
-                   f"{_num(row[near])} m, final distance {_num(row.get('final_distance', math.nan))} m; "
-                   f"re-simulated min clearance {_num(run.metrics[near])} m; {check}")
+        why = failure_cause(run, field)
+        tag = ", a bad start" if "bad start" in why else ""
+        fig = plot_failure(run, field, f"Worst episode #{i} ({kind}{tag}): {what}")
+        caption = (f"{kind}: {what} (seed {cfg.seed}): {why}. Recorded min clearance {_num(row[near])} m, final "
+                   f"distance {_num(row.get('final_distance', math.nan))} m; re-simulated min clearance "
+                   f"{_num(run.metrics[near])} m; {check}. Left: the top view at the failure, right: the clearance to "
+                   "the nearest obstacles over time (dashed: the failure)")
         figures.append(save_figure(fig, f"gallery_{i}", caption, figdir, options.svg))
     return figures, notes

@@ -26,6 +26,7 @@ import pandas as pd
 
 from .. import stats
 from ..metrics import all_metrics, find_metric
+from .document import VERDICT_MARKS
 from .load import ROW_COLUMNS, SINGLE_ROLES, SWARM_ROLES, report_metrics
 
 __all__ = ["ALL", "groups", "group_rows", "pools", "summarize", "compare", "rates_table", "continuous_table",
@@ -381,3 +382,69 @@ def findings(summary: pd.DataFrame, comparisons: pd.DataFrame, group: str, optio
             out.append(f"{r['verdict'].capitalize()}: {r['label']} vs #{int(r['baseline'])}, {r['metric']} "
                        f"{what}{unit} ({pairs}; p Holm {_p(r['p_holm'])}).")
     return out
+
+
+def verdict_matrix(comparisons: pd.DataFrame, metrics: Sequence[str], groups: Sequence[str]) -> pd.DataFrame:
+    """One row per compared setting (its baseline named where settings have their own), one column per
+    (group, metric), each cell the verdict's mark (:data:`VERDICT_MARKS`; empty where not compared);
+    columns are a two-level index (group, metric)."""
+    comp = comparisons[comparisons["family"].isin(groups)]
+    verdict = comp.set_index(["setting", "family", "metric"])["verdict"]
+    settings = list(pd.unique(comp["setting"]))
+    label = comp.drop_duplicates("setting").set_index("setting")
+    each_own = label["baseline_label"].nunique() > 1
+    columns = [("", "setting")] + [(g, m) for g in groups for m in metrics]
+    rows = []
+    for s in settings:
+        row = [label.at[s, "label"] + (f" (vs #{int(label.at[s, 'baseline'])})" if each_own else "")]
+        row += [VERDICT_MARKS.get(verdict.get((s, g, m), ""), "") for g in groups for m in metrics]
+        rows.append(row)
+    return pd.DataFrame(rows, columns=pd.MultiIndex.from_tuples(columns))
+
+
+def _listing(names: Sequence[str]) -> str:
+    names = list(names)
+    return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
+
+
+def _standing(sub: pd.DataFrame) -> str:
+    """What one setting's verdicts in one group say: the metrics on which it is better and worse, and how
+    many are equivalent."""
+    parts = [f"{v} on {_listing(sub.loc[sub['verdict'] == v, 'metric'])}" for v in ("better", "worse")
+             if (sub["verdict"] == v).any()]
+    same = int((sub["verdict"] == "equivalent").sum())
+    if same:
+        parts.append(f"equivalent on {same} metric{'s' * (same != 1)}" if parts else "equivalent on "
+                     + _listing(sub.loc[sub["verdict"] == "equivalent", "metric"]))
+    return ", ".join(parts) if parts else "inconclusive on every metric"
+
+
+def bottom_line(comparisons: pd.DataFrame, group: str, families: Sequence[str], rates: Sequence[str],
+                most: int = 3) -> str:
+    """The report's summary paragraph: each setting's verdicts against its baseline in ``group`` (the
+    pooled one), the settings with the most *better* minus *worse* first (``most`` of each end), then
+    the families where a setting's verdict on a rate (``rates``: success, collision, ...) differs from
+    the pooled one, all in :func:`stats.verdict`'s words."""
+    comp = comparisons[comparisons["family"] == group] if len(comparisons) else comparisons
+    if not len(comp):
+        return "Nothing to compare: every reported setting is a baseline setting."
+    score = comp.groupby("setting", sort=False)["verdict"].agg(
+        lambda v: int((v == "better").sum()) - int((v == "worse").sum()))
+    order = list(score.sort_values(ascending=False, kind="stable").index)
+    shown = order if len(order) <= 2 * most else order[:most] + order[-most:]
+    bases = pd.unique(comp["baseline_label"])
+    against = f"against {bases[0]}" if len(bases) == 1 else "each against its baseline"
+    clauses = [f"{comp.loc[comp['setting'] == s, 'label'].iloc[0]} is {_standing(comp[comp['setting'] == s])}"
+               for s in shown]
+    text = [f"{group.capitalize() if group != ALL else 'Pooled over the families'} ({against}): "
+            + "; ".join(clauses)
+            + ("" if len(shown) == len(order) else f" ({len(order) - len(shown)} settings in between)") + "."]
+    pooled = comp.set_index(["setting", "metric"])["verdict"]
+    for f in families:
+        sub = comparisons[(comparisons["family"] == f) & comparisons["metric"].isin(rates)]
+        moved = [(s, r) for s in order for r in sub[sub["setting"] == s].itertuples()
+                 if pooled.get((s, r.metric)) != r.verdict and r.verdict != "inconclusive"]
+        if moved:
+            text.append(f"In {f}: " + "; ".join(f"{r.label} is {r.verdict} on {r.metric}" for _, r in moved[:most])
+                        + (f" (and {len(moved) - most} more)" if len(moved) > most else "") + ".")
+    return " ".join(text)

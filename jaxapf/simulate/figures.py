@@ -40,6 +40,8 @@ __all__ = [
     "FIGURES",
     "run_colors",
     "outcome",
+    "failure_cause",
+    "plot_failure",
     "plot_trajectories",
     "plot_snapshots",
     "plot_obstacle_distance",
@@ -331,7 +333,7 @@ def _draw_obstacles_xy(ax, field: Field, t: float, *, dashed: bool = False, numb
                            hatch=None if field.obstacle_cylinder[j] else "////", linewidth=1.0, zorder=2)
         ax.add_patch(patch)
         if numbers:
-            ax.text(cx, cy, str(j + 1), ha="center", va="center", fontsize=7, color="darkred", zorder=3)
+            ax.text(cx, cy, str(j + 1), ha="center", va="center", fontsize=7, color="darkred", zorder=3, clip_on=True)
 
 
 def _draw_velocity_arrows(ax, field: Field, t_end: float) -> None:
@@ -451,6 +453,69 @@ def plot_trajectories(runs: Sequence[Run], field: Field, title: str | None = Non
     handles = _legend_handles(runs, field, colors, moving_ghost=True, end=True)
     _legend_below(fig, handles)
     _suptitle(fig, title or _title("Trajectories (top view, obstacles at t = 0)", field))
+    return fig
+
+
+def _failure_index(run: Run) -> int:
+    """The sample a failure is seen at: the first collision, else the last sample (a stall or a timeout)."""
+    hit = _collision_index(run)
+    return len(run.time) - 1 if hit is None else hit
+
+
+def failure_cause(run: Run, field: Field) -> str:
+    """Why an episode failed, in one sentence of measured facts: the outcome, the obstacle nearest at the
+    failure, how far the UAV flew, and a *bad start* where it began closer than ``d_safe`` to an obstacle."""
+    k = _failure_index(run)
+    flown = float(np.linalg.norm(np.diff(run.position[: k + 1], axis=0), axis=1).sum())
+    parts = [outcome(run, field) + f" after flying {flown:.2f} m"]
+    if run.clearance.shape[1]:
+        near = int(np.nanargmin(run.clearance[k]))
+        parts.append(f"obstacle {near + 1} nearest there ({run.clearance[k, near]:.2f} m from its surface)")
+        start = int(np.nanargmin(run.clearance[0]))
+        if run.clearance[0, start] < field.d_safe:
+            parts.append(f"a bad start: it began {run.clearance[0, start]:.2f} m from obstacle {start + 1}, "
+                         f"inside d_safe = {field.d_safe:g} m")
+    return "; ".join(parts)
+
+
+def plot_failure(run: Run, field: Field, title: str, window: float = 3.0) -> Figure:
+    """One failed episode in two panels: the top view zoomed on where it failed (at least ``window`` m
+    around it, the path's last 10 s and the obstacles there at that time) and the clearance to the
+    nearest obstacles over time, the failure marked in both."""
+    k = _failure_index(run)
+    colors = run_colors([run])
+    fig, (top, ax) = panel_grid(2, (4.4, 3.6), (0.4, 1.2))
+    at = run.position[k, :2]
+    recent = run.position[(run.time >= run.time[k] - 10.0) & (run.time <= run.time[k]), :2]
+    half = max(window, float(np.abs(recent - at).max()) + 0.5 if len(recent) else window)
+    _draw_obstacles_xy(top, field, float(run.time[k]), numbers=True)
+    _draw_start_goal_xy(top, field)
+    top.plot(run.position[: k + 1, 0], run.position[: k + 1, 1], "-", color=colors[run.label], linewidth=2,
+             zorder=4)
+    top.plot(*at, "X" if _collision_index(run) is not None else "o", color="red", markeredgecolor="black",
+             markersize=11, zorder=6)
+    top.add_patch(Circle(tuple(at), field.r_uav, fill=False, edgecolor="black", linewidth=0.8, zorder=6))
+    top.set_xlim(at[0] - half, at[0] + half)
+    top.set_ylim(at[1] - half, at[1] + half)
+    top.set_aspect("equal")
+    top.set_title(f"at t = {run.time[k]:.1f} s (zoomed)", fontsize=10)
+    _label_xy(top)
+    chosen, phrase = _obstacles_to_show(run, field, 2.0 * field.d_safe + 3.0, 4)
+    palette = list(colormaps["Dark2"].colors)
+    for j in chosen:
+        ax.plot(run.time, run.clearance[:, j], color=palette[j % len(palette)], linewidth=1.4, label=f"Obs {j + 1}")
+    ax.axhline(0.0, color="red", linewidth=1.2, label="collision")
+    ax.axhline(field.d_safe, color="black", linestyle=":", linewidth=1.2, label=f"d_safe {field.d_safe:g} m")
+    ax.axvline(run.time[k], color="red", linestyle="--", linewidth=0.8)
+    if chosen.size:
+        ax.set_ylim(min(-0.2, float(np.nanmin(run.clearance[:, chosen])) - 0.1),
+                    max(2.0 * field.d_safe + 1.0, 0.5))
+    ax.set_title(f"clearance ({phrase})", fontsize=10)
+    _time_axis(ax, [run])
+    ax.set_ylabel("clearance [m]")
+    ax.grid(True, linewidth=0.4, alpha=0.5)
+    ax.legend(loc="best", fontsize=7, framealpha=0.8)
+    _suptitle(fig, title, fontsize=10)
     return fig
 
 

@@ -19,6 +19,7 @@ from jaxapf import stats
 from jaxapf.cli import main
 from jaxapf.metrics import METRICS
 from jaxapf.report import ReportError, ReportOptions, build_report, load_sweep, report_metrics
+from jaxapf.report.document import _SORT
 from jaxapf.report.figures import _heatmap_figures
 from jaxapf.report.select import select
 
@@ -101,6 +102,9 @@ def report(sweep, tmp_path_factory) -> pathlib.Path:
 # --------------------------------------------------------------------------------------------
 
 
+SORT_SCRIPT = f"<script>{_SORT}</script>"
+
+
 def test_outputs_exist_and_html_is_self_contained(report):
     for name in ("report.html", "report.md", "summary.csv", "comparisons.csv", "table.tex"):
         assert (report / name).stat().st_size > 0, name
@@ -111,10 +115,13 @@ def test_outputs_exist_and_html_is_self_contained(report):
     assert not any(name.endswith(".svg") for name in figures), "SVGs only with --svg"
     text = (report / "report.html").read_text(encoding="utf-8")
     assert "http://" not in text and "https://" not in text
-    assert not re.search(r"<(script|link|iframe|object|embed)\b", text, re.I)
+    assert text.count(SORT_SCRIPT) == 1  # the page's one script: its tables' sorting, no user text in it
+    assert not re.search(r"<(script|link|iframe|object|embed)\b", text.replace(SORT_SCRIPT, ""), re.I)
     assert not re.search(r"url\(", text)
-    sources = re.findall(r"""(?:src|href)\s*=\s*["']([^"']*)""", text)
+    sources = re.findall(r"""src\s*=\s*["']([^"']*)""", text)
     assert sources and all(s.startswith("data:image/png;base64,") for s in sources)
+    links = re.findall(r"""href\s*=\s*["']([^"']*)""", text)  # the contents: to headings of the page itself
+    assert links and all(h.startswith("#") and f'id="{h[1:]}"' in text for h in links)
     md = (report / "report.md").read_text(encoding="utf-8")
     linked = re.findall(r"\]\((figures/[^)]+)\)", md)
     assert linked and all((report / f).is_file() for f in linked)
@@ -123,7 +130,8 @@ def test_outputs_exist_and_html_is_self_contained(report):
 def test_the_conclusion_and_its_figure_come_first(report):
     md = (report / "report.md").read_text(encoding="utf-8")
     heads = [line for line in md.splitlines() if line.startswith("## ")]
-    assert heads[:2] == ["## Key findings", "## How this report was made"]
+    assert heads[:5] == ["## Bottom line", "## Verdict matrix", "## Contents", "## Key findings",
+                         "## How this report was made"]
     key = md.index("## Key findings")
     assert key < md.index("(figures/differences.png)") < md.index("## How this report was made")
     assert md.count("(figures/differences.png)") == 1
@@ -172,7 +180,7 @@ def test_figures_of_many_groups_and_metrics_are_grids_that_fit_a_page(groups, se
             rows.append(row)
     summary = pd.DataFrame(rows)
     comparisons = pd.DataFrame([{"setting": s, "metric": m, "delta": 0.01, "delta_lo": -0.02, "delta_hi": 0.04,
-                                 "p_holm": 0.5, "higher_is_better": True, "margin": 0.02,
+                                 "p_holm": 0.5, "higher_is_better": True, "margin": 0.02, "verdict": "inconclusive",
                                  "test": "mcnemar" if m in RATES else "wilcoxon"}
                                 for s in range(settings) for m in RATES + CONTINUOUS])
     values = {g: {s: rng.normal(size=50) for s in range(settings)} for g in names}
@@ -524,9 +532,60 @@ def test_swept_tags_named_like_the_reports_columns_and_holding_html_are_shown_as
     assert "<script" not in rendered and "<img src=x" not in rendered and 'href="javascript' not in rendered
     assert "&lt;script&gt;alert(1)&lt;/script&gt;" in rendered  # shown, as text
     page = (out / "report.html").read_text(encoding="utf-8")
+    page = page.replace(SORT_SCRIPT, "")
     assert "<script" not in page and "&lt;script&gt;alert(1)&lt;/script&gt;" in page
     header = next(line for line in markdown.splitlines() if line.startswith("| setting | label | role |"))
     assert "| role (swept) |" in header and "| label (swept) |" in header
     summary = pd.read_csv(out / "summary.csv")  # the report's own label stays the setting's, the tag beside it
     assert summary["label"].str.startswith("#").all() and summary["label (swept)"].str.startswith("<img").all()
     assert (summary["n"] == 8).all() and summary["n (swept)"].str.startswith("N").all()
+
+
+# --------------------------------------------------------------------------------------------
+# the bottom line
+# --------------------------------------------------------------------------------------------
+
+
+def _verdicts(rows):
+    """A comparisons frame of hand-made verdicts: (setting, family, metric, verdict)."""
+    return pd.DataFrame([{"setting": s, "label": f"#{s} m{s}", "baseline": 0, "baseline_label": "#0 base",
+                          "family": f, "metric": m, "verdict": v} for s, f, m, v in rows])
+
+
+def test_the_bottom_line_names_each_settings_verdicts_and_the_families_that_differ():
+    from jaxapf.report.tables import bottom_line
+
+    comp = _verdicts([(1, "all", "success", "better"), (1, "all", "collision", "equivalent"),
+                      (1, "all", "time_to_goal", "worse"), (2, "all", "success", "inconclusive"),
+                      (2, "all", "collision", "inconclusive"), (2, "all", "time_to_goal", "inconclusive"),
+                      (1, "trap", "success", "worse"), (1, "trap", "collision", "equivalent"),
+                      (2, "trap", "success", "inconclusive"), (1, "clutter", "success", "inconclusive")])
+    text = bottom_line(comp, "all", ["trap", "clutter"], ["success", "collision"])
+    assert text == ("Pooled over the families (against #0 base): #1 m1 is better on success, worse on time_to_goal, "
+                    "equivalent on 1 metric; #2 m2 is inconclusive on every metric. "
+                    "In trap: #1 m1 is worse on success.")  # clutter: inconclusive there says nothing new
+    assert bottom_line(comp.iloc[:0], "all", [], []).startswith("Nothing to compare")
+
+
+def test_the_verdict_matrix_marks_every_setting_group_and_metric():
+    from jaxapf.report.tables import verdict_matrix
+
+    comp = _verdicts([(1, "trap", "success", "better"), (1, "all", "success", "worse"),
+                      (2, "all", "success", "equivalent"), (2, "trap", "collision", "inconclusive")])
+    m = verdict_matrix(comp, ["success", "collision"], ["trap", "all"])
+    assert list(m.columns) == [("", "setting"), ("trap", "success"), ("trap", "collision"), ("all", "success"),
+                               ("all", "collision")]
+    assert m.values.tolist() == [["#1 m1", "▲", "", "▼", ""], ["#2 m2", "", "·", "=", ""]]
+
+
+def test_the_page_colours_each_verdict_cell_and_its_tables_sort(report):
+    page = (report / "report.html").read_text(encoding="utf-8")
+    comp = pd.read_csv(report / "comparisons.csv")
+    matrix = page[page.index('<table class="matrix">'):]
+    matrix = matrix[: matrix.index("</table>")]
+    cells = re.findall(r'<td class="v v-(\w+)" title="(\w+)">(.)</td>', matrix)
+    assert cells and all(a == b for a, b, _ in cells)
+    shown = [g for g in pd.unique(comp["family"]) if "/" not in g]  # kinds are left to the comparison tables
+    assert len(cells) == len(comp[comp["family"].isin(shown)])
+    assert sorted(v for v, _, _ in cells) == sorted(comp.loc[comp["family"].isin(shown), "verdict"])
+    assert page.count('<table class="sortable">') >= 5

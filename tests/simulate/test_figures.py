@@ -274,3 +274,24 @@ def test_nine_planners_side_by_side_get_nine_colours(example):
     labels = [*PLANNERS.names(), "basic+cbf", "direction_velocity+cbf"][:9]
     colors = run_colors([dataclasses.replace(runs[0], label=label) for label in labels])
     assert len(set(colors.values())) == len(labels), colors
+
+
+def test_failure_cause_states_the_outcome_the_nearest_obstacle_and_a_bad_start():
+    from jaxapf.simulate.figures import failure_cause, plot_failure
+
+    field = make_field(2)
+    # starts 0.2 m from obstacle 1's surface (centre 12, 1.5; radius 1.5 + r_uav 0.3), stays put: a stall
+    start = np.array([12.0, 1.5 - 2.0, 5.0])
+    field = Field(start=start, goal=field.goal, obstacle_position=field.obstacle_position[:1],
+                  obstacle_velocity=field.obstacle_velocity[:1], obstacle_radius=field.obstacle_radius[:1],
+                  obstacle_cylinder=field.obstacle_cylinder[:1], r_uav=0.3, r_goal=0.5, d_safe=1.0)
+    path = np.stack([np.full(9, 12.0), np.linspace(-0.5, -0.9, 9), np.full(9, 5.0)], axis=1)
+    why = failure_cause(make_run("basic", field, path, stalled=True, final_distance=18.0), field)
+    assert why == ("stalled, 18.0 m from goal after flying 0.40 m; obstacle 1 nearest there (0.60 m from its "
+                   "surface); a bad start: it began 0.20 m from obstacle 1, inside d_safe = 1 m")
+    # a collision is seen at its first sample, and a start outside d_safe is no bad start
+    path = np.stack([np.full(9, 12.0), np.linspace(-3.0, 1.0, 9), np.full(9, 5.0)], axis=1)  # 0.5 m a step
+    why = failure_cause(make_run("basic", field, path, collision=True), field)
+    assert why == "collision at 3.0 s after flying 3.00 m; obstacle 1 nearest there (-0.30 m from its surface)"
+    fig = plot_failure(make_run("basic", field, path, collision=True), field, "title")
+    assert [ax.get_ylabel() for ax in fig.axes] == ["y [m]", "clearance [m]"]
