@@ -1,0 +1,84 @@
+"""report.html in a real browser: headless Chromium (the operating system's, driven by Playwright) opens
+the page at 1280 px and checks what a reader would see: every figure loads, the contents' links land on
+their headings, nothing is wider than the window, a header click sorts its table, the console stays
+clean. Skipped where no Chromium is installed, unless ``JAXAPF_REQUIRE_BROWSER=1`` (``.ci/run``)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+
+import pytest
+from test_report import RESAMPLES, make_rows, write_sweep
+
+from jaxapf.cli import main
+
+pytestmark = pytest.mark.slow
+
+CHROMIUM = next((p for p in map(shutil.which, ("chromium", "chromium-browser", "google-chrome")) if p), None)
+
+
+@pytest.fixture(scope="module")
+def page(tmp_path_factory):
+    if CHROMIUM is None:
+        if os.environ.get("JAXAPF_REQUIRE_BROWSER") == "1":
+            pytest.fail("JAXAPF_REQUIRE_BROWSER=1 but no chromium on PATH")
+        pytest.skip("no chromium on PATH (apt-get install chromium)")
+    sync_api = pytest.importorskip("playwright.sync_api")
+    tmp = tmp_path_factory.mktemp("browser")
+    out = tmp / "report"
+    assert main(["report", str(write_sweep(tmp / "s.parquet", make_rows())), "--out", str(out),
+                 "--resamples", str(RESAMPLES), "--gallery", "0"]) == 0
+    with sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+        tab = browser.new_page(viewport={"width": 1280, "height": 900})
+        messages = []
+        tab.on("console", lambda m: messages.append((m.type, m.text)))
+        tab.on("pageerror", lambda e: messages.append(("pageerror", str(e))))
+        tab.goto((out / "report.html").as_uri())
+        tab.wait_for_load_state("load")
+        yield tab, messages
+        browser.close()
+
+
+def test_every_figure_loads(page):
+    tab, _ = page
+    sizes = tab.eval_on_selector_all("img", "imgs => imgs.map(i => [i.complete, i.naturalWidth])")
+    assert len(sizes) >= 5 and all(done and width > 0 for done, width in sizes)
+
+
+def test_the_contents_links_land_on_their_headings(page):
+    tab, _ = page
+    links = tab.eval_on_selector_all("nav.contents a", "as => as.map(a => a.getAttribute('href'))")
+    assert len(links) >= 8
+    for href in links:
+        tab.click(f"nav.contents a[href='{href}']")
+        assert tab.evaluate("location.hash") == href
+        top = tab.evaluate(f"document.getElementById('{href[1:]}').getBoundingClientRect().top")
+        bottom = tab.evaluate("window.scrollY + window.innerHeight >= document.documentElement.scrollHeight - 1")
+        assert abs(top) < 2 or (bottom and 0 < top < 900)  # at the heading, or as far as the page goes
+
+
+def test_nothing_is_wider_than_the_window(page):
+    tab, _ = page
+    assert tab.evaluate("document.documentElement.scrollWidth") <= 1280
+    wide = tab.evaluate("""Array.from(document.querySelectorAll('body *')).filter(e => {
+        const r = e.getBoundingClientRect(); return r.right > 1280.5 && !e.closest('table');}).length""")
+    assert wide == 0  # tables scroll inside themselves; nothing else reaches past the window
+
+
+def test_a_header_click_sorts_its_table(page):
+    tab, _ = page
+    table = "table.sortable >> nth=3"  # a table of numbers with intervals
+    first = [float(v.split()[0]) for v in tab.locator(table).locator("tbody tr td:nth-child(3)").all_inner_texts()]
+    tab.locator(table).locator("th:nth-child(3)").click()
+    up = [float(v.split()[0]) for v in tab.locator(table).locator("tbody tr td:nth-child(3)").all_inner_texts()]
+    assert up == sorted(first)
+    tab.locator(table).locator("th:nth-child(3)").click()
+    assert [float(v.split()[0]) for v in tab.locator(table).locator("tbody tr td:nth-child(3)").all_inner_texts()] \
+        == sorted(first, reverse=True)
+
+
+def test_the_console_stays_clean(page):
+    tab, messages = page
+    assert not [m for m in messages if m[0] in ("error", "pageerror", "warning")]
