@@ -111,6 +111,9 @@ def build_parser() -> argparse.ArgumentParser:
                           "(default basic,direction_velocity)")
     sim.add_argument("--out", type=pathlib.Path, default=pathlib.Path("out/simulate"),
                      help="output folder (default out/simulate)")
+    sim.add_argument("--animate", action="store_true",
+                     help="also write episode.mp4 and episode.gif: the methods' episodes side by side, obstacles "
+                          "moving (needs the video extra: pip install -e \".[video]\")")
     _gain_flags(sim)
     s = sim.add_argument_group("simulation and MPC")
     defaults = cat["defaults"]
@@ -147,6 +150,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="the two swept gains of the heatmaps (default gamma,k; 'none' to skip)")
     rep.add_argument("--gallery", type=int, default=3, metavar="N",
                      help="worst episodes re-simulated and drawn (default 3; 0 to skip)")
+    rep.add_argument("--animate", action="store_true",
+                     help="also animate the gallery's worst episodes (GIF in the page, MP4 beside it; the video extra)")
     rep.add_argument("--svg", action="store_true", help="also write every figure as SVG (vector graphics for a paper)")
     rep.add_argument("--resamples", type=int, default=2000, help="bootstrap resamples (default 2000)")
     rep.add_argument("--confidence", type=float, default=0.95, help="interval level (default 0.95)")
@@ -315,6 +320,7 @@ def _simulate(args: argparse.Namespace) -> int:
     from ..scenarios import family_params
     from ..scenarios.swarms import swarm_params
     from ..simulate import format_metrics_table, simulate_runs, write_outputs
+    from ..simulate.animate import animate, tracks_of_runs, tracks_of_swarm
     from ..simulate.swarm import simulate_swarm, write_swarm_outputs
     from ..sweep.spec import traced_weights
     from ..validation import MAX_FIELDS, MAX_SEED, ConfigError, check_int
@@ -344,10 +350,14 @@ def _simulate(args: argparse.Namespace) -> int:
                                             overrides)
         paths = write_swarm_outputs(args.out, field, runs, table, config)
         title, metrics = field.field.title, format_metrics_table(runs)
+        if args.animate:
+            paths += animate(tracks_of_swarm(runs, field), field.field, args.out, title=title)
     else:
         field, runs, table = simulate_runs(args.family, args.seed, args.field, args.methods, gains, sim, mpc)
         paths = write_outputs(args.out, field, runs, table, config)
         title, metrics = field.title, format_metrics_table(runs)
+        if args.animate:
+            paths += animate(tracks_of_runs(runs, field), field, args.out, title=title)
     print(f"{title}: {sim.episode.steps} steps of {sim.episode.dt:g} s, {len(runs)} methods "
           f"in {time.perf_counter() - start:.1f} s")
     print(metrics)
@@ -467,7 +477,7 @@ def _report_with(args: argparse.Namespace, pool: Any) -> int:
     options = ReportOptions(baseline=args.baseline, where=tuple(args.where), heatmap=heatmap,
                             gallery=args.gallery, resamples=args.resamples, confidence=args.confidence,
                             seed=args.seed, profile_metric=args.profile_metric, margins=_margins(args.margin),
-                            efficiency=args.efficiency, svg=args.svg,
+                            efficiency=args.efficiency, svg=args.svg, animate=args.animate,
                             pair_on=tuple(c.strip() for c in args.pair_on.split(",") if c.strip()))
     name = args.sweep.name.removesuffix(".parquet") or "report"
     out = args.out if args.out is not None else pathlib.Path("reports") / name

@@ -74,6 +74,8 @@ class ReportOptions:
         baseline must agree (``--pair-on``; e.g. ``selection`` in ``jaxapf compare``'s test); empty:
         every swept column except those the baseline filter fixes or the baseline method ignores.
       svg: also write every figure as SVG (``--svg``; a second draw of each figure).
+      animate: also animate each gallery episode (``--animate``): ``gallery_N.gif`` shown in the page,
+        ``gallery_N.mp4`` beside it (:mod:`jaxapf.simulate.animate`).
     """
 
     baseline: str = "method=basic"
@@ -88,6 +90,7 @@ class ReportOptions:
     efficiency: str = "both-success"
     pair_on: tuple[str, ...] = ()
     svg: bool = False
+    animate: bool = False
 
     def __post_init__(self) -> None:
         if self.efficiency not in ("both-success", "all-pairs"):
@@ -314,5 +317,6 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
     html_path = out / "report.html"
     html_path.write_text(render_html(doc, title), encoding="utf-8")
     paths += [html_path, md_path, summary_path, comp_path, tex_path]
-    paths += [figdir / f"{f.name}.{ext}" for f in figures + shown for ext in ("png", "svg")[: 1 + f.svg]]
+    paths += [figdir / f"{f.name}.{ext}" for f in figures + shown
+              for ext in ((f.format, "svg")[: 1 + f.svg] + ("mp4",) * (f.format == "gif"))]
     return ReportResult(out, paths, summary, comparisons, notes, incomplete)

@@ -27,12 +27,14 @@ _MARK_VERDICT = {m: v for v, m in VERDICT_MARKS.items()}
 
 @dataclasses.dataclass
 class FigureFile:
-    """A rendered figure: file stem, caption, PNG bytes, and whether an SVG was written beside it."""
+    """A rendered figure: file stem, caption, image bytes (``format``: png, or gif for an animation), and
+    whether an SVG was written beside it."""
 
     name: str
     caption: str
     png: bytes
     svg: bool = False
+    format: str = "png"
 
 
 @dataclasses.dataclass
@@ -120,7 +122,7 @@ def render_markdown(doc: Document) -> str:
         elif kind == "figure":
             vector = f" (vector: `figures/{value.name}.svg`)" if value.svg else ""
             caption = _md_text(value.caption).replace("\n", " ")
-            out.append(f"![{caption}](figures/{value.name}.png)\n\n*{caption}*{vector}\n")
+            out.append(f"![{caption}](figures/{value.name}.{value.format})\n\n*{caption}*{vector}\n")
     return "\n".join(out)
 
 
@@ -190,7 +192,7 @@ def render_html(doc: Document, title: str) -> str:
             out.append(f'<table class="matrix"><thead>{head}</thead><tbody>{body}</tbody></table>')
         elif kind == "figure":
             data = base64.b64encode(value.png).decode("ascii")
-            out.append(f'<figure><img alt="{esc(value.caption)}" src="data:image/png;base64,{data}">'
+            out.append(f'<figure><img alt="{esc(value.caption)}" src="data:image/{value.format};base64,{data}">'
                        f"<figcaption>{esc(value.caption)}</figcaption></figure>")
     out.append(f"<script>{_SORT}</script></body></html>")
     return "\n".join(out)

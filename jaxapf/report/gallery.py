@@ -89,6 +89,19 @@ def resimulate(sel: Selection, meta: Mapping, options: Any) -> list[tuple[str, p
     return out
 
 
+def _animation(runs, field, figdir: pathlib.Path, i: int, title: str) -> FigureFile:
+    """Episode ``i`` of the gallery animated (``gallery_i_animated.gif``, and ``.mp4`` beside it)."""
+    from ..simulate.animate import animate, tracks_of_runs, tracks_of_swarm
+    from ..simulate.swarm import SwarmField
+
+    swarm = isinstance(field, SwarmField)
+    tracks = tracks_of_swarm(runs, field) if swarm else tracks_of_runs(runs, field)
+    stem = f"gallery_{i}_animated"
+    animate(tracks, field.field if swarm else field, figdir, stem=stem, title=f"#{i}")
+    return FigureFile(stem, f"{title}, animated (MP4: figures/{stem}.mp4)", (figdir / f"{stem}.gif").read_bytes(),
+                      format="gif")
+
+
 def gallery(sel: Selection, episodes: list[tuple[str, pd.Series, Any]], options: Any,
             figdir: pathlib.Path) -> tuple[list[FigureFile], list[str]]:
     """The figures of the re-simulated ``episodes`` (:func:`resimulate`) and notes."""
@@ -125,6 +138,8 @@ def gallery(sel: Selection, episodes: list[tuple[str, pd.Series, Any]], options:
                                        figdir, options.svg))
             figures.append(save_figure(plot_swarm_snapshots(runs, field), f"gallery_{i}_snapshots",
                                        f"Worst episode #{i}, the swarm at fractions of its end", figdir, options.svg))
+            if options.animate:
+                figures.append(_animation(runs, field, figdir, i, f"Worst episode #{i} ({kind}): {what}"))
             continue
         why = failure_cause(run, field)
         tag = ", a bad start" if "bad start" in why else ""
@@ -134,4 +149,6 @@ def gallery(sel: Selection, episodes: list[tuple[str, pd.Series, Any]], options:
                    f"{_num(run.metrics[near])} m; {check}. Left: the top view at the failure, right: the clearance to "
                    "the nearest obstacles over time (dashed: the failure)")
         figures.append(save_figure(fig, f"gallery_{i}", caption, figdir, options.svg))
+        if options.animate:
+            figures.append(_animation([run], field, figdir, i, f"Worst episode #{i} ({kind}{tag}): {what}"))
     return figures, notes

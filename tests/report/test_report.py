@@ -413,7 +413,7 @@ def test_sweep_to_report_end_to_end(tmp_path):
     assert main(["sweep", str(spec), "--out", str(runs), "--no-cache", "--devices", "1", "--quiet"]) == 0
     out = tmp_path / "report"
     assert main(["report", str(runs), "--out", str(out), "--resamples", "100", "--gallery", "1",
-                 "--heatmap", "none"]) == 0
+                 "--heatmap", "none", "--animate"]) == 0
     rows = pd.concat([pd.read_parquet(p) for p in sorted(runs.glob("part-*.parquet"))])
     summary = pd.read_csv(out / "summary.csv")
     for method, group in rows.groupby("method"):
@@ -429,7 +429,10 @@ def test_sweep_to_report_end_to_end(tmp_path):
     assert set(kinds["family"]) == {f"trap/{k}" for k in rows["kind"].unique()}
     md = (out / "report.md").read_text(encoding="utf-8")
     assert "re-simulation matches the recorded outcome" in md
-    assert (out / "report.html").read_text(encoding="utf-8").count("data:image/png;base64,") >= 5
+    page = (out / "report.html").read_text(encoding="utf-8")
+    assert page.count("data:image/png;base64,") >= 5
+    # the worst episode animated: the GIF in the page, its MP4 beside it
+    assert page.count("data:image/gif;base64,") == 1 and (out / "figures" / "gallery_1_animated.mp4").is_file()
 
 
 def _study():

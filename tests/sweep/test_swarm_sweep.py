@@ -181,7 +181,7 @@ def test_the_report_of_a_swarm_sweep_reads_the_swarm_metrics_and_draws_its_worst
     from jaxapf.report import ReportOptions, build_report
 
     _, out, (df, _) = swept
-    result = build_report(out, tmp_path / "rep", ReportOptions(gallery=1, resamples=100, heatmap=None))
+    result = build_report(out, tmp_path / "rep", ReportOptions(gallery=1, resamples=100, heatmap=None, animate=True))
     assert not any("could not re-simulate" in n for n in result.notes), result.notes
     summary = pd.read_csv(tmp_path / "rep" / "summary.csv")
     pooled = summary[(summary["method"] == "basic") & (summary["family"] == "circle_swap")].iloc[0]
@@ -191,6 +191,7 @@ def test_the_report_of_a_swarm_sweep_reads_the_swarm_metrics_and_draws_its_worst
     assert (figures / "ecdf_min_agent_clearance.png").is_file() and (figures / "profile_at_goal.png").is_file()
     if (~df["swarm_success"]).any():
         assert (figures / "gallery_1.png").is_file() and (figures / "gallery_1_snapshots.png").is_file()
+        assert (figures / "gallery_1_animated.gif").is_file() and (figures / "gallery_1_animated.mp4").is_file()
     tex = (tmp_path / "rep" / "table.tex").read_text()
     assert "Makespan" in tex and "closest UAV--UAV" in tex
 
