@@ -357,6 +357,20 @@ def write_readme(summary: pd.DataFrame, df: pd.DataFrame, out: pathlib.Path, cou
     (out / "README.md").write_text("\n".join(text) + "\n")
 
 
+def family_change_max(readme: str) -> dict:
+    """Per imperfection (``latency``, ...) and family, the largest absolute change in success [points] of
+    any method there, read from the per-family tables of the committed ``README.md`` (the episode rows
+    behind them are git-ignored)."""
+    out = {}
+    for block in readme.split("\n### ")[1:]:
+        axis = block.split(" (")[0].replace(" ", "_")
+        rows = [[c.strip() for c in line.strip().strip("|").split("|")] for line in block.splitlines()
+                if line.startswith("| ")]
+        families, values = rows[0][1:], rows[2:]
+        out[axis] = {f: max(abs(float(r[1 + i])) for r in values) for i, f in enumerate(families)}
+    return out
+
+
 def facts(summary: pd.DataFrame, families: int) -> dict:
     """The named values the findings state, per imperfection at its strongest level (``wind``, ``latency``, ...):
     its gains, the change in success and collisions against the ideal world per method (mean over the
@@ -411,7 +425,8 @@ def main() -> None:
 
     spec, _ = load_compare_spec(SPEC)
     if args.facts_only:
-        study.write_facts(out, facts(pd.read_csv(out / "summary.csv"), len(spec.test.families)))
+        study.write_facts(out, facts(pd.read_csv(out / "summary.csv"), len(spec.test.families))
+                          | {"family_change_max": family_change_max((out / "README.md").read_text())})
         return
     count = args.fields or FIELDS
     data = study.ROOT / "runs" / f"robustness-s{len(seeds())}-f{count}.parquet"  # git-ignored; a rerun only redraws
@@ -423,9 +438,10 @@ def main() -> None:
         df.to_parquet(data, index=False)
     summary = summarise(df, args.resamples)
     summary.to_csv(out / "summary.csv", index=False)
-    study.write_facts(out, facts(summary, len(spec.test.families)))
     figure(summary, out / "robustness.png")
     write_readme(summary, df, out, count)
+    study.write_facts(out, facts(summary, len(spec.test.families))
+                      | {"family_change_max": family_change_max((out / "README.md").read_text())})
     print("\n".join(findings(summary)))
 
 
