@@ -107,6 +107,8 @@ class PlannerConfig:
         ablation without it, the reference's first velocity ``(p_1 - p) / Δt`` (a velocity obstacle's
         chosen velocity) reached within the step, whatever the acceleration it takes (no box; a safety
         filter still keeps its own); no disturbance estimator.
+      mppi_samples: the sampled acceleration sequences ``K`` of the ``mppi`` planner per control step
+        (:mod:`jaxapf.planners.mppi`; static: it sets the shape of its batch).
     """
 
     method: str = "direction_velocity"
@@ -120,6 +122,7 @@ class PlannerConfig:
     mpc_weights: str = "static"
     projection_rows: int = 0
     tracking: str = "mpc"
+    mppi_samples: int = 256
 
     def __post_init__(self) -> None:
         _name("sim.method", self.method)
@@ -134,6 +137,7 @@ class PlannerConfig:
         check_choice("sim.mpc_weights", self.mpc_weights, MPC_WEIGHTS)
         check_int("sim.projection_rows", self.projection_rows, 0, 1000)
         check_choice("sim.tracking", self.tracking, TRACKING)
+        check_int("sim.mppi_samples", self.mppi_samples, 1, 65536)
         if self.tracking == "ideal" and self.estimator != "none":
             raise ConfigError(f"sim.tracking = 'ideal' flies without the MPC: sim.estimator must be 'none', "
                               f"not {self.estimator!r}")

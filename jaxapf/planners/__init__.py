@@ -10,6 +10,7 @@
 :mod:`.goal_distance`     Ge–Cui's goal-distance weight (:class:`GoalDistance`), planner ``ge_cui_bounded``
 :mod:`.escape`            stall escape (:class:`StallEscape`), planners ``basic_escape``, ``direction_velocity_escape``
 :mod:`.velocity_obstacle` velocity obstacles, ORCA (:class:`VelocityObstacle`), planner ``velocity_obstacle``
+:mod:`.mppi`              model predictive path integral control (:class:`MPPI`), planner ``mppi``
 ========================  =================================================================
 """
 
@@ -17,6 +18,7 @@ from .apf import APF, ForceTerm, saturate
 from .base import PLANNERS, Planner, reference_states, register_planner
 from .escape import StallEscape
 from .goal_distance import GoalDistance
+from .mppi import MPPI
 from .sight import Sight
 from .velocity_obstacle import VelocityObstacle
 from .vortex import Vortex
@@ -24,4 +26,4 @@ from .weights import Basic, Direction, DirectionVelocity, Weight
 
 __all__ = ["Planner", "PLANNERS", "register_planner", "reference_states", "APF", "ForceTerm", "saturate", "Weight",
            "Sight", "Basic", "Direction", "DirectionVelocity", "Vortex",
-           "GoalDistance", "StallEscape", "VelocityObstacle"]
+           "GoalDistance", "StallEscape", "VelocityObstacle", "MPPI"]

@@ -215,6 +215,8 @@ class TuneSpec:
             del out["sim"]["planner"]["projection_rows"]
         if self.sim.planner.tracking == "mpc":
             del out["sim"]["planner"]["tracking"]
+        if self.sim.planner.mppi_samples == 256:
+            del out["sim"]["planner"]["mppi_samples"]
         return out
 
     def digest(self) -> str:
