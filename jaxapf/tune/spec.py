@@ -168,6 +168,27 @@ class SearchSpec:
                 for values in itertools.product(*(v for _, v in self.grid))]
 
 
+#: Gains declared after the tune digest was fixed (the MPPI planner's): left out of a digest at their defaults.
+_NEWER_GAINS = ("mppi_lambda", "mppi_sigma", "mppi_goal", "mppi_obstacle", "mppi_d", "mppi_collision", "mppi_speed",
+                "mppi_effort")
+
+
+def _drop_newer_gains(tree: Any) -> None:
+    """Remove :data:`_NEWER_GAINS` at their defaults from every gains table in ``tree`` (in place)."""
+    from ..gains import GAINS
+
+    if isinstance(tree, dict):
+        if all(name in tree for name in _NEWER_GAINS):
+            for name in _NEWER_GAINS:
+                if tree[name] == GAINS[name].default:
+                    del tree[name]
+        for value in tree.values():
+            _drop_newer_gains(value)
+    elif isinstance(tree, list):
+        for value in tree:
+            _drop_newer_gains(value)
+
+
 @dataclasses.dataclass(frozen=True)
 class TuneSpec:
     """A validated tune spec (frozen and hashable: the compiled training step takes it as a static
@@ -217,6 +238,7 @@ class TuneSpec:
             del out["sim"]["planner"]["tracking"]
         if self.sim.planner.mppi_samples == 256:
             del out["sim"]["planner"]["mppi_samples"]
+        _drop_newer_gains(out)
         return out
 
     def digest(self) -> str:
