@@ -12,9 +12,10 @@ pairs) is drawn 100 times with independent keys. Per episode, relative to the re
 spread (root of the trace of its covariance), its bias (the distance of its mean from the reference
 with the two Monte-Carlo errors taken out: ``b² = |mean − ref|² − spread²/100 − SE_ref²``, floored at
 0) and its root mean square error ``√(b² + spread²)``. Medians over the episodes, overall and by the
-episode's outcome at the start gains, with 95 % bootstrap intervals (episodes resampled within their
-outcome, draws within their episode, the reference from its standard error); two estimators are
-told apart only where the interval of the difference of their medians excludes 0.
+episode's outcome at the start gains, with 95 % bootstrap intervals (percentile intervals of medians
+over episodes resampled within their outcome, draws within their episode and the reference from its
+standard error, moved by the Monte-Carlo noise the resampled draws add to the bias once more); two
+estimators are told apart only where the interval of the difference of their medians excludes 0.
 
     python analysis/gradient_estimators.py      # ~80 min on 2 cores
     python analysis/gradient_estimators.py --facts-only   # the page and facts from draws.npz
@@ -150,17 +151,17 @@ def group_mask(outcome: np.ndarray, group: str) -> np.ndarray:
 
 
 def bootstrap(data, outcome: np.ndarray, seed: int = 0) -> dict:
-    """Per group of episodes: the medians of every (arm, error), shape (arms, 3), and ``RESAMPLES``
-    pivots ``T* − T°`` of them: ``T*`` from episodes resampled within their outcome, draws within their
-    episode and the reference from its error, ``T°`` the same episodes' errors in the resampled world
-    (its truth: the sample's draws and reference, whose bias is not debiased)."""
+    """Per group of episodes: the medians of every (arm, error), shape (arms, 3); ``RESAMPLES`` copies of
+    them from episodes resampled within their outcome, draws within their episode and the reference from
+    its error; and the same medians without the bias's Monte-Carlo correction (the resampled world's truth,
+    which its resampled draws estimate with their noise added once more)."""
     rng = np.random.default_rng(seed)
     arms = list(data["arms"])
     n_ep = len(outcome)
     ref, ref_var = data["ref"], data["ref_var"]
     point = np.array([[episode_errors(data[a][e], ref[e], ref_var[e]) for e in range(n_ep)] for a in arms])
-    truth = np.array([[episode_errors(data[a][e], ref[e], ref_var[e], debias=False) for e in range(n_ep)]
-                      for a in arms])
+    raw = np.array([[episode_errors(data[a][e], ref[e], ref_var[e], debias=False) for e in range(n_ep)]
+                    for a in arms])
     boot = np.empty((RESAMPLES,) + point.shape)
     for r in range(RESAMPLES):
         for e in range(n_ep):
@@ -173,20 +174,20 @@ def bootstrap(data, outcome: np.ndarray, seed: int = 0) -> dict:
         idx = np.flatnonzero(outcome == kind)
         pick[:, idx] = rng.choice(idx, size=(RESAMPLES, len(idx)))
     boot = np.take_along_axis(boot, pick[:, None, :, None], axis=2)
-    truth = truth[:, pick].transpose(1, 0, 2, 3)  # (resamples, arms, episodes, 3)
     groups = {}
     for g in GROUPS:
         m = group_mask(outcome, g)
         if m.any():
-            groups[g] = (np.median(point[:, m], axis=1),
-                         np.median(boot[:, :, m], axis=2) - np.median(truth[:, :, m], axis=2))
+            groups[g] = (np.median(point[:, m], axis=1), np.median(boot[:, :, m], axis=2),
+                         np.median(raw[:, m], axis=1))
     return {"arms": arms, "groups": groups}
 
 
-def interval_of(point, pivots) -> tuple:
-    """The 95 % interval ``point − q97.5(pivot) … point − q2.5(pivot)`` (the basic bootstrap)."""
-    q_lo, q_hi = np.percentile(pivots, [2.5, 97.5], axis=0)
-    return point - q_hi, point - q_lo
+def interval_of(point, reps, raw) -> tuple:
+    """The 95 % percentile interval of the resampled medians ``reps``, moved by ``raw − point``: the noise
+    the resampled draws add once more to the bias (their centre is ``raw``, not ``point``)."""
+    lo, hi = np.percentile(reps, [2.5, 97.5], axis=0)
+    return lo - (raw - point), hi - (raw - point)
 
 
 def facts(table: pd.DataFrame, data) -> dict:
@@ -199,9 +200,9 @@ def facts(table: pd.DataFrame, data) -> dict:
     boot = bootstrap(data, outcome)
     arms = boot["arms"]
     errors = {}
-    for g, (point, reps) in boot["groups"].items():
+    for g, (point, reps, raw) in boot["groups"].items():
         for k, a in enumerate(arms):
-            lo, hi = np.maximum(interval_of(point[k], reps[:, k]), 0.0)
+            lo, hi = np.maximum(interval_of(point[k], reps[:, k], raw[k]), 0.0)
             errors.setdefault(a, {})[g] = {
                 name: {"median": float(point[k, j]), "lo": float(lo[j]), "hi": float(hi[j])}
                 for j, name in enumerate(("bias", "spread", "rmse"))}
@@ -209,9 +210,9 @@ def facts(table: pd.DataFrame, data) -> dict:
     for a, b, g in CONTRASTS:
         if g not in boot["groups"]:
             continue
-        point, reps = boot["groups"][g]
+        point, reps, raw = boot["groups"][g]
         i, j = arms.index(a), arms.index(b)
-        lo, hi = interval_of(point[i, 2] - point[j, 2], reps[:, i, 2] - reps[:, j, 2])
+        lo, hi = interval_of(point[i, 2] - point[j, 2], reps[:, i, 2] - reps[:, j, 2], raw[i, 2] - raw[j, 2])
         separated = bool(lo > 0 or hi < 0)
         contrasts[f"{a} vs {b} ({g})"] = {
             "difference": float(point[i, 2] - point[j, 2]), "lo": float(lo), "hi": float(hi),

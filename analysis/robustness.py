@@ -366,7 +366,7 @@ def family_change_max(readme: str) -> dict:
         axis = block.split(" (")[0].replace(" ", "_")
         rows = [[c.strip() for c in line.strip().strip("|").split("|")] for line in block.splitlines()
                 if line.startswith("| ")]
-        families, values = rows[0][1:], rows[2:]
+        families, values = rows[0][1:], rows[1:]  # the header, then a row per method (the rule line has no "| ")
         out[axis] = {f: max(abs(float(r[1 + i])) for r in values) for i, f in enumerate(families)}
     return out
 

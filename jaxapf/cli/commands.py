@@ -333,6 +333,10 @@ def _simulate(args: argparse.Namespace) -> int:
     if args.agents is not None and not swarm:
         raise ConfigError(f"--agents: {args.family} is a single-UAV family; --agents sets a swarm family's UAVs")
     overrides = {} if args.agents is None else {"agents": args.agents}
+    if args.animate:
+        from ..simulate.animate import ffmpeg
+
+        ffmpeg()  # a missing video extra is said before the episodes fly, not after
     params = swarm_params(args.family, **overrides) if swarm else family_params(args.family)
     gains = _gains(args)
     check_writable(args.out)

@@ -47,6 +47,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from ..datatypes import ObstacleColumns, Obstacles, safe_norm
+from ..datatypes.obstacles import project
 from ..datatypes.scenario import episode_key
 from ..gains import GainSpec
 from .base import Planner, reference_states, register_planner
@@ -84,14 +85,12 @@ def rollout_positions(x: Array, controls: Array, dt: float) -> tuple[Array, Arra
 
 def _clearances(p: Array, t: Array, obstacles: ObstacleColumns, dt: float, r_uav: float) -> Array:
     """Surface clearance (..., N, M) of positions ``p`` (..., N, 3) at times ``t + (1..N) Δt`` to each
-    obstacle, predicted at constant velocity; padded slots are far (+1e6)."""
+    obstacle, predicted at constant velocity (``P`` of §2 drops z for a cylinder); padded slots are far (+1e6)."""
     n = p.shape[-2]
     times = t + dt * jnp.arange(1, n + 1, dtype=p.dtype)
-    centres = obstacles.position[None] + obstacles.velocity[None] * times[:, None, None]  # (N, 3, M)
-    rel = p[..., :, :, None] - centres  # (..., N, 3, M)
-    keep_z = jnp.where(obstacles.cylinder, 0.0, 1.0).astype(p.dtype)
-    rel = jnp.concatenate([rel[..., :2, :], rel[..., 2:, :] * keep_z], axis=-2)
-    c = safe_norm(rel, axis=-2) - obstacles.radius - r_uav
+    centres = obstacles.position.T[None] + obstacles.velocity.T[None] * times[:, None, None]  # (N, M, 3)
+    rel = project(p[..., :, None, :] - centres, obstacles.cylinder)  # (..., N, M, 3)
+    c = safe_norm(rel) - obstacles.radius - r_uav
     return jnp.where(obstacles.valid, c, 1e6)
 
 

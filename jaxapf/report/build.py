@@ -147,6 +147,10 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
     the second process, started early (:func:`jaxapf.report.worker.spawn`); else one is started here."""
     path = pathlib.Path(path)
     out = pathlib.Path(out)
+    if options.animate:
+        from ..simulate.animate import ffmpeg
+
+        ffmpeg()  # a missing video extra is said before any work, not after the gallery
     df, meta = load_sweep(path)
     profile = options.profile_metric or roles(df.columns).profile
     if profile not in df.columns or not is_metric(profile):

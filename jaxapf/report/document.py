@@ -68,25 +68,23 @@ class Document:
         self.blocks.append(("contents", None))
 
     def anchors(self) -> dict[int, str]:
-        """A unique id per heading block (its index), from its text."""
-        ids, used = {}, set()
+        """A unique id per heading block (its index), made from its text as GitHub makes a heading's anchor
+        (lower case, punctuation dropped, spaces as ``-``, ``-1``, ``-2`` for repeats), so the contents'
+        links work in report.md on GitHub as in report.html."""
+        ids, used = {}, {}
         for i, (kind, value) in enumerate(self.blocks):
             if kind == "h":
-                base = re.sub(r"[^a-z0-9]+", "-", value[1].lower()).strip("-") or "section"
-                slug, n = base, 1
-                while slug in used:
-                    n += 1
-                    slug = f"{base}-{n}"
-                used.add(slug)
-                ids[i] = slug
+                base = re.sub(r"[^\w\- ]", "", value[1].lower()).replace(" ", "-")
+                n = used.get(base, 0)
+                used[base] = n + 1
+                ids[i] = base if n == 0 else f"{base}-{n}"
         return ids
 
     def headings(self, level: int = 2) -> list[tuple[str, str]]:
-        """(text, id) of the headings of ``level``."""
+        """(text, id) of the headings of ``level``, but the contents' own."""
         ids = self.anchors()
-        marks = {i + 1 for i, (k, _) in enumerate(self.blocks) if k == "contents"}  # the contents' own heading
-        return [(v[1], ids[i]) for i, (k, v) in enumerate(self.blocks)
-                if k == "h" and v[0] == level and i + 1 not in marks]
+        own = {i - 1 for i, (k, _) in enumerate(self.blocks) if k == "contents"}
+        return [(v[1], ids[i]) for i, (k, v) in enumerate(self.blocks) if k == "h" and v[0] == level and i not in own]
 
 
 #: What Markdown would read as HTML (a tag, comment, declaration or entity) or as a link's target.
@@ -149,8 +147,9 @@ document.querySelectorAll('table.sortable').forEach(function(t){
     th.classList.add('sort');
     th.addEventListener('click',function(){
       var body=t.tBodies[0],rows=Array.prototype.slice.call(body.rows),up=th.dataset.up!=='1';
-      var key=function(r){var s=r.cells[col].textContent.trim(),n=parseFloat(s.replace(/[^0-9eE+.\u2212-].*$/,'')
-        .replace('\u2212','-'));return isNaN(n)?s:n;};
+      var key=function(r){var s=r.cells[col].textContent.trim().replace('\u2212','-');
+        if(/^[-+]?\u221e/.test(s))return s.charAt(0)==='-'?-Infinity:Infinity;
+        var n=parseFloat(s.replace(/[^0-9eE+.-].*$/,''));return isNaN(n)?s:n;};
       rows.sort(function(a,b){var x=key(a),y=key(b);
         var c=(typeof x===typeof y)?(x<y?-1:x>y?1:0):(typeof x==='number'?-1:1);return up?c:-c;});
       th.dataset.up=up?'1':'0';rows.forEach(function(r){body.appendChild(r);});

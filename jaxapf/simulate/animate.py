@@ -21,7 +21,7 @@ from matplotlib.patches import Circle
 from ..validation import ConfigError
 from .figures import _GOAL_COLOR, _OBSTACLE_COLOR, DPI, Field, Run, _collision_index, _xy_bounds, outcome
 
-__all__ = ["Track", "tracks_of_runs", "tracks_of_swarm", "animate"]
+__all__ = ["Track", "tracks_of_runs", "tracks_of_swarm", "animate", "ffmpeg"]
 
 TRAIL_S = 3.0  # a swarm UAV's trail [s]; a single UAV keeps its whole path
 
@@ -63,7 +63,9 @@ def tracks_of_swarm(runs: Sequence, swarm) -> list[Track]:
             for r in runs]
 
 
-def _ffmpeg() -> str:
+def ffmpeg() -> str:
+    """The path of imageio-ffmpeg's ffmpeg; a one-line :class:`ConfigError` naming the extra where it is
+    missing (call it before the work whose result is to be animated)."""
     try:
         import imageio_ffmpeg
     except ImportError:
@@ -79,7 +81,7 @@ def animate(tracks: Sequence[Track], field: Field, out: pathlib.Path | str, stem
 
     from .swarm import agent_colors
 
-    ffmpeg = _ffmpeg()
+    exe = ffmpeg()
     out = pathlib.Path(out)
     out.mkdir(parents=True, exist_ok=True)
     t_end = max(float(t.time[-1]) for t in tracks)
@@ -133,41 +135,43 @@ def animate(tracks: Sequence[Track], field: Field, out: pathlib.Path | str, stem
     even = (size[0] - size[0] % 2, size[1] - size[1] % 2)  # H.264 in yuv420p wants even sides
     mp4 = out / f"{stem}.mp4"
     gif = out / f"{stem}.gif"
-    cmd = [ffmpeg, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgba", "-s", f"{size[0]}x{size[1]}",
+    cmd = [exe, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgba", "-s", f"{size[0]}x{size[1]}",
            "-r", str(fps), "-i", "-", "-vf", f"crop={even[0]}:{even[1]}:0:0", "-c:v", "libx264", "-pix_fmt",
            "yuv420p", "-movflags", "+faststart", str(mp4)]
-    encoder = _start(cmd, stdin=subprocess.PIPE, stderr=subprocess.PIPE)
-    try:
-        for t in times:
-            for patches in moving:
-                centres = field.obstacles_at(t)
-                for j, c in enumerate(patches):
-                    c.center = tuple(centres[j, :2])
-            for trails, discs, cross, track in movers:
-                k = int(np.searchsorted(track.time, t, side="right")) - 1
-                for a in range(track.position.shape[0]):
-                    i = min(k, int(track.end[a]))
-                    first = 0 if not np.isfinite(track.trail) else int(np.searchsorted(track.time, t - track.trail))
-                    p = track.position[a, min(first, i): i + 1]
-                    trails[a].set_data(p[:, 0], p[:, 1])
-                    discs[a].center = tuple(track.position[a, i, :2])
-                hits = [track.position[a, h, :2] for a, h in enumerate(track.hit) if 0 <= h <= k]
-                cross.set_data([h[0] for h in hits], [h[1] for h in hits])
-            heading.set_text(f"{title + ' — ' if title else ''}t = {t:5.1f} s ({speed:.3g}× real time)")
-            fig.canvas.draw()
-            encoder.stdin.write(bytes(fig.canvas.buffer_rgba()))
-        encoder.stdin.close()
+    with _start(cmd, stdin=subprocess.PIPE, stderr=subprocess.PIPE) as encoder:
+        try:
+            for t in times:
+                for patches in moving:
+                    centres = field.obstacles_at(t)
+                    for j, c in enumerate(patches):
+                        c.center = tuple(centres[j, :2])
+                for trails, discs, cross, track in movers:
+                    k = int(np.searchsorted(track.time, t, side="right")) - 1
+                    for a in range(track.position.shape[0]):
+                        i = min(k, int(track.end[a]))
+                        first = 0 if not np.isfinite(track.trail) else int(np.searchsorted(track.time, t - track.trail))
+                        p = track.position[a, min(first, i): i + 1]
+                        trails[a].set_data(p[:, 0], p[:, 1])
+                        discs[a].center = tuple(track.position[a, i, :2])
+                    hits = [track.position[a, h, :2] for a, h in enumerate(track.hit) if 0 <= h <= k]
+                    cross.set_data([h[0] for h in hits], [h[1] for h in hits])
+                heading.set_text(f"{title + ' — ' if title else ''}t = {t:5.1f} s ({speed:.3g}× real time)")
+                fig.canvas.draw()
+                encoder.stdin.write(bytes(fig.canvas.buffer_rgba()))
+            encoder.stdin.close()
+        except BrokenPipeError:  # ffmpeg ended early: its message says why
+            pass
+        except BaseException:
+            encoder.kill()
+            raise
         error = encoder.stderr.read().decode(errors="replace").strip()
         if encoder.wait() != 0:
             raise ConfigError(f"ffmpeg could not write {mp4}: {error.splitlines()[-1] if error else 'no message'}")
-    finally:
-        if encoder.poll() is None:
-            encoder.kill()
     palette = (f"fps={min(fps, 12)},scale={min(even[0], 800)}:-1:flags=lanczos,split[a][b];"
                "[a]palettegen=max_colors=128[p];[b][p]paletteuse=dither=bayer")
-    done = _start([ffmpeg, "-y", "-loglevel", "error", "-i", str(mp4), "-vf", palette, str(gif)],
-                  stderr=subprocess.PIPE, text=True)
-    error = done.communicate()[1].strip()
+    with _start([exe, "-y", "-loglevel", "error", "-i", str(mp4), "-vf", palette, str(gif)],
+                stderr=subprocess.PIPE, text=True) as done:
+        error = done.communicate()[1].strip()
     if done.returncode != 0:
         raise ConfigError(f"ffmpeg could not write {gif}: {error.splitlines()[-1] if error else 'no message'}")
     return [mp4, gif]

@@ -22,7 +22,7 @@ from typing import Any, Mapping, Sequence
 import jax.numpy as jnp
 import optax
 
-from ..config import MPC_KEYS, SIM_KEYS, MPCConfig, SimConfig
+from ..config import MPC_KEYS, SIM_KEYS, MPCConfig, PlannerConfig, SimConfig
 from ..control import scales_set
 from ..engine import gains_read
 from ..gains import GAINS, Gains, check_gain_name, gains_from_mapping
@@ -168,20 +168,16 @@ class SearchSpec:
                 for values in itertools.product(*(v for _, v in self.grid))]
 
 
-#: Gains declared after the tune digest was fixed (the MPPI planner's): left out of a digest at their defaults.
-_NEWER_GAINS = ("mppi_lambda", "mppi_sigma", "mppi_goal", "mppi_obstacle", "mppi_d", "mppi_collision", "mppi_speed",
-                "mppi_effort")
-
-
 def _drop_newer_gains(tree: Any) -> None:
-    """Remove :data:`_NEWER_GAINS` at their defaults from every gains table in ``tree`` (in place)."""
-    from ..gains import GAINS
+    """Remove the gains declared after the tune digest was fixed (the MPPI planner's) at their defaults
+    from every gains table in ``tree`` (in place)."""
+    from ..planners.mppi import MPPI_GAINS
 
     if isinstance(tree, dict):
-        if all(name in tree for name in _NEWER_GAINS):
-            for name in _NEWER_GAINS:
-                if tree[name] == GAINS[name].default:
-                    del tree[name]
+        if all(g.name in tree for g in MPPI_GAINS):
+            for g in MPPI_GAINS:
+                if tree[g.name] == g.default:
+                    del tree[g.name]
         for value in tree.values():
             _drop_newer_gains(value)
     elif isinstance(tree, list):
@@ -236,7 +232,7 @@ class TuneSpec:
             del out["sim"]["planner"]["projection_rows"]
         if self.sim.planner.tracking == "mpc":
             del out["sim"]["planner"]["tracking"]
-        if self.sim.planner.mppi_samples == 256:
+        if self.sim.planner.mppi_samples == PlannerConfig().mppi_samples:
             del out["sim"]["planner"]["mppi_samples"]
         _drop_newer_gains(out)
         return out

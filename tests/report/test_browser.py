@@ -20,11 +20,17 @@ CHROMIUM = next((p for p in map(shutil.which, ("chromium", "chromium-browser", "
 
 @pytest.fixture(scope="module")
 def page(tmp_path_factory):
+    required = os.environ.get("JAXAPF_REQUIRE_BROWSER") == "1"
     if CHROMIUM is None:
-        if os.environ.get("JAXAPF_REQUIRE_BROWSER") == "1":
+        if required:
             pytest.fail("JAXAPF_REQUIRE_BROWSER=1 but no chromium on PATH")
         pytest.skip("no chromium on PATH (apt-get install chromium)")
-    sync_api = pytest.importorskip("playwright.sync_api")
+    try:
+        from playwright import sync_api
+    except ImportError:
+        if required:
+            pytest.fail("JAXAPF_REQUIRE_BROWSER=1 but playwright is not installed (pip install -e '.[test]')")
+        pytest.skip("playwright is not installed")
     tmp = tmp_path_factory.mktemp("browser")
     out = tmp / "report"
     assert main(["report", str(write_sweep(tmp / "s.parquet", make_rows())), "--out", str(out),
