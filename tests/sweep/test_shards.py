@@ -291,7 +291,9 @@ def test_shards_started_together_never_both_run_a_different_division(reference, 
             else:
                 assert statuses == ["ok", "refused"], (kind, tasks, got)
                 refusal = next(what for s, what in got if s == "refused")
-                assert "is divided into" in refusal and "\n" not in refusal
+                # the division record refuses it; a shard that lags so far (a loaded machine) that the other has
+                # finished finds its parts first, chunked otherwise, and is refused by them: one line either way
+                assert ("is divided into" in refusal or "chunked otherwise" in refusal) and "\n" not in refusal
             found = audit_output(out, None, None) if part_files(out) else None
             assert found is not None and not found.problems, found
             df = read_sweep(out)[0]
