@@ -45,7 +45,7 @@ def test_unbound_numbers_and_unknown_facts_are_named():
 
 
 def test_a_bound_verdict_is_its_facts_word():
-    text = "CMA-ES is *worse*<!--=study/tuner_study:pooled_verdicts_vs_gradient.d3/cmaes.inconclusive-->"
+    text = "CMA-ES is *worse*<!--=study/tuner_study:best_black_box_verdicts.full/d3.inconclusive-->"
     found = problems(text)
     assert found and "the fact" in found[0] and "is 6" in found[0]  # a count of another verdict
     assert problems("*worse*") and not problems("*worse*", strict=False)
