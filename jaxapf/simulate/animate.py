@@ -19,7 +19,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Circle
 
 from ..validation import ConfigError
-from .figures import _GOAL_COLOR, _OBSTACLE_COLOR, DPI, Field, Run, _collision_index, _xy_bounds, outcome
+from .figures import _GOAL_COLOR, _OBSTACLE_COLOR, DPI, Field, Run, _collision_index, outcome
 
 __all__ = ["Track", "tracks_of_runs", "tracks_of_swarm", "animate", "ffmpeg"]
 
@@ -79,7 +79,7 @@ def animate(tracks: Sequence[Track], field: Field, out: pathlib.Path | str, stem
     where they are at each instant); returns the two paths."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-    from .swarm import agent_colors
+    from .swarm import SwarmField, _bounds, agent_colors
 
     exe = ffmpeg()
     out = pathlib.Path(out)
@@ -88,10 +88,8 @@ def animate(tracks: Sequence[Track], field: Field, out: pathlib.Path | str, stem
     speed = max(1.0, t_end / seconds)
     frames = max(2, int(round(t_end / speed * fps)) + 1)
     times = np.linspace(0.0, t_end, frames)
-    lo = np.minimum(np.min([t.starts.min(0) for t in tracks], 0), np.min([t.goals.min(0) for t in tracks], 0))
-    hi = np.maximum(np.max([t.starts.max(0) for t in tracks], 0), np.max([t.goals.max(0) for t in tracks], 0))
-    flat = [_AsRun(t.position.reshape(-1, 3)) for t in tracks]
-    xlim, ylim = _xy_bounds(flat, dataclasses.replace(field, start=lo, goal=hi), [t_end])
+    ends = SwarmField(np.concatenate([t.starts for t in tracks]), np.concatenate([t.goals for t in tracks]), field)
+    xlim, ylim = _bounds(tracks, ends, [t_end])
 
     panels = len(tracks)
     aspect = (ylim[1] - ylim[0]) / max(xlim[1] - xlim[0], 1e-9)
@@ -185,10 +183,3 @@ def _start(cmd: list[str], **kw) -> subprocess.Popen:
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="os.fork", category=RuntimeWarning)
         return subprocess.Popen(cmd, **kw)
-
-
-@dataclasses.dataclass(frozen=True)
-class _AsRun:
-    """What :func:`_xy_bounds` reads of a run: its positions."""
-
-    position: np.ndarray
