@@ -14,6 +14,7 @@ r"""What each component costs per scenario-step, against the paper's stack in th
 ``cbf``             the CBF safety filter between the MPC and the plant
 ``direction_velocity``, ``velocity_obstacle``: another planner in the ideal world
 ``mppi_k64``, ``mppi``, ``mppi_k1024``: MPPI with 64, 256 (its default) and 1,024 samples
+``keepout_mpc``     the MPC with every obstacle kept out over its horizon (a QP per step)
 ==================  ==========================================================================
 
 Every variant runs the fixed-length engine (``evaluate(..., streaming=False)``), so each flies
@@ -54,6 +55,7 @@ VARIANTS: dict[str, tuple[dict[str, Any], dict[str, float]]] = {
     "mppi_k64": ({"method": "mppi", "mppi_samples": 64}, {}),
     "mppi": ({"method": "mppi"}, {}),
     "mppi_k1024": ({"method": "mppi", "mppi_samples": 1024}, {}),
+    "keepout_mpc": ({"method": "keepout_mpc"}, {}),
 }
 
 

@@ -223,8 +223,8 @@ def build_parser() -> argparse.ArgumentParser:
                                         "(MPPI per sample count) cost per scenario-step, against basic in the ideal "
                                         "world",
                           description="Time the closed loop with each component (noisy sensor, wind, quadrotor "
-                                      "plant, CBF filter, another planner, MPPI with 64, 256 and 1,024 samples) "
-                                      "against basic in the ideal world, interleaved in one run.")
+                                      "plant, CBF filter, another planner, MPPI with 64, 256 and 1,024 samples, the "
+                                      "keep-out MPC) against basic in the ideal world, interleaved in one run.")
     bwo.add_argument("--fields", type=int, default=256, help="fields in the batch (default 256)")
     bwo.add_argument("--steps", type=int, default=200, help="control steps per episode (default 200)")
     bwo.add_argument("--substeps", type=int, default=10, help="quadrotor sub-steps per control step (default 10)")

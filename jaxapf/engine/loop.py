@@ -10,7 +10,9 @@ Each control step ``k`` (time ``t_k = k Δt``), with the components named by ``s
    UAV's ``[p, v]`` to the MPC reference for ``x(k..k+N)``; a potential-field planner rolls its
    saturated gradient flow N steps ahead with the obstacles extrapolated at constant velocity
    (its diagnostics, :meth:`~jaxapf.planners.Planner.diagnostics`, are recorded);
-2. :func:`~jaxapf.control.mpc.solve_axes` solves the three per-axis condensed box QPs by FISTA,
+2. a planner that plans its own accelerations (:meth:`~jaxapf.planners.Planner.command`: MPPI,
+   the keep-out MPC) has the first of them applied; for every other,
+   :func:`~jaxapf.control.mpc.solve_axes` solves the three per-axis condensed box QPs by FISTA,
    warm started from the previous solution shifted by one step, on the plant's linear model (with
    ``sim.planner.tracking = "ideal"``, an ablation, :func:`ideal_tracking` instead: the reference's
    first velocity reached within the step);
@@ -39,10 +41,11 @@ from ..control import axis_problem, shift_warm_start, solve_axes
 from ..datatypes import Scenario, Trajectory
 from ..gains import Gains
 from ..metrics import episode_metrics
+from ..validation import ConfigError
 from .components import COMPONENTS, component_names, gains_read
 
 __all__ = ["rollout", "rollout_metrics", "closed_loop", "episode_loop", "loop_init", "loop_step", "record_trajectory",
-           "ideal_tracking"]
+           "ideal_tracking", "check_tracked"]
 
 
 class ClosedLoop(NamedTuple):
@@ -62,10 +65,23 @@ def closed_loop(sim: SimConfig, mpc: MPCConfig, dtype: Any) -> ClosedLoop:
     """The registered components of ``sim`` and the MPC problem on the plant's linear model (``None``
     with ``sim.mpc_weights = "gains"``: each episode builds its own, :func:`episode_loop`)."""
     parts = {key: COMPONENTS[key].get(name, f"sim.{key}") for key, name in component_names(sim).items()}
+    check_tracked(parts["method"], sim)
     static = sim.planner.mpc_weights == "static"
     return ClosedLoop(parts["method"], parts["filter"], parts["plant"], parts["sensor"], parts["disturbance"],
                       parts["estimator"],
                       axis_problem(mpc, *parts["plant"].linear_model(sim.episode.dt, dtype)) if static else None)
+
+
+def check_tracked(planner: Any, sim: SimConfig) -> None:
+    """A planner that flies its own plan (:meth:`~jaxapf.planners.Planner.command`) has no MPC to weigh or take
+    out: ``sim.mpc_weights = "gains"`` or ``sim.tracking = "ideal"`` with it is a :class:`ConfigError`."""
+    if not planner.flies_own_plan:
+        return
+    for field, value, default in (("mpc_weights", sim.planner.mpc_weights, "static"),
+                                  ("tracking", sim.planner.tracking, "mpc")):
+        if value != default:
+            raise ConfigError(f"sim.{field} = {value!r}: planner {sim.planner.method!r} flies its own plan, no MPC "
+                              f"tracks it; leave sim.{field} at {default!r}")
 
 
 def episode_loop(loop: ClosedLoop, gains: Gains, sim: SimConfig, mpc: MPCConfig, dtype: Any) -> ClosedLoop:
@@ -100,7 +116,10 @@ def loop_step(loop: ClosedLoop, carry: tuple, k: Array, scenario: Scenario, obst
     d_hat, estimates = loop.estimator(estimated, x, gains, sim) if loop.estimator.active else (None, {})
     x_ref, plan = loop.planner.reference(plan, x, t, scenario.goal, observed, gains, sim, mpc.horizon)
     planned = loop.planner.diagnostics(plan)
-    if sim.planner.tracking == "ideal":
+    own = loop.planner.command(plan)
+    if own is not None:
+        u = jnp.zeros((3, mpc.horizon), x.dtype).at[:, 0].set(own)
+    elif sim.planner.tracking == "ideal":
         u = ideal_tracking(x, x_ref, sim.episode.dt, mpc.horizon)
     else:
         u = solve_axes(loop.prob, x, x_ref, warm, a_max=sim.vehicle.a_max, v_max=sim.vehicle.v_max,

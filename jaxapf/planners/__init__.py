@@ -11,6 +11,7 @@
 :mod:`.escape`            stall escape (:class:`StallEscape`), planners ``basic_escape``, ``direction_velocity_escape``
 :mod:`.velocity_obstacle` velocity obstacles, ORCA (:class:`VelocityObstacle`), planner ``velocity_obstacle``
 :mod:`.mppi`              model predictive path integral control (:class:`MPPI`), planner ``mppi``
+:mod:`.keepout_mpc`       MPC keeping every obstacle out over its horizon (:class:`KeepoutMPC`), planner ``keepout_mpc``
 ========================  =================================================================
 """
 
@@ -18,6 +19,7 @@ from .apf import APF, ForceTerm, saturate
 from .base import PLANNERS, Planner, reference_states, register_planner
 from .escape import StallEscape
 from .goal_distance import GoalDistance
+from .keepout_mpc import KeepoutMPC
 from .mppi import MPPI
 from .sight import Sight
 from .velocity_obstacle import VelocityObstacle
@@ -26,4 +28,4 @@ from .weights import Basic, Direction, DirectionVelocity, Weight
 
 __all__ = ["Planner", "PLANNERS", "register_planner", "reference_states", "APF", "ForceTerm", "saturate", "Weight",
            "Sight", "Basic", "Direction", "DirectionVelocity", "Vortex",
-           "GoalDistance", "StallEscape", "VelocityObstacle", "MPPI"]
+           "GoalDistance", "StallEscape", "VelocityObstacle", "MPPI", "KeepoutMPC"]

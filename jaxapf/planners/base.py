@@ -8,6 +8,10 @@ maps ``(state, observation)`` to ``(reference, new state)``, and :meth:`Planner.
 the step's diagnostics (``traj.extras``, e.g. ``vo_infeasible``) from that new state. Both are traced under ``jit``,
 ``vmap`` and ``grad``; the planner object itself is static (a frozen dataclass).
 
+A planner that plans accelerations itself (MPPI, the keep-out MPC) also answers :meth:`Planner.command`:
+the closed loop then applies its plan's first acceleration and no MPC tracks its reference, as their
+authors fly them.
+
 Every planner declares the gains it reads (:attr:`Planner.gains`, traced) and the static
 :class:`~jaxapf.config.PlannerConfig` fields it reads (:attr:`Planner.reads`): settings that differ
 only elsewhere fly the same episodes, which reports use to pair and label settings.
@@ -76,6 +80,16 @@ class Planner(abc.ABC):
                   gains: "Gains", sim: "SimConfig", horizon: int) -> tuple[Array, Any]:
         """The MPC reference (horizon+1, 6) for ``x(k..k+N)`` from the state ``x = [p, v]`` (6,) at
         time ``t`` and the obstacles (component-first), and the planner's next state."""
+
+    @property
+    def flies_own_plan(self) -> bool:
+        """Whether the planner commands the accelerations itself (it overrides :meth:`command`)."""
+        return type(self).command is not Planner.command
+
+    def command(self, state: Any) -> Array | None:
+        """The acceleration (3,) the planner commands this step, read from the state :meth:`reference` just
+        returned; ``None`` (default, decided when traced): the MPC tracks the reference instead."""
+        return None
 
     def diagnostics(self, state: Any) -> dict[str, Array]:
         """Per-step diagnostics the closed loop records (``traj.extras``), read from the state

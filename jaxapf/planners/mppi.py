@@ -24,17 +24,17 @@ learning", ICRA 2017). Every control step, from the nominal acceleration sequenc
 4. weighted by :math:`w_k \propto \exp(-(S_k - \min S)/λ)` (temperature λ, gain ``mppi_lambda``) and
    :math:`U^* = U + \sum_k w_k ε_k`.
 
-The MPC's reference is ``U*`` rolled out from ``x`` (:func:`~jaxapf.planners.base.reference_states`):
-the MPC tracks the plan the samples agreed on, as every planner's reference, so the CBF filter, the
-sensors, wind and the quadrotor compose with it. The noise of step ``k`` comes from the field's key
-(:func:`~jaxapf.datatypes.episode_key`, purpose ``"mppi"``): every method still flies the same world,
-and the episode is the same in any batch. Every sample is a fixed amount of work (no early exit), so it
-vmaps, and ``U*`` is differentiable in every cost weight (``jaxapf tune``).
+The first acceleration of ``U*`` is applied (:meth:`~jaxapf.planners.Planner.command`), as the published
+implementations fly it; no MPC tracks the plan, and the CBF filter, the sensors, wind and the quadrotor
+compose with it as with every planner. ``U*`` rolled out from ``x`` is its reference
+(:func:`~jaxapf.planners.base.reference_states`) for figures. The noise of step ``k`` comes from the
+field's key (:func:`~jaxapf.datatypes.episode_key`, purpose ``"mppi"``): every method still flies the same
+world, and the episode is the same in any batch. Every sample is a fixed amount of work (no early exit),
+so it vmaps, and ``U*`` is differentiable in every cost weight (``jaxapf tune``).
 
 Where it differs from the published implementations (e.g. ``pytorch_mppi``, the AutoRally code): one
-iteration per control step, no smoothing filter on ``U*``, a diagonal noise of one σ for the three
-axes, and the plan is tracked by the box-constrained MPC rather than applied directly (its first
-acceleration is what the MPC would apply when it tracks the plan exactly).
+iteration per control step, no smoothing filter on ``U*``, and a diagonal noise of one σ for the three
+axes.
 """
 
 from __future__ import annotations
@@ -126,7 +126,7 @@ def mppi_update(u: Array, noise: Array, x: Array, t: Array, goal: Array, obstacl
 class MPPI(Planner):
     """model predictive path integral control (MPPI, Williams et al. 2017): the weighted mean of sampled plans
 
-    (module docstring) The state carries the shifted plan, the field's key for the noise and the step.
+    (module docstring) The state carries the plan ``U*``, the field's key for the noise and the step.
     """
 
     color: str | None = "tab:olive"
@@ -148,14 +148,19 @@ class MPPI(Planner):
 
     def reference(self, state: Any, x: Array, t: Array, goal: Array, obstacles: Obstacles | ObstacleColumns,
                   gains: "Gains", sim: "SimConfig", horizon: int) -> tuple[Array, Any]:
-        """``U*`` rolled out from ``x`` (module docstring); the state becomes ``U*`` shifted by one step."""
-        u, key, step = state
+        """``U*`` rolled out from ``x`` (module docstring), from the last plan shifted by one step; the state
+        becomes ``U*``."""
+        last, key, step = state
+        u = jnp.concatenate([last[1:], last[-1:]], axis=0)
         draw = jax.random.fold_in(jax.random.wrap_key_data(key), step)
         noise = gains.mppi_sigma * jax.random.normal(draw, (sim.planner.mppi_samples, horizon, 3), x.dtype)
         plan, _ = mppi_update(u, noise, x, t, goal, obstacles.columns(), gains, sim)
         p, v = rollout_positions(x, plan, sim.episode.dt)
-        return (reference_states(x, p, v, sim),
-                (jnp.concatenate([plan[1:], plan[-1:]], axis=0), key, step + 1))
+        return reference_states(x, p, v, sim), (plan, key, step + 1)
+
+    def command(self, state: Any) -> Array:
+        """``U*``'s first acceleration."""
+        return state[0][0]
 
 
 register_planner("mppi", MPPI())

@@ -1,0 +1,200 @@
+r"""MPC with the obstacles kept out over its whole horizon: every obstacle a constraint at every step.
+
+The family of MPC-CBF (Zeng, Zhang and Sreenath, ACC 2021) and of sequential convex programming for
+UAVs: instead of shaping a reference that a box-constrained MPC then tracks, the MPC itself keeps
+each predicted position out of each obstacle. Every control step it solves, over the accelerations
+``U = (a_0 … a_{N-1})`` of the double integrator (paper eq. 7),
+
+.. math:: \min_U \sum_{i=1}^{N} q\,|p_i - r_i|^2 + q_v\,|v_i - v_{pref}|^2 + r\,|a_{i-1}|^2
+          \quad\text{s.t.}\quad n_{o,i}\cdot(p_i - c_o(t + iΔt)) \ge ρ_o + r_{uav} + m,
+          \quad -a_{max} \le a_{i-1} \le a_{max},
+
+with the goal-seeking reference :math:`r_i = p + iΔt\,v_{pref}`, :math:`v_{pref} = \mathrm{sat}_{v_{max}}
+(η F_{att})` (the potential-field planners' attractive flow, as ``velocity_obstacle``'s preferred
+velocity), the obstacles predicted at constant velocity, and :math:`n_{o,i}` the unit vector from the
+obstacle's centre to the last plan's position :math:`\bar p_i` (``P`` drops z for a cylinder): the
+tangent half-space of the keep-out ball at the point nearest :math:`\bar p_i`, which lies outside the
+obstacle, so any plan that keeps it is collision-free (one convexification per control step, the
+last plan shifted by a step as the point of linearisation: sequential convex programming with one
+iteration per step). Gains ``kmpc_q`` (q), ``kmpc_qv`` (q_v), ``kmpc_r`` (r), ``kmpc_margin`` (m),
+and ``k_att``, ``η`` of the preferred velocity.
+
+The keep-out rows may borrow one shared slack :math:`s \ge 0` at the price :data:`SLACK_LINEAR` s +
+:data:`SLACK_QUADRATIC` s² (an exact penalty, as soft constraints in deployed MPC), so the QP always has an
+answer: where no plan keeps every obstacle out (already inside one, hemmed in, or overtaken by a faster
+one) it is the plan that intrudes least. The QP (3N + 1 variables, N·M keep-out rows, the box and
+s >= 0) is solved by ``qpax``'s primal–dual interior point method (Tracy and Manchester; batched and
+differentiable in JAX) with a fixed count of :data:`ITERATIONS` iterations, so it vmaps (in float32 its
+own convergence test rarely passes though the answer is accurate: tests check it against OSQP). A step
+whose slack exceeds :data:`TOLERANCE` m counts as infeasible (diagnostic ``kmpc_infeasible``,
+metric ``kmpc_infeasible_steps``); an answer that is not finite is replaced by the last plan
+shifted by one step (and counted too). The plan's first acceleration is applied
+(:meth:`~jaxapf.planners.Planner.command`), as MPC-CBF flies it: no second MPC tracks it; a safety
+filter, the sensors, wind and the quadrotor compose with it as with every planner. Where it differs
+from MPC-CBF: a keep-out (distance) constraint linearised at the last plan instead of a discrete-time
+CBF decay condition, the speed limit only a cost (``kmpc_qv`` towards a preferred velocity within
+``v_max``), and the tangent planes are those of the last plan (one iteration of sequential convex
+programming per step, not to convergence).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import TYPE_CHECKING, Any
+
+import jax
+import jax.numpy as jnp
+from jax import Array
+
+from ..datatypes import ObstacleColumns, Obstacles, safe_norm
+from ..gains import GainSpec
+from ..metrics.base import Metric
+from .apf import ETA, K_ATT, saturate
+from .base import Planner, reference_states, register_planner
+from .mppi import rollout_positions
+from .potentials import attractive_potential
+
+if TYPE_CHECKING:
+    from ..config import SimConfig
+    from ..gains import Gains
+
+__all__ = ["KeepoutMPC", "keepout_qp", "solve", "ITERATIONS", "TOLERANCE", "SLACK_LINEAR", "SLACK_QUADRATIC"]
+
+KMPC_Q = GainSpec("kmpc_q", 1.0, low=0.0, low_open=True, unit="1/m²",
+                  doc="keep-out MPC: weight of the distance to the goal-seeking reference, per step")
+KMPC_QV = GainSpec("kmpc_qv", 0.1, low=0.0, unit="s²/m²",
+                   doc="keep-out MPC: weight of the velocity's distance to the preferred velocity, per step")
+KMPC_R = GainSpec("kmpc_r", 0.05, low=0.0, low_open=True, unit="s⁴/m²",
+                  doc="keep-out MPC: weight of the acceleration, per step")
+KMPC_MARGIN = GainSpec("kmpc_margin", 0.2, low=0.0, unit="m",
+                       doc="keep-out MPC: margin added to the combined radius ρ_o + r_uav")
+#: Interior-point iterations per QP, and the slack [m] above which a step counts as infeasible.
+ITERATIONS = 20
+TOLERANCE = 1e-3
+#: Weights of the slack s [m] the keep-out rows may borrow: SLACK_LINEAR s + SLACK_QUADRATIC s².
+SLACK_LINEAR = 1e3
+SLACK_QUADRATIC = 1e4
+
+
+def _prediction(horizon: int, dt: float, dtype) -> tuple[Array, Array]:
+    """``S_p``, ``S_v`` (N, N): position and velocity after step ``i`` from the accelerations,
+    ``p_i = p + iΔt v + Σ_j S_p[i, j] a_j``, ``v_i = v + Σ_j S_v[i, j] a_j``."""
+    i = jnp.arange(1, horizon + 1, dtype=dtype)[:, None]
+    j = jnp.arange(horizon, dtype=dtype)[None, :]
+    before = j < i
+    return jnp.where(before, (i - j - 0.5) * dt * dt, 0.0), jnp.where(before, dt, 0.0)
+
+
+def keepout_qp(x: Array, t: Array, preferred: Array, last: Array, obstacles: ObstacleColumns, gains: "Gains",
+               sim: "SimConfig", horizon: int) -> tuple[Array, Array, Array, Array]:
+    """``(H, e, G, h)`` of the step's QP ``min ½ zᵀ H z + eᵀ z s.t. G z <= h`` over ``z = (U, s)`` (3N + 1,):
+    the accelerations stacked step by step and the keep-out rows' slack (module docstring); ``last`` (N, 3):
+    the positions the keep-out rows are linearised at. The rows: N·M keep-out rows (step-major), the box
+    on ``U`` (upper, then lower), ``s >= 0``."""
+    dtype = x.dtype
+    dt = sim.episode.dt
+    sp, sv = _prediction(horizon, dt, dtype)
+    eye3 = jnp.eye(3, dtype=dtype)
+    big_p, big_v = jnp.kron(sp, eye3), jnp.kron(sv, eye3)  # (3N, 3N)
+    steps = jnp.arange(1, horizon + 1, dtype=dtype)[:, None]
+    free_p = x[:3] + steps * dt * x[3:]  # positions without acceleration (N, 3)
+    target = x[:3] + steps * dt * preferred
+    d_p = (free_p - target).reshape(-1)
+    d_v = jnp.broadcast_to(x[3:] - preferred, (horizon, 3)).reshape(-1)
+    n_u = 3 * horizon
+    hess = 2.0 * (gains.kmpc_q * big_p.T @ big_p + gains.kmpc_qv * big_v.T @ big_v
+                  + gains.kmpc_r * jnp.eye(n_u, dtype=dtype))
+    lin = 2.0 * (gains.kmpc_q * big_p.T @ d_p + gains.kmpc_qv * big_v.T @ d_v)
+    # keep-out rows: n·(p_i - c_o(t_i)) >= R_o, n the unit vector from c_o(t_i) to last_i (z dropped for cylinders)
+    times = t + dt * steps[:, 0]
+    centres = obstacles.position.T[None] + obstacles.velocity.T[None] * times[:, None, None]  # (N, M, 3)
+    keep_z = jnp.where(obstacles.cylinder, 0.0, 1.0).astype(dtype)
+    flat = jnp.stack([jnp.ones_like(keep_z), jnp.ones_like(keep_z), keep_z], axis=-1)  # (M, 3)
+    away = (last[:, None, :] - centres) * flat
+    normal = away / safe_norm(away)[..., None]
+    radius = obstacles.radius + sim.vehicle.r_uav + gains.kmpc_margin
+    rhs = radius + jnp.sum(normal * (centres - free_p[:, None, :]), axis=-1)  # n·(S_p U)_i >= rhs, (N, M)
+    rows = jnp.einsum("nmk,nkj->nmj", normal, big_p.reshape(horizon, 3, n_u))  # (N, M, 3N)
+    valid = obstacles.valid[None, :]
+    rows = jnp.where(valid[..., None], rows, 0.0).reshape(-1, n_u)
+    rhs = jnp.where(valid, rhs, -1.0).reshape(-1)
+    # the slack s >= 0 every keep-out row may borrow (exact penalty): the QP is always feasible
+    a_max = sim.vehicle.a_max
+    box = jnp.eye(n_u + 1, dtype=dtype)[:n_u]
+    slack = jnp.zeros(n_u + 1, dtype).at[-1].set(-1.0)
+    keep = jnp.concatenate([-rows, jnp.full((rows.shape[0], 1), -1.0, dtype)], axis=1)
+    g = jnp.concatenate([keep, box, -box, slack[None]])
+    h = jnp.concatenate([-rhs, jnp.full(2 * n_u, a_max, dtype), jnp.zeros(1, dtype)])
+    hess = jnp.zeros((n_u + 1, n_u + 1), dtype).at[:n_u, :n_u].set(hess).at[-1, -1].set(2.0 * SLACK_QUADRATIC)
+    lin = jnp.concatenate([lin, jnp.full(1, SLACK_LINEAR, dtype)])
+    return hess, lin, g, h
+
+
+def solve(hess: Array, lin: Array, g: Array, h: Array) -> Array:
+    """The QP's answer ``z`` by :data:`ITERATIONS` interior-point iterations."""
+    import qpax
+
+    n = lin.shape[0]
+    return qpax.solve_qp(hess, lin, jnp.zeros((0, n), lin.dtype), jnp.zeros((0,), lin.dtype), g, h,
+                         solver_tol=0.0, max_iter=ITERATIONS)[0]
+
+
+@dataclasses.dataclass(frozen=True)
+class KeepoutMPC(Planner):
+    """MPC keeping every obstacle out at every horizon step (linearised keep-out constraints, one SCP step)
+
+    (module docstring) The state: the plan flown (accelerations and positions), and whether this step's QP
+    was infeasible.
+    """
+
+    color: str | None = "tab:cyan"
+    linestyle: str | None = "-"
+    metrics = (Metric.flagged_steps("kmpc_infeasible_steps", "kmpc_infeasible",
+                                    "control steps at which no plan kept every obstacle out over the horizon (the "
+                                    "plan intruding least was flown; 0 for other planners)"),)
+
+    @property
+    def gains(self) -> tuple[GainSpec, ...]:
+        return (KMPC_Q, KMPC_QV, KMPC_R, KMPC_MARGIN, K_ATT, ETA)
+
+    @property
+    def reads(self) -> tuple[str, ...]:
+        return ("att_cap", "reference_velocity")
+
+    def init(self, scenario: Any, gains: "Gains", sim: "SimConfig", horizon: int) -> tuple[Array, Array, Array]:
+        """Hover as the last plan, at the start."""
+        start = scenario.start
+        return (jnp.zeros((horizon, 3), start.dtype), jnp.broadcast_to(start, (horizon, 3)),
+                jnp.zeros((), bool))
+
+    def diagnostics(self, state: Any) -> dict[str, Array]:
+        return {"kmpc_infeasible": state[2]}
+
+    def step_qp(self, state: Any, x: Array, t: Array, goal: Array, obstacles: ObstacleColumns, gains: "Gains",
+                sim: "SimConfig", horizon: int) -> tuple[Array, Array, Array, Array]:
+        """The QP (:func:`keepout_qp`) of the step from ``x`` at ``t``: the preferred velocity towards ``goal``,
+        the keep-out rows linearised at the last plan's positions shifted by one step."""
+        attraction = -jax.grad(attractive_potential)(x[:3], goal, gains.k_att, sim.planner.att_cap)
+        preferred = saturate(gains.eta * attraction, sim.vehicle.v_max)
+        positions = state[1]
+        last = jnp.concatenate([positions[1:], positions[-1:]], axis=0)
+        return keepout_qp(x, t, preferred, last, obstacles, gains, sim, horizon)
+
+    def reference(self, state: Any, x: Array, t: Array, goal: Array, obstacles: Obstacles | ObstacleColumns,
+                  gains: "Gains", sim: "SimConfig", horizon: int) -> tuple[Array, Any]:
+        """The plan's positions (module docstring); the state becomes the plan flown and its positions."""
+        controls = state[0]
+        z = solve(*self.step_qp(state, x, t, goal, obstacles.columns(), gains, sim, horizon))
+        answered = jnp.all(jnp.isfinite(z))
+        shifted = jnp.concatenate([controls[1:], controls[-1:]], axis=0)
+        plan = jnp.where(answered, jnp.clip(z[:-1].reshape(horizon, 3), -sim.vehicle.a_max, sim.vehicle.a_max),
+                         shifted)
+        p, v = rollout_positions(x, plan, sim.episode.dt)
+        return reference_states(x, p, v, sim), (plan, p, ~answered | (z[-1] > TOLERANCE))
+
+    def command(self, state: Any) -> Array:
+        """The plan's first acceleration."""
+        return state[0][0]
+
+
+register_planner("keepout_mpc", KeepoutMPC())
