@@ -198,13 +198,16 @@ def trajectory_figures(spec, runs, out) -> list[tuple[str, str]]:
     return figures
 
 
-def facts(spec, summary: pd.DataFrame, vs_basic: pd.DataFrame, vs_paper: pd.DataFrame) -> dict:
+def facts(spec, summary: pd.DataFrame, vs_basic: pd.DataFrame, vs_paper: pd.DataFrame,
+          selection: pd.DataFrame) -> dict:
     """The named values the findings and the leaderboard state: per group (family, trap kind, ``all``) and
     method the rates at the defaults (``default``) and the tuned rates' mean over the seeds, pooled the seeds'
     median clearance and time to goal (mean, lowest, highest), and the verdicts against ``basic`` and the
     paper's ``direction_velocity``: per selection pooled (``verdict``), per group at the defaults
     (``default_verdict``: with the same planner gains, ``basic+cbf`` against ``basic`` is the filter alone) and
-    the one verdict all three seeds give (``all_seeds``; ``mixed`` where they differ)."""
+    the one verdict all three seeds give (``all_seeds``; ``mixed`` where they differ); and per method what its
+    selection spent (``selection_spent``: episodes, the fewest over the seeds, and seconds, mean, lowest and
+    highest over the seeds; ``selection``: the rows of ``selection.csv``)."""
     groups = list(dict.fromkeys(summary["family"]))
     out: dict = {"methods": len(spec.methods), "seeds": len(SEEDS), "budget": spec.selection.budget,
                  "fields_per_family": spec.test.fields, "default": {}, "verdict": {}, "default_verdict": {},
@@ -219,6 +222,10 @@ def facts(spec, summary: pd.DataFrame, vs_basic: pd.DataFrame, vs_paper: pd.Data
             values = _tuned(summary, spec, m, "all", column)
             out.setdefault(name, {})[m] = {"mean": float(np.mean(values)), "min": min(values), "max": max(values)}
     out["methods_stopped"] = {g: sum(out["success"][g][m] == 0 for m in spec.methods) for g in groups}
+    out["selection_spent"] = {
+        m: {"episodes": int(rows["episodes"].min()),
+            "seconds": {k: float(getattr(rows["seconds"], k)()) for k in ("mean", "min", "max")}}
+        for m, rows in selection.groupby("method", sort=False)}
     for vs, base, table in (("basic", spec.baseline, vs_basic), ("paper", PAPER, vs_paper)):
         for metric in ("success", "collision", "min_clearance", "time_to_goal"):
             c = table[table["metric"] == metric].set_index(["family", "setting"])["verdict"]
@@ -238,33 +245,40 @@ def facts(spec, summary: pd.DataFrame, vs_basic: pd.DataFrame, vs_paper: pd.Data
     return out
 
 
-def main() -> None:
+def run_benchmark(doc: str, name: str, spec_file: str, title: str) -> None:
+    """Study 11's protocol on ``sweeps/<spec_file>`` into ``analysis/results/<name>``: the comparison, the
+    second report against the paper's method, facts, findings, leaderboard and trajectory figures."""
     from jaxapf.compare.protocol import baseline_filter
 
-    args, out = study.begin(__doc__, STUDY)
+    args, out = study.begin(doc, name)
     if args.facts_only:
         from jaxapf.compare.spec import load_compare_spec
 
-        spec = load_compare_spec(study.ROOT / "sweeps" / SPEC)[0]
+        spec = load_compare_spec(study.ROOT / "sweeps" / spec_file)[0]
         report = study.committed_report(out)
         vs_paper = pd.read_csv(out / "report_vs_paper" / "comparisons.csv")
-        study.write_facts(out, facts(spec, report.summary, report.comparisons, vs_paper))
+        study.write_facts(out, facts(spec, report.summary, report.comparisons, vs_paper,
+                                     pd.read_csv(out / "selection.csv")))
         return
-    spec, runs = study.run_compare_study(args, out, SPEC)
+    spec, runs = study.run_compare_study(args, out, spec_file)
     paper = dataclasses.replace(spec, baseline=PAPER)
     vs_paper = study.report(runs / "test.parquet", out, resamples=args.resamples, folder="report_vs_paper",
                             baseline=baseline_filter(paper), pair_on=("selection",), heatmap=None).comparisons
     summary = pd.read_csv(out / "report" / "summary.csv")
     vs_basic = pd.read_csv(out / "report" / "comparisons.csv")
-    study.write_facts(out, facts(spec, summary, vs_basic, vs_paper))
+    study.write_facts(out, facts(spec, summary, vs_basic, vs_paper, pd.read_csv(out / "selection.csv")))
     sections = ["Budgets, selected gains and every verdict against `basic` seed by seed: [`compare.md`](compare.md); "
                 "the full reports: [`report/report.md`](report/report.md) (against `basic`) and "
                 "[`report_vs_paper/report.md`](report_vs_paper/report.md) (against `direction_velocity`).",
                 findings(spec, summary, vs_basic, vs_paper), leaderboard(spec, summary, vs_basic, vs_paper)]
-    command = "python analysis/planner_benchmark.py" + (f" --fields {args.fields}" if args.fields else "")
-    study.write_readme(out, "Study 11 — every planner and the CBF filter at its tuned best", command,
-                       runs / "test.parquet", sections, trajectory_figures(spec, runs, out) + [study.RATES_FIGURE])
+    command = f"python analysis/{name}.py" + (f" --fields {args.fields}" if args.fields else "")
+    study.write_readme(out, title, command, runs / "test.parquet", sections,
+                       trajectory_figures(spec, runs, out) + [study.RATES_FIGURE])
     print(f"wrote {out}/README.md")
+
+
+def main() -> None:
+    run_benchmark(__doc__, STUDY, SPEC, "Study 11 — every planner and the CBF filter at its tuned best")
 
 
 if __name__ == "__main__":
