@@ -6,18 +6,112 @@ and ``keepout_mpc`` (every obstacle a constraint at every horizon step) beside t
 ``direction_velocity``, ``basic`` and study 11's leader ``velocity_obstacle``. Each setting is paired with
 ``basic`` of the same selection, and in a second report with ``direction_velocity``.
 
-    python analysis/flown_planners.py     # ~1 h on 2 cores: selection, test sweep, two reports, figures
+Then the swarms of study 16's two open flows (``circle_swap``, ``crossing_flows``) with 8 and 32 UAVs,
+every method at each of its three selections (chosen for a UAV alone), 64 held-out fields per family
+and size (study 16's seed), every UAV seeing its 8 nearest neighbours; each paired with ``basic`` of the
+same selection on swarm success, collisions between UAVs and deadlock (``swarm_study.summarise``: the
+verdict function, Holm over all of these comparisons).
+
+    python analysis/flown_planners.py     # the comparison ~1 h 40 min on 2 cores, the swarms cached per cell
+                                          # under runs/flown-swarms/
 """
 
 from __future__ import annotations
 
+import pathlib
+
+import numpy as np
+import pandas as pd
 import study
+import swarm_study
 from planner_benchmark import run_benchmark
+
+FLOWS = ("circle_swap", "crossing_flows")
+AGENTS = (8, 32)
+
+
+def swarm_cells(out: pathlib.Path, spec) -> pd.DataFrame:
+    """Every (flow, A, method) cell, cached under ``runs/flown-swarms/`` as soon as it is done."""
+    cache = study.ROOT / "runs" / "flown-swarms"
+    cache.mkdir(parents=True, exist_ok=True)
+    frames = []
+    for agents in AGENTS:
+        for family in FLOWS:
+            for method in spec.methods:
+                path = cache / f"{family}-a{agents:02d}-{method}.parquet"
+                if not path.exists():
+                    swarm_study.cell(method, family, agents, swarm_study.FIELDS,
+                                     source=out / "selection.csv").to_parquet(path, index=False)
+                    print(f"  {family} A={agents} {method}: done", flush=True)
+                frames.append(pd.read_parquet(path))
+    return pd.concat(frames, ignore_index=True)
+
+
+def swarm_table(rates: pd.DataFrame, comparisons: pd.DataFrame, family: str) -> str:
+    """Markdown: per method and A, each outcome in % (mean over the seeds [lowest, highest]) with the seeds'
+    verdict marks against ``basic``."""
+    head = [f"{m} A = {a}" for m, _ in swarm_study.OUTCOMES for a in AGENTS]
+    lines = ["| method | " + " | ".join(head) + " |", "|---|" + "---|" * len(head)]
+    part = rates[rates["family"] == family]
+    for method in dict.fromkeys(part["method"]):
+        cells = []
+        for metric, _ in swarm_study.OUTCOMES:
+            for a in AGENTS:
+                v = part[(part["method"] == method) & (part["agents"] == a)].sort_values("seed")[metric]
+                m = comparisons[(comparisons["family"] == family) & (comparisons["metric"] == metric)
+                                & (comparisons["method"] == method) & (comparisons["agents"] == a)]
+                tag = "".join(swarm_study.MARK[x] for x in m.sort_values("seed")["verdict"])
+                cell = f"{100 * v.mean():.1f} [{100 * v.min():.0f}, {100 * v.max():.0f}]"
+                cells.append(f"{cell} {tag}" if tag else cell)
+        lines.append(f"| `{method}` | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def swarm_facts(rates: pd.DataFrame, comparisons: pd.DataFrame) -> dict:
+    """``swarm``: per flow, A, outcome and method the mean over the seeds; ``swarm_all_seeds``: against
+    ``basic`` the verdict all three seeds give (``mixed`` where they differ); ``swarm_comparisons``."""
+    out: dict = {"swarm_fields": swarm_study.FIELDS, "swarm_comparisons": len(comparisons), "swarm": {},
+                 "swarm_all_seeds": {}}
+    mean = rates.groupby(["family", "agents", "method"])[[m for m, _ in swarm_study.OUTCOMES]].mean()
+    for (family, agents, method), row in mean.iterrows():
+        for metric, _ in swarm_study.OUTCOMES:
+            out["swarm"].setdefault(family, {}).setdefault(str(agents), {}).setdefault(metric, {})[method] = float(
+                row[metric])
+    for (family, agents, metric, method), g in comparisons.groupby(["family", "agents", "metric", "method"]):
+        marks = set(g["verdict"])
+        out["swarm_all_seeds"].setdefault(family, {}).setdefault(str(agents), {}).setdefault(metric, {})[method] = (
+            marks.pop() if len(marks) == 1 else "mixed")
+    return out
+
+
+def swarms(out: pathlib.Path, spec, compute: bool) -> tuple[list[str], dict]:
+    """The swarm stage (module docstring): its section and facts; its rates and comparisons go to
+    ``out/swarms/`` (read back with ``--facts-only``)."""
+    folder = out / "swarms"
+    if compute:
+        rates, comparisons = swarm_study.summarise(swarm_cells(out, spec))
+        folder.mkdir(exist_ok=True)
+        rates.to_csv(folder / "rates.csv", index=False)
+        comparisons.to_csv(folder / "comparisons.csv", index=False)
+    rates, comparisons = pd.read_csv(folder / "rates.csv"), pd.read_csv(folder / "comparisons.csv")
+    lines = ["## Swarms", "",
+             f"Study 16's open flows with {' and '.join(map(str, AGENTS))} UAVs, {swarm_study.FIELDS} held-out fields "
+             "per flow and size, every method at its three selections (chosen for a UAV alone). Each cell: "
+             "rate in % over the fields, mean over the three selections [lowest, highest], then the seeds' "
+             "verdicts against `basic` of the same selection (" + ", ".join(f"{v} {k}" for k, v in
+                                                                          swarm_study.MARK.items())
+             + f"; Holm over all {len(comparisons)} comparisons).", ""]
+    for family in FLOWS:
+        lines += [f"### {family}", "", swarm_table(rates, comparisons, family), ""]
+    unfinished = int(np.sum(rates["n"] != swarm_study.FIELDS))
+    if unfinished:
+        lines.append(f"{unfinished} cells flew fewer fields than planned.")
+    return ["\n".join(lines)], swarm_facts(rates, comparisons)
 
 
 def main() -> None:
     run_benchmark(__doc__, "flown_planners", "flown-planners.toml",
-                  "Study 17 — the planners the field flies against the paper's potential field")
+                  "Study 17 — the planners the field flies against the paper's potential field", extra=swarms)
 
 
 if __name__ == "__main__":

@@ -245,9 +245,11 @@ def facts(spec, summary: pd.DataFrame, vs_basic: pd.DataFrame, vs_paper: pd.Data
     return out
 
 
-def run_benchmark(doc: str, name: str, spec_file: str, title: str) -> None:
+def run_benchmark(doc: str, name: str, spec_file: str, title: str, extra=None) -> None:
     """Study 11's protocol on ``sweeps/<spec_file>`` into ``analysis/results/<name>``: the comparison, the
-    second report against the paper's method, facts, findings, leaderboard and trajectory figures."""
+    second report against the paper's method, facts, findings, leaderboard and trajectory figures.
+    ``extra(out, spec, compute)``, if given, returns more ``(sections, facts)`` (``compute`` False with
+    ``--facts-only``: from what it committed)."""
     from jaxapf.compare.protocol import baseline_filter
 
     args, out = study.begin(doc, name)
@@ -257,8 +259,9 @@ def run_benchmark(doc: str, name: str, spec_file: str, title: str) -> None:
         spec = load_compare_spec(study.ROOT / "sweeps" / spec_file)[0]
         report = study.committed_report(out)
         vs_paper = pd.read_csv(out / "report_vs_paper" / "comparisons.csv")
+        more = extra(out, spec, False)[1] if extra is not None else {}
         study.write_facts(out, facts(spec, report.summary, report.comparisons, vs_paper,
-                                     pd.read_csv(out / "selection.csv")))
+                                     pd.read_csv(out / "selection.csv")) | more)
         return
     spec, runs = study.run_compare_study(args, out, spec_file)
     paper = dataclasses.replace(spec, baseline=PAPER)
@@ -266,13 +269,14 @@ def run_benchmark(doc: str, name: str, spec_file: str, title: str) -> None:
                             baseline=baseline_filter(paper), pair_on=("selection",), heatmap=None).comparisons
     summary = pd.read_csv(out / "report" / "summary.csv")
     vs_basic = pd.read_csv(out / "report" / "comparisons.csv")
-    study.write_facts(out, facts(spec, summary, vs_basic, vs_paper, pd.read_csv(out / "selection.csv")))
     sections = ["Budgets, selected gains and every verdict against `basic` seed by seed: [`compare.md`](compare.md); "
                 "the full reports: [`report/report.md`](report/report.md) (against `basic`) and "
                 "[`report_vs_paper/report.md`](report_vs_paper/report.md) (against `direction_velocity`).",
                 findings(spec, summary, vs_basic, vs_paper), leaderboard(spec, summary, vs_basic, vs_paper)]
+    more_sections, more = extra(out, spec, True) if extra is not None else ([], {})
+    study.write_facts(out, facts(spec, summary, vs_basic, vs_paper, pd.read_csv(out / "selection.csv")) | more)
     command = f"python analysis/{name}.py" + (f" --fields {args.fields}" if args.fields else "")
-    study.write_readme(out, title, command, runs / "test.parquet", sections,
+    study.write_readme(out, title, command, runs / "test.parquet", sections + more_sections,
                        trajectory_figures(spec, runs, out) + [study.RATES_FIGURE])
     print(f"wrote {out}/README.md")
 

@@ -68,17 +68,18 @@ MARK = {"worse": "↓", "better": "↑", "equivalent": "=", "inconclusive": "·"
 
 
 @functools.cache
-def selections() -> pd.DataFrame:
-    """Study 11's selected gains, one row per (method, seed); refuses gain columns that are no
-    longer declared (they would be dropped silently and the method fly its defaults)."""
+def selections(source: pathlib.Path = SELECTION) -> pd.DataFrame:
+    """Study 11's selected gains (or those of another compare study's ``selection.csv``), one row per
+    (method, seed); refuses gain columns that are no longer declared (they would be dropped silently
+    and the method fly its defaults)."""
     from jaxapf.compare.select import Selection
     from jaxapf.gains import GAINS
 
-    table = pd.read_csv(SELECTION)
+    table = pd.read_csv(source)
     fixed = {f.name for f in dataclasses.fields(Selection)} - {"gains"}
     stale = sorted(set(table.columns) - fixed - set(GAINS.names()))
     if stale:
-        raise SystemExit(f"{SELECTION}: columns {', '.join(stale)} are not declared gains; rerun "
+        raise SystemExit(f"{source}: columns {', '.join(stale)} are not declared gains; rerun "
                          "analysis/planner_benchmark.py to select with the current gains")
     return table
 
@@ -88,11 +89,11 @@ def seeds() -> list[int]:
     return sorted(int(s) for s in selections()["seed"].unique())
 
 
-def tuned_gains(method: str, seed: int) -> dict[str, float]:
-    """The gains study 11's selection with ``seed`` chose for ``method``."""
+def tuned_gains(method: str, seed: int, source: pathlib.Path = SELECTION) -> dict[str, float]:
+    """The gains study 11's selection (or ``source``'s) with ``seed`` chose for ``method``."""
     from jaxapf.gains import GAINS
 
-    table = selections()
+    table = selections(source)
     row = table[(table["method"] == method) & (table["seed"] == seed)].iloc[0]
     return {g: float(row[g]) for g in GAINS.names() if g in row and np.isfinite(row[g])}
 

@@ -62,10 +62,10 @@ def methods() -> list[str]:
     return list(dict.fromkeys(robustness.selections()["method"])) + [UNILATERAL]
 
 
-def tuned(method: str, seed: int) -> dict[str, float]:
-    """The gains study 11's selection with ``seed`` chose for ``method`` (``velocity_obstacle``'s for the
-    unilateral variant)."""
-    return robustness.tuned_gains("velocity_obstacle" if method == UNILATERAL else method, seed)
+def tuned(method: str, seed: int, source: pathlib.Path = robustness.SELECTION) -> dict[str, float]:
+    """The gains study 11's selection (or ``source``'s) with ``seed`` chose for ``method``
+    (``velocity_obstacle``'s for the unilateral variant)."""
+    return robustness.tuned_gains("velocity_obstacle" if method == UNILATERAL else method, seed, source)
 
 
 def params(family: str, agents: int):
@@ -75,11 +75,13 @@ def params(family: str, agents: int):
 
 
 def cell(method: str, family: str, agents: int, count: int, tracking: str = "mpc",
-         tau: float | None = None, neighbours: int = NEIGHBOURS) -> pd.DataFrame:
+         tau: float | None = None, neighbours: int = NEIGHBOURS,
+         source: pathlib.Path = robustness.SELECTION) -> pd.DataFrame:
     """One row per (selection seed, field) of ``method`` on ``count`` fields of ``family`` with ``agents``
     UAVs: the swarm metrics (one :func:`~jaxapf.engine.swarm.evaluate_swarms` call, the seeds as settings).
     ``tracking``, ``tau`` (the velocity obstacles' ``vo_tau`` in place of the selections') and ``neighbours``
-    serve the reciprocity ablation (``reciprocity_ablation.py``)."""
+    serve the reciprocity ablation (``reciprocity_ablation.py``); ``source``: the ``selection.csv`` the gains
+    come from (study 11's by default)."""
     import jax
 
     from jaxapf import Gains
@@ -93,7 +95,7 @@ def cell(method: str, family: str, agents: int, count: int, tracking: str = "mpc
     sim = SimConfig.from_flat(method=planner, filter=safety or "none", t_max=p.t_max, max_neighbours=neighbours,
                               projection_rows=ROWS.get(method, 0) if crowded else 0, tracking=tracking)
     seeds = robustness.seeds()
-    chosen = [tuned(method, s) | ({"vo_tau": tau} if tau is not None else {}) for s in seeds]
+    chosen = [tuned(method, s, source) | ({"vo_tau": tau} if tau is not None else {}) for s in seeds]
     gains = jax.tree_util.tree_map(lambda *x: np.asarray(x, np.float32), *[Gains(**g) for g in chosen])
     metrics = jax.device_get(evaluate_swarms(make_swarms(SEED, p, count), gains, sim, MPCConfig(),
                                              max(1, 2048 // agents)))
