@@ -95,10 +95,9 @@ FAMILIES = ("trap", "clutter", "overtake", "crossing")
 
 
 def test_its_qps_from_real_episodes_match_clarabel():
-    for family in ("clutter", "overtake"):
-        qps = _real_qps(family, fields=2, every=25)
-        assert len(qps[0]) == 2 * SIM.episode.steps // 25
-        _check_against_clarabel(qps)
+    qps = _real_qps("clutter", fields=2, every=25)  # the most rows; every family in the slow tier
+    assert len(qps[0]) == 2 * SIM.episode.steps // 25
+    _check_against_clarabel(qps)
 
 
 @pytest.mark.slow

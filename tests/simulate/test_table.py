@@ -13,7 +13,7 @@ from jaxapf.metrics import METRICS
 from jaxapf.simulate import format_metrics_table
 
 OWNED = {"vo_infeasible_steps", "vo_truncated_steps", "cbf_infeasible_steps", "cbf_truncated_steps", "max_tilt",
-         "saturation_time", "unseen_steps"}
+         "saturation_time", "unseen_steps", "kmpc_infeasible_steps"}
 
 
 def test_a_metric_a_component_owns_is_in_use_only_where_that_component_flies():
@@ -21,6 +21,7 @@ def test_a_metric_a_component_owns_is_in_use_only_where_that_component_flies():
     assert set(names) - set(metrics_in_use(SimConfig.from_flat(method="basic"), names)) == OWNED
     vo = set(metrics_in_use(SimConfig.from_flat(method="velocity_obstacle_unilateral"), names))
     assert {"vo_infeasible_steps", "vo_truncated_steps"} <= vo and not {"cbf_infeasible_steps", "max_tilt"} & vo
+    assert "kmpc_infeasible_steps" in metrics_in_use(SimConfig.from_flat(method="keepout_mpc"), names)
     filters = ("cbf", "robust_cbf", "braking_cbf")
     every_cbf = [set(metrics_in_use(SimConfig.from_flat(filter=f), names)) for f in filters]
     assert all({"cbf_infeasible_steps", "cbf_truncated_steps"} <= m for m in every_cbf)  # owned by all three
