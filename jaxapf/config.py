@@ -106,7 +106,8 @@ class PlannerConfig:
       tracking: ``mpc`` (default): the box-constrained MPC tracks the planner's reference; ``ideal``: an
         ablation without it, the reference's first velocity ``(p_1 - p) / Δt`` (a velocity obstacle's
         chosen velocity) reached within the step, whatever the acceleration it takes (no box; a safety
-        filter still keeps its own); no disturbance estimator.
+        filter still keeps its own); no disturbance estimator. A planner that flies its own plan
+        (``mppi``, ``keepout_mpc``: :meth:`jaxapf.planners.Planner.command`) is tracked by neither.
       mppi_samples: the sampled acceleration sequences ``K`` of the ``mppi`` planner per control step
         (:mod:`jaxapf.planners.mppi`; static: it sets the shape of its batch).
     """

@@ -42,7 +42,7 @@ __all__ = ["Planner", "PLANNERS", "register_planner", "reference_states"]
 
 
 class Planner(abc.ABC):
-    """A reference generator for the MPC (module docstring).
+    """A reference generator for the MPC, or a planner commanding its own accelerations (module docstring).
 
     Attributes:
       color, linestyle: how figures draw its runs (matplotlib colour and line style; ``None``:
