@@ -31,7 +31,7 @@ from jax import Array
 from ..datatypes import ObstacleColumns, Obstacles, safe_norm
 from ..gains import GainSpec, declare_gains
 from .base import Planner, reference_states, register_planner
-from .potentials import total_force
+from .potentials import attractive_potential, total_force
 from .weights import GAMMA, Basic, Direction, DirectionVelocity, K, Normalised, Weight
 
 if TYPE_CHECKING:
@@ -69,6 +69,13 @@ class ForceTerm(abc.ABC):
 def saturate(u: Array, limit: float) -> Array:
     """Scale ``u`` down to norm ``limit`` if it is longer (direction kept)."""
     return u * jnp.minimum(1.0, limit / safe_norm(u))
+
+
+def preferred_velocity(x: Array, goal: Array, gains: "Gains", sim: "SimConfig") -> Array:
+    """``sat_{v_max}(η F_att)`` at the state ``x``: the attractive flow alone, the velocity the planners that
+    avoid by constraints (velocity obstacles, the keep-out MPC) would take without obstacles."""
+    attraction = -jax.grad(attractive_potential)(x[:3], goal, gains.k_att, sim.planner.att_cap)
+    return saturate(gains.eta * attraction, sim.vehicle.v_max)
 
 
 def _unique(specs: tuple[GainSpec, ...]) -> tuple[GainSpec, ...]:

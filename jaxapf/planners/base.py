@@ -38,7 +38,7 @@ if TYPE_CHECKING:
     from ..datatypes import ObstacleColumns, Scenario
     from ..gains import Gains
 
-__all__ = ["Planner", "PLANNERS", "register_planner", "reference_states"]
+__all__ = ["Planner", "PLANNERS", "register_planner", "reference_states", "shifted"]
 
 
 class Planner(abc.ABC):
@@ -107,6 +107,12 @@ def reference_states(x: Array, points: Array, velocities: Array, sim: "SimConfig
     else:
         velocities = jnp.zeros_like(positions)
     return jnp.concatenate([positions, velocities], axis=1)
+
+
+def shifted(plan: Array) -> Array:
+    """A plan (N, ...) one step on: its first entry flown, the last repeated (the warm start of a planner
+    that plans its own accelerations)."""
+    return jnp.concatenate([plan[1:], plan[-1:]], axis=0)
 
 
 def _describe(planner: Planner) -> str:

@@ -42,17 +42,15 @@ from __future__ import annotations
 import dataclasses
 from typing import TYPE_CHECKING, Any
 
-import jax
 import jax.numpy as jnp
 from jax import Array
 
 from ..datatypes import ObstacleColumns, Obstacles, safe_norm
 from ..gains import GainSpec
 from ..metrics.base import Metric
-from .apf import ETA, K_ATT, saturate
-from .base import Planner, reference_states, register_planner
+from .apf import ETA, K_ATT, preferred_velocity
+from .base import Planner, reference_states, register_planner, shifted
 from .mppi import rollout_positions
-from .potentials import attractive_potential
 
 if TYPE_CHECKING:
     from ..config import SimConfig
@@ -174,11 +172,8 @@ class KeepoutMPC(Planner):
                 sim: "SimConfig", horizon: int) -> tuple[Array, Array, Array, Array]:
         """The QP (:func:`keepout_qp`) of the step from ``x`` at ``t``: the preferred velocity towards ``goal``,
         the keep-out rows linearised at the last plan's positions shifted by one step."""
-        attraction = -jax.grad(attractive_potential)(x[:3], goal, gains.k_att, sim.planner.att_cap)
-        preferred = saturate(gains.eta * attraction, sim.vehicle.v_max)
-        positions = state[1]
-        last = jnp.concatenate([positions[1:], positions[-1:]], axis=0)
-        return keepout_qp(x, t, preferred, last, obstacles, gains, sim, horizon)
+        return keepout_qp(x, t, preferred_velocity(x, goal, gains, sim), shifted(state[1]), obstacles, gains, sim,
+                          horizon)
 
     def reference(self, state: Any, x: Array, t: Array, goal: Array, obstacles: Obstacles | ObstacleColumns,
                   gains: "Gains", sim: "SimConfig", horizon: int) -> tuple[Array, Any]:
@@ -186,9 +181,8 @@ class KeepoutMPC(Planner):
         controls = state[0]
         z = solve(*self.step_qp(state, x, t, goal, obstacles.columns(), gains, sim, horizon))
         answered = jnp.all(jnp.isfinite(z))
-        shifted = jnp.concatenate([controls[1:], controls[-1:]], axis=0)
         plan = jnp.where(answered, jnp.clip(z[:-1].reshape(horizon, 3), -sim.vehicle.a_max, sim.vehicle.a_max),
-                         shifted)
+                         shifted(controls))
         p, v = rollout_positions(x, plan, sim.episode.dt)
         return reference_states(x, p, v, sim), (plan, p, ~answered | (z[-1] > TOLERANCE))
 

@@ -50,7 +50,7 @@ from ..datatypes import ObstacleColumns, Obstacles, safe_norm
 from ..datatypes.obstacles import project
 from ..datatypes.scenario import episode_key
 from ..gains import GainSpec
-from .base import Planner, reference_states, register_planner
+from .base import Planner, reference_states, register_planner, shifted
 
 if TYPE_CHECKING:
     from ..config import SimConfig
@@ -151,7 +151,7 @@ class MPPI(Planner):
         """``U*`` rolled out from ``x`` (module docstring), from the last plan shifted by one step; the state
         becomes ``U*``."""
         last, key, step = state
-        u = jnp.concatenate([last[1:], last[-1:]], axis=0)
+        u = shifted(last)
         draw = jax.random.fold_in(jax.random.wrap_key_data(key), step)
         noise = gains.mppi_sigma * jax.random.normal(draw, (sim.planner.mppi_samples, horizon, 3), x.dtype)
         plan, _ = mppi_update(u, noise, x, t, goal, obstacles.columns(), gains, sim)

@@ -61,7 +61,6 @@ from __future__ import annotations
 import dataclasses
 from typing import TYPE_CHECKING, Any
 
-import jax
 import jax.numpy as jnp
 from jax import Array
 
@@ -69,9 +68,8 @@ from ..datatypes import ObstacleColumns, Obstacles, safe_norm
 from ..datatypes.obstacles import TINY
 from ..gains import GainSpec
 from ..projection import INFEASIBLE_TOL, nearest_feasible, projection_metrics
-from .apf import ETA, K_ATT, saturate
+from .apf import ETA, K_ATT, preferred_velocity
 from .base import Planner, reference_states, register_planner
-from .potentials import attractive_potential
 from .sight import line_of_sight
 
 if TYPE_CHECKING:
@@ -169,8 +167,7 @@ class VelocityObstacle(Planner):
                  sim: "SimConfig") -> tuple[Array, Array]:
         """``(v*, largest violation of the half-spaces, exact)`` at the state ``x`` and time ``t``
         (:func:`~jaxapf.projection.nearest_feasible`)."""
-        attraction = -jax.grad(attractive_potential)(x[:3], goal, gains.k_att, sim.planner.att_cap)
-        preferred = saturate(gains.eta * attraction, sim.vehicle.v_max)
+        preferred = preferred_velocity(x, goal, gains, sim)
         n, bound = orca_half_spaces(x, t, obstacles, gains, sim, self.reciprocal)
         return nearest_feasible(preferred, n, bound, sim.vehicle.v_max, "ball", sim.planner.projection_rows)
 
