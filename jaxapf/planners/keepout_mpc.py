@@ -25,7 +25,7 @@ answer: where no plan keeps every obstacle out (already inside one, hemmed in, o
 one) it is the plan that intrudes least. The QP (3N + 1 variables, N·M keep-out rows, the box and
 s >= 0) is solved by ``qpax``'s primal–dual interior point method (Tracy and Manchester; batched and
 differentiable in JAX) with a fixed count of :data:`ITERATIONS` iterations, so it vmaps (in float32 its
-own convergence test rarely passes though the answer is accurate: tests check it against OSQP). A step
+own convergence test rarely passes though the answer is accurate: tests check it against Clarabel). A step
 whose slack exceeds :data:`TOLERANCE` m counts as infeasible (diagnostic ``kmpc_infeasible``,
 metric ``kmpc_infeasible_steps``); an answer that is not finite is replaced by the last plan
 shifted by one step (and counted too). The plan's first acceleration is applied
@@ -56,7 +56,7 @@ if TYPE_CHECKING:
     from ..config import SimConfig
     from ..gains import Gains
 
-__all__ = ["KeepoutMPC", "keepout_qp", "solve", "ITERATIONS", "TOLERANCE", "SLACK_LINEAR", "SLACK_QUADRATIC"]
+__all__ = ["KeepoutMPC", "KMPC_GAINS", "keepout_qp", "solve", "ITERATIONS", "TOLERANCE", "SLACK_LINEAR", "SLACK_QUADRATIC"]
 
 KMPC_Q = GainSpec("kmpc_q", 1.0, low=0.0, low_open=True, unit="1/m²",
                   doc="keep-out MPC: weight of the distance to the goal-seeking reference, per step")
@@ -66,6 +66,7 @@ KMPC_R = GainSpec("kmpc_r", 0.05, low=0.0, low_open=True, unit="s⁴/m²",
                   doc="keep-out MPC: weight of the acceleration, per step")
 KMPC_MARGIN = GainSpec("kmpc_margin", 0.2, low=0.0, unit="m",
                        doc="keep-out MPC: margin added to the combined radius ρ_o + r_uav")
+KMPC_GAINS = (KMPC_Q, KMPC_QV, KMPC_R, KMPC_MARGIN)
 #: Interior-point iterations per QP, and the slack [m] above which a step counts as infeasible.
 ITERATIONS = 20
 TOLERANCE = 1e-3
@@ -153,7 +154,7 @@ class KeepoutMPC(Planner):
 
     @property
     def gains(self) -> tuple[GainSpec, ...]:
-        return (KMPC_Q, KMPC_QV, KMPC_R, KMPC_MARGIN, K_ATT, ETA)
+        return (*KMPC_GAINS, K_ATT, ETA)
 
     @property
     def reads(self) -> tuple[str, ...]:

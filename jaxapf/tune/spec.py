@@ -169,13 +169,15 @@ class SearchSpec:
 
 
 def _drop_newer_gains(tree: Any) -> None:
-    """Remove the gains declared after the tune digest was fixed (the MPPI planner's) at their defaults
-    from every gains table in ``tree`` (in place)."""
+    """Remove the gains declared after the tune digest was fixed (the MPPI and keep-out MPC planners')
+    at their defaults from every gains table in ``tree`` (in place)."""
+    from ..planners.keepout_mpc import KMPC_GAINS
     from ..planners.mppi import MPPI_GAINS
 
+    newer = (*MPPI_GAINS, *KMPC_GAINS)
     if isinstance(tree, dict):
-        if all(g.name in tree for g in MPPI_GAINS):
-            for g in MPPI_GAINS:
+        if all(g.name in tree for g in newer):
+            for g in newer:
                 if tree[g.name] == g.default:
                     del tree[g.name]
         for value in tree.values():
