@@ -117,3 +117,23 @@ def test_quickstart_times_the_readmes_own_commands(tmp_path):
     moved = _with_out(report, tmp_path / "r", tmp_path / "d.parquet")
     assert moved[2] == str(tmp_path / "d.parquet") and moved[moved.index("--out") + 1] == str(tmp_path / "r")
     assert len(moved) == len(report)
+
+
+def test_accelerator_script_records_every_size_and_the_quickstart_command(tmp_path, monkeypatch):
+    """benchmarks/accelerator.py: one record per size with its rate, written as it goes; the sweep is
+    the README's quick-start command (timed as a subprocess: skipped here with --sweep-timeout 0)."""
+    import accelerator
+
+    out = tmp_path / "acc.json"
+    monkeypatch.setattr(sys, "argv", ["accelerator.py", "--fields", "2", "3", "--repeats", "1", "--steps", "2",
+                                      "--sweep-timeout", "0", "--json", str(out)])
+    accelerator.main()
+    record = json.loads(out.read_text())
+    assert list(record["sizes"]) == ["2", "3"] and record["sweep"] is None
+    for fields, size in record["sizes"].items():
+        assert size["width"] == int(fields)
+        assert size["steps_per_s"] == pytest.approx(int(fields) * 2 / size["run_s"])
+        assert size["run_s"] == min(size["run_all_s"])
+    from quickstart import quickstart_commands
+
+    assert quickstart_commands((ROOT / "README.md").read_text())[0][:2] == ["jaxapf", "sweep"]
