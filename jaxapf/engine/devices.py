@@ -63,12 +63,20 @@ class DeviceBatch:
         devices have been dispatched (block on the result to wait for them). ``program``: the compiled
         program each device runs, ``program(fields, gains, sim, mpc, width, metrics)``
         (:func:`~jaxapf.engine.evaluate_program`, or :func:`~jaxapf.engine.swarm.evaluate_swarms` for
-        a batch of :class:`~jaxapf.datatypes.swarm.Swarm` fields)."""
+        a batch of :class:`~jaxapf.datatypes.swarm.Swarm` fields). A planner that may not run on several
+        CPU devices at once (:attr:`~jaxapf.planners.Planner.concurrent_cpu_devices`) has its blocks run
+        one after another, each waited for."""
+
+        from ..planners import PLANNERS
 
         placed = jax.device_put(scenarios, self.fields)
         shards = [jax.tree_util.tree_map(lambda x, i=i: _shard(x, i), placed) for i in range(len(self.devices))]
-        futures = [self.pool.submit(program, s, g, sim, mpc, width, metrics) for s, g in zip(shards, gains)]
-        outs = [f.result() for f in futures]
+        if PLANNERS.get(sim.planner.method, "method").concurrent_cpu_devices or self.devices[0].platform != "cpu":
+            futures = [self.pool.submit(program, s, g, sim, mpc, width, metrics) for s, g in zip(shards, gains)]
+            outs = [f.result() for f in futures]
+        else:  # one block after another (Planner.concurrent_cpu_devices)
+            outs = [jax.block_until_ready(self.pool.submit(program, s, g, sim, mpc, width, metrics).result())
+                    for s, g in zip(shards, gains)]
         settings = outs[0][metrics[0]].shape[0]
         fields = scenarios.start.shape[0]
         return {m: jax.make_array_from_single_device_arrays((settings, fields), self.sharding, [o[m] for o in outs])

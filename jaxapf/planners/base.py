@@ -48,11 +48,15 @@ class Planner(abc.ABC):
       color, linestyle: how figures draw its runs (matplotlib colour and line style; ``None``:
         from a palette).
       metrics: the metrics of what only it records (registered with it).
+      concurrent_cpu_devices: whether its program may run on several CPU devices at once (``jaxapf
+        sweep --devices``); where not, :class:`~jaxapf.engine.devices.DeviceBatch` runs the devices'
+        blocks one after another (the same numbers, no concurrency).
     """
 
     color: str | None = None
     linestyle: str | None = None
     metrics: tuple = ()
+    concurrent_cpu_devices: bool = True
 
     @property
     def description(self) -> str:

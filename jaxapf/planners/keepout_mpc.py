@@ -56,7 +56,8 @@ if TYPE_CHECKING:
     from ..config import SimConfig
     from ..gains import Gains
 
-__all__ = ["KeepoutMPC", "KMPC_GAINS", "keepout_qp", "solve", "ITERATIONS", "TOLERANCE", "SLACK_LINEAR", "SLACK_QUADRATIC"]
+__all__ = ["KeepoutMPC", "KMPC_GAINS", "keepout_qp", "solve", "ITERATIONS", "TOLERANCE", "SLACK_LINEAR",
+           "SLACK_QUADRATIC"]
 
 KMPC_Q = GainSpec("kmpc_q", 1.0, low=0.0, low_open=True, unit="1/m²",
                   doc="keep-out MPC: weight of the distance to the goal-seeking reference, per step")
@@ -148,6 +149,10 @@ class KeepoutMPC(Planner):
 
     color: str | None = "tab:cyan"
     linestyle: str | None = "-"
+    # Two CPU devices running this program at once stall inside XLA's CPU runtime (every thread idle,
+    # a result never ready; jax 0.10.2: 128 fields, vmap width 64, 2 devices; never on one device, at
+    # width 8, or with the devices' blocks run one after another), so they run one after another.
+    concurrent_cpu_devices = False
     metrics = (Metric.flagged_steps("kmpc_infeasible_steps", "kmpc_infeasible",
                                     "control steps at which no plan kept every obstacle out over the horizon (the "
                                     "plan intruding least was flown; 0 for other planners)"),)
