@@ -14,7 +14,12 @@ components declare their gains (:class:`GainSpec`), which become sweep keys, CLI
 parameters.
 """
 
+import os
 from importlib import import_module
+
+# drone-models (the crazyflie plants, jaxapf.world.crazyflie) loads only into a process whose SciPy was
+# imported with its array API switched on; set before anything imports SciPy.
+os.environ.setdefault("SCIPY_ARRAY_API", "1")
 
 #: public name -> the module it lives in, imported on first use (PEP 562): ``import jaxapf`` and the
 #: command line's help, list and argument errors import no JAX

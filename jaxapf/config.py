@@ -144,6 +144,10 @@ class PlannerConfig:
                               f"not {self.estimator!r}")
 
 
+#: The Crazyflie airframes ``drone-models`` identifies (:mod:`jaxapf.world.crazyflie`).
+AIRFRAMES = ("cf2x_L250", "cf2x_P250", "cf2x_T350", "cf21B_500")
+
+
 @dataclasses.dataclass(frozen=True)
 class VehicleConfig:
     """The vehicle: plant model, limits and size (SPEC 1).
@@ -156,6 +160,8 @@ class VehicleConfig:
       substeps: inner integration steps per control step of a plant with an inner loop (the
         quadrotor's attitude controller and rigid body run at ``substeps / dt``); the double
         integrator, exact, ignores it.
+      airframe: the Crazyflie the ``crazyflie_*`` plants fly (:data:`AIRFRAMES`, ``drone-models``'
+        identified configurations); other plants ignore it.
     """
 
     plant: str = "double_integrator"
@@ -163,12 +169,14 @@ class VehicleConfig:
     v_max: float = 2.0
     r_uav: float = 0.3
     substeps: int = 10
+    airframe: str = "cf2x_L250"
 
     def __post_init__(self) -> None:
         _name("sim.plant", self.plant)
         _positive(self, ("a_max", "v_max"), "sim")
         _nonnegative(self, ("r_uav",), "sim")
         check_int("sim.substeps", self.substeps, 1, 10_000)
+        check_choice("sim.airframe", self.airframe, AIRFRAMES)
 
 
 #: How the noisy sensor estimates an obstacle's velocity (:mod:`jaxapf.world.sensing`).

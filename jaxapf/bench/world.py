@@ -11,6 +11,7 @@ r"""What each component costs per scenario-step, against the paper's stack in th
 ``wind``            constant wind with OU gusts
 ``quadrotor``       the quadrotor plant with ``substeps`` inner steps
 ``everything``      quadrotor, noisy sensor and wind together
+``crazyflie_*``     the Crazyflie (``cf2x_L250``) at each fidelity of ``drone-models``, RK4 over ``substeps``
 ``cbf``             the CBF safety filter between the MPC and the plant
 ``direction_velocity``, ``velocity_obstacle``: another planner in the ideal world
 ``mppi_k64``, ``mppi``, ``mppi_k1024``: MPPI with 64, 256 (its default) and 1,024 samples
@@ -49,6 +50,10 @@ VARIANTS: dict[str, tuple[dict[str, Any], dict[str, float]]] = {
     "wind": ({"disturbance": "wind"}, _WIND),
     "quadrotor": ({"plant": "quadrotor"}, {}),
     "everything": ({"plant": "quadrotor", "sensor": "noisy", "disturbance": "wind"}, _NOISE | _WIND),
+    "crazyflie_so_rpy": ({"plant": "crazyflie_so_rpy"}, {}),
+    "crazyflie_so_rpy_rotor": ({"plant": "crazyflie_so_rpy_rotor"}, {}),
+    "crazyflie_so_rpy_rotor_drag": ({"plant": "crazyflie_so_rpy_rotor_drag"}, {}),
+    "crazyflie_first_principles": ({"plant": "crazyflie_first_principles"}, {}),
     "cbf": ({"filter": "cbf"}, {}),
     "direction_velocity": ({"method": "direction_velocity"}, {}),
     "velocity_obstacle": ({"method": "velocity_obstacle"}, {}),

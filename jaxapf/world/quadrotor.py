@@ -64,7 +64,8 @@ from ..metrics import Metric
 from .base import Plant, register_plant
 from .double_integrator import discrete_matrices
 
-__all__ = ["QuadrotorState", "Vehicle", "HUMMINGBIRD", "Quadrotor", "rotation", "quaternion_product", "FRAME"]
+__all__ = ["QuadrotorState", "Vehicle", "HUMMINGBIRD", "Quadrotor", "rotation", "quaternion_product", "FRAME",
+           "limit_thrust", "attitude_setpoint", "attitude_torque"]
 
 #: jaxapf's world frame (z up) to the paper's (z down): a turn by π about x.
 FRAME = np.array([1.0, -1.0, -1.0])
@@ -124,6 +125,33 @@ def _vee(m: Array) -> Array:
     return jnp.stack([m[2, 1], m[0, 2], m[1, 0]])
 
 
+def limit_thrust(w: Array, gravity: float, tilt_max: Array) -> Array:
+    """The thrust per unit mass ``w`` (its component 2 against gravity) with that component at least
+    ``g/5`` (a rotor cannot pull down) and the horizontal part shortened until ``w`` lies within
+    ``tilt_max`` [deg] of the vertical (module docstring, step 1)."""
+    w_z = jnp.maximum(w[2], 0.2 * gravity)
+    horizontal = safe_norm(w[:2])
+    scale = jnp.minimum(1.0, jnp.tan(jnp.deg2rad(tilt_max)) * w_z / horizontal)
+    return jnp.concatenate([w[:2] * scale, w_z[None]])
+
+
+def attitude_setpoint(w: Array) -> Array:
+    """``R_d`` (3, 3): the attitude whose body z axis points along ``w``, with zero yaw."""
+    b3 = w / safe_norm(w)
+    b2 = jnp.cross(b3, jnp.array([1.0, 0.0, 0.0], w.dtype))
+    b2 = b2 / safe_norm(b2)
+    return jnp.stack([jnp.cross(b2, b3), b2, b3], axis=1)
+
+
+def attitude_torque(r: Array, target: Array, rates: Array, inertia: Array, gains: Any) -> Array:
+    """The geometric SO(3) controller (Lee, Leok and McClamroch 2010; module docstring, step 2): the body
+    torque taking the attitude ``r`` with body rates ``rates`` to ``target``, for a diagonal ``inertia``."""
+    e_r = 0.5 * _vee(target.T @ r - r.T @ target)
+    k_r = inertia * gains.att_omega**2
+    k_w = inertia * 2 * gains.att_zeta * gains.att_omega
+    return -k_r * e_r - k_w * rates + jnp.cross(rates, inertia * rates)
+
+
 @dataclasses.dataclass(frozen=True)
 class Quadrotor(Plant):
     """The paper's quadrotor (eq. 1–3): geometric attitude loop, rotor limits and lag, inner sub-steps."""
@@ -164,11 +192,7 @@ class Quadrotor(Plant):
         """``w``, the thrust per unit mass the body should produce along its ``-z`` for ``accel``
         (paper frame), after the vertical floor and the tilt limit (module docstring, step 1)."""
         g = self.vehicle.gravity
-        w = jnp.array([0.0, 0.0, g], accel.dtype) - accel
-        w_z = jnp.maximum(w[2], 0.2 * g)
-        horizontal = safe_norm(w[:2])
-        scale = jnp.minimum(1.0, jnp.tan(jnp.deg2rad(gains.tilt_max)) * w_z / horizontal)
-        return jnp.concatenate([w[:2] * scale, w_z[None]])
+        return limit_thrust(jnp.array([0.0, 0.0, g], accel.dtype) - accel, g, gains.tilt_max)
 
     def step(self, state: QuadrotorState, accel: Array, disturbance: Array, gains: Any, sim: Any
              ) -> tuple[QuadrotorState, dict[str, Array]]:
@@ -181,12 +205,7 @@ class Quadrotor(Plant):
         gravity = jnp.array([0.0, 0.0, vehicle.gravity], dtype)
         push = disturbance * frame
         w = self.thrust_setpoint(accel * frame, gains)
-        b3 = w / safe_norm(w)
-        b2 = jnp.cross(b3, jnp.array([1.0, 0.0, 0.0], dtype))
-        b2 = b2 / safe_norm(b2)
-        target = jnp.stack([jnp.cross(b2, b3), b2, b3], axis=1)  # R_d, zero yaw
-        k_r = inertia * gains.att_omega**2
-        k_w = inertia * 2 * gains.att_zeta * gains.att_omega
+        target = attitude_setpoint(w)
         # first-order lag F' = (c - F)/τ under a command c held over the sub-step: F(s) = c + (F_0 - c) e^{-s/τ}.
         # The end value takes `lag`; the body feels the force's exact mean over the sub-step (`mean`, for the
         # rates and the velocity) and its weighted mean 2/h² ∫(h - s) F ds (`ramp`, for the position).
@@ -198,8 +217,7 @@ class Quadrotor(Plant):
 
         def substep(s: QuadrotorState, _) -> tuple[QuadrotorState, tuple[Array, Array]]:
             r = rotation(s.attitude)
-            e_r = 0.5 * _vee(target.T @ r - r.T @ target)
-            torque = -k_r * e_r - k_w * s.rates + jnp.cross(s.rates, inertia * s.rates)
+            torque = attitude_torque(r, target, s.rates, inertia, gains)
             thrust = vehicle.mass * jnp.dot(w, r[:, 2])
             command = unmix @ jnp.concatenate([thrust[None], torque])
             clipped = jnp.clip(command, 0.0, vehicle.f_max)
