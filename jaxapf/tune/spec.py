@@ -22,7 +22,7 @@ from typing import Any, Mapping, Sequence
 import jax.numpy as jnp
 import optax
 
-from ..config import MPC_KEYS, SIM_KEYS, MPCConfig, PlannerConfig, SimConfig
+from ..config import MPC_KEYS, SIM_KEYS, MPCConfig, PlannerConfig, SimConfig, VehicleConfig
 from ..control import scales_set
 from ..engine import gains_read
 from ..gains import GAINS, Gains, check_gain_name, gains_from_mapping
@@ -236,6 +236,8 @@ class TuneSpec:
             del out["sim"]["planner"]["tracking"]
         if self.sim.planner.mppi_samples == PlannerConfig().mppi_samples:
             del out["sim"]["planner"]["mppi_samples"]
+        if self.sim.vehicle.airframe == VehicleConfig().airframe:
+            del out["sim"]["vehicle"]["airframe"]
         _drop_newer_gains(out)
         return out
 
