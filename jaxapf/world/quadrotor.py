@@ -65,7 +65,7 @@ from .base import Plant, register_plant
 from .double_integrator import discrete_matrices
 
 __all__ = ["QuadrotorState", "Vehicle", "HUMMINGBIRD", "Quadrotor", "rotation", "quaternion_product", "FRAME",
-           "limit_thrust", "attitude_setpoint", "attitude_torque"]
+           "limit_thrust", "attitude_setpoint", "attitude_torque", "rigid_body_step"]
 
 #: jaxapf's world frame (z up) to the paper's (z down): a turn by π about x.
 FRAME = np.array([1.0, -1.0, -1.0])
@@ -123,6 +123,26 @@ def quaternion_product(a: Array, b: Array) -> Array:
 
 def _vee(m: Array) -> Array:
     return jnp.stack([m[2, 1], m[0, 2], m[1, 0]])
+
+
+def rigid_body_step(s: QuadrotorState, wrench: Array, thrust_ramp: Array, h: float, mass: float, inertia: Array,
+                    gravity: Array, push: Array) -> tuple[Array, Array, Array, Array]:
+    """Position, velocity, attitude and body rates one sub-step ``h`` on (module docstring, step 4): eq. 3
+    for the rates (an Euler step under the body torque ``wrench[1:]``), the attitude turned by the exact
+    rotation of the new rates, eq. 1 for the translation under the thrust ``wrench[0]`` (its position
+    weight ``thrust_ramp``) along the start-of-sub-step body axis, gravity and the ``push`` (paper frame)."""
+    r = rotation(s.attitude)
+    rates = s.rates + h * (wrench[1:] - jnp.cross(s.rates, inertia * s.rates)) / inertia
+    half = 0.5 * h * rates
+    angle = safe_norm(half)
+    turn = jnp.concatenate([jnp.cos(angle)[None], half * (jnp.sin(angle) / angle)])
+    attitude = quaternion_product(s.attitude, turn)
+    attitude = attitude / safe_norm(attitude)
+    acc = gravity - (wrench[0] / mass) * r[:, 2] + push
+    acc_ramp = gravity - (thrust_ramp / mass) * r[:, 2] + push
+    position = s.position + h * s.velocity + 0.5 * h * h * acc_ramp
+    velocity = s.velocity + h * acc
+    return position, velocity, attitude, rates
 
 
 def limit_thrust(w: Array, gravity: float, tilt_max: Array) -> Array:
@@ -223,20 +243,11 @@ class Quadrotor(Plant):
             clipped = jnp.clip(command, 0.0, vehicle.f_max)
             rotors = clipped + (s.rotors - clipped) * lag
             wrench = mix @ (clipped + (s.rotors - clipped) * mean)
-            rates = s.rates + h * (wrench[1:] - jnp.cross(s.rates, inertia * s.rates)) / inertia
-            half = 0.5 * h * rates
-            angle = safe_norm(half)
-            turn = jnp.concatenate([jnp.cos(angle)[None], half * (jnp.sin(angle) / angle)])
-            attitude = quaternion_product(s.attitude, turn)
-            attitude = attitude / safe_norm(attitude)
-            acc = gravity - (wrench[0] / vehicle.mass) * r[:, 2] + push
             thrust_ramp = jnp.sum(clipped + (s.rotors - clipped) * ramp)
-            acc_ramp = gravity - (thrust_ramp / vehicle.mass) * r[:, 2] + push
-            position = s.position + h * s.velocity + 0.5 * h * h * acc_ramp
-            velocity = s.velocity + h * acc
+            body = rigid_body_step(s, wrench, thrust_ramp, h, vehicle.mass, inertia, gravity, push)
             tilt = jnp.arctan2(safe_norm(r[:2, 2]), r[2, 2])
             saturated = jnp.any(clipped != command)
-            return QuadrotorState(position, velocity, attitude, rates, rotors), (tilt, saturated)
+            return QuadrotorState(*body, rotors), (tilt, saturated)
 
         state, (tilt, saturated) = jax.lax.scan(substep, state, None, length=sim.vehicle.substeps)
         return state, {"tilt": jnp.max(tilt), "saturated_time": h * jnp.sum(saturated).astype(dtype)}
