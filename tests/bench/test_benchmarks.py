@@ -119,6 +119,7 @@ def test_quickstart_times_the_readmes_own_commands(tmp_path):
     assert len(moved) == len(report)
 
 
+@pytest.mark.slow
 def test_accelerator_script_records_every_size_and_the_quickstart_command(tmp_path, monkeypatch):
     """benchmarks/accelerator.py: one record per size with its rate, written as it goes; the sweep is
     the README's quick-start command (timed as a subprocess: skipped here with --sweep-timeout 0)."""

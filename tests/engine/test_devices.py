@@ -5,6 +5,8 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
+
 _SCRIPT = textwrap.dedent("""
     import threading, time
     import jax, jax.numpy as jnp
@@ -36,6 +38,7 @@ _SCRIPT = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_a_planner_that_forbids_it_runs_the_devices_blocks_one_after_another():
     """``basic`` runs its two CPU devices' blocks at once; ``keepout_mpc`` (``concurrent_cpu_devices =
     False``: two such programs at once stall XLA's CPU runtime) one after another."""
