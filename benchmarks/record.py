@@ -33,6 +33,7 @@ RECORDS: dict[str, tuple[str, int]] = {
         "jaxapf bench sweep sweeps/paper-comparison.toml --repeats 1 --sharded-devices 0 --json", 1),
     "world": ("jaxapf bench world --json", 1),
     "split": ("python benchmarks/split.py --json", 1),
+    "stages": ("python benchmarks/stages.py --json", 1),
     "kernels": ("python benchmarks/kernels.py --json", 1),
     "fit-cost": ("python benchmarks/fit_cost.py --json", 1),
     "xla-fusion-emitters": ("python benchmarks/xla_options.py --xla-option xla_cpu_use_fusion_emitters=true --json", 1),

@@ -138,3 +138,38 @@ def test_accelerator_script_records_every_size_and_the_quickstart_command(tmp_pa
     from quickstart import quickstart_commands
 
     assert quickstart_commands((ROOT / "README.md").read_text())[0][:2] == ["jaxapf", "sweep"]
+
+
+def test_flop_count_of_a_hand_made_program():
+    """benchmarks/stages.py counts a product 2n³, an elementwise op and a transcendental one per element,
+    a scan's body times its length, and data movement nothing."""
+    import jax
+    import jax.numpy as jnp
+    from stages import count_flops
+
+    n = 4
+
+    def body(c, _):
+        return jnp.exp(c @ c) + c.T, None
+
+    counted = count_flops(jax.make_jaxpr(lambda x: jax.lax.scan(body, x, None, length=3)[0])(jnp.ones((n, n))).jaxpr)
+    assert counted == {"flops": 3 * (2 * n**3 + n * n + n * n), "transcendental": 3 * n * n, "while_loops": 0}
+
+
+@pytest.mark.slow
+def test_stage_profile_attributes_the_step_and_its_flops():
+    """benchmarks/stages.py: every stage timed and counted; the FISTA iteration is the difference of the
+    two MPC solves per iteration; shares of the measured peak are rates over it."""
+    from stages import format_profile, stage_profile
+
+    result = stage_profile(fields=4, repeats=1, warm_steps=2, peak_size=64)
+    st = result["stages"]
+    assert set(st) >= {"sensor", "reference", "mpc_one_iteration", "mpc_all_iterations", "fista_iteration", "plant",
+                       "control_step", "engine_step"}
+    flops = {name: row["flops_per_scenario_step"] for name, row in st.items()}
+    per = (flops["mpc_all_iterations"] - flops["mpc_one_iteration"]) / 29
+    assert st["fista_iteration"]["flops_per_scenario_step"] == pytest.approx(per) and per > 0
+    assert st["control_step"]["flops_per_scenario_step"] >= st["mpc_all_iterations"]["flops_per_scenario_step"]
+    row = st["reference"]
+    assert row["share_of_peak"] == pytest.approx(row["gflops"] / result["peak_gflops"])
+    assert "peak" in format_profile(result)
