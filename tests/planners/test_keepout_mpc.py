@@ -91,7 +91,7 @@ def _check_against_clarabel(qps):
     assert np.max(violation(z32)) <= 2e-5
 
 
-FAMILIES = ("trap", "clutter", "overtake", "crossing")
+FAMILIES = ("trap", "clutter", "overtake", "crossing", "dynamic")
 
 
 def test_its_qps_from_real_episodes_match_clarabel():
@@ -102,7 +102,7 @@ def test_its_qps_from_real_episodes_match_clarabel():
 
 @pytest.mark.slow
 def test_thousands_of_its_qps_from_real_episodes_match_clarabel():
-    for family in FAMILIES:  # 4 x 480 QPs
+    for family in FAMILIES:  # 5 x 480 QPs
         qps = _real_qps(family, fields=8, every=5)
         assert len(qps[0]) == 8 * SIM.episode.steps // 5
         _check_against_clarabel(qps)
