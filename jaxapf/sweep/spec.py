@@ -39,6 +39,7 @@ of range; allowed: a finite number >= 0``).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import itertools
 import json
@@ -355,6 +356,12 @@ class SweepSpec:
     def settings(self) -> list[Setting]:
         """Every setting, in ``setting`` order: the ``[[setting]]`` tables as written, or the grid
         product (last key fastest) crossed with the random samples (innermost)."""
+        return list(self._settings)
+
+    @functools.cached_property
+    def _settings(self) -> tuple[Setting, ...]:
+        """:meth:`settings`, expanded once per spec (a spec is frozen; a 2,000-sample ``[random]`` takes
+        tenths of a second to expand, and every part written asks for its gain columns)."""
         if self.explicit:
             points = [(dict(entry), tags) for entry, tags in zip(self.explicit, self.tags or [()] * len(self.explicit))]
         else:
@@ -368,7 +375,7 @@ class SweepSpec:
             gains = {k: float(values.get(k, spec.default)) for k, spec in GAINS.items()}
             static = tuple((k, values[k]) for k in STATIC_KEYS if k in values)
             out.append(Setting(index=len(out), gains=gains, static=static, tags=tuple(tags)))
-        return out
+        return tuple(out)
 
     @property
     def tag_names(self) -> tuple[str, ...]:
@@ -399,6 +406,10 @@ class SweepSpec:
     def gain_columns(self) -> tuple[str, ...]:
         """The gains that get a column: those the spec's components (planners, filters, plants, sensors,
         disturbances) read, and any the spec names, in declaration order."""
+        return self._gain_columns
+
+    @functools.cached_property
+    def _gain_columns(self) -> tuple[str, ...]:
         read = {g.name for key, registry in COMPONENTS.items() for name in self.components(key)
                 for g in registry.get(name).gains}
         return tuple(k for k in GAINS.names() if k in read | self.named_gains())

@@ -1,6 +1,7 @@
 """``jaxapf sweep``: spec validation, chunking determinism, resume, refusal, sharding, Parquet layout."""
 
 import copy
+import dataclasses
 import json
 import os
 import pathlib
@@ -547,3 +548,24 @@ def test_mpc_scales_of_one_leave_the_weights_compiled_in():
     assert all(unit.configs(s.static, "trap")[0].planner.mpc_weights == "static" for s in unit.settings())
     scaled = _spec(**{"gains.mpc_pos": 2.0})
     assert all(scaled.configs(s.static, "trap")[0].planner.mpc_weights == "gains" for s in scaled.settings())
+
+
+def test_a_spec_expands_its_settings_once(monkeypatch):
+    """Every part written asks for the gain columns, and each asks for the settings: a spec (frozen)
+    expands them once, so a 2,000-sample ``[random]`` costs its expansion once per run, not per part."""
+    from jaxapf.sweep.spec import SweepSpec
+
+    calls = []
+    real = SweepSpec.random_samples
+    monkeypatch.setattr(SweepSpec, "random_samples", lambda self: calls.append(1) or real(self))
+    spec = parse_spec({"name": "r", "scenario": {"families": ["trap"], "fields": 2},
+                       "random": {"n": 50, "seed": 0, "k_rep": [1.0, 20.0]}})
+    calls.clear()
+    fresh = dataclasses.replace(spec)  # a new spec object: nothing expanded yet
+    for _ in range(5):
+        fresh.gain_columns()
+        assert len(fresh.settings()) == 50
+    assert len(calls) == 1
+    first = fresh.settings()
+    first.pop()  # the caller's list is its own
+    assert len(fresh.settings()) == 50 and fresh.settings() == spec.settings()
