@@ -219,15 +219,17 @@ def build_parser() -> argparse.ArgumentParser:
                      help="split the fields over N devices (on CPU the host is split into N devices, as "
                           "`jaxapf sweep --devices` does; default 1)")
     eng.add_argument("--json", action="store_true", help="print one JSON object")
-    bwo = bsub.add_parser("world", help="what sensing, wind, the quadrotor, the CBF filter and the other planners "
-                                        "(MPPI per sample count) cost per scenario-step, against basic in the ideal "
-                                        "world",
+    bwo = bsub.add_parser("world", help="what sensing, wind, the quadrotor, each Crazyflie fidelity, the CBF filter "
+                                        "and the other planners (MPPI per sample count) cost per scenario-step, "
+                                        "against basic in the ideal world",
                           description="Time the closed loop with each component (noisy sensor, wind, quadrotor "
-                                      "plant, CBF filter, another planner, MPPI with 64, 256 and 1,024 samples, the "
-                                      "keep-out MPC) against basic in the ideal world, interleaved in one run.")
+                                      "plant, the Crazyflie at each fidelity of drone-models, CBF filter, another "
+                                      "planner, MPPI with 64, 256 and 1,024 samples, the keep-out MPC) against "
+                                      "basic in the ideal world, interleaved in one run.")
     bwo.add_argument("--fields", type=int, default=256, help="fields in the batch (default 256)")
     bwo.add_argument("--steps", type=int, default=200, help="control steps per episode (default 200)")
-    bwo.add_argument("--substeps", type=int, default=10, help="quadrotor sub-steps per control step (default 10)")
+    bwo.add_argument("--substeps", type=int, default=10,
+                     help="quadrotor and Crazyflie sub-steps per control step (default 10)")
     bwo.add_argument("--repeats", type=int, default=3, help="timed runs of each variant, interleaved (default 3)")
     bwo.add_argument("--json", action="store_true", help="print one JSON object")
     bsm = bsub.add_parser("swarm", help="what a swarm step costs for 1 to 64 UAVs (the O(A²) interaction)",
