@@ -276,13 +276,12 @@ RATE_COLUMNS = ("success", "collision", "stalled")
 def rates(episodes) -> dict[str, float]:
     """The success, collision and stall rates of ``episodes`` (rows of outcomes), each with its 95 %
     Wilson interval (``success_lo``, ``success_hi``, ...)."""
-    from jaxapf.stats import wilson_interval
+    from jaxapf.stats import rate_row
 
     row = {}
     for rate in RATE_COLUMNS:
-        k = int(episodes[rate].sum())
-        lo, hi = wilson_interval(k, len(episodes))
-        row |= {rate: k / len(episodes), f"{rate}_lo": float(lo), f"{rate}_hi": float(hi)}
+        r = rate_row(episodes[rate].to_numpy())
+        row |= {rate: r.rate, f"{rate}_lo": r.lo, f"{rate}_hi": r.hi}
     return row
 
 
@@ -290,11 +289,11 @@ def paired_success(now, then, margin: float) -> dict[str, float]:
     """The change in success of ``now`` against ``then`` on the same fields (bool arrays, paired):
     Newcombe's interval, the exact McNemar p and the TOST p within ``margin``, ready for
     :func:`jaxapf.stats.verdicts`."""
-    from jaxapf.stats import equivalence_test, mcnemar_exact, paired_proportion_difference
+    from jaxapf.stats import paired_rate_row
 
-    diff, lo, hi = paired_proportion_difference(now, then)
-    return {"success_change": diff, "change_lo": lo, "change_hi": hi, "p": mcnemar_exact(now, then).pvalue,
-            "p_equivalent": equivalence_test(now, then, margin, kind="rate").p}
+    r = paired_rate_row(now, then, margin)
+    return {"success_change": r.difference, "change_lo": r.lo, "change_hi": r.hi, "p": r.p,
+            "p_equivalent": r.p_equivalence}
 
 
 def mark_verdicts(rows: list[dict], margin: float):

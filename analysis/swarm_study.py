@@ -122,16 +122,14 @@ def paired(now: pd.DataFrame, then: pd.DataFrame) -> list[dict]:
     """The paired comparison of ``now`` against ``then`` (same fields) on every outcome, ready for
     :func:`jaxapf.stats.verdicts`."""
     from jaxapf.metrics import SWARM_METRICS
-    from jaxapf.stats import equivalence_test, mcnemar_exact, paired_proportion_difference
+    from jaxapf.stats import paired_rate_row
 
     rows = []
     for metric, up in OUTCOMES:
-        x, y = now[metric].to_numpy(bool), then[metric].to_numpy(bool)
-        diff, lo, hi = paired_proportion_difference(x, y)
         margin = SWARM_METRICS.get(metric).margin
-        rows.append({"metric": metric, "higher_is_better": up, "change": diff, "change_lo": lo, "change_hi": hi,
-                     "margin": margin, "p": mcnemar_exact(x, y).pvalue,
-                     "p_equivalent": equivalence_test(x, y, margin, kind="rate").p})
+        r = paired_rate_row(now[metric].to_numpy(bool), then[metric].to_numpy(bool), margin)
+        rows.append({"metric": metric, "higher_is_better": up, "change": r.difference, "change_lo": r.lo,
+                     "change_hi": r.hi, "margin": margin, "p": r.p, "p_equivalent": r.p_equivalence})
     return rows
 
 
@@ -139,7 +137,7 @@ def summarise(df: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
     """``(rates, comparisons)``: per (method, family, A, seed) every outcome's rate with its Wilson interval;
     and every paired comparison (method vs ``basic``, reciprocal vs unilateral) with its verdict, Holm over
     all of them at once."""
-    from jaxapf.stats import verdicts, wilson_interval
+    from jaxapf.stats import rate_row, verdicts
 
     rates = []
     key = ["method", "family", "agents", "seed"]
@@ -147,9 +145,8 @@ def summarise(df: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
         row = {"method": method, "family": family, "agents": agents, "seed": seed, "n": len(g),
                "at_goal": float(g["at_goal"].mean()), "min_agent_clearance": float(g["min_agent_clearance"].median())}
         for metric, _ in OUTCOMES:
-            k = int(g[metric].sum())
-            lo, hi = wilson_interval(k, len(g))
-            row |= {metric: k / len(g), f"{metric}_lo": float(lo), f"{metric}_hi": float(hi)}
+            r = rate_row(g[metric].to_numpy())
+            row |= {metric: r.rate, f"{metric}_lo": r.lo, f"{metric}_hi": r.hi}
         rates.append(row)
     by = df.set_index(key + ["field"]).sort_index()
     comparisons = []

@@ -126,11 +126,10 @@ def paired(episodes: pd.DataFrame, a: str, b: str, families: list[str]) -> pd.Da
         sub = episodes if family == "all" else episodes[episodes.family == family]
         x = sub[sub.setting == a].sort_values(["family", "field"]).success.to_numpy()
         y = sub[sub.setting == b].sort_values(["family", "field"]).success.to_numpy()
-        test = stats.mcnemar_exact(x, y)
-        diff, lo, hi = stats.paired_proportion_difference(x, y)
+        r = stats.paired_rate_row(x, y, MARGIN)
         rows.append({"family": family, "n": len(x), f"{a}": x.mean(), f"{b}": y.mean(),
-                     "difference": diff, "lo": lo, "hi": hi, "wins": test.b, "losses": test.c, "p": test.pvalue,
-                     "p_equivalence": stats.equivalence_test(x, y, MARGIN, kind="rate").p})
+                     "difference": r.difference, "lo": r.lo, "hi": r.hi, "wins": r.b, "losses": r.c, "p": r.p,
+                     "p_equivalence": r.p_equivalence})
     table = pd.DataFrame(rows)
     table["p_holm"], table["p_equivalence_holm"], table["verdict"] = stats.verdicts(
         table.lo, table.hi, table.p, table.p_equivalence, MARGIN, True)
@@ -211,7 +210,7 @@ def verdicts(spec: TuneSpec, summary: dict, history: pd.DataFrame, episodes: pd.
     val = history[np.isfinite(history.val_loss)]
     best = val.loc[val.val_loss.idxmin()]
     tuned_train = episodes[(episodes.setting == "tuned") & episodes.family.isin(train)].success
-    lo, hi = stats.wilson_interval(int(tuned_train.sum()), len(tuned_train))
+    _, _, _, lo, hi = stats.rate_row(tuned_train.to_numpy())
     v_lo, v_hi = stats.wilson_interval(round(best.val_success * spec.validation.fields), spec.validation.fields)
     overlap = v_lo <= hi and lo <= v_hi
     lines.append(f"Validation success of the selected gains (best of {len(val)} validations, step {int(best.step)}): "

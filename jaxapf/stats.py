@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, NamedTuple, Sequence
 
 import numpy as np
 from scipy import stats as _st
@@ -54,6 +54,10 @@ __all__ = [
     "hodges_lehmann_paired",
     "EquivalenceResult",
     "equivalence_test",
+    "RateRow",
+    "rate_row",
+    "PairedRateRow",
+    "paired_rate_row",
     "VERDICTS",
     "VERDICT_RULE",
     "verdict",
@@ -767,6 +771,52 @@ VERDICT_RULE = ("verdict: equivalent when the Holm-adjusted equivalence test (TO
                 "difference's 95 % interval excludes 0 on that side (the estimate may still be smaller than the "
                 "margin: relevance is then not shown either way); inconclusive otherwise. Holm runs over every "
                 "comparison of the study, separately for the difference and the equivalence tests")
+
+
+class RateRow(NamedTuple):
+    """A rate: ``k`` of ``n`` episodes, ``rate = k/n`` and its Wilson interval ``[lo, hi]``."""
+
+    k: int
+    n: int
+    rate: float
+    lo: float
+    hi: float
+
+
+def rate_row(outcomes, confidence: float = 0.95) -> RateRow:
+    """The rate of the true ``outcomes`` (booleans, ``n >= 1``) with its Wilson interval: the row every
+    table of rates shows (the report, the tuners' proofs, the studies)."""
+    k, n = int(np.sum(outcomes)), len(outcomes)
+    lo, hi = wilson_interval(k, n, confidence)
+    return RateRow(k, n, k / n, float(lo), float(hi))
+
+
+class PairedRateRow(NamedTuple):
+    """``x`` against ``y`` on the same fields: the difference of rates with Newcombe's interval, the
+    discordant pairs ``b`` (x only) and ``c`` (y only), the exact McNemar ``p`` and the TOST
+    ``p_equivalence`` within the margin (NaN without one)."""
+
+    difference: float
+    lo: float
+    hi: float
+    b: int
+    c: int
+    p: float
+    p_equivalence: float
+
+
+def paired_rate_row(x, y, margin: float | None = None, *, confidence: float = 0.95,
+                    equivalence_confidence: float = 0.95) -> PairedRateRow:
+    """The paired comparison of two rates (booleans ``x``, ``y`` on the same fields), ready for
+    :func:`verdicts`: :func:`paired_proportion_difference`, :func:`mcnemar_exact` and, with a ``margin``,
+    :func:`equivalence_test`; no pairs give NaN."""
+    test = mcnemar_exact(x, y)
+    if len(x) == 0:
+        return PairedRateRow(math.nan, math.nan, math.nan, test.b, test.c, test.pvalue, math.nan)
+    diff, lo, hi = paired_proportion_difference(x, y, confidence)
+    p_eq = (math.nan if margin is None else
+            equivalence_test(x, y, margin, kind="rate", confidence=equivalence_confidence).p)
+    return PairedRateRow(diff, lo, hi, test.b, test.c, test.pvalue, p_eq)
 
 
 def verdict(lo: float, hi: float, p_difference: float, p_equivalence: float, margin: float,

@@ -660,3 +660,21 @@ def test_order_statistics_resampled_as_ranks_equal_resampled_values(values, stra
     direct = stats._bootstrap((x,), stats._replicates(f), labels, 300, seed)
     assert stats._sorted_resamples(x, f)[0][0].dtype == np.uint16
     np.testing.assert_array_equal(ranks, direct)
+
+
+def test_the_rate_row_and_the_paired_row_are_their_parts():
+    """stats.rate_row and stats.paired_rate_row, the rows every table of rates and every paired comparison
+    of rates show, are Wilson's interval and Newcombe's, McNemar's and the TOST, each exactly."""
+    rng = np.random.default_rng(3)
+    x, y = rng.random(200) < 0.6, rng.random(200) < 0.5
+    r = stats.rate_row(x, 0.9)
+    lo, hi = stats.wilson_interval(int(x.sum()), 200, 0.9)
+    assert (r.k, r.n, r.rate, r.lo, r.hi) == (int(x.sum()), 200, x.mean(), float(lo), float(hi))
+    p = stats.paired_rate_row(x, y, 0.02, confidence=0.9, equivalence_confidence=0.95)
+    test = stats.mcnemar_exact(x, y)
+    assert (p.difference, p.lo, p.hi) == stats.paired_proportion_difference(x, y, 0.9)
+    assert (p.b, p.c, p.p) == (test.b, test.c, test.pvalue)
+    assert p.p_equivalence == stats.equivalence_test(x, y, 0.02, kind="rate", confidence=0.95).p
+    assert np.isnan(stats.paired_rate_row(x, y).p_equivalence)  # no margin, no equivalence test
+    empty = stats.paired_rate_row(x[:0], y[:0], 0.02)
+    assert np.isnan([empty.difference, empty.lo, empty.hi, empty.p_equivalence]).all() and empty.p == 1.0

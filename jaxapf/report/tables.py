@@ -136,9 +136,8 @@ def summarize(data: pd.DataFrame, settings: Sequence[int], table: pd.DataFrame, 
             if solvable is not None:
                 rec["n_solvable"] = int(solvable.sum())
             for r in rates:
-                k = int(sub[r].sum())
-                lo, hi = stats.wilson_interval(k, n, options.confidence)
-                rec.update({f"{r}_k": k, f"{r}_rate": k / n, f"{r}_lo": float(lo), f"{r}_hi": float(hi)})
+                row = stats.rate_row(sub[r].to_numpy(), options.confidence)
+                rec.update({f"{r}_k": row.k, f"{r}_rate": row.rate, f"{r}_lo": row.lo, f"{r}_hi": row.hi})
                 if solvable is not None:
                     among = sub[r].to_numpy(dtype=bool)[solvable]
                     rec[f"{r}_solvable_rate"] = float(among.mean()) if among.size else math.nan
@@ -164,23 +163,21 @@ def _compare_one(metric: str, x: np.ndarray, y: np.ndarray, rate: bool, margin: 
     conf, alpha = options.confidence, options.alpha
     if rate:
         x, y = x.astype(bool), y.astype(bool)
-        test = stats.mcnemar_exact(x, y)
-        est, lo, hi = stats.paired_proportion_difference(x, y, conf) if len(x) else (math.nan,) * 3
-        out = dict(test="mcnemar", statistic=float(test.b), discordant=f"b={test.b}, c={test.c}", p=test.pvalue,
+        row = stats.paired_rate_row(x, y, margin, confidence=conf, equivalence_confidence=1.0 - alpha)
+        est, lo, hi = row.difference, row.lo, row.hi
+        out = dict(test="mcnemar", statistic=float(row.b), discordant=f"b={row.b}, c={row.c}", p=row.p,
                    value=float(np.mean(x)) if len(x) else math.nan,
                    baseline_value=float(np.mean(y)) if len(y) else math.nan)
+        p_eq = row.p_equivalence
     else:
         w = stats.wilcoxon_paired(x, y)
         est, lo, hi = stats.hodges_lehmann_paired(x, y, conf) if len(x) else (math.nan,) * 3
         out = dict(test="wilcoxon", statistic=w.statistic, discordant=f"nonzero={w.n_nonzero}", p=w.pvalue,
                    value=float(np.median(x)) if len(x) else math.nan,
                    baseline_value=float(np.median(y)) if len(y) else math.nan)
+        p_eq = (stats.equivalence_test(x, y, margin, kind="continuous", confidence=1.0 - alpha).p
+                if margin is not None and len(x) else math.nan)
     kind = "rate" if rate else "continuous"
-    if margin is not None and len(x):
-        eq = stats.equivalence_test(x, y, margin, kind=kind, confidence=1.0 - alpha)
-        p_eq = eq.p
-    else:
-        p_eq = math.nan
     mde = stats.minimum_detectable_difference(x, y, kind=kind, alpha=alpha) if len(x) > 1 else math.inf
     return out | dict(delta=est, delta_lo=lo, delta_hi=hi, margin=math.nan if margin is None else margin,
                       p_equivalence=p_eq, mde=mde)

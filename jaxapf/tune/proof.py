@@ -154,13 +154,12 @@ def comparison_table(episodes: pd.DataFrame, families: Sequence[str]) -> pd.Data
             n = len(e)
             row = {"family": family, "setting": setting, "n": n}
             for outcome in ("success", "collision", "stalled"):
-                k = int(e[outcome].sum())
-                lo, hi = stats.wilson_interval(k, n)
-                row |= {outcome: k / n, f"{outcome}_lo": float(lo), f"{outcome}_hi": float(hi)}
+                r = stats.rate_row(e[outcome].to_numpy())
+                row |= {outcome: r.rate, f"{outcome}_lo": r.lo, f"{outcome}_hi": r.hi}
             for outcome in ("success", "collision"):
-                test = stats.mcnemar_exact(e[outcome].to_numpy(), ref[outcome].to_numpy())
-                row |= {f"{outcome}_b": test.b, f"{outcome}_c": test.c,
-                        f"{outcome}_p": math.nan if setting == "default" else test.pvalue}
+                r = stats.paired_rate_row(e[outcome].to_numpy(), ref[outcome].to_numpy())
+                row |= {f"{outcome}_b": r.b, f"{outcome}_c": r.c,
+                        f"{outcome}_p": math.nan if setting == "default" else r.p}
             row |= {"min_clearance": float(e.min_clearance.mean()), "time_to_goal": float(e.time_to_goal.median()),
                     "spl": float(e.spl.mean()), "loss": float(e.loss.mean())}
             row |= {t: float(e[t].mean()) for t in TERMS}
