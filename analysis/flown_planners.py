@@ -12,8 +12,8 @@ and size (study 16's seed), every UAV seeing its 8 nearest neighbours; each pair
 same selection on swarm success, collisions between UAVs and deadlock (``swarm_study.summarise``: the
 verdict function, Holm over all of these comparisons).
 
-    python analysis/flown_planners.py     # the comparison ~1 h 40 min on 2 cores, the swarms cached per cell
-                                          # under runs/flown-swarms/
+    python analysis/flown_planners.py     # the comparison: the selection ~1 h, the held-out flights ~35 min;
+                                          # the swarms ~5 h of one core, cached per cell under runs/flown-swarms/
 """
 
 from __future__ import annotations
@@ -69,9 +69,10 @@ def swarm_table(rates: pd.DataFrame, comparisons: pd.DataFrame, family: str) -> 
 
 def swarm_facts(rates: pd.DataFrame, comparisons: pd.DataFrame) -> dict:
     """``swarm``: per flow, A, outcome and method the mean over the seeds; ``swarm_all_seeds``: against
-    ``basic`` the verdict all three seeds give (``mixed`` where they differ); ``swarm_comparisons``."""
-    out: dict = {"swarm_fields": swarm_study.FIELDS, "swarm_comparisons": len(comparisons), "swarm": {},
-                 "swarm_all_seeds": {}}
+    ``basic`` the verdict all three seeds give (``mixed`` where they differ); ``swarm_agents``,
+    ``swarm_comparisons``."""
+    out: dict = {"swarm_fields": swarm_study.FIELDS, "swarm_agents": list(AGENTS),
+                 "swarm_comparisons": len(comparisons), "swarm": {}, "swarm_all_seeds": {}}
     mean = rates.groupby(["family", "agents", "method"])[[m for m, _ in swarm_study.OUTCOMES]].mean()
     for (family, agents, method), row in mean.iterrows():
         for metric, _ in swarm_study.OUTCOMES:
