@@ -5,7 +5,8 @@
 The standard case (``clutter``, 16 obstacle slots, N = 20, 30 FISTA iterations, ``direction_velocity``,
 the double integrator) is flown 50 steps by the engine's own control step to a mid-flight batch of
 states; then each stage of that step (:func:`jaxapf.engine.loop.loop_step`) is compiled alone, vmapped over
-the fields, and timed on that batch (the median of ``--repeats`` calls): the sensor, the planner's
+the fields, compiled as the engine's programs are (:func:`jaxapf.engine.program`: the same XLA options), and
+timed on that batch (the median of ``--repeats`` calls): the sensor, the planner's
 reference (the potential field rolled N steps ahead), the MPC with one FISTA iteration (its set-up: the
 condensed QP's linear term, the warm start, one iteration), each further FISTA iteration (the 30-iteration
 solve minus the one-iteration one, per iteration), the plant, the whole control step, and the engine's
@@ -104,6 +105,7 @@ def peak_gflops(size: int, repeats: int) -> float:
 
 def stage_profile(fields: int = 1024, repeats: int = 20, warm_steps: int = 50, peak_size: int = 2048) -> dict:
     from jaxapf.control import solve_axes
+    from jaxapf.engine import program
     from jaxapf.engine.loop import closed_loop, episode_loop, loop_init, loop_step
 
     case = bench_case(fields, 16, 20, 30, 300, "clutter", width=fields)
@@ -116,7 +118,7 @@ def stage_profile(fields: int = 1024, repeats: int = 20, warm_steps: int = 50, p
         return loop_step(loop, carry, k, s, s.obstacles.columns(), gains, sim, mpc)[0]
 
     carry = jax.vmap(lambda s: loop_init(loop, s, gains, sim, mpc))(scenarios)
-    advance = jax.jit(jax.vmap(lambda c, s: jax.lax.fori_loop(0, warm_steps, lambda i, c: one_step(
+    advance = program(jax.vmap(lambda c, s: jax.lax.fori_loop(0, warm_steps, lambda i, c: one_step(
         c, jnp.asarray(i, dtype), s), c)))
     carry = jax.block_until_ready(advance(carry, scenarios))
     k = jnp.asarray(warm_steps, dtype)
@@ -131,7 +133,7 @@ def stage_profile(fields: int = 1024, repeats: int = 20, warm_steps: int = 50, p
         x = loop.plant.kinematics(c[0])
         return loop.planner.reference(c[2], x, t, s.goal, s.obstacles.columns(), gains, sim, mpc.horizon)[0]
 
-    x_ref = jax.jit(jax.vmap(reference))(carry, scenarios)
+    x_ref = program(jax.vmap(reference))(carry, scenarios)
     xs = jax.vmap(loop.plant.kinematics)(state)
 
     def mpc_solve(iters):
@@ -144,16 +146,16 @@ def stage_profile(fields: int = 1024, repeats: int = 20, warm_steps: int = 50, p
 
     accel = jnp.zeros((fields, 3), dtype)
     stages = {
-        "sensor": (jax.jit(jax.vmap(sensor)), (carry, scenarios)),
-        "reference": (jax.jit(jax.vmap(reference)), (carry, scenarios)),
-        "mpc_one_iteration": (jax.jit(jax.vmap(mpc_solve(1))), (xs, x_ref, warm)),
-        "mpc_all_iterations": (jax.jit(jax.vmap(mpc_solve(mpc.iters))), (xs, x_ref, warm)),
-        "plant": (jax.jit(jax.vmap(plant)), (state, accel)),
-        "control_step": (jax.jit(jax.vmap(lambda c, s: one_step(c, k, s))), (carry, scenarios)),
+        "sensor": (jax.vmap(sensor), (carry, scenarios)),
+        "reference": (jax.vmap(reference), (carry, scenarios)),
+        "mpc_one_iteration": (jax.vmap(mpc_solve(1)), (xs, x_ref, warm)),
+        "mpc_all_iterations": (jax.vmap(mpc_solve(mpc.iters)), (xs, x_ref, warm)),
+        "plant": (jax.vmap(plant), (state, accel)),
+        "control_step": (jax.vmap(lambda c, s: one_step(c, k, s)), (carry, scenarios)),
     }
     out = {}
     for name, (fn, args) in stages.items():
-        seconds = _median_time(fn, args, repeats)
+        seconds = _median_time(program(fn), args, repeats)
         counted = _flops(fn, args)
         out[name] = {"us_per_scenario_step": 1e6 * seconds / fields,
                      "flops_per_scenario_step": counted["flops"] / fields,
