@@ -278,6 +278,19 @@ class Plan:
     dtype: str
     metrics: tuple[str, ...]
 
+    def resumed(self, done: Sequence[Chunk]) -> "Plan":
+        """This plan with ``done`` finished: the chunks that fill the gaps they leave, each block cut
+        at its own size (the blocks, the costly part of planning, are kept)."""
+        chunks = []
+        for v in self.variants:
+            for family in self.spec.families:
+                block = self.blocks[(v.index, family)]
+                finished = [(c.start, c.stop) for c in done if (c.variant, c.family) == (v.index, family)]
+                for lo, hi in gaps(finished, self.spec.fields):
+                    chunks += [Chunk(v.index, family, a, min(a + block.fields, hi))
+                               for a in range(lo, hi, block.fields)]
+        return dataclasses.replace(self, chunks=tuple(chunks), done=tuple(done))
+
     @property
     def settings(self) -> int:
         return sum(len(v.settings) for v in self.variants)
@@ -363,7 +376,7 @@ def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: in
     # each (variant, family) narrows it further if its episodes are long (_block)
     needed = max(len(v.simulated) for v in groups) * spec.fields
     width = width or default_width(needed, backend)
-    blocks, chunks = {}, []
+    blocks = {}
     for v in groups:
         for family in spec.families:
             sim, mpc = spec.configs(v.static, family)
@@ -377,14 +390,9 @@ def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: in
     if count > MAX_CHUNKS:
         raise ConfigError(f"the sweep would be cut into {count:,} chunks (parts); at most {MAX_CHUNKS:,} are allowed: "
                           "fewer scenario.fields, or larger chunks (--chunk-fields, --memory-budget)")
-    for v in groups:
-        for family in spec.families:
-            block = blocks[(v.index, family)]
-            finished = [(c.start, c.stop) for c in done if (c.variant, c.family) == (v.index, family)]
-            for lo, hi in gaps(finished, spec.fields):
-                chunks += [Chunk(v.index, family, a, min(a + block.fields, hi)) for a in range(lo, hi, block.fields)]
-    return Plan(spec, tuple(groups), blocks, tuple(chunks), tuple(done), devices, width, str(dtype),
+    plan = Plan(spec, tuple(groups), blocks, (), (), devices, width, str(dtype),
                 swarm_metric_names() if spec.swarm else METRICS.names())
+    return plan.resumed(done)
 
 
 def parse_shard(text: str) -> tuple[int, int]:

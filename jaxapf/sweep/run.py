@@ -153,8 +153,7 @@ def _run(spec: SweepSpec, out: pathlib.Path, memory_budget: int, chunk_fields: i
     with OutputLock(out, shard):
         if shard is None:
             done = prepare_output(out, meta, spec, overwrite=overwrite, clean=True, repair=repair)
-            plan = plan_sweep(spec, done=done, memory_budget=memory_budget, chunk_fields=chunk_fields,
-                              devices=devices, backend=backend)
+            plan = probe.resumed(done)
             todo = plan.chunks
         else:
             plan, mine = probe, shard_chunks(probe, *shard)

@@ -569,3 +569,15 @@ def test_a_spec_expands_its_settings_once(monkeypatch):
     first = fresh.settings()
     first.pop()  # the caller's list is its own
     assert len(fresh.settings()) == 50 and fresh.settings() == spec.settings()
+
+
+def test_a_plan_resumed_is_the_plan_made_with_what_is_done():
+    """``jaxapf sweep`` plans once and resumes that plan with the finished chunks it finds: the same chunks
+    as planning again with them (holes, a chunk cut short, a finished family)."""
+    from jaxapf.sweep.plan import Chunk, plan_sweep
+
+    spec = _spec(**{"scenario.fields": 40})
+    whole = plan_sweep(spec, chunk_fields=8, devices=1, width=32)
+    done = (Chunk(0, "trap", 0, 8), Chunk(0, "trap", 16, 20), *[c for c in whole.chunks if c.family != "trap"])
+    assert whole.resumed(done) == plan_sweep(spec, done=done, chunk_fields=8, devices=1, width=32)
+    assert whole.resumed(done).chunks and whole.resumed(()) == whole
