@@ -54,21 +54,19 @@ def engine_size(fields: int, repeats: int, steps: int) -> dict:
         runs.append(time.perf_counter() - t0)
     run = min(runs)
     scenario_steps = fields * case["sim"].episode.steps
-    out = {"fields": fields, "width": fields, "compile_s": compile_s, "first_run_s": first, "run_s": run,
-           "run_all_s": runs, "steps_per_s": scenario_steps / run, "us_per_scenario_step": 1e6 * run / scenario_steps,
-           "temp_bytes": _temp_bytes(compiled)}
-    return out
+    return {"fields": fields, "width": fields, "compile_s": compile_s, "first_run_s": first, "run_s": run,
+            "run_all_s": runs, "steps_per_s": scenario_steps / run, "us_per_scenario_step": 1e6 * run / scenario_steps,
+            "temp_bytes": _temp_bytes(compiled)}
 
 
 def quickstart_sweep(timeout: float) -> dict:
     """``python -m jaxapf sweep`` on the quick start's spec in a new process (empty compilation cache)."""
     sys.path.insert(0, str(ROOT / "benchmarks"))
-    from quickstart import quickstart_commands
+    from quickstart import _with_out, quickstart_commands
 
     sweep, _ = quickstart_commands((ROOT / "README.md").read_text())
     with tempfile.TemporaryDirectory() as tmp:
-        command = [sys.executable, "-m", "jaxapf", *sweep[1:]]
-        command[command.index("--out") + 1] = str(pathlib.Path(tmp) / "out.parquet")
+        command = _with_out([sys.executable, "-m", "jaxapf", *sweep[1:]], pathlib.Path(tmp) / "out.parquet")
         t0 = time.perf_counter()
         done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=timeout)
         wall = time.perf_counter() - t0
