@@ -143,9 +143,13 @@ class Crazyflie(Plant):
         dtype = start.dtype
         p = self._params(sim)
         hover = float(p["mass"]) * 9.81
-        rotors = {0: jnp.zeros(0, dtype),
-                  1: jnp.full((1,), (hover - float(p.get("acc_coef", 0.0))) / float(p.get("cmd_f_coef", 1.0)), dtype),
-                  4: jnp.full((4,), self._rpm(hover / 4, p), dtype)}[FIDELITIES[self.fidelity]]
+        kept = FIDELITIES[self.fidelity]
+        if kept == 4:  # motor speeds at hover
+            rotors = jnp.full((4,), self._rpm(hover / 4, p), dtype)
+        elif kept == 1:  # the lagged thrust at hover
+            rotors = jnp.full((1,), (hover - float(p.get("acc_coef", 0.0))) / float(p.get("cmd_f_coef", 1.0)), dtype)
+        else:
+            rotors = jnp.zeros(0, dtype)
         zero = jnp.zeros(3, dtype)
         controller = jnp.zeros(6 if self.fidelity == "first_principles" else 0, dtype)
         return CrazyflieState(start, jnp.array([0.0, 0.0, 0.0, 1.0], dtype), zero, zero, rotors, controller)
