@@ -72,6 +72,9 @@ class FamilyParams:
       heading: range [deg] within [-360, 360] of the start–goal heading about z, drawn uniformly
         (default 0–360°, i.e. any direction).
       shape: ``cylinder`` (vertical, infinitely tall; default) or ``sphere``.
+
+    Every field's unit is in :attr:`UNITS` (a family adds its own), so :meth:`scaled` can shrink a family to
+    another vehicle's envelope.
     """
 
     family: ClassVar[str] = "base"
@@ -89,6 +92,12 @@ class FamilyParams:
         "distance": span(0.0, lo_open=True),
         "heading": span(-360.0, 360.0),
         "shape": choice(SHAPES),
+    }
+    #: Every field's unit: ``m``, ``m/s``, ``s`` and ``1/m²`` change under :meth:`scaled`, the others
+    #: (``""``, ``deg``, a count, a fraction) do not.
+    UNITS: ClassVar[Mapping[str, str]] = {
+        "max_obstacles": "", "r_uav": "m", "start_margin": "m", "goal_margin": "m", "altitude": "m", "t_max": "s",
+        "distance": "m", "heading": "deg", "shape": "",
     }
 
     max_obstacles: int = 16
@@ -109,6 +118,21 @@ class FamilyParams:
 
     def _check(self, where: str) -> None:
         """Constraints between fields (checked after every field is valid on its own)."""
+
+    def scaled(self, length: float = 1.0, speed: float = 1.0) -> FamilyParams:
+        """The same family shrunk (or grown) to another vehicle: every length × ``length``, every speed ×
+        ``speed``, every time × ``length / speed`` and every density per area × ``1 / length²`` (so a field
+        holds as many obstacles), the rest kept. Fields drawn from the same key are then the original's
+        positions × ``length`` and velocities × ``speed``, but for the fixed 1 mm by which
+        :func:`~jaxapf.scenarios.generate.clear_endpoints` pushes an obstacle past its margin."""
+        factor = {"m": length, "m/s": speed, "s": length / speed, "1/m²": 1.0 / length ** 2}
+        changed = {}
+        for name, unit in self.UNITS.items():
+            if unit in factor:
+                value = getattr(self, name)
+                changed[name] = (tuple(factor[unit] * v for v in value) if isinstance(value, tuple)
+                                 else factor[unit] * value)
+        return dataclasses.replace(self, **changed)
 
 
 

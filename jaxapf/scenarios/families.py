@@ -110,6 +110,7 @@ class PaperStaticParams(FamilyParams):
         "cup_radius": number(0.0, lo_open=True),
         "jitter": number(0.0, 1.0),
     }
+    UNITS = FamilyParams.UNITS | {"radius": "m", "cup_radius": "m", "jitter": "m"}
 
     max_obstacles: int = CUP_SIZE
     distance: tuple[float, float] = (24.0, 24.0)
@@ -143,6 +144,7 @@ class PaperDynamicParams(FamilyParams):
         "radius": span(0.0, lo_open=True),
         "speed": span(0.0),
     }
+    UNITS = FamilyParams.UNITS | {"count": "", "n_moving": "", "width": "m", "radius": "m", "speed": "m/s"}
 
     t_max: float = 300.0
     distance: tuple[float, float] = (70.0, 70.0)
@@ -194,6 +196,8 @@ class TrapParams(FamilyParams):
         "gap_slack": span(0.0),
         "goal_clearance": span(0.0),
     }
+    UNITS = FamilyParams.UNITS | {"kinds": "", "along": "", "offset": "m", "radius": "m", "cup_radius": "m",
+                                  "cup_fill": "", "gap_slack": "m", "goal_clearance": "m"}
 
     max_obstacles: int = CUP_SIZE
     kinds: tuple[str, ...] = TRAP_KINDS
@@ -231,6 +235,7 @@ class ClutterParams(FamilyParams):
         "width": number(0.0, lo_open=True),
         "radius": span(0.0, lo_open=True),
     }
+    UNITS = FamilyParams.UNITS | {"density": "1/m²", "width": "m", "radius": "m"}
 
     density: float = 4.0
     width: float = 12.0
@@ -245,6 +250,7 @@ class DynamicParams(ClutterParams):
 
     family = "dynamic"
     CHECKS = ClutterParams.CHECKS | {"speed": span(0.0)}
+    UNITS = ClutterParams.UNITS | {"speed": "m/s"}
 
     speed: tuple[float, float] = (0.2, 1.0)
 
@@ -262,6 +268,7 @@ class MovingParams(FamilyParams):
         "radius": span(0.0, lo_open=True),
         "speed": span(0.0),
     }
+    UNITS = FamilyParams.UNITS | {"count": "", "radius": "m", "speed": "m/s"}
 
     count: tuple[int, int] = (1, 2)
     radius: tuple[float, float] = (0.5, 1.0)
@@ -289,6 +296,7 @@ class CrossingParams(MovingParams):
         "timing": span(),
         "uav_speed": number(0.0, lo_open=True),
     }
+    UNITS = MovingParams.UNITS | {"meet": "", "timing": "s", "uav_speed": "m/s"}
 
     max_obstacles: int = 3
     count: tuple[int, int] = (1, 3)
@@ -307,6 +315,7 @@ class HeadOnParams(MovingParams):
 
     family = "head_on"
     CHECKS = MovingParams.CHECKS | {"along": span(0.0, 1.0), "offset": number(0.0)}
+    UNITS = MovingParams.UNITS | {"along": "", "offset": "m"}
 
     max_obstacles: int = 2
     along: tuple[float, float] = (0.6, 0.9)
@@ -322,6 +331,7 @@ class OvertakeParams(MovingParams):
 
     family = "overtake"
     CHECKS = MovingParams.CHECKS | {"behind": span(0.0, lo_open=True), "offset": number(0.0)}
+    UNITS = MovingParams.UNITS | {"behind": "m", "offset": "m"}
 
     max_obstacles: int = 2
     speed: tuple[float, float] = (3.0, 5.0)

@@ -26,9 +26,9 @@ whatever batch it is computed in (elementwise arithmetic only).
     cylinders across the middle of the run; the goals keep the formation.
 ``swarm_clutter`` (:class:`SwarmClutterParams`)
     ``agents`` UAVs abreast (``spacing`` apart) flying across a forest (``density`` per 100 m² of
-    the run's corridor, radius 0.5–1.0 m), each to the goal of its mirror image (UAV ``i`` to the
-    column of UAV ``A - 1 - i``), so every pair of paths crosses; a ``moving`` share of the
-    obstacles drifts at ``speed``.
+    the run's corridor, ``agents · spacing + corridor_margin`` wide (4 m), radius 0.5–1.0 m), each to
+    the goal of its mirror image (UAV ``i`` to the column of UAV ``A - 1 - i``), so every pair of paths
+    crosses; a ``moving`` share of the obstacles drifts at ``speed``.
 
 Which are solvable: :func:`agents_solvable` runs the single-UAV oracle
 (:mod:`jaxapf.scenarios.solvability`) for every UAV alone among the field's obstacles (moving ones
@@ -77,6 +77,7 @@ class SwarmParams(FamilyParams):
     #: Uniforms per UAV in a field's block (beyond ``draws``).
     agent_draws: ClassVar[int] = 6
     CHECKS = FamilyParams.CHECKS | {"agents": integer(1, 256), "jitter": number(0.0)}
+    UNITS = FamilyParams.UNITS | {"agents": "", "jitter": "m"}
 
     agents: int = 8
     jitter: float = 0.1
@@ -104,6 +105,7 @@ class CrossingFlowsParams(SwarmParams):
     family = "crossing_flows"
     CHECKS = SwarmParams.CHECKS | {"groups": integer(2, 4), "spacing": number(0.0, lo_open=True),
                                    "stagger": number(0.0)}
+    UNITS = SwarmParams.UNITS | {"groups": "", "spacing": "m", "stagger": "m"}
 
     groups: int = 2
     spacing: float = 1.5
@@ -124,6 +126,7 @@ class FormationGapParams(SwarmParams):
     CHECKS = SwarmParams.CHECKS | {"columns": integer(1), "spacing": number(0.0, lo_open=True),
                                    "gap": span(0.0, lo_open=True), "offset": number(0.0),
                                    "wall_radius": number(0.0, lo_open=True)}
+    UNITS = SwarmParams.UNITS | {"columns": "", "spacing": "m", "gap": "m", "offset": "m", "wall_radius": "m"}
 
     columns: int = 4
     spacing: float = 1.5
@@ -148,7 +151,9 @@ class SwarmClutterParams(SwarmParams):
     family = "swarm_clutter"
     CHECKS = SwarmParams.CHECKS | {"spacing": number(0.0, lo_open=True), "density": number(0.0),
                                    "radius": span(0.0, lo_open=True), "moving": number(0.0, 1.0),
-                                   "speed": span(0.0)}
+                                   "speed": span(0.0), "corridor_margin": number(0.0)}
+    UNITS = SwarmParams.UNITS | {"spacing": "m", "density": "1/m²", "radius": "m", "moving": "", "speed": "m/s",
+                                 "corridor_margin": "m"}
 
     spacing: float = 1.5
     density: float = 3.0
@@ -158,6 +163,7 @@ class SwarmClutterParams(SwarmParams):
     max_obstacles: int = 24
     distance: tuple[float, float] = (20.0, 24.0)
     t_max: float = 60.0
+    corridor_margin: float = 4.0
 
 
 class SwarmLayout(NamedTuple):
@@ -229,7 +235,7 @@ def _clutter(d: Draws, p: SwarmClutterParams, length: Array) -> SwarmLayout:
     lateral = _abreast(p.agents, p.spacing, length.dtype)
     start = jnp.stack([jnp.zeros_like(lateral), lateral], -1)
     goal = jnp.stack([jnp.full_like(lateral, length), lateral[::-1]], -1)
-    width = p.agents * p.spacing + 4.0
+    width = p.agents * p.spacing + p.corridor_margin
     count = jnp.minimum(jnp.round(p.density * length * width / 100.0), p.max_obstacles)
     forest = scatter(d, p.max_obstacles, count, length, width, p.radius)
     moving = d.uniform((0.0, 1.0), (p.max_obstacles,)) < p.moving

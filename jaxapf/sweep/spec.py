@@ -57,7 +57,7 @@ from ..control import scales_set
 from ..engine.components import COMPONENTS
 from ..gains import GAINS, Gains, read_gains_file
 from ..io.plugins import check_plugins, load_plugins
-from ..io.spec import OMIT, REQUIRED, SEED, Key, Table, boolean, given, integer, spec_name, value_grid
+from ..io.spec import OMIT, REQUIRED, SEED, Key, Table, boolean, given, integer, number, spec_name, value_grid
 from ..metrics import METRICS
 from ..scenarios import FAMILIES, FamilyParams, family_params
 from ..scenarios.swarms import SWARM_FAMILIES, SwarmParams, swarm_params
@@ -457,11 +457,14 @@ def spec_family_params(label: str, overrides: Any, *, swarms: bool = False) -> F
     ``LABEL`` is a registered family, or a *variant*: a name of its own whose table names the family
     it varies, ``family = "crossing"``; a variant's rows carry its name in the ``family`` column.
     With ``swarms`` (sweep specs), a swarm family (:data:`~jaxapf.scenarios.swarms.SWARM_FAMILIES`) too,
-    giving its :class:`~jaxapf.scenarios.swarms.SwarmParams`.
+    giving its :class:`~jaxapf.scenarios.swarms.SwarmParams`. ``scale = {length = L, speed = V}`` shrinks
+    the result to another vehicle (:meth:`~jaxapf.scenarios.FamilyParams.scaled`: the table's other values
+    are given in the unscaled family's units).
     """
     where = f"scenario.params.{label}"
     overrides = dict(check_table(where, overrides))
     base = overrides.pop("family", label)
+    scale = _SCALE(f"{where}.scale", overrides.pop("scale", {}))
     registered = FAMILIES.names() + (SWARM_FAMILIES.names() if swarms else ())
     if label in registered and base != label:
         raise ConfigError(f"{where}.family = {base!r}: {label} is a registered family; give the variant a name "
@@ -471,9 +474,14 @@ def spec_family_params(label: str, overrides: Any, *, swarms: bool = False) -> F
             raise ConfigError(f"{where}: a variant's name is letters, digits and '_', starting with a letter")
         check_choice(f"{where}.family", base, registered)
     try:
-        return swarm_params(base, **overrides) if base in SWARM_FAMILIES else family_params(base, **overrides)
+        params = swarm_params(base, **overrides) if base in SWARM_FAMILIES else family_params(base, **overrides)
+        return params.scaled(**scale) if scale else params
     except ConfigError as err:
         raise relocated(err, f"scenario.{base}", where) from None
+
+
+#: A ``[scenario.params.LABEL]`` table's ``scale``: the factors of :meth:`FamilyParams.scaled`.
+_SCALE = Table({"length": Key(number(0.0, lo_open=True), OMIT), "speed": Key(number(0.0, lo_open=True), OMIT)})
 
 
 def _scenario(where: str, table: Any) -> tuple[tuple[str, ...], int, int, dict[str, dict[str, Any]], bool]:
