@@ -76,3 +76,15 @@ def test_a_spec_variant_scales_the_family_it_names_after_its_own_values():
                        (0.5, "scale")):
         with pytest.raises(ConfigError, match=rf"scenario\.params\.trap_cf\.{where}"):
             spec_family_params("trap_cf", {"family": "trap", "scale": bad})
+
+
+def test_a_sweep_spec_scales_a_variant_once_and_keeps_its_values_in_the_familys_units():
+    from jaxapf.sweep import SweepSpec, parse_spec
+
+    table = {"family": "crossing", "speed": [2.0, 4.0], "scale": {"length": 0.25, "speed": 0.5}}
+    spec = parse_spec({"name": "s", "scenario": {"families": ["crossing_cf"], "fields": 2,
+                                                 "params": {"crossing_cf": table}}})
+    assert spec.params["crossing_cf"] == table
+    assert spec.family_params("crossing_cf") == family_params("crossing", speed=(2.0, 4.0)).scaled(0.25, 0.5)
+    again = SweepSpec.from_json(spec.to_json())  # as a dataset stores it
+    assert again.family_params("crossing_cf") == spec.family_params("crossing_cf") and again.hash == spec.hash
