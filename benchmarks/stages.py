@@ -181,7 +181,8 @@ def stage_profile(fields: int = 1024, repeats: int = 20, warm_steps: int = 50, p
     return {"config": {"fields": fields, "obstacles": 16, "horizon": mpc.horizon, "iters": mpc.iters,
                        "family": "clutter", "method": sim.planner.method, "warm_steps": warm_steps,
                        "repeats": repeats, "peak_size": peak_size},
-            "environment": environment(dtype), "peak_gflops": peak, "stages": out}
+            "environment": environment(dtype), "peak_gflops": peak, "stages": out,
+            "engine_steps_per_us": 1.0 / out["engine_step"]["us_per_scenario_step"]}
 
 
 def format_profile(result: dict) -> str:
