@@ -173,3 +173,15 @@ def test_stage_profile_attributes_the_step_and_its_flops():
     row = st["reference"]
     assert row["share_of_peak"] == pytest.approx(row["gflops"] / result["peak_gflops"])
     assert "peak" in format_profile(result)
+
+
+def test_host_time_counts_every_setting_expansion_of_the_parts_it_writes():
+    """benchmarks/host_time.py: each written part asks the spec for its settings (kept with the spec, so
+    almost free), a fresh expansion costs more, and the share is of the parts' own time."""
+    from host_time import measure
+
+    r = measure(settings=50, fields=4, parts=3)
+    assert r["config"] == {"settings": 50, "fields_per_part": 4, "parts": 3, "rows_per_part": 200}
+    assert r["expansion_calls"] >= r["config"]["parts"]
+    assert 0 < r["expansion_s_per_part"] * r["config"]["parts"] < sum(r["part_s"]["all"])
+    assert 0 < r["expansion_share"] < 1 and r["expansion_from_scratch_s"] > 0
