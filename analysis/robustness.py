@@ -104,15 +104,16 @@ def flow_gain(method: str, seed: int) -> float:
     return gains["eta"] * gains["k_att"]
 
 
-def fields(spec, count: int) -> list[tuple[object, np.ndarray]]:
-    """The held-out fields of every test family and each field's family, in two groups: the families
-    with few obstacle slots, padded to their largest count, and the rest (the exact solvers' cost grows
-    steeply with the slots, so few-obstacle fields are not padded to many)."""
+def fields(spec, count: int, seed: int = SEED) -> list[tuple[object, np.ndarray]]:
+    """The held-out fields (``count`` per test family of ``seed``, default this study's) and each field's
+    family, in two groups: the families with few obstacle slots, padded to their largest count, and the
+    rest (the exact solvers' cost grows steeply with the slots, so few-obstacle fields are not padded to
+    many)."""
     from jaxapf.scenarios import make_scenarios
     from jaxapf.sweep.spec import spec_family_params
     from jaxapf.tune.train import pad_obstacles
 
-    batches = {f: make_scenarios(SEED, spec_family_params(f, spec.params.get(f, {})), count)
+    batches = {f: make_scenarios(seed, spec_family_params(f, spec.params.get(f, {})), count)
                for f in spec.test.families}
     groups = {}
     for f, b in batches.items():
