@@ -110,7 +110,7 @@ def fields(spec, count: int, seed: int = SEED) -> list[tuple[object, np.ndarray]
     rest (the exact solvers' cost grows steeply with the slots, so few-obstacle fields are not padded to
     many)."""
     from jaxapf.scenarios import make_scenarios
-    from jaxapf.sweep.spec import spec_family_params
+    from jaxapf.spec.scenario import spec_family_params
     from jaxapf.tune.train import pad_obstacles
 
     batches = {f: make_scenarios(seed, spec_family_params(f, spec.params.get(f, {})), count)
@@ -162,7 +162,7 @@ def run(spec, count: int) -> pd.DataFrame:
 
 
 def spec_t_max(spec, family: str) -> float:
-    from jaxapf.sweep.spec import spec_family_params
+    from jaxapf.spec.scenario import spec_family_params
 
     return spec_family_params(family, spec.params.get(family, {})).t_max
 

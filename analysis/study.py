@@ -70,7 +70,7 @@ def entry(main: Callable[[], int | None]) -> None:
 def setup_jax() -> None:
     """One JAX device per usable core and the persistent compilation cache, as ``jaxapf sweep`` does.
     Must run before anything touches JAX's backend."""
-    from jaxapf.sweep import configure_jax, default_cache_dir
+    from jaxapf.engine import configure_jax, default_cache_dir
 
     configure_jax(cache_dir=default_cache_dir(), cpu_devices=len(os.sched_getaffinity(0)))
 

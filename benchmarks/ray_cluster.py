@@ -110,7 +110,8 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("JAX_PLATFORMS", "cpu")
     import ray
 
-    from jaxapf.sweep import configure_jax, default_cache_dir, load_spec, read_sweep, run_sweep
+    from jaxapf.engine import configure_jax, default_cache_dir
+    from jaxapf.sweep import load_spec, read_sweep, run_sweep
     from jaxapf.sweep.audit import audit_folder
     from jaxapf.sweep.cluster import RayCluster
 

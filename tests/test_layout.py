@@ -64,7 +64,8 @@ def test_the_check_finds_a_circle():
 
 @pytest.mark.parametrize("old", ["jaxapf.rollout", "jaxapf.stream", "jaxapf.mpc", "jaxapf.potentials", "jaxapf.catalog",
                                  "jaxapf.sensing", "jaxapf.dynamics", "jaxapf.devices", "jaxapf.components",
-                                 "jaxapf.lock", "jaxapf.plugins", "jaxapf.versions", "jaxapf.frame"])
+                                 "jaxapf.lock", "jaxapf.plugins", "jaxapf.versions", "jaxapf.frame",
+                                 "jaxapf.io.spec", "jaxapf.io.plugins"])
 def test_no_shim_keeps_an_old_import_path(old):
     assert old not in {module_name(p) for p in PACKAGE.rglob("*.py")}
 

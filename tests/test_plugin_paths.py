@@ -138,7 +138,7 @@ def _registered_after(plugins):
     """In a fresh process: import ``plugins`` as the report's second process does; the planners then
     registered and what the process recorded as loaded."""
     import jaxapf
-    from jaxapf.io.plugins import LOADED, load_plugin
+    from jaxapf.spec.plugins import LOADED, load_plugin
 
     for name, path in plugins:
         load_plugin(name, "plugin", path)
@@ -149,7 +149,7 @@ def _registered_after(plugins):
 def test_a_second_process_imports_the_plugins_this_one_imported():
     """The report draws figures in a spawned process (jaxapf.report.worker.RowWorker), which must see
     the planners of the plugins loaded in the report's process (by --plugin or by the sweep's spec):
-    jaxapf.io.plugins.LOADED records them once each. (Fresh processes: a plugin's registrations would
+    jaxapf.spec.plugins.LOADED records them once each. (Fresh processes: a plugin's registrations would
     outlive the test in this one.)"""
     import concurrent.futures
     import multiprocessing

@@ -1,4 +1,4 @@
-"""The schema every spec is read with (jaxapf.io.spec): unknown, missing and defaulted keys, the shared
+"""The schema every spec is read with (jaxapf.spec.schema): unknown, missing and defaulted keys, the shared
 readers and the grids, each refusal one line naming its key."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from jaxapf.io.spec import OMIT, REQUIRED, SEED, Key, Table, integer, names, number, spec_name, value_grid
+from jaxapf.spec.schema import OMIT, REQUIRED, SEED, Key, Table, integer, names, number, spec_name, value_grid
 from jaxapf.validation import MAX_SEED, ConfigError
 
 TABLE = Table({"size": Key(integer(1, 10), REQUIRED, "give the size"), "scale": Key(number(0.0, lo_open=True), 2),

@@ -326,7 +326,7 @@ def _simulate(args: argparse.Namespace) -> int:
     from ..simulate import format_metrics_table, simulate_runs, write_outputs
     from ..simulate.animate import animate, tracks_of_runs, tracks_of_swarm
     from ..simulate.swarm import simulate_swarm, write_swarm_outputs
-    from ..sweep.spec import traced_weights
+    from ..spec.settings import traced_weights
     from ..validation import MAX_FIELDS, MAX_SEED, ConfigError, check_int
 
     check_int("--seed", args.seed, 0, MAX_SEED)
@@ -418,7 +418,7 @@ def _bench(args: argparse.Namespace) -> int:
 
     check_int("bench.devices", args.devices, 1)
     if args.devices != 1:
-        from ..sweep import configure_jax
+        from ..engine.runtime import configure_jax
 
         configure_jax(cpu_devices=args.devices)
     result = run_benchmark(fields=args.fields, obstacles=args.obstacles, horizon=args.horizon, iters=args.iters,
@@ -441,7 +441,7 @@ def _tune(args: argparse.Namespace) -> int:
 
 def _compare(args: argparse.Namespace) -> int:
     from ..compare import run_compare
-    from ..sweep import configure_jax, default_cache_dir
+    from ..engine.runtime import configure_jax, default_cache_dir
     from ..sweep.plan import parse_shard
     from ..tune import TuneError
 
@@ -474,9 +474,9 @@ def _report(args: argparse.Namespace) -> int:
 
 
 def _report_with(args: argparse.Namespace, pool: Any) -> int:
+    from ..engine.runtime import configure_jax, default_cache_dir
     from ..io.lock import check_writable
     from ..report import ReportOptions, build_report
-    from ..sweep import configure_jax, default_cache_dir
 
     configure_jax(cache_dir=None if args.no_cache else default_cache_dir())
 
@@ -519,7 +519,8 @@ def _margins(texts: Sequence[str]) -> tuple[tuple[str, float], ...]:
 
 
 def _sweep(args: argparse.Namespace) -> int:
-    from ..sweep import configure_jax, default_cache_dir, dry_run, load_spec, parse_size, run_sweep
+    from ..engine.runtime import configure_jax, default_cache_dir
+    from ..sweep import dry_run, load_spec, parse_size, run_sweep
     from ..sweep.cluster import RayCluster, RaySession
     from ..sweep.plan import parse_shard
     from ..sweep.run import check_options
@@ -607,7 +608,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _main(argv: list[str], running: list[str]) -> int:
     global _CATALOG
-    from ..io.plugins import load_plugin
+    from ..spec.plugins import load_plugin
     from ..validation import ConfigError
     from .stops import stopped
 

@@ -15,21 +15,14 @@ import os
 import pathlib
 from typing import Any, Mapping
 
+from ..config import STATIC_KEYS
 from ..control import scales_set
 from ..gains import GAINS, GainSpec
-from ..io.plugins import check_plugins, load_plugins
-from ..io.spec import OMIT, REQUIRED, SEED, Key, Table, choice, given, integer, spec_name, value_grid
 from ..planners import PLANNERS
-from ..sweep.spec import (
-    STATIC_KEYS,
-    RandomRange,
-    check_value,
-    parse_range,
-    setting_values,
-    spec_family_params,
-    traced_weights,
-    variant_names,
-)
+from ..spec.plugins import check_plugins, load_plugins
+from ..spec.scenario import spec_family_params, variant_names
+from ..spec.schema import OMIT, REQUIRED, SEED, Key, Table, choice, given, integer, spec_name, value_grid
+from ..spec.settings import RandomRange, check_value, parse_range, setting_values, traced_weights
 from ..tune.spec import MAX_HELD_FIELDS
 from ..validation import (
     MAX_FIELDS,

@@ -1,3 +1,3 @@
-"""What the tools share about the files around a run: user code loaded into it (:mod:`.plugins`),
-one writer per output and atomic writes (:mod:`.lock`), and the versions recorded with every result
-(:mod:`.versions`). Imports nothing heavy, so that the command line's help and errors stay fast."""
+"""What the tools share about the files around a run: one writer per output and atomic writes
+(:mod:`.lock`), and the versions recorded with every result (:mod:`.versions`). Imports nothing heavy, so
+that the command line's help and errors stay fast."""

@@ -70,8 +70,8 @@ def _row_work(sel: Any, meta: Mapping, options: Any, figdir: pathlib.Path,
               jax_settings: Mapping[str, Any] | None = None,
               plugins: Sequence[tuple[str, str | None]] = ()) -> tuple[list, list, list[str]]:
     """:func:`~jaxapf.report.figures.row_figures`, then the gallery: ``(figures, gallery figures, notes)``.
-    In a second process: with the report's JAX settings and its plugins (:data:`jaxapf.io.plugins.LOADED`)."""
-    from ..io.plugins import load_plugin
+    In a second process: with the report's JAX settings and its plugins (:data:`jaxapf.spec.plugins.LOADED`)."""
+    from ..spec.plugins import load_plugin
     from .figures import row_figures
     from .gallery import gallery, resimulate
 
@@ -106,7 +106,7 @@ class RowWorker:
             return self
         import jax
 
-        from ..io.plugins import LOADED
+        from ..spec.plugins import LOADED
 
         if self._pool is None:
             self._pool = spawn()

@@ -14,7 +14,6 @@ rows in memory.
 
 from ..validation import MAX_SEED
 from .audit import prepare_output
-from .execute import configure_jax, default_cache_dir
 from .frame import evaluate_frame
 from .plan import (
                    CALLS_PER_PART,
@@ -30,12 +29,12 @@ from .plan import (
 from .read import RowConfig, read_sweep, row_config, sweep_spec
 from .run import SweepResult, dry_run, parse_size, run_sweep
 from .schema import FORMAT, sweep_meta
-from .spec import STATIC_KEYS, RandomRange, Setting, SweepSpec, load_spec, parse_spec, read_toml
+from .spec import Setting, SweepSpec, load_spec, parse_spec, read_toml
 
 __all__ = [
-    "SweepSpec", "Setting", "RandomRange", "load_spec", "parse_spec", "read_toml", "STATIC_KEYS", "MAX_SEED",
+    "SweepSpec", "Setting", "load_spec", "parse_spec", "read_toml", "MAX_SEED",
     "Plan", "Chunk", "Variant", "variants", "plan_sweep", "describe_plan", "DEFAULT_MEMORY_BUDGET", "CALLS_PER_PART",
     "STEP_COST_US", "FORMAT", "sweep_meta", "prepare_output", "run_sweep", "dry_run", "SweepResult",
-    "configure_jax", "default_cache_dir", "parse_size", "read_sweep", "row_config", "sweep_spec", "RowConfig",
+    "parse_size", "read_sweep", "row_config", "sweep_spec", "RowConfig",
     "evaluate_frame",
 ]

@@ -77,8 +77,8 @@ def _configure(settings: dict[str, Any]) -> None:
     CPU (Ray shows such a process every GPU of its node)."""
     import jax
 
-    from ..io.plugins import load_plugin
-    from .execute import configure_jax
+    from ..engine.runtime import configure_jax
+    from ..spec.plugins import load_plugin
 
     if settings["cpu_only"]:
         try:
@@ -147,7 +147,7 @@ class RaySession:
     def __init__(self, cluster: RayCluster):
         import jax
 
-        from ..io.plugins import LOADED
+        from ..spec.plugins import LOADED
 
         self.cluster = cluster
         ray = self.ray = _ray()

@@ -14,9 +14,10 @@ from ..config import STATIC_KEYS
 from ..metrics import find_metric
 from ..scenarios import FAMILIES
 from ..scenarios.swarms import SWARM_FAMILIES
+from ..spec.settings import AXIS_WEIGHT_KEYS
 from ..validation import ConfigError, first_line
 from .plan import Chunk, Plan
-from .spec import AXIS_WEIGHT_KEYS, SweepSpec
+from .spec import SweepSpec
 
 __all__ = ["sweep_spec", "FORMAT", "LEGACY_FORMAT", "META_KEY", "PRNG", "sweep_meta", "schema", "part_table",
            "read_meta", "identity", "static_columns"]

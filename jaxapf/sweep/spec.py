@@ -16,7 +16,7 @@ Keys ("setting keys") live in one flat namespace:
   *variant* with its own program. ``method``, ``filter`` and ``plant`` take registered names.
 
 ``plugins = [...]`` at the top level names modules (or ``.py`` files) that register components;
-they are imported before anything else is checked (:mod:`jaxapf.io.plugins`). A relative ``.py`` path
+they are imported before anything else is checked (:mod:`jaxapf.spec.plugins`). A relative ``.py`` path
 is read from the spec file's folder, so a spec runs from any directory.
 
 Expansion order (the ``setting`` index of the output): the grid product with the keys in the
@@ -47,51 +47,24 @@ import math
 import os
 import pathlib
 import re
-import warnings
-from typing import Any, Callable, Iterable, Mapping, Sequence
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from ..config import MPC_KEYS, SIM_KEYS, STATIC_KEYS, MPCConfig, SimConfig
+from ..config import STATIC_KEYS, MPCConfig, SimConfig
 from ..control import scales_set
 from ..engine.components import COMPONENTS
-from ..gains import GAINS, Gains, read_gains_file
-from ..io.plugins import check_plugins, load_plugins
-from ..io.spec import OMIT, REQUIRED, SEED, Key, Table, boolean, given, integer, number, spec_name, value_grid
+from ..gains import GAINS, read_gains_file
 from ..metrics import METRICS
-from ..scenarios import FAMILIES, FamilyParams, family_params
-from ..scenarios.swarms import SWARM_FAMILIES, SwarmParams, swarm_params
-from ..validation import (
-    MAX_FIELDS,
-    MAX_SETTINGS,
-    BoundWarning,
-    ConfigError,
-    check_choice,
-    check_int,
-    check_names,
-    check_table,
-    read_toml_file,
-    relocated,
-)
+from ..scenarios import FAMILIES, FamilyParams
+from ..scenarios.swarms import SWARM_FAMILIES, SwarmParams
+from ..spec.plugins import check_plugins, load_plugins
+from ..spec.scenario import spec_family_params, variant_names
+from ..spec.schema import OMIT, REQUIRED, SEED, Key, Table, boolean, given, integer, spec_name, value_grid
+from ..spec.settings import RandomRange, check_value, parse_range, setting_values, sim_configs
+from ..validation import MAX_FIELDS, MAX_SETTINGS, ConfigError, check_int, check_names, check_table, read_toml_file
 
-__all__ = [
-    "STATIC_KEYS",
-    "SIM_KEYS",
-    "MPC_KEYS",
-    "RandomRange",
-    "Setting",
-    "SweepSpec",
-    "check_value",
-    "spec_family_params",
-    "variant_names",
-    "parse_range",
-    "load_spec",
-    "parse_spec",
-    "read_toml",
-]
-
-#: MPC weights that take a number (same on x, y, z) or 3 numbers.
-AXIS_WEIGHT_KEYS: frozenset[str] = frozenset({"q_pos", "q_vel", "f_pos", "f_vel", "r"})
+__all__ = ["Setting", "SweepSpec", "load_spec", "parse_spec", "read_toml"]
 
 _RANDOM_KEYS = ("n", "seed")
 _TAG = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
@@ -100,127 +73,8 @@ _RESERVED_COLUMNS = frozenset({"setting", "family", "kind", "agents", "field", "
 
 
 # --------------------------------------------------------------------------------------------
-# one value
-# --------------------------------------------------------------------------------------------
-
-
-def _is_number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
-
-
-def _kind(key: str) -> str:
-    """What a setting key takes: ``number``, ``integer``, ``text``, ``boolean`` or ``weight``."""
-    if key in GAINS:
-        return "number"
-    if key in AXIS_WEIGHT_KEYS:
-        return "weight"
-    default = SimConfig().flat()[key] if key in SIM_KEYS else getattr(MPCConfig(), key)
-    if isinstance(default, bool):
-        return "boolean"
-    if isinstance(default, int):
-        return "integer"
-    if isinstance(default, str):
-        return "text"
-    return "number"  # floats, and att_cap (default None: off)
-
-
-_KIND_TEXT = {
-    "number": "a number",
-    "integer": "an integer",
-    "text": "a string",
-    "boolean": "true or false",
-    "weight": "a number or a list of 3 numbers (x, y, z)",
-}
-
-
-def _type_ok(kind: str, value: Any) -> bool:
-    if kind == "number":
-        return _is_number(value)
-    if kind == "integer":
-        return isinstance(value, int) and not isinstance(value, bool)
-    if kind == "text":
-        return isinstance(value, str)
-    if kind == "boolean":
-        return isinstance(value, bool)
-    return _is_number(value) or (isinstance(value, list) and len(value) == 3 and all(map(_is_number, value)))
-
-
-def check_value(where: str, key: str, value: Any) -> Any:
-    """Type- and range-check one value of setting ``key`` found at ``where`` in the spec; returns it
-    normalised (gains and other numbers as float, weights as float or a 3-tuple of floats)."""
-    kind = _kind(key)
-    if not _type_ok(kind, value):
-        raise ConfigError(f"{where} = {value!r} must be {_KIND_TEXT[kind]}")
-    if kind == "number":
-        value = float(value)
-    elif kind == "weight":
-        value = tuple(float(v) for v in value) if isinstance(value, list) else float(value)
-    if key in COMPONENTS:
-        COMPONENTS[key].get(value, where)
-    owner, prefix = ((Gains, "gains") if key in GAINS
-                     else (SimConfig.from_flat, "sim") if key in SIM_KEYS else (MPCConfig, "mpc"))
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", BoundWarning)
-        try:
-            owner(**{key: value})
-        except ConfigError as err:
-            raise relocated(err, f"{prefix}.{key}", where) from None
-    for w in caught:  # re-issued naming the spec's key (k > 1)
-        message = str(w.message).removeprefix(f"{prefix}.{key}")
-        warnings.warn(f"{where} = {value!r}{message}", BoundWarning, stacklevel=2)
-    return value
-
-
-def setting_values(keys: Sequence[str]) -> Callable[[str, Any], dict[str, Any]]:
-    """A table of setting values (``[sim]``, ``[gains]``) out of ``keys``, each checked by
-    :func:`check_value`: the values it gives (a reader of :mod:`jaxapf.io.spec`)."""
-    def read(where: str, value: Any) -> dict[str, Any]:
-        table = check_table(where, value, keys)
-        return {key: check_value(f"{where}.{key}", key, v) for key, v in table.items()}
-    return read
-
-
-def sim_configs(values: Mapping[str, Any], scaled: Iterable[str] = (), where: str = "sim"
-                ) -> tuple[SimConfig, MPCConfig]:
-    """The :class:`SimConfig` and :class:`MPCConfig` of ``[sim]`` values (the rest at their defaults).
-    If ``scaled`` (the MPC weight scales a spec sets to something other than 1, or varies:
-    :func:`~jaxapf.control.scales_set`) is not empty, the MPC's weights come from the gains
-    (``mpc_weights = "gains"``); ``mpc_weights = "static"`` beside one is refused."""
-    sim = traced_weights({k: v for k, v in values.items() if k in SIM_KEYS}, scaled, where)
-    return SimConfig.from_flat(sim), MPCConfig(**{k: v for k, v in values.items() if k in MPC_KEYS})
-
-
-def traced_weights(sim: Mapping[str, Any], scaled: Iterable[str], where: str = "sim") -> dict[str, Any]:
-    """``[sim]`` values with ``mpc_weights = "gains"`` if ``scaled`` (MPC weight scales a spec sets away
-    from 1 or varies) is not empty; ``mpc_weights = "static"`` beside one is refused in one line."""
-    sim, scales = dict(sim), sorted(scaled)
-    if scales:
-        if sim.get("mpc_weights", "gains") != "gains":
-            raise ConfigError(f"{where}.mpc_weights = {sim['mpc_weights']!r} compiles the MPC's weights in, but the "
-                              f"spec sets {scales[0]}, which only mpc_weights = \"gains\" reads")
-        sim["mpc_weights"] = "gains"
-    return sim
-
-
-# --------------------------------------------------------------------------------------------
 # the spec
 # --------------------------------------------------------------------------------------------
-
-
-@dataclasses.dataclass(frozen=True)
-class RandomRange:
-    """Range of one sampled gain: uniform on ``[low, high]``, or log-uniform with ``log``."""
-
-    low: float
-    high: float
-    log: bool = False
-
-    def sample(self, u: np.ndarray) -> np.ndarray:
-        """Map uniforms ``u`` in (0, 1) to the range (float64)."""
-        if self.log:
-            a, b = np.log(self.low), np.log(self.high)
-            return np.exp(a + u * (b - a))
-        return self.low + u * (self.high - self.low)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -437,53 +291,6 @@ class SweepSpec:
 # --------------------------------------------------------------------------------------------
 
 
-#: A variant's name: letters, digits and ``_`` (``/`` separates a family from its kind in reports).
-_VARIANT = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
-
-
-def variant_names(params: Any) -> tuple[str, ...]:
-    """The variants a ``[scenario.params]`` table defines: sub-tables that name their ``family``."""
-    if not isinstance(params, dict):
-        return ()
-    return tuple(label for label, table in params.items()
-                 if isinstance(table, dict) and "family" in table and label not in FAMILIES
-                 and label not in SWARM_FAMILIES)
-
-
-def spec_family_params(label: str, overrides: Any, *, swarms: bool = False) -> FamilyParams:
-    """A spec's ``[scenario.params.LABEL]`` table applied to a family's defaults (shared by sweep and
-    tune specs); a bad value is reported at ``scenario.params.LABEL.KEY``.
-
-    ``LABEL`` is a registered family, or a *variant*: a name of its own whose table names the family
-    it varies, ``family = "crossing"``; a variant's rows carry its name in the ``family`` column.
-    With ``swarms`` (sweep specs), a swarm family (:data:`~jaxapf.scenarios.swarms.SWARM_FAMILIES`) too,
-    giving its :class:`~jaxapf.scenarios.swarms.SwarmParams`. ``scale = {length = L, speed = V}`` shrinks
-    the result to another vehicle (:meth:`~jaxapf.scenarios.FamilyParams.scaled`: the table's other values
-    are given in the unscaled family's units).
-    """
-    where = f"scenario.params.{label}"
-    overrides = dict(check_table(where, overrides))
-    base = overrides.pop("family", label)
-    scale = _SCALE(f"{where}.scale", overrides.pop("scale", {}))
-    registered = FAMILIES.names() + (SWARM_FAMILIES.names() if swarms else ())
-    if label in registered and base != label:
-        raise ConfigError(f"{where}.family = {base!r}: {label} is a registered family; give the variant a name "
-                          "of its own")
-    if label not in registered:
-        if not _VARIANT.fullmatch(label):
-            raise ConfigError(f"{where}: a variant's name is letters, digits and '_', starting with a letter")
-        check_choice(f"{where}.family", base, registered)
-    try:
-        params = swarm_params(base, **overrides) if base in SWARM_FAMILIES else family_params(base, **overrides)
-        return params.scaled(**scale) if scale else params
-    except ConfigError as err:
-        raise relocated(err, f"scenario.{base}", where) from None
-
-
-#: A ``[scenario.params.LABEL]`` table's ``scale``: the factors of :meth:`FamilyParams.scaled`.
-_SCALE = Table({"length": Key(number(0.0, lo_open=True), OMIT), "speed": Key(number(0.0, lo_open=True), OMIT)})
-
-
 def _scenario(where: str, table: Any) -> tuple[tuple[str, ...], int, int, dict[str, dict[str, Any]], bool]:
     scenario = Table({"families": Key(given, REQUIRED), "fields": Key(integer(1, MAX_FIELDS), REQUIRED),
                       "seed": Key(SEED, 0), "params": Key(check_table, {}),
@@ -571,29 +378,6 @@ def _explicit(value: Any, fixed: Mapping[str, str]) -> tuple[tuple, tuple]:
     return tuple(entries), tuple(tuple((k, dict(t)[k]) for k in order) for t in tags) if order else ()
 
 
-def parse_range(where: str, key: str, value: Any) -> RandomRange:
-    """A sampling range of gain ``key`` at ``where``: ``[lo, hi]`` (uniform) or ``{range = [lo, hi],
-    log = true}`` (log-uniform, lo > 0)."""
-    log = False
-    if isinstance(value, dict):
-        table = check_table(where, value, ("range", "log"))
-        if "range" not in table:
-            raise ConfigError(f"{where}.range is missing; write {{range = [lo, hi]}} "
-                              "or {range = [lo, hi], log = true}")
-        log = table.get("log", False)
-        if not isinstance(log, bool):
-            raise ConfigError(f"{where}.log = {log!r} must be true or false")
-        where, value = f"{where}.range", table["range"]
-    if not isinstance(value, list) or len(value) != 2:
-        raise ConfigError(f"{where} = {value!r} must be a range [lo, hi] or a table {{range = [lo, hi], log = true}}")
-    low, high = (check_value(f"{where}[{i}]", key, v) for i, v in enumerate(value))
-    if low > high:
-        raise ConfigError(f"{where} = {value!r} is not a range; allowed: [lo, hi] with lo <= hi")
-    if log and low <= 0:
-        raise ConfigError(f"{where}[0] = {low!r} is out of range; allowed: > 0 for a log range")
-    return RandomRange(low, high, log)
-
-
 def _random(table: Any, fixed: Mapping[str, str], grid: Iterable[str]) -> tuple[int, int, tuple]:
     table = check_table("random", table)
     if "n" not in table:
@@ -647,7 +431,7 @@ def parse_spec(data: Mapping[str, Any], gains_file: str | os.PathLike | None = N
             files = ", ".join(plugin_paths or plugins)
             raise ConfigError(f"{err}; the dataset was written with the plugin(s) {files}, which opening a dataset "
                               "never imports: name each one you trust, `jaxapf --plugin FILE COMMAND ...` (in Python "
-                              "jaxapf.io.plugins.load_plugin(FILE)), to read it") from None
+                              "jaxapf.spec.plugins.load_plugin(FILE)), to read it") from None
     paths = load_plugins(plugins, base=base, paths=plugin_paths)
     d = _schema()("", data)
     name, (families, fields, seed, params, oracle), sim, gains = d["name"], d["scenario"], d["sim"], d["gains"]

@@ -3,7 +3,7 @@
 Every key is checked before anything is traced; an unknown key or a bad value raises
 :class:`~jaxapf.validation.ConfigError` naming it (``train.learning_rate = -1.0 is out of range; ...``).
 The keys, their defaults and ranges are listed in ``docs/tune.md``; the schema
-(:mod:`jaxapf.io.spec`) is :func:`_schema`, with the defaults of :class:`TrainSpec`, :class:`SearchSpec` and
+(:mod:`jaxapf.spec.schema`) is :func:`_schema`, with the defaults of :class:`TrainSpec`, :class:`SearchSpec` and
 :class:`~jaxapf.tune.objective.Objective`.
 """
 
@@ -26,10 +26,11 @@ from ..config import MPC_KEYS, SIM_KEYS, MPCConfig, PlannerConfig, SimConfig, Ve
 from ..control import scales_set
 from ..engine import gains_read
 from ..gains import GAINS, Gains, check_gain_name, gains_from_mapping
-from ..io.plugins import check_plugins, load_plugins
-from ..io.spec import OMIT, REQUIRED, SEED, Key, Table, boolean, choice, integer, names, number, value_grid
 from ..scenarios import FAMILIES, FamilyParams
-from ..sweep.spec import setting_values, sim_configs, spec_family_params, variant_names
+from ..spec.plugins import check_plugins, load_plugins
+from ..spec.scenario import spec_family_params, variant_names
+from ..spec.schema import OMIT, REQUIRED, SEED, Key, Table, boolean, choice, integer, names, number, value_grid
+from ..spec.settings import setting_values, sim_configs
 from ..validation import MAX_SETTINGS, ConfigError, check_choice, check_table, read_toml_file
 from .estimators import ESTIMATORS
 from .objective import Objective, Reparam

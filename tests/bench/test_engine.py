@@ -45,7 +45,7 @@ def test_bench_on_two_devices_gives_the_metrics_of_one(tmp_path):
     import subprocess
     import sys
 
-    script = ("import json, sys\nfrom jaxapf.sweep import configure_jax\nconfigure_jax(cpu_devices=2)\n"
+    script = ("import json, sys\nfrom jaxapf.engine import configure_jax\nconfigure_jax(cpu_devices=2)\n"
               "from jaxapf.bench import run_benchmark\nimport jax\n"
               "r = {d: run_benchmark(fields=4, steps=20, horizon=4, iters=4, obstacles=4, oracle_fields=0, "
               "devices=d, family='crossing') for d in (1, 2)}\n"

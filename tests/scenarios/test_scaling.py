@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from jaxapf.scenarios import FAMILIES, family_params, make_scenarios
 from jaxapf.scenarios.swarms import SWARM_FAMILIES, make_swarms, swarm_params
-from jaxapf.sweep.spec import spec_family_params
+from jaxapf.spec.scenario import spec_family_params
 from jaxapf.validation import ConfigError
 
 

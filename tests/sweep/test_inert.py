@@ -88,7 +88,7 @@ def test_a_dataset_needing_a_plugin_is_refused_naming_it_until_the_user_names_it
     rc, _, stderr = capture(main, ["sweep", "verify", str(out)])
     assert rc == 2 and str(plugin.resolve()) in stderr and stderr.count("\n") == 1
     assert not marker.exists()
-    from jaxapf.io.plugins import load_plugin
+    from jaxapf.spec.plugins import load_plugin
 
     load_plugin(str(plugin))  # the user trusts it
     assert marker.exists()

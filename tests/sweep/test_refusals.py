@@ -162,7 +162,7 @@ def test_json_nested_past_any_reader_is_damage_not_a_traceback(tmp_path):
 def test_devices_forced_by_xla_flags_and_a_shards_own_refusal_come_first(tmp_path, monkeypatch):
     """The core count is the CPU platform's limit only where --devices makes the devices: XLA_FLAGS forcing a
     count is left alone, and a shard's one-device rule is said before it."""
-    from jaxapf.sweep.execute import configure_jax
+    from jaxapf.engine import configure_jax
 
     monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=4")
     configure_jax(cpu_devices=100000)  # XLA_FLAGS decides: nothing to refuse
