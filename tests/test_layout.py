@@ -83,3 +83,22 @@ def test_no_package_attribute_hides_its_submodule():
             if getattr(package, sub.name) is not module:
                 hidden.append(f"{package.__name__}.{sub.name}")
     assert not hidden, hidden
+
+
+#: The longest a function runs without a reason stated beside it.
+LONGEST = 80
+
+
+def test_no_function_runs_past_80_lines_without_a_reason_beside_it():
+    """A function longer than :data:`LONGEST` lines says why on the line above its ``def`` (``# long: ...``);
+    the others are split where their parts have names of their own."""
+    unexplained = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        lines = path.read_text().split("\n")
+        for node in ast.walk(ast.parse("\n".join(lines))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno >= LONGEST:
+                top = min([node.lineno] + [d.lineno for d in node.decorator_list])
+                if not lines[top - 2].strip().startswith("# long: "):
+                    unexplained.append(f"{path.relative_to(ROOT)}:{node.lineno} {node.name} "
+                                       f"({node.end_lineno - node.lineno + 1} lines)")
+    assert not unexplained, "give a reason (# long: ...) or split: " + "; ".join(unexplained)

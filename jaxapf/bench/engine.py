@@ -142,6 +142,7 @@ def interleaved(runs: dict[str, Callable[[], Any]], repeats: int) -> dict[str, d
     return {name: {"run_s": min(t)[0], "cpu_s": min(t)[1], "repeats": repeats} for name, t in times.items()}
 
 
+# long: one timed session (compile, first run, the engine's rounds interleaved with both peers') and its record
 def run_benchmark(
     fields: int = 1024,
     obstacles: int = 16,

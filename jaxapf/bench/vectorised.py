@@ -81,6 +81,7 @@ class _Field:
         self.zero_mf = np.zeros_like(self.pz)  # np.maximum against an array is faster than against a scalar
 
 
+# long: the numpy peer's hot loop, in-place passes over the arrays in one frame, as an expert writes it
 def _repulsion(f: _Field, p: np.ndarray, v: np.ndarray, t: Any) -> np.ndarray:
     r"""``Σ_o ∇_p(ω U_rep)`` (3, F) for positions ``p`` and velocities ``v`` (3, F) at time ``t``.
 

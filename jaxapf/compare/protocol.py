@@ -214,27 +214,34 @@ def compare_markdown(spec: CompareSpec, selections: Sequence[Selection], summary
              f"{', '.join(spec.test.families)}; every method at its defaults and at each seed's selection",
              "- statistics and definitions: [report/report.md](report/report.md) (each setting is paired with "
              f"{spec.baseline} of the same selection)", ""]
+    lines += _selection_tables(spec, selections) + _test_rates(spec, summary, tags)
+    verdicts, findings = _verdict_tables(spec, summary, comparisons, tags)
+    return "\n".join(lines + verdicts + _conclusions(spec, findings, tags))
 
-    lines += ["## Selection: budget and outcome per method and seed", ""]
+
+def _selection_tables(spec: CompareSpec, selections: Sequence[Selection]) -> list[str]:
+    """compare.md's budget and outcome of every selection, and the gains each chose."""
+    lines = ["## Selection: budget and outcome per method and seed", ""]
     rows = [{"method": s.method, "seed": s.seed, "search": s.search, "candidates": s.candidates,
              "fields per candidate": s.fields_per_candidate, "episodes": f"{s.episodes:,} of {s.budget:,}",
              "seconds": f"{s.seconds:.1f}", "training success %": _pct(s.selection_success), "chosen": s.chosen}
             for s in selections]
     lines += _md(pd.DataFrame(rows))
-
     lines += ["## Selected gains", ""]
-    gains = [g for g in sel.gains if any(g in spec.method_gains(m) for m in spec.methods)]
+    gains = [g for g in spec.selection.gains if any(g in spec.method_gains(m) for m in spec.methods)]
     rows = [{"method": s.method, "seed": s.seed,
              **{g: (f"{s.gains[g]:.3g}" if g in spec.method_gains(s.method) else "–") for g in gains}}
             for s in selections]
-    lines += _md(pd.DataFrame(rows))
+    return lines + _md(pd.DataFrame(rows))
 
-    groups = list(dict.fromkeys(summary["family"]))
-    lines += ["## Held-out test: rates per selection, and their spread over seeds", "",
-              "Rates in %; *spread* is the mean over the selection seeds [lowest, highest].", ""]
+
+def _test_rates(spec: CompareSpec, summary: pd.DataFrame, tags: list[str]) -> list[str]:
+    """compare.md's held-out rates per selection and their spread over the seeds."""
+    lines = ["## Held-out test: rates per selection, and their spread over seeds", "",
+             "Rates in %; *spread* is the mean over the selection seeds [lowest, highest].", ""]
     for metric in ("success", "collision", "stalled"):
         rows = []
-        for group in groups:
+        for group in dict.fromkeys(summary["family"]):
             for m in spec.methods:
                 sub = rows_of(summary[summary["family"] == group], spec, m).set_index("selection")
                 values = [float(sub.at[t, f"{metric}_rate"]) for t in tags]
@@ -242,17 +249,23 @@ def compare_markdown(spec: CompareSpec, selections: Sequence[Selection], summary
                              **{t: _pct(v) for t, v in zip(tags, values)},
                              "spread": f"{_pct(np.mean(values))} [{_pct(min(values))}, {_pct(max(values))}]"})
         lines += [f"### {metric}", ""] + _md(pd.DataFrame(rows))
+    return lines
 
-    lines += ["## Against the baseline, seed by seed", "",
-              f"Each cell: the paired difference to {spec.baseline} of the same selection with its 95 % "
-              "interval (rates in percentage points; Newcombe / Hodges-Lehmann) and the verdict (better, worse, "
-              "equivalent within the metric's relevance margin, or inconclusive; Holm over the whole report).", ""]
+
+def _verdict_tables(spec: CompareSpec, summary: pd.DataFrame, comparisons: pd.DataFrame, tags: list[str]
+                    ) -> tuple[list[str], list[tuple[str, str, pd.Series]]]:
+    """compare.md's paired differences to the baseline seed by seed, and the pooled verdict counts of each
+    method on success and collision (``findings``)."""
+    lines = ["## Against the baseline, seed by seed", "",
+             f"Each cell: the paired difference to {spec.baseline} of the same selection with its 95 % "
+             "interval (rates in percentage points; Newcombe / Hodges-Lehmann) and the verdict (better, worse, "
+             "equivalent within the metric's relevance margin, or inconclusive; Holm over the whole report).", ""]
     findings = []
     for m in spec.methods:
         if m == spec.baseline:
             continue
         rows = []
-        for group in groups:
+        for group in dict.fromkeys(summary["family"]):
             for metric in _VERDICT_METRICS:
                 cells, verdicts = {}, []
                 for t in (DEFAULT, *tags):
@@ -275,8 +288,12 @@ def compare_markdown(spec: CompareSpec, selections: Sequence[Selection], summary
                 if group == "all" and metric in ("success", "collision") and len(verdicts) == len(tags):
                     findings.append((m, metric, counts))
         lines += [f"### {m} vs {spec.baseline}", ""] + _md(pd.DataFrame(rows))
+    return lines, findings
 
-    lines += ["## What the test says (pooled over the test families)", ""]
+
+def _conclusions(spec: CompareSpec, findings: list[tuple[str, str, pd.Series]], tags: list[str]) -> list[str]:
+    """compare.md's closing list: what every selection seed agrees on, and where they do not."""
+    lines = ["## What the test says (pooled over the test families)", ""]
     for m, metric, counts in findings:
         top, n = counts.index[0], int(counts.iloc[0])
         tally = ", ".join(f"{v} {c}" for v, c in counts.items())
@@ -288,5 +305,4 @@ def compare_markdown(spec: CompareSpec, selections: Sequence[Selection], summary
         else:
             lines.append(f"- {m} vs {spec.baseline}, {metric}: {top} for {n} of {len(tags)} selection seeds ({tally}): "
                          "not robust to the selection's randomness.")
-    lines.append("")
-    return "\n".join(lines)
+    return lines + [""]

@@ -137,6 +137,7 @@ def single_uav(sim: SimConfig, mpc: MPCConfig, dtype: Any, metrics: Sequence[str
     return EpisodeKind(start, step, measure)
 
 
+# long: the streaming program's parts are closures over its shapes (slots, ring, levels), traced as one
 def stream_metrics(fields: Any, gains: Gains, sim: SimConfig, mpc: MPCConfig, slots: int,
                    metrics: Sequence[str], kind: Callable[..., EpisodeKind] = single_uav) -> dict[str, Array]:
     """The ``metrics`` of every (setting, field) episode, arrays (G, F), by episode streaming.

@@ -141,6 +141,7 @@ class ReportResult:
     incomplete: str | None = None  # what is missing, when the sweep is incomplete
 
 
+# long: the report's sections in the order the page shows them, each a few lines over the shared tables
 def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
                  options: ReportOptions = ReportOptions(), pool: Any = None) -> ReportResult:
     """Read the sweep at ``path``, compute every statistic and write the report into ``out``. ``pool``:

@@ -151,27 +151,7 @@ def select(df: pd.DataFrame, options: Any) -> Selection:
     # defaults to each family's own)
     row_cols = [c for c in df.columns if c not in setting_cols and not is_metric(c)]
 
-    # --where: row filters (family, field, seed) on the rows, setting filters on the settings
-    rows = np.ones(len(df), dtype=bool)
-    chosen = np.ones(len(table), dtype=bool)
-    for key, values in parse_filters(options.where, "--where"):
-        what = f"--where {key}={','.join(values)}"
-        if is_metric(key):
-            raise ReportError(f"{what}: {key} is a metric; filter on settings or family/field/seed only")
-        if key in row_cols:
-            m = _mask(df[key], values, what)
-            if not m.any():
-                raise ReportError(f"{what} selects no rows ({key} has: {_choices(df[key])})")
-            rows &= m
-        elif key in setting_cols:
-            col = pd.Series(table.index, name="setting") if key == "setting" else table[key]
-            m = _mask(col, values, what)
-            if not m.any():
-                raise ReportError(f"{what} selects no rows ({key} has: {_choices(col)})")
-            chosen &= m
-        else:
-            raise ReportError(f"{what}: no column {key!r}; filter on one of "
-                              f"{', '.join(['setting', *table.columns, *row_cols])}")
+    rows, chosen = _where(df, table, row_cols, setting_cols, options.where)
     selected = [int(s) for s in table.index[chosen]]
     rows_df = df[rows]
     present = set(int(s) for s in pd.unique(rows_df["setting"]))
@@ -179,25 +159,8 @@ def select(df: pd.DataFrame, options: Any) -> Selection:
     if not selected:
         raise ReportError(f"the filters {' '.join('--where ' + w for w in options.where)} together select no rows")
 
-    # --baseline: among the settings that have rows after the row filters
     base_filters = _parse_baseline(options.baseline)
-    avail = table.loc[sorted(present)]
-    is_base = np.ones(len(avail), dtype=bool)
-    for key, values in base_filters:
-        what = f"--baseline {options.baseline}"
-        if key == "setting":
-            col = pd.Series(avail.index, name="setting")
-        elif key in avail.columns:
-            col = avail[key]
-        else:
-            raise ReportError(f"{what}: no setting column {key!r}; use one of {', '.join(['setting', *table.columns])}")
-        is_base &= _mask(col, values, what)
-    baseline_ids = [int(s) for s in avail.index[is_base]]
-    if not baseline_ids:
-        key = base_filters[0][0]
-        col = pd.Series(avail.index) if key == "setting" else avail[key]
-        raise ReportError(f"baseline {options.baseline} is not in the data ({key} has: {_choices(col)})")
-
+    baseline_ids = _baseline(table, present, base_filters, options.baseline)
     fixed = {k for k, _ in base_filters}
     for c in options.pair_on:
         if c not in table.columns:
@@ -243,6 +206,55 @@ def select(df: pd.DataFrame, options: Any) -> Selection:
     for c in report_metrics(data.columns)[0]:
         data[c] = data[c].astype(bool)
     return Selection(data, table, swept, labels, settings, pairs, baseline_ids, notes)
+
+
+def _baseline(table: pd.DataFrame, present: set[int], base_filters: list[tuple[str, list[str]]],
+              baseline: str) -> list[int]:
+    """``--baseline``: the settings it names among those with rows after the row filters."""
+    avail = table.loc[sorted(present)]
+    is_base = np.ones(len(avail), dtype=bool)
+    for key, values in base_filters:
+        what = f"--baseline {baseline}"
+        if key == "setting":
+            col = pd.Series(avail.index, name="setting")
+        elif key in avail.columns:
+            col = avail[key]
+        else:
+            raise ReportError(f"{what}: no setting column {key!r}; use one of {', '.join(['setting', *table.columns])}")
+        is_base &= _mask(col, values, what)
+    baseline_ids = [int(s) for s in avail.index[is_base]]
+    if not baseline_ids:
+        key = base_filters[0][0]
+        col = pd.Series(avail.index) if key == "setting" else avail[key]
+        raise ReportError(f"baseline {baseline} is not in the data ({key} has: {_choices(col)})")
+    return baseline_ids
+
+
+def _where(df: pd.DataFrame, table: pd.DataFrame, row_cols: list[str], setting_cols: set[str],
+           where: Any) -> tuple[np.ndarray, np.ndarray]:
+    """``--where``: the rows its row filters (family, field, seed) keep and the settings its setting filters
+    keep, as masks; a filter on a metric, on no column, or keeping nothing refused in one line."""
+    rows = np.ones(len(df), dtype=bool)
+    chosen = np.ones(len(table), dtype=bool)
+    for key, values in parse_filters(where, "--where"):
+        what = f"--where {key}={','.join(values)}"
+        if is_metric(key):
+            raise ReportError(f"{what}: {key} is a metric; filter on settings or family/field/seed only")
+        if key in row_cols:
+            m = _mask(df[key], values, what)
+            if not m.any():
+                raise ReportError(f"{what} selects no rows ({key} has: {_choices(df[key])})")
+            rows &= m
+        elif key in setting_cols:
+            col = pd.Series(table.index, name="setting") if key == "setting" else table[key]
+            m = _mask(col, values, what)
+            if not m.any():
+                raise ReportError(f"{what} selects no rows ({key} has: {_choices(col)})")
+            chosen &= m
+        else:
+            raise ReportError(f"{what}: no column {key!r}; filter on one of "
+                              f"{', '.join(['setting', *table.columns, *row_cols])}")
+    return rows, chosen
 
 
 def _same(a: Any, b: Any) -> bool:

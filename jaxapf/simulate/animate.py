@@ -73,6 +73,7 @@ def ffmpeg() -> str:
     return imageio_ffmpeg.get_ffmpeg_exe()
 
 
+# long: the panels' artists are built once and moved frame by frame in one loop that feeds both encoders
 def animate(tracks: Sequence[Track], field: Field, out: pathlib.Path | str, stem: str = "episode",
             fps: int = 20, seconds: float = 12.0, title: str = "") -> list[pathlib.Path]:
     """Write ``out/stem.mp4`` and ``out/stem.gif`` of ``tracks`` side by side (obstacles of ``field``

@@ -26,7 +26,7 @@ from ..scenarios import solvable as solvable_fields
 from ..validation import BoundWarning, ConfigError, check_int
 from .plan import Chunk, plan_sweep
 from .schema import part_table, schema, sweep_meta
-from .spec import parse_spec
+from .spec import SweepSpec, parse_spec
 
 __all__ = ["evaluate_frame"]
 
@@ -72,14 +72,39 @@ def evaluate_frame(family: str | FamilyParams, gains: Gains | None = None, sim: 
     """
     import jax
 
+    params, gains, names = _checked(family, gains, sim, mpc, metrics)
+    fields = check_int("evaluate_frame: fields", fields, 1)
+    count = setting_count(gains, "evaluate_frame: gains")
+    sim = sim or SimConfig.from_flat(t_max=params.t_max)
+    mpc = mpc or MPCConfig()
+    spec = _as_spec(params, gains, sim, mpc, fields, seed, solvable, count)
+    name = params.family
 
+    scenarios = make_scenarios(seed, params, fields)
+    arrays = evaluate(scenarios, gains, sim, mpc, width, names, streaming=streaming)
+    plan = dataclasses.replace(plan_sweep(spec, chunk_fields=fields, devices=1, width=width or default_width()),
+                               metrics=names)
+    meta = sweep_meta(spec, plan)
+    host = {m: np.asarray(a).reshape(count, fields) for m, a in jax.device_get(arrays).items()}
+    oracle = None
+    if solvable:
+        oracle = solvable_fields(jax.device_get(scenarios), r_uav=sim.vehicle.r_uav, v_max=sim.vehicle.v_max,
+                                 t_max=sim.episode.t_max, r_goal=sim.episode.r_goal)
+    rows = part_table(plan, schema(plan, meta), Chunk(0, name, 0, fields), host, np.asarray(scenarios.kind), oracle)
+    frame = rows.to_pandas()
+    frame.attrs["jaxapf"] = meta
+    return frame
+
+
+def _checked(family: Any, gains: Any, sim: Any, mpc: Any, metrics: Sequence[str] | None
+             ) -> tuple[FamilyParams, Gains, tuple[str, ...]]:
+    """:func:`evaluate_frame`'s arguments checked: the family's parameters, the gains and the metrics' names."""
     if isinstance(family, FamilyParams):
         params = family
     elif isinstance(family, str):
         params = family_params(family)
     else:
         raise ConfigError(f"evaluate_frame: family = {family!r} must be a family's name or its FamilyParams")
-    name = params.family
     gains = Gains() if gains is None else gains
     if not isinstance(gains, Gains):
         raise ConfigError(f"evaluate_frame: gains must be a Gains (Gains.grid(...), Gains(...)), "
@@ -89,15 +114,17 @@ def evaluate_frame(family: str | FamilyParams, gains: Gains | None = None, sim: 
                           f"got {type(sim).__name__}")
     if mpc is not None and not isinstance(mpc, MPCConfig):
         raise ConfigError(f"evaluate_frame: mpc must be an MPCConfig, got {type(mpc).__name__}")
-    fields = check_int("evaluate_frame: fields", fields, 1)
-    count = setting_count(gains, "evaluate_frame: gains")
     names = METRICS.names() if metrics is None else tuple(metrics)
     for m in names:
         METRICS.get(m, "evaluate_frame: metrics")
-    sim = sim or SimConfig.from_flat(t_max=params.t_max)
-    mpc = mpc or MPCConfig()
+    return params, gains, names
 
-    # the call as a sweep spec: its settings, columns and metadata are the sweep's
+
+def _as_spec(params: FamilyParams, gains: Gains, sim: SimConfig, mpc: MPCConfig, fields: int, seed: int,
+             solvable: bool, count: int) -> SweepSpec:
+    """The call as a sweep spec: its settings, columns and metadata are the sweep's; refused where
+    ``sim``/``mpc`` cannot be written as a sweep's settings."""
+    name = params.family
     values = {k: np.asarray(v, np.float64) for k, v in gains.items()}
     listed = [k for k, v in values.items() if v.ndim]
     defaults = {k: spec.default for k, spec in GAINS.items()}
@@ -118,18 +145,4 @@ def evaluate_frame(family: str | FamilyParams, gains: Gains | None = None, sim: 
         spec = parse_spec(table)
     if spec.configs(spec.settings()[0].static, name) != (sim, mpc):  # a setting the spec cannot state
         raise ConfigError("evaluate_frame: this sim/mpc cannot be written as a sweep's settings; use evaluate()")
-
-    scenarios = make_scenarios(seed, params, fields)
-    arrays = evaluate(scenarios, gains, sim, mpc, width, names, streaming=streaming)
-    plan = dataclasses.replace(plan_sweep(spec, chunk_fields=fields, devices=1, width=width or default_width()),
-                               metrics=names)
-    meta = sweep_meta(spec, plan)
-    host = {m: np.asarray(a).reshape(count, fields) for m, a in jax.device_get(arrays).items()}
-    oracle = None
-    if solvable:
-        oracle = solvable_fields(jax.device_get(scenarios), r_uav=sim.vehicle.r_uav, v_max=sim.vehicle.v_max,
-                                 t_max=sim.episode.t_max, r_goal=sim.episode.r_goal)
-    rows = part_table(plan, schema(plan, meta), Chunk(0, name, 0, fields), host, np.asarray(scenarios.kind), oracle)
-    frame = rows.to_pandas()
-    frame.attrs["jaxapf"] = meta
-    return frame
+    return spec
