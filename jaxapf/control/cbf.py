@@ -1,90 +1,12 @@
-r"""Control-barrier-function safety filter for the double integrator (``filter = "cbf"``).
-
-For obstacle ``o`` at time ``t`` (centre ``c_o(t) = p_o + v_o t``, constant velocity) let
-``r = P(p - c_o(t))`` and ``w = P(v - v_o)`` (``P`` drops z for a cylinder) and ``R = ρ_o + r_uav``.
-The barrier is
-
-.. math:: h_o = |r|^2 - R^2, \qquad \dot h_o = 2 r\cdot w, \qquad
-          \ddot h_o = 2|w|^2 + 2 r\cdot a
-
-(the obstacle does not accelerate, ``r·P a = r·a``). ``h`` has relative degree two in the
-acceleration ``a``, so the filter enforces the exponential (high-order) CBF condition of Nguyen &
-Sreenath (2016, "Exponential control barrier functions for enforcing high relative-degree safety-
-critical constraints", ACC) / Xiao & Belta (2019, "Control barrier functions for systems with high
-relative degree", CDC):
-
-.. math:: \ddot h_o + k_1 \dot h_o + k_0 h_o \ge 0
-          \iff g_o\cdot a \ge b_o,\quad g_o = 2r,\quad b_o = -2|w|^2 - 2 k_1\, r\cdot w - k_0 h_o,
-
-one linear constraint per valid obstacle. The gains are two positive rates ``p_1`` (``cbf_p1``) and
-``p_2`` (``cbf_p2``), and the filter computes
-
-.. math:: k_1 = p_1 + p_2, \qquad k_0 = p_1 p_2, \qquad s^2 + k_1 s + k_0 = (s + p_1)(s + p_2),
-
-so the characteristic polynomial always has the real negative roots ``-p_1, -p_2``. The
-condition reads ``(d/dt + p_1)(d/dt + p_2) h >= 0``; ``ψ_1 = ḣ + p_2 h`` then
-satisfies ``ψ̇_1 >= -p_1 ψ_1``, so ``ψ_1(t) >= ψ_1(0) e^{-p_1 t} >= 0`` when ``ψ_1(0) >= 0``, and
-``ḣ >= -p_2 h`` keeps ``h(t) >= h(0) e^{-p_2 t} >= 0``: in continuous time, and while the condition
-can be met, the safe set is forward invariant from every
-start with ``h(0) >= 0`` and ``ḣ(0) + p_2 h(0) >= 0`` (Nguyen & Sreenath's condition, which needs
-real negative roots; searching ``k_0, k_1`` independently left it whenever ``k_1^2 < 4 k_0``). The
-defaults ``p_1 = p_2 = 1`` are the former ``k_0 = 1, k_1 = 2`` (both roots at -1). The applied
-acceleration is
-
-.. math:: a^* = \arg\min_a \tfrac12 |a - a_\mathrm{mpc}|^2 \;\text{s.t.}\; g_o\cdot a \ge b_o\;\forall o,
-          \quad |a_i| \le a_\mathrm{max},
-
-solved exactly by :func:`jaxapf.projection.nearest_feasible` (each row of ``G`` scaled to unit
-length): in R³ at most three constraints are active, so the solution is the nearest feasible one
-of the candidates that every set of up to three active constraints gives -- a fixed amount of work
-that vmaps and differentiates. When the constraints and the box cannot all hold, the step is
-counted as infeasible (diagnostic ``cbf_infeasible``, metric ``cbf_infeasible_steps``) and the acceleration
-in the box with the least largest violation (nearest ``a_mpc`` among those) is applied. Among many
-obstacles, ``sim.projection_rows`` solves with that many rows at a time (those that can bind soonest,
-then those the answer needs: :func:`~jaxapf.projection.nearest_feasible`); a step whose answer a row
-left out still violates by more than the kept rows is counted (``cbf_truncated``, metric
-``cbf_truncated_steps``; its largest violation then counts in ``cbf_infeasible`` too when above the
-tolerance, though the full problem may have been feasible).
-
-The condition is the continuous-time one, applied with the control held for ``dt``: it guarantees
-nothing between samples, which the swept clearance of the metrics measures.
-
-Robust (``robust_cbf``, input-to-state safety against a bounded disturbance): the UAV's acceleration
-is ``a + e`` with an unknown ``e``, ``|e| <= δ`` (``cbf_margin``): a wind gust, or the error of a
-disturbance estimate the loop already adds (:mod:`jaxapf.control.estimators`). With unit rows the
-worst ``e`` lowers ``g_o·(a + e)`` by ``δ``, so the filter enforces ``g_o·a >= b_o + δ``: the
-condition then holds for every admissible ``e``, at the price of infeasible steps where the box
-cannot absorb ``δ``. That happens where it matters: with the box ``a_max`` fixed, the exponential
-condition asks for more than the box holds when an obstacle closes fast (it does so even with
-``δ = 0``), so it keeps no guarantee against fast movers.
-
-Braking (``braking_cbf``, robust by construction): a barrier that knows the box. With the distance
-``d = |r| - R``, its rate ``ḋ = r̂·w`` and a braking deceleration ``β = κ (a_max - δ)`` held in
-reserve (``κ``: ``cbf_brake`` <= 1/2),
-
-.. math:: h_b = \dot d + φ(d),\quad φ(d) = \begin{cases} \sqrt{2 β d} & d \ge d^* \\ λ d & d < d^* \end{cases},
-          \qquad \ddot d = r̂·(a + e) + c,\quad c = (|w|^2 - \dot d^2)/|r| \ge 0,
-
-``h_b >= 0`` says the closing speed can still be braked to zero, by ``β`` along ``r̂``, before
-contact (the stopping-distance barrier of Ames et al., 2014, "Control barrier function based quadratic
-programs with application to adaptive cruise control", CDC; in the obstacle's frame, inertial as it
-does not accelerate). Its last ``d^* = 2β/λ^2`` metres are an exponential approach at the rate
-``λ = 1/(2Δt)`` the held control can follow (the square root's slope grows without bound at
-contact, and a sampled filter chatters there). ``h_b`` has relative degree one; the filter enforces
-``ḣ_b >= -α h_b`` (``cbf_alpha``) against every ``|e| <= δ``:
-
-.. math:: r̂·a \ge δ - c - φ'(d)\, \dot d - α h_b .
-
-(``φ`` is continuous but not smooth at ``d^*``, where its slope falls from ``λ`` to ``λ/2``: the
-smaller of two barriers.) On the boundary ``h_b = 0`` the right side is ``δ + β - c`` (or
-``δ + λ^2 d - c <= δ + 2β``), at most ``a_max`` as ``κ <= 1/2``, ``δ < a_max`` and the box holds
-``a_max`` in every direction; inside it is smaller: one obstacle never makes a step infeasible from
-the safe set, whatever its speed; several on opposite sides still can (those steps are counted as
-above), and an obstacle first met with ``h_b < 0`` (too close for its closing speed) is outside any
-guarantee (not counted: study 13 checks its episodes' starts itself). The condition is
-continuous-time and the control is held for ``dt``, so ``d`` is measured from ``R + a_max dt²/2``:
-a sampling buffer, the distance an acceleration of ``a_max`` covers from rest in one step.
-"""
+r"""Control-barrier-function safety filters for the double integrator: ``cbf`` (the exponential CBF
+of Nguyen & Sreenath 2016 / Xiao & Belta 2019, one row ``g_o·a >= b_o`` per obstacle, its rates
+``cbf_p1``, ``cbf_p2`` the roots of the characteristic polynomial), ``robust_cbf`` (each row tightened
+by the disturbance bound ``cbf_margin``) and ``braking_cbf`` (a stopping-distance barrier that knows
+the box, ``cbf_brake``, ``cbf_alpha``). Each replaces the MPC's first acceleration by the nearest one
+that keeps every row, solved exactly by :func:`jaxapf.projection.nearest_feasible`; steps where no
+acceleration in the box keeps them all are counted (``cbf_infeasible``), as are rows left out that
+bind (``cbf_truncated``). The barriers, their guarantees and where they end: docs/spec.md, section 4,
+"the CBF safety filter" and "the robust CBFs"."""
 
 from __future__ import annotations
 
