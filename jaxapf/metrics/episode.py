@@ -1,67 +1,10 @@
-r"""The episode's own metrics (SPEC 6): every one is defined here, once, and registered.
+r"""The episode's own metrics (docs/spec.md, section 6): every one defined here, once, and registered.
 
-An episode is a fixed-length scan of ``T`` control steps; termination (goal, collision) is applied
-here by masking, so every episode of a batch has the same shape and every function below is pure,
-``jit``-able (with ``sim`` static) and ``vmap``-able over a batch of trajectories and scenarios.
-
-Time grid
----------
-Samples ``i = 0..T`` at ``t_i = i·dt`` (``traj.time``); interval ``i = [t_i, t_{i+1}]``,
-``i = 0..T-1``, carries the control ``a_i = traj.control[i]``. Obstacles move at constant velocity,
-``centre(t) = position + velocity·t``. ``c_i`` is the swept (segment) clearance of interval ``i``,
-the minimum over valid obstacles of :func:`~jaxapf.datatypes.segment_clearance`
-``(p_i, p_{i+1}, obstacles, t_i, t_{i+1}, r_uav)`` (relative motion linear on the interval, closest
-approach, cylinder projection), +inf if the field has no valid obstacle.
-
-Episode end
------------
-- interval ``i`` collides iff ``c_i < 0``;
-  ``collision_index`` = (first colliding interval) + 1, or ``T + 1`` ("never");
-- ``goal_index`` = first sample ``i`` with ``|p_i - g| <= r_goal``, or ``T + 1`` ("never");
-- ``e = end_index = min(goal_index, collision_index, T)``.
-
-Valid samples are ``0..e``, valid intervals ``0..e-1``. When the goal is reached at the very
-sample that ends a colliding interval (``collision_index == goal_index``) the collision wins.
-
-Metrics (one scalar each, in registration order)
-----------------------------------------------------------
-- ``success``: ``goal_index <= T`` and ``goal_index < collision_index``.
-- ``collision``: ``collision_index <= T`` and ``collision_index <= goal_index``.
-- ``min_clearance``: min of ``c_i`` over valid intervals (+inf with no valid obstacle); if
-  ``e == 0`` the sample clearance at ``i = 0`` instead.
-- ``time_to_goal``: ``goal_index·dt`` if ``success``, else NaN (the only NaN any metric produces).
-- ``path_length``: ``Σ_{valid i} |p_{i+1} - p_i|``.
-- ``path_ratio``: ``path_length / |g - start|`` (``start`` = ``scenario.start``). Degenerate
-  ``start == goal``: ``0/0 := 1`` and ``x/0 := +inf`` for ``x > 0`` (never NaN).
-- ``stalled``: some run of ``n`` consecutive valid samples ``i .. i+n-1``, each with speed
-  ``|v| < v_stall`` and ``|p - g| > r_goal``, has ``n·dt >= t_stall`` and makes no progress:
-  ``|p_i - g| - |p_{i+n-1} - g| < d_progress``. ``n = ceil(t_stall/dt)`` with a relative tolerance
-  of 1e-9 on the quotient, so ``t_stall = 3, dt = 0.1`` needs exactly 30 samples. The progress
-  condition keeps a slow final approach that still closes in (a small attraction gain near the
-  goal) from counting as the local-minimum signature.
-- ``final_distance``: ``|p_e - g|``.
-- ``control_effort``: ``Σ_{valid i} |a_i|²·dt`` (the rectangle rule of ``∫|a|² dt``, exact for
-  piecewise-constant control).
-- ``jerk_rms``: ``j_i = (a_{i+1} - a_i)/dt`` for consecutive valid intervals (``i + 1 <= e - 1``),
-  ``sqrt(mean_i |j_i|²)``; 0 with fewer than two valid intervals.
-- ``max_velocity_excess``: ``max`` over valid samples and axes of ``max(|v_{i,axis}| - v_max, 0)``.
-- ``time_near``: ``dt`` × number of valid intervals with ``c_i < d_safe`` while closing in: the
-  sample clearance to the nearest obstacle falls over the interval, ``n_{i+1} < n_i`` with
-  ``n_i = min_o d_{i,o}``, or the closest approach lies inside it, ``c_i < min(n_i, n_{i+1})``. A UAV
-  hovering still near an obstacle (a stall) accumulates nothing; one approaching or passing does.
-- ``min_ttc``: min over valid samples and valid obstacles of :func:`time_to_collision`
-  ``(p_i, v_i, obstacles, t_i, r_uav)``.
-- ``spl`` (success weighted by path length, Anderson et al. 2018, "On Evaluation of Embodied
-  Navigation Agents", arXiv:1807.06757): ``success · L / max(path_length, L)`` with ``L = |g - start|``,
-  the straight-line distance (a lower bound of the shortest collision-free path, so ``spl`` can only
-  understate an agent's efficiency). In [0, 1]; 1 for a straight successful flight, 0 for a failure;
-  degenerate ``L = 0``: ``success`` if the path length is 0, else 0.
-- ``steps``: ``e`` (int32).
-- ``accel_error_rms``: ``sqrt(mean_i |(v_{i+1} - v_i)/dt - a_i|²)`` over valid intervals: the applied
-  command against the acceleration the plant realised (a plant's lag, a disturbance); 0 with no
-  valid interval. The double integrator in calm air realises its command (up to rounding).
-- ``position_error_max``: ``max_i |p_{i+1} - (p_i + v_i dt + a_i dt²/2)|`` over valid intervals: how
-  far one step of the plant lands from where the MPC's model puts it; 0 with no valid interval.
+An episode is a fixed-length scan; the goal and a collision end it by masking, so every episode of a
+batch has the same shape and each metric is pure, ``jit``-able and ``vmap``-able. Every metric reads
+the shared quantities of one :class:`EpisodeContext` (the swept clearance, the episode's end, the valid
+masks), computed once per trace whatever metrics ask for them. The exact definitions (time grid,
+episode end, each metric's formula) are docs/spec.md's "Exact definitions".
 
 A component that records what only it knows (a filter's infeasible steps, a plant's tilt, a
 sensor's missed obstacles) owns the metric that reads it: registering the component registers the
@@ -69,15 +12,9 @@ metric (``metrics`` of :class:`~jaxapf.control.CBF`, :class:`~jaxapf.world.Quadr
 :class:`~jaxapf.world.NoisySensor`, :class:`~jaxapf.planners.VelocityObstacle`).
 
 Efficiency metrics (``time_to_goal``, ``path_ratio``, ``control_effort``, ``jerk_rms``, ``min_ttc``)
-are registered as meaningful only on successful episodes (``Metric.on_success``): a collision cuts a
-path short and an early stall looks "efficient", so reports compare them on the pairs where both
-settings succeed. ``min_ttc`` is larger in stalled episodes than in successful ones for that reason.
-
-Dtypes: ``success``, ``collision``, ``stalled`` are bool, ``steps`` is int32, all others have the
-trajectory's floating dtype.
-
-Every metric reads the shared quantities of one :class:`EpisodeContext` (the swept clearance, the
-episode end, the valid masks), which are computed once per trace whatever metrics ask for them.
+are meaningful only on successful episodes (``Metric.on_success``): reports compare them on the pairs
+where both settings succeed. ``success``, ``collision``, ``stalled`` are bool, ``steps`` is int32, all
+others have the trajectory's floating dtype.
 """
 
 from __future__ import annotations
