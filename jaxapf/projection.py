@@ -1,62 +1,9 @@
-r"""The point of a polytope in R³ (within a box or a ball) nearest a given point, exactly.
-
-Both the CBF safety filter (accelerations within the MPC's box) and the velocity-obstacle planner
-(velocities within the speed ball) solve
-
-.. math:: x^* = \arg\min_x \tfrac12 |x - x_0|^2 \quad\text{s.t.}\quad g_j\cdot x \ge b_j\;\forall j,
-          \quad x \in S, \qquad S = \{|x_i| \le L\} \text{ or } \{|x| \le L\}.
-
-The minimiser is a projection onto a convex set in R³, so at most three constraints are active at
-it (linearly independent ones; the ball counts as one). :func:`nearest_feasible` forms the
-candidate of every active set -- for planes only, ``x = x_0 + G_Sᵀ (G_S G_Sᵀ)⁻¹ (b_S - G_S x_0)``;
-with the sphere ``|x| = L`` active, ``x_0`` scaled onto it, the point of a plane's circle on the
-sphere nearest ``x_0``, or the two points where two planes' line meets the sphere -- and returns
-the feasible candidate nearest ``x_0``. The work is fixed (``O(K³)`` candidates for ``K`` rows), so
-it vmaps, and it differentiates almost everywhere (through the selected candidate). Iterative
-alternatives measured before this one (a first-order dual method with 60-400 iterations, ADMM with
-30-100) missed an independent QP solver by up to 0.5 on narrow feasible wedges.
-
-When the constraints and ``S`` cannot all hold, the point returned is the one of least violation,
-as RVO2's fallback (its linear program one dimension up) chooses it:
-
-.. math:: t^* = \min_{x \in S} \max_j (b_j - g_j\cdot x), \qquad
-          x^* = \arg\min_x \tfrac12 |x - x_0|^2 \;\text{s.t.}\; g_j\cdot x \ge b_j - t^*,\; x \in S,
-
-the largest violation made as small as ``S`` allows, then the point nearest ``x_0`` among those.
-``t^*`` is found exactly, with fixed work too. In ``(x, t)`` the first problem is ``min t`` s.t.
-``g_j·x + t >= b_j``, ``x ∈ S``. For the box it is a linear program whose optimum is a vertex: four
-active constraints, three of which fix ``x`` as an affine function of ``t`` on a line
-``x_T(t) = G_T⁻¹ (b_T - t r_T)`` (``r = 1`` for a row, 0 for a face of the box), and on that line
-the optimum is the smallest ``t`` the other constraints allow, a ratio test. For the ball the
-optimum is such a vertex inside the ball or lies on the sphere with one to three rows active at
-equal violation: ``L g_j`` (one row), the point of the circle of the plane
-``(g_i - g_j)·x = b_i - b_j`` farthest along ``g_i`` (two), the two points where the line of
-``(g_i - g_j)·x = b_i - b_j, (g_i - g_k)·x = b_i - b_k`` meets the sphere (three). Every such
-candidate is scored by its actual largest violation and ``t^*`` is the least score of those in
-``S``. A feasible problem has ``t^* <= 0`` and is solved exactly as before (``b`` unshifted); an
-infeasible one is solved with ``b - t^*`` (plus a rounding margin of ``4e-6 (1 + L)``). The
-violation returned is the largest of the rows at the returned point.
-
-The work is ``O(M⁴)`` in the ``M`` rows. Among many obstacles most rows hold everywhere in ``S``
-(``b_j + L‖g_j‖ <= 0``, the 1-norm for the box) and cannot change the answer; ``rows = R`` solves with
-``R`` rows at a time, first those of largest ``b_j + L‖g_j‖``. A relaxation's answer that every row left
-out satisfies as well as the kept ones (up to the solver's rounding slack ``1e-6 (1 + L)``) is the full
-problem's (feasible: a relaxation's minimiser that satisfies every row is the minimiser; infeasible:
-the least violation cannot be below the relaxation's, and the point attains it). Otherwise the next
-solve keeps the rows active at that answer and takes the most violated in the other places
-(constraint generation): its problem contains the one the answer solves plus a row it violates, so
-its answer is strictly worse (a larger least violation, or as large and farther from ``x_0``), and no
-set of rows comes back. Up to ``rounds`` solves (8 by default; a ``while_loop``: a batch pays only the
-rounds its hardest problem needs). In float32 a relaxation with two nearly opposite rows (a thin
-wedge) can miss its minimiser by more than the slack and the rounds then cycle; a problem still not
-certified is solved once with ``2R`` rows (the last ``R`` and the ``R`` most violated), keeps the
-``R`` rows of largest value at that answer and is solved with them (a batch pays it only at the steps
-that need it); where only the ``2R`` rows' answer is certified (a sliver of a feasible set that the
-``R`` rows' float32 solve misses, taking its infeasible branch), that answer is returned. The call
-says whether its answer is certified. The rows are chosen without gradients and the answer is the
-one the loop found: one solve per step when nothing is differentiated. Its derivative is that of the
-solve with the ``R`` rows kept (a ``custom_jvp``): the full problem's wherever those rows determine
-the answer; on a step that returns the ``2R`` rows' answer it can miss a row left out.
+r"""The point of a polytope in R³ (within a box or a ball) nearest a given point, exactly
+(:func:`nearest_feasible`): the CBF safety filters' accelerations within the MPC's box and the velocity
+obstacles' velocities within the speed ball. Fixed work (every active set of up to three rows), so it
+vmaps and differentiates almost everywhere; infeasible problems get RVO2's least-violation point; among
+many rows a few are solved at a time and the answer certified (constraint generation). The derivation
+and why it is exact: docs/spec.md, section 4, "The exact projection".
 """
 
 from __future__ import annotations
