@@ -1,55 +1,13 @@
 r"""Velocity obstacles: the preferred velocity, corrected out of the obstacles' ORCA half-spaces.
 
 Van den Berg, Guy, Lin and Manocha ("Reciprocal n-body collision avoidance", ISRR 2009; the RVO2
-library) turn each obstacle into a half-space of permitted velocities, ORCA; for an agent facing
-obstacles that do not react, the agent takes the whole avoidance on itself. Per obstacle ``o`` at
-time ``t``, with the line of sight :math:`s = P(c_o(t) - p)`, the relative velocity
-:math:`w = P(v - v_o)` (``P`` drops z for a cylinder, so a cylinder's constraint is horizontal)
-and the combined radius :math:`R = ρ_o + r_{uav} + m` (gain ``vo_margin`` = m):
-
-- The **velocity obstacle** truncated at the time horizon τ (gain ``vo_tau``) is the set of
-  relative velocities that collide within τ, :math:`\{w : \exists\,t' \in (0, τ],\ |t' w - s| < R\}`:
-  a cone from the origin around ``s`` with half-angle :math:`\arcsin(R/|s|)`, cut off by the disc of
-  centre :math:`s/τ` and radius :math:`R/τ`. (Already overlapping, :math:`|s| \le R`, the cut-off
-  disc uses τ = ``dt``, as RVO2 does, so the step pushes the UAV out.)
-- ``u`` is the smallest change of ``w`` to the boundary of that set and ``n`` the boundary's
-  outward normal there: on the cut-off disc :math:`n = \widehat{w - s/τ}`,
-  :math:`u = (R/τ - |w - s/τ|)\,n`; on the cone, whose leg on the side of ``w`` is
-  :math:`l = \cos α\,\hat s + \sin α\,e` (``e`` the unit part of ``w`` perpendicular to ``s``;
-  for ``w`` along ``s``, the horizontal left normal of ``s``), :math:`u = (w\cdot l)\,l - w` and
-  :math:`n = -\sin α\,\hat s + \cos α\,e`. In the horizontal plane this is RVO2's two-dimensional
-  construction; for spheres it is the same construction in the plane of ``s`` and ``w``.
-- The obstacle's **ORCA half-space** for a non-reactive obstacle is
-  :math:`\{v' : (v' - (v + u))\cdot n \ge 0\}`; for another UAV of a swarm running the same
-  stack (an obstacle flagged ``agent``, :mod:`jaxapf.datatypes.swarm`) it is
-  :math:`\{v' : (v' - (v + u/2))\cdot n \ge 0\}`: each of the two takes half of the avoidance,
-  ORCA's reciprocity.
-
-The new velocity is the one nearest the preferred velocity that lies in every half-space and the
-speed ball,
-
-.. math:: v^* = \arg\min_{v'} |v' - v_{pref}|^2 \ \text{s.t.}\ (v' - v - u_o)\cdot n_o \ge 0\ \forall o,
-          \quad |v'| \le v_{max}, \qquad v_{pref} = \mathrm{sat}_{v_{max}}(η F_{att}(p)),
-
-solved exactly by :func:`jaxapf.projection.nearest_feasible` (fixed work: vmaps and differentiates;
-RVO2 uses an incremental linear program instead). ``v_pref`` is the potential-field planners'
-attractive flow (paper eq. 13's ``U_att``, gains ``k_att`` and ``η``, conic beyond ``att_cap``), so
-without obstacles ``velocity_obstacle`` and ``basic`` fly the same reference. When the half-spaces
-and the ball have no common point (crowded, or already inside an obstacle) the velocity used is the one
-in the ball whose largest violation is least (nearest ``v_pref`` among those), as RVO2's fallback;
-the step is counted as infeasible (its largest violation above
-:data:`~jaxapf.projection.INFEASIBLE_TOL`; diagnostic ``vo_infeasible``, metric
-``vo_infeasible_steps``), as the CBF filter counts its own. With ``sim.projection_rows`` that many
-half-spaces are kept at a time (those that can bind soonest in the ball, then those the answer needs:
-:func:`~jaxapf.projection.nearest_feasible`); a step whose answer a half-space left out still
-violates by more than the kept ones is counted (``vo_truncated``, metric ``vo_truncated_steps``; its
-largest violation then counts in ``vo_infeasible`` too when above the tolerance).
-
-The reference for the MPC holds ``v*`` over the horizon, ``p_i = p + i Δt v*``, assembled like the
-potential-field planners' (:func:`~jaxapf.planners.base.reference_states`); the receding horizon
-re-solves every control step. The planner's state is the last step's ``vo_infeasible`` and
-``vo_truncated`` flags (read by :meth:`VelocityObstacle.diagnostics`). Every valid obstacle counts,
-static or moving, at its true position and velocity; a static obstacle is an agent of velocity zero.
+library): each obstacle becomes a half-space of permitted velocities (ORCA); the reference holds the
+velocity nearest the attractive flow ``sat(η F_att)`` within every half-space and the speed ball over
+the horizon, solved exactly by :func:`jaxapf.projection.nearest_feasible` (RVO2's least-violation
+velocity where none fits, counted as ``vo_infeasible``). Against a non-reactive obstacle the UAV takes
+the whole avoidance; against another UAV of a swarm (an obstacle flagged ``agent``) half of it, ORCA's
+reciprocity. The construction (the truncated cone, the smallest change ``u``, its normal ``n``):
+docs/spec.md, section 3, "velocity obstacles".
 
 Registered planners: ``velocity_obstacle`` (gains ``vo_tau``, ``vo_margin``, ``k_att``, ``eta``), and
 ``velocity_obstacle_unilateral``, the same but taking the whole avoidance against other UAVs too (ORCA
