@@ -42,6 +42,10 @@ BASE = "double_integrator"
 #: The plants in ladder order, each with what it adds to the one before (first_principles: apart).
 PLANTS = {BASE: "the MPC's model", "crazyflie_so_rpy": "attitude response", "crazyflie_so_rpy_rotor": "thrust lag",
           "crazyflie_so_rpy_rotor_drag": "body drag", "crazyflie_first_principles": "motor speeds, onboard Mellinger"}
+#: The estimator ablation (not in the verdicts): two plants flown again without the integral action.
+#: The ladder's rungs above so_rpy and the rung below each (their step's own paired comparison).
+RUNGS = {"crazyflie_so_rpy_rotor": "crazyflie_so_rpy", "crazyflie_so_rpy_rotor_drag": "crazyflie_so_rpy_rotor"}
+CHECKS = {f"{BASE}/no_estimator": BASE, "crazyflie_so_rpy/no_estimator": "crazyflie_so_rpy"}
 LADDER = (("crazyflie_so_rpy", BASE), ("crazyflie_so_rpy_rotor", "crazyflie_so_rpy"),
           ("crazyflie_so_rpy_rotor_drag", "crazyflie_so_rpy_rotor"), ("crazyflie_first_principles", BASE))
 SEEDS = (1, 2, 3)
@@ -60,8 +64,9 @@ def short(plant: str) -> str:
 
 
 def fly(spec, source: pathlib.Path, cache: pathlib.Path = study.ROOT / "runs" / "identified-vehicle") -> pd.DataFrame:
-    """One row per (plant, method, seed, field): every method's three selections (``source``) as one vmap
-    per plant, each (plant, method) cached in ``cache`` as soon as it is flown."""
+    """One row per (arm, method, seed, field) in the ``plant`` column, every plant of :data:`PLANTS` and the
+    arms of :data:`CHECKS` (the plant without the estimator): every method's three selections (``source``) as
+    one vmap per arm, each (arm, method) cached in ``cache`` as soon as it is flown."""
     from jaxapf import Gains
     from jaxapf.config import MPCConfig, SimConfig
     from jaxapf.engine import evaluate
@@ -70,12 +75,14 @@ def fly(spec, source: pathlib.Path, cache: pathlib.Path = study.ROOT / "runs" / 
     groups = fields(spec, spec.test.fields, spec.test.seed)
     t_max = max(spec_t_max(spec, f) for f in spec.test.families)
     frames = []
-    for plant in PLANTS:
+    arms = {p: (p, {}) for p in PLANTS} | {arm: (p, {"estimator": "none"}) for arm, p in CHECKS.items()}
+    for arm, (plant, changes) in arms.items():
         for method in spec.methods:
-            path = cache / f"{plant}-{method.replace('+', '_')}.parquet"
+            path = cache / f"{arm.replace('/', '-')}-{method.replace('+', '_')}.parquet"
             if not path.exists():
                 planner, _, safety = method.partition("+")
-                sim = SimConfig.from_flat(**spec.sim, method=planner, filter=safety or "none", t_max=t_max, plant=plant)
+                sim = SimConfig.from_flat(**(dict(spec.sim) | changes), method=planner, filter=safety or "none",
+                                          t_max=t_max, plant=plant)
                 batch = jax.tree_util.tree_map(lambda *x: np.asarray(x, np.float32),
                                                *[Gains(**tuned_gains(method, s, source)) for s in SEEDS])
                 rows, start = [], time.perf_counter()
@@ -84,10 +91,10 @@ def fly(spec, source: pathlib.Path, cache: pathlib.Path = study.ROOT / "runs" / 
                     for i, seed in enumerate(SEEDS):
                         count = spec.test.fields
                         rows.append(pd.DataFrame({k: np.asarray(v[i]) for k, v in got.items()}).assign(
-                            plant=plant, method=method, seed=seed, family=family,
+                            plant=arm, method=method, seed=seed, family=family,
                             field=[j % count for j in range(len(family))]))
                 pd.concat(rows, ignore_index=True).assign(seconds=time.perf_counter() - start).to_parquet(path)
-                print(f"  {plant} {method}: done", flush=True)
+                print(f"  {arm} {method}: done", flush=True)
                 jax.clear_caches()  # each cell compiles its own programs: free them (a long run ran out of maps)
             frames.append(pd.read_parquet(path))
     return pd.concat(frames, ignore_index=True)
@@ -135,8 +142,10 @@ def rank_agreement(success: np.ndarray, strata: np.ndarray, resamples: int) -> d
 
 def comparisons(success: np.ndarray, spec) -> pd.DataFrame:
     """Every paired comparison on success with its verdict (one Holm over all): each (plant, method ≠ basic,
-    seed) against ``basic`` of the same seed and plant (``against = "basic"``), and each (Crazyflie plant,
-    method, seed) against the same selection on the double integrator (``against = "double_integrator"``)."""
+    seed) against ``basic`` of the same seed and plant (``against = "basic"``), each (Crazyflie plant,
+    method, seed) against the same selection on the double integrator (``against = "double_integrator"``), and
+    on the rungs above so_rpy against the rung below (``against = "rung"``: the thrust lag's and the drag's
+    own effect)."""
     plants, methods = list(PLANTS), list(spec.methods)
     b = methods.index(spec.baseline)
     rows = []
@@ -150,22 +159,37 @@ def comparisons(success: np.ndarray, spec) -> pd.DataFrame:
                 if i:
                     rows.append({"plant": plant, "method": method, "seed": seed, "against": BASE}
                                 | study.paired_success(now, success[0, j, k].astype(bool), MARGIN))
+                if plant in RUNGS:  # the ladder's step itself, where its lower rung is not the double integrator
+                    rows.append({"plant": plant, "method": method, "seed": seed, "against": "rung"}
+                                | study.paired_success(now, success[plants.index(RUNGS[plant]), j, k].astype(bool),
+                                                       MARGIN))
     return study.mark_verdicts(rows, MARGIN)
 
 
 def verdict_changes(table: pd.DataFrame) -> dict:
-    """Per ladder step: the (method, seed) whose verdict against ``basic`` differs between the two plants, and how
-    many of them turn from better to worse or back (``reversed``)."""
+    """Per ladder step: the (method, seed) whose verdict against ``basic`` differs between the two plants, how
+    many of them turn from better to worse or back (``reversed``), those whose difference to ``basic`` changes
+    sign beyond the margin whatever the verdicts (``flips``), and the step's own effect on each (method, seed)'s
+    success (``step_effect``: its verdicts against the rung below)."""
     vs = table[table["against"] == "basic"].set_index(["plant", "method", "seed"])["verdict"]
+    est = table[table["against"] == "basic"].set_index(["plant", "method", "seed"])["success_change"]
     out = {}
     for plant, other in LADDER:
+        flips = [{"method": m, "seed": int(s), "before": float(est[(other, m, s)]), "after": float(est[(plant, m, s)])}
+                 for (p, m, s) in est.index if p == plant
+                 and max(est[(other, m, s)], est[(plant, m, s)]) > MARGIN
+                 and min(est[(other, m, s)], est[(plant, m, s)]) < -MARGIN]
+        own = table[(table["plant"] == plant) & (table["against"] == (BASE if other == BASE else "rung"))]
+        effect = {v: int((own["verdict"] == v).sum()) for v in ("worse", "better", "equivalent", "inconclusive")}
         changed = [f"{m}/{s}: {vs[(other, m, s)]} → {vs[(plant, m, s)]}"
                    for (p, m, s) in vs.index if p == plant and vs[(plant, m, s)] != vs[(other, m, s)]]
         reversed_ = sum({vs[(other, m, s)], vs[(plant, m, s)]} == {"better", "worse"}
                         for (p, m, s) in vs.index if p == plant)
         out[f"{short(plant)}/{short(other)}"] = {"count": len(changed), "of": int((vs.index.get_level_values(0)
                                                                                   == plant).sum()),
-                                                 "reversed": int(reversed_), "changes": changed}
+                                                 "reversed": int(reversed_), "changes": changed,
+                                                 "estimate_reversed": len(flips), "flips": flips,
+                                                 "step_effect": effect}
     return out
 
 
@@ -212,10 +236,23 @@ def protocol(spec) -> dict:
             "selection_seeds": list(spec.selection.seeds)}
 
 
+def no_estimator(df: pd.DataFrame, spec) -> dict:
+    """The estimator ablation: the share of double-integrator episodes whose outcome (success, collision) is the
+    same without the integral action, and each method's success on so_rpy without it (mean over the seeds)."""
+    key = ["method", "seed", "family", "field"]
+    with_, without = (df[df["plant"] == arm].set_index(key)[["success", "collision"]].sort_index()
+                      for arm in (BASE, f"{BASE}/no_estimator"))
+    same = (with_ == without).all(axis=1)
+    so = df[df["plant"] == "crazyflie_so_rpy/no_estimator"].groupby(["method", "seed"])["success"].mean()
+    return {"double_integrator_same": float(same.mean()), "double_integrator_episodes": int(len(same)),
+            "so_rpy_success": {m: float(so[m].mean()) for m in spec.methods}}
+
+
 def summarise(df: pd.DataFrame, spec, table: pd.DataFrame, ranks: dict, selection: pd.DataFrame) -> dict:
     """The named values of the findings (facts.json), but the check against the compare test sweep."""
     means = df.groupby(["plant", "method", "seed"])[list(RATES)].mean()
-    facts: dict = {"methods": len(spec.methods), "seeds": len(SEEDS), "budget": spec.selection.budget,
+    facts: dict = {"methods": len(spec.methods), "seeds": len(SEEDS), "pairs": len(spec.methods) * len(SEEDS),
+                   "budget": spec.selection.budget,
                    "fields_per_family": spec.test.fields, "families": len(spec.test.families),
                    "comparisons": len(table), "rank": ranks, "verdict_changes": verdict_changes(table)}
     for metric in RATES:
@@ -227,6 +264,10 @@ def summarise(df: pd.DataFrame, spec, table: pd.DataFrame, ranks: dict, selectio
                                                        part[part["plant"] == p].groupby("method", sort=False)}
                                             for p in PLANTS if p in set(part["plant"])}
     facts["protocol"] = protocol(spec)
+    facts["no_estimator"] = no_estimator(df, spec)
+    changes = facts["verdict_changes"]
+    facts["method_changes"] = {m: sum(c.startswith(f"{m}/") for step in changes.values() for c in step["changes"])
+                               for m in spec.methods if m != spec.baseline}
     facts["worse_than_on_double_integrator"] = {
         plant: sum(v == "worse" for v in verdicts.values())
         for plant, verdicts in facts[f"all_seeds_vs_{BASE}"].items()}
@@ -237,6 +278,8 @@ def summarise(df: pd.DataFrame, spec, table: pd.DataFrame, ranks: dict, selectio
     facts["selection_spent"] = {m: {"episodes": int(g["episodes"].min()),
                                     "seconds": float(g["seconds"].mean())}
                                 for m, g in selection.groupby("method", sort=False)}
+    facts["chose_defaults"] = {m: int((g["chosen"] == "defaults").sum())
+                               for m, g in selection.groupby("method", sort=False)}
     facts["flight_seconds"] = {short(p): {m: float(g["seconds"].iloc[0]) for m, g in
                                           df[df["plant"] == p].groupby("method", sort=False)} for p in PLANTS}
     return facts
@@ -259,7 +302,8 @@ def page(facts: dict, spec, table: pd.DataFrame) -> list[str]:
              "What was scaled: [`sweeps/crazyflie-scaled.toml`](../../../sweeps/crazyflie-scaled.toml).", "",
              "## Does the ranking carry?", "",
              "Spearman's ρ of the nine methods' pooled success (mean over the three selections) between two plants, "
-             "95 % bootstrap interval over the fields, and ρ of each selection seed's gains alone:", "",
+             "95 % bootstrap interval over the fields (the three selections held fixed: it does not cover the "
+             "selection's own randomness, which the seeds' ρ show), and ρ of each selection seed's gains alone:", "",
              "| step | what it adds | ρ | interval | seeds 1, 2, 3 | verdicts against `basic` changed |",
              "|---|---|---|---|---|---|"]
     for plant, other in LADDER:
@@ -272,9 +316,32 @@ def page(facts: dict, spec, table: pd.DataFrame) -> list[str]:
         r = facts["rank"][f"{short(plant)}/{short(BASE)}"]
         lines.append(f"| {short(BASE)} → {short(plant)} | the ladder so far | {r['rho']:.2f} | "
                      f"[{r['lo']:.2f}, {r['hi']:.2f}] | {', '.join(f'{x:.2f}' for x in r['per_seed'])} | – |")
-    lines += ["", "Verdicts that changed along a step (method/seed: before → after):", ""]
+    lines += ["", "Verdicts against `basic` that changed along a step (method/seed: before → after):", ""]
     for key, c in facts["verdict_changes"].items():
         lines.append(f"- {key.replace('/', ' from ')}: " + ("; ".join(c["changes"]) if c["changes"] else "none"))
+    lines += ["", "Differences to `basic` that change sign beyond the margin along a step, whatever their verdicts:",
+              ""]
+    for key, c in facts["verdict_changes"].items():
+        lines.append(f"- {key.replace('/', ' from ')}: " + ("; ".join(
+            f"{x['method']}/{x['seed']}: {100 * x['before']:+.1f} → {100 * x['after']:+.1f} points" for x in c["flips"])
+            if c["flips"] else "none"))
+    lines += ["", "Per method, how many of its twelve verdicts against `basic` (four steps, three seeds) changed: "
+              + ", ".join(f"`{m}` {n}" for m, n in facts["method_changes"].items()) + ".", "",
+              "## What each step does itself", "",
+              "Each (method, selection) on a rung against itself on the rung below (so_rpy and first_principles: "
+              "against the double integrator), on success, in the study's Holm family:", "",
+              "| step | worse | better | equivalent | inconclusive |", "|---|---|---|---|---|"]
+    for plant, other in LADDER:
+        e = facts["verdict_changes"][f"{short(plant)}/{short(other)}"]["step_effect"]
+        lines.append(f"| {short(other)} → {short(plant)} | {e['worse']} | {e['better']} | {e['equivalent']} | "
+                     f"{e['inconclusive']} |")
+    ne = facts["no_estimator"]
+    lines += ["", "## Without the integral action (the estimator ablation)", "",
+              f"On the double integrator {100 * ne['double_integrator_same']:.2f} % of the "
+              f"{ne['double_integrator_episodes']:,} episodes end the same (success, collision) without it. On so_rpy "
+              "without it, success, mean over the seeds: " + ", ".join(
+                  f"`{m}` {100 * v:.1f} % (with it {100 * facts['success']['so_rpy'][m]:.1f} %)"
+                  for m, v in ne["so_rpy_success"].items()) + "."]
     lines += ["", "## Success [%] per plant", "",
               "Pooled over the families, mean over the three selections; the marks: each seed's verdict against "
               "`basic` of the same selection on the same plant (↑ better, ↓ worse, = equivalent, · inconclusive). "
@@ -316,11 +383,17 @@ def figure(facts: dict, spec, df: pd.DataFrame, path: pathlib.Path) -> None:
     per_seed = df.groupby(["plant", "method", "seed"])["success"].mean()
     fig, ax = plt.subplots(figsize=(8.5, 4.6), dpi=110)
     x = np.arange(len(PLANTS))
+    ladder = [p for p in PLANTS if p != "crazyflie_first_principles"]
     for i, method in enumerate(facts["ranking"][BASE]):
         seeds = np.array([[per_seed[(p, method, s)] for s in SEEDS] for p in PLANTS]) * 100
         offset = (i - len(spec.methods) / 2) * 0.03
-        ax.errorbar(x + offset, seeds.mean(1), yerr=[seeds.mean(1) - seeds.min(1), seeds.max(1) - seeds.mean(1)],
-                    marker="o", ms=4, capsize=2, lw=1.2, label=method)
+        mean, lo, hi = seeds.mean(1), seeds.min(1), seeds.max(1)
+        line = ax.errorbar(x[:len(ladder)] + offset, mean[:len(ladder)], yerr=[(mean - lo)[:len(ladder)],
+                           (hi - mean)[:len(ladder)]], marker="o", ms=4, capsize=2, lw=1.2, label=method)
+        ax.errorbar(x[len(ladder):] + offset, mean[len(ladder):], yerr=[(mean - lo)[len(ladder):],
+                    (hi - mean)[len(ladder):]], marker="s", ms=4, capsize=2, lw=0, elinewidth=1.2,
+                    color=line[0].get_color())
+    ax.axvline(len(ladder) - 0.5, color="0.6", lw=0.8, ls="--")
     ax.set_xticks(x, [short(p) for p in PLANTS])
     ax.set_ylabel("held-out success [%]")
     ax.set_title("Study 18: the planners on the double integrator and the Crazyflie models", fontsize=10)

@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from ..config import SimConfig
 from ..gains import Gains
 from ..io.lock import write_atomic
 from ..tune import TuneError, Tuner, parse_tune_spec
@@ -72,8 +73,22 @@ def spec_digest(spec: CompareSpec) -> str:
 
     fields = {k: v for k, v in dataclasses.asdict(spec).items()
               if k != "plugin_paths" and not (k == "gains" and not v)}  # no [gains]: the digest it always had
+    t_max = selection_t_max(spec)
+    if t_max != SimConfig().episode.t_max:  # selections run at 60 s before the families' own length was read
+        fields["selection_t_max"] = t_max
     text = json.dumps(fields, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()
+
+
+def selection_t_max(spec: CompareSpec) -> float:
+    """The episode length the selection flies: ``[sim] t_max`` if the spec sets it, else the longest of its
+    training families' own (the test sweep flies each family its own, as every sweep does: the same length
+    wherever the families agree)."""
+    from ..spec.scenario import spec_family_params
+
+    if "t_max" in spec.sim:
+        return float(spec.sim["t_max"])
+    return max(spec_family_params(f, spec.params.get(f, {})).t_max for f in spec.selection.families)
 
 
 def _free_seed(start: int, taken: set[int]) -> int:
@@ -104,7 +119,8 @@ def tune_spec(spec: CompareSpec, method: str, seed: int, steps: int = 1):
                   "fields_per_step": options.pop("fields_per_step", max(16, len(sel.families))), **options},
         "validation": {"fields": validation_fields, "seed": validation_seed},
         "test": {"families": [sel.families[0]], "fields": 1, "seed": test_seed},
-        "sim": {**{k: list(v) if isinstance(v, tuple) else v for k, v in spec.sim.items()}, **spec.settings(method)},
+        "sim": {**{k: list(v) if isinstance(v, tuple) else v for k, v in spec.sim.items()}, **spec.settings(method),
+                "t_max": selection_t_max(spec)},
         "scenario": {"params": {f: dict(p) for f, p in spec.params.items() if f in sel.families}},
         "objective": dict(spec.objective),
         "init": dict(spec.gains),

@@ -294,3 +294,37 @@ def test_shards_of_a_comparison_give_the_one_process_selections_and_test_rows(ru
     drop = lambda sels: [{k: v for k, v in s.items() if k != "seconds"} for s in sels]  # noqa: E731
     assert drop(final["selections"]) == drop(summary["selections"])
     pd.testing.assert_frame_equal(read_sweep(out / "test.parquet")[0], read_sweep(reference / "test.parquet")[0])
+
+
+def test_the_selection_flies_the_families_own_episode_length():
+    """Selection and test fly one episode length: the families' own where [sim] sets none (a scaled family's
+    30 s; the selection once flew the default 60 s), [sim] t_max where it is set; specs of 60 s families keep
+    their digest (their selections stay valid)."""
+    from jaxapf.compare.select import selection_t_max, spec_digest, tune_spec
+
+    scaled = {"family": "crossing", "scale": {"length": 0.25, "speed": 0.5}}
+    data = copy.deepcopy(TINY)
+    data["sim"].pop("t_max")
+    data["selection"]["families"] = ["crossing_cf"]
+    data["test"]["families"] = ["crossing_cf"]
+    data["scenario"]["params"] = {"crossing_cf": scaled}
+    spec = parse_compare_spec(data)
+    assert selection_t_max(spec) == 30.0 == tune_spec(spec, "basic", 1).sim.episode.t_max
+    data["sim"]["t_max"] = 12.0
+    assert tune_spec(parse_compare_spec(data), "basic", 1).sim.episode.t_max == 12.0
+    sixty = copy.deepcopy(TINY)
+    sixty["sim"].pop("t_max")
+    sixty["scenario"]["params"] = {}
+    plain = parse_compare_spec(sixty)
+
+    def before(spec):  # the digest as it was, without the selection's episode length
+        import dataclasses
+        import hashlib
+
+        fields = {k: v for k, v in dataclasses.asdict(spec).items()
+                  if k != "plugin_paths" and not (k == "gains" and not v)}
+        return hashlib.sha256(json.dumps(fields, sort_keys=True, default=str).encode()).hexdigest()
+
+    assert selection_t_max(plain) == 60.0 and spec_digest(plain) == before(plain)
+    data["sim"].pop("t_max")
+    assert spec_digest(parse_compare_spec(data)) != before(parse_compare_spec(data))
