@@ -468,8 +468,8 @@ def _sigint_stream(stream: int, trials: int, spec: pathlib.Path, cache: pathlib.
         elif (run.returncode == 130 and len(lines) == 1 and "interrupted; " in lines[0]
               and lines[0].startswith("jaxapf")):
             seen["stopped"] += 1
-        elif moment < startup and run.returncode != 0:  # the interpreter itself was starting: Python's own
-            seen["interpreter"] += 1
+        elif run.returncode != 0 and (moment < startup or "Fatal Python error: init_import_site" in stderr):
+            seen["interpreter"] += 1  # the interpreter itself was starting (on a loaded machine past `startup`)
         else:
             seen["bad"].append((moment, run.returncode, stderr[-2000:]))
     return seen
