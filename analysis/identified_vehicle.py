@@ -20,8 +20,8 @@ integrator, on success (exact McNemar and TOST within 2 points, Holm over every 
 read off the ladder double integrator → so_rpy (attitude response) → so_rpy_rotor (thrust lag) →
 so_rpy_rotor_drag (body drag); first_principles stands apart (another command path).
 
-    python analysis/identified_vehicle.py     # on 2 cores: selection ~13 min, the compare test ~10 min, the
-                                              # flights ~14 min (each plant and method cached under runs/)
+    python analysis/identified_vehicle.py     # on 2 cores: selection ~6 min, the compare test ~10 min, the
+                                              # flights ~12 min (each arm and method cached under runs/)
 """
 
 from __future__ import annotations
