@@ -134,9 +134,10 @@ def rank_agreement(success: np.ndarray, strata: np.ndarray, resamples: int) -> d
         i, j = plants.index(plant), plants.index(other)
         rho = float(spearman(scores[i].mean(-1), scores[j].mean(-1)))
         reps = spearman(boot[i].T, boot[j].T)
-        lo, hi = np.nanpercentile(reps, [2.5, 97.5])
+        lo, hi = np.nanpercentile(reps, [2.5, 97.5])  # a replicate with every method tied has no rank: counted
         per_seed = [float(spearman(success[i, :, k].mean(-1), success[j, :, k].mean(-1))) for k in range(len(SEEDS))]
-        out[f"{short(plant)}/{short(other)}"] = {"rho": rho, "lo": float(lo), "hi": float(hi), "per_seed": per_seed}
+        out[f"{short(plant)}/{short(other)}"] = {"rho": rho, "lo": float(lo), "hi": float(hi), "per_seed": per_seed,
+                                                 "tied_replicates": int(np.isnan(reps).sum())}
     return out
 
 
