@@ -1,51 +1,15 @@
 r"""The quadrotor of the paper's section 2.1 (eq. 1–3) as a plant, with its inner attitude loop.
 
-The MPC keeps planning with the double integrator (paper eq. 4–7); this plant realises its
-acceleration command ``a`` through a rigid body with four rotors, at ``sim.vehicle.substeps`` inner
-steps of ``h = Δt / substeps`` per control step:
-
-1. **thrust vector** (outer to inner loop): the body's z axis must point along
-   ``w = g e_z - a`` (eq. 1 with ``p̈ = a``); ``w_z`` is kept at least ``g/5`` (a rotor cannot pull
-   down) and the horizontal part of ``w`` is shortened until ``w`` lies within ``tilt_max`` of
-   ``e_z``. The attitude setpoint ``R_d`` has ``b3 = w/|w|`` and zero yaw; the collective thrust is
-   ``F_T = m w·b3`` (the projection onto the current body axis, as Lee et al. 2010);
-2. **attitude controller**: the geometric SO(3) controller of Lee, Leok and McClamroch (CDC 2010,
-   "Geometric tracking control of a quadrotor UAV on SE(3)"),
-   ``τ = J(-ω_n² e_R - 2ζω_n ω) + ω × Jω`` with ``e_R = ½ vee(R_dᵀR - RᵀR_d)``: near hover every
-   axis is a second-order loop of natural frequency ``att_omega`` and damping ``att_zeta``;
-3. **rotors**: ``(F_T, τ)`` are mapped to the four rotor forces by the inverse of eq. 3's
-   allocation, clipped to ``[0, f_max]`` (saturation), and each rotor follows its command with a
-   first-order lag ``motor_tau`` (0: no lag), integrated exactly over a sub-step with the command
-   held: ``F(s) = c + (F_0 - c) e^{-s/τ}``. The state takes the end value; the body feels the
-   force's exact mean over the sub-step, ``c + (F_0 - c)(τ/h)(1 - e^{-h/τ})`` (rates and velocity),
-   and for the position its exact weight ``(2/h²)∫_0^h (h - s) F(s) ds``
-   ``= c + (F_0 - c)(2τ/h)(1 - (τ/h)(1 - e^{-h/τ}))``. (Applying the end value over the whole
-   sub-step, as before, made the lag act about ``h/2`` shorter than ``τ``.)
-4. **rigid body**: eq. 1 for the translation (plus the disturbance), eq. 3 (Euler's equation)
-   ``J ω̇ = τ - ω × Jω`` for the body rates, the attitude as a unit quaternion ``q`` with
-   ``q̇ = ½ q ⊗ (0, ω)``. Over a sub-step the body rates take an Euler step, the attitude turns by
-   the exact rotation of the new rates (re-normalised, so ``R(q)`` stays orthonormal) and position
-   and velocity integrate the sub-step's rotor force exactly (the thrust axis held at its
-   start-of-sub-step direction).
-
-Frames (SPEC 1): the paper's eq. 1 puts gravity ``+G`` on z and the thrust along the body's ``-z``:
-its world frame is z down, its body frame forward-right-down. jaxapf's world frame is z up, so the
-plant works in the paper's frame ``W_p``, jaxapf's turned by π about x (``S = diag(1, -1, -1)``,
-``p_p = S p``), and reports ``[p, v]`` in jaxapf's frame. ``R = R(q)`` maps body to ``W_p``; it is a
-proper rotation, unlike the paper's printed eq. 2 (docs/spec.md, section 7). Rotors are numbered
-as eq. 3: 1 front (+x_b), 2 left (-y_b), 3 back, 4 right, so that
-
-.. math::  τ = \begin{pmatrix} L(F_2 - F_4) \\ L(F_1 - F_3) \\ c_τ(F_2 + F_4 - F_1 - F_3)\end{pmatrix}
-
-**Reference vehicle** (:data:`HUMMINGBIRD`): the AscTec Hummingbird as RotorS models it
-(``rotors_description/urdf/hummingbird.xacro``, Furrer et al. 2016): m = 0.68 kg,
-J = diag(0.007, 0.007, 0.012) kg m², L = 0.17 m, c_τ = 0.016 m, f_max = 8.54858e-6 N s² ·
-(838 rad/s)² = 6.0 N per rotor (thrust-to-weight 3.6), motor time constant 0.0125 s (RotorS's
-spin-up; its spin-down is 0.025 s).
-
-Diagnostics per control step: ``tilt`` [rad], the largest angle between the body's z axis and the
-vertical over the step's sub-steps, and ``saturated_time`` [s], the time during which some rotor's
-command was clipped.
+The MPC keeps planning with the double integrator; this plant realises its acceleration command
+through a rigid body with four rotors at ``sim.vehicle.substeps`` sub-steps per control step: the thrust
+vector the command asks for (within ``tilt_max``), Lee, Leok and McClamroch's geometric attitude loop
+(``att_omega``, ``att_zeta``), the rotors' allocation, saturation and exactly integrated lag
+(``motor_tau``), and the rigid body in the paper's z-down frame with a unit quaternion (so ``R`` is a
+proper rotation, unlike the paper's printed eq. 2). It reports ``tilt`` and ``saturated_time`` per step.
+The reference vehicle is the AscTec Hummingbird as RotorS models it (:data:`HUMMINGBIRD`). The stages'
+equations, the frames and the parameters: docs/spec.md, section 1. The helpers shared with the
+Crazyflie plants (:mod:`jaxapf.world.crazyflie`) are :func:`limit_thrust`, :func:`attitude_setpoint`,
+:func:`attitude_torque` and :func:`rigid_body_step`.
 """
 
 from __future__ import annotations
