@@ -1,39 +1,12 @@
 r"""The metrics of a swarm episode: every UAV's outcome, the swarm's, and how they met each other.
 
-A swarm episode (:func:`~jaxapf.engine.swarm.swarm_rollout`) is ``A`` trajectories on one time grid
-(:mod:`jaxapf.metrics.episode`'s). Per UAV ``a`` (valid slots only):
-
-- ``c^{ab}_i``: the swept clearance of UAVs ``a`` and ``b`` over interval ``i``, both moving linearly
-  (the closest approach of their relative motion) less ``2 r_uav``;
-- its obstacle collision ``o_a`` (the single-UAV rule against the field's obstacles), its goal
-  index ``g_a``; a pair collides on interval ``i`` iff ``c^{ab}_i < 0`` while neither has hit an
-  obstacle (``i < o_a, o_b``: a crashed UAV's later flight is not physics); ``k_a`` = its first
-  such interval + 1 (``T + 1``: never). A UAV at its goal hovers there and still counts;
-- ``success_a``: ``g_a <= T`` and ``g_a < min(o_a, k_a)``; its end ``e_a = min(g_a, o_a, k_a, T)``;
-  the swarm's end ``E = max_a e_a`` (the streaming engine stops a swarm when every UAV has ended).
-
-Metrics (one scalar each per episode):
-
-- ``at_goal``: the fraction of UAVs that succeed; ``swarm_success``: all of them do.
-- ``agent_collision``: some pair collides (before ``E``); ``obstacle_collision``: some UAV hits an obstacle
-  before reaching its goal.
-- ``min_agent_clearance``: the smallest ``c^{ab}_i`` over pairs and intervals ``i < E`` while
-  neither has hit an obstacle (+inf for one UAV).
-- ``deadlock``: some window of ``n`` samples (``n·dt >= t_stall``, as ``stalled``) in ``0..E`` in
-  which at least one UAV is still on its way (not yet at its goal, not crashed) and every such UAV
-  gets less than ``d_progress`` closer to its goal: nobody makes progress while goals remain.
-- ``makespan``: the last arrival time if every UAV succeeds, else NaN;
-  ``mean_time_to_goal``: the mean arrival time of those that succeed (NaN if none).
-- ``arrival_fairness``: Jain's index ``(Σ s_a)² / (n Σ s_a²)`` of the arrived UAVs' slowdowns
-  ``s_a = t_a / |g_a - start_a|`` (seconds per metre of straight line), in ``(0, 1]``, 1 when every
-  UAV is held up alike; NaN if none arrives.
-
-A swarm's rows also hold every count of a component's per-step diagnostic
-(:meth:`Metric.flagged_steps <jaxapf.metrics.Metric.flagged_steps>`: ``cbf_infeasible_steps``,
-``cbf_truncated_steps``, ``vo_infeasible_steps``, ``vo_truncated_steps``, ``unseen_steps``), the
-single-UAV metric of that name summed over the UAVs too, each UAV's steps before its end
-(:func:`swarm_metric_names`); ``cbf_truncated_steps = vo_truncated_steps = 0`` means every
-projection of the episode was certified exact.
+A swarm episode (:func:`~jaxapf.engine.swarm.swarm_rollout`) is ``A`` trajectories on one time grid. Its
+metrics: ``at_goal`` and ``swarm_success``, ``agent_collision`` and ``obstacle_collision``,
+``min_agent_clearance``, ``deadlock``, ``makespan`` and ``mean_time_to_goal``, and ``arrival_fairness``
+(Jain's index of the arrivals' slowdowns); a swarm's rows also hold every component's per-step
+diagnostic count summed over the UAVs (:func:`swarm_metric_names`). Their exact definitions (a pair's
+swept clearance, when a pair collides, each UAV's end and the swarm's): docs/spec.md, "Beyond the paper:
+swarms".
 
 Each is a :class:`~jaxapf.metrics.Metric` of :data:`SWARM_METRICS` whose function reads the
 :class:`SwarmContext`, which computes every shared quantity once (as
