@@ -42,9 +42,9 @@ BASE = "double_integrator"
 #: The plants in ladder order, each with what it adds to the one before (first_principles: apart).
 PLANTS = {BASE: "the MPC's model", "crazyflie_so_rpy": "attitude response", "crazyflie_so_rpy_rotor": "thrust lag",
           "crazyflie_so_rpy_rotor_drag": "body drag", "crazyflie_first_principles": "motor speeds, onboard Mellinger"}
-#: The estimator ablation (not in the verdicts): two plants flown again without the integral action.
 #: The ladder's rungs above so_rpy and the rung below each (their step's own paired comparison).
 RUNGS = {"crazyflie_so_rpy_rotor": "crazyflie_so_rpy", "crazyflie_so_rpy_rotor_drag": "crazyflie_so_rpy_rotor"}
+#: The estimator ablation (not in the verdicts): two plants flown again without the integral action.
 CHECKS = {f"{BASE}/no_estimator": BASE, "crazyflie_so_rpy/no_estimator": "crazyflie_so_rpy"}
 LADDER = (("crazyflie_so_rpy", BASE), ("crazyflie_so_rpy_rotor", "crazyflie_so_rpy"),
           ("crazyflie_so_rpy_rotor_drag", "crazyflie_so_rpy_rotor"), ("crazyflie_first_principles", BASE))
@@ -89,10 +89,9 @@ def fly(spec, source: pathlib.Path, cache: pathlib.Path = study.ROOT / "runs" / 
                 for scenarios, family in groups:
                     got = jax.device_get(evaluate(scenarios, batch, sim, MPCConfig(), metrics=METRICS))
                     for i, seed in enumerate(SEEDS):
-                        count = spec.test.fields
                         rows.append(pd.DataFrame({k: np.asarray(v[i]) for k, v in got.items()}).assign(
                             plant=arm, method=method, seed=seed, family=family,
-                            field=[j % count for j in range(len(family))]))
+                            field=np.arange(len(family)) % spec.test.fields))
                 pd.concat(rows, ignore_index=True).assign(seconds=time.perf_counter() - start).to_parquet(path)
                 print(f"  {arm} {method}: done", flush=True)
                 jax.clear_caches()  # each cell compiles its own programs: free them (a long run ran out of maps)
@@ -121,23 +120,29 @@ def spearman(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def rank_agreement(success: np.ndarray, strata: np.ndarray, resamples: int) -> dict:
     """Per ladder step: ρ of the methods' pooled success (mean over the seeds) between the two plants,
-    its 95 % percentile interval resampling the fields within each family (one resample for every plant,
-    method and seed), and ρ of each seed's selections alone."""
+    its 95 % percentile interval (:func:`jaxapf.stats.bootstrap_cis`: the fields resampled within each
+    family, the same resamples for every step, plant, method and seed), and ρ of each seed's selections
+    alone. A resample in which every method ties has no ρ and is left out of the interval."""
+    from jaxapf.stats import bootstrap_cis
+
     plants = list(PLANTS)
-    rng = np.random.default_rng(0)
-    groups = [np.flatnonzero(strata == g) for g in np.unique(strata)]
-    idx = np.stack([np.concatenate([rng.choice(g, g.size) for g in groups]) for _ in range(resamples)])
     scores = success.mean(axis=2)  # (plant, method, field): mean over the seeds
-    boot = scores[:, :, idx].mean(-1)  # (plant, method, resample)
+    steps = LADDER + tuple((p, BASE) for p in plants[2:4])
+
+    def rho_of(i: int, j: int):
+        def statistic(picked: np.ndarray, axis: int = -1) -> np.ndarray:  # (resamples, fields) field indices
+            rows = picked.astype(int)
+            return spearman(scores[i][:, rows].mean(-1).T, scores[j][:, rows].mean(-1).T)
+        return statistic
+
+    pairs = [(plants.index(plant), plants.index(other)) for plant, other in steps]
+    intervals = bootstrap_cis(np.arange(scores.shape[-1], dtype=np.float64), [rho_of(i, j) for i, j in pairs],
+                              strata=strata, n_resamples=resamples)
     out = {}
-    for plant, other in LADDER + tuple((p, BASE) for p in plants[2:4]):
-        i, j = plants.index(plant), plants.index(other)
-        rho = float(spearman(scores[i].mean(-1), scores[j].mean(-1)))
-        reps = spearman(boot[i].T, boot[j].T)
-        lo, hi = np.nanpercentile(reps, [2.5, 97.5])  # a replicate with every method tied has no rank: counted
+    for (plant, other), (i, j), (lo, hi) in zip(steps, pairs, intervals):
         per_seed = [float(spearman(success[i, :, k].mean(-1), success[j, :, k].mean(-1))) for k in range(len(SEEDS))]
-        out[f"{short(plant)}/{short(other)}"] = {"rho": rho, "lo": float(lo), "hi": float(hi), "per_seed": per_seed,
-                                                 "tied_replicates": int(np.isnan(reps).sum())}
+        out[f"{short(plant)}/{short(other)}"] = {"rho": float(spearman(scores[i].mean(-1), scores[j].mean(-1))),
+                                                 "lo": lo, "hi": hi, "per_seed": per_seed}
     return out
 
 
