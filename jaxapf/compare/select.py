@@ -36,6 +36,7 @@ import numpy as np
 from ..config import SimConfig
 from ..gains import Gains
 from ..io.lock import write_atomic
+from ..spec.scenario import spec_family_params
 from ..tune import TuneError, Tuner, parse_tune_spec
 from ..tune.proof import select_best, tuning_budget
 from ..validation import ConfigError, first_line
@@ -84,8 +85,6 @@ def selection_t_max(spec: CompareSpec) -> float:
     """The episode length the selection flies: ``[sim] t_max`` if the spec sets it, else the longest of its
     training families' own (the test sweep flies each family its own, as every sweep does: the same length
     wherever the families agree)."""
-    from ..spec.scenario import spec_family_params
-
     if "t_max" in spec.sim:
         return float(spec.sim["t_max"])
     return max(spec_family_params(f, spec.params.get(f, {})).t_max for f in spec.selection.families)

@@ -72,9 +72,12 @@ def evaluate_frame(family: str | FamilyParams, gains: Gains | None = None, sim: 
     """
     import jax
 
-    params, gains, names = _checked(family, gains, sim, mpc, metrics)
+    params, gains = _checked(family, gains, sim, mpc)
     fields = check_int("evaluate_frame: fields", fields, 1)
     count = setting_count(gains, "evaluate_frame: gains")
+    names = METRICS.names() if metrics is None else tuple(metrics)
+    for m in names:
+        METRICS.get(m, "evaluate_frame: metrics")
     sim = sim or SimConfig.from_flat(t_max=params.t_max)
     mpc = mpc or MPCConfig()
     spec = _as_spec(params, gains, sim, mpc, fields, seed, solvable, count)
@@ -96,9 +99,8 @@ def evaluate_frame(family: str | FamilyParams, gains: Gains | None = None, sim: 
     return frame
 
 
-def _checked(family: Any, gains: Any, sim: Any, mpc: Any, metrics: Sequence[str] | None
-             ) -> tuple[FamilyParams, Gains, tuple[str, ...]]:
-    """:func:`evaluate_frame`'s arguments checked: the family's parameters, the gains and the metrics' names."""
+def _checked(family: Any, gains: Any, sim: Any, mpc: Any) -> tuple[FamilyParams, Gains]:
+    """:func:`evaluate_frame`'s family, gains and configurations checked: the family's parameters and the gains."""
     if isinstance(family, FamilyParams):
         params = family
     elif isinstance(family, str):
@@ -114,10 +116,7 @@ def _checked(family: Any, gains: Any, sim: Any, mpc: Any, metrics: Sequence[str]
                           f"got {type(sim).__name__}")
     if mpc is not None and not isinstance(mpc, MPCConfig):
         raise ConfigError(f"evaluate_frame: mpc must be an MPCConfig, got {type(mpc).__name__}")
-    names = METRICS.names() if metrics is None else tuple(metrics)
-    for m in names:
-        METRICS.get(m, "evaluate_frame: metrics")
-    return params, gains, names
+    return params, gains
 
 
 def _as_spec(params: FamilyParams, gains: Gains, sim: SimConfig, mpc: MPCConfig, fields: int, seed: int,
