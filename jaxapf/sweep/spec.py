@@ -305,8 +305,8 @@ def _scenario(where: str, table: Any) -> tuple[tuple[str, ...], int, int, dict[s
     for label, overrides in tables.items():
         if label not in families:
             raise ConfigError(f"scenario.params.{label} is not one of scenario.families ({', '.join(families)})")
-        spec_family_params(label, overrides, swarms=True)  # every value checked, the scale too
-        # normalised in the family's own units (a scale is applied when the fields are made, once)
+        # normalised in the family's own units (a scale is applied when the fields are made, once; the whole
+        # table, the scale too, is checked with every family below)
         resolved = spec_family_params(label, {k: v for k, v in overrides.items() if k != "scale"}, swarms=True)
         params[label] = {k: (list(v) if isinstance(v, tuple) else v) if k not in ("family", "scale") else overrides[k]
                          for k, v in ((k, getattr(resolved, k, None)) for k in overrides)}
