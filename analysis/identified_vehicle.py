@@ -242,6 +242,21 @@ def protocol(spec) -> dict:
             "selection_seeds": list(spec.selection.seeds)}
 
 
+def per_family(df: pd.DataFrame, spec) -> dict:
+    """Per test family: each plant's success per method (mean over the seeds), ρ of the methods' success against
+    the double integrator, and the leading method on each plant."""
+    out = {}
+    for family, rows in df[df["plant"].isin(list(PLANTS))].groupby("family"):
+        success = rows.groupby(["plant", "method", "seed"])["success"].mean().groupby(["plant", "method"]).mean()
+        table = {short(p): {m: float(success[(p, m)]) for m in spec.methods} for p in PLANTS}
+        base = np.array([table[short(BASE)][m] for m in spec.methods])
+        out[family] = {"success": table,
+                       "rho": {short(p): float(spearman(base, np.array([table[short(p)][m] for m in spec.methods])))
+                               for p in PLANTS if p != BASE},
+                       "leader": {k: max(v, key=v.get) for k, v in table.items()}}
+    return out
+
+
 def no_estimator(df: pd.DataFrame, spec) -> dict:
     """The estimator ablation: the share of double-integrator episodes whose outcome (success, collision) is the
     same without the integral action, and each method's success on so_rpy without it (mean over the seeds)."""
@@ -281,6 +296,7 @@ def summarise(df: pd.DataFrame, spec, table: pd.DataFrame, ranks: dict, selectio
         f"{short(plant)}/{short(other)}": max(abs(facts["success"][short(plant)][m] - facts["success"][short(other)][m])
                                               for m in spec.methods) for plant, other in LADDER}
     facts["ranking"] = {short(p): sorted(spec.methods, key=lambda m: -facts["success"][short(p)][m]) for p in PLANTS}
+    facts["per_family"] = per_family(df, spec)
     facts["selection_spent"] = {m: {"episodes": int(g["episodes"].min()),
                                     "seconds": float(g["seconds"].mean())}
                                 for m, g in selection.groupby("method", sort=False)}
@@ -348,6 +364,15 @@ def page(facts: dict, spec, table: pd.DataFrame) -> list[str]:
               "without it, success, mean over the seeds: " + ", ".join(
                   f"`{m}` {100 * v:.1f} % (with it {100 * facts['success']['so_rpy'][m]:.1f} %)"
                   for m, v in ne["so_rpy_success"].items()) + "."]
+    lines += ["", "## Per family", "",
+              "ρ of the nine methods' success (mean over the seeds) on each family against the double integrator, "
+              "and the leading method on the double integrator and with drag:", "",
+              "| family | " + " | ".join(f"ρ {short(p)}" for p in plants[1:]) + " | leader, double_integrator "
+              "| leader, so_rpy_rotor_drag |", "|---|" + "---|" * (len(plants) + 1)]
+    for family, f in facts["per_family"].items():
+        lines.append(f"| {family} | " + " | ".join(
+            "–" if np.isnan(f["rho"][short(p)]) else f"{f['rho'][short(p)]:.2f}" for p in plants[1:])
+            + f" | `{f['leader'][short(BASE)]}` | `{f['leader']['so_rpy_rotor_drag']}` |")
     lines += ["", "## Success [%] per plant", "",
               "Pooled over the families, mean over the three selections; the marks: each seed's verdict against "
               "`basic` of the same selection on the same plant (↑ better, ↓ worse, = equivalent, · inconclusive). "
