@@ -31,3 +31,12 @@ def test_a_studys_facts_are_what_its_script_computes_from_its_results(folder, tm
 
 def test_every_study_has_facts():
     assert set(FOLDERS) == {folder for _, folder in studies().values()}
+
+
+def test_the_results_hold_no_file_a_clean_clone_would_lack():
+    """A result a script reads but git ignores passes here and fails in a fresh clone (study 18's parquet did)."""
+    if not (ROOT / ".git").exists():
+        pytest.skip("not a git checkout")
+    ignored = subprocess.run(["git", "ls-files", "--others", "--ignored", "--exclude-standard", "analysis/results"],
+                             cwd=ROOT, capture_output=True, text=True, check=True).stdout.split()
+    assert [p for p in ignored if "__pycache__" not in p] == []
