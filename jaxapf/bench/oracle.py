@@ -1,48 +1,11 @@
-r"""The numpy + OSQP oracle: the same closed loop, written again the way a researcher without jaxapf would.
+"""The numpy + OSQP oracle: the same closed loop, written again the way a researcher without jaxapf would.
 
-This module re-implements :func:`jaxapf.engine.rollout` independently, the way a controls
-researcher would write it without JAX: one scenario at a time, a Python loop over control steps,
-numpy for the potentials and the APF reference flow, and the MPC QP handed to OSQP and solved to
-tight tolerance. It serves two purposes:
-
-1. **Correctness oracle.** ``tests/bench/test_oracle.py`` requires the JAX engine (float64, many
-   FISTA iterations) to reproduce its trajectories closely, so the engine's potentials, gradients,
-   reference flow, condensed MPC and plant are checked against code that shares none of them.
-2. **A peer for speed.** :mod:`jaxapf.bench.engine` times it against the batched engine
-   (``jaxapf bench engine``).
-
-It knows the paper's three planners on the double integrator with no safety filter (the stack
-the paper describes); it refuses anything else.
-
-Nothing here imports the JAX implementation: every formula is written again from SPEC 3–4.
-
-Choices (documented because the engine must agree with them):
-
-* **Forces are analytic.** :func:`total_force` is the closed-form ``-∇_p`` of
-  :func:`total_potential`, i.e. ``-(ω ∇U_rep + U_rep ∇ω) - ∇U_att`` per valid obstacle, with the
-  derivatives of the line-of-sight unit vector ``∂n/∂p = -σ P (I - n nᵀ)/|s|`` (σ = +1 for
-  ``intent``, -1 for ``literal``, ``P`` drops z for a cylinder). The test suite checks it against
-  numpy central differences of :func:`total_potential`. The same conventions as
-  :mod:`jaxapf.planners.potentials` are used: ``safe_norm(r) = sqrt(max(|r|², 1e-12))`` (its gradient is
-  zero below the floor), the smooth C¹ clearance floor ``d̃ = d_min²/(2 d_min - d)`` for
-  ``d < d_min``, ``|v|_ε = sqrt(|v|² + ε²)`` in cos θ, and padded slots masked to exactly zero.
-* **The MPC is the full 3N-variable condensed QP** (paper eq. 8–12): ``X = M x0 + C U`` with the
-  state ``[p, v]`` stacked over ``x(k..k+N)``, ``Q_aug = blkdiag(0, Q, …, Q, F)``,
-  ``H = Cᵀ Q_aug C + R_aug``, ``E = Cᵀ Q_aug (M x0 - X_ref)``. The smooth velocity penalty
-  ``½ρ Σ max(|v_i| - v_max, 0)²`` on the predicted velocities ``v(k+1..k+N)`` is written exactly
-  as a QP with slack variables ``s >= 0``::
-
-      min_{U, s}  ½ Uᵀ H U + Eᵀ U + ½ ρ sᵀ s
-      s.t.        -a_max <= U <= a_max,   s >= 0,
-                  v_free + C_v U - s <= v_max,   v_free + C_v U + s >= -v_max
-
-  (at the optimum ``s_i = max(|v_i| - v_max, 0)``, so both problems have the same minimiser U).
-  With ``ρ = 0`` the slacks are dropped.
-* **OSQP is set up once per episode** (``P``, ``A`` and the sparsity are constant because the
-  plant and the weights are), and each control step only ``update``\ s ``q`` and the velocity
-  bounds, which depend on the current state and reference. OSQP warm-starts from the previous
-  solution by itself. Tolerances default to ``eps_abs = eps_rel = 1e-7`` with solution polishing,
-  which recovers the exact active set of these small QPs.
+One scenario at a time, a Python loop over control steps, numpy for the potentials and the reference
+flow, the MPC's QP solved by OSQP to tight tolerance; nothing of the JAX implementation is imported. It
+is the correctness oracle of ``tests/bench/test_oracle.py`` and the per-field peer of ``jaxapf bench
+engine``; it knows the paper's three planners on the double integrator with no safety filter and refuses
+anything else. Its choices (analytic forces, the velocity penalty as slacks, OSQP set up once per
+episode): docs/testing.md, "The numpy + OSQP oracle".
 """
 
 from __future__ import annotations

@@ -1,40 +1,11 @@
-r"""MPC with the obstacles kept out over its whole horizon: every obstacle a constraint at every step.
+r"""MPC with every obstacle kept out over its horizon (the family of MPC-CBF), registered as ``keepout_mpc``.
 
-The family of MPC-CBF (Zeng, Zhang and Sreenath, ACC 2021) and of sequential convex programming for
-UAVs: instead of shaping a reference that a box-constrained MPC then tracks, the MPC itself keeps
-each predicted position out of each obstacle. Every control step it solves, over the accelerations
-``U = (a_0 … a_{N-1})`` of the double integrator (paper eq. 7),
-
-.. math:: \min_U \sum_{i=1}^{N} q\,|p_i - r_i|^2 + q_v\,|v_i - v_{pref}|^2 + r\,|a_{i-1}|^2
-          \quad\text{s.t.}\quad n_{o,i}\cdot(p_i - c_o(t + iΔt)) \ge ρ_o + r_{uav} + m,
-          \quad -a_{max} \le a_{i-1} \le a_{max},
-
-with the goal-seeking reference :math:`r_i = p + iΔt\,v_{pref}`, :math:`v_{pref} = \mathrm{sat}_{v_{max}}
-(η F_{att})` (the potential-field planners' attractive flow, as ``velocity_obstacle``'s preferred
-velocity), the obstacles predicted at constant velocity, and :math:`n_{o,i}` the unit vector from the
-obstacle's centre to the last plan's position :math:`\bar p_i` (``P`` drops z for a cylinder): the
-tangent half-space of the keep-out ball at the point nearest :math:`\bar p_i`, which lies outside the
-obstacle, so any plan that keeps it is collision-free (one convexification per control step, the
-last plan shifted by a step as the point of linearisation: sequential convex programming with one
-iteration per step). Gains ``kmpc_q`` (q), ``kmpc_qv`` (q_v), ``kmpc_r`` (r), ``kmpc_margin`` (m),
-and ``k_att``, ``η`` of the preferred velocity.
-
-The keep-out rows may borrow one shared slack :math:`s \ge 0` at the price :data:`SLACK_LINEAR` s +
-:data:`SLACK_QUADRATIC` s² (an exact penalty, as soft constraints in deployed MPC), so the QP always has an
-answer: where no plan keeps every obstacle out (already inside one, hemmed in, or overtaken by a faster
-one) it is the plan that intrudes least. The QP (3N + 1 variables, N·M keep-out rows, the box and
-s >= 0) is solved by ``qpax``'s primal–dual interior point method (Tracy and Manchester; batched and
-differentiable in JAX) with a fixed count of :data:`ITERATIONS` iterations, so it vmaps (in float32 its
-own convergence test rarely passes though the answer is accurate: tests check it against Clarabel). A step
-whose slack exceeds :data:`TOLERANCE` m counts as infeasible (diagnostic ``kmpc_infeasible``,
-metric ``kmpc_infeasible_steps``); an answer that is not finite is replaced by the last plan
-shifted by one step (and counted too). The plan's first acceleration is applied
-(:meth:`~jaxapf.planners.Planner.command`), as MPC-CBF flies it: no second MPC tracks it; a safety
-filter, the sensors, wind and the quadrotor compose with it as with every planner. Where it differs
-from MPC-CBF: a keep-out (distance) constraint linearised at the last plan instead of a discrete-time
-CBF decay condition, the speed limit only a cost (``kmpc_qv`` towards a preferred velocity within
-``v_max``), and the tangent planes are those of the last plan (one iteration of sequential convex
-programming per step, not to convergence).
+Every control step one QP over the double integrator's accelerations: a goal-seeking reference, the
+box, and at every horizon step a keep-out row per obstacle slot, linearised at the last plan (the
+obstacles predicted), with one shared slack at an exact penalty so the QP always answers; steps that
+need the slack are counted (``kmpc_infeasible_steps``). ``qpax``'s interior point method with a fixed
+iteration count solves it batched; the plan's first acceleration is flown. The QP, its gains and where
+it differs from MPC-CBF: docs/spec.md, "MPC with the obstacles kept out over the horizon".
 """
 
 from __future__ import annotations

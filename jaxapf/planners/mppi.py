@@ -1,40 +1,11 @@
-r"""Model predictive path integral control (MPPI): the plan a thousand sampled futures agree on.
+r"""Model predictive path integral control (MPPI, Williams et al. 2017), registered as ``mppi``.
 
-Williams, Aldrich and Theodorou ("Model predictive path integral control: from theory to parallel
-computation", JGCD 2017; Williams et al., "Information-theoretic MPC for model-based reinforcement
-learning", ICRA 2017). Every control step, from the nominal acceleration sequence ``U = (u_0 … u_{N-1})``
-(the last step's plan shifted by one, the last entry repeated: the warm start):
-
-1. ``K`` perturbed sequences :math:`V_k = \mathrm{clip}(U + ε_k, -a_{max}, a_{max})`, :math:`ε_k \sim
-   N(0, σ^2 I)` per axis and step (``K = sim.mppi_samples``, static; σ the gain ``mppi_sigma``), the
-   effective noise :math:`ε_k := V_k - U` once clipped;
-2. each rolled out through the MPC's own model, the double integrator (paper eq. 7), from the state
-   ``x`` to positions :math:`p^k_1 … p^k_N`, the obstacles predicted at :math:`t + iΔt` (constant
-   velocity);
-3. each scored by
-
-   .. math:: S_k = \sum_{i=1}^{N} \Big[ w_g |p^k_i - g| + w_o \sum_o \max(0, 1 - c^k_{o,i}/d)^2
-             + w_c \sum_o [c^k_{o,i} < 0] + w_s \sum_{axes} \max(0, |v^k_i| - v_{max})^2
-             + w_e |V_{k,i-1}|^2 + \frac{λ}{σ^2} u_{i-1} \cdot ε_{k,i-1} \Big],
-
-   ``c`` the surface clearance (``P`` drops z for a cylinder, ``r_uav`` included), the gains
-   ``mppi_goal`` (w_g), ``mppi_obstacle`` (w_o), ``mppi_d`` (d), ``mppi_collision`` (w_c),
-   ``mppi_speed`` (w_s), ``mppi_effort`` (w_e); the last term is the information-theoretic control
-   cost of the sampling distribution (Williams et al. 2017, eq. 34);
-4. weighted by :math:`w_k \propto \exp(-(S_k - \min S)/λ)` (temperature λ, gain ``mppi_lambda``) and
-   :math:`U^* = U + \sum_k w_k ε_k`.
-
-The first acceleration of ``U*`` is applied (:meth:`~jaxapf.planners.Planner.command`), as the published
-implementations fly it; no MPC tracks the plan, and the CBF filter, the sensors, wind and the quadrotor
-compose with it as with every planner. ``U*`` rolled out from ``x`` is its reference
-(:func:`~jaxapf.planners.base.reference_states`) for figures. The noise of step ``k`` comes from the
-field's key (:func:`~jaxapf.datatypes.episode_key`, purpose ``"mppi"``): every method still flies the same
-world, and the episode is the same in any batch. Every sample is a fixed amount of work (no early exit),
-so it vmaps, and ``U*`` is differentiable in every cost weight (``jaxapf tune``).
-
-Where it differs from the published implementations (e.g. ``pytorch_mppi``, the AutoRally code): one
-iteration per control step, no smoothing filter on ``U*``, and a diagonal noise of one σ for the three
-axes.
+Every control step ``K = sim.mppi_samples`` perturbed acceleration sequences around the last plan (shifted
+by one step) are rolled out through the double integrator with the obstacles predicted, scored, and
+averaged with the weights ``exp(-S/λ)``; the plan's first acceleration is flown, no MPC tracks it. The
+noise comes from the field's key (purpose ``"mppi"``), so every method flies the same world, and the plan
+is differentiable in every cost weight (``jaxapf tune``). The cost, the defaults and where it differs
+from the published implementations: docs/spec.md, "model predictive path integral control".
 """
 
 from __future__ import annotations

@@ -1,70 +1,11 @@
-r"""The built-in scenario families (SPEC 5), registered.
+r"""The built-in scenario families (SPEC 5), registered: ``paper_static``, ``paper_dynamic``, ``trap``,
+``clutter``, ``crossing``, ``head_on``, ``overtake`` and ``dynamic``.
 
-Every field is built the same way:
-
-1. **Frame.** The start–goal distance ``L`` is drawn uniformly from ``params.distance`` and the
-   heading ψ of the start–goal line (a rotation about z) uniformly from ``params.heading``
-   (degrees). The start is always ``(0, 0, altitude)``, the goal ``(L cos ψ, L sin ψ, altitude)``.
-2. **Layout.** The family lays its obstacles out in a *local* frame: start at the origin, goal at
-   ``(L, 0)``, x along the start–goal line, y to its left. Obstacles live in the plane of flight
-   (centre z = ``altitude``; cylinders are infinitely tall anyway) and move horizontally.
-3. **World.** Positions and velocities are rotated by ψ, padded to exactly ``max_obstacles`` slots
-   and passed through :func:`~jaxapf.scenarios.generate.clear_endpoints`, which keeps the start at least
-   ``start_margin`` (0.25 m) and the goal at least ``goal_margin`` clear of every obstacle at t = 0.
-   ``goal_margin`` defaults to 4 m, the influence distance ``d_s``, so that only ``trap``'s
-   ``gnron`` kind (where ``trap`` keeps 0.25 m) puts obstacles near the goal; the families of
-   passing movers (``crossing``, ``head_on``, ``overtake``) keep 0.25 m, their obstacles leave.
-   Padded (invalid) slots are parked at ``1e6`` with radius 0 and velocity 0.
-
-Keys: field ``i`` of seed ``s`` uses :func:`~jaxapf.scenarios.generate.field_key`
-``= fold_in(key(s), i)``, and a field is
-bit-identical whatever batch it is computed in, so chunked sweeps give the same fields (see
-:func:`~jaxapf.scenarios.generate.make_scenarios`). A field draws one block of uniforms from its key
-(one threefry call: each
-call site costs XLA compile time) and hands them out in a fixed order, frame first, then layout;
-the trap family builds every kind from its own part of the block, so selecting fewer trap kinds
-does not change the geometry of the kinds that remain.
-
-Scales follow the engine's defaults: ``v_max = 2 m/s`` per axis, ``a_max = 3 m/s²``, UAV radius
-``r_uav = 0.3 m``, APF influence distance ``d_s = 4 m``, ``dt = 0.1 s``. Start–goal distances are
-20–30 m (10–15 s at a nominal 1.6 m/s = 0.8·v_max) except for the paper's long scenario 2; obstacle
-radii are 0.5–1.5 m. The families and their default numbers (each documented on its parameter
-class):
-
-``paper_static`` (:class:`PaperStaticParams`)
-    The paper's scenario 1, a classic concave trap for the basic APF: 5 cylinders of radius 1 m on a
-    half circle of radius 3 m whose open side faces the start, centred on the start–goal line at the
-    middle of a 24 m run along +x. Neighbouring surfaces are 0.30 m apart (< 0.6 m, the UAV's
-    diameter), so the cup is closed. Deterministic (optional tiny jitter, default 0).
-``paper_dynamic`` (:class:`PaperDynamicParams`)
-    The paper's scenario 2: 14 cylinders (radius 0.8–1.5 m) scattered uniformly in a 12 m wide
-    corridor along a 70 m diagonal run (heading 45°), 4 of them drifting at 0.1–0.3 m/s;
-    recommended episode 300 s.
-``trap`` (:class:`TrapParams`)
-    One randomized local-minimum trap per field, its kind drawn uniformly from ``kinds``:
-    ``on_line`` (one obstacle on the line, lateral offset ≤ 0.3 m), ``concave`` (a closed 5-cylinder
-    cup of radius 2.5–4 m facing the start), ``narrow_gap`` (two obstacles 2·r_uav + 0.1–0.6 m
-    apart), ``gnron`` (goal 0.5–2 m from an obstacle surface, i.e. inside d_s).
-``clutter`` (:class:`ClutterParams`)
-    A static forest: ``round(density · area / 100)`` (capped at ``max_obstacles``) cylinders of
-    radius 0.5–1.2 m, uniform in the ``L × 12 m`` corridor; default density 4 per 100 m².
-``crossing`` (:class:`CrossingParams`)
-    1–3 obstacles crossing the line perpendicularly at 0.5–1.5 m/s, each reaching the line at
-    30–70 % of the run when a UAV at 1.6 m/s would, ± 2 s.
-``head_on`` (:class:`HeadOnParams`)
-    1–2 obstacles starting at 60–90 % of the run (lateral offset ≤ 0.5 m) and flying toward the
-    start along the line at 0.5–1.5 m/s.
-``overtake`` (:class:`OvertakeParams`)
-    1–2 obstacles starting 4–10 m behind the start (lateral offset ≤ 0.5 m) and flying toward the
-    goal at 3–5 m/s (1.5–2.5 × v_max), i.e. overtaking the UAV: the case the velocity term is for.
-``dynamic`` (:class:`DynamicParams`)
-    ``clutter`` whose obstacles all move in uniformly random horizontal directions at 0.2–1 m/s.
-
-The paper gives no numbers for its scenarios. The ones here are chosen from the vehicle's scales
-and the classic APF failure modes, and none is tuned to make a particular method win.
-
-Parameters are frozen, hashable dataclasses (static arguments of ``jit``), validated on
-construction; :func:`~jaxapf.scenarios.family_params` builds one from a family name and overrides.
+Each is a frozen, hashable parameter class (a static argument of ``jit``, validated on construction;
+:func:`~jaxapf.scenarios.family_params` builds one from a name and overrides) whose docstring gives the
+family's layout and default numbers, and a layout function in the local frame (start at the origin,
+goal at ``(L, 0)``). How every field is built from its key, the frame and the endpoint margins:
+docs/scenarios.md, "How a field is built".
 """
 
 from __future__ import annotations

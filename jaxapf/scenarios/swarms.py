@@ -1,42 +1,12 @@
 r"""Swarm families: fields flown by ``A`` UAVs at once (:class:`~jaxapf.datatypes.swarm.Swarm`).
 
 Every swarm field is built like a single-UAV one (:mod:`jaxapf.scenarios.families`): one block of
-uniforms from the field's key (``field_key(seed, i)``), a local layout, then the world frame -- the
-layout turned by a heading drawn from ``heading`` about the origin, at ``altitude``. Every UAV's
-start and goal are then moved by a uniform offset in ``±jitter`` per horizontal coordinate (the
-standard way to break the exact symmetry of a formation), and every obstacle closer than
-``start_margin`` (goals: ``goal_margin``) to some UAV's start (goal) is dropped. A field is the same
-whatever batch it is computed in (elementwise arithmetic only).
-
-``circle_swap`` (:class:`CircleSwapParams`)
-    RVO2's standard first test: ``agents`` UAVs evenly on a circle of diameter ``distance``
-    (12–16 m; a random rotation), each flying to the antipodal point, so every path crosses the
-    centre at about the same time; a circle too small for its UAVs (neighbours closer than
-    ``2 r_uav`` plus the jitter: from 43 UAVs on at 12 m) grows until they fit. No obstacles.
-``crossing_flows`` (:class:`CrossingFlowsParams`)
-    ``groups`` (2–4) flows of ``agents / groups`` UAVs abreast (``spacing`` 1.5 m apart) entering a
-    common square from the directions ``0°, 90°, 180°, 270°`` (the first ``groups``), each flying
-    straight through it to ``distance`` beyond its start; each UAV starts up to ``stagger`` (2 m)
-    further back. A flow too wide for the square (``(agents/groups - 1)·spacing/2 + stagger +
-    √2 r_uav + 2 jitter > distance/2``) starts that far from the centre instead and flies twice that,
-    so that no two UAVs of perpendicular flows start or end inside each other. No obstacles.
-``formation_gap`` (:class:`FormationGapParams`)
-    ``agents`` UAVs in a formation ``columns`` abreast (``spacing`` apart) flying ``distance`` (20–24 m)
-    through a gap of width ``gap`` (3–5 m, centre offset up to ``offset``) in a wall of touching
-    cylinders across the middle of the run; the goals keep the formation.
-``swarm_clutter`` (:class:`SwarmClutterParams`)
-    ``agents`` UAVs abreast (``spacing`` apart) flying across a forest (``density`` per 100 m² of
-    the run's corridor, ``agents · spacing + corridor_margin`` wide (4 m), radius 0.5–1.0 m), each to
-    the goal of its mirror image (UAV ``i`` to the column of UAV ``A - 1 - i``), so every pair of paths
-    crosses; a ``moving`` share of the obstacles drifts at ``speed``.
-
-Which are solvable: :func:`agents_solvable` runs the single-UAV oracle
-(:mod:`jaxapf.scenarios.solvability`) for every UAV alone among the field's obstacles (moving ones
-included); a swarm field all of whose UAVs pass it is solvable UAV by UAV, a necessary condition:
-the UAVs may still block each other, and flying one at a time (the others waiting clear of the
-paths) need not fit in ``t_max``. ``circle_swap`` and ``crossing_flows`` have no obstacles, so every
-UAV passes; ``formation_gap``'s gap is wider than a UAV (``gap > 2 r_uav``, checked), so the
-formation can pass in single file.
+uniforms from the field's key, a local layout turned by a heading about the origin; then every UAV's
+start and goal move by a uniform offset in ``±jitter`` per horizontal coordinate (breaking a formation's
+exact symmetry), and every obstacle closer than ``start_margin`` (``goal_margin``) to some UAV's start
+(goal) is dropped. A field is the same whatever batch computes it. The four families, ``circle_swap``,
+``crossing_flows``, ``formation_gap`` and ``swarm_clutter``, are described on their parameter classes;
+:func:`agents_solvable` tells which fields are solvable UAV by UAV (docs/scenarios.md).
 """
 
 from __future__ import annotations
@@ -92,7 +62,10 @@ class SwarmParams(FamilyParams):
 
 @dataclasses.dataclass(frozen=True)
 class CircleSwapParams(SwarmParams):
-    """``circle_swap`` (module docstring): ``distance`` is the circle's diameter."""
+    """``circle_swap``, RVO2's standard first test: ``agents`` UAVs evenly on a circle of diameter ``distance``
+    (12–16 m; a random rotation), each flying to the antipodal point, so every path crosses the centre at
+    about the same time; a circle too small for its UAVs (neighbours closer than ``2 r_uav`` plus the
+    jitter: from 43 UAVs on at 12 m) grows until they fit. No obstacles."""
 
     family = "circle_swap"
     distance: tuple[float, float] = (12.0, 16.0)
@@ -100,7 +73,12 @@ class CircleSwapParams(SwarmParams):
 
 @dataclasses.dataclass(frozen=True)
 class CrossingFlowsParams(SwarmParams):
-    """``crossing_flows`` (module docstring): ``agents`` must be a multiple of ``groups``."""
+    """``crossing_flows``: ``groups`` (2–4) flows of ``agents / groups`` UAVs abreast (``spacing`` 1.5 m
+    apart; ``agents`` a multiple of ``groups``) entering a common square from the directions 0°, 90°, 180°,
+    270° (the first ``groups``), each flying straight through it to ``distance`` beyond its start; each UAV
+    starts up to ``stagger`` (2 m) further back. A flow too wide for the square (``(agents/groups - 1)·
+    spacing/2 + stagger + √2 r_uav + 2 jitter > distance/2``) starts that far from the centre instead and
+    flies twice that, so no two UAVs of perpendicular flows start or end inside each other. No obstacles."""
 
     family = "crossing_flows"
     CHECKS = SwarmParams.CHECKS | {"groups": integer(2, 4), "spacing": number(0.0, lo_open=True),
@@ -119,8 +97,11 @@ class CrossingFlowsParams(SwarmParams):
 
 @dataclasses.dataclass(frozen=True)
 class FormationGapParams(SwarmParams):
-    """``formation_gap`` (module docstring): a wall of ``max_obstacles`` (24) cylinders of radius
-    ``wall_radius`` (0.5 m), touching, across the run; ``agents`` a multiple of ``columns``."""
+    """``formation_gap``: ``agents`` UAVs in a formation ``columns`` abreast (``spacing`` apart; ``agents`` a
+    multiple of ``columns``) flying ``distance`` (20–24 m) through a gap of width ``gap`` (3–5 m, centre
+    offset up to ``offset``) in a wall of ``max_obstacles`` (24) touching cylinders of radius
+    ``wall_radius`` (0.5 m) across the middle of the run; the goals keep the formation. The gap is wider
+    than a UAV (``gap > 2 r_uav``, checked), so the formation can pass in single file."""
 
     family = "formation_gap"
     CHECKS = SwarmParams.CHECKS | {"columns": integer(1), "spacing": number(0.0, lo_open=True),
@@ -146,7 +127,10 @@ class FormationGapParams(SwarmParams):
 
 @dataclasses.dataclass(frozen=True)
 class SwarmClutterParams(SwarmParams):
-    """``swarm_clutter`` (module docstring)."""
+    """``swarm_clutter``: ``agents`` UAVs abreast (``spacing`` apart) flying across a forest (``density`` per
+    100 m² of the run's corridor, ``agents · spacing + corridor_margin`` wide (4 m), radius 0.5–1.0 m),
+    each to the goal of its mirror image (UAV ``i`` to the column of UAV ``A - 1 - i``), so every pair of
+    paths crosses; a ``moving`` share of the obstacles drifts at ``speed``."""
 
     family = "swarm_clutter"
     CHECKS = SwarmParams.CHECKS | {"spacing": number(0.0, lo_open=True), "density": number(0.0),
@@ -333,7 +317,8 @@ register_swarm_family(SwarmClutterParams, _clutter, description="UAVs abreast cr
 def agents_solvable(swarms: Swarm, **oracle: Any) -> np.ndarray:
     """Whether each UAV of each field could reach its goal alone among the field's obstacles: a bool array
     of shape (..., A) (padded slots: True), by :func:`~jaxapf.scenarios.solvable` (whose keyword
-    arguments ``oracle`` passes on: ``r_uav``, ``v_max``, ``t_max``, ...)."""
+    arguments ``oracle`` passes on: ``r_uav``, ``v_max``, ``t_max``, ...). A necessary condition only: the
+    UAVs may still block each other, and flying them one at a time need not fit in ``t_max``."""
     from ..datatypes import Scenario
     from .solvability import solvable
 

@@ -1,39 +1,11 @@
-r"""Sweep specifications: a study stated as a TOML file, validated completely before anything runs.
+"""Sweep specifications: a study stated as a TOML file, validated completely before anything runs.
 
-A spec names scenario families and a number of fields, fixed settings, and the settings to vary
-(a cartesian ``[grid]`` and/or ``[random]`` gain samples, or an explicit list of ``[[setting]]``
-tables). :func:`load_spec` parses and checks it;
-:meth:`SweepSpec.settings` expands it into the list of settings every field is run with.
-
-Keys ("setting keys") live in one flat namespace:
-
-- **gains** (every declared gain of :data:`jaxapf.gains.GAINS`: ``gamma``, ``k``, ``k_rep``,
-  ``d_s``, ``k_att``, ``eta``, and those of any registered component) are traced: any number of
-  gain settings share one compiled program;
-- **static settings** (every field of :class:`~jaxapf.config.SimConfig`'s parts and of
-  :class:`~jaxapf.config.MPCConfig`: ``method``, ``filter``, ``plant``, ``convention``, ``dt``,
-  ``t_max``, ``horizon``, ``iters``, ...) are compiled in: each distinct combination is a
-  *variant* with its own program. ``method``, ``filter`` and ``plant`` take registered names.
-
-``plugins = [...]`` at the top level names modules (or ``.py`` files) that register components;
-they are imported before anything else is checked (:mod:`jaxapf.spec.plugins`). A relative ``.py`` path
-is read from the spec file's folder, so a spec runs from any directory.
-
-Expansion order (the ``setting`` index of the output): the grid product with the keys in the
-order the spec writes them, the last key varying fastest; with ``[random]``, every grid point is
-crossed with the same ``n`` samples (samples innermost), so grid points are paired on gains too.
-Without ``[grid]`` there is one grid point (the fixed values); without ``[random]``, one sample.
-``[[setting]]`` tables (not combined with ``[grid]`` or ``[random]``) are the settings, in the
-order written; each may carry ``tags``, a table of text or integer values that become columns of
-their own (e.g. the selection seed of a tuned setting), the same tag names in every setting.
-
-Random samples: sample ``j`` of gain ``x`` (the ``i``-th ``[random]`` key) is
-``u = (b + 0.5) / 2^32`` with ``b = jax.random.bits(jax.random.key(random.seed), (n, d), uint32)[j, i]``
-(threefry, the same in float32 and float64 runs), mapped to ``lo + u (hi - lo)`` for a uniform
-range and ``exp(ln lo + u (ln hi - ln lo))`` for a log range.
-
-Every error is a :class:`~jaxapf.validation.ConfigError` naming the key (``grid.gamma[2] = -1.0 is out
-of range; allowed: a finite number >= 0``).
+:func:`load_spec` parses and checks a spec (scenario families and fields, fixed settings, and the
+settings to vary: ``[grid]``, ``[random]`` gain samples or ``[[setting]]`` tables) into a
+:class:`SweepSpec`, whose :meth:`SweepSpec.settings` expands it, once, into the settings every field is
+flown with. Gains are traced (any number share one program); static settings make variants, each with its
+own program. The language, the expansion order and the random samples: docs/sweep.md. Every error is a
+:class:`~jaxapf.validation.ConfigError` naming the key.
 """
 
 from __future__ import annotations

@@ -1,45 +1,9 @@
-r"""The smooth training objective of ``jaxapf tune`` and the reparametrisation of the gains.
+"""The smooth training objective of ``jaxapf tune`` and the reparametrisation of the gains.
 
-Surrogate loss
---------------
-For one episode of ``T`` steps (samples ``p_i`` at ``t_i = iΔt``, controls ``a_i``, start ``s``,
-goal ``g``, ``L = max(|g - s|, r_goal)``) the loss is
-
-.. math::
-   J = w_c\,C + w_p\,P + w_e\,E,
-
-   C = \Delta t \sum_{i=1}^{T} \tau\,\mathrm{softplus}\!\Big(\frac{d_{safe} - \tilde c_i}{\tau}\Big),
-   \qquad \tilde c_i = -\tau \log \sum_{o\ \mathrm{valid}} e^{-c_{i,o}/\tau},
-
-   P = \frac{\Delta t}{L} \sum_{i=1}^{T} \lVert p_i - g\rVert, \qquad
-   E = \Delta t \sum_{i=0}^{T-1} \lVert a_i\rVert^2 .
-
-``c_{i,o}`` is the sample clearance of :func:`jaxapf.metrics.clearance_history`, ``\tilde c_i`` its
-smooth minimum over the valid obstacles (``\tilde c_i \le \min_o c_{i,o}``, at most ``τ log M``
-below it; padded slots contribute exactly nothing), and ``τ·softplus(x/τ)`` is a smooth hinge
-``max(x, 0)`` (at most ``τ log 2`` above it). So ``C`` [m·s] integrates how far the UAV is inside
-the safety margin ``d_safe``, ``P`` [s] is the time-integrated distance to the goal in units of the
-run length (≈ the time the flight takes; a stall costs the whole rest of the episode), and ``E``
-[m²/s³] is the control effort ``∫|a|² dt`` of SPEC 6. Sums are right-endpoint Riemann sums: the
-state at ``t_0`` is fixed and carries no gradient. There is no episode-end mask (it would not be
-differentiable): after the goal the UAV hovers there (``P`` stops growing), after a collision the
-penetration keeps being penalised.
-
-Reparametrisation
------------------
-The optimiser works on unconstrained reals ``θ``; gains are always in their declared range
-(:class:`~jaxapf.gains.GainSpec`) by construction. A gain with lower end ``a`` and an upper end
-``b`` for tuning (the tune spec's ``[tune] upper``, else its ``tune_high``, within its own range) is
-``a + (b - a)·σ(θ)``; one with only a lower end is ``a + f + softplus(θ)`` with ``f`` =
-:data:`OPEN_FLOOR` if the range is open at ``a`` (the gain must stay > a even where softplus
-underflows to 0), else 0; one with no bound is ``θ``. For the paper's gains:
-
-.. math::
-   \gamma = \mathrm{softplus}(\theta_\gamma) \ge 0, \qquad
-   k = k_{max}\,\sigma(\theta_k) \in [0, k_{max}], \qquad
-   x = 10^{-3} + \mathrm{softplus}(\theta_x) \ \text{for } x \in \{k_{rep}, d_s, k_{att}, \eta\}
-
-with ``k_max = 1`` (``k``'s declared tuning range), which keeps the paper's bound ``ω >= 1`` (SPEC 3).
+The surrogate loss ``J = w_c C + w_p P + w_e E`` of one episode (soft collision, time-integrated goal
+distance, control effort; differentiable, no episode-end mask) and the map from unconstrained reals to
+gains inside their declared ranges. Both are defined exactly in docs/tune.md ("Objective",
+"Reparametrisation").
 """
 
 from __future__ import annotations
