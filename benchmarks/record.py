@@ -35,6 +35,7 @@ RECORDS: dict[str, tuple[str, int]] = {
     "split": ("python benchmarks/split.py --json", 1),
     "stages": ("python benchmarks/stages.py --json", 1),
     "host-time": ("python benchmarks/host_time.py --json", 1),
+    "stream-levels": ("python benchmarks/stream_levels.py --json", 1),
     "kernels": ("python benchmarks/kernels.py --json", 1),
     "fit-cost": ("python benchmarks/fit_cost.py --json", 1),
     "xla-fusion-emitters": ("python benchmarks/xla_options.py --xla-option xla_cpu_use_fusion_emitters=true --json", 1),

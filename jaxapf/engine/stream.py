@@ -18,9 +18,9 @@ computes the same metrics, but stops each one when it is over:
   episodes, their metrics are computed in one vmapped call (:func:`~jaxapf.metrics.episode_metrics`
   on the buffered trajectories, exactly as the fixed engine computes them on its own);
 * when the queue is empty, the slots still flying are moved to the front and later segments run
-  on a narrower vmap (``slots/2``, ``slots/4``, never below :data:`NARROWEST`: one ``lax.switch``
-  branch each), so the last long
-  episodes do not keep the whole batch busy.
+  on a narrower vmap (``slots/2``, ``slots/4``: one ``lax.switch`` branch each, :func:`stream_levels`),
+  so the last long episodes do not keep the whole batch busy. Each width is one more copy of the
+  control step to compile, so a queue of fewer than :data:`NARROWING_FROM` slots flies at one width.
 
 Samples after an episode's end are never read by a metric (:mod:`jaxapf.metrics.episode`: every
 metric masks them), so the metrics are those of the fixed engine up to rounding: XLA compiles the
@@ -51,13 +51,18 @@ from ..metrics import episode_metrics
 from ..metrics.context import certainly_at_goal, certainly_ended
 from .loop import closed_loop, episode_loop, loop_init, loop_step, record_trajectory
 
-__all__ = ["SEGMENT", "stream_slots", "stream_metrics", "EpisodeKind", "single_uav"]
+__all__ = ["SEGMENT", "NARROWEST", "NARROWING_FROM", "stream_slots", "stream_levels", "stream_metrics", "EpisodeKind",
+           "single_uav"]
 
 #: Control steps between two refills of the slots.
 SEGMENT = 10
-#: The narrowest vmap of the engine: the tail of a queue shrinks to it, a short queue flies at it.
-#: Below it XLA:CPU rounds a few episodes differently (``tests/engine/test_stream.py``).
+#: The narrowest vmap of the engine: a short queue flies at it. Below it XLA:CPU rounds a few
+#: episodes differently (``tests/engine/test_stream.py``).
 NARROWEST = 64
+#: The fewest slots whose tail moves to narrower vmaps: with fewer, a call saves a small fraction of the
+#: second or more that compiling the narrower widths costs (``benchmarks/stream_levels.py``,
+#: docs/performance.md); with more, a sweep's or a tuner's repeated calls of one program soon repay it.
+NARROWING_FROM = 256
 
 
 def stream_slots(episodes: int, width: int) -> int:
@@ -65,6 +70,13 @@ def stream_slots(episodes: int, width: int) -> int:
     several and slots freed early are refilled), a power of two, at least :data:`NARROWEST` and at
     most ``width``."""
     return min(width, max(NARROWEST, 1 << (max(episodes // 4, 1).bit_length() - 1)))
+
+
+def stream_levels(slots: int) -> tuple[int, ...]:
+    """The vmap widths ``slots`` flies its queue at, widest first: ``slots``, then ``slots/2`` and
+    ``slots/4`` for the tail from :data:`NARROWING_FROM` slots on. The widths change no number, only
+    the time (an episode's numbers do not depend on the width it flew at, from :data:`NARROWEST` up)."""
+    return (slots, slots // 2, slots // 4) if slots >= NARROWING_FROM else (slots,)
 
 
 def _rows(tree: Any, index: Any) -> Any:
@@ -139,7 +151,8 @@ def single_uav(sim: SimConfig, mpc: MPCConfig, dtype: Any, metrics: Sequence[str
 
 # long: the streaming program's parts are closures over its shapes (slots, ring, levels), traced as one
 def stream_metrics(fields: Any, gains: Gains, sim: SimConfig, mpc: MPCConfig, slots: int,
-                   metrics: Sequence[str], kind: Callable[..., EpisodeKind] = single_uav) -> dict[str, Array]:
+                   metrics: Sequence[str], kind: Callable[..., EpisodeKind] = single_uav,
+                   levels: Sequence[int] | None = None) -> dict[str, Array]:
     """The ``metrics`` of every (setting, field) episode, arrays (G, F), by episode streaming.
 
     Args:
@@ -148,6 +161,7 @@ def stream_metrics(fields: Any, gains: Gains, sim: SimConfig, mpc: MPCConfig, sl
       slots: episodes flown side by side (:func:`stream_slots`).
       kind: ``kind(sim, mpc, dtype, metrics)`` is the :class:`EpisodeKind` of the episodes
         (:func:`single_uav`, :func:`~jaxapf.engine.swarm.swarm_episodes`).
+      levels: the vmap widths, widest (``slots``) first (default :func:`stream_levels`).
     """
     dtype = fields.start.dtype
     gains = gains.as_arrays(dtype)
@@ -155,7 +169,7 @@ def stream_metrics(fields: Any, gains: Gains, sim: SimConfig, mpc: MPCConfig, sl
     n_fields = fields.start.shape[0]
     n_gains = next((leaf.shape[0] for leaf in jax.tree_util.tree_leaves(gains)), 1)  # no gain read: one setting
     total, steps = n_gains * n_fields, sim.episode.steps
-    levels = tuple(sorted({max(slots >> i, min(slots, NARROWEST)) for i in range(3)}, reverse=True))
+    levels = stream_levels(slots) if levels is None else tuple(levels)
     moves = max(slots // 4, 1)  # finished episodes handed to the store per boundary, oldest first
     # the record ring: a finished episode waits at most ceil(slots / moves) boundaries for its move,
     # so its T records are still in the ring (R a whole number of segments)

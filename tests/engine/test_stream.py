@@ -12,7 +12,7 @@ from conftest import assert_same_episodes
 
 from jaxapf.config import MPCConfig, PlannerConfig, SimConfig
 from jaxapf.engine import evaluate, rollout
-from jaxapf.engine.stream import NARROWEST, stream_slots
+from jaxapf.engine.stream import NARROWEST, stream_levels, stream_slots
 from jaxapf.gains import Gains
 from jaxapf.metrics import METRICS, episode_end, episode_metrics
 from jaxapf.planners import PLANNERS
@@ -45,11 +45,12 @@ def test_every_planner_streams_the_fixed_engines_episodes(method, family):
 
 @pytest.mark.slow
 def test_an_episodes_streamed_numbers_do_not_depend_on_its_queue():
-    """The first 64 fields alone (64 slots) and inside a queue of 520 (128 slots, refills, a tail
-    on a narrower vmap): bit for bit the same numbers."""
-    fields = make_scenarios(1, family_params("overtake"), 520)
+    """The first 64 fields alone (64 slots, one width) and inside a queue of 2,080 (512 slots, refills, a
+    tail on the narrower vmaps of 256 and 128 slots): bit for bit the same numbers."""
+    fields = make_scenarios(1, family_params("overtake"), 2080)
     sim = _sim("direction_velocity", 10.0)
-    assert stream_slots(520, 1024) == 128 and stream_slots(64, 1024) == NARROWEST
+    assert stream_slots(2080, 1024) == 512 and stream_slots(64, 1024) == NARROWEST
+    assert stream_levels(512) == (512, 256, 128) and stream_levels(64) == (64,)
     whole = evaluate(fields, Gains(), sim, MPC, width=1024)
     part = evaluate(jax.tree_util.tree_map(lambda x: x[:64], fields), Gains(), sim, MPC, width=1024)
     for name in whole:
@@ -73,6 +74,14 @@ def test_streaming_runs_in_float64():
                                                     (4096, 1024, 1024), (10**6, 512, 512), (100, 16, 16)])
 def test_stream_slots(episodes, width, slots):
     assert stream_slots(episodes, width) == slots
+
+
+@pytest.mark.parametrize("slots, levels", [(64, (64,)), (128, (128,)), (255, (255,)), (256, (256, 128, 64)),
+                                           (512, (512, 256, 128)), (1024, (1024, 512, 256))])
+def test_stream_levels(slots, levels):
+    """A queue's tail narrows from 256 slots on (where it was measured to repay its compilation); never below
+    NARROWEST."""
+    assert stream_levels(slots) == levels and min(levels) >= NARROWEST
 
 
 @pytest.mark.slow
