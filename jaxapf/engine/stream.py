@@ -1,39 +1,14 @@
 r"""Episode streaming: a batch of slots, each taking the next episode of the queue when its own ends.
 
-The fixed-length engine (``evaluate(..., streaming=False)``) flies every episode for the whole
-``t_max`` and applies termination by masks, so a batch keeps simulating episodes that are over (in
-the quick start's sweep the episodes end after 293 of 600 steps on average). The streaming engine
-flies the same episodes with the same control step (:func:`~jaxapf.engine.loop.loop_step`) and
-computes the same metrics, but stops each one when it is over:
-
-* ``slots`` episodes fly side by side (a ``vmap``), in **segments** of :data:`SEGMENT` control
-  steps (a ``lax.scan``); every slot records its episode's samples in a trajectory buffer;
-* after each step a slot checks whether its episode has *certainly* ended
-  (:func:`~jaxapf.metrics.context.certainly_ended`: a swept clearance below ``-END_MARGIN`` or the
-  goal within ``r_goal - END_MARGIN``); at ``T`` steps it is over anyway. The margin makes the check
-  conservative: when it fires, the episode-end rules of the metrics hold at that sample or an
-  earlier one however a compiler rounds them, so the samples flown so far decide every metric;
-* at each segment boundary the finished slots (the oldest, up to a quarter of the slots) hand their
-  records to a **store** and take the next episodes of the queue. Whenever the store holds ``slots`` finished
-  episodes, their metrics are computed in one vmapped call (:func:`~jaxapf.metrics.episode_metrics`
-  on the buffered trajectories, exactly as the fixed engine computes them on its own);
-* when the queue is empty, the slots still flying are moved to the front and later segments run
-  on a narrower vmap (``slots/2``, ``slots/4``: one ``lax.switch`` branch each, :func:`stream_levels`),
-  so the last long episodes do not keep the whole batch busy. Each width is one more copy of the
-  control step to compile, so a queue of fewer than :data:`NARROWING_FROM` slots flies at one width.
-
-Samples after an episode's end are never read by a metric (:mod:`jaxapf.metrics.episode`: every
-metric masks them), so the metrics are those of the fixed engine up to rounding: XLA compiles the
-control step inside a different program and rounds some operations apart in the last bit, which
-the closed loop can amplify along an episode (``jaxapf bench sweep`` measures the agreement:
-docs/performance.md gives the agreement). Within the streaming engine an
-episode's numbers do not depend on the queue it ran in, bit for bit (``tests/engine/test_stream.py``):
-the queue is every (setting, field) episode ``e = g·F + f`` in order, and which slot flies an
-episode, or when, changes nothing in its numbers.
-
-The loop is one ``lax.while_loop`` inside the caller's compiled program; its cost is the steps
-that matter plus at most :data:`SEGMENT` steps per episode (the segment in which it ends), the
-buffer copies at the boundaries and the narrower vmaps of the tail.
+The fixed-length engine (``evaluate(..., streaming=False)``) flies every episode for the whole ``t_max``;
+this engine flies the same episodes with the same control step (:func:`~jaxapf.engine.loop.loop_step`) and
+computes the same metrics, but stops each one once it has *certainly* ended
+(:func:`~jaxapf.metrics.context.certainly_ended`). ``slots`` episodes fly side by side in segments of
+:data:`SEGMENT` steps, record into a ring, hand finished episodes to a store that is measured a batch at a
+time, and take the next episodes of the queue; the tail of a long queue runs on narrower vmaps
+(:func:`stream_levels`). All of it is one ``lax.while_loop`` in the caller's program. An episode's numbers do
+not depend on the queue it ran in, bit for bit; against the fixed engine they agree up to rounding. The
+design, the contract it rests on and what it costs: docs/performance.md, "Episode streaming".
 """
 
 from __future__ import annotations

@@ -1,35 +1,12 @@
-r"""A vortex (tangential) force: the repulsion turned by 90° in the horizontal plane.
+r"""A vortex (tangential) force: the repulsion turned by 90° in the horizontal plane (De Luca and Oriolo, ICRA 1994).
 
-A potential field cannot steer around an obstacle that sits on the line to the goal: there the
-repulsion is anti-parallel to the attraction and the flow stalls (the GNRON trap). A vortex field
-(De Luca and Oriolo, "Local incremental planning for nonholonomic mobile robots", ICRA 1994)
-adds, near each obstacle, a force tangential to it. Here, per obstacle ``o`` with horizontal line
-of sight :math:`s_o = P(p_o - p)_{xy}` and basic repulsive force
-:math:`F_o = -\nabla_p U_{rep}(d_o)` (paper eq. 13, zero beyond ``d_s``):
-
-.. math::
-   T_{vortex} = k_v \sum_o \sigma_o\, R(-90°)\, F_{o,xy}, \qquad
-   \sigma_o = \begin{cases} +1 & (s_o \times w_o)_z \ge 0 \\ -1 & \text{otherwise} \end{cases},
-   \qquad w_o = v_{max} \frac{g - p}{|g - p|} - v_o
-
-so each term has the repulsion's magnitude times ``k_v``, is perpendicular to it, and turns the
-UAV toward the side of the line of sight on which its preferred relative motion ``w_o`` passes
-(``σ = +1``: ``w_o`` points left of ``s_o``, the term points along :math:`R(+90°)\hat s_o`,
-counter-clockwise around the obstacle). ``w_o`` is the velocity the UAV wants (``v_max`` toward
-the goal, the flow's saturated speed) seen from the obstacle, so **the side rule** is the goal's
-side of the line of sight in the obstacle's frame: for a static obstacle it is exactly the goal's
-side (De Luca and Oriolo's rule), for a moving one the side on which the relative motion already
-passes, as the dynamic-obstacle vortex fields choose it (the rotation follows the relative
-velocity). Taking the goal's side in the world frame instead sends the UAV *into* an obstacle
-that comes from behind: its line of sight points away from the goal, so the goal's side of it is
-the obstacle's own lateral side. The side is a function of the current geometry only (no
-memory) and does not depend on the UAV's own velocity, so it does not chatter as the UAV turns;
-``w_o`` exactly on the line counts as left. The term has no z component, so it acts in the plane
-the paper's scenarios fly in; it is added to the flow's force at every prediction point
-(:class:`~jaxapf.planners.apf.ForceTerm`), obstacles extrapolated like the repulsion's.
-
-Registered planner: ``vortex`` = ``APF(Basic(), terms=(Vortex(),))`` (gains ``k_v`` and the basic
-potential's).
+A potential field stalls in front of an obstacle on the line to the goal, where repulsion and
+attraction are anti-parallel; the vortex term :math:`T = k_v \sum_o σ_o R(-90°) F_{o,xy}` turns each
+obstacle's basic repulsion toward the goal's side of the line of sight as seen from the obstacle (so a
+moving obstacle is passed on the side its relative motion already takes). It has no z component and is
+added to the flow's force at every prediction point (:class:`~jaxapf.planners.apf.ForceTerm`). Registered
+planner: ``vortex`` = ``APF(Basic(), terms=(Vortex(),))``. The side rule and why the world-frame goal side
+is wrong for an obstacle from behind: docs/spec.md, "the vortex planner".
 """
 
 from __future__ import annotations

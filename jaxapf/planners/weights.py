@@ -1,34 +1,11 @@
 r"""Repulsive weights ω (paper eq. 14–20): a factor on each obstacle's repulsive potential.
 
-The weighted potential is :math:`U^*_{rep} = \omega\,U_{rep}` (paper eq. 14, 20), and the force is
-``-∇_p`` of it (:mod:`jaxapf.planners.potentials`), so a weight that depends on ``p`` adds the
-sideways term :math:`-U_{rep}\nabla\omega` by itself.
-
-=====================  ===============================================================  ==========
-name                   weight ω                                                         gains
-=====================  ===============================================================  ==========
-``basic``              1                                                                 --
-``direction``          :math:`1 + \gamma (1 + \cos\theta)/2`                   (eq. 15)  γ
-``direction_velocity`` :math:`[1 + \gamma (1 + \cos\theta)/2]\,(2 + k \tanh c)` (eq. 19)  γ, k
-=====================  ===============================================================  ==========
-
-Sign conventions (SPEC 3): with the line of sight ``s = P(p_o - p)`` (UAV to obstacle), ``intent``
-uses :math:`\cos\theta = v\cdot s/(|v|_\epsilon |s|)` and the closing speed
-:math:`c = (v - v_o)\cdot s/|s|` (> 0 when the gap shrinks), as the paper's prose says;
-``literal`` uses its printed :math:`r_e = p - p_o = -s`. :math:`|v|_\epsilon = \sqrt{|v|^2 +
-\epsilon^2}`. The paper's bound ``1 <= ω <= (1+γ)(2+k)`` holds above; below, the true minimum of
-the ``direction_velocity`` weight is ``2 - k`` (< 1 for k > 1, negative for k > 2).
-
-At equal gains the weights also change the repulsion's *strength* (at hover ``direction`` has
-ω = 1 + γ/2, ``direction_velocity`` (1 + γ/2)·2), so a comparison at equal ``k_rep`` compares
-strengths as much as shapes (SPEC 3, "Comparing methods fairly"). :class:`Normalised` divides a
-weight by its value at the reference condition — obstacle abeam (θ = 90°), zero closing speed
-(:meth:`Weight.reference`) — so every normalised weight is 1 there, as ``basic`` is, and only the
-*shape* of the weighting differs; ``direction_normalised`` and ``direction_velocity_normalised``
-are registered.
-
-A new weight is a subclass of :class:`Weight`, flown by registering the potential-field planner that
-uses it: ``register_planner(NAME, APF(weight))``.
+``Basic`` (ω = 1), ``Direction`` (eq. 15) and ``DirectionVelocity`` (eq. 19, the paper's proposal), read
+under either sign convention (``intent``, ``literal``); :class:`Normalised` divides a weight by its value
+abeam at zero closing speed, so only the weighting's shape differs from ``basic``. The force is ``-∇_p`` of
+``ω U_rep`` (:mod:`jaxapf.planners.potentials`), so a weight that depends on ``p`` adds its sideways term
+by itself. A new weight is a subclass of :class:`Weight`, flown by registering ``APF(weight)``. The
+formulas, the conventions and why equal gains compare strengths: docs/spec.md §3.
 """
 
 from __future__ import annotations

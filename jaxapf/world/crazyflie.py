@@ -1,32 +1,13 @@
 r"""The Crazyflie 2.x as identified from real flights: the models of ``drone-models`` (learnsyslab) as plants.
 
-Four plants, one per fidelity of ``drone-models``, each for the airframe ``sim.airframe``
-(:data:`AIRFRAMES`: ``cf2x_L250``, ``cf2x_P250``, ``cf2x_T350``, ``cf21B_500``):
-
-- ``crazyflie_so_rpy``: the attitude's response to a roll/pitch/yaw command as a second-order linear
-  system fitted to flight data, the collective thrust applied at once;
-- ``crazyflie_so_rpy_rotor``: plus the thrust's first-order lag (identified);
-- ``crazyflie_so_rpy_rotor_drag``: plus the identified linear body drag;
-- ``crazyflie_first_principles``: the rigid body driven by four motor speeds (thrust and torque curves,
-  rotor spin-up and spin-down, propeller gyroscopic torque, the same drag), commanded by the Crazyflie's
-  onboard Mellinger attitude controller and power distribution (``drone-controllers``, the firmware's
-  gains) run at the sub-step rate.
-
-The MPC keeps planning with the double integrator; its acceleration ``a`` becomes the vehicle's command
-through the quadrotor plant's mapping (:mod:`jaxapf.world.quadrotor`, step 1): the thrust per unit mass
-``w = a + g e_z`` with the vertical floor and the tilt limit ``tilt_max``, the attitude setpoint of body z
-along ``w`` with zero yaw, the collective thrust ``m w·b3`` on the current body axis. The fitted models
-take that setpoint as roll and pitch (``xyz`` Euler angles, yaw 0) and the thrust in newtons, clipped to
-the airframe's ``4 thrust_min … 4 thrust_max``; for the first-principles model the onboard controller
-turns the same command into motor speeds, each rotor's force within ``[thrust_min, thrust_max]``.
-Clipping is what ``saturation_time`` counts; ``max_tilt`` is the largest angle of the body's z axis from the vertical.
-
-Each model gives the state's time derivative (``drone-models``' own function, parametrised with the
-airframe's published coefficients; the attitude's from the body rates, ``q̇ = ½ q ⊗ (0, ω)``, since the
-package's ``quat_dot`` is not meant for integration); the plant integrates it with classical Runge–Kutta over
-``sim.substeps`` steps per control step, the command held within a sub-step and recomputed between
-them, the quaternion re-normalised after each. The world frame is jaxapf's (z up, as ``drone-models``'),
-the quaternion ``(x, y, z, w)`` as ``drone-models`` keeps it.
+Four plants, one per fidelity, for the airframe ``sim.airframe`` (:data:`AIRFRAMES`): ``crazyflie_so_rpy``
+(the fitted second-order attitude response, thrust at once), ``crazyflie_so_rpy_rotor`` (plus the thrust's
+identified lag), ``crazyflie_so_rpy_rotor_drag`` (plus the identified body drag) and
+``crazyflie_first_principles`` (four motors driven by the onboard Mellinger controller of
+``drone-controllers``). The MPC keeps planning with the double integrator; its acceleration becomes the
+vehicle's command through the quadrotor plant's mapping, and each model's own time derivative is integrated
+by classical Runge–Kutta over ``sim.substeps`` sub-steps per control step. The models, the command and its
+limits: docs/spec.md §1, "Vehicles identified from real flights".
 
 Needs the ``vehicles`` extra (``pip install 'jaxapf[vehicles]'``). ``drone-models`` refuses to load after
 SciPy was imported without ``SCIPY_ARRAY_API=1``; importing jaxapf sets it.
