@@ -3,7 +3,7 @@
 A number in a bound document carries, right after it, an HTML comment naming the value it reports in a
 committed result (invisible where the Markdown is rendered)::
 
-    the engine ran 61,336<!--=bench/engine:runs.0.engine.steps_per_s--> scenario-steps/s
+    the engine ran 230,862<!--=bench/engine:runs.0.engine.steps_per_s--> scenario-steps/s
     falls by 11.3<!--=study/robustness:wind_mean_change.direction×100--> points
     the gradient tuner is *better*<!--=study/tuner_study:verdict.d16--> in 3<!--=...--> of 6 runs
 

@@ -23,13 +23,13 @@ def text_of(page: str) -> str:
 
 
 def test_a_bound_number_is_its_fact_at_the_precision_written():
-    text = "ran 61,336<!--=bench/engine:runs.0.engine.steps_per_s--> steps/s, 294<!--=bench/engine:runs.0.speedup-->×"
+    text = "ran 230,862<!--=bench/engine:runs.0.engine.steps_per_s--> steps/s, 305<!--=bench/engine:runs.0.speedup-->×"
     assert problems(text) == []
-    assert problems(text.replace("61,336", "61,337")) and problems(text.replace("294", "295"))
-    assert problems("61,335.6<!--=bench/engine:runs.0.engine.steps_per_s-->") == []
-    assert problems("61,335.5<!--=bench/engine:runs.0.engine.steps_per_s-->")  # 61335.551: not this one
+    assert problems(text.replace("230,862", "230,863")) and problems(text.replace("305", "306"))
+    assert problems("230,861.5<!--=bench/engine:runs.0.engine.steps_per_s-->") == []
+    assert problems("230,861.6<!--=bench/engine:runs.0.engine.steps_per_s-->")  # 230861.537: not this one
     # a ratio of two facts, a scale, a sign
-    assert problems("294<!--=bench/engine:runs.0.engine.steps_per_s÷runs.0.oracle.steps_per_s-->") == []
+    assert problems("305<!--=bench/engine:runs.0.engine.steps_per_s÷runs.0.oracle.steps_per_s-->") == []
     assert problems("47.7<!--=bench/engine:runs.0.engine.success_rate×100--> %") == []
     assert problems("−47.7<!--=bench/engine:-runs.0.engine.success_rate×100-->") == []
     assert problems("+47.7<!--=bench/engine:-runs.0.engine.success_rate×100-->")  # the sign is the fact's
