@@ -1,28 +1,10 @@
 r"""Condensed box-constrained MPC solved by accelerated projected gradient (paper eq. 8–12, SPEC 4).
 
-Prediction (paper eq. 8): stacking the states ``x(k..k+N)`` and inputs ``a(k..k+N-1)``,
-
-.. math::  X = M x_0 + C U, \qquad M = [I; A; A^2; \dots; A^N], \qquad
-           C_{ij} = A^{i-1-j} B \ (j < i), \ 0 \text{ otherwise}.
-
-Cost (paper eq. 9): :math:`J = (X - X_{ref})^\top Q_{aug} (X - X_{ref}) + U^\top R_{aug} U` with
-``Q_aug = blkdiag(0, Q, …, Q, F)`` (x(k) is fixed, so it carries no weight; Q on x(k+1..k+N-1),
-terminal F on x(k+N)) and ``R_aug = blkdiag(R, …, R)``. Substituting (paper eq. 10–11) gives
-
-.. math::  H = C^\top Q_{aug} C + R_{aug}, \qquad E = C^\top Q_{aug} (M x_0 - X_{ref}),
-
-and :math:`J = 2(\tfrac12 U^\top H U + E^\top U) + \text{const}`, so the QP of eq. 12,
-:math:`\min_U \tfrac12 U^\top H U + E^\top U` s.t. ``lower <= U <= upper``, has the minimiser of J.
-
-The QP is solved by FISTA (Nesterov-accelerated projected gradient) with step ``1/L``,
-``L = λ_max(H)`` (plus the curvature bound of an optional smooth convex penalty), a fixed iteration
-count (so it vmaps and reverse-differentiates) and a warm start.
-
-With diagonal per-axis weights the double integrator decouples: the 3N-dimensional problem is
-three independent N-dimensional ones (:func:`axis_problem`), which the closed loop solves in a
-``vmap`` over the axes. The paper's velocity limit enters as the smooth convex penalty
-:math:`\tfrac12\rho\sum_i \max(|v_i| - v_{max}, 0)^2` on predicted velocities, so the feasible set
-stays the acceleration box.
+The prediction and cost matrices of the condensed QP (:func:`prediction_matrices`, :func:`condensed_qp`),
+FISTA with a fixed iteration count and a warm start (:func:`fista`, :func:`solve_box_qp`), and the closed
+loop's solver: with diagonal per-axis weights the double integrator's 3N-dimensional problem is three
+N-dimensional ones (:class:`AxisProblem`, :func:`solve_axes`), the velocity limit a smooth convex penalty
+so the feasible set stays the acceleration box. The derivation: docs/spec.md §4.
 """
 
 from __future__ import annotations

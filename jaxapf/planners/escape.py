@@ -1,31 +1,11 @@
-r"""Stall escape: a planner with state that steers a stalled UAV toward a virtual goal to the side.
+"""Stall escape: a planner with state that steers a stalled UAV toward a virtual goal to the side.
 
-A potential-field UAV that stops far from its goal sits in a local minimum: attraction and
-repulsion cancel, and waiting does not help. :class:`StallEscape` wraps any planner and carries,
-through the episode, how long the UAV has been slow and what it is doing about it
-(:meth:`StallEscape.init`/:meth:`StallEscape.reference`, a pair of pure functions):
-
-- **Detection.** The UAV counts as slow while its speed is below ``sim.metrics.v_stall`` and it
-  is farther than ``sim.episode.r_goal`` from the goal; after ``t_detect`` seconds of being slow
-  (and not escaping), an escape starts.
-- **Escape.** For ``t_escape`` seconds the wrapped planner is given a *virtual goal* instead of
-  the real one: the point ``d_escape`` metres to the side of the UAV, perpendicular to the
-  horizontal direction to the goal, fixed when the escape starts. The first escape's side (left
-  or right of the goal direction) is drawn at random, once per episode, from the field's key
-  (:func:`~jaxapf.datatypes.episode_key`, purpose ``"escape"``); later escapes alternate (a stall
-  that survives one side tries the other). Afterwards the real goal is restored, and detection
-  starts afresh.
-
-Virtual-goal escapes are a classical remedy for local minima of potential fields. The random
-first side keeps a symmetric trap from always being left the same way, and since it comes from the
-field's key, the same field always flies the same episode, whatever the gains or the batch (same
-seed, same numbers). Every quantity is a ``jnp.where`` of the state, so the planner jit-compiles,
-vmaps and differentiates (the switching times themselves carry no gradient).
-
-Registered planners: ``basic_escape`` = ``StallEscape(APF(Basic()))`` and
-``direction_velocity_escape`` = ``StallEscape(APF(DirectionVelocity()))`` (the paper's weight, eq. 19,
-with the escape: a variant, not the paper's method); gains ``t_detect``, ``t_escape``, ``d_escape``
-and the wrapped potential's.
+:class:`StallEscape` wraps any planner (``init``/``reference``, a pair of pure functions): after ``t_detect``
+seconds slow and away from the goal, the wrapped planner flies for ``t_escape`` seconds toward a virtual goal
+``d_escape`` metres to the side, the first side drawn from the field's key (purpose ``"escape"``), later ones
+alternating. Every quantity is a ``jnp.where`` of the state, so it jit-compiles, vmaps and differentiates.
+Registered planners: ``basic_escape`` and ``direction_velocity_escape`` (the paper's weight with the escape:
+a variant). The rule and its defaults: docs/spec.md, "stall escape".
 """
 
 from __future__ import annotations
