@@ -34,9 +34,9 @@ SEGMENT = 10
 #: The narrowest vmap of the engine: a short queue flies at it. Below it XLA:CPU rounds a few
 #: episodes differently (``tests/engine/test_stream.py``).
 NARROWEST = 64
-#: The fewest slots whose tail moves to narrower vmaps: with fewer, a call saves a small fraction of the
-#: second or more that compiling the narrower widths costs (``benchmarks/stream_levels.py``,
-#: docs/performance.md); with more, a sweep's or a tuner's repeated calls of one program soon repay it.
+#: The fewest slots whose tail moves to narrower vmaps: with fewer, a call saves a fraction of what
+#: compiling the narrower widths costs (``benchmarks/stream_levels.py``, docs/performance.md); with more,
+#: a call saves more, and a program called for several chunks repays it.
 NARROWING_FROM = 256
 
 
