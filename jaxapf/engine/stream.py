@@ -235,12 +235,16 @@ def stream_metrics(fields: Any, gains: Gains, sim: SimConfig, mpc: MPCConfig, sl
         fresh["born"] = jnp.broadcast_to(st["clock"], (moves,))
         fly = _put(fly, jnp.where(moved, index, slots), fresh)
         st = {**st, "fly": fly, "next": jnp.minimum(st["next"] + n_moved, total)}
+        if len(levels) == 1:  # one width: no slot ever moves to a narrower one
+            return st
         # an empty queue: the slots still flying move to the front once a narrower level holds them
         active = fly["id"] >= 0
         shrink = (st["next"] >= total) & (level(jnp.sum(active)) > level(span(fly)))
-        order = jnp.argsort(~active, stable=True)
-        return jax.lax.cond(shrink, lambda s: {**s, "fly": _rows(s["fly"], order), "ring": _columns(s["ring"], order)},
-                            lambda s: s, st)
+
+        def to_front(s: dict[str, Any]) -> dict[str, Any]:
+            order = jnp.argsort(~active, stable=True)
+            return {**s, "fly": _rows(s["fly"], order), "ring": _columns(s["ring"], order)}
+        return jax.lax.cond(shrink, to_front, lambda s: s, st)
 
     def body(st: dict[str, Any]) -> dict[str, Any]:
         st = jax.lax.switch(level(span(st["fly"])), [segment(w) for w in levels], st)
