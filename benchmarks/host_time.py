@@ -6,9 +6,9 @@ A spec with ``[random] n = --settings`` gain samples on ``clutter`` is planned a
 then ``--parts`` of its chunks are written as the sweep writes them (:func:`~jaxapf.sweep.schema.part_table`
 and :func:`~jaxapf.sweep.output.write_part`, into a temporary folder) from metric arrays of the right
 shapes and dtypes (no episode is flown: this is the host's share only). Every call of the spec's setting
-expansion (``SweepSpec.settings`` and ``SweepSpec.gain_columns``) made while writing is timed, and so is
-one expansion from scratch (a fresh spec's first call: what every part paid before the expansion was
-kept with the spec).
+expansion (``SweepSpec.settings`` and ``SweepSpec.gain_columns``) made while writing is counted and timed
+(the plan carries the settings and gain columns, so a part should make none), and so is one expansion
+from scratch (a fresh spec's first call: what every part paid before).
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ def measure(settings: int, fields: int, parts: int) -> dict:
     from jaxapf.metrics import METRICS
     from jaxapf.sweep import parse_spec, plan_sweep
     from jaxapf.sweep.output import write_part
-    from jaxapf.sweep.schema import part_table, schema, sweep_meta
+    from jaxapf.sweep.schema import part_table, schema
     from jaxapf.sweep.spec import SweepSpec
 
     table = {"name": "host-time", "scenario": {"families": ["clutter"], "fields": fields * parts, "oracle": False},
@@ -68,8 +68,7 @@ def measure(settings: int, fields: int, parts: int) -> dict:
 
     spec = parse_spec(table)
     plan = plan_sweep(spec, chunk_fields=fields, devices=1, width=8, backend="cpu")
-    meta = sweep_meta(spec, plan)
-    layout = schema(plan, meta)
+    layout = schema(plan)
     chunks = plan.chunks[:parts]
     spent: list[float] = []
     per_part = []

@@ -45,15 +45,14 @@ def write_synthetic(plan, machines: int, root: pathlib.Path, seed: int = 0) -> l
 
     from jaxapf.sweep.output import write_part
     from jaxapf.sweep.plan import shard_chunks
-    from jaxapf.sweep.schema import part_table, schema, sweep_meta
+    from jaxapf.sweep.schema import part_table, schema
 
     rng = np.random.default_rng(seed)
     folders = []
     for i in range(machines):
         folder = root / f"shard-{i:03d}"
         folder.mkdir(parents=True)
-        meta = sweep_meta(plan.spec, plan, folder)
-        layout = schema(plan, meta)
+        layout = schema(plan)  # the plan's metadata: the same in every folder (the spec has no .py plugin)
         for chunk in shard_chunks(plan, i, machines):
             block = plan.blocks[(chunk.variant, chunk.family)]
             shape = (len(plan.variants[chunk.variant].settings), block.padded)

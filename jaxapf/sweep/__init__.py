@@ -15,6 +15,7 @@ rows in memory.
 from ..validation import MAX_SEED
 from .audit import prepare_output
 from .frame import evaluate_frame
+from .meta import FORMAT, sweep_meta
 from .plan import (
                    CALLS_PER_PART,
                    DEFAULT_MEMORY_BUDGET,
@@ -28,7 +29,6 @@ from .plan import (
 )
 from .read import RowConfig, read_sweep, row_config, sweep_spec
 from .run import SweepResult, dry_run, parse_size, run_sweep
-from .schema import FORMAT, sweep_meta
 from .spec import Setting, SweepSpec, load_spec, parse_spec, read_toml
 
 __all__ = [

@@ -23,20 +23,20 @@ from __future__ import annotations
 import dataclasses
 import json
 import pathlib
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from ..io.lock import LOCK_NAME
 from ..validation import ConfigError
-from .division import forget_division, is_division_file
-from .output import _PROBE, _TMP, PartUnreadable, part_files, read_part
-from .plan import Chunk, gaps, variants
-from .schema import identity, read_meta, sweep_spec
+from .division import Division, agree_division, forget_division, is_division_file
+from .meta import identity, read_meta, sweep_spec
+from .output import _PROBE, _TMP, PartUnreadable, part_files, part_record, read_part
+from .plan import Chunk, Plan, Variant, gaps, shard_chunks, variants
 from .spec import SweepSpec
 
 __all__ = ["Audit", "audit_output", "audit_folder", "read_parts", "reference_meta", "judge", "describe_audit",
-           "SET_ASIDE", "prepare_output", "check_folder", "repair_parts"]
+           "SET_ASIDE", "resume", "prepare_output", "check_folder", "repair_parts"]
 
 #: Where ``--repair`` moves foreign parts (hidden: Parquet readers skip it).
 SET_ASIDE = ".set-aside"
@@ -121,9 +121,9 @@ def reference_meta(out: pathlib.Path, metas: Mapping[str, dict]) -> dict:
 
 
 def judge(tables: Mapping[str, Any], metas: Mapping[str, dict], damaged: Mapping[str, str], meta: Mapping[str, Any],
-          spec: SweepSpec) -> Audit:
-    """The :class:`Audit` of parts read by :func:`read_parts`, against the sweep of ``meta`` and ``spec``."""
-    groups = variants(spec)
+          spec: SweepSpec, groups: Sequence[Variant]) -> Audit:
+    """The :class:`Audit` of parts read by :func:`read_parts`, against the sweep of ``meta`` and ``spec``
+    (its settings grouped into ``groups``, :func:`~jaxapf.sweep.plan.variants`)."""
     settings = {v.index: [s.index for s in v.settings] for v in groups}
     want = identity(meta)
     foreign, sound, other_sweep = {}, [], set()
@@ -166,19 +166,19 @@ def judge(tables: Mapping[str, Any], metas: Mapping[str, dict], damaged: Mapping
                  rows, expected, frozenset(other_sweep))
 
 
-def audit_output(out: pathlib.Path, meta: Mapping[str, Any] | None = None, spec: SweepSpec | None = None) -> Audit:
-    """The audit of the output ``out`` against the sweep of ``meta`` (:func:`~jaxapf.sweep.schema.sweep_meta`)
-    and ``spec``; without them, against the sweep most of its readable parts belong to."""
-    return audit_folder(out, meta, spec)[0]
+def audit_output(out: pathlib.Path, plan: Plan) -> Audit:
+    """The audit of the output ``out`` against the sweep ``plan`` plans (its metadata, spec and variants)."""
+    return judge(*read_parts(out), plan.meta, plan.spec, plan.variants)
 
 
-def audit_folder(out: pathlib.Path, meta: Mapping[str, Any] | None = None, spec: SweepSpec | None = None
-                 ) -> tuple[Audit, dict]:
-    """:func:`audit_output` and the metadata it judged against (without ``meta``, that of the sweep most
-    of the readable parts belong to), every part read once."""
+def audit_folder(out: pathlib.Path, meta: Mapping[str, Any] | None = None) -> tuple[Audit, dict]:
+    """The audit of the output ``out`` against the sweep of the metadata ``meta``
+    (:func:`~jaxapf.sweep.meta.sweep_meta`), without it that of the sweep most of its readable parts
+    belong to (``jaxapf sweep verify``, merge), and the metadata it judged against; every part read once."""
     tables, metas, damaged = read_parts(out)
     meta = dict(meta) if meta is not None else reference_meta(out, metas)
-    return judge(tables, metas, damaged, meta, spec or sweep_spec(meta)), meta
+    spec = sweep_spec(meta)
+    return judge(tables, metas, damaged, meta, spec, variants(spec)), meta
 
 
 def describe_audit(out: pathlib.Path, found: Audit, meta: Mapping[str, Any], limit: int = 10) -> str:
@@ -206,9 +206,8 @@ def describe_audit(out: pathlib.Path, found: Audit, meta: Mapping[str, Any], lim
     return "\n".join(lines)
 
 
-def prepare_output(out: pathlib.Path, meta: Mapping[str, Any], spec: Any, *, overwrite: bool, clean: bool,
-                   repair: bool = False) -> list[Chunk]:
-    """Check ``out`` against this sweep (``meta``, ``spec``) and return the chunks already finished there.
+def prepare_output(out: pathlib.Path, plan: Plan, *, overwrite: bool, clean: bool, repair: bool = False) -> list[Chunk]:
+    """Check ``out`` against the sweep ``plan`` plans and return the chunks already finished there.
 
     Every part is read and checked against its name and this sweep (:func:`~jaxapf.sweep.audit.audit_output`).
     Refuses (:class:`ConfigError`) a path that is a file, a directory holding other files, an output of
@@ -237,11 +236,11 @@ def prepare_output(out: pathlib.Path, meta: Mapping[str, Any], spec: Any, *, ove
         return []
     if not parts:
         return []
-    found = audit_output(out, meta, spec)
+    found = audit_output(out, plan)
     other = found.other_sweep
     if other and not found.sound and len(other) == len(parts) - len(found.damaged):
         old = identity(read_meta(out / sorted(other)[0]))
-        new = identity(meta)
+        new = identity(plan.meta)
         what = "; ".join(f"{k} {old[k]!s:.12} here, {new[k]!s:.12} now" for k in new if old[k] != new[k])
         raise ConfigError(f"--out {out} holds a different sweep ({what}); rerun with --overwrite to replace it, "
                           "or choose another --out")
@@ -258,6 +257,78 @@ def prepare_output(out: pathlib.Path, meta: Mapping[str, Any], spec: Any, *, ove
     if problems and clean:
         repair_parts(out, found, problems)
     return list(found.sound)
+
+
+def resume(out: pathlib.Path, plan: Plan, shard: tuple[int, int] | None = None, *, overwrite: bool = False,
+           repair: bool = False, dry: bool = False) -> tuple[tuple[Chunk, ...], tuple[Chunk, ...]]:
+    """``(todo, done)``: the chunks of ``plan`` (with ``shard = (i, n)``, of its shard,
+    :func:`~jaxapf.sweep.plan.shard_chunks`) still to run in ``out``, and those sound parts there hold.
+
+    The whole sweep's output is checked by :func:`prepare_output` and its gaps cut at this plan's sizes;
+    a shard's by its own rules (:func:`_shard_audit`), and its division must agree with the other
+    shards' (:func:`~jaxapf.sweep.division.agree_division`). Unless ``dry`` (``--dry-run``: nothing
+    changes), the run holding the output's lock clears what a dead run left and carries out ``repair``.
+    """
+    if shard is None:
+        done = tuple(prepare_output(out, plan, overwrite=overwrite, clean=not dry, repair=repair))
+        return plan.chunks_left(done), done
+    mine = shard_chunks(plan, *shard)
+    todo, found, problems = _shard_audit(out, plan, mine, shard, repair)
+    agree_division(out, Division.of(plan, shard[1]), shard, dry=dry)
+    if not dry:
+        _clean_shard(out, found, problems, mine)
+    return todo, tuple(c for c in mine if c not in todo)
+
+
+def _shard_audit(out: pathlib.Path, plan: Plan, mine: tuple[Chunk, ...], shard: tuple[int, int], repair: bool
+                 ) -> tuple[tuple[Chunk, ...], Any, dict[str, str]]:
+    """The chunks of shard ``shard`` (``mine``, of ``plan``) still to run in ``out`` (those no sound part
+    holds), the audit of ``out`` and the shard's own parts that cannot be trusted; reads, changes
+    nothing. Refused: a folder of another sweep (the vmap width, hence the kind of device, is part of a
+    sweep's identity), parts chunked otherwise than this plan, or written by a division into another
+    number of shards, and, without ``repair``, damaged, foreign or overlapping parts of this shard; any
+    other part is another shard's business (`jaxapf sweep verify` reports it)."""
+    names = {c.name for c in mine}
+    if not out.exists():
+        return mine, None, {}
+    check_folder(out)
+    if not part_files(out):
+        return mine, None, {}
+    found = audit_output(out, plan=plan)
+    other = sorted(found.other_sweep)
+    if other:
+        raise ConfigError(f"--out {out} holds parts {found.foreign[other[0]]} (e.g. {other[0]}); "
+                          "every shard must run the same spec, float type and kind of device")
+    planned = set(plan.chunks)
+    otherwise = [c.name for c in found.sound if c not in planned]
+    if otherwise:
+        raise ConfigError(f"--out {out} holds parts chunked otherwise than this plan (e.g. {otherwise[0]}): shards "
+                          "chunk on one device; give every shard the same --chunk-fields and --memory-budget, and "
+                          "write a sweep run otherwise elsewhere")
+    divisions = {tuple(r["shard"]) for c in found.sound if "shard" in (r := part_record(out / c.name))}
+    if any(n != shard[1] for _, n in divisions):
+        counts = sorted({n for _, n in divisions})
+        raise ConfigError(f"--out {out} is being written as {', '.join(map(str, counts))} shard(s), not "
+                          f"{shard[1]}: every shard of one output must give the same N in --shard I/N")
+    problems = {n: why for n, why in found.problems.items() if n in names}
+    if problems and not repair:
+        listed = "; ".join(f"{n}: {problems[n]}" for n in sorted(problems)[:3])
+        raise ConfigError(f"--out {out}: {len(problems)} part(s) of shard {shard[0]}/{shard[1]} cannot be trusted: "
+                          f"{listed}. Rerun the same command with --repair to recompute them")
+    sound = {c.name for c in found.sound} - set(problems)
+    return tuple(c for c in mine if c.name not in sound), found, problems
+
+
+def _clean_shard(out: pathlib.Path, found: Any, problems: Mapping[str, str], mine: tuple[Chunk, ...]) -> None:
+    """What ``--repair`` does to the shard's own ``problems`` (of the audit ``found``), and the temporary
+    parts a dead run of this shard left (the shard lock is ours; others' are theirs)."""
+    if found is None:
+        return
+    names = {c.name for c in mine}
+    repair_parts(out, found, problems)
+    for tmp in out.iterdir():
+        if tmp.name.startswith(".part-") and tmp.name.split(".tmp-")[0][1:] in names:
+            tmp.unlink(missing_ok=True)
 
 
 def check_folder(out: pathlib.Path) -> None:

@@ -25,9 +25,9 @@ from typing import Any, Iterator, Mapping
 from ..io.lock import LOCK_NAME, LockInfo, OutputLock, live_shard_locks, write_atomic
 from ..text import format_bytes
 from ..validation import ConfigError, first_line
+from .meta import identity
 from .output import part_files
 from .plan import Plan
-from .schema import identity
 
 __all__ = ["DIVISION_NAME", "Division", "agree_division", "forget_division", "is_division_file"]
 
@@ -40,7 +40,7 @@ _GUARD = f"{LOCK_NAME}-division"
 @dataclasses.dataclass(frozen=True)
 class Division:
     """How a sweep is divided: ``shards`` processes dealing the chunks of a plan (``plan``: the SHA-256
-    of its chunk names, ``chunks`` of them) of the sweep ``identity`` (:func:`~jaxapf.sweep.schema.identity`);
+    of its chunk names, ``chunks`` of them) of the sweep ``identity`` (:func:`~jaxapf.sweep.meta.identity`);
     ``chunking`` says in words what cut it (the options a user gives)."""
 
     shards: int
@@ -50,12 +50,12 @@ class Division:
     chunking: str
 
     @classmethod
-    def of(cls, plan: Plan, meta: Mapping[str, Any], shards: int, chunk_fields: int | None,
-           memory_budget: int) -> "Division":
+    def of(cls, plan: Plan, shards: int) -> "Division":
+        """``plan`` (before any chunk of it ran) dealt to ``shards`` processes."""
         names = "\n".join(c.name for c in plan.chunks).encode()
-        chunking = (f"--chunk-fields {chunk_fields}" if chunk_fields is not None
-                    else f"--memory-budget {format_bytes(memory_budget)}")
-        return cls(shards, hashlib.sha256(names).hexdigest(), len(plan.chunks), identity(meta), chunking)
+        chunking = (f"--chunk-fields {plan.chunk_fields}" if plan.chunk_fields is not None
+                    else f"--memory-budget {format_bytes(plan.memory_budget)}")
+        return cls(shards, hashlib.sha256(names).hexdigest(), len(plan.chunks), identity(plan.meta), chunking)
 
     def agrees(self, other: "Division") -> bool:
         return (self.shards, self.plan, dict(self.identity)) == (other.shards, other.plan, dict(other.identity))

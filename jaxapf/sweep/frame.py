@@ -25,7 +25,7 @@ from ..scenarios import FamilyParams, family_params, make_scenarios
 from ..scenarios import solvable as solvable_fields
 from ..validation import BoundWarning, ConfigError, check_int
 from .plan import Chunk, plan_sweep
-from .schema import part_table, schema, sweep_meta
+from .schema import part_table, schema
 from .spec import SweepSpec, parse_spec
 
 __all__ = ["evaluate_frame"]
@@ -85,17 +85,15 @@ def evaluate_frame(family: str | FamilyParams, gains: Gains | None = None, sim: 
 
     scenarios = make_scenarios(seed, params, fields)
     arrays = evaluate(scenarios, gains, sim, mpc, width, names, streaming=streaming)
-    plan = dataclasses.replace(plan_sweep(spec, chunk_fields=fields, devices=1, width=width or default_width()),
-                               metrics=names)
-    meta = sweep_meta(spec, plan)
+    plan = plan_sweep(spec, chunk_fields=fields, devices=1, width=width or default_width(), metrics=names)
     host = {m: np.asarray(a).reshape(count, fields) for m, a in jax.device_get(arrays).items()}
     oracle = None
     if solvable:
         oracle = solvable_fields(jax.device_get(scenarios), r_uav=sim.vehicle.r_uav, v_max=sim.vehicle.v_max,
                                  t_max=sim.episode.t_max, r_goal=sim.episode.r_goal)
-    rows = part_table(plan, schema(plan, meta), Chunk(0, name, 0, fields), host, np.asarray(scenarios.kind), oracle)
+    rows = part_table(plan, schema(plan), Chunk(0, name, 0, fields), host, np.asarray(scenarios.kind), oracle)
     frame = rows.to_pandas()
-    frame.attrs["jaxapf"] = meta
+    frame.attrs["jaxapf"] = dict(plan.meta)
     return frame
 
 

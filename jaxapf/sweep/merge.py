@@ -18,10 +18,10 @@ from typing import Sequence
 
 from ..io.lock import OutputLock, check_writable, write_atomic
 from ..validation import ConfigError
-from .audit import Audit, audit_folder, audit_output, check_folder
+from .audit import Audit, audit_folder, check_folder
+from .meta import identity, read_meta
 from .output import part_record, verify_part
 from .plan import Chunk
-from .schema import identity, read_meta
 
 __all__ = ["MergeResult", "merge_outputs"]
 
@@ -74,7 +74,7 @@ def merge_outputs(sources: Sequence[str | pathlib.Path], out: str | pathlib.Path
         check_folder(out)  # a folder of other files is not a dataset to merge into
     check_writable(out)
     with OutputLock(out):
-        here = audit_output(out, metas[0]) if any(Chunk.from_name(p.name) for p in out.iterdir()) else None
+        here = audit_folder(out, metas[0])[0] if any(Chunk.from_name(p.name) for p in out.iterdir()) else None
         if here is not None and here.sound:
             version = read_meta(out / here.sound[0].name).get("versions", {}).get("jaxapf")
             if version != first["jaxapf"]:
@@ -112,5 +112,5 @@ def merge_outputs(sources: Sequence[str | pathlib.Path], out: str | pathlib.Path
                 raise ConfigError(f"sweep merge: the copy of {src} did not read back ({problem}); "
                                   f"{copied} part(s) were copied before it")
             copied += 1
-        result = audit_output(out, metas[0])
+        result = audit_folder(out, metas[0])[0]
     return MergeResult(out, copied, len(chosen) - copied, result)

@@ -24,8 +24,8 @@ import numpy as np
 
 from ..io.lock import write_atomic
 from ..validation import ConfigError, first_line
+from .meta import LEGACY_FORMAT, META_KEY
 from .plan import Chunk
-from .schema import LEGACY_FORMAT, META_KEY
 
 __all__ = ["PART_KEY", "write_part", "part_files", "content_hash", "verify_part", "read_part", "PartUnreadable",
            "part_record"]

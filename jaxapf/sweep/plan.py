@@ -21,6 +21,7 @@ from ..metrics import METRICS
 from ..metrics.swarm import swarm_metric_names
 from ..text import format_bytes, format_seconds
 from ..validation import ConfigError, check_int
+from .meta import sweep_meta
 from .spec import Setting, SweepSpec
 
 __all__ = [
@@ -266,6 +267,10 @@ class Plan:
       blocks: shapes per (variant index, family).
       width: the sweep's vmap width.
       metrics: the metrics every episode yields (the registry's at planning time).
+      gain_columns: the gains that get a column (:meth:`SweepSpec.gain_columns`).
+      meta: the metadata every part carries, the sweep's identity (:func:`~jaxapf.sweep.meta.sweep_meta`);
+        the audit judges an output's parts against it.
+      chunk_fields, memory_budget: what cut the chunks (``--chunk-fields``, ``--memory-budget``).
     """
 
     spec: SweepSpec
@@ -277,10 +282,18 @@ class Plan:
     width: int
     dtype: str
     metrics: tuple[str, ...]
+    gain_columns: tuple[str, ...]
+    meta: Mapping[str, Any]
+    chunk_fields: int | None = None
+    memory_budget: int = DEFAULT_MEMORY_BUDGET
 
     def resumed(self, done: Sequence[Chunk]) -> "Plan":
-        """This plan with ``done`` finished: the chunks that fill the gaps they leave, each block cut
-        at its own size (the blocks, the costly part of planning, are kept)."""
+        """This plan with ``done`` finished and :meth:`chunks_left` to run (the blocks, the costly part of
+        planning, are kept)."""
+        return dataclasses.replace(self, chunks=self.chunks_left(done), done=tuple(done))
+
+    def chunks_left(self, done: Sequence[Chunk]) -> tuple[Chunk, ...]:
+        """The chunks that fill the gaps ``done`` leaves, each block cut at its own size."""
         chunks = []
         for v in self.variants:
             for family in self.spec.families:
@@ -289,7 +302,7 @@ class Plan:
                 for lo, hi in gaps(finished, self.spec.fields):
                     chunks += [Chunk(v.index, family, a, min(a + block.fields, hi))
                                for a in range(lo, hi, block.fields)]
-        return dataclasses.replace(self, chunks=tuple(chunks), done=tuple(done))
+        return tuple(chunks)
 
     @property
     def settings(self) -> int:
@@ -328,12 +341,13 @@ class Plan:
         programs = len({_program(self.blocks[(c.variant, c.family)]) for c in self.chunks})
         return run / self.devices, programs * COMPILE_S * self.devices
 
-    def padding_note(self) -> str | None:
-        """One line when more than 10 % of the episodes still to simulate are padding (chunks
-        filled up to whole vmapped batches on every device, e.g. after an odd ``--chunk-fields``)."""
+    def padding_note(self, chunks: Sequence[Chunk] | None = None) -> str | None:
+        """One line when more than 10 % of the episodes still to simulate (``chunks``, default the plan's)
+        are padding (chunks filled up to whole vmapped batches on every device, e.g. after an odd
+        ``--chunk-fields``)."""
         real = padded = 0
         worst = None
-        for c in self.chunks:
+        for c in self.chunks if chunks is None else chunks:
             b = self.blocks[(c.variant, c.family)]
             real += b.settings * (c.stop - c.start)
             padded += b.settings * b.padded
@@ -361,9 +375,12 @@ MAX_CHUNKS = 1_000_000
 
 def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: int = DEFAULT_MEMORY_BUDGET,
                chunk_fields: int | None = None, devices: int | None = None, width: int | None = None,
-               backend: str | None = None) -> Plan:
-    """Cut the spec's work into chunks (skipping the ``done`` ones), as docs/sweep.md says; ``backend``:
-    the JAX backend the chunks will run on (default this process's; a Ray run's is its workers')."""
+               backend: str | None = None, out: Any = None, versions: Mapping[str, str] | None = None,
+               metrics: Sequence[str] | None = None) -> Plan:
+    """Cut the spec's work into chunks (skipping the ``done`` ones), as docs/sweep.md says; ``backend``
+    and ``versions``: the JAX backend and package versions of the process the chunks will run in
+    (default this one's; a Ray run's are its workers'); ``out``: the output folder (where the parts
+    record their ``.py`` plugins from); ``metrics``: default the registry's."""
     from ..engine import default_width
 
     if chunk_fields is not None:
@@ -390,9 +407,10 @@ def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: in
     if count > MAX_CHUNKS:
         raise ConfigError(f"the sweep would be cut into {count:,} chunks (parts); at most {MAX_CHUNKS:,} are allowed: "
                           "fewer scenario.fields, or larger chunks (--chunk-fields, --memory-budget)")
-    plan = Plan(spec, tuple(groups), blocks, (), (), devices, width, str(dtype),
-                swarm_metric_names() if spec.swarm else METRICS.names())
-    return plan.resumed(done)
+    metrics = tuple(metrics or (swarm_metric_names() if spec.swarm else METRICS.names()))
+    meta = sweep_meta(spec, str(dtype), width, metrics, out, versions)
+    return Plan(spec, tuple(groups), blocks, (), (), devices, width, str(dtype), metrics, spec.gain_columns(), meta,
+                chunk_fields, memory_budget).resumed(done)
 
 
 def parse_shard(text: str) -> tuple[int, int]:

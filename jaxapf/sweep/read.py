@@ -12,9 +12,9 @@ from ..config import MPCConfig, SimConfig
 from ..gains import Gains
 from ..scenarios import FamilyParams
 from ..validation import ConfigError, first_line
+from .meta import identity, read_meta, sweep_spec
 from .output import read_part
-from .plan import Chunk
-from .schema import identity, read_meta, sweep_spec
+from .plan import Chunk, variants
 
 __all__ = ["read_sweep", "RowConfig", "row_config", "sweep_spec"]
 
@@ -74,7 +74,7 @@ def read_sweep(path: str | os.PathLike) -> tuple["pd.DataFrame", dict[str, Any]]
         spec, expected = None, None
     complete = False
     if path.is_dir() and named and spec is not None:
-        found = judge(tables, metas, {}, meta, spec)
+        found = judge(tables, metas, {}, meta, spec, variants(spec))
         if found.problems:
             name = sorted(found.problems)[0]
             raise ConfigError(f"{path}: part {name} {found.problems[name]} ({len(found.problems)} part(s) cannot be "

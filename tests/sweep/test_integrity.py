@@ -18,7 +18,7 @@ import pytest
 from cli_capture import capture
 
 from jaxapf.cli import main
-from jaxapf.sweep import parse_spec, read_sweep, run_sweep
+from jaxapf.sweep import parse_spec, plan_sweep, read_sweep, run_sweep
 from jaxapf.sweep.audit import SET_ASIDE, audit_output
 from jaxapf.sweep.merge import merge_outputs
 from jaxapf.sweep.output import part_files
@@ -120,7 +120,7 @@ def test_a_part_of_another_spec_never_extends_the_plan(reference, tmp_path):
     run_sweep(_spec(fields=20), bigger, chunk_fields=4, quiet=True)
     out = _copy(reference[0], tmp_path / "foreign.parquet")
     shutil.copy(bigger / "part-v000-trap-f00000016-00000020.parquet", out)
-    found = audit_output(out, spec=_spec())
+    found = audit_output(out, plan=plan_sweep(_spec()))
     assert "part-v000-trap-f00000016-00000020.parquet" in found.foreign and not found.missing
     with pytest.raises(ConfigError, match="cannot be trusted"):
         run_sweep(_spec(), out, chunk_fields=3, quiet=True)
@@ -190,7 +190,7 @@ def test_a_set_aside_part_never_replaces_an_earlier_one(reference, tmp_path):
     name = "part-v000-trap-f00000003-00000006.parquet"
     for _ in range(2):
         shutil.copy(out / "part-v000-trap-f00000000-00000003.parquet", out / name)  # misnamed: foreign
-        found = audit_output(out, spec=_spec())
+        found = audit_output(out, plan=plan_sweep(_spec()))
         repair_parts(out, found, [name])
     assert sorted(p.name for p in (out / SET_ASIDE).iterdir()) == [name, f"{name}.1"]
 

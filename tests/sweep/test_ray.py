@@ -179,8 +179,8 @@ def test_a_task_no_node_can_run_is_refused_not_left_waiting(cluster, tmp_path):
 
 @pytest.mark.slow
 def test_the_parts_record_a_workers_versions(cluster, tmp_path):
+    from jaxapf.sweep.meta import read_meta
     from jaxapf.sweep.output import part_files
-    from jaxapf.sweep.schema import read_meta
 
     run_sweep(_spec(), tmp_path / "out", chunk_fields=6, quiet=True, ray=RayCluster())
     meta = read_meta(part_files(tmp_path / "out")[0])

@@ -230,8 +230,8 @@ def test_every_flip_in_a_parts_footer_is_a_damaged_part_or_harmless(reference, t
     ArrowNotImplementedError."""
     import struct
 
+    from jaxapf.sweep.meta import read_meta
     from jaxapf.sweep.output import part_record, read_part
-    from jaxapf.sweep.schema import read_meta
 
     part = part_files(reference[0])[0]
     original = part.read_bytes()

@@ -260,7 +260,7 @@ def test_shards_started_together_never_both_run_a_different_division(reference, 
 
     import numpy as np
 
-    from jaxapf.sweep.audit import audit_output
+    from jaxapf.sweep.audit import audit_folder
 
     ctx = multiprocessing.get_context("spawn")
     barrier, results = ctx.Barrier(2), ctx.Queue()
@@ -297,7 +297,7 @@ def test_shards_started_together_never_both_run_a_different_division(reference, 
                 assert any(why in refusal for why in ("is divided into", "chunked otherwise", "is being written as")), \
                     refusal
                 assert "\n" not in refusal
-            found = audit_output(out, None, None) if part_files(out) else None
+            found = audit_folder(out)[0] if part_files(out) else None
             assert found is not None and not found.problems, found
             df = read_sweep(out)[0]
             assert not df.duplicated(key).any()

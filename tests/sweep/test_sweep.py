@@ -581,3 +581,31 @@ def test_a_plan_resumed_is_the_plan_made_with_what_is_done():
     done = (Chunk(0, "trap", 0, 8), Chunk(0, "trap", 16, 20), *[c for c in whole.chunks if c.family != "trap"])
     assert whole.resumed(done) == plan_sweep(spec, done=done, chunk_fields=8, devices=1, width=32)
     assert whole.resumed(done).chunks and whole.resumed(()) == whole
+
+
+def test_a_run_expands_the_settings_once_and_writes_every_part_from_the_plan(tmp_path, monkeypatch):
+    """The plan carries the expanded settings, the gain columns and the parts' metadata: once it is made,
+    auditing the output and writing every part never asks the spec to expand its settings again, nor
+    plans a second time."""
+    import jaxapf.sweep.run as run
+
+    calls = {"plan": 0}
+    planned = run.plan_sweep
+
+    def plan_once(*args, **kwargs):
+        calls["plan"] += 1
+        plan = planned(*args, **kwargs)
+        for name in ("settings", "gain_columns"):  # from here on, an expansion is an error
+            monkeypatch.setattr(SweepSpec, name, lambda self, name=name: pytest.fail(f"{name}() after planning"))
+        return plan
+
+    monkeypatch.setattr(run, "plan_sweep", plan_once)
+    out = tmp_path / "once.parquet"
+    result = run_sweep(_spec(), out, chunk_fields=3, quiet=True)
+    assert calls["plan"] == 1 and result.parts == len(list(out.glob("part-*.parquet"))) == 8
+    (out / sorted(p.name for p in out.glob("part-*.parquet"))[0]).unlink()
+    monkeypatch.undo()
+    monkeypatch.setattr(run, "plan_sweep", plan_once)
+    calls["plan"] = 0
+    again = run_sweep(_spec(), out, chunk_fields=3, quiet=True)  # a resume audits against the same plan
+    assert calls["plan"] == 1 and again.parts == 1 and again.skipped == ROWS - again.episodes

@@ -1,0 +1,106 @@
+"""The metadata every part of a sweep carries: the sweep's identity (format, spec, PRNG, float type,
+vmap width, metrics), the versions that computed it and where its plugins came from
+(docs/sweep-format.md); the plan carries it, the audit judges parts by it."""
+
+from __future__ import annotations
+
+import json
+import pathlib
+from typing import Any, Mapping, Sequence
+
+import jax
+
+from ..validation import ConfigError, first_line
+from .spec import SweepSpec
+
+__all__ = ["FORMAT", "LEGACY_FORMAT", "READABLE_FORMATS", "META_KEY", "PRNG", "sweep_meta", "read_meta", "identity",
+           "plugin_files", "sweep_spec"]
+
+FORMAT = "jaxapf.sweep/2"
+#: The format before kinds, solvability and content hashes; still read (its parts are not verified).
+LEGACY_FORMAT = "jaxapf.sweep/1"
+#: Formats this version reads: /1 lacks the ``kind`` and ``solvable`` columns and the parts' content
+#: hashes, nothing else changed.
+READABLE_FORMATS = (LEGACY_FORMAT, FORMAT)
+META_KEY = b"jaxapf"
+#: The PRNG of the fields and of the random gain samples.
+PRNG = {
+    "impl": str(jax.config.jax_default_prng_impl),
+    "field_key": "fold_in(key(seed), field)",
+    "gain_samples": "bits(key(random.seed), (n, gains), uint32); u = (bits + 0.5) / 2**32",
+}
+
+
+def read_meta(path: pathlib.Path) -> dict[str, Any]:
+    """The ``jaxapf`` metadata of a part file; :class:`ConfigError` if it has none."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    try:
+        raw = (pq.read_schema(path).metadata or {}).get(META_KEY)
+    except (OSError, pa.ArrowException, ValueError) as err:
+        raise ConfigError(f"{path} is not a readable sweep output (Parquet): {first_line(err)}") from None
+    try:
+        meta = json.loads(raw) if raw else None
+    except (ValueError, RecursionError):  # bad JSON, bytes that are not UTF-8, nesting no reader follows
+        meta = None
+    if not isinstance(meta, dict) or meta.get("format") not in READABLE_FORMATS:
+        raise ConfigError(f"{path} is not the output of jaxapf sweep (no '{META_KEY.decode()}' metadata of format "
+                          f"{' or '.join(READABLE_FORMATS)} in its Parquet schema)")
+    return meta
+
+
+def identity(meta: Mapping[str, Any]) -> dict[str, Any]:
+    """What must match for parts to belong to one sweep (numbers bit for bit)."""
+    return {k: meta.get(k) for k in ("format", "spec_hash", "dtype", "vmap_width", "metrics")}
+
+
+def sweep_meta(spec: SweepSpec, dtype: str, width: int, metrics: Sequence[str], out: str | pathlib.Path | None = None,
+               versions: Mapping[str, str] | None = None) -> dict[str, Any]:
+    """The ``jaxapf`` metadata of every part of ``spec`` run in ``dtype`` at vmap ``width``, yielding
+    ``metrics`` (:attr:`~jaxapf.sweep.plan.Plan.meta`); with ``.py`` plugins and the output folder ``out``,
+    ``plugin_files`` records where each was imported from. ``versions``: of the process that computes the
+    chunks (default this one's; a Ray run's are a worker's)."""
+    from ..io.versions import versions as here
+
+    files = plugin_files(spec, out)
+    meta = {"format": FORMAT, "spec": spec.to_json(), "spec_hash": spec.hash,
+            "versions": dict(versions) if versions is not None else here(),
+            "prng": PRNG, "dtype": dtype, "vmap_width": width, "metrics": list(metrics)}
+    return meta | ({"plugin_files": files} if files else {})
+
+
+def plugin_files(spec: SweepSpec, out: str | pathlib.Path | None) -> list[dict[str, str] | None]:
+    """Per plugin of ``spec``: a ``.py`` file's absolute path and its path relative to the output
+    folder ``out`` (so a dataset moved together with its plugin still finds it), None for a module;
+    empty without ``.py`` plugins."""
+    if not any(name.endswith(".py") for name in spec.plugins):
+        return []
+    import os
+
+    out = pathlib.Path(out).resolve() if out is not None else None
+    paths = spec.plugin_paths or spec.plugins
+    return [None if not name.endswith(".py") else
+            {"path": str(path), **({"from_output": os.path.relpath(path, out)} if out is not None else {})}
+            for name, path in zip(spec.plugins, paths)]
+
+
+def sweep_spec(meta: Mapping[str, Any]) -> SweepSpec:
+    """The spec of a sweep's metadata (``meta`` from :func:`read_sweep`). A dataset is data: its plugins
+    are never imported here, only named (the components they register must be registered already:
+    ``--plugin``); a ``.py`` plugin is named by its path relative to the output folder (``location``) if
+    it is there (a dataset moved together with its plugin), else by the absolute path the sweep recorded."""
+    files = meta.get("plugin_files") or []
+    names = list(meta["spec"].get("plugins", []))
+    if not files or len(files) != len(names):
+        return SweepSpec.from_json(meta["spec"], import_plugins=False)
+    location = meta.get("location")
+    paths = []
+    for name, rec in zip(names, files):
+        if not isinstance(rec, Mapping) or not isinstance(rec.get("path"), str):
+            paths.append(str(name))
+            continue
+        near = ([str((pathlib.Path(location) / str(rec["from_output"])).resolve())]
+                if location and isinstance(rec.get("from_output"), str) else [])
+        paths.append(next((c for c in near if pathlib.Path(c).is_file()), rec["path"]))
+    return SweepSpec.from_json(meta["spec"], plugin_paths=paths, import_plugins=False)
