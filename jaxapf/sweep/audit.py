@@ -12,10 +12,10 @@ checked against the sweep it should belong to:
   overlapping;
 - **sound**: everything else; what the sound parts do not cover is **missing**.
 
-Resume trusts only sound parts and never extends the plan with a foreign one; ``--repair`` removes
-damaged and overlapping parts (their chunks are recomputed) and moves foreign ones to
-``OUT/.set-aside/``; ``jaxapf sweep verify`` prints the audit and says by its exit status whether the
-dataset is complete and sound.
+Resume (:func:`resume`, judging against the run's plan) trusts only sound parts and never extends
+the plan with a foreign one; ``--repair`` removes damaged and overlapping parts (their chunks are
+recomputed) and moves foreign ones to ``OUT/.set-aside/``; ``jaxapf sweep verify`` prints the audit
+and says by its exit status whether the dataset is complete and sound.
 """
 
 from __future__ import annotations
