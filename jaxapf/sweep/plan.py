@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import re
 from typing import Any, Iterable, Mapping, Sequence
 
@@ -375,8 +376,8 @@ MAX_CHUNKS = 1_000_000
 
 def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: int = DEFAULT_MEMORY_BUDGET,
                chunk_fields: int | None = None, devices: int | None = None, width: int | None = None,
-               backend: str | None = None, out: Any = None, versions: Mapping[str, str] | None = None,
-               metrics: Sequence[str] | None = None) -> Plan:
+               backend: str | None = None, out: str | os.PathLike[str] | None = None,
+               versions: Mapping[str, str] | None = None, metrics: Sequence[str] | None = None) -> Plan:
     """Cut the spec's work into chunks (skipping the ``done`` ones), as docs/sweep.md says; ``backend``
     and ``versions``: the JAX backend and package versions of the process the chunks will run in
     (default this one's; a Ray run's are its workers'); ``out``: the output folder (where the parts
