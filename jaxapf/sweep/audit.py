@@ -277,7 +277,8 @@ def resume(out: pathlib.Path, plan: Plan, shard: tuple[int, int] | None = None, 
     agree_division(out, Division.of(plan, shard[1]), shard, dry=dry)
     if not dry:
         _clean_shard(out, found, problems, mine)
-    return todo, tuple(c for c in mine if c not in todo)
+    left = set(todo)
+    return todo, tuple(c for c in mine if c not in left)
 
 
 def _shard_audit(out: pathlib.Path, plan: Plan, mine: tuple[Chunk, ...], shard: tuple[int, int], repair: bool
