@@ -23,15 +23,15 @@ def measure(family: str, episodes: int, repeats: int) -> dict:
     from jaxapf.bench.engine import bench_case, interleaved
     from jaxapf.engine import program
     from jaxapf.engine.batch import settings_read
-    from jaxapf.engine.stream import NARROWEST, stream_metrics, stream_slots
+    from jaxapf.engine.stream import stream_levels, stream_metrics, stream_slots
     from jaxapf.metrics import METRICS
 
     case = bench_case(episodes, 16, 20, 30, 600, family, width=1024)
     sim, mpc, fields = case["sim"], case["mpc"], case["scenarios"]
     _, gains = settings_read(case["gains"], sim)
     slots = stream_slots(episodes, 1024)
-    narrow = tuple(sorted({max(slots >> i, NARROWEST) for i in range(3)}, reverse=True))  # never below NARROWEST
-    variants = {"one_width": (slots,), "narrowing": narrow}
+    variants = {"one_width": stream_levels(slots, narrowing_from=slots + 1),
+                "narrowing": stream_levels(slots, narrowing_from=0)}
 
     @program(static_argnames=("levels",))
     def run(fields, gains, levels):

@@ -47,11 +47,14 @@ def stream_slots(episodes: int, width: int) -> int:
     return min(width, max(NARROWEST, 1 << (max(episodes // 4, 1).bit_length() - 1)))
 
 
-def stream_levels(slots: int) -> tuple[int, ...]:
+def stream_levels(slots: int, narrowing_from: int = NARROWING_FROM) -> tuple[int, ...]:
     """The vmap widths ``slots`` flies its queue at, widest first: ``slots``, then ``slots/2`` and
-    ``slots/4`` for the tail from :data:`NARROWING_FROM` slots on. The widths change no number, only
-    the time (an episode's numbers do not depend on the width it flew at, from :data:`NARROWEST` up)."""
-    return (slots, slots // 2, slots // 4) if slots >= NARROWING_FROM else (slots,)
+    ``slots/4`` (never below :data:`NARROWEST`) for the tail from ``narrowing_from`` slots on. The widths
+    change no number, only the time (an episode's numbers do not depend on the width it flew at, from
+    :data:`NARROWEST` up)."""
+    if slots < narrowing_from:
+        return (slots,)
+    return tuple(sorted({max(slots >> i, min(slots, NARROWEST)) for i in range(3)}, reverse=True))
 
 
 def _rows(tree: Any, index: Any) -> Any:

@@ -84,6 +84,12 @@ def test_stream_levels(slots, levels):
     assert stream_levels(slots) == levels and min(levels) >= NARROWEST
 
 
+def test_stream_levels_narrowed_below_the_threshold_never_go_below_the_narrowest():
+    """benchmarks/stream_levels.py measures the narrowing where the engine does not use it."""
+    assert stream_levels(128, narrowing_from=0) == (128, NARROWEST) and stream_levels(64, narrowing_from=0) == (64,)
+    assert stream_levels(512, narrowing_from=513) == (512,)
+
+
 @pytest.mark.slow
 def test_metrics_never_read_samples_after_the_end():
     """The contract streaming rests on: every registered metric is a function of the samples up to
