@@ -476,7 +476,7 @@ def _report(args: argparse.Namespace) -> int:
 
 def _report_with(args: argparse.Namespace, pool: Any) -> int:
     from ..engine.runtime import configure_jax, default_cache_dir
-    from ..io.lock import check_writable
+    from ..io.lock import writing
     from ..report import ReportOptions, build_report
 
     configure_jax(cache_dir=None if args.no_cache else default_cache_dir())
@@ -490,9 +490,9 @@ def _report_with(args: argparse.Namespace, pool: Any) -> int:
                             pair_on=tuple(c.strip() for c in args.pair_on.split(",") if c.strip()))
     name = args.sweep.name.removesuffix(".parquet") or "report"
     out = args.out if args.out is not None else pathlib.Path("reports") / name
-    check_writable(out)
     start = time.perf_counter()
-    result = build_report(args.sweep, out, options, pool)
+    with writing(out, "the files written so far are kept (the report may be incomplete)"):
+        result = build_report(args.sweep, out, options, pool)
     if result.incomplete:
         print(f"INCOMPLETE SWEEP: {result.incomplete}")
     print(f"report of {args.sweep}: {len(result.summary)} setting × family rows, "

@@ -104,12 +104,13 @@ def _run(spec: CompareSpec, text: str, out: pathlib.Path, *, quiet: bool, resamp
          shard: tuple[int, int] | None) -> dict[str, Any]:
     """The body of :func:`run_compare_spec`, under the lock."""
     from ..io.lock import write_atomic
+    from ..io.names import check_kind, read_own
     from ..report import ReportOptions, build_report
     from ..sweep import run_sweep
 
     digest = spec_digest(spec)
     stamp = out / "spec_digest"
-    if stamp.exists() and stamp.read_text().strip() != digest:
+    if check_kind(stamp) and read_own(stamp).decode("utf-8", "replace").strip() != digest:
         raise ConfigError(f"{out} holds a comparison of another spec; use another --out or delete it")
     if not stamp.exists():  # shards of one spec would write the same; written once
         write_atomic(stamp, lambda fh: fh.write((digest + "\n").encode()))
@@ -141,7 +142,7 @@ def _run(spec: CompareSpec, text: str, out: pathlib.Path, *, quiet: bool, resamp
                 "test": {"episodes": result.episodes + result.skipped, "seconds": result.seconds}}
     table = pd.DataFrame([{k: v for k, v in s.to_json().items() if k != "gains"}
                           | {g: s.gains[g] for g in spec.method_gains(s.method)} for s in selections])
-    table.to_csv(out / "selection.csv", index=False)
+    write_atomic(out / "selection.csv", table.to_csv(index=False))
 
     test = test_sweep_spec(spec, selections)
     result = run_sweep(test, out / "test.parquet", quiet=quiet)
@@ -150,11 +151,11 @@ def _run(spec: CompareSpec, text: str, out: pathlib.Path, *, quiet: bool, resamp
                           ReportOptions(baseline=baseline_filter(spec), pair_on=("selection",), heatmap=None,
                                         gallery=gallery, resamples=resamples))
     markdown = compare_markdown(spec, selections, report.summary, report.comparisons)
-    (out / "compare.md").write_text(markdown, encoding="utf-8")
+    write_atomic(out / "compare.md", markdown)
     summary = {"name": spec.name, "spec_file": text, "spec_digest": digest, "versions": versions(),
                "selections": [s.to_json() for s in selections],
                "test": {"episodes": result.episodes + result.skipped, "seconds": result.seconds}}
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=_plain) + "\n", encoding="utf-8")
+    write_atomic(out / "summary.json", json.dumps(summary, indent=2, default=_plain) + "\n")
     _say(quiet, f"wrote {out}/: compare.md, selection.csv, summary.json, test.parquet, report/")
     return summary
 

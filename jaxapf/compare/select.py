@@ -36,6 +36,7 @@ import numpy as np
 from ..config import SimConfig
 from ..gains import Gains
 from ..io.lock import write_atomic
+from ..io.names import subfolder
 from ..spec.scenario import spec_family_params
 from ..tune import TuneError, Tuner, parse_tune_spec
 from ..tune.proof import select_best, tuning_budget
@@ -185,7 +186,7 @@ def select(spec: CompareSpec, method: str, seed: int, out: pathlib.Path, *, quie
     """The selection of ``method`` with seed ``seed``; read from ``out/<method>-seed<seed>.json`` if a
     finished one of this spec is there, else run and written there (a gradient search checkpoints
     into ``out/<method>-seed<seed>/`` and resumes)."""
-    out.mkdir(parents=True, exist_ok=True)
+    subfolder(out)
     digest = spec_digest(spec)
     path = out / f"{method}-seed{seed}.json"
     saved = saved_selection(spec, method, seed, out)
@@ -202,7 +203,7 @@ def select(spec: CompareSpec, method: str, seed: int, out: pathlib.Path, *, quie
                             f"plus {probe.validation.fields} validation fields; raise the budget")
         tspec = tune_spec(spec, method, seed, steps)
         tuner = Tuner(tspec)
-        (out / f"{method}-seed{seed}").mkdir(exist_ok=True)
+        subfolder(out / f"{method}-seed{seed}")
         state = tuner.train(out / f"{method}-seed{seed}", quiet=quiet)
         used = tuning_budget(tspec, state)
         best = next(r for r in state.history if r["step"] == state.best_step and math.isfinite(r["val_loss"]))

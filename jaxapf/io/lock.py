@@ -1,7 +1,8 @@
 """Output folders: checked writable before any work, one writer each (a lock the kernel keeps), and
-files written atomically and durably (:func:`write_atomic`).
+files written atomically and durably (:func:`write_atomic`), never through a name planted in the
+folder (:mod:`jaxapf.io.names`).
 
-A command that writes into a folder (``jaxapf sweep``, ``tune``, ``compare``) holds ``FOLDER/.lock``
+A command that writes into a folder (``jaxapf sweep``, ``tune``, ``compare``, ``report``) holds ``FOLDER/.lock``
 while it runs: an exclusive ``fcntl.flock`` on that file, which the operating system releases when
 the process ends however it ends (``kill -9`` included), so no lock outlives its writer and none is
 ever judged stale by hand. The file carries an *owner note* (pid, host, start, command) written
@@ -34,8 +35,9 @@ import time
 from typing import IO, Any, Callable, Iterator
 
 from ..validation import ConfigError, Interrupted, first_line
+from .names import FLAGS, check_kind, create, open_own, read_own
 
-__all__ = ["LOCK_NAME", "OutputLock", "LockInfo", "check_writable", "write_atomic", "writing", "fsync_folder",
+__all__ = ["LOCK_NAME", "OutputLock", "LockInfo", "check_writable", "staged", "write_atomic", "writing", "fsync_folder",
            "live_shard_locks"]
 
 #: Name of the lock file inside the output folder.
@@ -55,10 +57,10 @@ def check_writable(folder: str | os.PathLike, option: str = "--out") -> None:
     if folder.exists() and not folder.is_dir():
         raise ConfigError(f"{option} {folder} is a file; give a folder")
     probe = folder / f".write-test-{os.getpid()}"
-    made = not folder.exists()
+    made, fd = not folder.exists(), None
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        fd = os.open(probe, os.O_CREAT | os.O_WRONLY | os.O_TRUNC, 0o644)
+        fd = create(probe)
         try:
             left = memoryview(b"\0" * PROBE_BYTES)
             while left:  # a nearly full disk takes part of a write, then refuses the rest (ENOSPC)
@@ -66,16 +68,13 @@ def check_writable(folder: str | os.PathLike, option: str = "--out") -> None:
             os.fsync(fd)
         finally:
             os.close(fd)
+            probe.unlink(missing_ok=True)  # the file this call created
     except OSError as err:
         full = " (the file system is full)" if _no_space(err) else ""
-        with contextlib.suppress(OSError):
-            probe.unlink()
-            if made:  # refused before any work: leave no empty folder behind
+        if made:  # refused before any work: leave no empty folder behind
+            with contextlib.suppress(OSError):
                 folder.rmdir()
         raise ConfigError(f"{option} {folder} cannot be written: {err.strerror or first_line(err)}{full}") from None
-    finally:
-        with contextlib.suppress(OSError):
-            probe.unlink()
 
 
 def fsync_folder(folder: str | os.PathLike) -> None:
@@ -87,23 +86,42 @@ def fsync_folder(folder: str | os.PathLike) -> None:
         os.close(fd)
 
 
-def write_atomic(path: str | os.PathLike, write: Callable[[IO[bytes]], Any]) -> None:
-    """Write ``path`` completely or not at all, durably: ``write(fh)`` fills the hidden temporary file
-    ``.NAME.tmp-PID`` beside it, which is fsynced and renamed over ``path``, and the folder is fsynced
-    so the new name survives a crash. An exception or Ctrl-C on the way removes the temporary file; a
-    killed writer leaves at most it, never a partial ``path``."""
+@contextlib.contextmanager
+def staged(path: str | os.PathLike, durable: bool = True) -> Iterator[pathlib.Path]:
+    """``with staged(path) as tmp:`` -- the block writes the hidden file ``tmp`` (``.NAME.tmp-PID`` beside
+    ``path``, created anew: :func:`jaxapf.io.names.create`, never a link or a file already there), which
+    is then renamed over ``path``: whatever ``path`` was is replaced, never written through, and a name
+    there that is not a regular file is refused in one line (:class:`~jaxapf.io.names.Planted`).
+    ``durable``: the folder is fsynced after the rename. An exception or Ctrl-C in the block removes
+    ``tmp``; a killed writer leaves at most it, never a partial ``path``."""
     path = pathlib.Path(path)
+    check_kind(path)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    os.close(create(tmp))
     try:
-        with open(tmp, "wb") as fh:
-            write(fh)
-            fh.flush()
-            os.fsync(fh.fileno())
+        yield tmp
         os.replace(tmp, path)
-        fsync_folder(path.parent)
+        if durable:
+            fsync_folder(path.parent)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+def write_atomic(path: str | os.PathLike, write: Callable[[IO[bytes]], Any] | bytes | str,
+                 durable: bool = True) -> None:
+    """Write ``path`` completely or not at all (:func:`staged`): ``write(fh)``, or the bytes or text
+    ``write``, fills the temporary file; ``durable``: it is fsynced before the rename, so the new file
+    survives a crash."""
+    data = write.encode("utf-8") if isinstance(write, str) else write
+    with staged(path, durable) as tmp, open(open_own(tmp, os.O_WRONLY), "wb") as fh:
+        if callable(data):
+            data(fh)
+        else:
+            fh.write(data)
+        fh.flush()
+        if durable:
+            os.fsync(fh.fileno())
 
 
 @dataclasses.dataclass(frozen=True)
@@ -136,7 +154,7 @@ def _take(path: pathlib.Path, exclusive: bool) -> int | None:
     give_up = time.monotonic() + _PATIENCE_S
     while True:
         try:
-            fd = os.open(path, os.O_CREAT | os.O_RDWR, 0o644)
+            fd = open_own(path, os.O_CREAT | os.O_RDWR)
         except OSError as err:
             raise ConfigError(f"{path.parent}: cannot create the lock {path}: "
                               f"{err.strerror or first_line(err)}") from None
@@ -149,7 +167,7 @@ def _take(path: pathlib.Path, exclusive: bool) -> int | None:
                 continue
             return None
         try:
-            same = os.stat(path).st_ino == os.fstat(fd).st_ino
+            same = os.lstat(path).st_ino == os.fstat(fd).st_ino
         except FileNotFoundError:
             same = False
         if same:
@@ -160,7 +178,7 @@ def _take(path: pathlib.Path, exclusive: bool) -> int | None:
 def _held(path: pathlib.Path) -> bool:
     """Whether some process holds ``path``'s lock now (a lock file left by a dead writer is not held)."""
     try:
-        fd = os.open(path, os.O_RDONLY)
+        fd = os.open(path, os.O_RDONLY | FLAGS)
     except OSError:
         return False
     try:
@@ -179,7 +197,7 @@ def live_shard_locks(folder: pathlib.Path) -> list[pathlib.Path]:
 
 def _read_note(path: pathlib.Path) -> LockInfo | None:
     try:
-        data: dict[str, Any] = json.loads(path.read_text())
+        data: dict[str, Any] = json.loads(read_own(path, 64 * 1024))
         return LockInfo(int(data["pid"]), str(data["host"]), float(data["since"]), str(data.get("command", "")))
     except (OSError, ValueError, KeyError, TypeError, RecursionError):
         return None
@@ -268,7 +286,7 @@ class OutputLock:
             pass  # other shards still write
         else:
             with contextlib.suppress(OSError):
-                if os.stat(self.path).st_ino == os.fstat(self.shared).st_ino:
+                if os.lstat(self.path).st_ino == os.fstat(self.shared).st_ino:
                     (self.folder / f"{LOCK_NAME}-division").unlink(missing_ok=True)
                     self.path.unlink()
         os.close(self.shared)
@@ -279,7 +297,7 @@ class OutputLock:
         if self.fd is None:
             return
         with contextlib.suppress(OSError):
-            if os.stat(self.own).st_ino == os.fstat(self.fd).st_ino:
+            if os.lstat(self.own).st_ino == os.fstat(self.fd).st_ino:
                 self.own.unlink()
         os.close(self.fd)  # closing releases the flock
         self.fd = None

@@ -26,6 +26,8 @@ from typing import Any, Mapping
 import pandas as pd
 
 from .. import stats
+from ..io.lock import write_atomic
+from ..io.names import subfolder
 from ..metrics import all_metrics, find_metric, is_metric
 from .document import VERDICT_MARKS, Document, render_html, render_markdown
 from .figures import DEFAULT_HEATMAP, check_heatmap, table_figures
@@ -160,7 +162,7 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
     check_heatmap(sel, options)
     rates, continuous = report_metrics(sel.data.columns)
     out.mkdir(parents=True, exist_ok=True)
-    figdir = out / "figures"
+    figdir = subfolder(out / "figures")
     # the figures drawn from the rows alone and the gallery are made in a second process meanwhile
     with RowWorker(sel, meta, options, figdir, pool) as worker:
         summary = summarize(sel.data, sel.settings, sel.table, sel.labels, options)
@@ -169,6 +171,9 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
         row_figs, shown, worker_notes = worker.result()
     figures += row_figs
     notes = sel.notes + worker_notes
+    if meta.get("stray"):
+        notes.append(f"{path} holds {len(meta['stray'])} file(s) that are not parts of the sweep, never read as rows: "
+                     + ", ".join(meta["stray"][:5]) + (" …" if len(meta["stray"]) > 5 else ""))
     incomplete = None
     if meta.get("complete") is False and meta.get("rows_expected"):
         incomplete = (f"the sweep is incomplete: {len(df)} of {meta['rows_expected']} episodes are present "
@@ -311,16 +316,12 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
     doc.items(notes or ["none"])
 
     paths = []
-    summary_path = out / "summary.csv"
-    summary.to_csv(summary_path, index=False)
-    comp_path = out / "comparisons.csv"
-    comparisons.to_csv(comp_path, index=False)
-    tex_path = out / "table.tex"
-    tex_path.write_text(latex_tables(summary, comparisons, sel, pooled, options, spec_name, rates), encoding="utf-8")
-    md_path = out / "report.md"
-    md_path.write_text(render_markdown(doc), encoding="utf-8")
-    html_path = out / "report.html"
-    html_path.write_text(render_html(doc, title), encoding="utf-8")
+    summary_path, comp_path, tex_path, md_path, html_path = (
+        out / n for n in ("summary.csv", "comparisons.csv", "table.tex", "report.md", "report.html"))
+    for path, text in ((summary_path, summary.to_csv(index=False)), (comp_path, comparisons.to_csv(index=False)),
+                       (tex_path, latex_tables(summary, comparisons, sel, pooled, options, spec_name, rates)),
+                       (md_path, render_markdown(doc)), (html_path, render_html(doc, title))):
+        write_atomic(path, text, durable=False)
     paths += [html_path, md_path, summary_path, comp_path, tex_path]
     paths += [figdir / f"{f.name}.{ext}" for f in figures + shown
               for ext in ((f.format, "svg")[: 1 + f.svg] + ("mp4",) * (f.format == "gif"))]

@@ -14,6 +14,8 @@ from typing import Any, Sequence
 
 import pandas as pd
 
+from ..io.lock import write_atomic
+from ..io.names import subfolder
 from ..simulate.figures import DPI
 
 __all__ = ["FigureFile", "Document", "VERDICT_COLORS", "render_markdown", "render_html", "save_figure"]
@@ -204,13 +206,14 @@ def save_figure(fig: Any, name: str, caption: str, figdir: pathlib.Path, svg: bo
     second full draw, so only on request) and clear it."""
     import matplotlib
 
-    figdir.mkdir(parents=True, exist_ok=True)
+    subfolder(figdir)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=DPI)
     png = buf.getvalue()
-    (figdir / f"{name}.png").write_bytes(png)
+    write_atomic(figdir / f"{name}.png", png, durable=False)
     if svg:
         with matplotlib.rc_context({"svg.hashsalt": "jaxapf-report"}):
-            fig.savefig(figdir / f"{name}.svg", format="svg", metadata={"Date": None})
+            write_atomic(figdir / f"{name}.svg",
+                         lambda fh: fig.savefig(fh, format="svg", metadata={"Date": None}), durable=False)
     fig.clear()
     return FigureFile(name, caption, png, svg)

@@ -6,8 +6,10 @@ imports nothing heavy itself."""
 from __future__ import annotations
 
 import concurrent.futures
+import contextlib
 import gc
 import multiprocessing
+import os
 import pathlib
 from typing import Any, Mapping, Sequence
 
@@ -20,11 +22,41 @@ def _import() -> None:
     from . import figures, gallery  # noqa: F401
 
 
+#: How often the worker looks whether the report's process is still its parent [s].
+_WATCH_S = 0.25
+
+
+def _watch(parent: int) -> None:
+    """The worker's first step: it ends when the report's process ``parent`` ends, however it ends
+    (``kill -9``, SIGHUP): at once on Linux (the parent-death signal), and on any system within
+    :data:`_WATCH_S` (a thread looks whether its parent is still ``parent``)."""
+    import os
+    import sys
+    import threading
+    import time
+
+    if sys.platform.startswith("linux"):
+        import ctypes
+        import signal
+
+        with contextlib.suppress(OSError, AttributeError):
+            ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
+    if os.getppid() != parent:  # the parent died before the signal was asked for
+        os._exit(1)
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(_WATCH_S)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="jaxapf-parent-watch", daemon=True).start()
+
+
 def spawn() -> concurrent.futures.ProcessPoolExecutor | None:
     """A one-process pool (spawned: JAX is not fork-safe) already importing what the worker needs,
     or None where no process can be started here. The worker ignores Ctrl-C; a stopped report ends it
-    (:mod:`jaxapf.cli.program`)."""
-    import contextlib
+    (:mod:`jaxapf.cli.program`), and a report's process that dies any other way takes it along
+    (:func:`_watch`)."""
     import signal
     import threading
 
@@ -37,7 +69,8 @@ def spawn() -> concurrent.futures.ProcessPoolExecutor | None:
             stack.callback(signal.pthread_sigmask, signal.SIG_SETMASK, held)
             stack.callback(signal.signal, signal.SIGINT, signal.signal(signal.SIGINT, signal.SIG_IGN))
         try:
-            pool = concurrent.futures.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+            pool = concurrent.futures.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
+                                                          initializer=_watch, initargs=(os.getpid(),))
             pool.submit(_import)
         except OSError:
             return None

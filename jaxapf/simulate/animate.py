@@ -18,6 +18,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle
 
+from ..io.lock import staged
 from ..validation import ConfigError
 from .figures import _GOAL_COLOR, _OBSTACLE_COLOR, DPI, Field, Run, _collision_index, outcome
 
@@ -134,45 +135,49 @@ def animate(tracks: Sequence[Track], field: Field, out: pathlib.Path | str, stem
     even = (size[0] - size[0] % 2, size[1] - size[1] % 2)  # H.264 in yuv420p wants even sides
     mp4 = out / f"{stem}.mp4"
     gif = out / f"{stem}.gif"
-    cmd = [exe, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgba", "-s", f"{size[0]}x{size[1]}",
-           "-r", str(fps), "-i", "-", "-vf", f"crop={even[0]}:{even[1]}:0:0", "-c:v", "libx264", "-pix_fmt",
-           "yuv420p", "-movflags", "+faststart", str(mp4)]
-    with _start(cmd, stdin=subprocess.PIPE, stderr=subprocess.PIPE) as encoder:
-        try:
-            for t in times:
-                for patches in moving:
-                    centres = field.obstacles_at(t)
-                    for j, c in enumerate(patches):
-                        c.center = tuple(centres[j, :2])
-                for trails, discs, cross, track in movers:
-                    k = int(np.searchsorted(track.time, t, side="right")) - 1
-                    for a in range(track.position.shape[0]):
-                        i = min(k, int(track.end[a]))
-                        first = 0 if not np.isfinite(track.trail) else int(np.searchsorted(track.time, t - track.trail))
-                        p = track.position[a, min(first, i): i + 1]
-                        trails[a].set_data(p[:, 0], p[:, 1])
-                        discs[a].center = tuple(track.position[a, i, :2])
-                    hits = [track.position[a, h, :2] for a, h in enumerate(track.hit) if 0 <= h <= k]
-                    cross.set_data([h[0] for h in hits], [h[1] for h in hits])
-                heading.set_text(f"{title + ' — ' if title else ''}t = {t:5.1f} s ({speed:.3g}× real time)")
-                fig.canvas.draw()
-                encoder.stdin.write(bytes(fig.canvas.buffer_rgba()))
-            encoder.stdin.close()
-        except BrokenPipeError:  # ffmpeg ended early: its message says why
-            pass
-        except BaseException:
-            encoder.kill()
-            raise
-        error = encoder.stderr.read().decode(errors="replace").strip()
-        if encoder.wait() != 0:
-            raise ConfigError(f"ffmpeg could not write {mp4}: {error.splitlines()[-1] if error else 'no message'}")
-    palette = (f"fps={min(fps, 12)},scale={min(even[0], 800)}:-1:flags=lanczos,split[a][b];"
-               "[a]palettegen=max_colors=128[p];[b][p]paletteuse=dither=bayer")
-    with _start([exe, "-y", "-loglevel", "error", "-i", str(mp4), "-vf", palette, str(gif)],
-                stderr=subprocess.PIPE, text=True) as done:
-        error = done.communicate()[1].strip()
-    if done.returncode != 0:
-        raise ConfigError(f"ffmpeg could not write {gif}: {error.splitlines()[-1] if error else 'no message'}")
+    # ffmpeg writes hidden files created anew, renamed into place: never through a name planted in ``out``
+    with staged(mp4, durable=False) as tmp_mp4, staged(gif, durable=False) as tmp_gif:
+        cmd = [exe, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgba", "-s", f"{size[0]}x{size[1]}",
+               "-r", str(fps), "-i", "-", "-vf", f"crop={even[0]}:{even[1]}:0:0", "-c:v", "libx264", "-pix_fmt",
+               "yuv420p", "-movflags", "+faststart", "-f", "mp4", str(tmp_mp4)]
+        with _start(cmd, stdin=subprocess.PIPE, stderr=subprocess.PIPE) as encoder:
+            try:
+                for t in times:
+                    for patches in moving:
+                        centres = field.obstacles_at(t)
+                        for j, c in enumerate(patches):
+                            c.center = tuple(centres[j, :2])
+                    for trails, discs, cross, track in movers:
+                        k = int(np.searchsorted(track.time, t, side="right")) - 1
+                        for a in range(track.position.shape[0]):
+                            i = min(k, int(track.end[a]))
+                            first = (0 if not np.isfinite(track.trail)
+                                     else int(np.searchsorted(track.time, t - track.trail)))
+                            p = track.position[a, min(first, i): i + 1]
+                            trails[a].set_data(p[:, 0], p[:, 1])
+                            discs[a].center = tuple(track.position[a, i, :2])
+                        hits = [track.position[a, h, :2] for a, h in enumerate(track.hit) if 0 <= h <= k]
+                        cross.set_data([h[0] for h in hits], [h[1] for h in hits])
+                    heading.set_text(f"{title + ' — ' if title else ''}t = {t:5.1f} s ({speed:.3g}× real time)")
+                    fig.canvas.draw()
+                    encoder.stdin.write(bytes(fig.canvas.buffer_rgba()))
+                encoder.stdin.close()
+            except BrokenPipeError:  # ffmpeg ended early: its message says why
+                pass
+            except BaseException:
+                encoder.kill()
+                raise
+            error = encoder.stderr.read().decode(errors="replace").strip()
+            if encoder.wait() != 0:
+                raise ConfigError(f"ffmpeg could not write {mp4}: {error.splitlines()[-1] if error else 'no message'}")
+        palette = (f"fps={min(fps, 12)},scale={min(even[0], 800)}:-1:flags=lanczos,split[a][b];"
+                   "[a]palettegen=max_colors=128[p];[b][p]paletteuse=dither=bayer")
+        with _start([exe, "-y", "-loglevel", "error", "-f", "mp4", "-i", str(tmp_mp4), "-vf", palette,
+                    "-f", "gif", str(tmp_gif)],
+                    stderr=subprocess.PIPE, text=True) as done:
+            error = done.communicate()[1].strip()
+        if done.returncode != 0:
+            raise ConfigError(f"ffmpeg could not write {gif}: {error.splitlines()[-1] if error else 'no message'}")
     return [mp4, gif]
 
 

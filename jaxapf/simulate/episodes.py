@@ -26,6 +26,7 @@ from ..datatypes import Scenario
 from ..engine import program, rollout
 from ..engine.components import metrics_in_use
 from ..gains import Gains
+from ..io.lock import write_atomic
 from ..io.versions import versions
 from ..metrics import METRICS, all_metrics, clearance_history, episode_end, episode_metrics, find_metric
 from ..scenarios import family_params, make_scenarios
@@ -118,14 +119,14 @@ def write_outputs(out: pathlib.Path, field: Field, runs: Sequence[Run], table: p
     """Write trajectories, metrics, run record and figures to ``out``; returns the paths."""
     out.mkdir(parents=True, exist_ok=True)
     paths = [out / "trajectories.parquet", out / "metrics.csv", out / "run.json"]
-    table.to_parquet(paths[0], index=False)
-    pd.DataFrame([{"method": r.label, **{m: r.metrics[m] for m in METRICS if m in r.metrics}} for r in runs]).to_csv(
-        paths[1], index=False)
+    write_atomic(paths[0], lambda fh: table.to_parquet(fh, index=False), durable=False)
+    write_atomic(paths[1], pd.DataFrame([{"method": r.label, **{m: r.metrics[m] for m in METRICS if m in r.metrics}}
+                                         for r in runs]).to_csv(index=False), durable=False)
     record = {
         **config,
         "field": {k: np.asarray(v).tolist() if isinstance(v, np.ndarray) else v
                   for k, v in dataclasses.asdict(field).items()},
         "versions": versions(),
     }
-    paths[2].write_text(json.dumps(record, indent=2, default=str))
+    write_atomic(paths[2], json.dumps(record, indent=2, default=str), durable=False)
     return paths + plot_all(list(runs), field, out)

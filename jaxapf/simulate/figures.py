@@ -34,6 +34,8 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Circle, FancyArrowPatch, Patch
 from matplotlib.ticker import MaxNLocator
 
+from ..io.lock import write_atomic
+
 __all__ = [
     "Run",
     "Field",
@@ -775,7 +777,7 @@ def plot_all(runs: Sequence[Run], field: Field, out_dir: pathlib.Path | str, dpi
     for name, make in FIGURES.items():
         fig = make(runs, field)
         path = out_dir / name
-        fig.savefig(path, dpi=dpi, format="png")
+        write_atomic(path, lambda fh, fig=fig: fig.savefig(fh, dpi=dpi, format="png"), durable=False)
         fig.clear()  # a pyplot-free Figure is freed with its last reference; clear() drops artists now
         paths.append(path)
     return paths

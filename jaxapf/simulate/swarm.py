@@ -31,6 +31,7 @@ from ..datatypes.swarm import Swarm
 from ..engine import program
 from ..engine.swarm import swarm_rollout
 from ..gains import Gains
+from ..io.lock import write_atomic
 from ..io.versions import versions
 from ..metrics import find_metric
 from ..metrics.swarm import agent_outcomes, swarm_metrics
@@ -263,16 +264,17 @@ def write_swarm_outputs(out: pathlib.Path, swarm: SwarmField, runs: Sequence[Swa
     """Write trajectories, metrics, run record and figures to ``out``; returns the paths."""
     out.mkdir(parents=True, exist_ok=True)
     paths = [out / "trajectories.parquet", out / "metrics.csv", out / "run.json"]
-    table.to_parquet(paths[0], index=False)
-    pd.DataFrame([{"method": r.label, **r.metrics} for r in runs]).to_csv(paths[1], index=False)
+    write_atomic(paths[0], lambda fh: table.to_parquet(fh, index=False), durable=False)
+    write_atomic(paths[1], pd.DataFrame([{"method": r.label, **r.metrics} for r in runs]).to_csv(index=False),
+                 durable=False)
     record = {**config, "starts": swarm.starts.tolist(), "goals": swarm.goals.tolist(),
               "field": {k: np.asarray(v).tolist() if isinstance(v, np.ndarray) else v
                         for k, v in dataclasses.asdict(swarm.field).items() if k not in ("start", "goal")},
               "versions": versions()}
-    paths[2].write_text(json.dumps(record, indent=2, default=str))
+    write_atomic(paths[2], json.dumps(record, indent=2, default=str), durable=False)
     for name, make in SWARM_FIGURES.items():
         fig = make(runs, swarm)
-        fig.savefig(out / name, dpi=DPI, format="png")
+        write_atomic(out / name, lambda fh, fig=fig: fig.savefig(fh, dpi=DPI, format="png"), durable=False)
         fig.clear()
         paths.append(out / name)
     return paths

@@ -22,12 +22,14 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import pathlib
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from ..io.lock import LOCK_NAME
+from ..io.names import check_kind, kind, remove_leftover, subfolder
 from ..validation import ConfigError
 from .division import Division, agree_division, forget_division, is_division_file
 from .meta import identity, read_meta, sweep_spec
@@ -36,7 +38,7 @@ from .plan import Chunk, Plan, Variant, gaps, shard_chunks, variants
 from .spec import SweepSpec
 
 __all__ = ["Audit", "audit_output", "audit_folder", "read_parts", "reference_meta", "judge", "describe_audit",
-           "SET_ASIDE", "resume", "prepare_output", "check_folder", "repair_parts"]
+           "SET_ASIDE", "resume", "prepare_output", "check_folder", "clear_temporaries", "repair_parts", "not_parts"]
 
 #: Where ``--repair`` moves foreign parts (hidden: Parquet readers skip it).
 SET_ASIDE = ".set-aside"
@@ -89,6 +91,32 @@ def _rows_problem(table: Any, chunk: Chunk, settings: list[int], family: str) ->
     return None
 
 
+def _layout(spec: SweepSpec, meta: Mapping[str, Any], gain_columns: Any = None) -> list[tuple[str, str]] | None:
+    """The columns and types every part of the sweep holds, in order (``gain_columns``: the plan's, if
+    planned); None for the legacy format, whose parts lack two of them."""
+    from .meta import FORMAT
+    from .schema import row_schema
+
+    if meta.get("format") != FORMAT:
+        return None
+    return [(f.name, str(f.type)) for f in row_schema(spec, meta, gain_columns)]
+
+
+def _columns_problem(schema: Any, layout: list[tuple[str, str]]) -> str | None:
+    """What differs between a part's columns and the sweep's ``layout`` (names, order, types), or None."""
+    have = [(f.name, str(f.type)) for f in schema]
+    if have == layout:
+        return None
+    if [n for n, _ in have] != [n for n, _ in layout]:
+        extra = sorted(set(n for n, _ in have) - set(n for n, _ in layout))
+        lacks = sorted(set(n for n, _ in layout) - set(n for n, _ in have))
+        what = "; ".join(filter(None, [f"columns {', '.join(extra[:3])} not of this sweep" if extra else "",
+                                       f"lacks {', '.join(lacks[:3])}" if lacks else ""])) or "columns in another order"
+        return f"holds other columns than the sweep's ({what})"
+    (name, typ), want = next(((h, w[1]) for h, w in zip(have, layout) if h != w))
+    return f"holds column {name} as {typ}, the sweep's is {want}"
+
+
 def read_parts(out: pathlib.Path, files: list[pathlib.Path] | None = None
                ) -> tuple[dict[str, Any], dict[str, dict], dict[str, str]]:
     """``(tables, metas, damaged)`` of every part file in ``out`` (or of ``files``): the verified tables
@@ -96,6 +124,10 @@ def read_parts(out: pathlib.Path, files: list[pathlib.Path] | None = None
     intact."""
     damaged, tables, metas = {}, {}, {}
     for p in files if files is not None else part_files(out) if out.is_dir() else []:
+        what = kind(os.lstat(p))
+        if what != "file":  # read, it would be another file's rows under this name
+            damaged[p.name] = f"a {what}, not a part file"
+            continue
         try:
             tables[p.name] = read_part(p)
             metas[p.name] = read_meta(p)
@@ -121,11 +153,13 @@ def reference_meta(out: pathlib.Path, metas: Mapping[str, dict]) -> dict:
 
 
 def judge(tables: Mapping[str, Any], metas: Mapping[str, dict], damaged: Mapping[str, str], meta: Mapping[str, Any],
-          spec: SweepSpec, groups: Sequence[Variant]) -> Audit:
+          spec: SweepSpec, groups: Sequence[Variant], gain_columns: Any = None) -> Audit:
     """The :class:`Audit` of parts read by :func:`read_parts`, against the sweep of ``meta`` and ``spec``
-    (its settings grouped into ``groups``, :func:`~jaxapf.sweep.plan.variants`)."""
+    (its settings grouped into ``groups``, :func:`~jaxapf.sweep.plan.variants`; ``gain_columns``: the
+    plan's, if planned); a part's columns must be the sweep's, names, order and types."""
     settings = {v.index: [s.index for s in v.settings] for v in groups}
     want = identity(meta)
+    layout = _layout(spec, meta, gain_columns)
     foreign, sound, other_sweep = {}, [], set()
     for name, table in tables.items():
         chunk = Chunk.from_name(name)
@@ -134,6 +168,8 @@ def judge(tables: Mapping[str, Any], metas: Mapping[str, dict], damaged: Mapping
             differ = ", ".join(k for k in want if other[k] != want[k])
             foreign[name] = f"of another sweep ({differ} {'differs' if ',' not in differ else 'differ'})"
             other_sweep.add(name)
+        elif layout is not None and (problem := _columns_problem(table.schema, layout)) is not None:
+            foreign[name] = problem
         elif chunk.variant not in settings or chunk.family not in spec.families or chunk.stop > spec.fields:
             foreign[name] = (f"outside this sweep's plan (variants 0-{len(groups) - 1}, families "
                              f"{', '.join(spec.families)}, fields 0-{spec.fields - 1})")
@@ -168,7 +204,7 @@ def judge(tables: Mapping[str, Any], metas: Mapping[str, dict], damaged: Mapping
 
 def audit_output(out: pathlib.Path, plan: Plan) -> Audit:
     """The audit of the output ``out`` against the sweep ``plan`` plans (its metadata, spec and variants)."""
-    return judge(*read_parts(out), plan.meta, plan.spec, plan.variants)
+    return judge(*read_parts(out), plan.meta, plan.spec, plan.variants, plan.gain_columns)
 
 
 def audit_folder(out: pathlib.Path, meta: Mapping[str, Any] | None = None) -> tuple[Audit, dict]:
@@ -181,19 +217,30 @@ def audit_folder(out: pathlib.Path, meta: Mapping[str, Any] | None = None) -> tu
     return judge(tables, metas, damaged, meta, spec, variants(spec)), meta
 
 
+def not_parts(out: pathlib.Path) -> list[str]:
+    """The visible entries of the output ``out`` that are not parts: named by verify and the report,
+    never read as rows."""
+    return sorted(p.name for p in out.iterdir()
+                  if not p.name.startswith((".", "_")) and Chunk.from_name(p.name) is None)
+
+
 def describe_audit(out: pathlib.Path, found: Audit, meta: Mapping[str, Any], limit: int = 10) -> str:
     """What ``jaxapf sweep verify`` prints: one line saying whether the dataset is complete and sound,
-    then each part that cannot be trusted and each missing range (the first ``limit`` of each)."""
+    then each part that cannot be trusted, each missing range (the first ``limit`` of each) and the
+    entries that are not parts."""
     head = (f"{out}: {len(found.sound):,} sound part(s), {found.rows:,} of {found.expected:,} episodes "
             f"(spec_hash {str(meta.get('spec_hash'))[:12]}, {meta.get('format')}, {meta.get('dtype')})")
+    others = not_parts(out)
+    stray = ([f"  not a part (never read as rows): {', '.join(others[:limit])}"
+              + (f" … and {len(others) - limit} more" if len(others) > limit else "")] if others else [])
     if found.complete:
-        return f"{head}: complete and sound, every episode exactly once"
-    lines = [f"{head}: NOT complete and sound"]
-    for kind, parts in (("damaged", found.damaged), ("foreign", found.foreign), ("overlapping", found.overlapping)):
+        return "\n".join([f"{head}: complete and sound, every episode exactly once"] + stray)
+    lines = [f"{head}: NOT complete and sound"] + stray
+    for label, parts in (("damaged", found.damaged), ("foreign", found.foreign), ("overlapping", found.overlapping)):
         for name in sorted(parts)[:limit]:
-            lines.append(f"  {kind}: {name}: {parts[name]}")
+            lines.append(f"  {label}: {name}: {parts[name]}")
         if len(parts) > limit:
-            lines.append(f"  … and {len(parts) - limit} more {kind} part(s)")
+            lines.append(f"  … and {len(parts) - limit} more {label} part(s)")
     for variant, family, start, stop in found.missing[:limit]:
         lines.append(f"  missing: variant v{variant:03d}, {family}, fields {start}-{stop - 1}")
     if len(found.missing) > limit:
@@ -225,9 +272,7 @@ def prepare_output(out: pathlib.Path, plan: Plan, *, overwrite: bool, clean: boo
     check_folder(out)
     parts = part_files(out)
     if clean:
-        for p in out.iterdir():
-            if _TMP.fullmatch(p.name):
-                p.unlink(missing_ok=True)
+        clear_temporaries(out)
     if overwrite:
         if clean:
             for p in parts:
@@ -327,19 +372,33 @@ def _clean_shard(out: pathlib.Path, found: Any, problems: Mapping[str, str], min
         return
     names = {c.name for c in mine}
     repair_parts(out, found, problems)
-    for tmp in out.iterdir():
-        if tmp.name.startswith(".part-") and tmp.name.split(".tmp-")[0][1:] in names:
-            tmp.unlink(missing_ok=True)
+    clear_temporaries(out, names)
 
 
 def check_folder(out: pathlib.Path) -> None:
-    """Refuse a folder holding files that are neither parts nor what a sweep keeps beside them."""
-    foreign = [p.name for p in out.iterdir() if Chunk.from_name(p.name) is None and not _TMP.fullmatch(p.name)
-               and not _PROBE.fullmatch(p.name) and p.name != SET_ASIDE and not p.name.startswith(LOCK_NAME)
-               and not is_division_file(p.name)]
+    """Refuse a folder holding entries that are neither parts nor what a sweep keeps beside them, or
+    any of those names holding something a sweep never makes there (a link, a FIFO, a folder; only
+    ``.set-aside`` is a folder): :class:`~jaxapf.io.names.Planted`, naming it."""
+    foreign = []
+    for p in out.iterdir():
+        if p.name == SET_ASIDE:
+            check_kind(p, "folder")
+        elif (Chunk.from_name(p.name) is not None or _TMP.fullmatch(p.name) or _PROBE.fullmatch(p.name)
+              or p.name.startswith(LOCK_NAME) or is_division_file(p.name)):
+            check_kind(p)
+        else:
+            foreign.append(p.name)
     if foreign:
         raise ConfigError(f"--out {out} holds entries that are not sweep parts ({', '.join(sorted(foreign)[:3])}); "
                           "choose another --out")
+
+
+def clear_temporaries(out: pathlib.Path, names: Any = None) -> None:
+    """Remove the temporary parts a dead writer left in ``out`` (of the parts ``names`` only, if given);
+    only regular files are removed (:func:`~jaxapf.io.names.remove_leftover`)."""
+    for tmp in out.iterdir():
+        if _TMP.fullmatch(tmp.name) and (names is None or tmp.name.split(".tmp-")[0][1:] in names):
+            remove_leftover(tmp)
 
 
 def repair_parts(out: pathlib.Path, found: Any, names: Any) -> None:
@@ -347,10 +406,9 @@ def repair_parts(out: pathlib.Path, found: Any, names: Any) -> None:
     removed (their chunks run again), foreign ones moved to ``OUT/.set-aside/`` under a name not taken there."""
     for name in names:
         if name in found.foreign:
-            aside = out / SET_ASIDE
-            aside.mkdir(exist_ok=True)
+            aside = subfolder(out / SET_ASIDE)
             target, n = aside / name, 1
-            while target.exists():  # never over an earlier set-aside part
+            while os.path.lexists(target):  # never over an earlier set-aside part
                 target, n = aside / f"{name}.{n}", n + 1
             (out / name).replace(target)
         else:

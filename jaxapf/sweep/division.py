@@ -23,6 +23,7 @@ import pathlib
 from typing import Any, Iterator, Mapping
 
 from ..io.lock import LOCK_NAME, LockInfo, OutputLock, live_shard_locks, write_atomic
+from ..io.names import open_own, read_own
 from ..text import format_bytes
 from ..validation import ConfigError, first_line
 from .meta import identity
@@ -88,7 +89,7 @@ class Division:
 def _guarded(out: pathlib.Path) -> Iterator[None]:
     """Hold the exclusive ``flock`` of ``OUT/.lock-division`` (blocking: another shard holds it for a
     read and at most one small write)."""
-    fd = os.open(out / _GUARD, os.O_CREAT | os.O_RDWR, 0o644)
+    fd = open_own(out / _GUARD, os.O_CREAT | os.O_RDWR)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX)
         yield
@@ -109,7 +110,7 @@ def agree_division(out: pathlib.Path, division: Division, shard: tuple[int, int]
         return
     with contextlib.nullcontext() if dry else _guarded(out):
         try:
-            found, who = Division.from_json(json.loads(path.read_text()))
+            found, who = Division.from_json(json.loads(read_own(path)))
         except FileNotFoundError:
             found = who = None
         except (OSError, ValueError, RecursionError) as err:  # not a record jaxapf wrote: judged like another

@@ -18,7 +18,7 @@ from typing import Sequence
 
 from ..io.lock import OutputLock, check_writable, write_atomic
 from ..validation import ConfigError
-from .audit import Audit, audit_folder, check_folder
+from .audit import Audit, audit_folder, check_folder, clear_temporaries
 from .meta import identity, read_meta
 from .output import part_record, verify_part
 from .plan import Chunk
@@ -55,6 +55,8 @@ def merge_outputs(sources: Sequence[str | pathlib.Path], out: str | pathlib.Path
             raise ConfigError(f"sweep merge: {s} is not a folder")
         if s.resolve() == out.resolve():
             raise ConfigError(f"sweep merge: {s} is the output itself")
+        if s.resolve() in out.resolve().parents:  # the output would be a folder of entries that are not parts
+            raise ConfigError(f"sweep merge: --out {out} is inside {s}, a folder to merge; give an --out outside it")
     audits, metas = [], []
     for s in sources:
         found, meta = audit_folder(s)
@@ -74,6 +76,7 @@ def merge_outputs(sources: Sequence[str | pathlib.Path], out: str | pathlib.Path
         check_folder(out)  # a folder of other files is not a dataset to merge into
     check_writable(out)
     with OutputLock(out):
+        clear_temporaries(out)  # the lock is ours: a temporary part is a dead merge's
         here = audit_folder(out, metas[0])[0] if any(Chunk.from_name(p.name) for p in out.iterdir()) else None
         if here is not None and here.sound:
             version = read_meta(out / here.sound[0].name).get("versions", {}).get("jaxapf")

@@ -76,8 +76,8 @@ def write_part(out: pathlib.Path, name: str, table, shard: tuple[int, int] | Non
 
 def read_part(path: pathlib.Path):
     """The table of one part, checked: page CRCs and its content hash (a part of the legacy format,
-    which carries none, is checked for readability only). Raises :class:`ConfigError` naming the
-    part and what is wrong with it."""
+    which carries none, is checked for readability only), with no metadata but its ``jaxapf`` key
+    (:func:`_own_keys`). Raises :class:`ConfigError` naming the part and what is wrong with it."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -102,7 +102,7 @@ def read_part(path: pathlib.Path):
     except (ValueError, KeyError, TypeError, RecursionError):
         expected = None
     if expected is None and not hashed:
-        return table.replace_schema_metadata(metadata)
+        return _own_keys(table, metadata)
     if expected is None:
         raise ConfigError(f"{path.name}: no content hash (damaged, or written before jaxapf checked its parts)")
     try:
@@ -111,7 +111,17 @@ def read_part(path: pathlib.Path):
         raise ConfigError(f"{path.name}: unreadable ({type(err).__name__}: {first_line(err)})") from None
     if found != expected:
         raise ConfigError(f"{path.name}: content hash mismatch (the file was changed after it was written)")
-    return table.replace_schema_metadata(metadata)
+    return _own_keys(table, metadata)
+
+
+def _own_keys(table, metadata: dict):
+    """``table`` with no metadata but jaxapf's own: another key (``pandas``, a field's) could rename,
+    retype or reindex columns when the table is read, and the content hash covers only what is kept."""
+    import pyarrow as pa
+
+    plain = pa.schema([f.remove_metadata() for f in table.schema],
+                      metadata={META_KEY: metadata[META_KEY]} if META_KEY in metadata else None)
+    return pa.Table.from_arrays(table.columns, schema=plain)
 
 
 def part_record(path: pathlib.Path) -> dict[str, Any]:

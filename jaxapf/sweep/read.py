@@ -22,11 +22,13 @@ __all__ = ["read_sweep", "RowConfig", "row_config", "sweep_spec"]
 def read_sweep(path: str | os.PathLike) -> tuple["pd.DataFrame", dict[str, Any]]:  # noqa: F821
     """The rows of a sweep output (sorted by setting, family in spec order, field) and its metadata.
 
-    ``path`` is the output directory (every visible ``*.parquet`` in it is a part) or one part file.
+    ``path`` is the output directory (its parts are the files named as a sweep names them; a folder
+    holding none, every visible ``*.parquet``) or one part file.
     The metadata is the parts' ``jaxapf`` object (docs/sweep-format.md) plus ``parts`` (number of
     part files), ``rows_expected`` (from the spec; None if the spec cannot be expanded),
-    ``complete`` (every expected (setting, family, field) exactly once, read from the parts' rows) and
-    ``location`` (the output folder, absolute: a ``.py`` plugin is looked for there first,
+    ``complete`` (every expected (setting, family, field) exactly once, read from the parts' rows),
+    ``stray`` (the folder's visible entries that are not parts: named, never read) and ``location``
+    (the output folder, absolute: a ``.py`` plugin is looked for there first,
     :func:`sweep_spec`). Every part is verified (its page CRCs and content hash,
     :func:`~jaxapf.sweep.output.read_part`) and, in a directory, checked against its name and the
     sweep (:mod:`jaxapf.sweep.audit`). Raises :class:`ConfigError` for a path that is not a sweep
@@ -35,14 +37,21 @@ def read_sweep(path: str | os.PathLike) -> tuple["pd.DataFrame", dict[str, Any]]
     """
     import pyarrow as pa
 
-    from .audit import judge, read_parts, reference_meta
+    from .audit import judge, not_parts, read_parts, reference_meta
 
     path = pathlib.Path(path)
     if not path.exists():
         raise ConfigError(f"{path}: no such file or directory")
-    files = sorted(p for p in path.glob("*.parquet") if p.is_file() and not p.name.startswith((".", "_"))) \
-        if path.is_dir() else [path]
-    named = all(Chunk.from_name(p.name) is not None for p in files)  # parts named by their chunks, as a sweep writes
+    stray: list[str] = []
+    if path.is_dir():  # the parts, named by their chunks as a sweep writes them; any other file is named, not read
+        stray = not_parts(path)
+        files = [path / n for n in sorted(os.listdir(path)) if Chunk.from_name(n) is not None]
+        if not files:  # no part named as a sweep names it (files renamed by hand): every Parquet file, unaudited
+            files = [path / n for n in stray if n.endswith(".parquet") and (path / n).is_file()]
+            stray = [n for n in stray if path / n not in files]
+    else:
+        files = [path]
+    named = all(Chunk.from_name(p.name) is not None for p in files)
     if path.is_dir():
         tables, metas, damaged = read_parts(path, files)
         if damaged:
@@ -95,7 +104,7 @@ def read_sweep(path: str | os.PathLike) -> tuple["pd.DataFrame", dict[str, Any]]
               .drop(columns="_rank").reset_index(drop=True))
     if not (path.is_dir() and named and spec is not None):  # complete if the rows are the whole sweep (once)
         complete = expected is not None and len(df) == expected
-    return df, {**meta, "parts": parts, "rows_expected": expected, "complete": complete}
+    return df, {**meta, "parts": parts, "rows_expected": expected, "complete": complete, "stray": stray}
 
 
 @dataclasses.dataclass(frozen=True)

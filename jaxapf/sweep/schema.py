@@ -17,7 +17,7 @@ from .meta import META_KEY
 from .plan import Chunk, Plan
 from .spec import SweepSpec
 
-__all__ = ["schema", "part_table", "static_columns"]
+__all__ = ["schema", "row_schema", "part_table", "static_columns"]
 
 _ARROW_TYPES = {"bool": "bool_", "int32": "int32"}
 
@@ -51,12 +51,19 @@ def _column_type(spec: SweepSpec, key: str):
 
 def schema(plan: Plan):
     """The Arrow schema of the plan's rows (docs/sweep-format.md), with the plan's ``meta`` as its metadata."""
+    return row_schema(plan.spec, plan.meta, plan.gain_columns, plan.metrics)
+
+
+def row_schema(spec: SweepSpec, meta: Mapping[str, Any], gain_columns: Any = None, metrics: Any = None):
+    """The Arrow schema of the rows of the sweep ``spec`` whose parts carry ``meta`` (its float type and,
+    unless given, its metrics; the gain columns default to the spec's): what every sound part holds."""
     import pyarrow as pa
 
-    spec, meta = plan.spec, plan.meta
+    gain_columns = spec.gain_columns() if gain_columns is None else gain_columns
+    metrics = meta["metrics"] if metrics is None else metrics
     float_type = pa.from_numpy_dtype(np.dtype(meta["dtype"]))
     fields = [pa.field("setting", pa.int32()), pa.field("method", pa.string()), pa.field("convention", pa.string())]
-    fields += [pa.field(k, pa.float64()) for k in plan.gain_columns]
+    fields += [pa.field(k, pa.float64()) for k in gain_columns]
     fields += [pa.field(k, _column_type(spec, k)) for k in static_columns(spec)]
     fields += [pa.field(k, pa.string() if isinstance(v, str) else pa.int64()) for k, v in
                (spec.tags[0] if spec.tags else ())]
@@ -66,7 +73,7 @@ def schema(plan: Plan):
     if spec.oracle:
         fields.append(pa.field("solvable", pa.bool_()))
     fields += [pa.field(m, getattr(pa, _ARROW_TYPES[find_metric(m).dtype])() if find_metric(m).dtype in _ARROW_TYPES
-                        else float_type) for m in plan.metrics]
+                        else float_type) for m in metrics]
     return pa.schema(fields, metadata={META_KEY: json.dumps(meta, sort_keys=True).encode()})
 
 

@@ -35,6 +35,7 @@ from matplotlib.figure import Figure
 
 from .. import stats
 from ..gains import Gains
+from ..io.lock import write_atomic
 from ..metrics import METRICS
 from .estimators import rollouts
 from .objective import TERMS
@@ -201,7 +202,7 @@ def plot_training(history: pd.DataFrame, clip: float, path: pathlib.Path) -> Non
     for a in ax.flat:
         a.legend(fontsize=7)
         a.grid(alpha=0.3)
-    fig.savefig(path, dpi=120)
+    write_atomic(path, lambda fh: fig.savefig(fh, format="png", dpi=120))
 
 
 def plot_test(table: pd.DataFrame, title: str, path: pathlib.Path) -> None:
@@ -223,7 +224,7 @@ def plot_test(table: pd.DataFrame, title: str, path: pathlib.Path) -> None:
     ax[0].legend(ncol=len(names), fontsize=8)
     ax[0].set_title(title)
     ax[1].set_xticks(x, families)
-    fig.savefig(path, dpi=120)
+    write_atomic(path, lambda fh: fig.savefig(fh, format="png", dpi=120))
 
 
 def candidates(tuned: Gains, searched: Mapping[str, Gains]) -> dict[str, Gains]:

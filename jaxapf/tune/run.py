@@ -58,7 +58,7 @@ def write_gains_toml(path: pathlib.Path, gains: dict[str, float], comment: str) 
     """A ``[gains]`` TOML fragment (floats written with ``repr``: exact round trip)."""
     lines = [f"# {line}" for line in comment.splitlines()] + ["[gains]"]
     lines += [f"{name} = {value!r}" for name, value in gains.items()]
-    path.write_text("\n".join(lines) + "\n")
+    write_atomic(path, "\n".join(lines) + "\n")
 
 
 def format_table(table: pd.DataFrame) -> str:
@@ -152,7 +152,7 @@ def _run(spec: TuneSpec, text: str, out: pathlib.Path, quiet: bool) -> dict[str,
 
     state = tuner.train(out, quiet=quiet)
     history = pd.DataFrame(state.history, columns=list(HISTORY_COLUMNS))
-    history.to_csv(out / "history.csv", index=False)
+    write_atomic(out / "history.csv", history.to_csv(index=False))
     plot_training(history, spec.train.clip, out / "training.png")
     tuned = spec.reparam.gains(state.best_theta)
     write_gains_toml(out / "gains.toml", tuned.floats(),
@@ -173,9 +173,9 @@ def _run(spec: TuneSpec, text: str, out: pathlib.Path, quiet: bool) -> dict[str,
     start = time.perf_counter()
     episodes = test_episodes(tuner, settings)
     test_seconds = time.perf_counter() - start
-    episodes.to_parquet(out / "test_episodes.parquet", index=False)
+    write_atomic(out / "test_episodes.parquet", lambda fh: episodes.to_parquet(fh, index=False))
     table = comparison_table(episodes, spec.test.families)
-    table.to_csv(out / "test_results.csv", index=False)
+    write_atomic(out / "test_results.csv", table.to_csv(index=False))
     plot_test(table, f"{spec.name}: held-out test fields (seed {spec.test.seed})", out / "test.png")
 
     summary = {
@@ -192,7 +192,7 @@ def _run(spec: TuneSpec, text: str, out: pathlib.Path, quiet: bool) -> dict[str,
         "settings": list(settings),
         "test": table.to_dict(orient="records"),
     }
-    (out / "summary.json").write_text(json.dumps(_json_safe(summary), indent=2) + "\n")
+    write_atomic(out / "summary.json", json.dumps(_json_safe(summary), indent=2) + "\n")
     _say(quiet, format_table(table))
     _say(quiet, f"wrote {out}/: {', '.join(OUTPUTS)}, checkpoint.npz, searches.json")
     return summary

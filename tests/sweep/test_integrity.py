@@ -195,8 +195,9 @@ def test_a_set_aside_part_never_replaces_an_earlier_one(reference, tmp_path):
     assert sorted(p.name for p in (out / SET_ASIDE).iterdir()) == [name, f"{name}.1"]
 
 
-def test_a_stray_copy_of_a_part_is_never_read_twice(reference, tmp_path):
+def test_a_stray_copy_of_a_part_is_named_and_never_read(reference, tmp_path):
     out = _copy(reference[0], tmp_path / "stray.parquet")
     shutil.copy(out / "part-v000-trap-f00000000-00000003.parquet", out / "copy.parquet")
-    with pytest.raises(ConfigError, match="holds 6 episode row.s. twice"):
-        read_sweep(out)
+    df, meta = read_sweep(out)
+    assert meta["stray"] == ["copy.parquet"] and meta["complete"]
+    pd.testing.assert_frame_equal(df, reference[1])
