@@ -9,6 +9,7 @@ kind of mistake always reads the same.
 from __future__ import annotations
 
 import os
+import stat
 import tomllib
 from typing import Any, Iterable, Sequence
 
@@ -44,6 +45,10 @@ MAX_FIELDS = 2**31
 #: Python object, and more than this would not fit a run anyway (sweep specs, tune and
 #: compare searches).
 MAX_SETTINGS = 100_000
+
+
+#: Largest spec file read (TOML) [bytes].
+MAX_SPEC_BYTES = 16 * 2**20
 
 
 class ConfigError(ValueError):
@@ -132,12 +137,20 @@ def check_bool(where: str, value: Any) -> bool:
     return bool(value)
 
 
+def check_number(where: str, value: Any, lo: float | None = None, hi: float | None = None, *,
+                 lo_open: bool = False) -> float:
+    """One finite number in the range (not a boolean, a text or an array)."""
+    if isinstance(value, (bool, np.bool_, str, list, tuple, dict, np.ndarray)):
+        raise ConfigError(f"{where} = {value!r} must be a number; allowed: {describe_range(lo, hi, lo_open)}")
+    return float(check_range(where, value, lo, hi, lo_open=lo_open))
+
+
 def check_span(where: str, value: Any, lo: float | None = None, hi: float | None = None, *,
                lo_open: bool = False, integer: bool = False) -> tuple:
     """An interval ``(a, b)`` with ``a <= b`` whose ends lie in the range; a single number ``x``
     means ``(x, x)``."""
     ends = tuple(value) if isinstance(value, (list, tuple, np.ndarray)) else (value, value)
-    if len(ends) != 2:
+    if len(ends) != 2 or any(isinstance(e, (list, tuple, dict, np.ndarray)) for e in ends):
         raise ConfigError(f"{where} = {value!r} must be a number or a pair (lo, hi)")
     if integer:
         a, b = (check_int(where, e, int(lo if lo is not None else 0)) for e in ends)
@@ -197,12 +210,19 @@ def read_toml_file(path: str | os.PathLike, what: str = "spec file") -> tuple[di
     """The table of the TOML file at ``path`` and its text, unvalidated; a file that is missing, a
     directory, not UTF-8 or not TOML is a :class:`ConfigError` naming ``what`` and the path."""
     try:
-        with open(path, "rb") as fh:
-            raw = fh.read()
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)  # a FIFO opens at once, and is refused below
     except FileNotFoundError:
         raise ConfigError(f"{what} {str(path)!r} does not exist") from None
-    except IsADirectoryError:
-        raise ConfigError(f"{what} {str(path)!r} is a directory") from None
+    except OSError as err:
+        raise ConfigError(f"{what} {str(path)!r} cannot be read: {err.strerror or first_line(err)}") from None
+    with open(fd, "rb") as fh:
+        if stat.S_ISDIR(os.fstat(fd).st_mode):
+            raise ConfigError(f"{what} {str(path)!r} is a directory")
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise ConfigError(f"{what} {str(path)!r} is not a regular file (a device or a pipe); give a TOML file")
+        raw = fh.read(MAX_SPEC_BYTES + 1)
+    if len(raw) > MAX_SPEC_BYTES:
+        raise ConfigError(f"{what} {str(path)!r} is larger than {MAX_SPEC_BYTES // 2**20} MiB; a spec is a short text")
     try:
         text = raw.decode()
         return tomllib.loads(text), text

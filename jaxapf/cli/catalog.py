@@ -82,6 +82,30 @@ def live() -> dict[str, Any]:
     }
 
 
+#: The lists the command line reads by name (every registry's are there too, named by the components).
+_NAMED_LISTS = ("planners", "families", "swarm-families", "metrics", "gains")
+
+
+def well_formed(data: Any) -> bool:
+    """Whether ``data`` has everything the command line reads from a catalogue, of the types it reads
+    (a cache edited or cut short is read live again instead of failing every command)."""
+    def entries(items: Any, keys: tuple[str, ...]) -> bool:
+        return isinstance(items, list) and all(isinstance(e, dict) and all(k in e for k in keys) and
+                                               isinstance(e.get("name", e.get("key", "")), str) for e in items)
+    try:
+        lists = data["lists"]
+        return (isinstance(lists, dict) and all(entries(v, ("name", "describe")) for v in lists.values())
+                and all(k in lists for k in _NAMED_LISTS)
+                and entries(data["components"], ("key", "list", "role", "default"))
+                and all(c["list"] in lists for c in data["components"])
+                and entries(data["gains"], ("name", "doc", "unit", "default"))
+                and isinstance(data["conventions"], list) and all(isinstance(c, str) for c in data["conventions"])
+                and data["defaults"]["convention"] in data["conventions"] and isinstance(data["defaults"]["dt"], float)
+                and all(isinstance(data["mpc"][k], int) for k in ("horizon", "iters")))
+    except (KeyError, TypeError, AttributeError):
+        return False
+
+
 def catalog(*, fresh: bool = False) -> dict[str, Any]:
     """The catalogue: read from the cache when there is one for these sources, else read live and
     cached (an unwritable cache is skipped). ``fresh``: read live, cache nothing (after plugins)."""
@@ -90,7 +114,7 @@ def catalog(*, fresh: bool = False) -> dict[str, Any]:
     path = catalog_path()
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-        if isinstance(data, dict) and data.get("lists"):
+        if well_formed(data):
             return data
     except (OSError, ValueError, RecursionError):
         pass

@@ -431,9 +431,12 @@ def _bench(args: argparse.Namespace) -> int:
 
 def _tune(args: argparse.Namespace) -> int:
     from ..tune import TuneError, run_tune
+    from ..validation import ConfigError
 
     try:
         run_tune(args.spec, args.out, quiet=args.quiet)
+    except ConfigError:  # bad input (a damaged checkpoint among them): one line, status 2
+        raise
     except TuneError as err:
         print(f"jaxapf tune: error: {err}", file=sys.stderr)
         return 1
@@ -445,12 +448,15 @@ def _compare(args: argparse.Namespace) -> int:
     from ..engine.runtime import configure_jax, default_cache_dir
     from ..sweep.plan import parse_shard
     from ..tune import TuneError
+    from ..validation import ConfigError
 
     shard = parse_shard(args.shard) if args.shard is not None else None
     configure_jax(cache_dir=None if args.no_cache else default_cache_dir())
     try:
         run_compare(args.spec, args.out, quiet=args.quiet, resamples=args.resamples, gallery=args.gallery,
                     shard=shard)
+    except ConfigError:
+        raise
     except TuneError as err:
         print(f"jaxapf compare: error: {err}", file=sys.stderr)
         return 1
@@ -610,7 +616,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _main(argv: list[str], running: list[str]) -> int:
     global _CATALOG
     from ..spec.plugins import load_plugin
-    from ..validation import ConfigError
+    from ..validation import ConfigError, first_line
     from .stops import stopped
 
     # plugins register components (and their gain flags) before the parser is built from the registries
@@ -665,3 +671,16 @@ def _main(argv: list[str], running: list[str]) -> int:
 
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 1
+    except MemoryError:
+        print(f"jaxapf {command}: error: out of memory; {_KEPT[args.command]}", file=sys.stderr)
+        return 2
+    except OSError as err:  # the system refused (a full disk, a lost mount, permissions): one line, what was kept
+        if err.errno is None:
+            raise
+        import errno
+
+        full = " (the file system is full)" if err.errno in (errno.ENOSPC, errno.EDQUOT) else ""
+        where = f"{err.filename}: " if err.filename else ""
+        print(f"jaxapf {command}: error: {where}{err.strerror or first_line(err)}{full}; {_KEPT[args.command]}",
+              file=sys.stderr)
+        return 2

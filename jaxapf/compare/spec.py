@@ -274,7 +274,7 @@ def parse_compare_spec(data: Mapping[str, Any], *, base: str | os.PathLike | Non
     for label in tables:
         if label not in used:
             raise ConfigError(f"scenario.params.{label} is not one of selection.families or test.families")
-    params = {label: dict(tables.get(label, {})) for label in sorted(used)}
+    params = {label: dict(check_table(f"scenario.params.{label}", tables.get(label, {}))) for label in sorted(used)}
     for label, table in params.items():
         spec_family_params(label, table)
     Objective(**d["objective"])

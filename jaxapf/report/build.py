@@ -29,6 +29,7 @@ from .. import stats
 from ..io.lock import write_atomic
 from ..io.names import subfolder
 from ..metrics import all_metrics, find_metric, is_metric
+from ..validation import MAX_SEED
 from .document import VERDICT_MARKS, Document, render_html, render_markdown
 from .figures import DEFAULT_HEATMAP, check_heatmap, table_figures
 from .latex import latex_tables
@@ -52,6 +53,13 @@ from .tables import (
 from .worker import RowWorker
 
 __all__ = ["ReportOptions", "ReportResult", "build_report"]
+
+
+#: Most bootstrap resamples (``--resamples``): each interval draws this many; past it a report takes hours
+#: and its intervals move less than their last printed digit.
+MAX_RESAMPLES = 100_000
+#: Most failed episodes re-simulated for the gallery (``--gallery``).
+MAX_GALLERY = 100
 
 
 @dataclasses.dataclass(frozen=True)
@@ -107,12 +115,15 @@ class ReportOptions:
             if find_metric(name).kind == "rate" and not margin < 1:
                 raise ReportError(f"--margin {name}={margin!r}: a rate's margin is a proportion below 1 "
                                   "(0.02 = 2 percentage points)")
-        if isinstance(self.resamples, bool) or not isinstance(self.resamples, int) or self.resamples < 100:
-            raise ReportError(f"--resamples = {self.resamples!r} must be an integer >= 100")
+        if (isinstance(self.resamples, bool) or not isinstance(self.resamples, int)
+                or not 100 <= self.resamples <= MAX_RESAMPLES):
+            raise ReportError(f"--resamples = {self.resamples!r} must be an integer from 100 to {MAX_RESAMPLES:,}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not 0 <= self.seed <= MAX_SEED:
+            raise ReportError(f"--seed = {self.seed!r} must be an integer from 0 to {MAX_SEED}")
         if not (isinstance(self.confidence, (int, float)) and 0.5 <= self.confidence < 1.0):
             raise ReportError(f"--confidence = {self.confidence!r} must lie in [0.5, 1)")
-        if isinstance(self.gallery, bool) or not isinstance(self.gallery, int) or self.gallery < 0:
-            raise ReportError(f"--gallery = {self.gallery!r} must be an integer >= 0")
+        if isinstance(self.gallery, bool) or not isinstance(self.gallery, int) or not 0 <= self.gallery <= MAX_GALLERY:
+            raise ReportError(f"--gallery = {self.gallery!r} must be an integer from 0 to {MAX_GALLERY}")
         if self.heatmap is not None and (len(self.heatmap) != 2 or self.heatmap[0] == self.heatmap[1]):
             raise ReportError(f"--heatmap = {','.join(self.heatmap)!r} must name two different columns, e.g. gamma,k")
 

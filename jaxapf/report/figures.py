@@ -22,7 +22,7 @@ from matplotlib.lines import Line2D
 from .. import stats
 from ..metrics import find_metric
 from ..planners import PLANNERS
-from ..simulate.figures import panel_grid
+from ..simulate.figures import panel_grid, plain_text
 from .document import VERDICT_COLORS, FigureFile, save_figure
 from .load import SINGLE_ROLES, SWARM_ROLES, ReportError, report_metrics, roles
 from .select import Selection, format_value, ignored_columns, swept_columns, symbol
@@ -400,6 +400,7 @@ def _profile_taus(values: np.ndarray) -> np.ndarray:
     return np.linspace(lo - pad, hi + pad, 200)
 
 
+@plain_text
 def row_figures(sel: Selection, options: Any, figdir: pathlib.Path) -> tuple[list[FigureFile], list[str]]:
     """The figures drawn from the episode rows alone (heatmaps, ECDF of the clearance, performance
     profile), written to ``figdir``, and notes on what was skipped. They need no statistics, so a
@@ -439,6 +440,7 @@ def row_figures(sel: Selection, options: Any, figdir: pathlib.Path) -> tuple[lis
     return figures, notes
 
 
+@plain_text
 def table_figures(sel: Selection, summary: pd.DataFrame, comparisons: pd.DataFrame, options: Any,
                   figdir: pathlib.Path) -> list[FigureFile]:
     """The figures drawn from the report's tables (rates, continuous metrics, paired differences),

@@ -9,6 +9,7 @@ from typing import Any, Mapping
 
 import pandas as pd
 
+from ..simulate.figures import plain_text
 from ..validation import ConfigError, first_line
 from .document import FigureFile, save_figure
 from .load import report_metrics, roles
@@ -102,6 +103,7 @@ def _animation(runs, field, figdir: pathlib.Path, i: int, title: str) -> FigureF
                       format="gif")
 
 
+@plain_text
 def gallery(sel: Selection, episodes: list[tuple[str, pd.Series, Any]], options: Any,
             figdir: pathlib.Path) -> tuple[list[FigureFile], list[str]]:
     """The figures of the re-simulated ``episodes`` (:func:`resimulate`) and notes."""

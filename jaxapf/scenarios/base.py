@@ -13,7 +13,7 @@ import dataclasses
 from typing import Any, Callable, ClassVar, Mapping
 
 from ..registry import Registry
-from ..validation import ConfigError, check_choice, check_int, check_names, check_range, check_span
+from ..validation import ConfigError, check_choice, check_int, check_names, check_number, check_span
 
 __all__ = ["SHAPES", "Check", "integer", "number", "span", "choice", "names", "FamilyParams", "Family", "FAMILIES",
            "register_family", "family_params", "checked_params"]
@@ -35,7 +35,7 @@ def integer(lo: int, hi: int | None = None) -> Check:
 
 def number(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False) -> Check:
     """A finite number in the range."""
-    return lambda where, value: float(check_range(where, value, lo, hi, lo_open=lo_open))
+    return lambda where, value: check_number(where, value, lo, hi, lo_open=lo_open)
 
 
 def span(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False, integer: bool = False) -> Check:

@@ -20,7 +20,7 @@ from matplotlib.patches import Circle
 
 from ..io.lock import staged
 from ..validation import ConfigError
-from .figures import _GOAL_COLOR, _OBSTACLE_COLOR, DPI, Field, Run, _collision_index, outcome
+from .figures import _GOAL_COLOR, _OBSTACLE_COLOR, DPI, Field, Run, _collision_index, outcome, plain_text
 
 __all__ = ["Track", "tracks_of_runs", "tracks_of_swarm", "animate", "ffmpeg"]
 
@@ -75,6 +75,7 @@ def ffmpeg() -> str:
 
 
 # long: the panels' artists are built once and moved frame by frame in one loop that feeds both encoders
+@plain_text
 def animate(tracks: Sequence[Track], field: Field, out: pathlib.Path | str, stem: str = "episode",
             fps: int = 20, seconds: float = 12.0, title: str = "") -> list[pathlib.Path]:
     """Write ``out/stem.mp4`` and ``out/stem.gif`` of ``tracks`` side by side (obstacles of ``field``

@@ -22,11 +22,13 @@ colour otherwise; obstacles are red and the goal green in every figure.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import pathlib
 import textwrap
 from typing import Callable, Mapping, Sequence
 
+import matplotlib
 import numpy as np
 from matplotlib import colormaps
 from matplotlib.figure import Figure
@@ -281,6 +283,16 @@ PANELS_PER_ROW = 3
 #: (readable at a page's width).
 DPI = 110
 MAX_WIDTH = 2400
+
+
+def plain_text(draw: Callable) -> Callable:
+    """``draw`` with matplotlib's mathtext off: a user's label or tag holding ``$`` is drawn as written,
+    never parsed (an unbalanced ``$x^{2`` would stop the drawing)."""
+    @functools.wraps(draw)
+    def drawn(*args, **kwargs):
+        with matplotlib.rc_context({"text.parse_math": False}):
+            return draw(*args, **kwargs)
+    return drawn
 
 
 def panel_grid(n: int, panel: tuple[float, float], margin: tuple[float, float],
@@ -768,6 +780,7 @@ FIGURES: dict[str, Callable[[Sequence[Run], Field], Figure]] = {
 }
 
 
+@plain_text
 def plot_all(runs: Sequence[Run], field: Field, out_dir: pathlib.Path | str, dpi: int = DPI) -> list[pathlib.Path]:
     """Write every figure of :data:`FIGURES` as PNG into ``out_dir`` (created); returns the paths."""
     _no_runs_guard(runs)

@@ -36,7 +36,18 @@ from ..io.versions import versions
 from ..metrics import find_metric
 from ..metrics.swarm import agent_outcomes, swarm_metrics
 from ..scenarios.swarms import make_swarms, swarm_params
-from .figures import DPI, Field, _aspect, _draw_obstacles_xy, _legend_below, _suptitle, _title, _xy_bounds, panel_grid
+from .figures import (
+    DPI,
+    Field,
+    _aspect,
+    _draw_obstacles_xy,
+    _legend_below,
+    _suptitle,
+    _title,
+    _xy_bounds,
+    panel_grid,
+    plain_text,
+)
 
 __all__ = ["SwarmRun", "SwarmField", "simulate_swarm", "write_swarm_outputs",
            "plot_swarm_trajectories", "plot_swarm_snapshots", "SWARM_FIGURES"]
@@ -259,6 +270,7 @@ def plot_swarm_snapshots(runs: Sequence[SwarmRun], swarm: SwarmField,
 SWARM_FIGURES = {"swarm_trajectories.png": plot_swarm_trajectories, "swarm_snapshots.png": plot_swarm_snapshots}
 
 
+@plain_text
 def write_swarm_outputs(out: pathlib.Path, swarm: SwarmField, runs: Sequence[SwarmRun], table: pd.DataFrame,
                         config: dict) -> list[pathlib.Path]:
     """Write trajectories, metrics, run record and figures to ``out``; returns the paths."""

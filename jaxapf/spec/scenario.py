@@ -56,5 +56,6 @@ def spec_family_params(label: str, overrides: Any, *, swarms: bool = False) -> F
         raise relocated(err, f"scenario.{base}", where) from None
 
 
-#: A ``[scenario.params.LABEL]`` table's ``scale``: the factors of :meth:`FamilyParams.scaled`.
-_SCALE = Table({"length": Key(number(0.0, lo_open=True), OMIT), "speed": Key(number(0.0, lo_open=True), OMIT)})
+#: A ``[scenario.params.LABEL]`` table's ``scale``: the factors of :meth:`FamilyParams.scaled`, within a
+#: thousandfold either way (past that no vehicle is meant, and float32 fields lose their obstacles).
+_SCALE = Table({"length": Key(number(1e-3, 1e3), OMIT), "speed": Key(number(1e-3, 1e3), OMIT)})

@@ -28,7 +28,7 @@ from ..validation import (
     check_choice,
     check_int,
     check_names,
-    check_range,
+    check_number,
     check_table,
 )
 
@@ -85,15 +85,13 @@ def integer(lo: int, hi: int | None = None) -> Reader:
     return lambda where, value: check_int(where, value, lo, hi)
 
 
-def number(lo: float | None = None, *, lo_open: bool = False, inf: bool = False) -> Reader:
-    """A number (not a boolean) at least ``lo`` (above it with ``lo_open``), as a float; ``inf``:
-    also ``inf``."""
+def number(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False, inf: bool = False) -> Reader:
+    """A number (not a boolean) at least ``lo`` (above it with ``lo_open``) and at most ``hi``, as a
+    float; ``inf``: also ``inf``."""
     def read(where: str, value: Any) -> float:
-        if isinstance(value, bool):
-            raise ConfigError(f"{where} = {value!r} must be a number")
         if inf and isinstance(value, float) and value == math.inf:
             return value
-        return float(check_range(where, value, lo, lo_open=lo_open))
+        return check_number(where, value, lo, hi, lo_open=lo_open)
     return read
 
 

@@ -47,7 +47,29 @@ def read_meta(path: pathlib.Path) -> dict[str, Any]:
     if not isinstance(meta, dict) or meta.get("format") not in READABLE_FORMATS:
         raise ConfigError(f"{path} is not the output of jaxapf sweep (no '{META_KEY.decode()}' metadata of format "
                           f"{' or '.join(READABLE_FORMATS)} in its Parquet schema)")
+    wrong = [key for key, ok in _SHAPE.items() if not ok(meta.get(key))]
+    if wrong:
+        raise ConfigError(f"{path}: its '{META_KEY.decode()}' metadata lacks {', '.join(wrong)} or holds "
+                          f"{'it' if len(wrong) == 1 else 'them'} as another type (edited after it was written)")
     return meta
+
+
+def _texts(value: Any) -> bool:
+    return isinstance(value, list) and all(isinstance(v, str) for v in value)
+
+
+#: What every part's metadata holds, and of which type (docs/sweep-format.md); a part whose metadata does
+#: not is no sweep's part.
+_SHAPE = {
+    "spec": lambda v: isinstance(v, dict) and isinstance(v.get("scenario"), dict),
+    "spec_hash": lambda v: isinstance(v, str),
+    "dtype": lambda v: v in ("float32", "float64"),
+    "vmap_width": lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 1,
+    "metrics": _texts,
+    "versions": lambda v: isinstance(v, dict),
+    "prng": lambda v: v is None or isinstance(v, dict),
+    "plugin_files": lambda v: v is None or isinstance(v, list),
+}
 
 
 def identity(meta: Mapping[str, Any]) -> dict[str, Any]:
@@ -86,6 +108,17 @@ def plugin_files(spec: SweepSpec, out: str | pathlib.Path | None) -> list[dict[s
 
 
 def sweep_spec(meta: Mapping[str, Any]) -> SweepSpec:
+    """:func:`_sweep_spec`; metadata whose spec cannot be read back is a :class:`ConfigError` in one line."""
+    try:
+        return _sweep_spec(meta)
+    except ConfigError:
+        raise
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError, RecursionError) as err:
+        raise ConfigError(f"the sweep's spec in its metadata cannot be read back ({type(err).__name__}: "
+                          f"{first_line(err)}): edited after it was written, or of another version") from None
+
+
+def _sweep_spec(meta: Mapping[str, Any]) -> SweepSpec:
     """The spec of a sweep's metadata (``meta`` from :func:`read_sweep`). A dataset is data: its plugins
     are never imported here, only named (the components they register must be registered already:
     ``--plugin``); a ``.py`` plugin is named by its path relative to the output folder (``location``) if

@@ -414,12 +414,16 @@ def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: in
                 chunk_fields, memory_budget).resumed(done)
 
 
+#: Most shards of one sweep (``--shard I/N``): far past any scheduler's job array.
+MAX_SHARDS = 1_000_000
+
+
 def parse_shard(text: str) -> tuple[int, int]:
     """``(i, n)`` from ``"I/N"`` (``--shard``; ``0 <= I < N``), or :class:`ConfigError` in one line."""
-    match = re.fullmatch(r"\s*(\d+)\s*/\s*(\d+)\s*", str(text))
-    if match is None or int(match[2]) < 1 or int(match[1]) >= int(match[2]):
-        raise ConfigError(f"--shard = {text!r} must be I/N with 0 <= I < N, e.g. 3/64 (a Slurm array task: "
-                          "--shard $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT)")
+    match = re.fullmatch(r"\s*(\d{1,12})\s*/\s*(\d{1,12})\s*", str(text))
+    if match is None or int(match[2]) < 1 or int(match[1]) >= int(match[2]) or int(match[2]) > MAX_SHARDS:
+        raise ConfigError(f"--shard = {text!r} must be I/N with 0 <= I < N <= {MAX_SHARDS:,}, e.g. 3/64 (a Slurm "
+                          "array task: --shard $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT)")
     return int(match[1]), int(match[2])
 
 
@@ -438,7 +442,8 @@ def shard_chunks(plan: Plan, shard: int, shards: int) -> tuple[Chunk, ...]:
 
     chunks = plan.chunks
     cost = [chunk_cost(plan, c) for c in chunks]
-    load = [(0.0, k) for k in range(shards)]  # (cost so far, shard): the least loaded, lower index first
+    # (cost so far, shard): the least loaded, lower index first; shards past the number of chunks get none
+    load = [(0.0, k) for k in range(min(shards, len(chunks)))]
     owner = {}
     for i in sorted(range(len(chunks)), key=lambda i: (-cost[i], i)):
         total, s = heapq.heappop(load)

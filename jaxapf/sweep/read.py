@@ -76,10 +76,10 @@ def read_sweep(path: str | os.PathLike) -> tuple["pd.DataFrame", dict[str, Any]]
         spec = sweep_spec(meta)
         expected = len(spec.settings()) * len(spec.families) * spec.fields
     except ConfigError:
-        if meta.get("spec", {}).get("plugins"):  # its plugins' components are not registered: say which to name
+        # a folder's parts are judged against their spec, or not read (`jaxapf sweep verify` says the same);
+        # a single part file is read as it is (its plugins' components must be registered: say which to name)
+        if path.is_dir() and named or meta.get("spec", {}).get("plugins"):
             raise
-        spec, expected = None, None  # a spec this version cannot expand: the rows, unaudited
-    except (KeyError, TypeError, AttributeError):
         spec, expected = None, None
     complete = False
     if path.is_dir() and named and spec is not None:

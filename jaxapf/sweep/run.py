@@ -27,13 +27,21 @@ from .spec import SweepSpec
 __all__ = ["parse_size", "SweepResult", "check_options", "dry_run", "run_sweep"]
 
 
+#: Largest ``--memory-budget`` [bytes]: 1 TiB, past any one device's memory.
+MAX_BUDGET = 1024**4
+
+
 def parse_size(text: str) -> int:
     """Bytes from ``"512M"``, ``"2G"``, ``"64MiB"``, ``"1e9"`` (K, M, G, T are powers of 1024)."""
     match = re.fullmatch(r"\s*(\d+(?:\.\d*)?(?:e\d+)?)\s*(?:([KMGT])(?:i?B)?|B)?\s*", str(text), re.IGNORECASE)
     if match is None or float(match[1]) < 1:
         raise ConfigError(f"--memory-budget = {text!r} is not a size; write e.g. 256M, 2G or a number of bytes")
     unit = match[2].upper() if match[2] else ""
-    return int(float(match[1]) * 1024 ** ("_KMGT".index(unit) if unit else 0))
+    size = float(match[1]) * 1024 ** ("_KMGT".index(unit) if unit else 0)
+    if not size <= MAX_BUDGET:
+        raise ConfigError(f"--memory-budget = {text!r} is more than {MAX_BUDGET // 1024**4} TiB; give the memory "
+                          "one chunk may use, e.g. 2G")
+    return int(size)
 
 
 @dataclasses.dataclass(frozen=True)

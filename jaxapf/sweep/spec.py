@@ -275,6 +275,7 @@ def _scenario(where: str, table: Any) -> tuple[tuple[str, ...], int, int, dict[s
     families = check_names("scenario.families", families, choices, what="family or variant")
     params = {}
     for label, overrides in tables.items():
+        overrides = check_table(f"scenario.params.{label}", overrides)
         if label not in families:
             raise ConfigError(f"scenario.params.{label} is not one of scenario.families ({', '.join(families)})")
         # normalised in the family's own units (a scale is applied when the fields are made, once; the whole

@@ -37,6 +37,7 @@ from .. import stats
 from ..gains import Gains
 from ..io.lock import write_atomic
 from ..metrics import METRICS
+from ..simulate.figures import plain_text
 from .estimators import rollouts
 from .objective import TERMS
 from .spec import TuneSpec, split_count
@@ -171,6 +172,7 @@ def comparison_table(episodes: pd.DataFrame, families: Sequence[str]) -> pd.Data
     return table
 
 
+@plain_text
 def plot_training(history: pd.DataFrame, clip: float, path: pathlib.Path) -> None:
     """Training curves: loss (train, validation), each surrogate term, the gradient norms (per
     episode and of the step) with the fraction of episodes clipped, and the validation success and
@@ -205,6 +207,7 @@ def plot_training(history: pd.DataFrame, clip: float, path: pathlib.Path) -> Non
     write_atomic(path, lambda fh: fig.savefig(fh, format="png", dpi=120))
 
 
+@plain_text
 def plot_test(table: pd.DataFrame, title: str, path: pathlib.Path) -> None:
     """Success and collision rates per test family and setting with Wilson 95 % intervals."""
     families = list(dict.fromkeys(table.family))

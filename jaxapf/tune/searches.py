@@ -30,7 +30,7 @@ import math
 import pathlib
 import time
 import warnings
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 import jax.numpy as jnp
 import numpy as np
@@ -39,7 +39,7 @@ from ..datatypes import Scenario
 from ..io.lock import write_atomic
 from .proof import random_settings, search_ranges, select_best
 from .spec import split_count
-from .train import TuneError, Tuner
+from .train import CheckpointError, TuneError, Tuner
 
 __all__ = ["SEARCHES", "cmaes_search", "tpe_search", "round_fields"]
 
@@ -64,12 +64,21 @@ class _Checkpoint:
     def __init__(self, out: pathlib.Path, name: str, digest: str) -> None:
         self.path, self.digest = out / f"search-{name}.json", digest
 
-    def load(self) -> dict[str, Any] | None:
+    def load(self, keys: Mapping[str, Any]) -> dict[str, Any] | None:
+        """The saved state of this spec and budget, None if there is none; a saved state that lacks one of
+        ``keys`` or holds it as another type than the one given is damaged
+        (:class:`~jaxapf.tune.train.CheckpointError`)."""
         try:
             state = json.loads(self.path.read_text(), object_hook=_decode)
         except (OSError, ValueError, TypeError, KeyError, RecursionError):
             return None
-        return state if isinstance(state, dict) and state.get("digest") == self.digest else None
+        if not isinstance(state, dict) or state.get("digest") != self.digest:
+            return None
+        lacks = [k for k, kind in keys.items() if not isinstance(state.get(k), kind) or isinstance(state[k], bool)]
+        if lacks:
+            raise CheckpointError(f"{self.path} is damaged ({', '.join(lacks)} missing or of another type); remove "
+                                  "it to run the search from the start")
+        return state
 
     def save(self, state: dict[str, Any]) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -125,7 +134,7 @@ def cmaes_search(tuner: Tuner, budget: int, out: pathlib.Path, digest: str) -> d
     m = _fields_per_setting(tuner)
     start_theta = rp.theta(spec.init)
     checkpoint = _Checkpoint(out, "cmaes", f"{digest}/budget={budget}")
-    state = checkpoint.load() or {
+    state = checkpoint.load({"cma": CMA, "generation": int, "seconds": float, "last": float}) or {
         "cma": CMA(mean=np.array([float(start_theta[n]) for n in rp.names]), sigma=spec.search.cmaes_sigma,
                    seed=spec.search.random_seed, population_size=spec.search.popsize or None),
         "generation": 0, "seconds": 0.0, "last": math.nan}
@@ -163,7 +172,7 @@ def tpe_search(tuner: Tuner, budget: int, out: pathlib.Path, digest: str) -> dic
                         f"the tuning budget of {budget}; lower search.tpe_batch or search.fields_per_setting")
     space = {name: FloatDistribution(low, high, log=log) for name, (low, high, log) in search_ranges(spec).items()}
     checkpoint = _Checkpoint(out, "tpe", f"{digest}/budget={budget}")
-    state = checkpoint.load() or {"trials": [], "seconds": 0.0}
+    state = checkpoint.load({"trials": list, "seconds": float}) or {"trials": [], "seconds": 0.0}
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     study = optuna.create_study(direction="minimize")
     study.add_trials([optuna.trial.create_trial(params=p, distributions=space, value=v) for p, v in state["trials"]])

@@ -46,7 +46,7 @@ from ..io.lock import write_atomic
 from ..metrics import METRICS, episode_metrics
 from ..progress import Progress
 from ..scenarios import FamilyParams, make_scenarios
-from ..validation import first_line
+from ..validation import ConfigError, first_line
 from .estimators import episode_gradient
 from .objective import TERMS, Objective, surrogate_loss, surrogate_terms
 from .spec import TuneSpec, split_count
@@ -79,6 +79,11 @@ HISTORY_COLUMNS: tuple[str, ...] = (
 class TuneError(RuntimeError):
     """Training cannot go on (a non-finite loss, a budget too small for a search, a checkpoint
     from another spec)."""
+
+
+class CheckpointError(TuneError, ConfigError):
+    """A checkpoint in the output folder that cannot be resumed (damaged, or of another spec): bad input,
+    said in one line with status 2 like any other."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -180,15 +185,15 @@ class TrainState:
         except TuneError:
             raise
         except (OSError, ValueError, KeyError, TypeError, RecursionError, zipfile.BadZipFile) as err:
-            raise TuneError(f"{path} is damaged ({type(err).__name__}: {first_line(err)}); remove it to train from "
-                            "the start") from None
+            raise CheckpointError(f"{path} is damaged ({type(err).__name__}: {first_line(err)}); remove it to train "
+                                  "from the start") from None
 
     @classmethod
     def _read(cls, path: pathlib.Path, digest: str, like: "TrainState") -> "TrainState":
         with np.load(path) as data:
             meta = json.loads(str(data["meta"]))
             if meta.get("format") != _CHECKPOINT_FORMAT or meta.get("spec_digest") != digest:
-                raise TuneError(f"{path} belongs to a different spec; use another --out or delete it")
+                raise CheckpointError(f"{path} belongs to a different spec; use another --out or delete it")
             theta = {k: jnp.asarray(data[f"theta/{k}"]) for k in like.theta}
             best = {k: jnp.asarray(data[f"best_theta/{k}"]) for k in like.theta}
             leaves, treedef = jax.tree_util.tree_flatten(like.opt_state)
@@ -196,6 +201,13 @@ class TrainState:
                                                                for i in range(len(leaves))])
         fields = {f.name: meta[f.name] for f in dataclasses.fields(cls)
                   if f.name not in ("theta", "opt_state", "best_theta")}
+        for name, kind in (("step", int), ("best_step", int), ("bad_validations", int), ("stopped", bool),
+                           ("best_val_loss", (int, float)), ("train_seconds", (int, float)), ("history", list)):
+            if not isinstance(fields[name], kind) or (kind is int and isinstance(fields[name], bool)):
+                raise TypeError(f"{name} is {type(fields[name]).__name__}")
+        for row in fields["history"]:
+            if not isinstance(row, dict) or any(not isinstance(row.get(k), (int, float)) for k in HISTORY_COLUMNS):
+                raise KeyError(f"a history row lacks one of {', '.join(HISTORY_COLUMNS)}")
         return cls(theta=theta, opt_state=opt_state, best_theta=best, **fields)
 
 
