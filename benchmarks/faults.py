@@ -1,8 +1,11 @@
-"""Fault injection on ``jaxapf sweep``: kill -9 and Ctrl-C at random moments, bit flips in parts and
-their footers, racing writers and shards, a full disk, a port that is not Ray.
+"""Fault injection on ``jaxapf``: kill -9 and Ctrl-C at random moments, bit flips in parts and their
+footers, racing writers and shards, a full disk, a port that is not Ray; and a folder from someone else:
+names planted in it, part metadata edited, a report's process killed or hung up, two reports into one
+folder, mutated specs.
 
     python benchmarks/faults.py [--kills 100] [--flips 60] [--races 10] [--shard-races 20] [--sigints 50]
-                                [--footer-flips 300] [--disks 6] [--seed 0] [--json]
+                                [--footer-flips 300] [--disks 8] [--planted 40] [--edits 35] [--deaths 10]
+                                [--reports 6] [--fuzz 300] [--only CLASS ...] [--seed 0] [--json]
 
 Every trial runs the real command (``python -m jaxapf sweep``, or the installed ``jaxapf`` script) on a
 small sweep (2 families × 2 settings × 16 fields, parts of 1–4 fields) and checks the output against a
@@ -30,6 +33,21 @@ reference made once in this process:
 - **not Ray**: ``--ray HOST:PORT`` at a port that accepts and stays silent, and at one that answers
   HTTP: one line, status 2, within the probe's timeout.
 
+- **planted name**: ``jaxapf sweep`` (whole, ``--repair``, and a shard), ``sweep merge`` and ``report``
+  run on a folder where one name they open (a lock, the probe, a temporary file with the run's own pid,
+  the division record, a part, ``.set-aside``, ``report.md``, ``figures``) is a link to a file or folder
+  outside, a hard link, a FIFO or a folder: no file outside may change, and a refusal is one line naming it.
+- **metadata edit**: one part edited as a hand with pyarrow would, its content hash recomputed (a
+  ``pandas`` key swapping two columns, a column retyped, added or dropped, a ``jaxapf`` key removed or
+  retyped), or a stray Parquet file of changed rows beside the parts: ``jaxapf sweep verify`` and the
+  reader must agree, and no changed number may be read as sound.
+- **parent death**: a report with a gallery (a second process draws) killed with ``kill -9`` or hung up
+  at a random moment in 0–6 s: none of its processes may live 5 s later.
+- **two reports**: two reports of different datasets into one ``--out`` started 0–1 s apart: one is
+  refused in one line (or runs after the other), and the folder holds one report whole.
+- **spec fuzz**: the shipped specs mutated (a value replaced by one a user can mistype or a file can
+  hold, or a key removed) and given to the command line's parsing: one line, status 2, or accepted.
+
 It prints, per fault kind, what was survived: rows lost, rows duplicated, numbers changed
 silently, tracebacks seen. All must be zero; the exit status is 1 otherwise.
 """
@@ -45,7 +63,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 import pandas as pd
@@ -181,6 +199,26 @@ def _race_totals(n: int) -> dict[str, int]:
             "bad_refusals": 0}
 
 
+def _pair(procs: list[subprocess.Popen], totals: dict[str, int], says: str) -> int | None:
+    """Wait for two racing processes and count how the race ended: one refused in one line saying ``says``
+    (``one_refused``; a refusal otherwise worded is a bad one), or both ran, the second after the first
+    had finished (``both_ran``); anything else is a bad refusal. The index of the process whose output
+    stands (the one that ran; of two, the second), or None."""
+    results = [(p.wait(), p.stderr.read()) for p in procs]
+    totals["tracebacks"] += sum(_traceback(err) for _, err in results)
+    codes = [rc for rc, _ in results]
+    if sorted(codes) == [0, 2]:
+        totals["one_refused"] += 1
+        refusal = results[codes.index(2)][1]
+        totals["bad_refusals"] += int(len(_lines(refusal)) != 1 or says not in refusal)
+        return codes.index(0)
+    if codes == [0, 0]:
+        totals["both_ran"] += 1
+        return 1
+    totals["bad_refusals"] += 1
+    return None
+
+
 def races(n: int, spec: pathlib.Path, tmp: pathlib.Path, ref: pd.DataFrame, rng: np.random.Generator
           ) -> dict[str, Any]:
     """``n`` pairs of writers on one fresh output each."""
@@ -190,17 +228,7 @@ def races(n: int, spec: pathlib.Path, tmp: pathlib.Path, ref: pd.DataFrame, rng:
         a = subprocess.Popen(_command(spec, out, 2), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         time.sleep(float(rng.uniform(0.0, 0.5)))
         b = subprocess.Popen(_command(spec, out, 3), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-        results = [(p.wait(), p.stderr.read()) for p in (a, b)]
-        codes = sorted(rc for rc, _ in results)
-        totals["tracebacks"] += sum(_traceback(err) for _, err in results)
-        if codes == [0, 2]:
-            refusal = next(err for rc, err in results if rc == 2)
-            totals["one_refused"] += 1
-            totals["bad_refusals"] += int(len(refusal.strip().splitlines()) != 1 or "being written by" not in refusal)
-        elif codes == [0, 0]:
-            totals["both_ran"] += 1  # the second started after the first had finished
-        else:
-            totals["bad_refusals"] += 1
+        _pair([a, b], totals, "being written by")
         state = _check(out, ref)
         totals["lost"] += len(ref) - (state["rows"] - state["duplicated"])
         totals["duplicated"] += state["duplicated"]
@@ -292,18 +320,9 @@ def shard_races(n: int, spec: pathlib.Path, tmp: pathlib.Path, ref: pd.DataFrame
             tasks = [("0/2", a), ("1/2", b)]
         procs = [subprocess.Popen(_command(spec, out, chunk) + ["--shard", shard], stdout=subprocess.DEVNULL,
                                   stderr=subprocess.PIPE, text=True) for shard, chunk in tasks]
-        results = [(p.wait(), p.stderr.read()) for p in procs]
-        totals["tracebacks"] += sum(_traceback(err) for _, err in results)
-        codes = sorted(rc for rc, _ in results)
-        if codes == [0, 2]:
-            totals["one_refused"] += 1
-            refusal = next(err for rc, err in results if rc == 2)
-            totals["bad_refusals"] += int(len(_lines(refusal)) != 1 or "is divided into" not in refusal)
-            winner = tasks[[rc for rc, _ in results].index(0)]
-        else:
-            totals["both_ran"] += int(codes == [0, 0])
-            totals["bad_refusals"] += int(codes != [0, 0])
-            winner = tasks[0]
+        both = totals["both_ran"]
+        stands = _pair(procs, totals, "is divided into")
+        winner = tasks[0 if stands is None or totals["both_ran"] > both else stands]
         count = int(winner[0].split("/")[1])
         for k in range(count):  # every shard of the winner's division, then the whole output is checked
             done = subprocess.run(_command(spec, out, winner[1]) + ["--shard", f"{k}/{count}"], capture_output=True,
@@ -395,11 +414,358 @@ def not_ray(spec: pathlib.Path, tmp: pathlib.Path) -> dict[str, Any]:
     return totals
 
 
+# --- a folder from someone else: planted names, edited metadata; processes and reports ----------------------
+
+#: Names each command opens in its folder, and the command (``{spec}``, ``{ref}``, ``{out}`` filled in).
+PLANTED = {
+    "sweep": ([".lock", ".lock-division", ".write-test-{pid}", ".{part}.tmp-{pid}", "..division.json.tmp-{pid}",
+               "{part}", ".set-aside"],
+              ["sweep", "{spec}", "--out", "{out}", "--quiet", "--chunk-fields", "4", "--repair"]),
+    "sweep shard": ([".lock", ".lock-shard-0000-of-0002", ".lock-division", "..division.json.tmp-{pid}",
+                     ".division.json"],
+                    ["sweep", "{spec}", "--out", "{out}", "--quiet", "--chunk-fields", "4", "--shard", "0/2"]),
+    "merge": ([".lock", ".{part}.tmp-{pid}", "{part}"], ["sweep", "merge", "{ref}", "--out", "{out}"]),
+    "report": ([".lock", ".write-test-{pid}", "report.md", ".report.html.tmp-{pid}", "figures", "summary.csv"],
+               ["report", "{ref}", "--out", "{out}", "--baseline", "setting=0", "--gallery", "0",
+                "--resamples", "200"]),
+}
+PLANT_KINDS = ("symlink", "dir-symlink", "hardlink", "fifo", "folder")
+
+
+def _snapshot(folder: pathlib.Path) -> dict[str, str]:
+    import hashlib
+
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else "dir"
+            for p in sorted(folder.rglob("*"))}
+
+
+def _plant(path: pathlib.Path, how: str, victim: pathlib.Path) -> None:
+    if how == "symlink":
+        os.symlink(victim, path)
+    elif how == "dir-symlink":
+        os.symlink(victim.parent, path)
+    elif how == "hardlink":
+        os.link(victim, path)
+    elif how == "fifo":
+        os.mkfifo(path)
+    else:
+        path.mkdir()
+
+
+def planted(n: int, spec: pathlib.Path, tmp: pathlib.Path, ref_out: pathlib.Path, rng: np.random.Generator
+            ) -> dict[str, Any]:
+    """``n`` commands run on a folder holding a planted name (a link to a file outside, a link to a
+    folder outside, a hard link, a FIFO, a folder) where the command opens one: nothing outside may change,
+    and a refusal is one line naming it. The real programs, with a known pid so ``-PID`` names can be planted:
+    each command starts as ``python -c`` that execs jaxapf in its own process."""
+    import shutil
+
+    totals = {"trials": n, "written_outside": 0, "refused": 0, "ran": 0, "not_one_line": 0, "tracebacks": 0}
+    part = sorted(p.name for p in ref_out.iterdir() if p.name.startswith("part-"))[0]
+    for i in range(n):
+        command = list(PLANTED)[i % len(PLANTED)]
+        names, argv = PLANTED[command]
+        name_t, how = names[int(rng.integers(len(names)))], PLANT_KINDS[int(rng.integers(len(PLANT_KINDS)))]
+        place = tmp / f"planted-{i}"
+        outside, out = place / "outside", place / "received"
+        outside.mkdir(parents=True)
+        victim = outside / "victim.txt"
+        victim.write_text("the victim's own words\n")
+        if command.startswith("sweep"):
+            shutil.copytree(ref_out, out)
+        else:
+            out.mkdir()
+        # the child's pid is known before it runs jaxapf: it waits for a line, then execs the program
+        proc = subprocess.Popen([sys.executable, "-c", "import os, sys; sys.stdin.readline(); "
+                                 "os.execv(sys.executable, [sys.executable, '-m', 'jaxapf', *sys.argv[1:]])",
+                                 *[a.format(spec=spec, ref=ref_out, out=out) for a in argv]],
+                                stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        name = name_t.format(pid=proc.pid, part=part)
+        (out / name).unlink(missing_ok=True) if (out / name).is_file() and not (out / name).is_symlink() else None
+        _plant(out / name, how, victim)
+        before = _snapshot(outside)
+        proc.stdin.write("go\n")
+        proc.stdin.close()
+        err = proc.stderr.read()
+        rc = proc.wait()
+        totals["written_outside"] += int(_snapshot(outside) != before)
+        totals["tracebacks"] += _traceback(err)
+        if rc == 2:
+            totals["refused"] += 1
+            totals["not_one_line"] += int(len(_lines(err)) != 1 or name.split("/")[-1] not in err)
+        elif rc == 0:
+            totals["ran"] += 1  # e.g. a hard link replaced by the new file, the other name untouched
+        else:
+            totals["not_one_line"] += 1
+        shutil.rmtree(place, ignore_errors=True)
+    return totals
+
+
+def metadata_edits(n: int, tmp: pathlib.Path, ref_out: pathlib.Path, ref: pd.DataFrame, rng: np.random.Generator
+                   ) -> dict[str, Any]:
+    """``n`` datasets with one part's metadata or columns edited the way a hand with pyarrow would (the
+    content hash recomputed): a ``pandas`` key swapping two columns, a column retyped, one added or
+    dropped, a ``jaxapf`` key removed or retyped, a stray Parquet file of changed rows beside the parts.
+    ``jaxapf sweep verify`` and the reader must agree, and no changed number may be read as sound."""
+    import json as _json
+    import shutil
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from jaxapf.sweep import read_sweep
+    from jaxapf.sweep.meta import META_KEY
+    from jaxapf.sweep.output import PART_KEY, content_hash
+    from jaxapf.validation import ConfigError
+
+    def rewrite(path, table, rehash=True):
+        meta = dict(table.schema.metadata or {})
+        if rehash:
+            plain = table.replace_schema_metadata({k: v for k, v in meta.items() if k != PART_KEY})
+            meta[PART_KEY] = _json.dumps({"sha256": content_hash(plain), "rows": table.num_rows}).encode()
+        pq.write_table(table.replace_schema_metadata(meta), path, write_page_checksum=True)
+
+    edits = ("pandas swap", "retype", "add column", "drop column", "meta key removed", "meta key retyped", "stray")
+    totals = {"trials": n, "unchecked": 0, "disagree": 0, "refused": 0, "read": 0, "tracebacks": 0,
+              **{f"edit {e}": 0 for e in edits}}
+    for i in range(n):
+        out = tmp / f"edit-{i}"
+        shutil.copytree(ref_out, out)
+        parts = sorted(out.glob("part-*.parquet"))
+        part = parts[int(rng.integers(len(parts)))]
+        table = pq.read_table(part)
+        edit = edits[i % len(edits)]
+        totals[f"edit {edit}"] += 1
+        names = [f.name for f in table.schema]
+        metric = ["min_clearance", "path_length", "success", "time_to_goal"][int(rng.integers(4))]
+        if edit == "pandas swap":
+            pandas = _json.loads(pa.Table.from_pandas(table.to_pandas()).schema.metadata[b"pandas"])
+            for col in pandas["columns"]:
+                col["name"] = {"min_clearance": "path_length", "path_length": "min_clearance"}.get(col["name"],
+                                                                                                  col["name"])
+            rewrite(part, table.replace_schema_metadata({**table.schema.metadata,
+                                                         b"pandas": _json.dumps(pandas).encode()}), rehash=False)
+        elif edit == "retype":
+            target = pa.string() if table.schema.field(metric).type == pa.bool_() else pa.float64()
+            rewrite(part, table.set_column(names.index(metric), pa.field(metric, target),
+                                           table.column(metric).cast(target)))
+        elif edit == "add column":
+            rewrite(part, table.append_column("bonus", pa.array(np.ones(table.num_rows))))
+        elif edit == "drop column":
+            rewrite(part, table.drop_columns([metric]))
+        elif edit.startswith("meta key"):
+            meta = _json.loads(table.schema.metadata[META_KEY])
+            key = list(meta)[int(rng.integers(len(meta)))]
+            if edit == "meta key removed":
+                meta.pop(key)
+            else:
+                meta[key] = [[], "x", 5, None, {"a": 1}][int(rng.integers(5))]
+            rewrite(part, table.replace_schema_metadata({**table.schema.metadata,
+                                                         META_KEY: _json.dumps(meta).encode()}))
+        else:
+            changed = table.set_column(names.index("min_clearance"), "min_clearance",
+                                       pa.array(np.full(table.num_rows, 99.0, np.float32)))
+            pq.write_table(changed, out / "zz-notes.parquet")
+        verify = subprocess.run([sys.executable, "-m", "jaxapf", "sweep", "verify", str(out)], capture_output=True,
+                                text=True)
+        totals["tracebacks"] += _traceback(verify.stderr)
+        try:
+            df, _ = read_sweep(out)
+            read = True
+        except ConfigError:
+            read = False
+        totals["read" if read else "refused"] += 1
+        sound = verify.returncode == 0
+        totals["disagree"] += int(sound != read)
+        if read:
+            state = _check(out, ref)
+            totals["unchecked"] += int(state["changed"] > 0 or state["rows"] != len(ref))
+        shutil.rmtree(out, ignore_errors=True)
+    return totals
+
+
+def _children(pid: int) -> set[int]:
+    found = set()
+    for entry in pathlib.Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                if int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1]) == pid:
+                    found.add(int(entry.name))
+            except (OSError, IndexError, ValueError):
+                continue
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return pathlib.Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def parent_deaths(n: int, tmp: pathlib.Path, ref_out: pathlib.Path, rng: np.random.Generator) -> dict[str, Any]:
+    """``n`` reports (with a gallery, so a second process draws) killed with ``kill -9`` or hung up (SIGHUP)
+    at a random moment while their worker runs: every process they started must be gone within 5 s."""
+    totals = {"trials": n, "orphans": 0, "kill -9": 0, "SIGHUP": 0, "no_worker": 0, "tracebacks": 0}
+    for i in range(n):
+        signum = (signal.SIGKILL, signal.SIGHUP)[i % 2]
+        totals["kill -9" if signum == signal.SIGKILL else "SIGHUP"] += 1
+        report = subprocess.Popen([sys.executable, "-m", "jaxapf", "report", str(ref_out), "--out",
+                                   str(tmp / f"orphan-{i}"), "--baseline", "setting=0", "--gallery", "4",
+                                   "--resamples", "200"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                  start_new_session=True)
+        children: set[int] = set()
+        give_up = time.monotonic() + 60
+        while not children and report.poll() is None and time.monotonic() < give_up:
+            time.sleep(0.1)
+            children = _children(report.pid)
+        if not children:
+            totals["no_worker"] += 1
+            report.wait()
+            continue
+        time.sleep(float(rng.uniform(0.0, 6.0)))
+        os.kill(report.pid, signum)
+        report.wait()
+        gone = time.monotonic() + 5.0
+        while any(_alive(c) for c in children) and time.monotonic() < gone:
+            time.sleep(0.05)
+        left = [c for c in children if _alive(c)]
+        totals["orphans"] += len(left)
+        for c in left:
+            os.kill(c, signal.SIGKILL)
+    return totals
+
+
+def concurrent_reports(n: int, spec: pathlib.Path, tmp: pathlib.Path, ref_out: pathlib.Path,
+                       rng: np.random.Generator) -> dict[str, Any]:
+    """``n`` pairs of reports of two different datasets into one ``--out``, started apart by a random
+    moment: one must be refused in one line (or run after the other finished), and the folder must hold
+    one report whole, its figures those of the dataset its page names."""
+    import shutil
+
+    other = tmp / "other-dataset"
+    if not other.exists():
+        other_spec = tmp / "other.toml"
+        other_spec.write_text(spec.read_text().replace('name = "faults"', 'name = "other"'))
+        subprocess.run(_command(other_spec, other, 4), check=True, capture_output=True)
+    totals = {"trials": n, "one_refused": 0, "both_ran": 0, "mixed": 0, "bad_refusals": 0, "tracebacks": 0}
+    for i in range(n):
+        out = tmp / f"two-reports-{i}"
+        procs = []
+        for k, data in enumerate((ref_out, other)):
+            procs.append(subprocess.Popen([sys.executable, "-m", "jaxapf", "report", str(data), "--out", str(out),
+                                           "--baseline", "setting=0", "--gallery", "0", "--resamples", "200"],
+                                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True))
+            if k == 0:
+                time.sleep(float(rng.uniform(0.0, 1.0)))
+        stands = _pair(procs, totals, "being written by")
+        if stands is None:
+            continue
+        winner = ("faults", "other")[stands]
+        page = (out / "report.md").read_text()
+        summary = pd.read_csv(out / "summary.csv")
+        loser = "other" if winner == "faults" else "faults"
+        totals["mixed"] += int(f"jaxapf report — {winner}" not in page or f"jaxapf report — {loser}" in page
+                               or len(summary) == 0)
+        shutil.rmtree(out, ignore_errors=True)
+    return totals
+
+
+def spec_fuzz(n: int, rng: np.random.Generator) -> dict[str, Any]:
+    """``n`` mutations of the shipped specs (a value replaced by one a user can mistype or a file can hold,
+    a key removed, an unknown key added), each given to ``jaxapf sweep|tune|compare SPEC --dry-run`` in
+    this process (the command line's own code): refused in one line with status 2, or accepted; never a
+    traceback."""
+    import contextlib
+    import copy
+    import io
+    import tomllib
+
+    from jaxapf.cli import main
+
+    root = pathlib.Path(__file__).resolve().parents[1]
+    specs = sorted((root / "sweeps").glob("*.toml"))
+    values = [0, -1, 5, 2**40, 1e30, -1e30, 1e-30, float("inf"), float("nan"), "", "x", "$x^{2", True, [],
+              [[1], 10.0], [1, 2, 3], {}, {"a": 1}, {"length": 1e30}, ["trap", 3]]
+    totals = {"trials": n, "refused": 0, "accepted": 0, "not_one_line": 0, "tracebacks": 0}
+    with tempfile.TemporaryDirectory() as name:
+        tmp = pathlib.Path(name)
+        for i in range(n):
+            path = specs[i % len(specs)]
+            data = tomllib.loads(path.read_text())
+            mutated = copy.deepcopy(data)
+            paths, stack = [], [((), mutated)]
+            while stack:
+                at, node = stack.pop()
+                items = node.items() if isinstance(node, dict) else enumerate(node) if isinstance(node, list) else ()
+                for k, v in items:
+                    paths.append((at + (k,), node))
+                    stack.append((at + (k,), v))
+            (at, parent) = paths[int(rng.integers(len(paths)))]
+            if isinstance(parent, dict) and rng.random() < 0.2:
+                del parent[at[-1]]
+            else:
+                parent[at[-1]] = copy.deepcopy(values[int(rng.integers(len(values)))])
+            command = "compare" if "selection" in data else "tune" if "train" in data else "sweep"
+            spec = tmp / f"fuzz-{i}.toml"
+            spec.write_text(_toml(mutated))
+            err = io.StringIO()
+            try:
+                if command != "sweep":  # parsing is what is fuzzed: stop before the selections or training run
+                    from jaxapf.compare.spec import parse_compare_spec
+                    from jaxapf.tune.spec import parse_tune_spec
+                    from jaxapf.validation import ConfigError, read_toml_file
+                    try:
+                        parse = parse_compare_spec if command == "compare" else parse_tune_spec
+                        parse(read_toml_file(spec)[0], base=path.parent)
+                        totals["accepted"] += 1
+                    except ConfigError as refusal:
+                        totals["refused"] += 1
+                        totals["not_one_line"] += int("\n" in str(refusal).strip())
+                    continue
+                with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+                    rc = main([command, str(spec), "--out", str(tmp / f"o{i}"), "--dry-run"])
+                if rc == 2:
+                    totals["refused"] += 1
+                    totals["not_one_line"] += int(len(err.getvalue().strip().splitlines()) != 1)
+                else:
+                    totals["accepted"] += int(rc == 0)
+                    totals["not_one_line"] += int(rc != 0)
+                totals["tracebacks"] += _traceback(err.getvalue())
+            except Exception:  # noqa: BLE001 -- what is counted
+                totals["tracebacks"] += 1
+    return totals
+
+
+def _toml(data: dict, prefix: str = "") -> str:
+    """A TOML text of ``data`` (tables, arrays, numbers, strings, booleans; inf and nan as TOML writes them)."""
+    def value(v):
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, float):
+            return "inf" if v == float("inf") else "-inf" if v == -float("inf") else "nan" if v != v else repr(v)
+        if isinstance(v, int):
+            return str(v)
+        if isinstance(v, str):
+            return json.dumps(v)
+        if isinstance(v, list):
+            return "[" + ", ".join(value(x) for x in v) + "]"
+        return "{" + ", ".join(f"{json.dumps(k)} = {value(x)}" for k, x in v.items()) + "}"
+    plain = [f"{json.dumps(k)} = {value(v)}" for k, v in data.items() if not isinstance(v, dict)]
+    tables = [f"\n[{prefix}{json.dumps(k)}]\n" + _toml(v, f"{prefix}{json.dumps(k)}.")
+              for k, v in data.items() if isinstance(v, dict)]
+    return "\n".join(plain) + "\n" + "".join(tables)
+
+
 def run_faults(kills_n: int = 100, flips_n: int = 60, races_n: int = 10, shard_races_n: int = 20,
-               sigints_n: int = 50, footer_flips_n: int = 300, disks_n: int = 8, seed: int = 0) -> dict[str, Any]:
+               sigints_n: int = 50, footer_flips_n: int = 300, disks_n: int = 8, seed: int = 0,
+               planted_n: int = 40, edits_n: int = 35, deaths_n: int = 10, reports_n: int = 6, fuzz_n: int = 300,
+               only: Sequence[str] | None = None) -> dict[str, Any]:
+    """Every fault class of :data:`KINDS` (``only``: those named), on one reference output."""
     from jaxapf.sweep import read_sweep
 
     rng = np.random.default_rng(seed)
+    only = set(only or KINDS)
     with tempfile.TemporaryDirectory() as name:
         tmp = pathlib.Path(name)
         spec = tmp / "faults.toml"
@@ -409,25 +775,38 @@ def run_faults(kills_n: int = 100, flips_n: int = 60, races_n: int = 10, shard_r
         ref_out = tmp / "reference.parquet"
         subprocess.run(_command(spec, ref_out, 4), check=True, capture_output=True)  # warms the compile cache
         ref, _ = read_sweep(ref_out)
-        long_ref_out = tmp / "long-reference.parquet"
-        subprocess.run(_command(long_spec, long_ref_out, 16), check=True, capture_output=True)
-        long_ref, _ = read_sweep(long_ref_out)
+        long_ref = ref.iloc[:0]
+        if "Ctrl-C" in only:
+            long_ref_out = tmp / "long-reference.parquet"
+            subprocess.run(_command(long_spec, long_ref_out, 16), check=True, capture_output=True)
+            long_ref, _ = read_sweep(long_ref_out)
         start = time.perf_counter()  # one whole run, start-up included, at the finest chunking
         subprocess.run(_command(spec, tmp / "timing.parquet", 1), check=True, capture_output=True)
         run_s = time.perf_counter() - start
-        result = {"rows": len(ref), "run_s": run_s, "sigint_rows": len(long_ref),
-                  "kill -9": kills(kills_n, spec, tmp, ref, rng, run_s),
-                  "Ctrl-C": sigints(sigints_n, long_spec, tmp, long_ref, rng),
-                  "bit flip": flips(flips_n, spec, tmp, ref_out, ref, rng),
-                  "footer flip": flips(footer_flips_n, spec, tmp, ref_out, ref, rng, footer=True, resume_every=10),
-                  "race": races(races_n, spec, tmp, ref, rng),
-                  "shard race": shard_races(shard_races_n, spec, tmp, ref, rng),
-                  "full disk": full_disks(disks_n, spec, tmp, ref, rng),
-                  "not Ray": not_ray(spec, tmp)}
+        classes = {"kill -9": lambda: kills(kills_n, spec, tmp, ref, rng, run_s),
+                   "Ctrl-C": lambda: sigints(sigints_n, long_spec, tmp, long_ref, rng),
+                   "bit flip": lambda: flips(flips_n, spec, tmp, ref_out, ref, rng),
+                   "footer flip": lambda: flips(footer_flips_n, spec, tmp, ref_out, ref, rng, footer=True,
+                                                resume_every=10),
+                   "race": lambda: races(races_n, spec, tmp, ref, rng),
+                   "shard race": lambda: shard_races(shard_races_n, spec, tmp, ref, rng),
+                   "full disk": lambda: full_disks(disks_n, spec, tmp, ref, rng),
+                   "not Ray": lambda: not_ray(spec, tmp),
+                   "planted name": lambda: planted(planted_n, spec, tmp, ref_out, rng),
+                   "metadata edit": lambda: metadata_edits(edits_n, tmp, ref_out, ref, rng),
+                   "parent death": lambda: parent_deaths(deaths_n, tmp, ref_out, rng),
+                   "two reports": lambda: concurrent_reports(reports_n, spec, tmp, ref_out, rng),
+                   "spec fuzz": lambda: spec_fuzz(fuzz_n, rng)}
+        result = {"rows": len(ref), "run_s": run_s, "sigint_rows": len(long_ref)}
+        for kind in KINDS:
+            if kind in only:
+                begin = time.perf_counter()
+                result[kind] = classes[kind]() | {"seconds": time.perf_counter() - begin}
     return result
 
 
-KINDS = ("kill -9", "Ctrl-C", "bit flip", "footer flip", "race", "shard race", "full disk", "not Ray")
+KINDS = ("kill -9", "Ctrl-C", "bit flip", "footer flip", "race", "shard race", "full disk", "not Ray", "planted name",
+         "metadata edit", "parent death", "two reports", "spec fuzz")
 
 
 def _details(kind: str, r: dict[str, Any]) -> str:
@@ -450,26 +829,43 @@ def _details(kind: str, r: dict[str, Any]) -> str:
                       f"{r['skipped']} skipped (this process may not mount a tmpfs)"),
         "not Ray": f"{r.get('refused', 0)} refused in one line, {r.get('hangs', 0)} hangs, in "
                    f"{', '.join(f'{x:g}' for x in r.get('seconds', []))} s",
+        "planted name": f"{r.get('refused', 0)} refused in one line naming it, {r.get('ran', 0)} ran (a hard link "
+                        "replaced, never written through)",
+        "metadata edit": f"{r.get('refused', 0)} refused by verify and the reader alike, {r.get('read', 0)} read "
+                         f"unchanged; {r.get('disagree', 0)} disagreements",
+        "parent death": f"{r.get('kill -9', 0)} kill -9, {r.get('SIGHUP', 0)} SIGHUP; {r.get('orphans', 0)} "
+                        "processes outlived the report",
+        "two reports": f"{r.get('one_refused', 0)} second reports refused in one line, {r.get('both_ran', 0)} ran "
+                       f"after the first finished; {r.get('mixed', 0)} folders mixing the two",
+        "spec fuzz": f"{r.get('refused', 0)} refused in one line, {r.get('accepted', 0)} accepted",
     }[kind]
 
 
 def format_faults(result: dict[str, Any]) -> str:
-    lines = [f"fault injection on jaxapf sweep ({result['rows']} rows per output, {result['sigint_rows']} for Ctrl-C; "
+    lines = [f"fault injection on jaxapf ({result['rows']} rows per output, {result['sigint_rows']} for Ctrl-C; "
              f"one run {result['run_s']:.1f} s)",
-             f"{'fault':<11} {'trials':>6} {'lost':>5} {'dup':>5} {'silent':>6} {'tracebacks':>10}  details"]
+             f"{'fault':<13} {'trials':>6} {'lost':>5} {'dup':>5} {'silent':>6} {'outside':>7} {'orphans':>7} "
+             f"{'tracebacks':>10}  details"]
     for kind in KINDS:
+        if kind not in result:
+            continue
         r = result[kind]
-        lines.append(f"{kind:<11} {r['trials']:>6} {r.get('lost', 0):>5} {r.get('duplicated', 0):>5} "
-                     f"{r.get('changed', 0):>6} {r['tracebacks']:>10}  {_details(kind, r)}")
+        silent = r.get("changed", 0) + r.get("unchecked", 0) + r.get("mixed", 0)
+        lines.append(f"{kind:<13} {r['trials']:>6} {r.get('lost', 0):>5} {r.get('duplicated', 0):>5} {silent:>6} "
+                     f"{r.get('written_outside', 0):>7} {r.get('orphans', 0):>7} {r['tracebacks']:>10}  "
+                     f"{_details(kind, r)}")
     return "\n".join(lines)
 
 
 def failures(result: dict[str, Any]) -> int:
-    """Everything that must be zero: rows lost, doubled or changed, tracebacks, bad refusals, hangs."""
-    bad = sum(result[k].get(m, 0) for k in KINDS for m in ("lost", "duplicated", "changed", "tracebacks",
-                                                            "bad_refusals", "not_one_line", "exit_0_interrupted",
-                                                            "hangs"))
-    return bad + (result["not Ray"]["trials"] - result["not Ray"]["refused"])
+    """Everything that must be zero: rows lost, doubled or changed, tracebacks, bad refusals, hangs, files
+    written outside a folder, edits read as sound, disagreements, orphans, mixed reports."""
+    bad = sum(result[k].get(m, 0) for k in KINDS if k in result
+              for m in ("lost", "duplicated", "changed", "tracebacks", "bad_refusals", "not_one_line",
+                        "exit_0_interrupted", "hangs", "written_outside", "unchecked", "disagree", "orphans", "mixed",
+                        "no_worker"))
+    ray = result.get("not Ray")
+    return bad + (ray["trials"] - ray["refused"] if ray else 0)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -481,12 +877,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sigints", type=int, default=50)
     parser.add_argument("--footer-flips", type=int, default=300)
     parser.add_argument("--disks", type=int, default=8)
+    parser.add_argument("--planted", type=int, default=40)
+    parser.add_argument("--edits", type=int, default=35)
+    parser.add_argument("--deaths", type=int, default=10)
+    parser.add_argument("--reports", type=int, default=6)
+    parser.add_argument("--fuzz", type=int, default=300)
+    parser.add_argument("--only", action="append", choices=KINDS, help="run only this class (repeatable)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
     args = parser.parse_args(argv)
     os.environ.setdefault("JAX_PLATFORMS", "cpu")
     result = run_faults(args.kills, args.flips, args.races, args.shard_races, args.sigints, args.footer_flips,
-                        args.disks, args.seed)
+                        args.disks, args.seed, args.planted, args.edits, args.deaths, args.reports, args.fuzz,
+                        args.only)
     print(json.dumps(result, indent=2) if args.json else format_faults(result))
     return int(failures(result) > 0)
 

@@ -215,11 +215,13 @@ def read_toml_file(path: str | os.PathLike, what: str = "spec file") -> tuple[di
         raise ConfigError(f"{what} {str(path)!r} does not exist") from None
     except OSError as err:
         raise ConfigError(f"{what} {str(path)!r} cannot be read: {err.strerror or first_line(err)}") from None
-    with open(fd, "rb") as fh:
-        if stat.S_ISDIR(os.fstat(fd).st_mode):
+    mode = os.fstat(fd).st_mode
+    if not stat.S_ISREG(mode):
+        os.close(fd)
+        if stat.S_ISDIR(mode):
             raise ConfigError(f"{what} {str(path)!r} is a directory")
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
-            raise ConfigError(f"{what} {str(path)!r} is not a regular file (a device or a pipe); give a TOML file")
+        raise ConfigError(f"{what} {str(path)!r} is not a regular file (a device or a pipe); give a TOML file")
+    with open(fd, "rb") as fh:
         raw = fh.read(MAX_SPEC_BYTES + 1)
     if len(raw) > MAX_SPEC_BYTES:
         raise ConfigError(f"{what} {str(path)!r} is larger than {MAX_SPEC_BYTES // 2**20} MiB; a spec is a short text")

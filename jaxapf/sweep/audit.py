@@ -32,7 +32,7 @@ from ..io.lock import LOCK_NAME
 from ..io.names import check_kind, kind, remove_leftover, subfolder
 from ..validation import ConfigError
 from .division import Division, agree_division, forget_division, is_division_file
-from .meta import identity, read_meta, sweep_spec
+from .meta import identity, needed, read_meta, sweep_spec
 from .output import _PROBE, _TMP, PartUnreadable, part_files, part_record, read_part
 from .plan import Chunk, Plan, Variant, gaps, shard_chunks, variants
 from .spec import SweepSpec
@@ -99,6 +99,7 @@ def _layout(spec: SweepSpec, meta: Mapping[str, Any], gain_columns: Any = None) 
 
     if meta.get("format") != FORMAT:
         return None
+    needed(meta)
     return [(f.name, str(f.type)) for f in row_schema(spec, meta, gain_columns)]
 
 

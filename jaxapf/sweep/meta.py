@@ -47,10 +47,10 @@ def read_meta(path: pathlib.Path) -> dict[str, Any]:
     if not isinstance(meta, dict) or meta.get("format") not in READABLE_FORMATS:
         raise ConfigError(f"{path} is not the output of jaxapf sweep (no '{META_KEY.decode()}' metadata of format "
                           f"{' or '.join(READABLE_FORMATS)} in its Parquet schema)")
-    wrong = [key for key, ok in _SHAPE.items() if not ok(meta.get(key))]
+    wrong = [key for key, ok in _SHAPE.items() if key in meta and not ok(meta[key])]
     if wrong:
-        raise ConfigError(f"{path}: its '{META_KEY.decode()}' metadata lacks {', '.join(wrong)} or holds "
-                          f"{'it' if len(wrong) == 1 else 'them'} as another type (edited after it was written)")
+        raise ConfigError(f"{path}: its '{META_KEY.decode()}' metadata holds {', '.join(wrong)} as another type "
+                          "than a sweep writes (edited after it was written)")
     return meta
 
 
@@ -58,10 +58,10 @@ def _texts(value: Any) -> bool:
     return isinstance(value, list) and all(isinstance(v, str) for v in value)
 
 
-#: What every part's metadata holds, and of which type (docs/sweep-format.md); a part whose metadata does
-#: not is no sweep's part.
+#: The type of each key a part's metadata holds (docs/sweep-format.md); a part holding one as another type
+#: is no sweep's part, and one lacking a key the audit needs is refused there (:func:`needed`).
 _SHAPE = {
-    "spec": lambda v: isinstance(v, dict) and isinstance(v.get("scenario"), dict),
+    "spec": lambda v: isinstance(v, dict),
     "spec_hash": lambda v: isinstance(v, str),
     "dtype": lambda v: v in ("float32", "float64"),
     "vmap_width": lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 1,
@@ -70,6 +70,14 @@ _SHAPE = {
     "prng": lambda v: v is None or isinstance(v, dict),
     "plugin_files": lambda v: v is None or isinstance(v, list),
 }
+
+
+def needed(meta: Mapping[str, Any], keys: Sequence[str] = ("spec", "dtype", "metrics")) -> None:
+    """:class:`ConfigError` unless ``meta`` holds ``keys`` (what judging parts against their sweep reads)."""
+    lacks = [k for k in keys if k not in meta]
+    if lacks:
+        raise ConfigError(f"the parts' '{META_KEY.decode()}' metadata lacks {', '.join(lacks)}: they cannot be "
+                          "judged against their sweep (edited after they were written)")
 
 
 def identity(meta: Mapping[str, Any]) -> dict[str, Any]:

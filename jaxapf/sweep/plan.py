@@ -342,6 +342,20 @@ class Plan:
         programs = len({_program(self.blocks[(c.variant, c.family)]) for c in self.chunks})
         return run / self.devices, programs * COMPILE_S * self.devices
 
+    def control_steps(self) -> int:
+        """Sequential control steps of the chunks still to run on one device, at most (every episode
+        flying its whole ``t_max``): per chunk, the episodes a device flies queued on the streaming
+        engine's slots (:func:`~jaxapf.engine.stream.stream_slots`), one after the other on each slot."""
+        from ..engine.stream import SEGMENT, stream_slots
+
+        total = 0
+        for c in self.chunks:
+            b = self.blocks[(c.variant, c.family)]
+            episodes = b.settings * b.per_device
+            rounds = -(-episodes // stream_slots(episodes, b.width))
+            total += rounds * SEGMENT * -(-b.sim.episode.steps // SEGMENT)
+        return total
+
     def padding_note(self, chunks: Sequence[Chunk] | None = None) -> str | None:
         """One line when more than 10 % of the episodes still to simulate (``chunks``, default the plan's)
         are padding (chunks filled up to whole vmapped batches on every device, e.g. after an odd
@@ -469,6 +483,8 @@ def describe_plan(plan: Plan) -> str:
                                                     f"{remaining:,} to run)" if plan.done else ""),
         f"  compiled variants: {plan.static_variants} distinct (SimConfig, MPCConfig); {plan.programs} evaluate "
         f"program(s) with their shapes, each compiled once per device",
+        f"  control steps:     up to {plan.control_steps():,} one after another on each device (the chunks in turn, "
+        "each chunk's episodes queued on its slots)",
         f"  chunks:            {len(plan.chunks)} to run" + (f", {len(plan.done)} done" if plan.done else "")
         + f" (one Parquet part each), on {plan.devices} device(s), "
           f"vmap width {plan.width}, {plan.dtype}",

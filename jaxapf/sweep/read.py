@@ -37,20 +37,12 @@ def read_sweep(path: str | os.PathLike) -> tuple["pd.DataFrame", dict[str, Any]]
     """
     import pyarrow as pa
 
-    from .audit import judge, not_parts, read_parts, reference_meta
+    from .audit import judge, read_parts, reference_meta
 
     path = pathlib.Path(path)
     if not path.exists():
         raise ConfigError(f"{path}: no such file or directory")
-    stray: list[str] = []
-    if path.is_dir():  # the parts, named by their chunks as a sweep writes them; any other file is named, not read
-        stray = not_parts(path)
-        files = [path / n for n in sorted(os.listdir(path)) if Chunk.from_name(n) is not None]
-        if not files:  # no part named as a sweep names it (files renamed by hand): every Parquet file, unaudited
-            files = [path / n for n in stray if n.endswith(".parquet") and (path / n).is_file()]
-            stray = [n for n in stray if path / n not in files]
-    else:
-        files = [path]
+    files, stray = _files(path)
     named = all(Chunk.from_name(p.name) is not None for p in files)
     if path.is_dir():
         tables, metas, damaged = read_parts(path, files)
@@ -105,6 +97,22 @@ def read_sweep(path: str | os.PathLike) -> tuple["pd.DataFrame", dict[str, Any]]
     if not (path.is_dir() and named and spec is not None):  # complete if the rows are the whole sweep (once)
         complete = expected is not None and len(df) == expected
     return df, {**meta, "parts": parts, "rows_expected": expected, "complete": complete, "stray": stray}
+
+
+def _files(path: pathlib.Path) -> tuple[list[pathlib.Path], list[str]]:
+    """The part files of the output ``path`` and its visible entries that are not parts (named, never read):
+    the files named as a sweep names its parts; in a folder holding none (files renamed by hand), every
+    Parquet file, unaudited."""
+    from .audit import not_parts
+
+    if not path.is_dir():
+        return [path], []
+    stray = not_parts(path)
+    files = [path / n for n in sorted(os.listdir(path)) if Chunk.from_name(n) is not None]
+    if not files:
+        files = [path / n for n in stray if n.endswith(".parquet") and (path / n).is_file()]
+        stray = [n for n in stray if path / n not in files]
+    return files, stray
 
 
 @dataclasses.dataclass(frozen=True)

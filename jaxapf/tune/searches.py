@@ -30,6 +30,7 @@ import math
 import pathlib
 import time
 import warnings
+from types import MappingProxyType
 from typing import Any, Callable, Mapping
 
 import jax.numpy as jnp
@@ -64,7 +65,7 @@ class _Checkpoint:
     def __init__(self, out: pathlib.Path, name: str, digest: str) -> None:
         self.path, self.digest = out / f"search-{name}.json", digest
 
-    def load(self, keys: Mapping[str, Any]) -> dict[str, Any] | None:
+    def load(self, keys: Mapping[str, Any] = MappingProxyType({})) -> dict[str, Any] | None:
         """The saved state of this spec and budget, None if there is none; a saved state that lacks one of
         ``keys`` or holds it as another type than the one given is damaged
         (:class:`~jaxapf.tune.train.CheckpointError`)."""

@@ -446,6 +446,18 @@ def test_dry_run_prints_the_plan(reference, tmp_path, capsys):
     assert rc == 0 and f"({ROWS} already in the output, 0 to run)" in capsys.readouterr().out
 
 
+def test_dry_run_counts_the_sequential_control_steps_by_hand():
+    """1,024 episodes of 20 steps in one chunk at width 512: the streaming engine flies them on 256 slots
+    (a quarter of the queue), four one after the other on each slot: 80 steps; two such chunks, 160."""
+    spec = parse_spec({"name": "steps", "scenario": {"families": ["trap"], "fields": 2048, "seed": 0},
+                       "sim": {"t_max": 2.0}})
+    plan = plan_sweep(spec, chunk_fields=1024, devices=1, width=512)
+    assert [plan.blocks[(0, "trap")].settings, plan.blocks[(0, "trap")].per_device, len(plan.chunks)] == [1, 1024, 2]
+    assert plan.blocks[(0, "trap")].sim.episode.steps == 20
+    assert plan.control_steps() == 2 * 4 * 20
+    assert "up to 160 one after another on each device" in describe_plan(plan)
+
+
 def test_plan_gives_every_device_a_whole_vmapped_batch():
     plan = plan_sweep(_spec(), chunk_fields=2, devices=4, width=32)
     block = plan.blocks[(0, "trap")]
