@@ -61,8 +61,10 @@ def merge_outputs(sources: Sequence[str | pathlib.Path], out: str | pathlib.Path
     for s in sources:
         found, meta = audit_folder(s)
         if found.problems:
-            raise ConfigError(f"sweep merge: {s} has {len(found.problems)} part(s) that cannot be trusted "
-                              f"(`jaxapf sweep verify {s}` lists them); nothing merged")
+            first = sorted(found.problems)[0]
+            raise ConfigError(f"sweep merge: {s} has {len(found.problems)} part(s) that cannot be trusted (e.g. "
+                              f"{first}: {found.problems[first]}; `jaxapf sweep verify {s}` lists them); "
+                              "nothing merged")
         audits.append(found)
         metas.append(meta)
     first = identity(metas[0]) | {"jaxapf": metas[0].get("versions", {}).get("jaxapf")}
@@ -84,8 +86,10 @@ def merge_outputs(sources: Sequence[str | pathlib.Path], out: str | pathlib.Path
                 raise ConfigError(f"sweep merge: {out} was written by jaxapf {version}, the folders by "
                                   f"{first['jaxapf']}; nothing merged")
         if here is not None and here.problems:
+            first = sorted(here.problems)[0]
             raise ConfigError(f"sweep merge: {out} has {len(here.problems)} part(s) that cannot be trusted or of "
-                              f"another sweep (`jaxapf sweep verify {out}` lists them); nothing merged")
+                              f"another sweep (e.g. {first}: {here.problems[first]}; `jaxapf sweep verify {out}` lists "
+                              "them); nothing merged")
         # every part by name, once; a name with two contents, or two names over the same fields, conflict
         chosen: dict[str, pathlib.Path] = {c.name: out / c.name for c in (here.sound if here else ())}
         for s, found in zip(sources, audits):
