@@ -273,3 +273,17 @@ def test_a_tag_holding_mathtext_is_drawn_as_written(tmp_path):
     rc, out, err = capture(main, ["report", str(tmp_path / "ds"), "--out", str(tmp_path / "r"),
                                   "--baseline", "setting=0", "--gallery", "0", "--resamples", "200"])
     assert rc == 0 and "Traceback" not in err, err
+
+
+@pytest.mark.skipif(shutil.which("bash") is None, reason="sets the limit with bash's ulimit")
+def test_a_small_address_space_is_one_line_not_a_native_abort(dataset, tmp_path):
+    import shlex
+    import subprocess
+    import sys
+
+    command = shlex.join([sys.executable, "-m", "jaxapf", "report", str(dataset), "--out", str(tmp_path / "r"),
+                          "--baseline", "setting=0"])
+    done = subprocess.run(["bash", "-c", f"ulimit -v 2000000 && exec {command}"], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 2 and "ulimit -v" in done.stderr and len(done.stderr.strip().splitlines()) == 1, \
+        done.stderr[-500:]
