@@ -119,3 +119,14 @@ def test_the_lazy_package_gives_every_public_name_and_no_name_shadows_a_module()
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"} | {"JAX_PLATFORMS": "cpu"}
     proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
     assert proc.stdout.strip() == "OK", proc.stderr[-3000:]
+
+
+def test_the_program_says_its_version():
+    from importlib.metadata import version
+
+    from cli_capture import capture
+
+    from jaxapf.cli import main
+
+    rc, out, err = capture(main, ["--version"])
+    assert rc == 0 and out.strip() == f"jaxapf {version('jaxapf')}"

@@ -83,12 +83,23 @@ def _gains(args: argparse.Namespace):
 
 
 # long: one argparse declaration per command and flag, read top to bottom as the command line's reference
+def _version() -> str:
+    """The installed package's version (its metadata; no import of the package's heavy parts)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("jaxapf")
+    except PackageNotFoundError:
+        return "(not installed)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The command line's parser, from the registries' catalogue (no JAX import)."""
     cat = _catalog()
     families, planners = _names("families"), _names("planners")
 
     parser = argparse.ArgumentParser(prog="jaxapf", description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=f"jaxapf {_version()}")
     parser.add_argument("--plugin", action="append", default=[], metavar="MODULE",
                         help="import a module (or .py file) that registers components before the command runs "
                              "(repeatable; docs/extending.md)")
