@@ -2,11 +2,13 @@
 
 import json
 import math
+import pathlib
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from cli_capture import capture
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -461,3 +463,43 @@ def test_a_tune_specs_digest_stays_when_a_newer_setting_is_at_its_default():
     assert swarm.digest() != spec.digest()
     assert dataclasses.replace(spec, sim=spec.sim.replace(projection_rows=8)).digest() != spec.digest()
     assert dataclasses.replace(spec, sim=spec.sim.replace(tracking="ideal")).digest() != spec.digest()
+
+
+def test_a_checkpoint_whose_history_lacks_a_column_is_one_line(command_run, tmp_path):
+    """A checkpoint edited or cut by hand (a history row without ``val_loss``) is bad input: one line
+    naming the file, status 2, never a KeyError mid-training."""
+    import shutil
+
+    out = tmp_path / "out"
+    shutil.copytree(command_run, out)
+    with np.load(out / tune_train.CHECKPOINT) as data:
+        arrays = {k: data[k] for k in data.files}
+    meta = json.loads(str(arrays["meta"]))
+    meta["history"][0].pop("val_loss")
+    arrays["meta"] = np.asarray(json.dumps(meta))
+    with open(out / tune_train.CHECKPOINT, "wb") as fh:
+        np.savez(fh, **arrays)
+    (out / "summary.json").unlink()  # not finished: the run resumes from the checkpoint
+    (tmp_path / "micro.toml").write_text(MICRO_TOML)
+    rc, stdout, err = capture(main, ["tune", str(tmp_path / "micro.toml"), "--out", str(out), "--quiet"])
+    assert rc == 2 and "checkpoint.npz is damaged" in err and "val_loss" in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.slow
+def test_a_full_disk_while_tuning_is_one_line_keeping_what_was_finished(tmp_path, monkeypatch):
+    import errno
+    import os
+
+    import jaxapf.io.lock as lock
+
+    real = lock.open_own
+
+    def full(path, flags, mode=0o644):
+        if pathlib.Path(path).name.startswith(".history.csv"):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+        return real(path, flags, mode)
+    monkeypatch.setattr(lock, "open_own", full)
+    (tmp_path / "micro.toml").write_text(MICRO_TOML)
+    rc, stdout, err = capture(main, ["tune", str(tmp_path / "micro.toml"), "--out", str(tmp_path / "out"), "--quiet"])
+    assert rc == 2 and "(the file system is full)" in err and "checkpoint is kept" in err, err
+    assert len(err.strip().splitlines()) == 1 and (tmp_path / "out" / tune_train.CHECKPOINT).is_file()
