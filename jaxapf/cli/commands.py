@@ -82,7 +82,6 @@ def _gains(args: argparse.Namespace):
     return gains_from_mapping(given, where="--", base=base) if given else base
 
 
-# long: one argparse declaration per command and flag, read top to bottom as the command line's reference
 def _version() -> str:
     """The installed package's version (its metadata; no import of the package's heavy parts)."""
     from importlib.metadata import PackageNotFoundError, version
@@ -93,6 +92,7 @@ def _version() -> str:
         return "(not installed)"
 
 
+# long: one argparse declaration per command and flag, read top to bottom as the command line's reference
 def build_parser() -> argparse.ArgumentParser:
     """The command line's parser, from the registries' catalogue (no JAX import)."""
     cat = _catalog()
