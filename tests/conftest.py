@@ -21,6 +21,36 @@ def _free_compiled_programs():
     jax.clear_caches()
 
 
+@pytest.fixture
+def tiny_spec(tmp_path) -> pathlib.Path:
+    """A sweep spec file of two settings × four `trap` fields of 10 steps: a real command in seconds."""
+    path = tmp_path / "tiny.toml"
+    path.write_text('name = "tiny"\n[scenario]\nfamilies = ["trap"]\nfields = 4\nseed = 2\n'
+                    '[sim]\nt_max = 1.0\nhorizon = 3\niters = 3\n[grid]\nk_rep = [5.0, 10.0]\n')
+    return path
+
+
+@pytest.fixture
+def full_disk(monkeypatch):
+    """``full_disk(prefix)``: from now on, opening a temporary file whose name starts with ``prefix`` (or
+    every one after the first ``after``) fails as a full disk does (ENOSPC)."""
+    import errno
+    import os
+
+    import jaxapf.io.lock as lock
+
+    real, opened = lock.open_own, []
+
+    def arm(prefix: str = "", after: int = 0) -> None:
+        def full(path, flags, mode=0o644):
+            opened.append(path)
+            if pathlib.Path(path).name.startswith(prefix) and len(opened) > after:
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+            return real(path, flags, mode)
+        monkeypatch.setattr(lock, "open_own", full)
+    return arm
+
+
 @pytest.fixture(scope="session")
 def repo_root() -> pathlib.Path:
     """The repository's root (docs, sweeps, benchmarks, analysis)."""

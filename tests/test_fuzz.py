@@ -10,7 +10,6 @@ part sound exactly when the report reads the rows.
 from __future__ import annotations
 
 import copy
-import errno
 import json
 import os
 import pathlib
@@ -94,7 +93,7 @@ def test_mutated_specs_are_parsed_or_refused_in_one_line(spec):
             pytest.fail(f"{spec.name} with {what}: {type(err).__name__}: {err}")
 
 
-SPEC = {"name": "fuzzed", "scenario": {"families": ["trap"], "fields": 4, "seed": 6},
+SPEC = {"name": "tiny", "scenario": {"families": ["trap"], "fields": 4, "seed": 2},
         "sim": {"t_max": 1.0, "horizon": 3, "iters": 3}, "grid": {"k_rep": [5.0, 10.0]}}
 
 
@@ -159,14 +158,6 @@ def _one_line(argv, match: str) -> None:
     assert rc == 2 and len(err.strip().splitlines()) == 1 and match in err, (rc, err)
 
 
-@pytest.fixture
-def tiny_spec(tmp_path):
-    path = tmp_path / "tiny.toml"
-    path.write_text('name = "tiny"\n[scenario]\nfamilies = ["trap"]\nfields = 4\nseed = 6\n'
-                    '[sim]\nt_max = 1.0\nhorizon = 3\niters = 3\n[grid]\nk_rep = [5.0, 10.0]\n')
-    return path
-
-
 @pytest.mark.parametrize("argv,match", [
     (["--shard", "0/1000000000", "--dry-run"], "N <= 1,000,000"),
     (["--memory-budget", "1e400", "--dry-run"], "more than 1 TiB"),
@@ -211,32 +202,14 @@ def test_a_set_aside_that_is_a_file_is_named(dataset, tiny_spec, tmp_path):
               ".set-aside is a file where jaxapf keeps a folder")
 
 
-def test_a_full_disk_while_the_report_writes_is_one_line(dataset, tmp_path, monkeypatch):
-    import jaxapf.io.lock as lock
-
-    real = lock.open_own
-
-    def full(path, flags, mode=0o644):
-        if pathlib.Path(path).name.startswith(".report.html"):
-            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
-        return real(path, flags, mode)
-    monkeypatch.setattr(lock, "open_own", full)
+def test_a_full_disk_while_the_report_writes_is_one_line(dataset, tmp_path, full_disk):
+    full_disk(".report.html")
     _one_line(["report", str(dataset), "--out", str(tmp_path / "r"), "--baseline", "setting=0", "--gallery", "0",
                "--resamples", "200"], "(the file system is full)")
 
 
-def test_a_full_disk_while_merging_is_one_line(dataset, tmp_path, monkeypatch):
-    import jaxapf.io.lock as lock
-
-    real = lock.open_own
-    calls = []
-
-    def full(path, flags, mode=0o644):
-        calls.append(path)
-        if len(calls) > 1:
-            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
-        return real(path, flags, mode)
-    monkeypatch.setattr(lock, "open_own", full)
+def test_a_full_disk_while_merging_is_one_line(dataset, tmp_path, full_disk):
+    full_disk(after=1)
     _one_line(["sweep", "merge", str(dataset), "--out", str(tmp_path / "m")], "(the file system is full)")
 
 

@@ -25,7 +25,7 @@ from jaxapf.sweep.audit import SET_ASIDE, audit_output, check_folder, clear_temp
 from jaxapf.sweep.division import Division, agree_division
 from jaxapf.sweep.plan import plan_sweep
 
-SPEC = {"name": "planted", "scenario": {"families": ["trap"], "fields": 4, "seed": 2},
+SPEC = {"name": "tiny", "scenario": {"families": ["trap"], "fields": 4, "seed": 2},
         "sim": {"t_max": 1.0, "horizon": 3, "iters": 3}, "grid": {"k_rep": [5.0, 10.0]}}
 PART = "part-v000-trap-f00000000-00000002.parquet"
 
@@ -168,18 +168,10 @@ def dataset(tmp_path_factory):
     return out
 
 
-@pytest.fixture
-def spec_file(tmp_path):
-    path = tmp_path / "planted.toml"
-    path.write_text('name = "planted"\n[scenario]\nfamilies = ["trap"]\nfields = 4\nseed = 2\n'
-                    '[sim]\nt_max = 1.0\nhorizon = 3\niters = 3\n[grid]\nk_rep = [5.0, 10.0]\n')
-    return path
-
-
 @pytest.mark.parametrize("name", [".lock", ".lock-shard-0000-of-0002", ".lock-division", ".write-test-{pid}",
                                   f".{PART}.tmp-{{pid}}", "..division.json.tmp-{pid}", ".division.json", PART,
                                   SET_ASIDE])
-def test_sweep_into_a_folder_with_a_planted_name_says_so_in_one_line(dataset, spec_file, place, name):
+def test_sweep_into_a_folder_with_a_planted_name_says_so_in_one_line(dataset, tiny_spec, place, name):
     folder, outside = place
     shutil.rmtree(folder)
     shutil.copytree(dataset, folder)
@@ -188,7 +180,7 @@ def test_sweep_into_a_folder_with_a_planted_name_says_so_in_one_line(dataset, sp
     _plant(folder / name, "symlink", outside)
     before = _snapshot(outside)
     shard = ["--shard", "0/2"] if "shard" in name or "division" in name else []
-    rc, out, err = capture(main, ["sweep", str(spec_file), "--out", str(folder), "--quiet", "--chunk-fields", "2",
+    rc, out, err = capture(main, ["sweep", str(tiny_spec), "--out", str(folder), "--quiet", "--chunk-fields", "2",
                                   "--repair", *shard])
     assert "Traceback" not in err
     assert rc == 2 and len(err.strip().splitlines()) == 1 and name in err, err

@@ -453,7 +453,6 @@ def test_a_tune_specs_digest_stays_when_a_newer_setting_is_at_its_default():
     swarms, ``projection_rows``, ``tracking``) at its default leaves every digest as it was, so runs started before it
     still resume."""
     import dataclasses
-    import pathlib
 
     from jaxapf.tune.spec import load_tune_spec
 
@@ -486,19 +485,8 @@ def test_a_checkpoint_whose_history_lacks_a_column_is_one_line(command_run, tmp_
 
 
 @pytest.mark.slow
-def test_a_full_disk_while_tuning_is_one_line_keeping_what_was_finished(tmp_path, monkeypatch):
-    import errno
-    import os
-
-    import jaxapf.io.lock as lock
-
-    real = lock.open_own
-
-    def full(path, flags, mode=0o644):
-        if pathlib.Path(path).name.startswith(".history.csv"):
-            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
-        return real(path, flags, mode)
-    monkeypatch.setattr(lock, "open_own", full)
+def test_a_full_disk_while_tuning_is_one_line_keeping_what_was_finished(tmp_path, full_disk):
+    full_disk(".history.csv")
     (tmp_path / "micro.toml").write_text(MICRO_TOML)
     rc, stdout, err = capture(main, ["tune", str(tmp_path / "micro.toml"), "--out", str(tmp_path / "out"), "--quiet"])
     assert rc == 2 and "(the file system is full)" in err and "checkpoint is kept" in err, err
