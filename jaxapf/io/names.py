@@ -78,10 +78,11 @@ def create(path: str | os.PathLike, mode: int = 0o644) -> int:
     raise _planted(path, "name another process keeps creating")
 
 
-def open_own(path: str | os.PathLike, flags: int, mode: int = 0o644) -> int:
+def open_own(path: str | os.PathLike, flags: int, mode: int = 0o644, *, one_name: bool = True) -> int:
     """A descriptor of the regular file ``path`` (created if missing when ``flags`` has ``O_CREAT``),
-    opened without following a link; :class:`Planted` if ``path`` is anything but a regular file with
-    one link (the file is closed again, nothing written)."""
+    opened without following a link or waiting on a FIFO; :class:`Planted` if ``path`` is anything but a
+    regular file, or (``one_name``, for a file written in place) a file with another name too (the file
+    is closed again, nothing written)."""
     path = pathlib.Path(path)
     try:
         fd = os.open(path, flags | FLAGS, mode)
@@ -90,28 +91,16 @@ def open_own(path: str | os.PathLike, flags: int, mode: int = 0o644) -> int:
             check_kind(path)
         raise
     st = os.fstat(fd)
-    if not stat.S_ISREG(st.st_mode) or st.st_nlink != 1:  # a hard link: writing it would change the other name
+    if not stat.S_ISREG(st.st_mode) or (one_name and st.st_nlink != 1):  # writing a hard link changes its other name
         os.close(fd)
         raise _planted(path, kind(st) if not stat.S_ISREG(st.st_mode) else "hard link (a file with another name)")
     return fd
 
 
 def read_own(path: str | os.PathLike, limit: int = 1 << 20) -> bytes:
-    """The first ``limit`` bytes of the regular file ``path`` (a small record jaxapf wrote), read without
-    following a link or waiting on a FIFO; :class:`Planted` for anything else, ``FileNotFoundError`` if
-    it is missing."""
-    path = pathlib.Path(path)
-    try:
-        fd = os.open(path, os.O_RDONLY | FLAGS)
-    except OSError as err:
-        if err.errno in (errno.ELOOP, errno.ENXIO):
-            check_kind(path)
-        raise
-    st = os.fstat(fd)
-    if not stat.S_ISREG(st.st_mode):
-        os.close(fd)
-        raise _planted(path, kind(st))
-    with open(fd, "rb") as fh:
+    """The first ``limit`` bytes of the regular file ``path`` (a small record jaxapf wrote), read through
+    :func:`open_own`; ``FileNotFoundError`` if it is missing."""
+    with open(open_own(path, os.O_RDONLY, one_name=False), "rb") as fh:
         return fh.read(limit)
 
 

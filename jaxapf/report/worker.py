@@ -30,7 +30,6 @@ def _watch(parent: int) -> None:
     """The worker's first step: it ends when the report's process ``parent`` ends, however it ends
     (``kill -9``, SIGHUP): at once on Linux (the parent-death signal), and on any system within
     :data:`_WATCH_S` (a thread looks whether its parent is still ``parent``)."""
-    import os
     import sys
     import threading
     import time
