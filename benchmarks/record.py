@@ -46,6 +46,7 @@ RECORDS: dict[str, tuple[str, int]] = {
     "ray": ("python benchmarks/ray_cluster.py --json", 1),
     "scale": ("python benchmarks/scale.py --json", 1),
     "projection-rows": ("python benchmarks/projection_rows.py --json", 1),
+    "policy": ("python benchmarks/policy.py --phases", 1),
 }
 
 

@@ -299,8 +299,13 @@ def _add_sweep_parser(sub: argparse._SubParsersAction) -> None:
     sw.add_argument("--repair", action="store_true",
                     help="remove the damaged parts found in --out (checksum mismatch, truncated, unreadable) and "
                          "recompute exactly their chunks")
-    sw.add_argument("--memory-budget", default="256M", metavar="SIZE",
-                    help="working-set budget of one chunk, e.g. 256M, 2G (default 256M)")
+    sw.add_argument("--memory-budget", metavar="SIZE",
+                    help="working-set budget of one chunk, e.g. 256M, 2G (default: 256M on CPU, half the free "
+                         "memory of an accelerator)")
+    sw.add_argument("--policy", choices=("cpu", "accelerator"),
+                    help="how chunks fill the device (default: the backend's): cpu refills a quarter-wide set of "
+                         "slots; accelerator flies a chunk's episodes side by side and pads every family to one "
+                         "obstacle slot count, so a method is one program (docs/performance.md)")
     sw.add_argument("--chunk-fields", type=int, metavar="N", help="fields per chunk (default: from the memory budget)")
     sw.add_argument("--devices", type=int, metavar="N",
                     help="on CPU, split the host into N JAX devices (default 1: XLA already spreads the "
@@ -544,7 +549,7 @@ def _sweep(args: argparse.Namespace) -> int:
     from ..sweep.run import check_options
     from ..validation import ConfigError, check_int
 
-    budget = parse_size(args.memory_budget)
+    budget = None if args.memory_budget is None else parse_size(args.memory_budget)
     shard = parse_shard(args.shard) if args.shard is not None else None
     if args.devices is not None:
         check_int("--devices", args.devices, 1)
@@ -559,14 +564,16 @@ def _sweep(args: argparse.Namespace) -> int:
     spec = load_spec(args.spec, args.gains)
     out = args.out or pathlib.Path("runs") / f"{spec.name}.parquet"
     if args.dry_run:
-        options = dict(memory_budget=budget, chunk_fields=args.chunk_fields)
+        options = dict(memory_budget=budget, chunk_fields=args.chunk_fields, policy=args.policy)
         if cluster is not None:  # planned for the workers' backend, one device per worker
             with RaySession(cluster) as session:
-                options |= dict(devices=1, backend=session.probe()["backend"])
+                found = session.probe()
+                options |= dict(devices=1, backend=found["backend"], free=found.get("free"))
         print(dry_run(spec, out, overwrite=args.overwrite, repair=args.repair, shard=shard, **options))
         return 0
     result = run_sweep(spec, out, memory_budget=budget, chunk_fields=args.chunk_fields, overwrite=args.overwrite,
-                       repair=args.repair, quiet=args.quiet, shard=shard, devices=args.devices, ray=cluster)
+                       repair=args.repair, quiet=args.quiet, shard=shard, devices=args.devices, ray=cluster,
+                       policy=args.policy)
     print(result.summary(spec.name))
     return 0
 

@@ -71,6 +71,20 @@ class Obstacles:
             valid=jnp.zeros((size,), bool),
         )
 
+    def padded(self, size: int) -> "Obstacles":
+        """These obstacles followed by padded slots (:meth:`empty`) up to ``size`` slots, on every batch of
+        the leading axes (families of one sweep sharing one program, :class:`~jaxapf.engine.policy.Policy`)."""
+        extra = size - self.size
+        if extra <= 0:
+            return self
+        lead = self.radius.shape[:-1]
+        empty = Obstacles.empty(extra, self.position.dtype)
+        empty = dataclasses.replace(empty, agent=None if self.agent is None else jnp.zeros((extra,), bool))
+
+        def pad(leaf: Array, fill: Array) -> Array:
+            return jnp.concatenate([leaf, jnp.broadcast_to(fill, lead + fill.shape)], axis=len(lead))
+        return jax.tree_util.tree_map(pad, self, empty)
+
     def columns(self) -> "ObstacleColumns":
         """The same obstacles with component-first vectors (see :class:`ObstacleColumns`)."""
         first = lambda a: jnp.moveaxis(a, -1, -2)  # noqa: E731  (..., M, 3) -> (..., 3, M)

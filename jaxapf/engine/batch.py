@@ -102,16 +102,17 @@ def episode_index(total: int, width: int) -> np.ndarray:
     return index
 
 
-@program(static_argnames=("sim", "mpc", "width", "metrics", "streaming"))
+@program(static_argnames=("sim", "mpc", "width", "metrics", "streaming", "refill"))
 def evaluate_program(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, width: int,
-                     metrics: tuple[str, ...], streaming: bool = True) -> dict[str, Array]:
+                     metrics: tuple[str, ...], streaming: bool = True, refill: bool = True) -> dict[str, Array]:
     """The compiled program behind :func:`evaluate`, every static argument explicit (for
-    ``evaluate_program.lower(...)``)."""
+    ``evaluate_program.lower(...)``); ``refill``: the streaming engine's slots
+    (:func:`~jaxapf.engine.stream.stream_slots`, a :class:`~jaxapf.engine.policy.Policy`'s)."""
     # both engines fly the gains the setting's components declare, nothing else (also when called directly)
     n_gains, gains = settings_read(gains, sim)
     if streaming:
-        return stream_metrics(scenarios, gains, sim, mpc, stream_slots(n_gains * scenarios.start.shape[0], width),
-                              metrics)
+        slots = stream_slots(n_gains * scenarios.start.shape[0], width, refill)
+        return stream_metrics(scenarios, gains, sim, mpc, slots, metrics)
     return fixed_batches(lambda s, g: rollout_metrics(s, g, sim, mpc, metrics), scenarios, gains, n_gains, width)
 
 

@@ -14,6 +14,7 @@ single-device one (last-bit differences in a few percent of episodes, docs/sweep
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
+from functools import partial
 from typing import Callable, Sequence
 
 import jax
@@ -58,12 +59,14 @@ class DeviceBatch:
         return [jax.device_put(gains, d) for d in self.devices]
 
     def evaluate(self, scenarios: Scenario | Swarm, gains: Sequence[Gains], sim: SimConfig, mpc: MPCConfig,
-                 width: int, metrics: tuple[str, ...], program: Callable = evaluate_program) -> dict[str, jax.Array]:
+                 width: int, metrics: tuple[str, ...], program: Callable = evaluate_program,
+                 refill: bool = True) -> dict[str, jax.Array]:
         """The ``metrics``, each as a global ``(G, F)`` array sharded over the devices; returns once all
         devices have been dispatched (block on the result to wait for them). ``program``: the compiled
         program each device runs, ``program(fields, gains, sim, mpc, width, metrics)``
         (:func:`~jaxapf.engine.evaluate_program`, or :func:`~jaxapf.engine.swarm.evaluate_swarms` for
-        a batch of :class:`~jaxapf.datatypes.swarm.Swarm` fields). A planner that may not run on several
+        a batch of :class:`~jaxapf.datatypes.swarm.Swarm` fields); ``refill``: its streaming slots
+        (:func:`~jaxapf.engine.stream.stream_slots`). A planner that may not run on several
         CPU devices at once (:attr:`~jaxapf.planners.Planner.concurrent_cpu_devices`) has its blocks run
         one after another, each waited for."""
 
@@ -71,12 +74,12 @@ class DeviceBatch:
 
         placed = jax.device_put(scenarios, self.fields)
         shards = [jax.tree_util.tree_map(lambda x, i=i: _shard(x, i), placed) for i in range(len(self.devices))]
+        run = partial(self.pool.submit, program, sim=sim, mpc=mpc, width=width, metrics=metrics, refill=refill)
         if PLANNERS.get(sim.planner.method, "method").concurrent_cpu_devices or self.devices[0].platform != "cpu":
-            futures = [self.pool.submit(program, s, g, sim, mpc, width, metrics) for s, g in zip(shards, gains)]
+            futures = [run(s, g) for s, g in zip(shards, gains)]
             outs = [f.result() for f in futures]
         else:  # one block after another (Planner.concurrent_cpu_devices)
-            outs = [jax.block_until_ready(self.pool.submit(program, s, g, sim, mpc, width, metrics).result())
-                    for s, g in zip(shards, gains)]
+            outs = [jax.block_until_ready(run(s, g).result()) for s, g in zip(shards, gains)]
         settings = outs[0][metrics[0]].shape[0]
         fields = scenarios.start.shape[0]
         return {m: jax.make_array_from_single_device_arrays((settings, fields), self.sharding, [o[m] for o in outs])

@@ -40,11 +40,12 @@ NARROWEST = 64
 NARROWING_FROM = 256
 
 
-def stream_slots(episodes: int, width: int) -> int:
+def stream_slots(episodes: int, width: int, refill: bool = True) -> int:
     """The slot count for a queue of ``episodes``: about a quarter of them (so that each slot flies
-    several and slots freed early are refilled), a power of two, at least :data:`NARROWEST` and at
-    most ``width``."""
-    return min(width, max(NARROWEST, 1 << (max(episodes // 4, 1).bit_length() - 1)))
+    several and slots freed early are refilled), or with ``refill=False`` enough for all of them
+    (:class:`~jaxapf.engine.policy.Policy`); a power of two, at least :data:`NARROWEST` and at most ``width``."""
+    wanted = max(episodes // 4, 1).bit_length() - 1 if refill else (max(episodes, 1) - 1).bit_length()
+    return min(width, max(NARROWEST, 1 << wanted))
 
 
 def stream_levels(slots: int, narrowing_from: int = NARROWING_FROM) -> tuple[int, ...]:

@@ -147,20 +147,22 @@ def swarm_episodes(sim: SimConfig, mpc: MPCConfig, dtype: Any, metrics: Sequence
     return EpisodeKind(start, step, measure)
 
 
-@program(static_argnames=("sim", "mpc", "width", "metrics", "streaming"))
+@program(static_argnames=("sim", "mpc", "width", "metrics", "streaming", "refill"))
 def evaluate_swarms(swarms: Swarm, gains: Gains, sim: SimConfig, mpc: MPCConfig, width: int | None = None,
-                    metrics: tuple[str, ...] | None = None, streaming: bool = True) -> dict[str, Array]:
+                    metrics: tuple[str, ...] | None = None, streaming: bool = True,
+                    refill: bool = True) -> dict[str, Array]:
     """The swarm ``metrics`` (default: all, :func:`~jaxapf.metrics.swarm.swarm_metric_names`) of every
     (setting, field) pair: arrays (G, F). ``swarms``: F fields (leading axis F); ``gains``: G settings
     (leading axis G on every array leaf; scalars are shared). The G·F swarm episodes are streamed
     (:mod:`jaxapf.engine.stream`: a swarm stops when every UAV has ended; at most ``width`` flown side
-    by side), or with ``streaming=False`` run in the fixed-length engine
-    (:func:`~jaxapf.engine.batch.fixed_batches`, ``width`` vmapped together). ``width`` default: all."""
+    by side; ``refill`` as in :func:`~jaxapf.engine.stream.stream_slots`), or with ``streaming=False`` run in
+    the fixed-length engine (:func:`~jaxapf.engine.batch.fixed_batches`, ``width`` vmapped together). ``width``
+    default: all."""
     n_gains, gains = settings_read(gains, sim)
     total = n_gains * swarms.start.shape[0]
     width = total if width is None else width
     names = swarm_metric_names() if metrics is None else metrics
     if streaming:
-        return stream_metrics(swarms, gains, sim, mpc, stream_slots(total, width), names, swarm_episodes)
+        return stream_metrics(swarms, gains, sim, mpc, stream_slots(total, width, refill), names, swarm_episodes)
     return fixed_batches(lambda s, g: swarm_metrics(swarm_rollout(s, g, sim, mpc), s, sim, names), swarms, gains,
                          n_gains, width)

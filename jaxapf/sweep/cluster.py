@@ -106,14 +106,16 @@ class ChunkWorker:
             self.error = err
 
     def probe(self) -> dict[str, Any]:
-        """The JAX backend this worker runs on, and the versions its parts record."""
+        """The JAX backend this worker runs on, its device's free memory (``None`` on CPU) and the versions its
+        parts record."""
         import jax
 
+        from ..engine.policy import free_memory
         from ..io.versions import versions
 
         if self.error is not None:
             raise self.error
-        return {"backend": jax.default_backend(), "versions": versions()}
+        return {"backend": jax.default_backend(), "free": free_memory(), "versions": versions()}
 
     def run(self, boxed_plan: list, chunk: Chunk, backend: str) -> tuple:
         """One chunk on this worker's device: ``(chunk, metrics, kinds, solvable)`` as NumPy arrays.

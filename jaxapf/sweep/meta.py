@@ -69,6 +69,7 @@ _SHAPE = {
     "versions": lambda v: isinstance(v, dict),
     "prng": lambda v: v is None or isinstance(v, dict),
     "plugin_files": lambda v: v is None or isinstance(v, list),
+    "obstacle_slots": lambda v: v is None or (isinstance(v, int) and not isinstance(v, bool) and v >= 1),
 }
 
 
@@ -82,22 +83,25 @@ def needed(meta: Mapping[str, Any], keys: Sequence[str] = ("spec", "dtype", "met
 
 def identity(meta: Mapping[str, Any]) -> dict[str, Any]:
     """What must match for parts to belong to one sweep (numbers bit for bit)."""
-    return {k: meta.get(k) for k in ("format", "spec_hash", "dtype", "vmap_width", "metrics")}
+    return {k: meta.get(k) for k in ("format", "spec_hash", "dtype", "vmap_width", "metrics", "obstacle_slots")}
 
 
 def sweep_meta(spec: SweepSpec, dtype: str, width: int, metrics: Sequence[str], out: str | pathlib.Path | None = None,
-               versions: Mapping[str, str] | None = None) -> dict[str, Any]:
+               versions: Mapping[str, str] | None = None, obstacle_slots: int | None = None) -> dict[str, Any]:
     """The ``jaxapf`` metadata of every part of ``spec`` run in ``dtype`` at vmap ``width``, yielding
     ``metrics`` (:attr:`~jaxapf.sweep.plan.Plan.meta`); with ``.py`` plugins and the output folder ``out``,
     ``plugin_files`` records where each was imported from. ``versions``: of the process that computes the
-    chunks (default this one's; a Ray run's are a worker's)."""
+    chunks (default this one's; a Ray run's are a worker's); ``obstacle_slots``: the slot count every
+    family was padded to (the accelerator policy), which rounds some numbers apart, so it is part of the
+    sweep's identity (absent: each family at its own)."""
     from ..io.versions import versions as here
 
     files = plugin_files(spec, out)
     meta = {"format": FORMAT, "spec": spec.to_json(), "spec_hash": spec.hash,
             "versions": dict(versions) if versions is not None else here(),
             "prng": PRNG, "dtype": dtype, "vmap_width": width, "metrics": list(metrics)}
-    return meta | ({"plugin_files": files} if files else {})
+    return (meta | ({"plugin_files": files} if files else {})
+            | ({"obstacle_slots": obstacle_slots} if obstacle_slots is not None else {}))
 
 
 def plugin_files(spec: SweepSpec, out: str | pathlib.Path | None) -> list[dict[str, str] | None]:

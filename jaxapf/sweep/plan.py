@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..config import MPCConfig, SimConfig
+from ..engine.policy import CPU, Policy, free_memory, policy_for
 from ..gains import GAINS, Gains
 from ..metrics import METRICS
 from ..metrics.swarm import swarm_metric_names
@@ -49,11 +50,12 @@ __all__ = [
     "chunk_cost",
 ]
 
-#: Default memory budget of one chunk's working set [bytes].
-DEFAULT_MEMORY_BUDGET = 256 * 2**20
-#: Largest working set of one vmapped batch (``working_set_bytes``) the vmap width may need: long
+#: Default memory budget of one chunk's working set on CPU [bytes] (an accelerator's: half its free
+#: memory, :class:`~jaxapf.engine.policy.Policy`).
+DEFAULT_MEMORY_BUDGET = CPU.budget
+#: Largest working set of one vmapped batch (``working_set_bytes``) the vmap width may need on CPU: long
 #: episodes get a narrower width, so a chunk fits the default ``--memory-budget``.
-WIDTH_BUDGET = DEFAULT_MEMORY_BUDGET // 2
+WIDTH_BUDGET = CPU.width_budget
 #: A part holds at most this many vmapped batches per device (a few seconds to a minute of work
 #: on a CPU core at the default MPC settings), so progress and resume have a fine grain.
 CALLS_PER_PART = 256
@@ -199,9 +201,10 @@ def step_cost_us(mpc: MPCConfig, obstacles: int, agents: int = 1) -> float:
 
 
 def _block(sim: SimConfig, mpc: MPCConfig, obstacles: int, agents: int, settings: int, fields: int, *, devices: int,
-           width: int, itemsize: int, budget: int, chunk_fields: int | None, family: str = "") -> Block:
+           width: int, itemsize: int, budget: int, chunk_fields: int | None, family: str = "",
+           width_budget: int = WIDTH_BUDGET) -> Block:
     """Chunk shapes of one (variant, family) at the sweep's vmap ``width``, or at the largest power
-    of two whose batch working set fits :data:`WIDTH_BUDGET` if that is less (long episodes).
+    of two whose batch working set fits ``width_budget`` if that is less (long episodes).
 
     Each device gets at least ``ceil(width / G)`` fields, so that its episodes fill at least one
     whole vmapped batch (``evaluate`` pads the last one). Without ``chunk_fields``,
@@ -223,7 +226,7 @@ def _block(sim: SimConfig, mpc: MPCConfig, obstacles: int, agents: int, settings
             f"more than --memory-budget {format_bytes(budget)}: at most {most_steps:,} steps (t_max <= "
             f"{most_steps * sim.episode.dt:g} s) with these slots, or at most {most_slots:,} obstacle slots at this "
             "length; or a larger --memory-budget")
-    fits = WIDTH_BUDGET // one
+    fits = width_budget // one
     width = min(width, 1 << max(fits.bit_length() - 1, 0))
     fixed = devices * working_set_bytes(width, steps, seen, itemsize, agents)
     if chunk_fields is None:
@@ -272,6 +275,8 @@ class Plan:
       meta: the metadata every part carries, the sweep's identity (:func:`~jaxapf.sweep.meta.sweep_meta`);
         the audit judges an output's parts against it.
       chunk_fields, memory_budget: what cut the chunks (``--chunk-fields``, ``--memory-budget``).
+      policy: how the chunks fill the backend (:class:`~jaxapf.engine.policy.Policy`).
+      obstacle_slots: the slot count every family is padded to (the policy's ``common_slots``), or None.
     """
 
     spec: SweepSpec
@@ -287,6 +292,8 @@ class Plan:
     meta: Mapping[str, Any]
     chunk_fields: int | None = None
     memory_budget: int = DEFAULT_MEMORY_BUDGET
+    policy: Policy = CPU
+    obstacle_slots: int | None = None
 
     def resumed(self, done: Sequence[Chunk]) -> "Plan":
         """This plan with ``done`` finished and :meth:`chunks_left` to run (the blocks, the costly part of
@@ -352,7 +359,7 @@ class Plan:
         for c in self.chunks:
             b = self.blocks[(c.variant, c.family)]
             episodes = b.settings * b.per_device
-            rounds = -(-episodes // stream_slots(episodes, b.width))
+            rounds = -(-episodes // stream_slots(episodes, b.width, self.policy.refill))
             total += rounds * SEGMENT * -(-b.sim.episode.steps // SEGMENT)
         return total
 
@@ -388,16 +395,20 @@ class Plan:
 MAX_CHUNKS = 1_000_000
 
 
-def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: int = DEFAULT_MEMORY_BUDGET,
+def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: int | None = None,
                chunk_fields: int | None = None, devices: int | None = None, width: int | None = None,
                backend: str | None = None, out: str | os.PathLike[str] | None = None,
-               versions: Mapping[str, str] | None = None, metrics: Sequence[str] | None = None) -> Plan:
+               versions: Mapping[str, str] | None = None, metrics: Sequence[str] | None = None,
+               policy: str | None = None, free: int | None = None) -> Plan:
     """Cut the spec's work into chunks (skipping the ``done`` ones), as docs/sweep.md says; ``backend``
     and ``versions``: the JAX backend and package versions of the process the chunks will run in
     (default this one's; a Ray run's are its workers'); ``out``: the output folder (where the parts
-    record their ``.py`` plugins from); ``metrics``: default the registry's."""
-    from ..engine import default_width
-
+    record their ``.py`` plugins from); ``metrics``: default the registry's; ``policy``: ``--policy``
+    (default the backend's, :func:`~jaxapf.engine.policy.policy_for`); ``memory_budget``: default the
+    policy's, from ``free`` device memory (default this process's first device's)."""
+    chosen = policy_for(backend, policy)
+    if memory_budget is None:
+        memory_budget = chosen.memory_budget(free if free is not None or backend is not None else free_memory())
     if chunk_fields is not None:
         chunk_fields = check_int("--chunk-fields", chunk_fields, 1)
     devices = devices or jax.local_device_count()
@@ -407,25 +418,29 @@ def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: in
     # the spec only, so every chunking, device count and memory budget uses the same kernels);
     # each (variant, family) narrows it further if its episodes are long (_block)
     needed = max(len(v.simulated) for v in groups) * spec.fields
-    width = width or default_width(needed, backend)
+    width = width or min(chosen.width, 1 << (max(needed, 1) - 1).bit_length())
+    # the accelerator's families share one program per variant: every field padded to the largest slot count
+    # (a swarm's neighbour slots follow its agents, so swarm families keep their own)
+    slots = (max(spec.family_params(f).max_obstacles for f in spec.families)
+             if chosen.common_slots and not spec.swarm else None)
     blocks = {}
     for v in groups:
         for family in spec.families:
             sim, mpc = spec.configs(v.static, family)
             params = spec.family_params(family)
             agents = params.agents if spec.swarm else 1
-            block = _block(sim, mpc, params.max_obstacles, agents, len(v.simulated), spec.fields, devices=devices,
-                           width=width, itemsize=dtype.itemsize, budget=memory_budget, chunk_fields=chunk_fields,
-                           family=family)
+            block = _block(sim, mpc, slots or params.max_obstacles, agents, len(v.simulated), spec.fields,
+                           devices=devices, width=width, itemsize=dtype.itemsize, budget=memory_budget,
+                           chunk_fields=chunk_fields, family=family, width_budget=chosen.batch_budget(memory_budget))
             blocks[(v.index, family)] = block
     count = sum(-(-spec.fields // b.fields) for b in blocks.values())
     if count > MAX_CHUNKS:
         raise ConfigError(f"the sweep would be cut into {count:,} chunks (parts); at most {MAX_CHUNKS:,} are allowed: "
                           "fewer scenario.fields, or larger chunks (--chunk-fields, --memory-budget)")
     metrics = tuple(metrics or (swarm_metric_names() if spec.swarm else METRICS.names()))
-    meta = sweep_meta(spec, str(dtype), width, metrics, out, versions)
+    meta = sweep_meta(spec, str(dtype), width, metrics, out, versions, slots)
     return Plan(spec, tuple(groups), blocks, (), (), devices, width, str(dtype), metrics, spec.gain_columns(), meta,
-                chunk_fields, memory_budget).resumed(done)
+                chunk_fields, memory_budget, chosen, slots).resumed(done)
 
 
 #: Most shards of one sweep (``--shard I/N``): far past any scheduler's job array.
@@ -485,6 +500,12 @@ def describe_plan(plan: Plan) -> str:
         f"program(s) with their shapes, each compiled once per device",
         f"  control steps:     up to {plan.control_steps():,} one after another on each device (the chunks in turn, "
         "each chunk's episodes queued on its slots)",
+        f"  policy:            {plan.policy.name} (--policy): "
+        + ("a quarter of each chunk's episodes side by side, each slot flying several in turn"
+           if plan.policy.refill else "every episode of a chunk side by side, up to the vmap width")
+        + (f"; every family padded to {plan.obstacle_slots} obstacle slots (one program per variant)"
+           if plan.obstacle_slots is not None else "")
+        + f"; --memory-budget {format_bytes(plan.memory_budget)}",
         f"  chunks:            {len(plan.chunks)} to run" + (f", {len(plan.done)} done" if plan.done else "")
         + f" (one Parquet part each), on {plan.devices} device(s), "
           f"vmap width {plan.width}, {plan.dtype}",

@@ -20,7 +20,7 @@ from .audit import resume
 from .cluster import RayCluster, RaySession
 from .execute import ChunkFailed, Finished, local_results
 from .output import part_files, write_part
-from .plan import DEFAULT_MEMORY_BUDGET, Chunk, Plan, chunk_cost, describe_plan, plan_sweep
+from .plan import Chunk, Plan, chunk_cost, describe_plan, plan_sweep
 from .schema import part_table, schema
 from .spec import SweepSpec
 
@@ -102,7 +102,7 @@ def run_sweep(
     spec: SweepSpec,
     out: str | os.PathLike,
     *,
-    memory_budget: int = DEFAULT_MEMORY_BUDGET,
+    memory_budget: int | None = None,
     chunk_fields: int | None = None,
     overwrite: bool = False,
     repair: bool = False,
@@ -111,6 +111,7 @@ def run_sweep(
     shard: tuple[int, int] | None = None,
     ray: RayCluster | None = None,
     after_part: Callable[[Chunk], None] | None = None,
+    policy: str | None = None,
 ) -> SweepResult:
     """Run (or resume) ``spec`` into the Parquet dataset directory ``out``.
 
@@ -129,29 +130,31 @@ def run_sweep(
 
     With ``ray`` the chunks run on a Ray cluster's workers (:mod:`jaxapf.sweep.cluster`: one device per
     worker, the plan of the workers' backend) and this process writes the parts as they arrive.
+
+    ``memory_budget`` (default the policy's) and ``policy`` (``cpu`` or ``accelerator``, default the
+    backend's): :func:`~jaxapf.sweep.plan.plan_sweep`.
     """
     start = time.perf_counter()
     out = pathlib.Path(out)
     check_options(shard, devices, overwrite, ray)
     with contextlib.ExitStack() as stack:
         session = None if ray is None else stack.enter_context(RaySession(ray))
-        result = _run(spec, out, memory_budget, chunk_fields, overwrite, repair, quiet, devices, shard, session,
-                      after_part)
+        result = _run(spec, out, dict(memory_budget=memory_budget, chunk_fields=chunk_fields, policy=policy),
+                      overwrite, repair, quiet, devices, shard, session, after_part)
     return dataclasses.replace(result, seconds=time.perf_counter() - start)
 
 
-def _run(spec: SweepSpec, out: pathlib.Path, memory_budget: int, chunk_fields: int | None, overwrite: bool,
-         repair: bool, quiet: bool, devices: int | None, shard: tuple[int, int] | None, session: RaySession | None,
+def _run(spec: SweepSpec, out: pathlib.Path, options: dict[str, Any], overwrite: bool, repair: bool, quiet: bool,
+         devices: int | None, shard: tuple[int, int] | None, session: RaySession | None,
          after_part: Callable[[Chunk], None] | None) -> SweepResult:
-    """:func:`run_sweep` once its Ray session, if any, is open."""
-    backend = versions = None
-    if session is not None:  # the workers' backend and versions, not this process's
+    """:func:`run_sweep` once its Ray session, if any, is open; ``options``: :func:`plan_sweep`'s."""
+    if session is not None:  # the workers' backend, free device memory and versions, not this process's
         found = session.probe()
-        devices, backend, versions = 1, found["backend"], found["versions"]
+        devices = 1
+        options |= dict(backend=found["backend"], versions=found["versions"], free=found.get("free"))
     if shard is not None:
         devices = 1
-    plan = plan_sweep(spec, memory_budget=memory_budget, chunk_fields=chunk_fields, devices=devices, backend=backend,
-                      out=out, versions=versions)
+    plan = plan_sweep(spec, devices=devices, out=out, **options)
     note = (lambda line: None) if quiet else (lambda line: print(f"note: {line}", file=sys.stderr, flush=True))
     check_writable(out)
     with OutputLock(out, shard):

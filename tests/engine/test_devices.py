@@ -21,7 +21,7 @@ _SCRIPT = textwrap.dedent("""
         running, most = [0], [0]
         lock = threading.Lock()
 
-        def program(s, g, sim, mpc, width, metrics):
+        def program(s, g, sim, mpc, width, metrics, refill=True):
             with lock:
                 running[0] += 1
                 most[0] = max(most[0], running[0])

@@ -212,3 +212,34 @@ def test_the_sweep_page_states_the_ray_backends_own_numbers():
     words = {1: "one", 2: "two", 3: "three", 4: "four"}
     assert f"a chunk at most {RayCluster().retries} times again" in text
     assert f"{words[IN_FLIGHT_PER_SLOT]} are in flight per worker" in text
+
+
+_GPU_WORKERS = """
+import sys
+import ray
+from test_shards import _spec
+from jaxapf.sweep import read_sweep, run_sweep
+from jaxapf.sweep.cluster import RayCluster, RaySession
+
+ray.init(num_cpus=2, num_gpus=2, include_dashboard=False, logging_level="ERROR")  # two GPUs declared, none real
+with RaySession(RayCluster(cpus=1, gpus=1)) as session:
+    one = session._slots()
+with RaySession(RayCluster(cpus=1, gpus=2)) as session:
+    two = session._slots()
+run_sweep(_spec(), sys.argv[1] + "/ray", chunk_fields=3, quiet=True, ray=RayCluster(cpus=1, gpus=1))
+ray.shutdown()
+run_sweep(_spec(), sys.argv[1] + "/here", chunk_fields=3, quiet=True)
+same = read_sweep(sys.argv[1] + "/ray")[0].equals(read_sweep(sys.argv[1] + "/here")[0])
+print(one, two, same)
+"""
+
+
+@pytest.mark.slow
+def test_workers_that_each_hold_a_gpu(tmp_path):
+    """``--ray --ray-gpus 1`` on a node that declares two GPUs (Ray's resources standing in for real ones):
+    two workers, each holding one; one worker when each asks for two; the rows of a one-process run."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT / "tests" / "sweep"), str(ROOT / "tests")])}
+    done = subprocess.run([sys.executable, "-c", _GPU_WORKERS, str(tmp_path)], env=env, capture_output=True,
+                          text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert done.stdout.split()[-3:] == ["2", "1", "True"]
