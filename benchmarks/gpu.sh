@@ -20,7 +20,11 @@ else
 fi
 export PYTHONUNBUFFERED=1
 python3 -c "import jax; print(jax.__version__, jax.devices())"
-if [ "${SMOKE:-0}" = 1 ]; then QUICK="--fields 16"; LARGE="--fields 32"; else QUICK=""; LARGE="--fields 8192"; fi
+if [ "${SMOKE:-0}" = 1 ]; then  # sweeps/quick.toml: short episodes, a small MPC
+  QUICK="--spec sweeps/quick.toml --fields 8 --repeats 1"; LARGE="--spec sweeps/quick.toml --fields 16 --repeats 1"
+else
+  QUICK=""; LARGE="--fields 8192"
+fi
 
 # the quick start (6,144 episodes): cold and warm, under both policies, phase by phase
 timeout 240 python3 benchmarks/policy.py $QUICK --phases --json "$OUT/policy-gpu.json"

@@ -193,3 +193,46 @@ def test_host_time_counts_every_setting_expansion_of_the_parts_it_writes():
         spec.settings()
         spec.gain_columns()
     assert len(spent) >= 2 and "inner" not in SweepSpec.settings.__qualname__  # counted, then put back
+
+
+def test_policy_agreement_counts_outcome_flips_and_continuous_drift():
+    """Two hand-made sets of rows: one outcome flipped, one metric moved by 2e-3 on one row, NaN where NaN."""
+    import pandas as pd
+    from policy import agreement
+
+    base = pd.DataFrame({"setting": [0, 0, 0, 0], "family": ["a"] * 4, "field": [0, 1, 2, 3],
+                         "success": [True, False, True, True], "collision": [False] * 4, "stalled": [False] * 4,
+                         "steps": [10, 20, 30, 40], "min_clearance": [1.0, 2.0, float("nan"), float("inf")]})
+    other = base.copy()
+    other.loc[1, "success"] = True
+    other.loc[0, "min_clearance"] = 1.002
+    found = agreement(base, other.iloc[::-1])  # the order of the rows does not matter
+    assert found["rows"] == 4 and found["outcomes_equal"] == 0.75
+    assert found["continuous"]["min_clearance"] == {"within_1e-3": 0.75, "bit_equal": 0.75}
+
+
+def test_policy_reads_a_specs_fields_per_family(tmp_path):
+    from policy import _spec_file
+
+    copy = _spec_file(ROOT / "sweeps" / "compare-small.toml", 8192, tmp_path)
+    assert "fields = 8192" in copy.read_text() and "fields = 512" not in copy.read_text()
+    assert _spec_file(ROOT / "sweeps" / "quick.toml", None, tmp_path) == ROOT / "sweeps" / "quick.toml"
+
+
+@pytest.mark.slow
+def test_the_gpu_script_runs_on_a_cpu_in_its_smoke_mode(tmp_path):
+    """``SMOKE=1 bash benchmarks/gpu.sh``: every record it writes is there and says what it measured."""
+    import os
+    import subprocess
+
+    done = subprocess.run(["bash", str(ROOT / "benchmarks" / "gpu.sh")], cwd=ROOT, capture_output=True, text=True,
+                          env={**os.environ, "SMOKE": "1", "OUT": str(tmp_path)}, timeout=900)
+    assert done.returncode == 0, done.stderr[-2000:]
+    quick = json.loads((tmp_path / "policy-gpu.json").read_text())
+    assert set(quick["policies"]) == {"cpu", "accelerator"}
+    assert quick["policies"]["accelerator"]["plan"]["programs"] == 2  # quick.toml: one slot count, two methods
+    assert quick["policies"]["accelerator"]["phases"]["programs"] == 2
+    large = json.loads((tmp_path / "policy-gpu-large.json").read_text())
+    assert set(large["policies"]) == {"accelerator"} and large["policies"]["accelerator"]["episodes"] == 64
+    for name in ("compare", "tune"):
+        assert json.loads((tmp_path / f"{name}-gpu.json").read_text())["rc"] == 0
