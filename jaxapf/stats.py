@@ -37,6 +37,8 @@ from scipy import stats as _st
 
 __all__ = [
     "DEFAULT_RESAMPLES",
+    "verdict_basis",
+    "verdict_visible",
     "wilson_interval",
     "iqm",
     "median",
@@ -891,6 +893,52 @@ def verdicts(lo, hi, p_difference, p_equivalence, margin, higher_is_better,
     out = [verdict(float(a), float(b), float(p), float(q), float(m), bool(u), alpha)
            for a, b, p, q, m, u in zip(lo, hi, p_holm, p_eq_holm, margin, up)]
     return p_holm, p_eq_holm, out
+
+
+def _p_text(p: float) -> str:
+    return "–" if not math.isfinite(p) else "<0.001" if p < 0.001 else f"{p:.3f}"
+
+
+def verdict_basis(lo: float, hi: float, p_holm: float, p_equivalence_holm: float, margin: float,
+                  higher_is_better: bool, alpha: float = 0.05) -> str:
+    """What decided :func:`verdict` on these (Holm-adjusted) inputs, in a few words a table cell holds, so a
+    reader checks the verdict from its cell: the equivalence test (TOST within ``±margin``) for
+    *equivalent*; the difference test and the interval's side for *better*/*worse*; for *inconclusive*
+    each condition that failed. The interval shown beside a verdict is the 95 % one, unadjusted; an
+    interval inside the margin that is not *equivalent*, or one excluding 0 that is *inconclusive*, is
+    explained here by the adjusted p-value that fell short."""
+    found = verdict(lo, hi, p_holm, p_equivalence_holm, margin, higher_is_better, alpha)
+    a = f"{alpha:g}"
+    tost = f"TOST p Holm {_p_text(p_equivalence_holm)}"
+    diff = f"p Holm {_p_text(p_holm)}"
+    if found == "equivalent":
+        return f"{tost} ≤ {a}"
+    if found in ("better", "worse"):
+        a_, b_ = (lo, hi) if higher_is_better else (-hi, -lo)
+        inside = margin > 0 and -margin < a_ and b_ < margin  # then why it is not equivalent
+        return f"{diff} ≤ {a}, CI excludes 0" + (f"; {tost} > {a}" if inside else "")
+    reasons = [f"{tost} > {a}" if margin > 0 and math.isfinite(p_equivalence_holm) else "no margin"
+               if margin <= 0 else "no TOST"]
+    excludes = lo > 0 or hi < 0
+    if not math.isfinite(p_holm):
+        reasons.append("no pairs")
+    elif p_holm > alpha:
+        reasons.append(f"{diff} > {a}")
+    elif not excludes:
+        reasons.append(f"{diff} but CI includes 0")
+    return "; ".join(reasons)
+
+
+def verdict_visible(lo: float, hi: float, margin: float, verdict_: str, higher_is_better: bool = True) -> bool:
+    """Whether ``verdict_`` follows from the interval ``[lo, hi]`` and the ``margin`` alone, as a reader checks
+    it: *equivalent* inside ``(-margin, margin)``; *better*/*worse* wholly beyond 0 on its side and not
+    inside the margin; *inconclusive* holding 0 and not inside the margin. Where it does not, the cell
+    shows :func:`verdict_basis`."""
+    if not higher_is_better:
+        lo, hi = -hi, -lo
+    inside = margin > 0 and -margin < lo and hi < margin
+    return {"equivalent": inside, "better": lo > 0 and not inside, "worse": hi < 0 and not inside,
+            "inconclusive": lo <= 0 <= hi and not inside}.get(verdict_, False)
 
 
 def minimum_detectable_difference(x, y, *, kind: str, alpha: float = 0.05, power: float = 0.8) -> float:

@@ -35,6 +35,7 @@ from typing import Any, Sequence
 import numpy as np
 import pandas as pd
 
+from .. import stats
 from ..io.lock import writing
 from ..io.versions import versions
 from ..validation import ConfigError
@@ -202,8 +203,9 @@ def _setting_of(summary: pd.DataFrame, spec: CompareSpec, method: str, selection
 
 def compare_markdown(spec: CompareSpec, selections: Sequence[Selection], summary: pd.DataFrame,
                      comparisons: pd.DataFrame) -> str:
-    """``compare.md``: budgets, selected gains, test rates per seed with their spread, and the
-    verdicts against the baseline seed by seed (every number from the selections and the report)."""
+    """``compare.md``: what the held-out test says first, then budgets, selected gains, test rates per seed
+    with their spread, and the verdicts against the baseline seed by seed (every number from the
+    selections and the report)."""
     sel = spec.selection
     tags = [_tag(s) for s in sel.seeds]
     lines = [f"# jaxapf compare — {spec.name}", "",
@@ -215,9 +217,10 @@ def compare_markdown(spec: CompareSpec, selections: Sequence[Selection], summary
              f"{', '.join(spec.test.families)}; every method at its defaults and at each seed's selection",
              "- statistics and definitions: [report/report.md](report/report.md) (each setting is paired with "
              f"{spec.baseline} of the same selection)", ""]
-    lines += _selection_tables(spec, selections) + _test_rates(spec, summary, tags)
     verdicts, findings = _verdict_tables(spec, summary, comparisons, tags)
-    return "\n".join(lines + verdicts + _conclusions(spec, findings, tags))
+    lines += _conclusions(spec, findings, tags) + _selection_tables(spec, selections) + _test_rates(spec, summary,
+                                                                                                    tags)
+    return "\n".join(lines + verdicts)
 
 
 def _selection_tables(spec: CompareSpec, selections: Sequence[Selection]) -> list[str]:
@@ -253,6 +256,16 @@ def _test_rates(spec: CompareSpec, summary: pd.DataFrame, tags: list[str]) -> li
     return lines
 
 
+def _why(r: Any) -> str:
+    """`` (what decided it)`` after a verdict that does not follow from its interval and margin alone
+    (:func:`~jaxapf.stats.verdict_visible`), else nothing."""
+    lo, hi, margin = float(r["delta_lo"]), float(r["delta_hi"]), float(np.nan_to_num(r["margin"], nan=0.0))
+    up = bool(r["higher_is_better"])
+    if stats.verdict_visible(lo, hi, margin, str(r["verdict"]), up):
+        return ""
+    return f" ({stats.verdict_basis(lo, hi, float(r['p_holm']), float(r['p_equivalence_holm']), margin, up)})"
+
+
 def _verdict_tables(spec: CompareSpec, summary: pd.DataFrame, comparisons: pd.DataFrame, tags: list[str]
                     ) -> tuple[list[str], list[tuple[str, str, pd.Series]]]:
     """compare.md's paired differences to the baseline seed by seed, and the pooled verdict counts of each
@@ -280,7 +293,7 @@ def _verdict_tables(spec: CompareSpec, summary: pd.DataFrame, comparisons: pd.Da
                     scale = 100.0 if metric in ("success", "collision", "stalled") else 1.0
                     lo, hi = scale * r["delta_lo"], scale * r["delta_hi"]
                     cells[t] = (f"{scale * r['delta']:+.3g} [{lo:+.3g}, {hi:+.3g}] {r['verdict']}"
-                                if math.isfinite(r["delta"]) else f"– {r['verdict']}")
+                                if math.isfinite(r["delta"]) else f"– {r['verdict']}") + _why(r)
                     if t != DEFAULT:
                         verdicts.append(str(r["verdict"]))
                 counts = pd.Series(verdicts).value_counts()

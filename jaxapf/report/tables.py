@@ -313,6 +313,18 @@ def _delta_text(r: Any, rate: bool) -> str:
     return _with_ci(r["delta"], r["delta_lo"], r["delta_hi"], fmt)
 
 
+def _decided_by(r: Any, rate: bool) -> str:
+    """:func:`~jaxapf.stats.verdict_basis` of one comparison; for a continuous metric whose medians differ by
+    more than the interval of the paired shift allows, also that the test compared paired differences."""
+    basis = stats.verdict_basis(float(r["delta_lo"]), float(r["delta_hi"]), float(r["p_holm"]),
+                                float(r["p_equivalence_holm"]), float(np.nan_to_num(r["margin"], nan=0.0)),
+                                bool(r["higher_is_better"]))
+    gap = float(r["value"]) - float(r["baseline_value"])
+    if not rate and math.isfinite(gap) and not float(r["delta_lo"]) <= gap <= float(r["delta_hi"]):
+        basis += f"; medians differ by {_signed(gap)}, the test compares paired differences"
+    return basis
+
+
 def comparison_table(comp: pd.DataFrame, metric: str) -> pd.DataFrame:
     """The paired comparisons of one metric: estimate and interval, verdict, tests, margin, MDE."""
     rows = []
@@ -327,6 +339,7 @@ def comparison_table(comp: pd.DataFrame, metric: str) -> pd.DataFrame:
             ("rate %" if rate else "median") + " (setting vs baseline)": value,
             ("Δ pp [CI]" if rate else "HL shift [CI]"): _delta_text(r, rate),
             "verdict": r["verdict"],
+            "decided by": _decided_by(r, rate),
             "p Holm": _p(r["p_holm"]) + (" *" if bool(r["significant"]) else ""),
             "margin": "–" if not math.isfinite(float(r["margin"])) else scale(r["margin"]).lstrip("+"),
             "p equiv. Holm": _p(r["p_equivalence_holm"]),
@@ -399,49 +412,55 @@ def verdict_matrix(comparisons: pd.DataFrame, metrics: Sequence[str], groups: Se
     return pd.DataFrame(rows, columns=pd.MultiIndex.from_tuples(columns))
 
 
-def _listing(names: Sequence[str]) -> str:
-    names = list(names)
-    return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
+#: The rule of :func:`bottom_line`, stated under it on every report.
+BOTTOM_LINE_RULE = ("Rates in %, each setting against its baseline on the same fields: the paired difference in "
+                    "percentage points with its 95 % interval and the verdict; the settings with the most better "
+                    "minus worse verdicts first (at most two of each end); then each family where a rate's "
+                    "verdict is not the pooled one (inconclusive ones left out).")
 
 
-def _standing(sub: pd.DataFrame) -> str:
-    """What one setting's verdicts in one group say: the metrics on which it is better and worse, and how
-    many are equivalent."""
-    parts = [f"{v} on {_listing(sub.loc[sub['verdict'] == v, 'metric'])}" for v in ("better", "worse")
-             if (sub["verdict"] == v).any()]
-    same = int((sub["verdict"] == "equivalent").sum())
-    if same:
-        parts.append(f"equivalent on {same} metric{'s' * (same != 1)}" if parts else "equivalent on "
-                     + _listing(sub.loc[sub["verdict"] == "equivalent", "metric"]))
-    return ", ".join(parts) if parts else "inconclusive on every metric"
+def _rate_clause(r: Any) -> str:
+    """``success 55.0 vs 57.5 (−2.5 [−4.1, −0.9], worse)``: one rate of one setting against its baseline."""
+    return (f"{r['metric']} {_pct(r['value'])} vs {_pct(r['baseline_value'])} ({_signed(r['delta'], 100.0, 2)} "
+            f"[{_signed(r['delta_lo'], 100.0, 2)}, {_signed(r['delta_hi'], 100.0, 2)}], {r['verdict']})")
 
 
 def bottom_line(comparisons: pd.DataFrame, group: str, families: Sequence[str], rates: Sequence[str],
-                most: int = 3) -> str:
-    """The report's summary paragraph: each setting's verdicts against its baseline in ``group`` (the
-    pooled one), the settings with the most *better* minus *worse* first (``most`` of each end), then
-    the families where a setting's verdict on a rate (``rates``: success, collision, ...) differs from
-    the pooled one, all in :func:`stats.verdict`'s words."""
+                most: int = 2) -> list[str]:
+    """The report's summary, one paragraph per group (each under sixty words at ``most = 2``): in ``group``
+    (the pooled one) the first two ``rates`` of the settings with the most *better* minus *worse* verdicts
+    (``most`` of each end) against their baseline, with the difference's interval and verdict; then each
+    family where a rate's verdict differs from the pooled one and is not inconclusive (``most`` of them).
+    :data:`BOTTOM_LINE_RULE` states the rule."""
     comp = comparisons[comparisons["family"] == group] if len(comparisons) else comparisons
     if not len(comp):
-        return "Nothing to compare: every reported setting is a baseline setting."
+        return ["Nothing to compare: every reported setting is a baseline setting."]
     score = comp.groupby("setting", sort=False)["verdict"].agg(
         lambda v: int((v == "better").sum()) - int((v == "worse").sum()))
     order = list(score.sort_values(ascending=False, kind="stable").index)
     shown = order if len(order) <= 2 * most else order[:most] + order[-most:]
     bases = pd.unique(comp["baseline_label"])
     against = f"against {bases[0]}" if len(bases) == 1 else "each against its baseline"
-    clauses = [f"{comp.loc[comp['setting'] == s, 'label'].iloc[0]} is {_standing(comp[comp['setting'] == s])}"
-               for s in shown]
-    text = [f"{group.capitalize() if group != ALL else 'Pooled over the families'} ({against}): "
-            + "; ".join(clauses)
+    first = list(rates)[:2]
+
+    def clauses(sub: pd.DataFrame, settings: Sequence[int], metrics: Sequence[str]) -> list[str]:
+        out = []
+        for s in settings:
+            rows = sub[(sub["setting"] == s) & sub["metric"].isin(metrics)]
+            if len(rows):
+                out.append(f"{rows['label'].iloc[0]}: " + ", ".join(_rate_clause(r) for _, r in rows.iterrows()))
+        return out
+
+    head = group.capitalize() if group != ALL else "Pooled over the families"
+    text = [f"{head} ({against}): " + "; ".join(clauses(comp, shown, first))
             + ("" if len(shown) == len(order) else f" ({len(order) - len(shown)} settings in between)") + "."]
     pooled = comp.set_index(["setting", "metric"])["verdict"]
     for f in families:
         sub = comparisons[(comparisons["family"] == f) & comparisons["metric"].isin(rates)]
-        moved = [(s, r) for s in order for r in sub[sub["setting"] == s].itertuples()
-                 if pooled.get((s, r.metric)) != r.verdict and r.verdict != "inconclusive"]
-        if moved:
-            text.append(f"In {f}: " + "; ".join(f"{r.label} is {r.verdict} on {r.metric}" for _, r in moved[:most])
+        moved = sub[[pooled.get((r.setting, r.metric)) != r.verdict and r.verdict != "inconclusive"
+                     for r in sub.itertuples()]]
+        if len(moved):
+            picked = moved.head(most)
+            text.append(f"In {f}: " + "; ".join(f"{r['label']}: {_rate_clause(r)}" for _, r in picked.iterrows())
                         + (f" (and {len(moved) - most} more)" if len(moved) > most else "") + ".")
-    return " ".join(text)
+    return text
