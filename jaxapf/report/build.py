@@ -37,6 +37,7 @@ from .load import ReportError, load_sweep, report_metrics, roles
 from .select import format_value, select
 from .tables import (
     ALL,
+    BOTTOM_LINE_RULE,
     bottom_line,
     compare,
     comparison_table,
@@ -210,7 +211,10 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
     # the conclusion, the verdicts and the figure that carries them come first, on the reader's first screen
     families = [g for g in names if g != pooled and "/" not in g]
     doc.h(2, "Bottom line")
-    doc.p(bottom_line(comparisons, pooled, families, rates))
+    for paragraph in bottom_line(comparisons, pooled, families, rates):
+        doc.p(paragraph)
+    if len(comparisons):
+        doc.p(BOTTOM_LINE_RULE)
     if len(comparisons):
         doc.h(2, "Verdict matrix")
         doc.p("Every setting against its baseline, per family and pooled, per metric: "

@@ -130,8 +130,10 @@ _CSS = """
 body{font-family:system-ui,-apple-system,'Segoe UI',sans-serif;margin:2em auto;max-width:1250px;padding:0 1em;
 color:#222;line-height:1.4}
 h1{border-bottom:2px solid #444}h2{border-bottom:1px solid #bbb;margin-top:2em}
-table{border-collapse:collapse;font-size:0.82em;margin:0.8em 0;display:block;overflow-x:auto}
-th,td{border:1px solid #ccc;padding:3px 7px;text-align:right;white-space:nowrap}
+table{border-collapse:collapse;font-size:0.82em;margin:0.8em 0;display:block;overflow-x:auto;max-width:100%}
+th,td{border:1px solid #ccc;padding:3px 6px;text-align:right;overflow-wrap:anywhere}
+table.sortable td{min-width:3.5em}table.sortable td:first-child{min-width:8em}
+p,li,figcaption,h1,h2,h3{overflow-wrap:anywhere}
 th{background:#f0f0f0}td:first-child,th:first-child{text-align:left}
 tr:nth-child(even){background:#fafafa}
 figure{margin:1.2em 0}figure img{max-width:100%;height:auto;border:1px solid #eee}
@@ -142,16 +144,23 @@ td.v{text-align:center;padding:1px 3px}table.matrix th{padding:2px 3px}th.group{
 th.up span{writing-mode:vertical-rl;transform:rotate(180deg);font-weight:normal}
 """ + "".join(f"td.v-{v}{{background:{c}33;color:{c};font-weight:700}}" for v, c in VERDICT_COLORS.items())
 
-#: Click a column's header to sort the table by it (numbers as numbers, a second click reverses).
+#: Click a column's header to sort the table by it (numbers as numbers, a second click reverses). ``sortKey``
+#: reads a cell as its first number: a bound ``<0.001`` just below 0.001 (``>x`` just above), an interval
+#: ``[lo, hi]`` by ``lo``, ``1,234`` as 1234, ``±∞`` as infinities; a cell without a number sorts as text,
+#: after every number.
 _SORT = """
+function sortKey(text){var s=text.trim().replace(/\u2212/g,'-').replace(/^[\\[(]\\s*/,'');
+  if(/^[-+]?\u221e/.test(s))return s.charAt(0)==='-'?-Infinity:Infinity;
+  var below=/^(<|\u2264)/.test(s),above=/^(>|\u2265)/.test(s);
+  s=s.replace(/^(<|>|\u2264|\u2265|~|\u2248)\\s*/,'').replace(/(\\d),(?=\\d{3}(\\D|$))/g,'$1');
+  var n=parseFloat(s.replace(/[^0-9eE+.-].*$/,''));if(isNaN(n))return text.trim();
+  var nudge=Math.abs(n)*1e-9+1e-300;return below?n-nudge:above?n+nudge:n;}
 document.querySelectorAll('table.sortable').forEach(function(t){
   t.querySelectorAll('th').forEach(function(th,col){
     th.classList.add('sort');
     th.addEventListener('click',function(){
       var body=t.tBodies[0],rows=Array.prototype.slice.call(body.rows),up=th.dataset.up!=='1';
-      var key=function(r){var s=r.cells[col].textContent.trim().replace('\u2212','-');
-        if(/^[-+]?\u221e/.test(s))return s.charAt(0)==='-'?-Infinity:Infinity;
-        var n=parseFloat(s.replace(/[^0-9eE+.-].*$/,''));return isNaN(n)?s:n;};
+      var key=function(r){return sortKey(r.cells[col].textContent);};
       rows.sort(function(a,b){var x=key(a),y=key(b);
         var c=(typeof x===typeof y)?(x<y?-1:x>y?1:0):(typeof x==='number'?-1:1);return up?c:-c;});
       th.dataset.up=up?'1':'0';rows.forEach(function(r){body.appendChild(r);});

@@ -67,13 +67,19 @@ def format_value(v: Any) -> str:
 
 
 def setting_labels(table: pd.DataFrame, swept: Sequence[str]) -> dict[int, str]:
-    """``#3 direction_velocity γ=1 k=0.5``: index, method and the swept columns the method reads."""
+    """``#3 direction_velocity γ=1 k=0.5``: index, method and the swept columns the method reads; where a
+    ``selection`` column names the settings (``jaxapf compare``'s test: ``#3 direction_velocity seed2``), the
+    name instead of the gains it selected (the report's settings table lists those)."""
     labels = {}
+    named = "selection" in swept
     for s, row in table.iterrows():
         method = str(row.get("method", ""))
         ignored = ignored_columns(row)
         parts = [f"#{s}", method]
-        parts += [f"{symbol(c)}={format_value(row[c])}" for c in swept if c not in ("method",) and c not in ignored]
+        if named:
+            parts.append(format_value(row["selection"]))
+        else:
+            parts += [f"{symbol(c)}={format_value(row[c])}" for c in swept if c != "method" and c not in ignored]
         labels[int(s)] = " ".join(p for p in parts if p)
     return labels
 

@@ -1,7 +1,8 @@
 """report.html in a real browser: headless Chromium (the operating system's, driven by Playwright) opens
 the page at 1280 px and checks what a reader would see: every figure loads, the contents' links land on
-their headings, nothing is wider than the window, a header click sorts its table, the console stays
-clean. Skipped where no Chromium is installed, unless ``JAXAPF_REQUIRE_BROWSER=1`` (``.ci/run``)."""
+their headings, nothing is wider than the window (at 390 px too), no table scrolls sideways, a header click
+sorts its table (every kind of cell by its number), the console stays clean. Skipped where no Chromium is
+installed, unless ``JAXAPF_REQUIRE_BROWSER=1`` (``.ci/run``)."""
 
 from __future__ import annotations
 
@@ -73,6 +74,28 @@ def test_nothing_is_wider_than_the_window(page):
     assert wide == 0  # tables scroll inside themselves; nothing else reaches past the window
 
 
+def test_no_table_scrolls_sideways_at_1280_px(page):
+    """Long labels wrap: every table fits the page's column, the verdict matrix too."""
+    tab, _ = page
+    wide = tab.evaluate("""Array.from(document.querySelectorAll('table')).filter(t => t.scrollWidth > t.clientWidth + 1)
+        .map(t => [t.scrollWidth, t.clientWidth, t.rows[0].textContent.slice(0, 60)])""")
+    assert wide == []
+
+
+def test_nothing_is_wider_than_a_phone_at_390_px(page):
+    """At 390 px no element reaches past the window; a table too wide for it scrolls inside its own box."""
+    tab, _ = page
+    tab.set_viewport_size({"width": 390, "height": 800})
+    try:
+        wide = tab.evaluate("""Array.from(document.querySelectorAll('body *')).filter(e => {
+            const r = e.getBoundingClientRect(); return r.right > 390.5 && !e.closest('table');})
+            .map(e => e.tagName + ':' + (e.textContent || '').slice(0, 40))""")
+        page_width = tab.evaluate("document.documentElement.scrollWidth")
+    finally:
+        tab.set_viewport_size({"width": 1280, "height": 900})
+    assert wide == [] and page_width <= 390
+
+
 def test_a_header_click_sorts_its_table(page):
     tab, _ = page
     table = "table.sortable >> nth=3"  # a table of numbers with intervals
@@ -88,3 +111,19 @@ def test_a_header_click_sorts_its_table(page):
 def test_the_console_stays_clean(page):
     tab, messages = page
     assert not [m for m in messages if m[0] in ("error", "pageerror", "warning")]
+
+
+#: One cell of each kind a report's tables hold, in the order a header click puts them.
+SORTED_CELLS = ["−∞", "−3.5 [−4.1, −2.9]", "[−0.917, +0.917]", "+0 [−0.917, +0.917]", "<0.001 *", "0.001",
+                "0.011 *", "0.5 %", "1.000", "12 / 512", "99.8 %", "1,234", "4,096 (80 %)", ">1e4", "+∞",
+                "n/a", "trap"]
+
+
+def test_every_kind_of_cell_sorts_by_its_number(page):
+    """p-values with '<', intervals, percentages, counts with thousands separators, infinities, text last."""
+    tab, _ = page
+    cells = list(reversed(SORTED_CELLS))
+    order = tab.evaluate("""cells => cells.map(c => [c, sortKey(c)]).sort((a, b) => {const x = a[1], y = b[1];
+        return typeof x === typeof y ? (x < y ? -1 : x > y ? 1 : 0) : (typeof x === 'number' ? -1 : 1);})
+        .map(p => p[0])""", cells)
+    assert order == SORTED_CELLS

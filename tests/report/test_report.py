@@ -550,12 +550,14 @@ def test_swept_tags_named_like_the_reports_columns_and_holding_html_are_shown_as
 
 
 def _verdicts(rows):
-    """A comparisons frame of hand-made verdicts: (setting, family, metric, verdict)."""
+    """A comparisons frame of hand-made verdicts: (setting, family, metric, verdict), each rate at 50 % against
+    the baseline's 40 %, Δ +10 pp [+2, +18]."""
     return pd.DataFrame([{"setting": s, "label": f"#{s} m{s}", "baseline": 0, "baseline_label": "#0 base",
-                          "family": f, "metric": m, "verdict": v} for s, f, m, v in rows])
+                          "family": f, "metric": m, "verdict": v, "value": 0.5, "baseline_value": 0.4,
+                          "delta": 0.1, "delta_lo": 0.02, "delta_hi": 0.18} for s, f, m, v in rows])
 
 
-def test_the_bottom_line_names_each_settings_verdicts_and_the_families_that_differ():
+def test_the_bottom_line_names_each_settings_rates_and_the_families_that_differ():
     from jaxapf.report.tables import bottom_line
 
     comp = _verdicts([(1, "all", "success", "better"), (1, "all", "collision", "equivalent"),
@@ -564,10 +566,27 @@ def test_the_bottom_line_names_each_settings_verdicts_and_the_families_that_diff
                       (1, "trap", "success", "worse"), (1, "trap", "collision", "equivalent"),
                       (2, "trap", "success", "inconclusive"), (1, "clutter", "success", "inconclusive")])
     text = bottom_line(comp, "all", ["trap", "clutter"], ["success", "collision"])
-    assert text == ("Pooled over the families (against #0 base): #1 m1 is better on success, worse on time_to_goal, "
-                    "equivalent on 1 metric; #2 m2 is inconclusive on every metric. "
-                    "In trap: #1 m1 is worse on success.")  # clutter: inconclusive there says nothing new
-    assert bottom_line(comp.iloc[:0], "all", [], []).startswith("Nothing to compare")
+    assert text == [
+        "Pooled over the families (against #0 base): #1 m1: success 50.0 vs 40.0 (+10 [+2, +18], better), "
+        "collision 50.0 vs 40.0 (+10 [+2, +18], equivalent); #2 m2: success 50.0 vs 40.0 (+10 [+2, +18], "
+        "inconclusive), collision 50.0 vs 40.0 (+10 [+2, +18], inconclusive).",
+        "In trap: #1 m1: success 50.0 vs 40.0 (+10 [+2, +18], worse)."]  # clutter: inconclusive says nothing new
+    assert bottom_line(comp.iloc[:0], "all", [], []) == ["Nothing to compare: every reported setting is a "
+                                                         "baseline setting."]
+
+
+def test_each_paragraph_of_the_bottom_line_stays_under_sixty_words():
+    """Six settings (two of each end are shown) on three families, every rate's verdict moving per family."""
+    from test_readme_rules import words
+
+    from jaxapf.report.tables import bottom_line
+
+    verdicts = ["better", "worse", "equivalent"]
+    comp = _verdicts([(s, f, m, verdicts[(s + i) % 3]) for s in range(1, 7) for i, f in enumerate(["all", "a", "b"])
+                      for m in ("success", "collision", "stalled")])
+    text = bottom_line(comp, "all", ["a", "b"], ["success", "collision", "stalled"])
+    assert len(text) == 3 and "(2 settings in between)" in text[0]
+    assert max(words(t) for t in text) <= 60, [words(t) for t in text]
 
 
 def test_the_verdict_matrix_marks_every_setting_group_and_metric():
