@@ -117,7 +117,9 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--agents", type=int, metavar="A",
                      help="UAVs of a swarm family's field (default: the family's)")
     sim.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
-    sim.add_argument("--field", type=int, default=0, help="field index within the seed (default 0)")
+    sim.add_argument("--field", type=int, help="field index within the seed (default: the first field of the "
+                                               "family's defining kind, e.g. trap's concave cup; 0 for a family of "
+                                               "one kind)")
     sim.add_argument("--methods", type=_planners, default=["basic", "direction_velocity"],
                      help=f"comma-separated planners of {', '.join(planners)} "
                           "(default basic,direction_velocity)")
@@ -338,17 +340,20 @@ def _simulate(args: argparse.Namespace) -> int:
     from ..config import MPCConfig, SimConfig
     from ..control import scales_set
     from ..io.lock import check_writable
-    from ..scenarios import family_params
+    from ..scenarios import FAMILIES, family_params
     from ..scenarios.swarms import swarm_params
     from ..simulate import format_metrics_table, simulate_runs, write_outputs
     from ..simulate.animate import animate, tracks_of_runs, tracks_of_swarm
+    from ..simulate.episodes import defining_field
     from ..simulate.swarm import simulate_swarm, write_swarm_outputs
     from ..spec.settings import traced_weights
     from ..validation import MAX_FIELDS, MAX_SEED, ConfigError, check_int
 
     check_int("--seed", args.seed, 0, MAX_SEED)
-    check_int("--field", args.field, 0, MAX_FIELDS - 1)
     swarm = args.family in _names("swarm-families")
+    chosen = args.field is None
+    if not chosen:
+        check_int("--field", args.field, 0, MAX_FIELDS - 1)
     if args.agents is not None and not swarm:
         raise ConfigError(f"--agents: {args.family} is a single-UAV family; --agents sets a swarm family's UAVs")
     overrides = {} if args.agents is None else {"agents": args.agents}
@@ -357,6 +362,12 @@ def _simulate(args: argparse.Namespace) -> int:
 
         ffmpeg()  # a missing video extra is said before the episodes fly, not after
     params = swarm_params(args.family, **overrides) if swarm else family_params(args.family)
+    if chosen:
+        args.field = 0 if swarm else defining_field(args.family, args.seed, params)
+        kinds = () if swarm else FAMILIES.get(args.family).kinds
+        if len(kinds) > 1:
+            print(f"note: field {args.field} is the first {FAMILIES.get(args.family).defining} field of "
+                  f"{args.family} at seed {args.seed} (its defining kind; --field N flies another)")
     gains = _gains(args)
     check_writable(args.out)
     t_max = args.t_max if args.t_max is not None else params.t_max

@@ -146,12 +146,21 @@ class Family:
         the origin, goal at ``(length, 0)``), from the field's :class:`~jaxapf.scenarios.layout.Draws`.
       kinds: the kinds of field it draws (one name if it draws one kind).
       description: one line for ``jaxapf list families``.
+      defining: the kind that shows what the family is about, which ``jaxapf simulate --family`` flies
+        by default (default the first of ``kinds``; ``trap``'s is the concave cup).
     """
 
     params: type[FamilyParams]
     build: Callable[..., Any]
     kinds: tuple[str, ...]
     description: str = ""
+    defining: str = ""
+
+    def __post_init__(self) -> None:
+        if self.defining and self.defining not in self.kinds:
+            raise ConfigError(f"family {self.params.family}: defining kind {self.defining!r} is not one of its kinds "
+                              f"({', '.join(self.kinds)})")
+        object.__setattr__(self, "defining", self.defining or self.kinds[0])
 
     @property
     def name(self) -> str:
@@ -167,9 +176,10 @@ FAMILIES: Registry[Family] = Registry("family", describe=_describe, listed_as="f
 
 
 def register_family(params: type[FamilyParams], build: Callable[..., Any], kinds: tuple[str, ...] | None = None,
-                    *, description: str = "", replace: bool = False) -> Family:
-    """Register the family ``params.family`` with its builder and kinds (default: one kind, its name)."""
-    family = Family(params, build, tuple(kinds or (params.family,)), description)
+                    *, description: str = "", replace: bool = False, defining: str = "") -> Family:
+    """Register the family ``params.family`` with its builder and kinds (default: one kind, its name) and the
+    kind that defines it (:attr:`Family.defining`)."""
+    family = Family(params, build, tuple(kinds or (params.family,)), description, defining)
     return FAMILIES.register(params.family, family, replace=replace)
 
 

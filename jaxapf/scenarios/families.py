@@ -396,7 +396,7 @@ register_family(PaperStaticParams, _paper_static,
                 description="the paper's scenario 1: a closed cup of 5 cylinders across the start-goal line")
 register_family(PaperDynamicParams, _paper_dynamic,
                 description="the paper's scenario 2: a 70 m run through 14 cylinders, 4 of them drifting")
-register_family(TrapParams, _trap, TRAP_KINDS,
+register_family(TrapParams, _trap, TRAP_KINDS, defining="concave",
                 description="one local-minimum trap per field: obstacle on the line, concave cup, narrow gap, "
                             "goal near an obstacle")
 register_family(ClutterParams, _clutter, description="a static forest of cylinders in a 12 m corridor")

@@ -19,6 +19,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Circle
 
 from ..io.lock import staged
+from ..progress import Progress
 from ..validation import ConfigError
 from .figures import _GOAL_COLOR, _OBSTACLE_COLOR, DPI, Field, Run, _collision_index, outcome, plain_text
 
@@ -72,6 +73,24 @@ def ffmpeg() -> str:
     except ImportError:
         raise ConfigError("--animate needs imageio-ffmpeg: python -m pip install -e \".[video]\"") from None
     return imageio_ffmpeg.get_ffmpeg_exe()
+
+
+def _legend(field: Field, agents: int, colors: np.ndarray) -> tuple[list, list[str]]:
+    """Handles and labels of what every frame draws: start, goal ring, the UAV and its trail, an obstacle
+    (where the field has one), a collision."""
+    from matplotlib.lines import Line2D
+
+    uav = colors[0] if agents == 1 else "grey"
+    handles = [Line2D([], [], marker="s", linestyle="", color="black" if agents == 1 else "grey", markersize=4),
+               Line2D([], [], marker="o", linestyle="", markerfacecolor="none",
+                      markeredgecolor=_GOAL_COLOR if agents == 1 else "grey", markersize=8),
+               Line2D([], [], marker="o", color=uav, markeredgecolor="black", markersize=6, linewidth=1.5),
+               Line2D([], [], marker="o", linestyle="", color=_OBSTACLE_COLOR, alpha=0.35, markersize=10),
+               Line2D([], [], marker="X", linestyle="", color="red", markeredgecolor="black", markersize=8)]
+    labels = ["start", f"goal (within {field.r_goal:g} m)", "UAV and its trail" if agents == 1 else
+              "UAVs (one colour each) and trails", "obstacle (where it is now)", "collision"]
+    keep = [i for i in range(len(labels)) if i != 3 or field.n_obstacles]  # no obstacle: none in the legend
+    return [handles[i] for i in keep], [labels[i] for i in keep]
 
 
 # long: the panels' artists are built once and moved frame by frame in one loop that feeds both encoders
@@ -130,8 +149,10 @@ def animate(tracks: Sequence[Track], field: Field, out: pathlib.Path | str, stem
         ax.grid(True, linewidth=0.4, alpha=0.5)
     axes[0].set_ylabel("y [m]")
     heading = fig.suptitle("", fontsize=10)
+    fig.legend(*_legend(field, agents, colors), loc="outside lower center", ncols=5, fontsize=7, frameon=False)
 
     fig.canvas.draw()
+    fig.set_layout_engine("none")  # laid out once: the changing heading must not move the panels or the legend
     size = fig.canvas.get_width_height()
     even = (size[0] - size[0] % 2, size[1] - size[1] % 2)  # H.264 in yuv420p wants even sides
     mp4 = out / f"{stem}.mp4"
@@ -141,7 +162,8 @@ def animate(tracks: Sequence[Track], field: Field, out: pathlib.Path | str, stem
         cmd = [exe, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgba", "-s", f"{size[0]}x{size[1]}",
                "-r", str(fps), "-i", "-", "-vf", f"crop={even[0]}:{even[1]}:0:0", "-c:v", "libx264", "-pix_fmt",
                "yuv420p", "-movflags", "+faststart", "-f", "mp4", str(tmp_mp4)]
-        with _start(cmd, stdin=subprocess.PIPE, stderr=subprocess.PIPE) as encoder:
+        with _start(cmd, stdin=subprocess.PIPE, stderr=subprocess.PIPE) as encoder, \
+                Progress(frames, f"animate {stem}", "frame", every=2.0) as bar:
             try:
                 for t in times:
                     for patches in moving:
@@ -162,6 +184,7 @@ def animate(tracks: Sequence[Track], field: Field, out: pathlib.Path | str, stem
                     heading.set_text(f"{title + ' — ' if title else ''}t = {t:5.1f} s ({speed:.3g}× real time)")
                     fig.canvas.draw()
                     encoder.stdin.write(bytes(fig.canvas.buffer_rgba()))
+                    bar.update(1)
                 encoder.stdin.close()
             except BrokenPipeError:  # ffmpeg ended early: its message says why
                 pass

@@ -29,10 +29,26 @@ from ..gains import Gains
 from ..io.lock import write_atomic
 from ..io.versions import versions
 from ..metrics import METRICS, all_metrics, clearance_history, episode_end, episode_metrics, find_metric
-from ..scenarios import family_params, make_scenarios
+from ..progress import Progress
+from ..scenarios import FAMILIES, family_params, make_scenarios
 from .figures import Field, Run, plot_all
 
-__all__ = ["simulate_runs", "write_outputs", "format_metrics_table"]
+__all__ = ["simulate_runs", "write_outputs", "format_metrics_table", "defining_field", "DEFINING_SEARCH"]
+
+#: Fields searched for the first of a family's defining kind (``jaxapf simulate`` without ``--field``).
+DEFINING_SEARCH = 256
+
+
+def defining_field(family: str, seed: int, params: Any = None) -> int:
+    """The first field (of the first :data:`DEFINING_SEARCH`) of ``family`` at ``seed`` whose kind is the family's
+    defining one (:attr:`~jaxapf.scenarios.Family.defining`: ``trap``'s concave cup); 0 for a family of one kind
+    or where none of them is."""
+    entry = FAMILIES.get(family, "--family")
+    if len(entry.kinds) == 1:
+        return 0
+    kinds = np.asarray(make_scenarios(seed, params or family_params(family), DEFINING_SEARCH).kind)
+    hits = np.flatnonzero(kinds == entry.kinds.index(entry.defining))
+    return int(hits[0]) if hits.size else 0
 
 _PYTHON = {"bool": bool, "int32": int, "float": float}
 
@@ -75,6 +91,8 @@ def simulate_runs(
     scenario = jax.tree_util.tree_map(lambda x: x[0], batch)
     valid = np.asarray(scenario.obstacles.valid)
     runs, tables = [], []
+    bar = Progress(len(methods), f"simulate {family}", "method", every=2.0)
+    bar.update(0)  # a line at once: the first method compiles before it flies
     for method in methods:
         msim = sim.replace(method=method)
         traj, metrics, clear, end = jax.device_get(_episode(scenario, gains, msim, mpc,
@@ -95,7 +113,11 @@ def simulate_runs(
         for j, col in enumerate(run.clearance.T):
             table[f"clearance_{j}"] = col
         tables.append(pd.DataFrame(table))
-    title = f"{family} (seed {seed}, field {field_index})"
+        bar.update(1)
+    bar.close()
+    kinds = FAMILIES.get(family, "--family").kinds
+    kind = f", {kinds[int(scenario.kind)]}" if len(kinds) > 1 and scenario.kind is not None else ""
+    title = f"{family} (seed {seed}, field {field_index}{kind})"
     return _field(scenario, sim, title), runs, pd.concat(tables, ignore_index=True)
 
 
