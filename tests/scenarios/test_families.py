@@ -452,3 +452,31 @@ def test_values_are_normalised_and_hashable():
     assert len({p, family_params("trap", kinds=("gnron", "on_line"), distance=25, radius=(1, 1.2),
                                  max_obstacles=2)}) == 1
     assert family_params("clutter") != family_params("dynamic", speed=(0.0, 0.0))
+
+
+def test_simulate_flies_the_first_field_of_a_familys_defining_kind():
+    """trap's fields at seed 0 are on_line, narrow_gap, concave, ...: the first concave cup is field 2; a family
+    of one kind keeps field 0; a defining kind the family does not draw is refused."""
+
+    from jaxapf.scenarios import FAMILIES, Family, make_scenarios
+    from jaxapf.simulate.episodes import defining_field
+    from jaxapf.validation import ConfigError
+
+    trap = FAMILIES.get("trap")
+    kinds = np.asarray(make_scenarios(0, family_params("trap"), 3).kind)
+    assert trap.defining == "concave" and [trap.kinds[k] for k in kinds] == ["on_line", "narrow_gap", "concave"]
+    assert defining_field("trap", 0) == 2 and defining_field("clutter", 0) == 0
+    assert FAMILIES.get("clutter").defining == "clutter"
+    with pytest.raises(ConfigError, match="defining kind 'cup' is not one of its kinds"):
+        Family(trap.params, trap.build, trap.kinds, "", "cup")
+
+
+@pytest.mark.slow
+def test_simulate_names_the_field_it_chose_and_its_kind(tmp_path, capsys):
+    from jaxapf.cli import main
+
+    assert main(["simulate", "--family", "trap", "--t-max", "2", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr()
+    assert "note: field 2 is the first concave field of trap at seed 0" in out.out
+    assert "trap (seed 0, field 2, concave)" in out.out
+    assert "simulate trap: 0/2 method (0 %)" in out.err  # a line before the first method compiles
