@@ -415,8 +415,8 @@ def verdict_matrix(comparisons: pd.DataFrame, metrics: Sequence[str], groups: Se
 #: The rule of :func:`bottom_line`, stated under it on every report.
 BOTTOM_LINE_RULE = ("Rates in %, each setting against its baseline on the same fields: the paired difference in "
                     "percentage points with its 95 % interval and the verdict; the settings with the most better "
-                    "minus worse verdicts first (at most two of each end); then each family where a rate's "
-                    "verdict is not the pooled one (inconclusive ones left out).")
+                    "minus worse verdicts first (at most two of each end); then each family where a setting is "
+                    "better or worse on a rate than it is pooled.")
 
 
 def _rate_clause(r: Any) -> str:
@@ -430,7 +430,7 @@ def bottom_line(comparisons: pd.DataFrame, group: str, families: Sequence[str], 
     """The report's summary, one paragraph per group (each under sixty words at ``most = 2``): in ``group``
     (the pooled one) the first two ``rates`` of the settings with the most *better* minus *worse* verdicts
     (``most`` of each end) against their baseline, with the difference's interval and verdict; then each
-    family where a rate's verdict differs from the pooled one and is not inconclusive (``most`` of them).
+    family where a setting is better or worse on a rate than it is pooled (``most`` of them).
     :data:`BOTTOM_LINE_RULE` states the rule."""
     comp = comparisons[comparisons["family"] == group] if len(comparisons) else comparisons
     if not len(comp):
@@ -457,7 +457,7 @@ def bottom_line(comparisons: pd.DataFrame, group: str, families: Sequence[str], 
     pooled = comp.set_index(["setting", "metric"])["verdict"]
     for f in families:
         sub = comparisons[(comparisons["family"] == f) & comparisons["metric"].isin(rates)]
-        moved = sub[[pooled.get((r.setting, r.metric)) != r.verdict and r.verdict != "inconclusive"
+        moved = sub[[pooled.get((r.setting, r.metric)) != r.verdict and r.verdict in ("better", "worse")
                      for r in sub.itertuples()]]
         if len(moved):
             picked = moved.head(most)
