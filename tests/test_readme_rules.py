@@ -97,3 +97,15 @@ def test_the_quick_comparison_finishes_in_three_minutes_by_its_record(repo_root)
     run = record["runs"][0]
     assert run["command"].startswith("jaxapf compare sweeps/compare-quick.toml") and run["compilation_cache"] == "empty"
     assert run["cold_s"] <= 180 and run["environment"]["cpu_count"] == "2"
+
+
+def test_every_documented_time_of_the_quick_start_and_the_suite_names_its_cache(repo_root):
+    """A time in the README's set-up section (the quick start's, the suite's) holds under a condition a reader
+    must know: the sentence that states it says which compilation cache it ran with."""
+    readme = (repo_root / "README.md").read_text()
+    setup = _section(readme, "Quick start")
+    sentences = re.split(r"(?<=[.;])\s", setup)
+    timed = [s for s in sentences if re.search(r"<!--=bench/(quickstart|suite-[a-z-]+):", s)]
+    assert len(timed) >= 2
+    blind = [_plain(s) for s in timed if not re.search(r"cache", s)]
+    assert not blind, f"times that do not say which cache they ran with: {blind}"

@@ -421,8 +421,8 @@ def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: in
     width = width or min(chosen.width, 1 << (max(needed, 1) - 1).bit_length())
     # the accelerator's families share one program per variant: every field padded to the largest slot count
     # (a swarm's neighbour slots follow its agents, so swarm families keep their own)
-    slots = (max(spec.family_params(f).max_obstacles for f in spec.families)
-             if chosen.common_slots and not spec.swarm else None)
+    counts = {spec.family_params(f).max_obstacles for f in spec.families}
+    slots = max(counts) if chosen.common_slots and not spec.swarm and len(counts) > 1 else None  # None: no padding
     blocks = {}
     for v in groups:
         for family in spec.families:

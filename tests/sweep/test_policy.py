@@ -70,6 +70,8 @@ def test_dry_run_counts_programs_and_sequential_steps_by_hand():
     assert (cpu.programs, acc.programs) == (4, 2)
     assert {b.obstacles for b in acc.blocks.values()} == {3} and acc.obstacle_slots == 3
     assert cpu.obstacle_slots is None and "obstacle_slots" not in cpu.meta and acc.meta["obstacle_slots"] == 3
+    one = plan_sweep(_spec(), devices=1, policy="accelerator")  # one slot count: nothing padded, nothing recorded
+    assert one.obstacle_slots is None and "obstacle_slots" not in one.meta
     assert cpu.control_steps() == acc.control_steps() == 4 * SEGMENT * 6
     text = describe_plan(acc)
     assert "2 evaluate program(s)" in text and "every family padded to 3 obstacle slots" in text
