@@ -1,7 +1,8 @@
 """The engine: the closed loop of one episode (:mod:`~jaxapf.engine.loop`), batches of episodes in
 one compiled call, streamed or fixed-length (:mod:`~jaxapf.engine.batch`, :mod:`~jaxapf.engine.stream`),
-split over devices (:mod:`~jaxapf.engine.devices`), the table of the components a setting names
-(:mod:`~jaxapf.engine.components`), and the process's JAX settings (:mod:`~jaxapf.engine.runtime`)."""
+split over devices (:mod:`~jaxapf.engine.devices`), how a sweep fills a backend (:mod:`~jaxapf.engine.policy`),
+the table of the components a setting names (:mod:`~jaxapf.engine.components`), and the process's JAX settings
+(:mod:`~jaxapf.engine.runtime`)."""
 
 from .batch import (
                     ACCELERATOR_WIDTH,
