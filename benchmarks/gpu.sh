@@ -11,15 +11,16 @@
 set -uo pipefail
 cd "$(dirname "$0")/.."
 OUT=${OUT:-benchmarks/results}
+PY=${PYTHON:-python3}  # the interpreter with jaxapf's dependencies (PYTHON=... to choose another)
 mkdir -p "$OUT"
 if compgen -G ".whl/*.whl" > /dev/null; then
-  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl \
+  "$PY" -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl \
     && export PYTHONPATH="/tmp/site:$PWD${PYTHONPATH:+:$PYTHONPATH}" || exit 1
 else
   export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"
 fi
 export PYTHONUNBUFFERED=1
-python3 -c "import jax; print(jax.__version__, jax.devices())"
+"$PY" -c "import jax; print(jax.__version__, jax.devices())"
 if [ "${SMOKE:-0}" = 1 ]; then  # sweeps/quick.toml: short episodes, a small MPC
   QUICK="--spec sweeps/quick.toml --fields 8 --repeats 1"; LARGE="--spec sweeps/quick.toml --fields 16 --repeats 1"
 else
@@ -27,21 +28,21 @@ else
 fi
 
 # the quick start (6,144 episodes): cold and warm, under both policies, phase by phase
-timeout 240 python3 benchmarks/policy.py $QUICK --phases --json "$OUT/policy-gpu.json"
+timeout 240 "$PY" benchmarks/policy.py $QUICK --phases --json "$OUT/policy-gpu.json"
 # the 98,304-episode sweep: compare-small at 8,192 fields per family, the accelerator's policy
-timeout 240 python3 benchmarks/policy.py $LARGE --policy accelerator --json "$OUT/policy-gpu-large.json"
+timeout 240 "$PY" benchmarks/policy.py $LARGE --policy accelerator --json "$OUT/policy-gpu-large.json"
 # compare and tune on the same path, cold compilation cache
 export XDG_CACHE_HOME=$(mktemp -d)
 for step in "compare sweeps/compare-quick.toml" "tune sweeps/tune-tiny.toml"; do
   name=${step%% *}
   start=$(date +%s.%N)
   if [ "${SMOKE:-0}" = 1 ]; then  # the command is there; running it is the figure
-    python3 -m jaxapf ${step%% *} --help > /dev/null; rc=$?
+    "$PY" -m jaxapf ${step%% *} --help > /dev/null; rc=$?
   else
-    timeout 150 python3 -m jaxapf $step --out "$(mktemp -d)/$name" > /dev/null; rc=$?
+    timeout 150 "$PY" -m jaxapf $step --out "$(mktemp -d)/$name" > /dev/null; rc=$?
   fi
   end=$(date +%s.%N)
-  python3 - "$OUT/$name-gpu.json" "$step" "$start" "$end" "$rc" <<'EOF'
+  "$PY" - "$OUT/$name-gpu.json" "$step" "$start" "$end" "$rc" <<'EOF'
 import json, sys
 from jaxapf.bench.engine import environment
 path, step, start, end, rc = sys.argv[1], sys.argv[2], float(sys.argv[3]), float(sys.argv[4]), int(sys.argv[5])

@@ -226,7 +226,8 @@ def test_the_gpu_script_runs_on_a_cpu_in_its_smoke_mode(tmp_path):
     import subprocess
 
     done = subprocess.run(["bash", str(ROOT / "benchmarks" / "gpu.sh")], cwd=ROOT, capture_output=True, text=True,
-                          env={**os.environ, "SMOKE": "1", "OUT": str(tmp_path)}, timeout=900)
+                          env={**os.environ, "SMOKE": "1", "OUT": str(tmp_path), "PYTHON": sys.executable},
+                          timeout=900)
     assert done.returncode == 0, done.stderr[-2000:]
     quick = json.loads((tmp_path / "policy-gpu.json").read_text())
     assert set(quick["policies"]) == {"cpu", "accelerator"}
