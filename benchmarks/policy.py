@@ -26,7 +26,6 @@ Per policy (:mod:`jaxapf.engine.policy`, ``jaxapf sweep --policy``):
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import datetime
 import json
 import os
@@ -135,8 +134,7 @@ def phases(spec_path: pathlib.Path, policy: str) -> dict:
             indices = np.full(block.padded, chunk.start, np.int64)
             indices[: chunk.stop - chunk.start] = np.arange(chunk.start, chunk.stop)
             fields = clock("fields", make_scenarios, spec.seed, spec.family_params(chunk.family), jnp.asarray(indices))
-            flown = fields if plan.obstacle_slots is None else dataclasses.replace(
-                fields, obstacles=fields.obstacles.padded(plan.obstacle_slots))
+            flown = plan.flown(fields)
             gains = runner._variant_gains(plan.variants[chunk.variant])[0]
             static = dict(sim=block.sim, mpc=block.mpc, width=block.width, metrics=plan.metrics,
                           refill=plan.policy.refill)

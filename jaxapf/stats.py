@@ -39,6 +39,7 @@ __all__ = [
     "DEFAULT_RESAMPLES",
     "verdict_basis",
     "verdict_visible",
+    "format_p",
     "wilson_interval",
     "iqm",
     "median",
@@ -895,7 +896,9 @@ def verdicts(lo, hi, p_difference, p_equivalence, margin, higher_is_better,
     return p_holm, p_eq_holm, out
 
 
-def _p_text(p: float) -> str:
+def format_p(p: float) -> str:
+    """A p-value as every table prints it: three decimals, ``<0.001`` below, ``–`` where there is none."""
+    p = float(p)
     return "–" if not math.isfinite(p) else "<0.001" if p < 0.001 else f"{p:.3f}"
 
 
@@ -909,14 +912,13 @@ def verdict_basis(lo: float, hi: float, p_holm: float, p_equivalence_holm: float
     explained here by the adjusted p-value that fell short."""
     found = verdict(lo, hi, p_holm, p_equivalence_holm, margin, higher_is_better, alpha)
     a = f"{alpha:g}"
-    tost = f"TOST p Holm {_p_text(p_equivalence_holm)}"
-    diff = f"p Holm {_p_text(p_holm)}"
+    tost = f"TOST p Holm {format_p(p_equivalence_holm)}"
+    diff = f"p Holm {format_p(p_holm)}"
     if found == "equivalent":
         return f"{tost} ≤ {a}"
-    if found in ("better", "worse"):
-        a_, b_ = (lo, hi) if higher_is_better else (-hi, -lo)
-        inside = margin > 0 and -margin < a_ and b_ < margin  # then why it is not equivalent
-        return f"{diff} ≤ {a}, CI excludes 0" + (f"; {tost} > {a}" if inside else "")
+    if found in ("better", "worse"):  # hidden only where the interval lies inside the margin: why not equivalent
+        shown = verdict_visible(lo, hi, margin, found, higher_is_better)
+        return f"{diff} ≤ {a}, CI excludes 0" + ("" if shown else f"; {tost} > {a}")
     reasons = [f"{tost} > {a}" if margin > 0 and math.isfinite(p_equivalence_holm) else "no margin"
                if margin <= 0 else "no TOST"]
     excludes = lo > 0 or hi < 0

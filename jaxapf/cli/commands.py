@@ -364,10 +364,10 @@ def _simulate(args: argparse.Namespace) -> int:
     params = swarm_params(args.family, **overrides) if swarm else family_params(args.family)
     if chosen:
         args.field = 0 if swarm else defining_field(args.family, args.seed, params)
-        kinds = () if swarm else FAMILIES.get(args.family).kinds
-        if len(kinds) > 1:
-            print(f"note: field {args.field} is the first {FAMILIES.get(args.family).defining} field of "
-                  f"{args.family} at seed {args.seed} (its defining kind; --field N flies another)")
+        family = None if swarm else FAMILIES.get(args.family)
+        if family is not None and len(family.kinds) > 1:
+            print(f"note: field {args.field} is the first {family.defining} field of {args.family} at seed "
+                  f"{args.seed} (its defining kind; --field N flies another)")
     gains = _gains(args)
     check_writable(args.out)
     t_max = args.t_max if args.t_max is not None else params.t_max

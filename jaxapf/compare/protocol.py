@@ -259,11 +259,12 @@ def _test_rates(spec: CompareSpec, summary: pd.DataFrame, tags: list[str]) -> li
 def _why(r: Any) -> str:
     """`` (what decided it)`` after a verdict that does not follow from its interval and margin alone
     (:func:`~jaxapf.stats.verdict_visible`), else nothing."""
-    lo, hi, margin = float(r["delta_lo"]), float(r["delta_hi"]), float(np.nan_to_num(r["margin"], nan=0.0))
-    up = bool(r["higher_is_better"])
+    from ..report.tables import verdict_inputs
+
+    lo, hi, p_holm, p_equivalence_holm, margin, up = verdict_inputs(r)
     if stats.verdict_visible(lo, hi, margin, str(r["verdict"]), up):
         return ""
-    return f" ({stats.verdict_basis(lo, hi, float(r['p_holm']), float(r['p_equivalence_holm']), margin, up)})"
+    return f" ({stats.verdict_basis(lo, hi, p_holm, p_equivalence_holm, margin, up)})"
 
 
 def _verdict_tables(spec: CompareSpec, summary: pd.DataFrame, comparisons: pd.DataFrame, tags: list[str]

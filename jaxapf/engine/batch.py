@@ -85,11 +85,11 @@ def settings_read(gains: Gains, sim: SimConfig) -> tuple[int, Gains]:
                                            gains.only(gains_read(sim)))
 
 
-def default_width(episodes: int | None = None, backend: str | None = None) -> int:
-    """The vmap width for ``backend`` (default: this process's default backend); for a batch of fewer
-    ``episodes``, the smallest power of two that holds them (so a small batch is not padded to a wide
-    batch)."""
-    width = CPU_WIDTH if (backend or jax.default_backend()) == "cpu" else ACCELERATOR_WIDTH
+def default_width(episodes: int | None = None, backend: str | None = None, widest: int | None = None) -> int:
+    """The vmap width for ``backend`` (default: this process's default backend), or ``widest`` (a sweep
+    policy's, :class:`~jaxapf.engine.policy.Policy`); for a batch of fewer ``episodes``, the smallest power
+    of two that holds them (so a small batch is not padded to a wide batch)."""
+    width = widest or (CPU_WIDTH if (backend or jax.default_backend()) == "cpu" else ACCELERATOR_WIDTH)
     return width if episodes is None else min(width, 1 << (max(episodes, 1) - 1).bit_length())
 
 

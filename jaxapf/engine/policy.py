@@ -24,8 +24,9 @@ import dataclasses
 import jax
 
 from ..validation import ConfigError
+from .batch import CPU_WIDTH
 
-__all__ = ["Policy", "CPU", "ACCELERATOR", "POLICIES", "policy_for", "free_memory"]
+__all__ = ["Policy", "CPU", "ACCELERATOR", "POLICIES", "CPU_BUDGET", "policy_for", "free_memory"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,14 +58,16 @@ class Policy:
         the device does not say)."""
         if self.budget is not None:
             return self.budget
-        return max(free // 2, 256 * 2**20) if free else 256 * 2**20
+        return max(free // 2, CPU_BUDGET) if free else CPU_BUDGET
 
     def batch_budget(self, budget: int) -> int:
         """The largest working set of one vmapped batch under a chunk ``budget``."""
         return self.width_budget if self.width_budget is not None else budget // 2
 
 
-CPU = Policy("cpu", refill=True, common_slots=False, width=1024, budget=256 * 2**20, width_budget=128 * 2**20)
+#: The CPU's chunk budget, and the least an accelerator's default takes [bytes].
+CPU_BUDGET = 256 * 2**20
+CPU = Policy("cpu", refill=True, common_slots=False, width=CPU_WIDTH, budget=CPU_BUDGET, width_budget=CPU_BUDGET // 2)
 ACCELERATOR = Policy("accelerator", refill=False, common_slots=True, width=65_536, budget=None, width_budget=None)
 POLICIES = {p.name: p for p in (CPU, ACCELERATOR)}
 

@@ -215,7 +215,6 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
         doc.p(paragraph)
     if len(comparisons):
         doc.p(BOTTOM_LINE_RULE)
-    if len(comparisons):
         doc.h(2, "Verdict matrix")
         doc.p("Every setting against its baseline, per family and pooled, per metric: "
               + ", ".join(f"{VERDICT_MARKS[v]} {v}" for v in stats.VERDICTS)

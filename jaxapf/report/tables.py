@@ -265,13 +265,6 @@ def _with_ci(est: float, lo: float, hi: float, fmt: Callable[[float], str] = _nu
     return f"{fmt(est)}{space}[{fmt(lo)}, {fmt(hi)}]"
 
 
-def _p(v: float) -> str:
-    v = float(v)
-    if not math.isfinite(v):
-        return "–"
-    return "<0.001" if v < 0.001 else f"{v:.3f}"
-
-
 def _signed(v: float, scale: float = 1.0, digits: int = 3) -> str:
     v = float(v) * scale
     if not math.isfinite(v):
@@ -313,12 +306,17 @@ def _delta_text(r: Any, rate: bool) -> str:
     return _with_ci(r["delta"], r["delta_lo"], r["delta_hi"], fmt)
 
 
+def verdict_inputs(r: Any) -> tuple[float, float, float, float, float, bool]:
+    """``(lo, hi, p_holm, p_equivalence_holm, margin, higher_is_better)`` of one row of comparisons, as
+    :func:`~jaxapf.stats.verdict_basis` takes them (no margin: 0)."""
+    return (float(r["delta_lo"]), float(r["delta_hi"]), float(r["p_holm"]), float(r["p_equivalence_holm"]),
+            float(np.nan_to_num(r["margin"], nan=0.0)), bool(r["higher_is_better"]))
+
+
 def _decided_by(r: Any, rate: bool) -> str:
     """:func:`~jaxapf.stats.verdict_basis` of one comparison; for a continuous metric whose medians differ by
     more than the interval of the paired shift allows, also that the test compared paired differences."""
-    basis = stats.verdict_basis(float(r["delta_lo"]), float(r["delta_hi"]), float(r["p_holm"]),
-                                float(r["p_equivalence_holm"]), float(np.nan_to_num(r["margin"], nan=0.0)),
-                                bool(r["higher_is_better"]))
+    basis = stats.verdict_basis(*verdict_inputs(r))
     gap = float(r["value"]) - float(r["baseline_value"])
     if not rate and math.isfinite(gap) and not float(r["delta_lo"]) <= gap <= float(r["delta_hi"]):
         basis += f"; medians differ by {_signed(gap)}, the test compares paired differences"
@@ -340,9 +338,9 @@ def comparison_table(comp: pd.DataFrame, metric: str) -> pd.DataFrame:
             ("Δ pp [CI]" if rate else "HL shift [CI]"): _delta_text(r, rate),
             "verdict": r["verdict"],
             "decided by": _decided_by(r, rate),
-            "p Holm": _p(r["p_holm"]) + (" *" if bool(r["significant"]) else ""),
+            "p Holm": stats.format_p(r["p_holm"]) + (" *" if bool(r["significant"]) else ""),
             "margin": "–" if not math.isfinite(float(r["margin"])) else scale(r["margin"]).lstrip("+"),
-            "p equiv. Holm": _p(r["p_equivalence_holm"]),
+            "p equiv. Holm": stats.format_p(r["p_equivalence_holm"]),
             "MDE": scale(r["mde"]).lstrip("+") if math.isfinite(float(r["mde"])) else "∞",
             "PoI [CI]": _with_ci(r["poi"], r["poi_lo"], r["poi_hi"], lambda v: f"{float(v):.2f}"),
             "test": f"{r['test']} ({r['discordant']})",
@@ -390,7 +388,7 @@ def findings(summary: pd.DataFrame, comparisons: pd.DataFrame, group: str, optio
             unit = "" if rate else f" {find_metric(r['metric']).unit}".rstrip()
             pairs = f"{int(r['n_pairs'])} pairs" + (", both succeed" if r["conditioning"] == "both succeed" else "")
             out.append(f"{r['verdict'].capitalize()}: {r['label']} vs #{int(r['baseline'])}, {r['metric']} "
-                       f"{what}{unit} ({pairs}; p Holm {_p(r['p_holm'])}).")
+                       f"{what}{unit} ({pairs}; p Holm {stats.format_p(r['p_holm'])}).")
     return out
 
 
@@ -420,7 +418,7 @@ BOTTOM_LINE_RULE = ("Rates in %, each setting against its baseline on the same f
 
 
 def _rate_clause(r: Any) -> str:
-    """``success 55.0 vs 57.5 (−2.5 [−4.1, −0.9], worse)``: one rate of one setting against its baseline."""
+    """``success 55.0 vs 57.5 (-2.5 [-4.1, -0.9], worse)``: one rate of one setting against its baseline."""
     return (f"{r['metric']} {_pct(r['value'])} vs {_pct(r['baseline_value'])} ({_signed(r['delta'], 100.0, 2)} "
             f"[{_signed(r['delta_lo'], 100.0, 2)}, {_signed(r['delta_hi'], 100.0, 2)}], {r['verdict']})")
 

@@ -3,7 +3,6 @@ runs chunks yields (:func:`local_results` here; a Ray cluster's workers in :mod:
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any, Iterator, Mapping
 
 import jax
@@ -50,9 +49,7 @@ class ChunkRunner:
         indices[: chunk.stop - chunk.start] = np.arange(chunk.start, chunk.stop)
         make, program = (make_swarms, evaluate_swarms) if plan.spec.swarm else (make_scenarios, evaluate_program)
         fields = make(plan.spec.seed, plan.spec.family_params(chunk.family), jnp.asarray(indices))
-        flown = fields if plan.obstacle_slots is None else dataclasses.replace(
-            fields, obstacles=fields.obstacles.padded(plan.obstacle_slots))  # one program for every family
-        metrics = self.batch.evaluate(flown, self._variant_gains(plan.variants[chunk.variant]), block.sim,
+        metrics = self.batch.evaluate(plan.flown(fields), self._variant_gains(plan.variants[chunk.variant]), block.sim,
                                       block.mpc, block.width, plan.metrics, program, refill=plan.policy.refill)
         return metrics, fields.kind, self._solvable(chunk, fields, block.sim) if plan.spec.oracle else None
 

@@ -349,6 +349,13 @@ class Plan:
         programs = len({_program(self.blocks[(c.variant, c.family)]) for c in self.chunks})
         return run / self.devices, programs * COMPILE_S * self.devices
 
+    def flown(self, fields: Any) -> Any:
+        """A chunk's ``fields`` as the engine flies them: padded to :attr:`obstacle_slots` where the policy
+        shares one program among families."""
+        if self.obstacle_slots is None:
+            return fields
+        return dataclasses.replace(fields, obstacles=fields.obstacles.padded(self.obstacle_slots))
+
     def control_steps(self) -> int:
         """Sequential control steps of the chunks still to run on one device, at most (every episode
         flying its whole ``t_max``): per chunk, the episodes a device flies queued on the streaming
@@ -406,9 +413,13 @@ def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: in
     record their ``.py`` plugins from); ``metrics``: default the registry's; ``policy``: ``--policy``
     (default the backend's, :func:`~jaxapf.engine.policy.policy_for`); ``memory_budget``: default the
     policy's, from ``free`` device memory (default this process's first device's)."""
+    from ..engine import default_width
+
     chosen = policy_for(backend, policy)
     if memory_budget is None:
-        memory_budget = chosen.memory_budget(free if free is not None or backend is not None else free_memory())
+        if chosen.budget is None and free is None and backend is None:  # this process's device says what it has
+            free = free_memory()
+        memory_budget = chosen.memory_budget(free)
     if chunk_fields is not None:
         chunk_fields = check_int("--chunk-fields", chunk_fields, 1)
     devices = devices or jax.local_device_count()
@@ -418,7 +429,7 @@ def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: in
     # the spec only, so every chunking, device count and memory budget uses the same kernels);
     # each (variant, family) narrows it further if its episodes are long (_block)
     needed = max(len(v.simulated) for v in groups) * spec.fields
-    width = width or min(chosen.width, 1 << (max(needed, 1) - 1).bit_length())
+    width = width or default_width(needed, widest=chosen.width)
     # the accelerator's families share one program per variant: every field padded to the largest slot count
     # (a swarm's neighbour slots follow its agents, so swarm families keep their own)
     counts = {spec.family_params(f).max_obstacles for f in spec.families}
