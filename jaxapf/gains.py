@@ -27,7 +27,8 @@ from .registry import Registry, loop_rank
 from .validation import BoundWarning, ConfigError, check_range, check_table, describe_range, read_toml_file
 
 __all__ = ["GainSpec", "GAINS", "declare_gains", "declare_entry_gains", "Gains", "validate_gains",
-           "gains_from_mapping", "load_gains", "read_gains_file", "check_gain_name", "setting_count"]
+           "gains_from_mapping", "load_gains", "read_gains_file", "check_gain_name", "setting_count",
+           "gain_shape", "setting_shape"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,10 +47,14 @@ class GainSpec:
         of the softplus of an unbounded gain), e.g. the paper's bound ``k <= 1``.
       warn_above, warning: values above ``warn_above`` are allowed but break a property the
         paper claims; they raise :class:`~jaxapf.validation.BoundWarning` with ``warning``.
+      shape: the shape of one setting's value: ``()`` for a number; an array-valued gain (a network's
+        parameters, :mod:`jaxapf.planners.learned`) has a shape, a tuple of numbers as its default, the
+        range applying to every entry; it is set by ``--gains`` files and ``jaxapf tune``, not by grids or
+        flags.
     """
 
     name: str
-    default: float
+    default: float | tuple[float, ...]
     low: float | None = None
     high: float | None = None
     low_open: bool = False
@@ -61,6 +66,7 @@ class GainSpec:
     tune_high: float | None = None
     warn_above: float | None = None
     warning: str = ""
+    shape: tuple[int, ...] = ()
 
     @property
     def label(self) -> str:
@@ -71,9 +77,17 @@ class GainSpec:
         return describe_range(self.low, self.high, self.low_open, self.high_open) + (
             f" [{self.unit}]" if self.unit else "")
 
+    @property
+    def value(self) -> float | np.ndarray:
+        """The default as a setting's value: a float, or a float64 array of :attr:`shape`."""
+        return np.asarray(self.default, np.float64).reshape(self.shape) if self.shape else self.default
+
     def check(self, where: str, value: Any) -> np.ndarray:
-        """``value`` as float64 after the range check; warns (:class:`BoundWarning`) above ``warn_above``."""
+        """``value`` as float64 after the range check; warns (:class:`BoundWarning`) above ``warn_above``.
+        An array-valued gain's value must end in its :attr:`shape`."""
         arr = check_range(where, value, self.low, self.high, lo_open=self.low_open, hi_open=self.high_open)
+        if self.shape and arr.shape[arr.ndim - len(self.shape):] != self.shape:
+            raise ConfigError(f"{where} has shape {arr.shape}; this gain holds {_shape_text(self.shape)} numbers")
         if np.any(np.abs(arr) > _FLOAT32_MAX):
             raise ConfigError(f"{where} = {value!r} is too large: gains are computed in float32, whose largest "
                               f"value is {_FLOAT32_MAX:.3g}")
@@ -86,11 +100,28 @@ class GainSpec:
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
+def _shape_text(shape: tuple[int, ...]) -> str:
+    return " x ".join(f"{n:,}" for n in shape)
+
+
 def _describe(spec: GainSpec) -> str:
     unit = f" [{spec.unit}]" if spec.unit else ""
     allowed = describe_range(spec.low, spec.high, spec.low_open, spec.high_open)
     tuned = "tunable (jaxapf tune)" if spec.tunable else "not tuned"
-    return f"{spec.doc}{unit}; default {spec.default:g}; {allowed}; {tuned}"
+    default = f"{_shape_text(spec.shape)} numbers, set by --gains files" if spec.shape else f"default {spec.default:g}"
+    return f"{spec.doc}{unit}; {default}; {allowed}; {tuned}"
+
+
+def gain_shape(name: str) -> tuple[int, ...]:
+    """The shape of one setting's value of gain ``name`` (``()`` for a number or an undeclared name)."""
+    return GAINS.get(name).shape if name in GAINS else ()
+
+
+def setting_shape(name: str, value: Any) -> tuple[int, ...]:
+    """The settings axes of ``value`` of gain ``name``: its leading axes before the gain's own shape
+    (``()`` for one setting, ``(G,)`` for a batch)."""
+    shape = np.shape(value)
+    return shape[:len(shape) - len(gain_shape(name))]
 
 
 #: Where each declared gain is listed (:func:`jaxapf.registry.loop_rank` of the first kind declaring it).
@@ -109,8 +140,7 @@ def declare_gains(*specs: GainSpec, kind: str | None = None) -> tuple[GainSpec, 
         if spec.name in GAINS and GAINS.get(spec.name) != spec:
             raise ConfigError(f"gain {spec.name!r} is declared already with another range or default: "
                               f"{GAINS.get(spec.name)}")
-        check_range(f"gain {spec.name!r} default", spec.default, spec.low, spec.high, lo_open=spec.low_open,
-                    hi_open=spec.high_open)
+        spec.check(f"gain {spec.name!r} default", spec.value)
         _RANK[spec.name] = min(_RANK.get(spec.name, loop_rank(kind)), loop_rank(kind))
         GAINS.register(spec.name, spec)
     return specs
@@ -172,7 +202,7 @@ class Gains(Mapping[str, Any]):
     def __init__(self, **values: Any) -> None:
         validate_gains(values)
         values = _lists_as_arrays(values)
-        merged = {name: values[name] if name in values else spec.default for name, spec in GAINS.items()}
+        merged = {name: values[name] if name in values else spec.value for name, spec in GAINS.items()}
         object.__setattr__(self, "_values", merged)
 
     @classmethod
@@ -201,11 +231,16 @@ class Gains(Mapping[str, Any]):
     def __setattr__(self, name: str, value: Any) -> None:
         raise dataclasses.FrozenInstanceError(f"Gains are immutable; use .replace({name}=...)")
 
+    def _key(self) -> tuple:
+        """The values as a hashable tuple (numpy arrays by dtype, shape and bytes)."""
+        return tuple((k, (v.dtype.str, v.shape, v.tobytes()) if isinstance(v, np.ndarray) else v)
+                     for k, v in self._values.items())
+
     def __eq__(self, other: object) -> bool:
-        return isinstance(other, Gains) and tuple(self._values.items()) == tuple(other._values.items())
+        return isinstance(other, Gains) and self._key() == other._key()
 
     def __hash__(self) -> int:
-        return hash(tuple(self._values.items()))
+        return hash(self._key())
 
     def __repr__(self) -> str:
         return "Gains(" + ", ".join(f"{k}={v!r}" for k, v in self._values.items()) + ")"
@@ -239,13 +274,16 @@ class Gains(Mapping[str, Any]):
         arrays = {}
         for name, values in axes.items():
             spec = check_gain_name("Gains.grid", name)
+            if spec.shape:
+                raise ConfigError(f"Gains.grid: {name} holds {_shape_text(spec.shape)} numbers and is not a grid axis; "
+                                  "give it to Gains(...) or a --gains file")
             arr = np.asarray(values, dtype=np.float64) if _is_user_value(values) else None
             if arr is None or arr.ndim != 1 or arr.size == 0:
                 raise ConfigError(f"Gains.grid: {name} = {values!r} must be a non-empty list of numbers")
             spec.check(gain_key("Gains.grid", name), arr)
             arrays[name] = arr
         columns = dict(zip(arrays, np.array(list(itertools.product(*arrays.values())), np.float64).T))
-        return cls.unchecked({name: columns.get(name, spec.default) for name, spec in GAINS.items()})
+        return cls.unchecked({name: columns.get(name, spec.value) for name, spec in GAINS.items()})
 
     @classmethod
     def paired(cls, **values: Any) -> "Gains":
@@ -276,20 +314,23 @@ class Gains(Mapping[str, Any]):
         dtype = dtype or jnp.result_type(float)
         return jax.tree_util.tree_map(lambda g: jnp.asarray(g, dtype), self)
 
-    def floats(self) -> dict[str, float]:
-        """Scalar gains as plain floats."""
-        return {k: float(np.asarray(v)) for k, v in self._values.items()}
+    def floats(self) -> dict[str, float | list[float]]:
+        """One setting's gains as plain numbers (JSON and TOML): floats, lists of floats for an array-valued
+        gain."""
+        return {k: np.asarray(v, np.float64).tolist() if gain_shape(k) else float(np.asarray(v))
+                for k, v in self._values.items()}
 
 
 def setting_count(gains: Gains, where: str = "gains") -> int:
-    """The number of settings ``G`` a (batched) :class:`Gains` holds: the common length of its 1-D
-    leaves (1 if every leaf is a scalar). Leaves of other lengths or shapes raise
+    """The number of settings ``G`` a (batched) :class:`Gains` holds: the common length of its leaves'
+    settings axis (:func:`setting_shape`; 1 if no leaf has one). Leaves of other lengths or shapes raise
     :class:`ConfigError` (one line): values are paired, not combined (:meth:`Gains.grid` combines)."""
     lengths: dict[str, int] = {}
     for name, value in gains.items():
-        shape = np.shape(value)
+        shape = setting_shape(name, value)
         if len(shape) > 1:
-            raise ConfigError(f"{where}: {name} has shape {shape}; a gain is a number or a 1-D list of settings")
+            raise ConfigError(f"{where}: {name} has shape {np.shape(value)}; a gain is a number or a 1-D list of "
+                              "settings")
         if shape:
             lengths[name] = shape[0]
     if len(set(lengths.values())) > 1:
@@ -304,16 +345,26 @@ def setting_count(gains: Gains, where: str = "gains") -> int:
 def gains_from_mapping(mapping: Mapping[str, Any], where: str = "gains", base: Gains | None = None) -> Gains:
     """:class:`Gains` from ``{name: number}`` on top of ``base`` (default: the declared defaults);
     an unknown name or a value that is not a number raises :class:`ConfigError` naming ``where.name``."""
-    for name, value in mapping.items():
-        check_gain_name(where, name)
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{gain_key(where, name)} = {value!r} must be a number")
-    values = {k: float(v) for k, v in mapping.items()}
+    values = {name: _number(where, name, value) for name, value in mapping.items()}
     validate_gains(values, prefix=where)
     base = base or Gains()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BoundWarning)  # already warned above, under `where`
         return base.replace(**values)
+
+
+def _number(where: str, name: str, value: Any) -> float | list[float]:
+    """``value`` of gain ``name`` as a float, or a list of floats of the gain's shape (unchecked range)."""
+    spec = check_gain_name(where, name)
+    if spec.shape:
+        ok = isinstance(value, list) and all(not isinstance(v, bool) and isinstance(v, (int, float)) for v in value)
+        if not ok or np.shape(value) != spec.shape:
+            shown = f"a list of {len(value)}" if isinstance(value, list) else repr(value)
+            raise ConfigError(f"{gain_key(where, name)} = {shown} must be a list of {_shape_text(spec.shape)} numbers")
+        return [float(v) for v in value]
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(f"{gain_key(where, name)} = {value!r} must be a number")
+    return float(value)
 
 
 def load_gains(path: str | os.PathLike, base: Gains | None = None) -> Gains:
@@ -324,7 +375,7 @@ def load_gains(path: str | os.PathLike, base: Gains | None = None) -> Gains:
         return (base or Gains()).replace(**values)
 
 
-def read_gains_file(path: str | os.PathLike) -> dict[str, float]:
+def read_gains_file(path: str | os.PathLike) -> dict[str, float | list[float]]:
     """The gains a TOML file names, checked: a ``[gains]`` table, or gain keys at the top level (the
     fragment ``jaxapf tune`` writes), not both."""
     data, _ = read_toml_file(path, "gains file")
@@ -337,4 +388,4 @@ def read_gains_file(path: str | os.PathLike) -> dict[str, float]:
     else:
         table = data
     gains_from_mapping(table, where=f"{path}:gains")  # checks names, types and ranges
-    return {k: float(v) for k, v in table.items()}
+    return {k: _number(f"{path}:gains", k, v) for k, v in table.items()}

@@ -75,7 +75,9 @@ def live() -> dict[str, Any]:
         "lists": lists,
         "components": [{"key": key, "list": registry.listed_as, "role": registry.role, "default": defaults[key]}
                        for key, registry in COMPONENTS.items()],
-        "gains": [{"name": n, "doc": s.doc, "unit": s.unit, "default": float(s.default)} for n, s in GAINS.items()],
+        # the gains a --NAME flag sets: the numbers (an array-valued gain comes in a --gains file)
+        "gains": [{"name": n, "doc": s.doc, "unit": s.unit, "default": float(s.default)} for n, s in GAINS.items()
+                  if not s.shape],
         "defaults": {k: defaults[k] for k in ("convention", "dt")},
         "conventions": list(CONVENTIONS),
         "mpc": {"horizon": MPCConfig.horizon, "iters": MPCConfig.iters},

@@ -75,10 +75,11 @@ def _gain_flags(p: argparse.ArgumentParser) -> None:
 
 
 def _gains(args: argparse.Namespace):
-    from ..gains import GAINS, Gains, gains_from_mapping, load_gains
+    from ..gains import Gains, gains_from_mapping, load_gains
 
     base = load_gains(args.gains) if args.gains else Gains()
-    given = {n: getattr(args, f"gain_{n}") for n in GAINS.names() if getattr(args, f"gain_{n}") is not None}
+    flagged = (spec["name"] for spec in _catalog()["gains"])
+    given = {n: getattr(args, f"gain_{n}") for n in flagged if getattr(args, f"gain_{n}") is not None}
     return gains_from_mapping(given, where="--", base=base) if given else base
 
 

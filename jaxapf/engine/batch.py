@@ -21,7 +21,7 @@ from jax import Array
 
 from ..config import MPCConfig, SimConfig
 from ..datatypes import Scenario
-from ..gains import Gains, setting_count
+from ..gains import Gains, setting_count, setting_shape
 from ..metrics import METRICS
 from .components import gains_read
 from .loop import rollout_metrics
@@ -80,9 +80,10 @@ def program(fun: Callable | None = None, *, static_argnames: str | Sequence[str]
 def settings_read(gains: Gains, sim: SimConfig) -> tuple[int, Gains]:
     """``(G, gains)``: the G settings of a batch of ``gains`` (the leading axis of its array leaves, 1 if
     none has one), only the gains ``sim``'s components read, each leaf with the leading axis G."""
-    n_gains = max((jnp.shape(x)[0] for x in jax.tree_util.tree_leaves(gains) if jnp.ndim(x)), default=1)
-    return n_gains, jax.tree_util.tree_map(lambda x: x if jnp.ndim(x) else jnp.full((n_gains,), x),
-                                           gains.only(gains_read(sim)))
+    n_gains = max((setting_shape(k, x)[0] for k, x in gains.items() if setting_shape(k, x)), default=1)
+    read = gains.only(gains_read(sim))
+    return n_gains, Gains.unchecked({k: x if setting_shape(k, x) else jnp.full((n_gains,) + jnp.shape(x), x)
+                                     for k, x in read.items()})
 
 
 def default_width(episodes: int | None = None, backend: str | None = None, widest: int | None = None) -> int:
@@ -166,6 +167,6 @@ def evaluate(scenarios: Scenario, gains: Gains, sim: SimConfig, mpc: MPCConfig, 
     # (a list of a gain no component reads still counts its settings)
     read = gains.only(gains_read(sim))
     out = evaluate_program(scenarios, read, sim, mpc, default_width() if width is None else width, names, streaming)
-    if count > 1 and all(jnp.ndim(x) == 0 for x in jax.tree_util.tree_leaves(read)):
+    if count > 1 and not any(setting_shape(k, x) for k, x in read.items()):
         out = {m: jnp.broadcast_to(v, (count,) + v.shape[1:]) for m, v in out.items()}
     return out

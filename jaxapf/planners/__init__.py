@@ -12,6 +12,7 @@
 :mod:`.velocity_obstacle` velocity obstacles, ORCA (:class:`VelocityObstacle`), planner ``velocity_obstacle``
 :mod:`.mppi`              model predictive path integral control (:class:`MPPI`), planner ``mppi``
 :mod:`.keepout_mpc`       MPC keeping every obstacle out over its horizon (:class:`KeepoutMPC`), planner ``keepout_mpc``
+:mod:`.learned`           a learned weight ω_θ (:class:`LearnedWeight`), planner ``learned_weight``
 ========================  =================================================================
 """
 
@@ -20,6 +21,7 @@ from .base import PLANNERS, Planner, reference_states, register_planner
 from .escape import StallEscape
 from .goal_distance import GoalDistance
 from .keepout_mpc import KeepoutMPC
+from .learned import LearnedWeight
 from .mppi import MPPI
 from .sight import Sight
 from .velocity_obstacle import VelocityObstacle
@@ -28,4 +30,4 @@ from .weights import Basic, Direction, DirectionVelocity, Weight
 
 __all__ = ["Planner", "PLANNERS", "register_planner", "reference_states", "APF", "ForceTerm", "saturate", "Weight",
            "Sight", "Basic", "Direction", "DirectionVelocity", "Vortex",
-           "GoalDistance", "StallEscape", "VelocityObstacle", "MPPI", "KeepoutMPC"]
+           "GoalDistance", "StallEscape", "VelocityObstacle", "MPPI", "KeepoutMPC", "LearnedWeight"]

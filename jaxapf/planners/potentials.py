@@ -128,7 +128,7 @@ def _repulsion(p: Array, v: Array, p_o: Array, v_o: Array, radius: Array | float
     """``ω · U_rep(d)`` of the obstacle(s) at ``p_o`` (see :func:`weighted_repulsive_potential`)."""
     sight = line_of_sight(p, p_o, cylinder)
     d = norm(sight) - radius
-    w = _weight(method)(Sight(sight, v, v_o, p, goal), gains, convention=convention, eps_v=eps_v)
+    w = _weight(method)(Sight(sight, v, v_o, p, goal, d), gains, convention=convention, eps_v=eps_v)
     return w * repulsive_potential(d, gains.k_rep, gains.d_s, d_min)
 
 

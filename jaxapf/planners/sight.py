@@ -52,6 +52,8 @@ class Sight(NamedTuple):
       v_o: obstacle velocity, component-first (3,) or (3, M).
       p: UAV position (3,).
       goal: the goal (3,), or ``None`` where no goal is known (a single obstacle's potential).
+      clearance: the clearance ``d = |s| - radius`` to each obstacle's surface, or ``None`` where the
+        radius is not known (a weight then reads ``|s|``).
     """
 
     s: tuple[Array, Array, Array]
@@ -59,3 +61,4 @@ class Sight(NamedTuple):
     v_o: Array
     p: Array
     goal: Array | None = None
+    clearance: Array | None = None

@@ -29,7 +29,7 @@ def _is_number(value: Any) -> bool:
 def _kind(key: str) -> str:
     """What a setting key takes: ``number``, ``integer``, ``text``, ``boolean`` or ``weight``."""
     if key in GAINS:
-        return "number"
+        return "numbers" if GAINS.get(key).shape else "number"
     if key in AXIS_WEIGHT_KEYS:
         return "weight"
     default = SimConfig().flat()[key] if key in SIM_KEYS else getattr(MPCConfig(), key)
@@ -48,6 +48,7 @@ _KIND_TEXT = {
     "text": "a string",
     "boolean": "true or false",
     "weight": "a number or a list of 3 numbers (x, y, z)",
+    "numbers": "a list of numbers",
 }
 
 
@@ -60,12 +61,15 @@ def _type_ok(kind: str, value: Any) -> bool:
         return isinstance(value, str)
     if kind == "boolean":
         return isinstance(value, bool)
+    if kind == "numbers":
+        return isinstance(value, list) and all(map(_is_number, value))
     return _is_number(value) or (isinstance(value, list) and len(value) == 3 and all(map(_is_number, value)))
 
 
 def check_value(where: str, key: str, value: Any) -> Any:
     """Type- and range-check one value of setting ``key`` found at ``where`` in the spec; returns it
-    normalised (gains and other numbers as float, weights as float or a 3-tuple of floats)."""
+    normalised (gains and other numbers as float, weights as float or a 3-tuple of floats, an array-valued
+    gain as a tuple of floats)."""
     kind = _kind(key)
     if not _type_ok(kind, value):
         raise ConfigError(f"{where} = {value!r} must be {_KIND_TEXT[kind]}")
@@ -73,6 +77,8 @@ def check_value(where: str, key: str, value: Any) -> Any:
         value = float(value)
     elif kind == "weight":
         value = tuple(float(v) for v in value) if isinstance(value, list) else float(value)
+    elif kind == "numbers":  # an array-valued gain, as a tuple (a setting's values are hashable)
+        value = tuple(float(v) for v in value)
     if key in COMPONENTS:
         COMPONENTS[key].get(value, where)
     owner, prefix = ((Gains, "gains") if key in GAINS

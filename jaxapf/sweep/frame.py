@@ -19,14 +19,14 @@ import numpy as np
 
 from ..config import MPC_KEYS, SIM_KEYS, MPCConfig, SimConfig
 from ..engine import default_width, evaluate
-from ..gains import GAINS, Gains, setting_count
+from ..gains import GAINS, Gains, setting_count, setting_shape
 from ..metrics import METRICS
 from ..scenarios import FamilyParams, family_params, make_scenarios
 from ..scenarios import solvable as solvable_fields
 from ..validation import BoundWarning, ConfigError, check_int
 from .plan import Chunk, plan_sweep
 from .schema import part_table, schema
-from .spec import SweepSpec, parse_spec
+from .spec import SweepSpec, only_fixed, parse_spec
 
 __all__ = ["evaluate_frame"]
 
@@ -123,7 +123,11 @@ def _as_spec(params: FamilyParams, gains: Gains, sim: SimConfig, mpc: MPCConfig,
     ``sim``/``mpc`` cannot be written as a sweep's settings."""
     name = params.family
     values = {k: np.asarray(v, np.float64) for k, v in gains.items()}
-    listed = [k for k, v in values.items() if v.ndim]
+    listed = [k for k, v in values.items() if setting_shape(k, v)]
+    for k in listed:
+        only_fixed(f"evaluate_frame: gains.{k}", k)
+    arrays = {k: v.tolist() for k, v in values.items()
+              if GAINS.get(k).shape and v.tolist() != list(GAINS.get(k).default)}
     defaults = {k: spec.default for k, spec in GAINS.items()}
     overrides = _changed(dataclasses.asdict(params), dataclasses.asdict(family_params(name)),
                          [f.name for f in dataclasses.fields(params)])
@@ -133,7 +137,7 @@ def _as_spec(params: FamilyParams, gains: Gains, sim: SimConfig, mpc: MPCConfig,
                      "params": {name: overrides} if overrides else {}},
         "sim": {**_changed(sim.flat(), SimConfig().flat(), SIM_KEYS), "t_max": sim.episode.t_max,
                 **_changed(dataclasses.asdict(mpc), dataclasses.asdict(MPCConfig()), MPC_KEYS)},
-        "gains": {k: float(v) for k, v in values.items() if not v.ndim and float(v) != defaults[k]},
+        "gains": {k: float(v) for k, v in values.items() if not v.ndim and float(v) != defaults[k]} | arrays,
     }
     if listed:
         table["setting"] = [{k: float(values[k][g]) for k in listed} for g in range(count)]

@@ -117,7 +117,7 @@ def variants(spec: SweepSpec) -> list[Variant]:
         first: dict[tuple, int] = {}
         simulated, inverse = [], []
         for j, setting in enumerate(group):
-            key = tuple(float(setting.gains[k]) for k in read)
+            key = tuple(setting.gains[k] for k in read)
             if key not in first:
                 first[key] = len(simulated)
                 simulated.append(j)

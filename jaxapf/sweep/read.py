@@ -143,5 +143,5 @@ def row_config(meta: Mapping[str, Any], row: Mapping[str, Any]) -> RowConfig:
     params = spec.family_params(label)
     overrides = {k: v for k, v in spec.params.get(label, {}).items() if k != "family"}
     return RowConfig(family=params.family, label=label, params=params, overrides=overrides, seed=spec.seed,
-                     field=int(row["field"]), gains=Gains.unchecked(setting.gains), sim=sim, mpc=mpc,
+                     field=int(row["field"]), gains=setting.as_gains(), sim=sim, mpc=mpc,
                      dtype=str(meta["dtype"]))

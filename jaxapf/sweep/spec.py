@@ -26,7 +26,7 @@ import numpy as np
 from ..config import STATIC_KEYS, MPCConfig, SimConfig
 from ..control import scales_set
 from ..engine.components import COMPONENTS
-from ..gains import GAINS, read_gains_file
+from ..gains import GAINS, Gains, read_gains_file
 from ..metrics import METRICS
 from ..scenarios import FAMILIES, FamilyParams
 from ..scenarios.swarms import SWARM_FAMILIES, SwarmParams
@@ -55,16 +55,22 @@ class Setting:
 
     Attributes:
       index: position in :meth:`SweepSpec.settings` (the ``setting`` column).
-      gains: the full gain setting (defaults of :class:`Gains` for keys the spec does not name).
+      gains: the full gain setting (defaults of :class:`Gains` for keys the spec does not name; an
+        array-valued gain as a tuple).
       static: the static settings the spec names (fixed ``[sim]`` values and static grid axes),
         in :data:`STATIC_KEYS` order; everything else keeps its :class:`SimConfig` /
         :class:`MPCConfig` default, except ``t_max``, whose default is the family's.
     """
 
     index: int
-    gains: Mapping[str, float]
+    gains: Mapping[str, float | tuple[float, ...]]
     static: tuple[tuple[str, Any], ...]
     tags: tuple[tuple[str, Any], ...] = ()
+
+    def as_gains(self) -> Gains:
+        """The gains as :class:`Gains` (an array-valued gain, a tuple here so settings compare, as an array)."""
+        return Gains.unchecked({k: np.asarray(v, np.float64) if isinstance(v, tuple) else v
+                                for k, v in self.gains.items()})
 
 
 @dataclasses.dataclass(frozen=True)
@@ -198,7 +204,8 @@ class SweepSpec:
         out = []
         for varied, tags in points:
             values = {**self.sim, **self.gains, **varied}
-            gains = {k: float(values.get(k, spec.default)) for k, spec in GAINS.items()}
+            gains = {k: tuple(values.get(k, spec.default)) if spec.shape else float(values.get(k, spec.default))
+                     for k, spec in GAINS.items()}
             static = tuple((k, values[k]) for k in STATIC_KEYS if k in values)
             out.append(Setting(index=len(out), gains=gains, static=static, tags=tuple(tags)))
         return tuple(out)
@@ -231,14 +238,15 @@ class SweepSpec:
 
     def gain_columns(self) -> tuple[str, ...]:
         """The gains that get a column: those the spec's components (planners, filters, plants, sensors,
-        disturbances) read, and any the spec names, in declaration order."""
+        disturbances) read, and any the spec names, in declaration order; an array-valued gain gets none (it
+        is one value for the whole sweep, in the spec its metadata holds)."""
         return self._gain_columns
 
     @functools.cached_property
     def _gain_columns(self) -> tuple[str, ...]:
         read = {g.name for key, registry in COMPONENTS.items() for name in self.components(key)
                 for g in registry.get(name).gains}
-        return tuple(k for k in GAINS.names() if k in read | self.named_gains())
+        return tuple(k for k in GAINS.names() if k in read | self.named_gains() and not GAINS.get(k).shape)
 
     def named_gains(self) -> set[str]:
         """The gains the spec sets (``[gains]``) or varies (grid, random, explicit settings)."""
@@ -308,12 +316,21 @@ def _schema() -> Table:
 
 def _grid(table: Any, fixed: Mapping[str, str]) -> tuple[tuple[str, tuple[Any, ...]], ...]:
     def check_key(where: str, key: str) -> None:
+        only_fixed(f"{where}.{key}", key)
         if key in fixed:
             raise ConfigError(f"grid.{key} is also set in [{fixed[key]}]; set it in one place")
 
     read = value_grid(check_value, keys=GAINS.names() + STATIC_KEYS, check_key=check_key,
                       empty="grid is empty; give at least one key with a list of values, or remove [grid]")
     return read("grid", table)
+
+
+def only_fixed(where: str, key: str) -> None:
+    """Refuses to vary an array-valued gain (a network's parameters): it is one value for the whole spec,
+    set in ``[gains]`` or a ``--gains`` file, and has no column of its own."""
+    if key in GAINS and GAINS.get(key).shape:
+        raise ConfigError(f"{where}: {key} holds {GAINS.get(key).shape[0]:,} numbers and cannot vary within a "
+                          "sweep; set it in [gains] or a --gains file (one sweep per value)")
 
 
 def _explicit(value: Any, fixed: Mapping[str, str]) -> tuple[tuple, tuple]:
@@ -325,6 +342,7 @@ def _explicit(value: Any, fixed: Mapping[str, str]) -> tuple[tuple, tuple]:
         where = f"setting[{i}]"
         table = check_table(where, table, GAINS.names() + STATIC_KEYS + ("tags",))
         for key in table:
+            only_fixed(f"{where}.{key}", key)
             if key in fixed:
                 raise ConfigError(f"{where}.{key} is also set in [{fixed[key]}]; set it in one place")
         entries.append(tuple((k, check_value(f"{where}.{k}", k, v)) for k, v in table.items() if k != "tags"))
@@ -365,6 +383,7 @@ def _random(table: Any, fixed: Mapping[str, str], grid: Iterable[str]) -> tuple[
         if key not in GAINS:
             raise ConfigError(f"random.{key} is not a gain; only gains can be sampled (allowed: "
                               f"{', '.join(_RANDOM_KEYS + GAINS.names())})")
+        only_fixed(f"random.{key}", key)
         if key in fixed or key in grid:
             raise ConfigError(f"random.{key} is also set in [{fixed.get(key, 'grid')}]; set it in one place")
         ranges.append((key, parse_range(f"random.{key}", key, value)))
@@ -417,7 +436,8 @@ def parse_spec(data: Mapping[str, Any], gains_file: str | os.PathLike | None = N
     random_n, random_seed, ranges = _random(d["random"], fixed, (k for k, _ in grid)) if "random" in d else (0, 0, ())
     if gains_file is not None:
         varied = {k for k, _ in grid} | {k for k, _ in ranges} | {k for entry in explicit for k, _ in entry}
-        gains = {k: v for k, v in {**gains, **read_gains_file(gains_file)}.items() if k not in varied}
+        read = {k: tuple(v) if isinstance(v, list) else v for k, v in read_gains_file(gains_file).items()}
+        gains = {k: v for k, v in {**gains, **read}.items() if k not in varied}
     count = math.prod(len(values) for _, values in grid) * max(random_n, 1) if not explicit else len(explicit)
     if count > MAX_SETTINGS:
         raise ConfigError(f"the spec expands to {count:,} settings (grid product x random.n); at most "

@@ -16,7 +16,7 @@ P, ``train.sigma`` = σ, in the reparametrised coordinates θ):
   variances of the two means over the ``P`` independent pairs (``v_1`` from the pairs' mean pathwise
   gradients, ``v_0`` from their zeroth-order samples, ddof 1; ``P >= 2``): the variance-minimising
   mix; and ``α = 0`` where ``ĝ_1`` lies outside ``ĝ_0``'s 95 % ball (``|ĝ_1 - ĝ_0|² > v_0 χ²_{n,0.95}/n``
-  for ``n`` gains: a pathwise gradient biased by a jump) or is not finite.
+  for ``n`` coordinates of θ: a pathwise gradient biased by a jump) or is not finite.
 
 The perturbations come from ``(train.seed, step, episode)``, so a run is reproducible and a resumed
 one exact. Each estimate costs ``K`` rollouts an episode (``pathwise``: 1), which the tuning budget
@@ -55,8 +55,19 @@ def _chi2_95(n: int) -> float:
     return float(chi2.ppf(0.95, n))
 
 
-def _flat(tree: dict[str, Array], names: tuple[str, ...]) -> Array:
-    return jnp.stack([tree[n] for n in names], axis=-1)
+def _flat(tree: dict[str, Array], names: tuple[str, ...], lead: int = 0) -> Array:
+    """The entries of ``tree`` as one vector of coordinates (after ``lead`` batch axes), ``names`` in order."""
+    return jnp.concatenate([jnp.reshape(tree[n], jnp.shape(tree[n])[:lead] + (-1,)) for n in names], axis=-1)
+
+
+def _unflat(flat: Array, like: dict[str, Array], names: tuple[str, ...]) -> dict[str, Array]:
+    """The inverse of :func:`_flat`: each name's coordinates of ``flat`` (after its batch axes) in ``like``'s shape."""
+    out, at, lead = {}, 0, flat.shape[:-1]
+    for n in names:
+        size = jnp.size(like[n])
+        out[n] = flat[..., at:at + size].reshape(lead + jnp.shape(like[n]))
+        at += size
+    return out
 
 
 def episode_gradient(loss: Loss, theta: dict[str, Array], scenario: Scenario, key: Array, spec: Any
@@ -69,16 +80,17 @@ def episode_gradient(loss: Loss, theta: dict[str, Array], scenario: Scenario, ke
         (value, terms), grad = jax.value_and_grad(loss, has_aux=True)(theta, scenario)
         return value, terms, grad
     names = tuple(theta)
-    eps = jax.random.normal(key, (t.samples, len(names)), _flat(theta, names).dtype)
+    flat = _flat(theta, names)  # the n coordinates of θ (one per gain, a network's many)
+    eps = jax.random.normal(key, (t.samples, flat.shape[0]), flat.dtype)
     signed = jnp.concatenate([eps, -eps])  # (K, n): +ε_p then -ε_p
-    perturbed = {n: theta[n] + t.sigma * signed[:, i] for i, n in enumerate(names)}
+    perturbed = _unflat(flat + t.sigma * signed, theta, names)
     if t.estimator == "zeroth":
         values, terms = jax.vmap(loss, in_axes=(0, None))(perturbed, scenario)
         grads = None
     else:
         (values, terms), grads = jax.vmap(jax.value_and_grad(loss, has_aux=True), in_axes=(0, None))(perturbed,
                                                                                                     scenario)
-        grads = _flat(grads, names)  # (K, n)
+        grads = _flat(grads, names, lead=1)  # (K, n)
     plus, minus = jnp.split(values, 2)
     zo_samples = ((plus - minus) / (2.0 * t.sigma))[:, None] * eps  # (P, n)
     zeroth = jnp.mean(zo_samples, axis=0)
@@ -95,8 +107,8 @@ def episode_gradient(loss: Loss, theta: dict[str, Array], scenario: Scenario, ke
             pairs = 0.5 * sum(jnp.split(grads, 2))  # (P, n): (∇J(θ+σε) + ∇J(θ-σε))/2
             v1 = jnp.sum(jnp.var(pairs, axis=0, ddof=1)) / p
             v0 = jnp.sum(jnp.var(zo_samples, axis=0, ddof=1)) / p
-            near = jnp.sum((first - zeroth) ** 2) <= v0 * _chi2_95(len(names)) / len(names)
+            near = jnp.sum((first - zeroth) ** 2) <= v0 * _chi2_95(flat.shape[0]) / flat.shape[0]
             alpha = jnp.where(finite & near, v0 / jnp.maximum(v0 + v1, jnp.finfo(v0.dtype).tiny), 0.0)
             estimate = alpha * first + (1.0 - alpha) * zeroth
-    grad = {n: estimate[i] for i, n in enumerate(names)}
+    grad = _unflat(estimate, theta, names)
     return jnp.mean(values), {k: jnp.mean(v) for k, v in terms.items()}, grad

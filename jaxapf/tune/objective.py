@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Mapping
+from typing import Any, Mapping
 
 import jax
 import jax.numpy as jnp
@@ -178,22 +178,39 @@ class Reparam:
         ``k`` not strictly inside ``(0, upper)``, ``γ = 0``), where no finite ``θ`` reaches it.
         """
         dtype = dtype or jnp.result_type(float)
-        theta = {}
-        for name in self.names:
-            value = float(np.asarray(gains[name]))
-            low, high = self.bounds(name)
-            if high is not None:
-                if not low < value < high:
-                    raise ConfigError(f"init.{name} = {value!r} must lie strictly inside ({low:g}, {high:g}) to be "
-                                      f"tuned ({name} = {low:g} + ({high:g} - {low:g})·sigmoid(θ))")
-                u = (value - low) / (high - low)
-                theta[name] = math.log(u / (1.0 - u))
-            elif low is not None:
-                floor = self._floor(name)
-                if not value > floor:
-                    raise ConfigError(f"init.{name} = {value!r} must be > {floor:g} to be tuned "
-                                      f"({name} = {floor:g} + softplus(θ))")
-                theta[name] = _softplus_inverse(value - floor)
-            else:
-                theta[name] = value
-        return {n: jnp.asarray(v, dtype) for n, v in theta.items()}
+        return {n: jnp.asarray(np.vectorize(lambda v, n=n: self._theta(n, float(v)), otypes=[np.float64])(
+            np.asarray(gains[n], np.float64)), dtype) for n in self.names}
+
+    def _theta(self, name: str, value: float) -> float:
+        """θ of one number of gain ``name`` (an array-valued gain's entries one by one)."""
+        low, high = self.bounds(name)
+        if high is not None:
+            if not low < value < high:
+                raise ConfigError(f"init.{name} = {value!r} must lie strictly inside ({low:g}, {high:g}) to be "
+                                  f"tuned ({name} = {low:g} + ({high:g} - {low:g})·sigmoid(θ))")
+            u = (value - low) / (high - low)
+            return math.log(u / (1.0 - u))
+        if low is not None:
+            floor = self._floor(name)
+            if not value > floor:
+                raise ConfigError(f"init.{name} = {value!r} must be > {floor:g} to be tuned "
+                                  f"({name} = {floor:g} + softplus(θ))")
+            return _softplus_inverse(value - floor)
+        return value
+
+    def size(self, name: str) -> int:
+        """The coordinates of θ that gain ``name`` takes (1 for a number)."""
+        return math.prod(GAINS.get(name).shape)
+
+    def flatten(self, theta: Mapping[str, Any]) -> np.ndarray:
+        """θ as one float64 vector, the gains in :attr:`names` order (what CMA-ES searches)."""
+        return np.concatenate([np.asarray(theta[n], np.float64).reshape(-1) for n in self.names])
+
+    def unflatten(self, x: Any, dtype: Any = None) -> dict[str, Array]:
+        """The inverse of :meth:`flatten`: θ of a vector ``x``, each gain in its shape."""
+        out, at = {}, 0
+        for n in self.names:
+            size = self.size(n)
+            out[n] = jnp.asarray(np.asarray(x[at:at + size]).reshape(GAINS.get(n).shape), dtype or jnp.float32)
+            at += size
+        return out

@@ -54,8 +54,9 @@ def _json_safe(x: Any) -> Any:
     return x
 
 
-def write_gains_toml(path: pathlib.Path, gains: dict[str, float], comment: str) -> None:
-    """A ``[gains]`` TOML fragment (floats written with ``repr``: exact round trip)."""
+def write_gains_toml(path: pathlib.Path, gains: dict[str, float | list[float]], comment: str) -> None:
+    """A ``[gains]`` TOML fragment (floats written with ``repr``: exact round trip; an array-valued gain as a
+    list of them)."""
     lines = [f"# {line}" for line in comment.splitlines()] + ["[gains]"]
     lines += [f"{name} = {value!r}" for name, value in gains.items()]
     write_atomic(path, "\n".join(lines) + "\n")
@@ -63,12 +64,13 @@ def write_gains_toml(path: pathlib.Path, gains: dict[str, float], comment: str) 
 
 def format_table(table: pd.DataFrame) -> str:
     """The test table as aligned text: rates with 95 % intervals, McNemar p vs default (Holm)."""
-    out = [f"{'family':<10} {'setting':<8} {'n':>5}  {'success [95% CI]':<22} {'p_holm':>7}  "
+    w = max([len("setting"), *map(len, table["setting"])]) + 1
+    out = [f"{'family':<10} {'setting':<{w}} {'n':>5}  {'success [95% CI]':<22} {'p_holm':>7}  "
            f"{'collision [95% CI]':<22} {'p_holm':>7}  {'loss':>7}"]
     for r in table.itertuples():
         rate = lambda o, r=r: f"{getattr(r, o):.3f} [{getattr(r, o + '_lo'):.3f}, {getattr(r, o + '_hi'):.3f}]"
         p = lambda o, r=r: "" if r.setting == "default" else f"{getattr(r, o + '_p_holm'):.3g}"
-        out.append(f"{r.family:<10} {r.setting:<8} {r.n:>5}  {rate('success'):<22} {p('success'):>7}  "
+        out.append(f"{r.family:<10} {r.setting:<{w}} {r.n:>5}  {rate('success'):<22} {p('success'):>7}  "
                    f"{rate('collision'):<22} {p('collision'):>7}  {r.loss:>7.3f}")
     return "\n".join(out)
 
@@ -157,7 +159,8 @@ def _run(spec: TuneSpec, text: str, out: pathlib.Path, quiet: bool) -> dict[str,
     tuned = spec.reparam.gains(state.best_theta)
     write_gains_toml(out / "gains.toml", tuned.floats(),
                      f"jaxapf tune {spec.name}: gains of the best validation loss "
-                     f"({state.best_val_loss:.6g}, step {state.best_step} of {state.step})")
+                     f"({state.best_val_loss:.6g}, step {state.best_step} of {state.step}), trained by the spec "
+                     f"below (digest {digest}):\n" + "\n".join(f"  {line}" for line in text.splitlines()))
     _say(quiet, f"trained {state.step} steps in {state.train_seconds:.1f} s; best validation loss "
                 f"{state.best_val_loss:.4g} at step {state.best_step}")
 

@@ -59,7 +59,7 @@ MAX_HELD_FIELDS = 2**22
 #: Default test families: every randomized family (the paper's two fixed scenarios need their own t_max).
 TEST_FAMILIES: tuple[str, ...] = ("trap", "crossing", "head_on", "overtake", "clutter", "dynamic")
 #: The black-box tuners ``[search] tuners`` may name (:mod:`jaxapf.tune.searches`).
-TUNERS: tuple[str, ...] = ("grid", "random", "cmaes", "tpe")
+TUNERS: tuple[str, ...] = ("grid", "random", "cmaes", "sep_cmaes", "tpe")
 #: Learning-rate schedules: constant, cosine decay to 0 over ``steps``, linear warm-up then cosine.
 SCHEDULES: tuple[str, ...] = ("constant", "cosine", "warmup_cosine")
 
@@ -170,16 +170,18 @@ class SearchSpec:
 
 
 def _drop_newer_gains(tree: Any) -> None:
-    """Remove the gains declared after the tune digest was fixed (the MPPI and keep-out MPC planners')
-    at their defaults from every gains table in ``tree`` (in place)."""
+    """Remove the gains declared after the tune digest was fixed (the MPPI, keep-out MPC and learned-weight
+    planners') at their defaults from every gains table in ``tree`` (in place)."""
     from ..planners.keepout_mpc import KMPC_GAINS
+    from ..planners.learned import OMEGA_PARAMS
     from ..planners.mppi import MPPI_GAINS
 
-    newer = (*MPPI_GAINS, *KMPC_GAINS)
+    newer = (*MPPI_GAINS, *KMPC_GAINS, OMEGA_PARAMS)
     if isinstance(tree, dict):
         if all(g.name in tree for g in newer):
             for g in newer:
-                if tree[g.name] == g.default:
+                value = tuple(tree[g.name]) if isinstance(tree[g.name], list) else tree[g.name]
+                if value == g.default:
                     del tree[g.name]
         for value in tree.values():
             _drop_newer_gains(value)
@@ -335,7 +337,7 @@ def _schema(choices: tuple[str, ...]) -> Table:
 
 
 #: The library each black-box tuner needs beyond the core install (the ``tune`` extra).
-TUNER_PACKAGES: dict[str, str] = {"cmaes": "cmaes", "tpe": "optuna"}
+TUNER_PACKAGES: dict[str, str] = {"cmaes": "cmaes", "sep_cmaes": "cmaes", "tpe": "optuna"}
 
 
 def _tuners(where: str, value: Any) -> tuple[str, ...]:
@@ -414,6 +416,11 @@ def parse_tune_spec(data: Mapping[str, Any], *, base: str | os.PathLike | None =
     sim, mpc = sim_configs(d["sim"], scaled)
     reparam = Reparam(d["tune"].get("params", read_gains(sim)), init, d["tune"]["upper"])
     reparam.theta(init)  # the start must be reachable
+    arrays = [n for n in reparam.names if GAINS.get(n).shape]
+    ranged = [t for t in d["search"].get("tuners", SearchSpec.tuners) if t in ("random", "tpe")]
+    if arrays and ranged:
+        raise ConfigError(f"search.tuners: {ranged[0]} draws each tuned gain from a range, but {arrays[0]} holds "
+                          f"{GAINS.get(arrays[0]).shape[0]:,} numbers; use cmaes or sep_cmaes (and grid) for it")
     grid = tuple((name, tuple(gains_from_mapping({name: v}, "search.grid", reparam.base)[name] for v in values))
                  for name, values in d["search"]["grid"])
     params = dict(d["scenario"])

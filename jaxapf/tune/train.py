@@ -246,10 +246,11 @@ def batch_gradient(theta: dict[str, Array], batch: Scenario, spec: TuneSpec, key
     keys = jax.random.split(jax.random.key(0) if key is None else key, size)
     estimate = partial(episode_gradient, partial(episode_loss, spec=spec), spec=spec)
     loss, terms, grads = jax.vmap(estimate, in_axes=(None, 0, 0))(theta, batch, keys)
-    norms = jnp.sqrt(sum(g * g for g in grads.values()))
+    norms = jnp.sqrt(sum(jnp.sum(jnp.reshape(g * g, (size, -1)), axis=1) for g in grads.values()))
     finite = jnp.isfinite(norms)
     scale = jnp.where(finite, jnp.minimum(1.0, spec.train.episode_clip / jnp.where(finite, norms, 1.0)), 0.0)
-    direction = {k: jnp.mean(jnp.where(finite, g, 0.0) * scale, axis=0) for k, g in grads.items()}
+    each = lambda x, g: jnp.reshape(x, (size,) + (1,) * (g.ndim - 1))  # noqa: E731  (B,) against g (B, ...)
+    direction = {k: jnp.mean(jnp.where(each(finite, g), g, 0.0) * each(scale, g), axis=0) for k, g in grads.items()}
     logs = {"loss": jnp.mean(loss), **{k: jnp.mean(v) for k, v in terms.items()},
             "grad_norm": optax.tree.norm(direction), "grad_norm_median": jnp.median(norms),
             "grad_norm_max": jnp.max(norms), "clipped": jnp.mean(scale < 1.0)}

@@ -157,7 +157,7 @@ def test_a_rollout_reads_only_the_gains_its_planner_declares(method):
     mpc = MPCConfig(horizon=4, iters=5)
     read = gains_read(sim)
     base = _rollout(_scenario(), Gains(), sim, mpc)
-    unread = {n: GAINS.get(n).default * 0.5 + 0.1 for n in GAINS.names() if n not in read}
+    unread = {n: GAINS.get(n).value * 0.5 + 0.1 for n in GAINS.names() if n not in read}
     same = _rollout(_scenario(), Gains().replace(**unread), sim, mpc)
     np.testing.assert_array_equal(np.asarray(same.position), np.asarray(base.position))
     gain = "k_rep" if "k_rep" in read else PLANNERS.get(method).gains[0].name  # the repulsion, or what stands for it

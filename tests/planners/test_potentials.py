@@ -240,7 +240,7 @@ def test_every_normalised_weight_is_one_at_its_reference_condition(gamma, k):
     gains (SPEC 3, fair strength)."""
     from jaxapf.planners.weights import Normalised, reference_sight
 
-    gains = Gains.unchecked({"gamma": jnp.float32(gamma), "k": jnp.float32(k)})
+    gains = Gains.unchecked({**Gains().as_arrays(jnp.float32), "gamma": jnp.float32(gamma), "k": jnp.float32(k)})
     weights = {name: p.weight for name, p in PLANNERS.items() if isinstance(p, APF)}
     assert {"basic", "direction", "direction_velocity", "ge_cui_bounded"} <= set(weights)
     for name, w in weights.items():

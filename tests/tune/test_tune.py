@@ -23,8 +23,9 @@ from jaxapf.validation import BoundWarning, ConfigError
 
 pytestmark = pytest.mark.slow  # module fixtures train and compare for tens of seconds
 
-#: Every tunable gain (the paper's six and those of the planners beyond it).
-TUNABLE = tuple(n for n in Gains.names() if GAINS.get(n).tunable)
+#: Every tunable number (the paper's six gains and those of the planners beyond it; tests/tune/test_array_gains.py
+#: tunes the learned weight's array).
+TUNABLE = tuple(n for n in Gains.names() if GAINS.get(n).tunable and not GAINS.get(n).shape)
 
 #: A tuning problem small enough to train in a second (two families, 6 steps of 2 fields).
 MICRO = {
@@ -135,7 +136,7 @@ def test_reparametrisation_keeps_every_gain_in_range(theta, k_max):
     reparam = Reparam(TUNABLE, Gains(), (("k", k_max),))
     # concrete values: Gains validates them itself too (ConfigError if out of range)
     gains = reparam.gains({n: jnp.float32(t) for n, t in zip(TUNABLE, theta)})
-    values = {n: float(getattr(gains, n)) for n in Gains.names()}
+    values = {n: float(getattr(gains, n)) for n in TUNABLE}
     assert all(math.isfinite(v) for v in values.values())
     assert values["gamma"] >= 0.0
     assert 0.0 <= values["k"] <= k_max * (1 + 1e-6)
@@ -224,7 +225,7 @@ def test_resume_after_a_kill_gives_the_uninterrupted_result(command_run, tmp_pat
 def test_command_writes_loadable_gains_and_a_summary(command_run):
     summary = json.loads((command_run / "summary.json").read_text())
     tuned = load_gains(command_run / "gains.toml")
-    assert {n: getattr(tuned, n) for n in Gains.names()} == summary["gains"]["tuned"]
+    assert tuned.floats() == summary["gains"]["tuned"]
     assert summary["gains"]["default"] == Gains().floats()
     budget = summary["budgets"]
     assert budget["tuning"]["episodes"] == 6 * 2 + 4 * 2
@@ -375,7 +376,7 @@ def _quadratic_report(target: dict[str, float]):
     return report
 
 
-@pytest.mark.parametrize("tuner", ["cmaes", "tpe"])
+@pytest.mark.parametrize("tuner", ["cmaes", "sep_cmaes", "tpe"])
 def test_black_box_tuners_find_a_known_minimum(tuner, tmp_path, monkeypatch):
     """With a loss whose minimum is known (k_rep = 2.5, eta = 0.4, the other gains free), each tuner
     given 600 evaluations ends far closer to it than the start gains, whose loss is ~0.9."""
@@ -391,7 +392,7 @@ def test_black_box_tuners_find_a_known_minimum(tuner, tmp_path, monkeypatch):
     assert start > 0.5 and end < 0.05 * start
 
 
-@pytest.mark.parametrize("tuner", ["cmaes", "tpe"])
+@pytest.mark.parametrize("tuner", ["cmaes", "sep_cmaes", "tpe"])
 def test_an_interrupted_black_box_tuner_resumes_to_the_uninterrupted_result(tuner, tmp_path, monkeypatch):
     """Killed after its second generation or batch, the tuner's rerun (from ``search-NAME.json``) ends with
     the gains an uninterrupted run chose, bit for bit."""
