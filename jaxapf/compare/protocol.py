@@ -36,6 +36,7 @@ import numpy as np
 import pandas as pd
 
 from .. import stats
+from ..gains import GAINS
 from ..io.lock import writing
 from ..io.versions import versions
 from ..validation import ConfigError
@@ -123,7 +124,8 @@ def _run(spec: CompareSpec, text: str, out: pathlib.Path, *, quiet: bool, resamp
         if (seed, method) in mine:
             s = select(spec, method, seed, out / "selection", quiet=quiet)
             _say(quiet, f"selection {method} seed {seed}: {s.chosen} of {s.candidates} ({s.search}), "
-                        f"{s.episodes} episodes in {s.seconds:.1f} s, training success {s.selection_success:.3f}")
+                        f"{s.episodes} episodes in {s.seconds:.1f} s, training success "
+                        + (f"{s.selection_success:.3f}" if math.isfinite(s.selection_success) else "not measured"))
         else:
             s = saved_selection(spec, method, seed, out / "selection")
         selections.append(s)
@@ -141,8 +143,9 @@ def _run(spec: CompareSpec, text: str, out: pathlib.Path, *, quiet: bool, resamp
                     "shard's test parts are there")
         return {"name": spec.name, "shard": list(shard), "selections_done": len(jobs), "selections_missing": 0,
                 "test": {"episodes": result.episodes + result.skipped, "seconds": result.seconds}}
-    table = pd.DataFrame([{k: v for k, v in s.to_json().items() if k != "gains"}
-                          | {g: s.gains[g] for g in spec.method_gains(s.method)} for s in selections])
+    table = pd.DataFrame([{k: v for k, v in s.to_json().items() if k != "gains"}  # arrays: in selection/*.json
+                          | {g: s.gains[g] for g in spec.method_gains(s.method) if not GAINS.get(g).shape}
+                          for s in selections])
     write_atomic(out / "selection.csv", table.to_csv(index=False))
 
     test = test_sweep_spec(spec, selections)
@@ -210,7 +213,7 @@ def compare_markdown(spec: CompareSpec, selections: Sequence[Selection], summary
     tags = [_tag(s) for s in sel.seeds]
     lines = [f"# jaxapf compare — {spec.name}", "",
              f"- methods: {', '.join(spec.methods)}; baseline: {spec.baseline}",
-             f"- selection: {sel.search} search on {', '.join(sel.families)}; budget {sel.budget:,} episode "
+             f"- selection: {_searches(spec)} on {', '.join(sel.families)}; budget {sel.budget:,} episode "
              f"rollouts per method and seed; seeds {', '.join(map(str, sel.seeds))}; searched gains "
              f"{', '.join(sel.gains)} (each method those it reads)",
              f"- test: {spec.test.fields} held-out fields per family of seed {spec.test.seed} on "
@@ -233,10 +236,23 @@ def _selection_tables(spec: CompareSpec, selections: Sequence[Selection]) -> lis
     lines += _md(pd.DataFrame(rows))
     lines += ["## Selected gains", ""]
     gains = [g for g in spec.selection.gains if any(g in spec.method_gains(m) for m in spec.methods)]
-    rows = [{"method": s.method, "seed": s.seed,
-             **{g: (f"{s.gains[g]:.3g}" if g in spec.method_gains(s.method) else "–") for g in gains}}
-            for s in selections]
+    rows = [{"method": s.method, "seed": s.seed, **{g: _gain_text(s, g) if g in spec.method_gains(s.method) else "–"
+                                                    for g in gains}} for s in selections]
     return lines + _md(pd.DataFrame(rows))
+
+
+def _gain_text(s: Selection, gain: str) -> str:
+    """A selected gain in compare.md: the number, or where an array-valued gain's numbers are."""
+    if GAINS.get(gain).shape:
+        return f"{len(s.gains[gain]):,} numbers (selection/{s.method}-seed{s.seed}.json)"
+    return f"{s.gains[gain]:.3g}"
+
+
+def _searches(spec: CompareSpec) -> str:
+    """How the methods' gains were selected, in words: ``random search`` or ``random search (gradient for X)``."""
+    sel = spec.selection
+    other = [f"{how} for {m}" for m, how in sel.searches if how != sel.search]
+    return f"{sel.search} search" + (f" ({'; '.join(other)})" if other else "")
 
 
 def _test_rates(spec: CompareSpec, summary: pd.DataFrame, tags: list[str]) -> list[str]:

@@ -9,6 +9,10 @@ method reads) are chosen by
   every method: two methods try the same ``k_rep`` values.
 - ``grid``: the product of ``[selection.grid]`` over the gains the method reads (defaults first
   if they are a grid point, which they need not be).
+- ``cmaes``, ``sep_cmaes``: ``jaxapf tune``'s CMA-ES (full or separable covariance,
+  :mod:`jaxapf.tune.searches`) from the defaults, ``⌊budget / (λ m)⌋`` generations of ``λ``
+  candidates on ``m`` fresh training fields each (``[selection.cmaes]``); the final mean is chosen
+  (its selection success is not measured: that would cost episodes beyond the budget).
 - ``gradient``: ``jaxapf tune``'s training (:class:`~jaxapf.tune.Tuner`) from the defaults, with
   as many steps as the budget pays for (``steps · fields_per_step`` training episodes plus
   ``(1 + ⌈steps / validate_every⌉) · validation_fields`` validation episodes); early stopping may
@@ -54,7 +58,7 @@ class Selection:
     method: str
     seed: int
     search: str
-    gains: dict[str, float]
+    gains: dict[str, float | list[float]]
     candidates: int
     fields_per_candidate: int
     episodes: int
@@ -75,6 +79,8 @@ def spec_digest(spec: CompareSpec) -> str:
 
     fields = {k: v for k, v in dataclasses.asdict(spec).items()
               if k != "plugin_paths" and not (k == "gains" and not v)}  # no [gains]: the digest it always had
+    fields["selection"] = {k: v for k, v in fields["selection"].items()
+                           if not (k in ("searches", "cmaes") and not v)}  # nor without per-method searches
     t_max = selection_t_max(spec)
     if t_max != SimConfig().episode.t_max:  # selections run at 60 s before the families' own length was read
         fields["selection_t_max"] = t_max
@@ -112,6 +118,10 @@ def tune_spec(spec: CompareSpec, method: str, seed: int, steps: int = 1):
     names = spec.method_gains(method)
     if not names:
         raise TuneError(f"{method} reads none of selection.gains ({', '.join(sel.gains)}): nothing to select")
+    search, cmaes = sel.search_of(method), dict(sel.cmaes)
+    black_box = {"tuners": [search], "cmaes_sigma": cmaes.get("sigma", 1.0), "popsize": cmaes.get("popsize", 0),
+                 "fields_per_setting": cmaes.get("fields_per_candidate", 0)} if search in ("cmaes", "sep_cmaes") else {
+                 "tuners": ["grid"]}  # (a tune spec names its black-box tuners; a compare selection runs one of them)
     data = {
         "name": f"{spec.name}-{method.replace('+', '-')}-seed{seed}",
         "plugins": list(spec.plugins),
@@ -125,6 +135,7 @@ def tune_spec(spec: CompareSpec, method: str, seed: int, steps: int = 1):
         "objective": dict(spec.objective),
         "init": dict(spec.gains),
         "tune": {"params": list(names)},
+        "search": black_box,
     }
     return parse_tune_spec(data, plugin_paths=spec.plugin_paths or None)
 
@@ -193,9 +204,10 @@ def select(spec: CompareSpec, method: str, seed: int, out: pathlib.Path, *, quie
     if saved is not None:
         return saved
     sel = spec.selection
+    search = sel.search_of(method)
     start = time.perf_counter()
-    if sel.search == "gradient":
-        probe = tune_spec(spec, method, seed, 0)
+    if search == "gradient":
+        probe = tune_spec(spec, method, seed, 1)
         t = probe.train
         steps = gradient_steps(sel.budget, t.fields_per_step, probe.validation.fields, t.validate_every)
         if steps < 1:
@@ -207,15 +219,24 @@ def select(spec: CompareSpec, method: str, seed: int, out: pathlib.Path, *, quie
         state = tuner.train(out / f"{method}-seed{seed}", quiet=quiet)
         used = tuning_budget(tspec, state)
         best = next(r for r in state.history if r["step"] == state.best_step and math.isfinite(r["val_loss"]))
-        result = Selection(method, seed, sel.search, tspec.reparam.gains(state.best_theta).floats(), steps,
+        result = Selection(method, seed, search, tspec.reparam.gains(state.best_theta).floats(), steps,
                            t.fields_per_step, used["episodes"], sel.budget, time.perf_counter() - start,
                            float(best["val_success"]), float(best["val_loss"]), f"step {state.best_step}")
+    elif search in ("cmaes", "sep_cmaes"):
+        from ..tune.searches import SEARCHES
+
+        tuner = Tuner(tune_spec(spec, method, seed))
+        subfolder(out / f"{method}-seed{seed}")
+        r = SEARCHES[search](tuner, sel.budget, out / f"{method}-seed{seed}", digest)
+        result = Selection(method, seed, search, r["gains"].floats(), r["settings"], r["fields_per_setting"],
+                           r["episodes"], sel.budget, time.perf_counter() - start, math.nan,
+                           r["last_generation_best_loss"], f"mean after {r['generations']} generations")
     else:
         tuner = Tuner(tune_spec(spec, method, seed))
-        settings = random_candidates(spec, method, seed) if sel.search == "random" else grid_candidates(spec, method)
-        best = select_best(tuner, settings, sel.budget, sel.search)
+        settings = random_candidates(spec, method, seed) if search == "random" else grid_candidates(spec, method)
+        best = select_best(tuner, settings, sel.budget, search)
         chosen = "defaults" if best["gains"] == fixed_gains(spec) else f"candidate {best['index']}"
-        result = Selection(method, seed, sel.search, best["gains"].floats(), best["settings"],
+        result = Selection(method, seed, search, best["gains"].floats(), best["settings"],
                            best["fields_per_setting"], best["episodes"], sel.budget, time.perf_counter() - start,
                            best["selection_success"], best["selection_loss"], chosen)
     _write_json(path, {"spec_digest": digest, "selection": result.to_json()})

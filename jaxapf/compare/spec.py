@@ -21,7 +21,7 @@ from ..gains import GAINS, GainSpec
 from ..planners import PLANNERS
 from ..spec.plugins import check_plugins, load_plugins
 from ..spec.scenario import spec_family_params, variant_names
-from ..spec.schema import OMIT, REQUIRED, SEED, Key, Table, choice, given, integer, spec_name, value_grid
+from ..spec.schema import OMIT, REQUIRED, SEED, Key, Table, choice, given, integer, number, spec_name, value_grid
 from ..spec.settings import RandomRange, check_value, parse_range, setting_values, traced_weights
 from ..tune.spec import MAX_HELD_FIELDS
 from ..validation import (
@@ -35,11 +35,14 @@ from ..validation import (
     read_toml_file,
 )
 
-__all__ = ["SEARCHES", "MIN_SEEDS", "GRADIENT_KEYS", "SelectionSpec", "TestSpec", "CompareSpec", "default_range",
-           "parse_compare_spec", "load_compare_spec"]
+__all__ = ["SEARCHES", "MIN_SEEDS", "GRADIENT_KEYS", "CMAES_KEYS", "SelectionSpec", "TestSpec", "CompareSpec",
+           "default_range", "parse_compare_spec", "load_compare_spec"]
 
 #: How a method's gains are selected on the training fields.
-SEARCHES: tuple[str, ...] = ("random", "grid", "gradient")
+SEARCHES: tuple[str, ...] = ("random", "grid", "gradient", "cmaes", "sep_cmaes")
+#: ``[selection.cmaes]`` keys: CMA-ES's step in θ, its candidates a generation (0: the library's
+#: ``4 + 3 ln n``) and the training fields each candidate flies (0: the gradient search's fields per step).
+CMAES_KEYS: tuple[str, ...] = ("sigma", "popsize", "fields_per_candidate")
 #: Fewest independent selections per method: one selection is an anecdote.
 MIN_SEEDS = 3
 #: ``[selection.gradient]`` keys: those of a tune spec's ``[train]`` that a comparison may set
@@ -65,12 +68,16 @@ class SelectionSpec:
       families: training families or variants (their fields come from each selection seed).
       seeds: independent selection seeds (>= :data:`MIN_SEEDS`): training fields, random draws.
       budget: episode rollouts per method and seed, the same for every method.
-      search: ``random``, ``grid`` or ``gradient`` (:data:`SEARCHES`).
+      search: ``random``, ``grid``, ``gradient``, ``cmaes`` or ``sep_cmaes`` (:data:`SEARCHES`), every
+        method's unless ``searches`` names its own.
+      searches: ``(method, search)`` for the methods searched otherwise (``[selection.searches]``; e.g. a
+        learned weight's thousand parameters by ``gradient`` beside the paper's six gains by ``random``).
       candidates: settings of a random search (the method's defaults are the first).
       gains: the gains searched (a method searches those it reads).
       ranges: ``(gain, range)`` of the random search, one per searched gain.
       grid: ``(gain, values)`` of a grid search.
       gradient: ``(key, value)`` training options of a gradient search (:data:`GRADIENT_KEYS`).
+      cmaes: ``(key, value)`` options of a CMA-ES search (:data:`CMAES_KEYS`).
     """
 
     families: tuple[str, ...]
@@ -82,6 +89,12 @@ class SelectionSpec:
     ranges: tuple[tuple[str, RandomRange], ...] = ()
     grid: tuple[tuple[str, tuple[float, ...]], ...] = ()
     gradient: tuple[tuple[str, Any], ...] = ()
+    searches: tuple[tuple[str, str], ...] = ()
+    cmaes: tuple[tuple[str, Any], ...] = ()
+
+    def search_of(self, method: str) -> str:
+        """How ``method``'s gains are selected."""
+        return dict(self.searches).get(method, self.search)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -203,6 +216,7 @@ def _schema() -> Table:
             "budget": Key(integer(1, MAX_HELD_FIELDS), REQUIRED), "search": Key(choice(SEARCHES), "random"),
             "candidates": Key(integer(1, MAX_SETTINGS), OMIT), "gains": Key(given, OMIT),
             "ranges": Key(given, {}), "grid": Key(given, OMIT), "gradient": Key(given, OMIT),
+            "searches": Key(check_table, {}), "cmaes": Key(given, OMIT),
         }), REQUIRED, "add [selection] with families, seeds and budget"),
         "test": Key(Table({"families": Key(given, REQUIRED), "fields": Key(integer(1, MAX_FIELDS), REQUIRED),
                            "seed": Key(SEED, OMIT)}), REQUIRED, "add [test] with families and fields"),
@@ -213,17 +227,36 @@ def _schema() -> Table:
     })
 
 
-def _selection(d: Mapping[str, Any], choices: tuple[str, ...], read: set[str]) -> SelectionSpec:
+def _selection(d: Mapping[str, Any], choices: tuple[str, ...], read: Mapping[str, set[str]]) -> SelectionSpec:
+    """``[selection]``; ``read``: the gains each compared method reads."""
     families = check_names("selection.families", d["families"], choices, what="family or variant")
     search = d["search"]
-    tunable = tuple(n for n, g in GAINS.items() if g.tunable and n in read)
+    searches = tuple((m, choice(SEARCHES)(f"selection.searches.{m}", v))
+                     for m, v in check_table("selection.searches", d["searches"], tuple(read)).items())
+    used = {search if m not in dict(searches) else dict(searches)[m] for m in read}
+    tunable = tuple(n for n, g in GAINS.items() if g.tunable and n in set().union(*read.values()))
     gains = check_names("selection.gains", d.get("gains", list(tunable)), tunable, what="tunable gain read by "
                         "one of the methods", canonical=True)
-    ranges_in = check_table("selection.ranges", d["ranges"], gains)
+    ranged = [g for g in gains if not GAINS.get(g).shape]  # a network's parameters have no range to draw from
+    for m, names in read.items():
+        arrays = [g for g in gains if g in names and GAINS.get(g).shape]
+        how = dict(searches).get(m, search)
+        if arrays and how in ("random", "grid"):
+            raise ConfigError(f"selection: {m} reads {arrays[0]} ({GAINS.get(arrays[0]).shape[0]:,} numbers), which a "
+                              f"{how} search cannot choose; give it selection.searches.{m} = \"gradient\", "
+                              "\"cmaes\" or \"sep_cmaes\"")
+    ranges_in = check_table("selection.ranges", d["ranges"], ranged)
     ranges = tuple((g, parse_range(f"selection.ranges.{g}", g, ranges_in[g]) if g in ranges_in
-                    else default_range(GAINS.get(g))) for g in gains)
+                    else default_range(GAINS.get(g))) for g in ranged)
+    cmaes = ()
+    if "cmaes" in d:
+        if not used & {"cmaes", "sep_cmaes"}:
+            raise ConfigError("selection.cmaes is for a cmaes or sep_cmaes search (no method's search is one)")
+        table = check_table("selection.cmaes", d["cmaes"], CMAES_KEYS)
+        cmaes = tuple((k, (number(0.0, lo_open=True) if k == "sigma" else integer(0, MAX_SETTINGS))(
+            f"selection.cmaes.{k}", v)) for k, v in table.items())
     grid = ()
-    if search == "grid":
+    if "grid" in used:
         read_grid = value_grid(lambda where, g, v: check_value(where, g, v), keys=gains,
                                empty="selection.grid is empty; a grid search needs values for at least one gain, "
                                      "e.g. grid = { k_rep = [5.0, 10.0, 20.0] }")
@@ -233,13 +266,14 @@ def _selection(d: Mapping[str, Any], choices: tuple[str, ...], read: set[str]) -
         raise ConfigError(f"selection.grid is for search = \"grid\" (this spec's search is {search!r})")
     gradient = ()
     if "gradient" in d:
-        if search != "gradient":
+        if "gradient" not in used:
             raise ConfigError(f"selection.gradient is for search = \"gradient\" (this spec's search is {search!r})")
         gradient = tuple(check_table("selection.gradient", d["gradient"], GRADIENT_KEYS).items())
-    if "candidates" in d and search != "random":
+    if "candidates" in d and "random" not in used:
         raise ConfigError(f"selection.candidates is for search = \"random\" (this spec's search is {search!r})")
     return SelectionSpec(families=families, seeds=d["seeds"], budget=d["budget"], search=search,
-                         candidates=d.get("candidates", 32), gains=gains, ranges=ranges, grid=grid, gradient=gradient)
+                         candidates=d.get("candidates", 32), gains=gains, ranges=ranges, grid=grid, gradient=gradient,
+                         searches=searches, cmaes=cmaes)
 
 
 def parse_compare_spec(data: Mapping[str, Any], *, base: str | os.PathLike | None = None) -> CompareSpec:
@@ -260,7 +294,7 @@ def parse_compare_spec(data: Mapping[str, Any], *, base: str | os.PathLike | Non
     baseline = check_choice("baseline", d.get("baseline", methods[0]), methods)
     tables = d["scenario"]["params"]
     choices = FAMILIES.names() + variant_names(tables)
-    read = set().union(*(_gains_read(sim, _settings(m, methods)) for m in methods))
+    read = {m: _gains_read(sim, _settings(m, methods)) for m in methods}
     selection = _selection(d["selection"], choices, read)
     for gain in d["gains"]:
         if gain in selection.gains:

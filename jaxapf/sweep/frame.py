@@ -26,7 +26,7 @@ from ..scenarios import solvable as solvable_fields
 from ..validation import BoundWarning, ConfigError, check_int
 from .plan import Chunk, plan_sweep
 from .schema import part_table, schema
-from .spec import SweepSpec, only_fixed, parse_spec
+from .spec import SweepSpec, parse_spec
 
 __all__ = ["evaluate_frame"]
 
@@ -124,10 +124,8 @@ def _as_spec(params: FamilyParams, gains: Gains, sim: SimConfig, mpc: MPCConfig,
     name = params.family
     values = {k: np.asarray(v, np.float64) for k, v in gains.items()}
     listed = [k for k, v in values.items() if setting_shape(k, v)]
-    for k in listed:
-        only_fixed(f"evaluate_frame: gains.{k}", k)
     arrays = {k: v.tolist() for k, v in values.items()
-              if GAINS.get(k).shape and v.tolist() != list(GAINS.get(k).default)}
+              if k not in listed and GAINS.get(k).shape and v.tolist() != list(GAINS.get(k).default)}
     defaults = {k: spec.default for k, spec in GAINS.items()}
     overrides = _changed(dataclasses.asdict(params), dataclasses.asdict(family_params(name)),
                          [f.name for f in dataclasses.fields(params)])
@@ -140,7 +138,7 @@ def _as_spec(params: FamilyParams, gains: Gains, sim: SimConfig, mpc: MPCConfig,
         "gains": {k: float(v) for k, v in values.items() if not v.ndim and float(v) != defaults[k]} | arrays,
     }
     if listed:
-        table["setting"] = [{k: float(values[k][g]) for k in listed} for g in range(count)]
+        table["setting"] = [{k: values[k][g].tolist() for k in listed} for g in range(count)]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BoundWarning)  # Gains(...) warned already, where the user wrote it
         spec = parse_spec(table)

@@ -326,11 +326,12 @@ def _grid(table: Any, fixed: Mapping[str, str]) -> tuple[tuple[str, tuple[Any, .
 
 
 def only_fixed(where: str, key: str) -> None:
-    """Refuses to vary an array-valued gain (a network's parameters): it is one value for the whole spec,
-    set in ``[gains]`` or a ``--gains`` file, and has no column of its own."""
+    """Refuses to make an array-valued gain (a network's parameters) a grid or random axis: it has no column
+    of its own, so it is set in ``[gains]``, a ``--gains`` file or ``[[setting]]`` tables (each row's
+    ``setting`` then names it, and the spec in the metadata holds every value)."""
     if key in GAINS and GAINS.get(key).shape:
-        raise ConfigError(f"{where}: {key} holds {GAINS.get(key).shape[0]:,} numbers and cannot vary within a "
-                          "sweep; set it in [gains] or a --gains file (one sweep per value)")
+        raise ConfigError(f"{where}: {key} holds {GAINS.get(key).shape[0]:,} numbers and cannot be a grid or random "
+                          "axis; set it in [gains], a --gains file or [[setting]] tables")
 
 
 def _explicit(value: Any, fixed: Mapping[str, str]) -> tuple[tuple, tuple]:
@@ -342,7 +343,6 @@ def _explicit(value: Any, fixed: Mapping[str, str]) -> tuple[tuple, tuple]:
         where = f"setting[{i}]"
         table = check_table(where, table, GAINS.names() + STATIC_KEYS + ("tags",))
         for key in table:
-            only_fixed(f"{where}.{key}", key)
             if key in fixed:
                 raise ConfigError(f"{where}.{key} is also set in [{fixed[key]}]; set it in one place")
         entries.append(tuple((k, check_value(f"{where}.{k}", k, v)) for k, v in table.items() if k != "tags"))

@@ -178,6 +178,15 @@ def test_gradient_steps_fill_the_budget(budget, per_step, val, every, steps):
                                   "<= 4194304"),
     ({"selection.candidates": 10**9}, "selection.candidates = 1000000000 is out of range"),
     ({"test.fields": 5 * 10**9}, "test.fields = 5000000000 is out of range"),
+    ({"methods": ["basic", "learned_weight"]}, "selection: learned_weight reads omega_params (1,217 numbers), which "
+                                                "a random search cannot choose; give it selection.searches."
+                                                "learned_weight = \"gradient\""),
+    ({"selection.searches": {"vortex": "gradient"}}, "selection.searches.vortex is not a known key"),
+    ({"selection.searches": {"basic": "bayes"}}, "selection.searches.basic = 'bayes' is not allowed"),
+    ({"selection.cmaes": {"sigma": 0.1}}, "selection.cmaes is for a cmaes or sep_cmaes search"),
+    ({"selection.searches": {"basic": "cmaes"}, "selection.cmaes": {"sigma": 0.0}},
+     "selection.cmaes.sigma = 0.0 is out of range"),
+    ({"selection.searches": {"basic": "cmaes"}, "selection.cmaes": {"lambda": 4}}, "selection.cmaes.lambda is not"),
     ({"selection.search": "grid", "selection.grid": {"k_rep": [5.0 + i for i in range(400)],
                                                      "d_s": [2.0 + i for i in range(400)]}},
      "selection.grid expands to 160,000 settings; at most 100,000 are allowed"),
@@ -328,3 +337,30 @@ def test_the_selection_flies_the_families_own_episode_length():
     assert selection_t_max(plain) == 60.0 and spec_digest(plain) == before(plain)
     data["sim"].pop("t_max")
     assert spec_digest(parse_compare_spec(data)) != before(parse_compare_spec(data))
+
+
+def test_each_method_by_its_own_search_under_the_same_budget(tmp_path):
+    """``[selection.searches]``: ``basic`` by random search, ``direction_velocity`` by gradient training and the
+    learned weight's 1,217 parameters by separable CMA-ES, each within the same budget for every seed; the held-out
+    test flies each seed's network (a setting of its own), and compare.md says which search chose what."""
+    spec = _spec(**{"methods": ["basic", "direction_velocity", "learned_weight"],
+                    "selection.searches": {"direction_velocity": "gradient", "learned_weight": "sep_cmaes"},
+                    "selection.gradient": {"fields_per_step": 4, "validation_fields": 4, "validate_every": 2},
+                    "selection.cmaes": {"sigma": 0.1, "popsize": 4, "fields_per_candidate": 2},
+                    "selection.gains": ["k_rep", "gamma", "omega_params"]})
+    assert [spec.selection.search_of(m) for m in spec.methods] == ["random", "gradient", "sep_cmaes"]
+    summary = run_compare_spec(spec, "(test)", tmp_path / "out", quiet=True, resamples=100)
+    chosen = {(s["method"], s["seed"]): s for s in summary["selections"]}
+    assert {s["search"] for s in summary["selections"]} == {"random", "gradient", "sep_cmaes"}
+    assert all(s["episodes"] <= 24 for s in summary["selections"])
+    assert chosen[("learned_weight", 1)]["episodes"] == 24 and chosen[("learned_weight", 1)]["candidates"] == 12
+    nets = [np.asarray(chosen[("learned_weight", seed)]["gains"]["omega_params"]) for seed in (1, 2, 3)]
+    assert all(n.shape == (1217,) for n in nets) and not np.array_equal(nets[0], nets[1])
+    rows = read_sweep(tmp_path / "out" / "test.parquet")[0]
+    learned = rows[rows["method"] == "learned_weight"]
+    assert sorted(learned["selection"].unique()) == ["default", "seed1", "seed2", "seed3"]
+    assert learned.groupby("selection")["setting"].nunique().eq(1).all()  # one setting per seed's network
+    text = (tmp_path / "out" / "compare.md").read_text()
+    assert "random search (gradient for direction_velocity; sep_cmaes for learned_weight)" in text
+    assert "1,217 numbers (selection/learned_weight-seed2.json)" in text
+    assert "omega_params" not in (tmp_path / "out" / "selection.csv").read_text()

@@ -97,16 +97,18 @@ def test_a_learned_weight_trains_its_gains_file_names_its_spec_and_a_sweep_flies
     assert flown == tuple(tuned.tolist())
 
 
-def test_a_sweep_refuses_to_vary_an_array_valued_gain(tmp_path):
+def test_a_sweep_sets_an_array_valued_gain_per_setting_but_not_as_an_axis(tmp_path):
     from jaxapf.sweep import parse_spec
 
     base = {"name": "s", "scenario": {"families": ["crossing"], "fields": 2}}
     values = list(initial_params())
-    for key, table in (("grid", {"omega_params": [values, values]}),
-                       ("setting", [{"omega_params": values}]),
-                       ("random", {"n": 2, "omega_params": [0.0, 1.0]})):
-        with pytest.raises(ConfigError, match="omega_params holds 1,217 numbers and cannot vary within a sweep"):
+    for key, table in (("grid", {"omega_params": [values, values]}), ("random", {"n": 2, "omega_params": [0.0, 1.0]})):
+        with pytest.raises(ConfigError, match="omega_params holds 1,217 numbers and cannot be a grid or random axis"):
             parse_spec(base | {key: table})
+    other = [v + 0.5 for v in values]
+    explicit = parse_spec(base | {"setting": [{"omega_params": values, "method": "learned_weight"},
+                                              {"omega_params": other, "method": "learned_weight"}]})
+    assert [s.gains["omega_params"] for s in explicit.settings()] == [tuple(values), tuple(other)]
     with pytest.raises(ConfigError, match=r"gains.omega_params = \[1.0, 2.0\] must|has shape \(2,\)"):
         parse_spec(base | {"gains": {"omega_params": [1.0, 2.0]}})
     spec = parse_spec(base | {"gains": {"omega_params": values}, "sim": {"method": "learned_weight"}})
