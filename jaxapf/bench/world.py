@@ -16,6 +16,7 @@ r"""What each component costs per scenario-step, against the paper's stack in th
 ``direction_velocity``, ``velocity_obstacle``: another planner in the ideal world
 ``mppi_k64``, ``mppi``, ``mppi_k1024``: MPPI with 64, 256 (its default) and 1,024 samples
 ``keepout_mpc``     the MPC with every obstacle kept out over its horizon (a QP per step)
+``learned_weight``  the paper's potential with the learned weight ω_θ (its default parameters)
 ==================  ==========================================================================
 
 Every variant runs the fixed-length engine (``evaluate(..., streaming=False)``), so each flies
@@ -61,13 +62,15 @@ VARIANTS: dict[str, tuple[dict[str, Any], dict[str, float]]] = {
     "mppi": ({"method": "mppi"}, {}),
     "mppi_k1024": ({"method": "mppi", "mppi_samples": 1024}, {}),
     "keepout_mpc": ({"method": "keepout_mpc"}, {}),
+    "learned_weight": ({"method": "learned_weight"}, {}),
 }
 
 
 def run_world_benchmark(fields: int = 256, steps: int = 200, family: str = "dynamic", method: str = "basic",
                         horizon: int = 20, iters: int = 30, substeps: int = 10, repeats: int = 3,
-                        seed: int = 0) -> dict[str, Any]:
-    """Time every :data:`VARIANTS` entry on the same ``fields`` of ``family`` (module docstring).
+                        seed: int = 0, variants: tuple[str, ...] | None = None) -> dict[str, Any]:
+    """Time every :data:`VARIANTS` entry (or those named in ``variants``, ``ideal`` always first) on the same
+    ``fields`` of ``family`` (module docstring).
 
     Returns a JSON-serialisable dict: ``config``, ``environment`` and per variant ``compile_s``,
     ``run_s``, ``cpu_s``, ``us_per_scenario_step`` and ``ratio`` (to ``ideal``).
@@ -82,7 +85,8 @@ def run_world_benchmark(fields: int = 256, steps: int = 200, family: str = "dyna
     mpc = MPCConfig(horizon=horizon, iters=iters)
     base = SimConfig.from_flat(method=method, t_max=steps * 0.1, substeps=substeps)
     runs, out = {}, {}
-    for name, (static, gains) in VARIANTS.items():
+    chosen = VARIANTS if variants is None else {k: VARIANTS[k] for k in dict.fromkeys(("ideal", *variants))}
+    for name, (static, gains) in chosen.items():
         sim = base.replace(**static)
         batch = jax.tree_util.tree_map(lambda g: jnp.asarray(g, scenarios.start.dtype)[None], Gains(**gains))
         t0 = time.perf_counter()

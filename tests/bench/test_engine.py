@@ -98,3 +98,6 @@ def test_world_benchmark_times_every_component_against_the_ideal_world(capsys):
     for name, v in result["variants"].items():
         assert v["run_s"] > 0 and v["us_per_scenario_step"] == pytest.approx(1e6 * v["run_s"] / 12), name
     assert "quadrotor" in format_world_benchmark(result)
+    some = run_world_benchmark(fields=2, steps=2, horizon=3, iters=2, substeps=2, repeats=1,
+                               variants=("learned_weight", "cbf"))
+    assert list(some["variants"]) == ["ideal", "learned_weight", "cbf"]  # the ideal world first, the baseline

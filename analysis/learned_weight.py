@@ -1,0 +1,233 @@
+"""Study 19: a repulsive weight learned through the closed loop against the paper's.
+
+``jaxapf compare sweeps/learned-weight.toml``: study 17's protocol (its selection families, seeds, budget of
+512 episode rollouts per method and seed, held-out fields of seed 100) with ``learned_weight`` (the paper's
+potential, ω replaced by a 1,217-parameter network ω_θ of cos θ, tanh c and d/d_s; docs/spec.md §3) trained
+by ``jaxapf tune``'s gradient descent, beside the paper's ``basic``, ``direction`` and ``direction_velocity``
+each tuned by study 17's random search. Then the black-box arm, ``sweeps/learned-weight-cmaes.toml``: the
+same network and gains chosen by separable CMA-ES under the same budget, flown on the same held-out fields;
+gradient against black box is paired field by field, seed by seed (the one verdict function, Holm over
+those comparisons). The ceiling is study 17's ``mppi`` and ``keepout_mpc`` on the same held-out fields (its
+facts, not flown again); the cost per control step of each planner is measured here, interleaved
+(``jaxapf.bench.world``). A figure draws each seed's ω_θ beside the paper's ω at its selected γ and k.
+
+    python analysis/learned_weight.py     # both comparisons and the cost, resumable under runs/
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+import shutil
+
+import numpy as np
+import pandas as pd
+import study
+from planner_benchmark import PAPER, SEEDS, _tuned, run_benchmark
+
+NAME = "learned_weight"
+SPEC = "learned-weight.toml"
+BLACK_BOX_SPEC = "learned-weight-cmaes.toml"
+LEARNED = "learned_weight"
+#: The equivalence margin of the gradient-against-black-box verdicts (as studies 12-15).
+MARGIN = 0.02
+#: The planners whose cost per control step is measured (against the ideal world's basic).
+COSTED = ("direction_velocity", "learned_weight", "mppi", "keepout_mpc")
+#: The ceiling: study 17's planners that fly the field, on the same held-out fields.
+CEILING = ("mppi", "keepout_mpc")
+
+
+def _learned_rows(parquet: pathlib.Path) -> pd.DataFrame:
+    from jaxapf.sweep import read_sweep
+
+    rows = read_sweep(parquet)[0]
+    return rows[rows["method"] == LEARNED][["selection", "family", "field", "success", "collision"]]
+
+
+def arm_comparisons(gradient: pd.DataFrame, black_box: pd.DataFrame, groups: list[str]) -> tuple[pd.DataFrame,
+                                                                                                  pd.DataFrame]:
+    """Per seed and group (each test family and ``all``): both arms' success and collision rates, and the
+    gradient arm's success against the black-box arm's on the same fields (verdicts, Holm over all)."""
+    rates, rows = [], []
+    for tag in SEEDS:
+        for group in groups:
+            pick = lambda frame, tag=tag, group=group: (frame[frame["selection"] == tag] if group == "all" else  # noqa: E731
+                                                        frame[(frame["selection"] == tag) & (frame["family"] == group)])
+            a, b = (pick(f).sort_values(["family", "field"]) for f in (gradient, black_box))
+            if not (a[["family", "field"]].to_numpy() == b[["family", "field"]].to_numpy()).all():
+                raise RuntimeError(f"the arms flew different fields for {tag} {group}")
+            for arm, frame in (("gradient", a), ("sep_cmaes", b)):
+                rates.append({"arm": arm, "seed": tag, "group": group, "n": len(frame),
+                              "success": frame["success"].mean(), "collision": frame["collision"].mean()})
+            rows.append({"seed": tag, "group": group, "n": len(a)}
+                        | study.paired_success(a["success"].to_numpy(bool), b["success"].to_numpy(bool), MARGIN))
+    return pd.DataFrame(rates), study.mark_verdicts(rows, MARGIN)
+
+
+def omega_figure(runs: pathlib.Path, out: pathlib.Path) -> dict[str, dict[str, float]]:
+    """Each seed's ω_θ beside the paper's ω at that seed's selected γ, k, over the direction cosine and the
+    closing speed at half the influence distance, each divided by its value abeam at zero closing speed (the
+    overall scale trades against k_rep)."""
+    import jax
+    import jax.numpy as jnp
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import TwoSlopeNorm
+
+    from jaxapf.planners.learned import network
+    from jaxapf.planners.weights import direction_weight, velocity_weight
+
+    cos, closing = np.meshgrid(np.linspace(-1.0, 1.0, 81), np.linspace(-3.0, 3.0, 81))
+    x = jnp.stack([jnp.asarray(cos), jnp.tanh(jnp.asarray(closing)), jnp.full(cos.shape, 0.5)])
+    fig, axes = plt.subplots(2, len(SEEDS), figsize=(3.3 * len(SEEDS), 6.0), sharex=True, sharey=True,
+                             constrained_layout=True)
+    spans = {}
+    for j, tag in enumerate(SEEDS):
+        seed = tag.removeprefix("seed")
+        learned = json.loads((runs / "selection" / f"{LEARNED}-seed{seed}.json").read_text())["selection"]["gains"]
+        paper = json.loads((runs / "selection" / f"{PAPER}-seed{seed}.json").read_text())["selection"]["gains"]
+        theta = jnp.asarray(learned["omega_params"])
+        omega = np.asarray(jax.nn.softplus(network(theta, x)))
+        ref = float(jax.nn.softplus(network(theta, jnp.array([0.0, 0.0, 0.5]))))
+        hand = np.asarray(direction_weight(cos, paper["gamma"]) * velocity_weight(closing, paper["k"]))
+        hand_ref = float(direction_weight(0.0, paper["gamma"]) * velocity_weight(0.0, paper["k"]))
+        spans[tag] = {}
+        for name, values in (("learned", omega / ref), ("paper", hand / hand_ref)):
+            # the slopes: ahead (cos θ = 1) minus behind (-1), averaged over c; closing (c = 3) minus receding (-3)
+            spans[tag] |= {f"{name}_min": float(values.min()), f"{name}_max": float(values.max()),
+                           f"{name}_ahead": float(np.mean(values[:, -1] - values[:, 0])),
+                           f"{name}_closing": float(np.mean(values[-1, :] - values[0, :]))}
+        for i, (values, title) in enumerate(((hand / hand_ref, f"paper's ω, γ = {paper['gamma']:.2f}, "
+                                                              f"k = {paper['k']:.2f}"),
+                                             (omega / ref, "learned ω_θ"))):
+            ax = axes[i, j]
+            image = ax.imshow(values, origin="lower", extent=(-1, 1, -3, 3), aspect="auto", cmap="RdBu_r",
+                              norm=TwoSlopeNorm(vmin=0.4, vcenter=1.0, vmax=2.5))
+            lines = ax.contour(cos, closing, values, levels=(0.5, 0.75, 0.9, 1.1, 1.25, 1.5, 2.0), colors="k",
+                               linewidths=0.6)
+            ax.clabel(lines, fontsize=7)
+            ax.set_title(f"{title} ({tag})", fontsize=9)
+            if i == 1:
+                ax.set_xlabel("cos θ (1: heading at it)")
+            if j == 0:
+                ax.set_ylabel("closing speed c [m/s]")
+    fig.colorbar(image, ax=axes, shrink=0.8, label="ω / ω(abeam, c = 0)")
+    fig.savefig(out / "omega.png", dpi=110)
+    plt.close(fig)
+    return spans
+
+
+def _ceiling() -> dict:
+    return json.loads((study.RESULTS / "flown_planners" / "facts.json").read_text())["success"]
+
+
+def arms(out: pathlib.Path, spec, compute: bool) -> tuple[list[str], dict]:
+    """The black-box arm, the ceiling, the cost per step and the weight's figure: sections and facts (computed,
+    or read back from ``out/arms/`` with ``--facts-only``)."""
+    from jaxapf.compare import load_compare_spec, run_compare_spec
+    from jaxapf.planners.learned import SIZE
+
+    folder = out / "arms"
+    runs = study.ROOT / "runs" / f"compare-{spec.name}"
+    black_runs = study.ROOT / "runs" / "compare-learned-weight-cmaes"
+    summary = pd.read_csv(out / "report" / "summary.csv")
+    groups = [*spec.test.families, "all"]  # (the trap kinds are the report's)
+    if compute:
+        from jaxapf.bench.world import run_world_benchmark
+
+        black_spec, text = load_compare_spec(study.ROOT / "sweeps" / BLACK_BOX_SPEC)
+        run_compare_spec(black_spec, text, black_runs, quiet=True)
+        folder.mkdir(exist_ok=True)
+        shutil.copy(black_runs / "compare.md", folder / "compare_sep_cmaes.md")
+        shutil.copy(black_runs / "selection.csv", folder / "selection_sep_cmaes.csv")
+        rates, comparisons = arm_comparisons(_learned_rows(runs / "test.parquet"),
+                                             _learned_rows(black_runs / "test.parquet"), groups)
+        rates.to_csv(folder / "rates.csv", index=False)
+        comparisons.to_csv(folder / "comparisons.csv", index=False)
+        cost = run_world_benchmark(fields=64, steps=100, variants=COSTED)
+        (folder / "cost.json").write_text(json.dumps(cost, indent=1) + "\n")
+        (folder / "omega.json").write_text(json.dumps(omega_figure(runs, out), indent=1) + "\n")
+    rates, comparisons = pd.read_csv(folder / "rates.csv"), pd.read_csv(folder / "comparisons.csv")
+    cost = json.loads((folder / "cost.json").read_text())["variants"]
+    black_selection = pd.read_csv(folder / "selection_sep_cmaes.csv")
+    selection = pd.read_csv(out / "selection.csv")
+    ceiling = _ceiling()
+    facts: dict = {"arms": {}, "arm_verdict": {}, "arm_all_seeds": {}, "gap_closed": {}, "ceiling": {},
+                   "omega": json.loads((folder / "omega.json").read_text()), "comparisons": len(comparisons),
+                   "cost_us": {k: cost[k]["us_per_scenario_step"] for k in COSTED},
+                   "cost_ratio": {k: cost[k]["us_per_scenario_step"] / cost[PAPER]["us_per_scenario_step"]
+                                  for k in COSTED},
+                   "parameters": SIZE}
+    for arm, frame in (("gradient", selection), ("sep_cmaes", black_selection)):
+        rows = frame[frame["method"] == LEARNED]
+        facts["arms"][arm] = {"episodes": int(rows["episodes"].sum()), "episodes_min": int(rows["episodes"].min()),
+                              "seconds": float(rows["seconds"].sum()), "budget": int(rows["budget"].max())}
+    for arm, part in rates.groupby("arm"):
+        for group, g in part.groupby("group"):
+            facts["arms"][arm].setdefault("success", {})[group] = float(g["success"].mean())
+    for group, g in comparisons.groupby("group"):
+        marks = dict(zip(g["seed"], g["verdict"]))
+        facts["arm_verdict"][group] = marks
+        seen = set(marks.values())
+        facts["arm_all_seeds"][group] = seen.pop() if len(seen) == 1 else "mixed"
+    for group in groups:
+        learned = float(np.mean(_tuned(summary, spec, LEARNED, group, "success_rate")))
+        paper = float(np.mean(_tuned(summary, spec, PAPER, group, "success_rate")))
+        facts["ceiling"][group] = {m: ceiling[group][m] for m in CEILING if group in ceiling}
+        top = ceiling.get(group, {}).get("mppi")
+        facts["gap_closed"][group] = (learned - paper) / (top - paper) if top is not None and top > paper else None
+    return [section(facts, groups)], facts
+
+
+def _pct(x: float) -> str:
+    return f"{100 * x:.1f}"
+
+
+def section(facts: dict, groups: list[str]) -> str:
+    """The study's own findings: the learned weight against the paper's, the black box and the ceiling."""
+    g, b = facts["arms"]["gradient"], facts["arms"]["sep_cmaes"]
+    lines = ["## The learned weight, its black-box control and the ceiling", "",
+             f"Held-out success in %, mean of the three selection seeds. `mppi` and `keepout_mpc` are study 17's "
+             f"(the same held-out fields, not flown again). *Gap closed*: (learned − paper) / (mppi − paper) "
+             f"with both of this study's tuned rates. *vs black box*: the gradient-trained network's success "
+             f"against the separable CMA-ES one's on the same fields, the three seeds' verdicts (Holm over "
+             f"{facts['comparisons']} comparisons, margin {MARGIN:g}).", "",
+             "| group | learned (gradient) | learned (sep. CMA-ES) | vs black box | mppi | keepout_mpc | gap closed |",
+             "|---|---|---|---|---|---|---|"]
+    for group in groups:
+        closed = facts["gap_closed"][group]
+        marks = ", ".join(facts["arm_verdict"][group][s] for s in SEEDS)
+        ceiling = facts["ceiling"].get(group, {})
+        lines.append(f"| {group} | {_pct(g['success'][group])} | {_pct(b['success'][group])} | {marks} | "
+                     f"{_pct(ceiling['mppi']) if 'mppi' in ceiling else '–'} | "
+                     f"{_pct(ceiling['keepout_mpc']) if 'keepout_mpc' in ceiling else '–'} | "
+                     f"{'–' if closed is None else f'{100 * closed:.0f} %'} |")
+    lines += ["", f"Budgets as realised: the gradient arm {g['episodes']:,} episode rollouts in {g['seconds']:.0f} s "
+                  f"over the three seeds, the black-box arm {b['episodes']:,} in {b['seconds']:.0f} s (budget "
+                  f"{g['budget']:,} per seed each).", "",
+              "Cost per control step (µs per scenario-step, 64 fields × 100 steps of `dynamic`, interleaved, fastest "
+              "of three): " + ", ".join(f"`{k}` {facts['cost_us'][k]:.1f} ({facts['cost_ratio'][k]:.1f}× the "
+                                        f"paper's)" for k in COSTED) + ".",
+              "", "What each seed's network learned: over the drawn range (cos θ from −1 to 1, closing speed from −3 "
+                  "to 3 m/s, d = d_s/2) ω_θ divided by its abeam value spans " + ", ".join(
+                      f"{o['learned_min']:.2f}–{o['learned_max']:.2f} ({tag})" for tag, o in facts["omega"].items())
+              + "; the paper's ω at its selected γ and k spans " + ", ".join(
+                  f"{o['paper_min']:.2f}–{o['paper_max']:.2f} ({tag})" for tag, o in facts["omega"].items()) + ".",
+              "", f"![{OMEGA_CAPTION}](omega.png)", "", f"*{OMEGA_CAPTION}*"]
+    return "\n".join(lines)
+
+
+OMEGA_CAPTION = ("Each selection seed's weight over the direction cosine and the closing speed at d = d_s/2, divided "
+                 "by its value abeam at zero closing speed (the overall scale trades against k_rep): top the paper's ω "
+                 "at the γ and k its random search chose, bottom the learned ω_θ")
+
+
+def main() -> None:
+    run_benchmark(__doc__, NAME, SPEC, "Study 19 — a weight learned through the closed loop against the paper's",
+                  extra=arms)
+
+
+if __name__ == "__main__":
+    study.entry(main)
