@@ -137,3 +137,20 @@ def test_it_is_registered_with_its_gains():
         Gains.grid(omega_params=[0.0, 1.0])
     with pytest.raises(ConfigError, match="omega_params has shape"):
         Gains(omega_params=[1.0, 2.0])
+
+
+def test_a_swarm_of_learned_weights_flies_two_uavs_past_each_other():
+    """Two UAVs swapping places, each seeing the other as an obstacle through ω_θ (a trained-looking network:
+    random parameters): finite tracks, both UAVs move, and they keep apart."""
+    from jaxapf.datatypes import Obstacles
+    from jaxapf.datatypes.swarm import Swarm
+    from jaxapf.engine.swarm import swarm_rollout
+
+    swarm = Swarm(start=jnp.asarray([[0.0, 0.0, 2.0], [10.0, 0.3, 2.0]]), goal=jnp.asarray([[10.0, 0.0, 2.0],
+                                                                                      [0.0, 0.3, 2.0]]),
+                  valid=jnp.asarray([True, True]), obstacles=Obstacles.empty(2, jnp.float32))
+    sim = SimConfig.from_flat(method="learned_weight", t_max=20.0)
+    gains = Gains(omega_params=np.asarray(initial_params()) + _random_params(5, 0.2))
+    p = np.asarray(jax.jit(lambda s: swarm_rollout(s, gains, sim, MPC).position)(swarm))
+    assert np.all(np.isfinite(p)) and np.linalg.norm(p[0, -1] - p[0, 0]) > 3.0
+    assert np.min(np.linalg.norm(p[0] - p[1], axis=-1)) > 2 * sim.vehicle.r_uav
