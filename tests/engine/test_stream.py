@@ -35,7 +35,7 @@ def test_every_planner_streams_the_fixed_engines_episodes(method, family):
     state included)."""
     fields = make_scenarios(3, family_params(family), 24)
     two = [Gains(), Gains(gamma=0.5, k_rep=2.0)]
-    gains = Gains.unchecked({n: np.array([float(g[n]) for g in two], np.float32) for n in Gains.names()})
+    gains = Gains.unchecked({n: np.array([np.asarray(g[n], np.float32) for g in two]) for n in Gains.names()})
     sim = _sim(method)
     fixed = evaluate(fields, gains, sim, MPC, width=64, streaming=False)
     streamed = evaluate(fields, gains, sim, MPC, width=64)

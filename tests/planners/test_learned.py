@@ -67,6 +67,7 @@ def test_the_weight_is_positive_for_any_parameters_and_geometry(seed, scale, geo
         assert float(_omega(_random_params(seed, min(scale, 2.0)), p, v, p_o, v_o)) > 0.0
 
 
+@pytest.mark.slow  # closed loops compiled and flown
 def test_the_default_parameters_are_the_classical_potential():
     """θ's default gives ω ≡ 1 wherever the obstacle is, so the planner flies ``basic``'s episodes up to rounding."""
     rng = np.random.default_rng(0)
@@ -94,6 +95,7 @@ def test_an_input_left_out_does_not_move_the_weight():
         LearnedWeight(inputs=("speed",))
 
 
+@pytest.mark.slow  # closed loops compiled and flown
 def test_closed_loop_gradient_in_the_parameters_matches_central_differences():
     """d/dθ of a smooth closed-loop quantity (the mean distance to the goal over a 4 s episode, float64)
     against central differences on coordinates of every layer."""
@@ -118,6 +120,7 @@ def test_closed_loop_gradient_in_the_parameters_matches_central_differences():
         assert np.count_nonzero(grad) > SIZE // 2
 
 
+@pytest.mark.slow  # a closed loop compiled per component
 @pytest.mark.parametrize("flat", [dict(filter="cbf"), dict(sensor="noisy", disturbance="wind"),
                                   dict(plant="quadrotor"), dict(estimator="integral")])
 def test_it_composes_with_the_loop_components(flat):
@@ -139,6 +142,7 @@ def test_it_is_registered_with_its_gains():
         Gains(omega_params=[1.0, 2.0])
 
 
+@pytest.mark.slow  # closed loops compiled and flown
 def test_a_swarm_of_learned_weights_flies_two_uavs_past_each_other():
     """Two UAVs swapping places, each seeing the other as an obstacle through ω_θ (a trained-looking network:
     random parameters): finite tracks, both UAVs move, and they keep apart."""
