@@ -158,3 +158,16 @@ def test_a_swarm_of_learned_weights_flies_two_uavs_past_each_other():
     p = np.asarray(jax.jit(lambda s: swarm_rollout(s, gains, sim, MPC).position)(swarm))
     assert np.all(np.isfinite(p)) and np.linalg.norm(p[0, -1] - p[0, 0]) > 3.0
     assert np.min(np.linalg.norm(p[0] - p[1], axis=-1)) > 2 * sim.vehicle.r_uav
+
+
+def test_the_ablation_spec_trains_variants_that_each_leave_out_one_input(repo_root):
+    """sweeps/learned-weight-ablation.toml: its plugin registers one variant per input, each feeding that input
+    as 0, every arm selected by gradient under the same budget."""
+    from jaxapf.compare import load_compare_spec
+
+    spec, _ = load_compare_spec(repo_root / "sweeps" / "learned-weight-ablation.toml")
+    assert spec.baseline == "learned_weight" and {spec.selection.search_of(m) for m in spec.methods} == {"gradient"}
+    for dropped in FEATURES:
+        weight = PLANNERS.get(f"learned_weight_without_{dropped}").weight
+        assert f"learned_weight_without_{dropped}" in spec.methods
+        assert set(weight.inputs) == set(FEATURES) - {dropped}
