@@ -32,6 +32,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from ..datatypes import Scenario
+from .objective import flatten_theta, unflatten_theta
 
 __all__ = ["ESTIMATORS", "rollouts", "episode_gradient"]
 
@@ -55,21 +56,6 @@ def _chi2_95(n: int) -> float:
     return float(chi2.ppf(0.95, n))
 
 
-def _flat(tree: dict[str, Array], names: tuple[str, ...], lead: int = 0) -> Array:
-    """The entries of ``tree`` as one vector of coordinates (after ``lead`` batch axes), ``names`` in order."""
-    return jnp.concatenate([jnp.reshape(tree[n], jnp.shape(tree[n])[:lead] + (-1,)) for n in names], axis=-1)
-
-
-def _unflat(flat: Array, like: dict[str, Array], names: tuple[str, ...]) -> dict[str, Array]:
-    """The inverse of :func:`_flat`: each name's coordinates of ``flat`` (after its batch axes) in ``like``'s shape."""
-    out, at, lead = {}, 0, flat.shape[:-1]
-    for n in names:
-        size = jnp.size(like[n])
-        out[n] = flat[..., at:at + size].reshape(lead + jnp.shape(like[n]))
-        at += size
-    return out
-
-
 def episode_gradient(loss: Loss, theta: dict[str, Array], scenario: Scenario, key: Array, spec: Any
                      ) -> tuple[Array, dict[str, Array], dict[str, Array]]:
     """``(loss, terms, gradient)`` of one episode by ``spec.train.estimator`` (a
@@ -80,17 +66,18 @@ def episode_gradient(loss: Loss, theta: dict[str, Array], scenario: Scenario, ke
         (value, terms), grad = jax.value_and_grad(loss, has_aux=True)(theta, scenario)
         return value, terms, grad
     names = tuple(theta)
-    flat = _flat(theta, names)  # the n coordinates of θ (one per gain, a network's many)
+    flat = flatten_theta(theta, names)  # the n coordinates of θ (one per gain, a network's many)
+    shapes = {n: jnp.shape(theta[n]) for n in names}
     eps = jax.random.normal(key, (t.samples, flat.shape[0]), flat.dtype)
     signed = jnp.concatenate([eps, -eps])  # (K, n): +ε_p then -ε_p
-    perturbed = _unflat(flat + t.sigma * signed, theta, names)
+    perturbed = unflatten_theta(flat + t.sigma * signed, shapes, names)
     if t.estimator == "zeroth":
         values, terms = jax.vmap(loss, in_axes=(0, None))(perturbed, scenario)
         grads = None
     else:
         (values, terms), grads = jax.vmap(jax.value_and_grad(loss, has_aux=True), in_axes=(0, None))(perturbed,
                                                                                                     scenario)
-        grads = _flat(grads, names, lead=1)  # (K, n)
+        grads = flatten_theta(grads, names, lead=1)  # (K, n)
     plus, minus = jnp.split(values, 2)
     zo_samples = ((plus - minus) / (2.0 * t.sigma))[:, None] * eps  # (P, n)
     zeroth = jnp.mean(zo_samples, axis=0)
@@ -110,5 +97,5 @@ def episode_gradient(loss: Loss, theta: dict[str, Array], scenario: Scenario, ke
             near = jnp.sum((first - zeroth) ** 2) <= v0 * _chi2_95(flat.shape[0]) / flat.shape[0]
             alpha = jnp.where(finite & near, v0 / jnp.maximum(v0 + v1, jnp.finfo(v0.dtype).tiny), 0.0)
             estimate = alpha * first + (1.0 - alpha) * zeroth
-    grad = _unflat(estimate, theta, names)
+    grad = unflatten_theta(estimate, shapes, names)
     return jnp.mean(values), {k: jnp.mean(v) for k, v in terms.items()}, grad

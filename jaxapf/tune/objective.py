@@ -104,6 +104,23 @@ def surrogate_loss(terms: Mapping[str, Array], objective: Objective) -> Array:
 # --------------------------------------------------------------------------------------------
 
 
+def flatten_theta(theta: Mapping[str, Any], names: tuple[str, ...], lead: int = 0) -> Array:
+    """θ's entries as one vector of coordinates (after ``lead`` batch axes), ``names`` in order: what the
+    perturbed gradient estimators perturb and CMA-ES searches (a number is one coordinate, a network many)."""
+    return jnp.concatenate([jnp.reshape(theta[n], jnp.shape(theta[n])[:lead] + (-1,)) for n in names], axis=-1)
+
+
+def unflatten_theta(flat: Array, shapes: Mapping[str, tuple[int, ...]], names: tuple[str, ...]) -> dict[str, Array]:
+    """The inverse of :func:`flatten_theta`: each name's coordinates of ``flat`` (after its batch axes) in its
+    shape."""
+    out, at, lead = {}, 0, flat.shape[:-1]
+    for n in names:
+        size = math.prod(shapes[n])
+        out[n] = flat[..., at:at + size].reshape(lead + tuple(shapes[n]))
+        at += size
+    return out
+
+
 def _softplus_inverse(y: float) -> float:
     """``θ`` with ``softplus(θ) = y > 0``: ``y + log(-expm1(-y))`` (stable for large and small y)."""
     return y + math.log(-math.expm1(-y))
@@ -198,19 +215,11 @@ class Reparam:
             return _softplus_inverse(value - floor)
         return value
 
-    def size(self, name: str) -> int:
-        """The coordinates of θ that gain ``name`` takes (1 for a number)."""
-        return math.prod(GAINS.get(name).shape)
-
     def flatten(self, theta: Mapping[str, Any]) -> np.ndarray:
         """θ as one float64 vector, the gains in :attr:`names` order (what CMA-ES searches)."""
-        return np.concatenate([np.asarray(theta[n], np.float64).reshape(-1) for n in self.names])
+        return np.asarray(flatten_theta(theta, self.names), np.float64)
 
     def unflatten(self, x: Any, dtype: Any = None) -> dict[str, Array]:
         """The inverse of :meth:`flatten`: θ of a vector ``x``, each gain in its shape."""
-        out, at = {}, 0
-        for n in self.names:
-            size = self.size(n)
-            out[n] = jnp.asarray(np.asarray(x[at:at + size]).reshape(GAINS.get(n).shape), dtype or jnp.float32)
-            at += size
-        return out
+        return unflatten_theta(jnp.asarray(x, dtype or jnp.float32), {n: GAINS.get(n).shape for n in self.names},
+                               self.names)
