@@ -9,9 +9,12 @@ same network and gains chosen by separable CMA-ES under the same budget, flown o
 gradient against black box is paired field by field, seed by seed (the one verdict function, Holm over
 those comparisons). The ceiling is study 17's ``mppi`` and ``keepout_mpc`` on the same held-out fields (its
 facts, not flown again); the cost per control step of each planner is measured here, interleaved
-(``jaxapf.bench.world``). A figure draws each seed's ω_θ beside the paper's ω at its selected γ and k.
+(``jaxapf.bench.world``). A figure draws each seed's ω_θ beside the paper's ω at its selected γ and k. Every
+selection is flown again on the paper's own two scenarios, families no selection saw. The input ablation,
+``sweeps/learned-weight-ablation.toml``, retrains the network with each input fed as 0 under the same budget.
 
-    python analysis/learned_weight.py     # both comparisons and the cost, resumable under runs/
+    python analysis/learned_weight.py     # the three comparisons, the held-out families and the cost, resumable
+                                          # under runs/
 """
 
 from __future__ import annotations
@@ -23,12 +26,20 @@ import shutil
 import numpy as np
 import pandas as pd
 import study
-from planner_benchmark import PAPER, SEEDS, _tuned, run_benchmark
+from planner_benchmark import PAPER, SEEDS, _tuned, _unanimous, leaderboard, run_benchmark
+from planner_benchmark import facts as benchmark_facts
 
 NAME = "learned_weight"
 SPEC = "learned-weight.toml"
 BLACK_BOX_SPEC = "learned-weight-cmaes.toml"
+ABLATION_SPEC = "learned-weight-ablation.toml"
 LEARNED = "learned_weight"
+#: The held-out families: the paper's own two scenarios, which no selection flies (``paper_static`` one fixed
+#: field unless jittered: 10 cm on every centre, as study 1).
+HELD_OUT = {"paper_static": {"jitter": 0.1}, "paper_dynamic": {}}
+#: What the ablation leaves out, one input at a time (its spec's plugin registers the planners), and the
+#: symbol a table heads it with.
+INPUTS = {"direction": "cos θ", "closing": "c", "clearance": "d/d_s"}
 #: The equivalence margin of the gradient-against-black-box verdicts (as studies 12-15).
 MARGIN = 0.02
 #: The planners whose cost per control step is measured (against the ideal world's basic).
@@ -37,30 +48,33 @@ COSTED = ("direction_velocity", "learned_weight", "mppi", "keepout_mpc")
 CEILING = ("mppi", "keepout_mpc")
 
 
-def _learned_rows(parquet: pathlib.Path) -> pd.DataFrame:
+def _rows(parquet: pathlib.Path, method: str = LEARNED) -> pd.DataFrame:
     from jaxapf.sweep import read_sweep
 
     rows = read_sweep(parquet)[0]
-    return rows[rows["method"] == LEARNED][["selection", "family", "field", "success", "collision"]]
+    return rows[rows["method"] == method][["selection", "family", "field", "success", "collision"]]
 
 
-def arm_comparisons(gradient: pd.DataFrame, black_box: pd.DataFrame, groups: list[str]) -> tuple[pd.DataFrame,
-                                                                                                  pd.DataFrame]:
-    """Per seed and group (each test family and ``all``): both arms' success and collision rates, and the
-    gradient arm's success against the black-box arm's on the same fields (verdicts, Holm over all)."""
+def paired_arms(arms: dict[str, pd.DataFrame], groups: list[str]) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Per seed and group (each test family and ``all``): every arm's success and collision rates, and the
+    first arm's success against each other arm's on the same fields (verdicts, Holm over all of them)."""
+    first = next(iter(arms))
     rates, rows = [], []
     for tag in SEEDS:
         for group in groups:
             pick = lambda frame, tag=tag, group=group: (frame[frame["selection"] == tag] if group == "all" else  # noqa: E731
                                                         frame[(frame["selection"] == tag) & (frame["family"] == group)])
-            a, b = (pick(f).sort_values(["family", "field"]) for f in (gradient, black_box))
-            if not (a[["family", "field"]].to_numpy() == b[["family", "field"]].to_numpy()).all():
-                raise RuntimeError(f"the arms flew different fields for {tag} {group}")
-            for arm, frame in (("gradient", a), ("sep_cmaes", b)):
+            frames = {arm: pick(frame).sort_values(["family", "field"]) for arm, frame in arms.items()}
+            a = frames[first]
+            for arm, frame in frames.items():
+                if not (a[["family", "field"]].to_numpy() == frame[["family", "field"]].to_numpy()).all():
+                    raise RuntimeError(f"the arms {first} and {arm} flew different fields for {tag} {group}")
                 rates.append({"arm": arm, "seed": tag, "group": group, "n": len(frame),
                               "success": frame["success"].mean(), "collision": frame["collision"].mean()})
-            rows.append({"seed": tag, "group": group, "n": len(a)}
-                        | study.paired_success(a["success"].to_numpy(bool), b["success"].to_numpy(bool), MARGIN))
+                if arm != first:
+                    rows.append({"arm": arm, "seed": tag, "group": group, "n": len(a)}
+                                | study.paired_success(a["success"].to_numpy(bool), frame["success"].to_numpy(bool),
+                                                       MARGIN))
     return pd.DataFrame(rates), study.mark_verdicts(rows, MARGIN)
 
 
@@ -123,27 +137,35 @@ def _ceiling() -> dict:
     return json.loads((study.RESULTS / "flown_planners" / "facts.json").read_text())["success"]
 
 
+def _run_comparison(spec_file: str, folder: pathlib.Path, suffix: str = "") -> pathlib.Path:
+    """``jaxapf compare sweeps/<spec_file>`` into ``runs/compare-NAME`` (resuming what is there); its
+    ``compare.md`` and ``selection.csv`` copied into ``folder`` (names ending in ``suffix``). Returns the run."""
+    from jaxapf.compare import load_compare_spec, run_compare_spec
+
+    spec, text = load_compare_spec(study.ROOT / "sweeps" / spec_file)
+    runs = study.ROOT / "runs" / f"compare-{spec.name}"
+    run_compare_spec(spec, text, runs, quiet=True)
+    folder.mkdir(exist_ok=True)
+    shutil.copy(runs / "compare.md", folder / f"compare{suffix}.md")
+    shutil.copy(runs / "selection.csv", folder / f"selection{suffix}.csv")
+    return runs
+
+
 def arms(out: pathlib.Path, spec, compute: bool) -> tuple[list[str], dict]:
     """The black-box arm, the ceiling, the cost per step and the weight's figure: sections and facts (computed,
     or read back from ``out/arms/`` with ``--facts-only``)."""
-    from jaxapf.compare import load_compare_spec, run_compare_spec
     from jaxapf.planners.learned import SIZE
 
     folder = out / "arms"
     runs = study.ROOT / "runs" / f"compare-{spec.name}"
-    black_runs = study.ROOT / "runs" / "compare-learned-weight-cmaes"
     summary = pd.read_csv(out / "report" / "summary.csv")
     groups = [*spec.test.families, "all"]  # (the trap kinds are the report's)
     if compute:
         from jaxapf.bench.world import run_world_benchmark
 
-        black_spec, text = load_compare_spec(study.ROOT / "sweeps" / BLACK_BOX_SPEC)
-        run_compare_spec(black_spec, text, black_runs, quiet=True)
-        folder.mkdir(exist_ok=True)
-        shutil.copy(black_runs / "compare.md", folder / "compare_sep_cmaes.md")
-        shutil.copy(black_runs / "selection.csv", folder / "selection_sep_cmaes.csv")
-        rates, comparisons = arm_comparisons(_learned_rows(runs / "test.parquet"),
-                                             _learned_rows(black_runs / "test.parquet"), groups)
+        black_runs = _run_comparison(BLACK_BOX_SPEC, folder, "_sep_cmaes")
+        rates, comparisons = paired_arms({"gradient": _rows(runs / "test.parquet"),
+                                          "sep_cmaes": _rows(black_runs / "test.parquet")}, groups)
         rates.to_csv(folder / "rates.csv", index=False)
         comparisons.to_csv(folder / "comparisons.csv", index=False)
         cost = run_world_benchmark(fields=64, steps=100, variants=COSTED)
@@ -178,7 +200,119 @@ def arms(out: pathlib.Path, spec, compute: bool) -> tuple[list[str], dict]:
         facts["ceiling"][group] = {m: ceiling[group][m] for m in CEILING if group in ceiling}
         top = ceiling.get(group, {}).get("mppi")
         facts["gap_closed"][group] = (learned - paper) / (top - paper) if top is not None and top > paper else None
-    return [section(facts, groups)], facts
+    families, facts["held_out"] = held_out(out, spec, compute)
+    text, facts["ablation"] = ablation(out, spec, summary, groups, compute)
+    return [section(facts, groups), families, text], facts
+
+
+def held_out(out: pathlib.Path, spec, compute: bool) -> tuple[str, dict]:
+    """Every selection of the comparison (defaults and the three seeds' choices) flown on :data:`HELD_OUT`,
+    families no selection saw, with the test's fields per family and seed; reported against ``basic`` and
+    against the paper's method of the same selection, as the held-out fields are (facts of the same shape)."""
+    import dataclasses
+
+    from jaxapf.compare.protocol import baseline_filter, test_sweep_spec
+    from jaxapf.compare.select import saved_selection
+
+    held = dataclasses.replace(spec, test=dataclasses.replace(spec.test, families=tuple(HELD_OUT)),
+                               params={**spec.params, **HELD_OUT})
+    if compute:
+        from jaxapf.sweep import run_sweep
+
+        runs = study.ROOT / "runs" / f"compare-{spec.name}"
+        selections = [saved_selection(spec, m, seed, runs / "selection") for seed in spec.selection.seeds
+                      for m in spec.methods]
+        parquet = runs / "held_out.parquet"
+        run_sweep(test_sweep_spec(held, selections), parquet, quiet=True)
+        for folder, base in (("held_out/report", spec), ("held_out/report_vs_paper",
+                                                        dataclasses.replace(spec, baseline=PAPER))):
+            study.report(parquet, out, resamples=2000, folder=folder, baseline=baseline_filter(base),
+                         pair_on=("selection",), heatmap=None)
+    vs_basic, vs_paper = (study.committed_report(out, f) for f in ("held_out/report", "held_out/report_vs_paper"))
+    facts = benchmark_facts(held, vs_basic.summary, vs_basic.comparisons, vs_paper.comparisons,
+                            pd.read_csv(out / "selection.csv"))
+    board = leaderboard(held, vs_basic.summary, vs_basic.comparisons, vs_paper.comparisons)
+    intro = ("## On families no selection saw: the paper's scenarios\n\nEvery selection above flown on the paper's "
+             f"own two scenarios, {spec.test.fields} fields each of the test seed (`paper_static` with a 10 cm jitter "
+             "of every centre): no selection flew them. Full reports: [`held_out/report/report.md`]"
+             "(held_out/report/report.md) (against `basic`), [`held_out/report_vs_paper/report.md`]"
+             "(held_out/report_vs_paper/report.md) (against `direction_velocity`).")
+    return intro + board.removeprefix("## Leaderboard"), facts
+
+
+def ablation(out: pathlib.Path, spec, summary: pd.DataFrame, groups: list[str], compute: bool) -> tuple[str, dict]:
+    """The input ablation (``sweeps/learned-weight-ablation.toml``): the network retrained with each input fed
+    as 0, under the same budget and held-out fields. Its facts: each arm's realised budget, success and
+    collisions; the full network's success against each variant's, seed by seed (Holm over all); and the share
+    of the full network's change over ``basic`` (study 19's, tuned) that leaving the input out takes away, where
+    study 19 finds that change *better* for every seed (elsewhere there is no shown change to share)."""
+    folder = out / "ablation"
+    variants = {f"{LEARNED}_without_{name}": name for name in INPUTS}
+    if compute:
+        runs = _run_comparison(ABLATION_SPEC, folder)
+        flown = {method: _rows(runs / "test.parquet", method) for method in (LEARNED, *variants)}
+        rates, comparisons = paired_arms(flown, groups)
+        rates.to_csv(folder / "rates.csv", index=False)
+        comparisons.to_csv(folder / "comparisons.csv", index=False)
+        keys = ["selection", "family", "field"]
+        same = (flown[LEARNED].sort_values(keys).reset_index(drop=True)
+                .equals(_rows(study.ROOT / "runs" / f"compare-{spec.name}" / "test.parquet")
+                        .sort_values(keys).reset_index(drop=True)))
+        (folder / "reproduced.json").write_text(json.dumps({"same_episodes": same}) + "\n")
+    rates, comparisons = pd.read_csv(folder / "rates.csv"), pd.read_csv(folder / "comparisons.csv")
+    selection = pd.read_csv(folder / "selection.csv")
+    facts: dict = {"reproduced": json.loads((folder / "reproduced.json").read_text())["same_episodes"],
+                   "comparisons": len(comparisons), "arms": {}, "verdict": {}, "all_seeds": {}, "share": {},
+                   "change_over_basic": {}}
+    for arm, part in rates.groupby("arm"):
+        rows = selection[selection["method"] == arm]
+        facts["arms"][arm] = {"episodes": int(rows["episodes"].sum()), "seconds": float(rows["seconds"].sum()),
+                              "success": {g: float(r["success"].mean()) for g, r in part.groupby("group")},
+                              "collision": {g: float(r["collision"].mean()) for g, r in part.groupby("group")}}
+    for (arm, group), g in comparisons.groupby(["arm", "group"]):
+        marks = dict(zip(g["seed"], g["verdict"]))
+        facts["verdict"].setdefault(variants[arm], {})[group] = marks
+        seen = set(marks.values())
+        facts["all_seeds"].setdefault(variants[arm], {})[group] = seen.pop() if len(seen) == 1 else "mixed"
+    full = facts["arms"][LEARNED]["success"]
+    vs_basic = pd.read_csv(out / "report" / "comparisons.csv")
+    for group in groups:
+        change = full[group] - float(np.mean(_tuned(summary, spec, "basic", group, "success_rate")))
+        shown = _unanimous(vs_basic, summary, spec, LEARNED, group, "success") == "better"
+        facts["change_over_basic"][group] = {"points": change, "shown": shown}
+        for arm, name in variants.items():
+            drop = full[group] - facts["arms"][arm]["success"][group]
+            facts["share"].setdefault(name, {})[group] = drop / change if shown else None
+    return ablation_section(facts, groups, variants), facts
+
+
+def ablation_section(facts: dict, groups: list[str], variants: dict[str, str]) -> str:
+    """The ablation's table: per group the full network's success, each variant's with its three verdicts
+    (the full network against it), and the full network's change over ``basic``."""
+    full = facts["arms"][LEARNED]
+    lines = ["## Which input carries what: the ablation", "",
+             f"`learned_weight` retrained with one input fed as 0 (`sweeps/{ABLATION_SPEC}`: the same selection "
+             f"families, seeds, budget, gradient options and held-out fields). Held-out success in %, mean of the "
+             f"three seeds; in brackets the full network's success against the variant's on the same fields, "
+             f"seed by seed (*better*: the input carried success; Holm over {facts['comparisons']} comparisons, "
+             f"margin {MARGIN:g}). *Over basic*: the full network's success minus study 19's tuned `basic`, in "
+             f"points; *share*: the part of it the variant loses, given only where study 19 finds the full network "
+             f"*better* than `basic` for every seed (–: no change shown to share).", "",
+             "| group | full network | " + " | ".join(f"without {INPUTS[n]}" for n in variants.values())
+             + " | over basic | share " + " / ".join(INPUTS[n] for n in variants.values()) + " |",
+             "|---|---|" + "---|" * len(variants) + "---|---|"]
+    for group in groups:
+        cells = [f"{_pct(facts['arms'][arm]['success'][group])} "
+                 f"({', '.join(facts['verdict'][name][group][s] for s in SEEDS)})" for arm, name in variants.items()]
+        shares = [facts["share"][name][group] for name in variants.values()]
+        lines.append(f"| {group} | {_pct(full['success'][group])} | " + " | ".join(cells)
+                     + f" | {100 * facts['change_over_basic'][group]['points']:+.1f} | "
+                     + " / ".join("–" if x is None else f"{100 * x:.0f} %" for x in shares) + " |")
+    lines += ["", "Budgets as realised, over the three seeds: " + ", ".join(
+        f"`{arm}` {a['episodes']:,} episode rollouts in {a['seconds']:.0f} s" for arm, a in facts["arms"].items())
+        + ". The full network's held-out episodes are study 19's, field by field: "
+        + ("yes." if facts["reproduced"] else "**no**.")]
+    return "\n".join(lines)
 
 
 def _pct(x: float) -> str:
