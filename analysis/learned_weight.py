@@ -11,9 +11,10 @@ those comparisons). The ceiling is study 17's ``mppi`` and ``keepout_mpc`` on th
 facts, not flown again); the cost per control step of each planner is measured here, interleaved
 (``jaxapf.bench.world``). A figure draws each seed's ω_θ beside the paper's ω at its selected γ and k. Every
 selection is flown again on the paper's own two scenarios, families no selection saw. The input ablation,
-``sweeps/learned-weight-ablation.toml``, retrains the network with each input fed as 0 under the same budget.
+``sweeps/learned-weight-ablation.toml``, retrains the network with each input fed as 0 under the same budget;
+``sweeps/learned-weight-budget.toml`` selects the learned weight and the paper's method again with twice it.
 
-    python analysis/learned_weight.py     # the three comparisons, the held-out families and the cost, resumable
+    python analysis/learned_weight.py     # the four comparisons, the held-out families and the cost, resumable
                                           # under runs/
 """
 
@@ -26,13 +27,14 @@ import shutil
 import numpy as np
 import pandas as pd
 import study
-from planner_benchmark import PAPER, SEEDS, _tuned, _unanimous, leaderboard, run_benchmark
+from planner_benchmark import PAPER, SEEDS, _rows, _tuned, _unanimous, leaderboard, run_benchmark
 from planner_benchmark import facts as benchmark_facts
 
 NAME = "learned_weight"
 SPEC = "learned-weight.toml"
 BLACK_BOX_SPEC = "learned-weight-cmaes.toml"
 ABLATION_SPEC = "learned-weight-ablation.toml"
+BUDGET_SPEC = "learned-weight-budget.toml"
 LEARNED = "learned_weight"
 #: The held-out families: the paper's own two scenarios, which no selection flies (``paper_static`` one fixed
 #: field unless jittered: 10 cm on every centre, as study 1).
@@ -48,7 +50,7 @@ COSTED = ("direction_velocity", "learned_weight", "mppi", "keepout_mpc")
 CEILING = ("mppi", "keepout_mpc")
 
 
-def _rows(parquet: pathlib.Path, method: str = LEARNED) -> pd.DataFrame:
+def _episodes(parquet: pathlib.Path, method: str = LEARNED) -> pd.DataFrame:
     from jaxapf.sweep import read_sweep
 
     rows = read_sweep(parquet)[0]
@@ -164,8 +166,8 @@ def arms(out: pathlib.Path, spec, compute: bool) -> tuple[list[str], dict]:
         from jaxapf.bench.world import run_world_benchmark
 
         black_runs = _run_comparison(BLACK_BOX_SPEC, folder, "_sep_cmaes")
-        rates, comparisons = paired_arms({"gradient": _rows(runs / "test.parquet"),
-                                          "sep_cmaes": _rows(black_runs / "test.parquet")}, groups)
+        rates, comparisons = paired_arms({"gradient": _episodes(runs / "test.parquet"),
+                                          "sep_cmaes": _episodes(black_runs / "test.parquet")}, groups)
         rates.to_csv(folder / "rates.csv", index=False)
         comparisons.to_csv(folder / "comparisons.csv", index=False)
         cost = run_world_benchmark(fields=64, steps=100, variants=COSTED)
@@ -201,8 +203,9 @@ def arms(out: pathlib.Path, spec, compute: bool) -> tuple[list[str], dict]:
         top = ceiling.get(group, {}).get("mppi")
         facts["gap_closed"][group] = (learned - paper) / (top - paper) if top is not None and top > paper else None
     families, facts["held_out"] = held_out(out, spec, compute)
+    longer, facts["twice_budget"] = budget(out, spec, summary, compute)
     text, facts["ablation"] = ablation(out, spec, summary, groups, compute)
-    return [section(facts, groups), families, text], facts
+    return [section(facts, groups), families, longer, text], facts
 
 
 def held_out(out: pathlib.Path, spec, compute: bool) -> tuple[str, dict]:
@@ -240,6 +243,60 @@ def held_out(out: pathlib.Path, spec, compute: bool) -> tuple[str, dict]:
     return intro + board.removeprefix("## Leaderboard"), facts
 
 
+def budget(out: pathlib.Path, spec, summary: pd.DataFrame, compute: bool) -> tuple[str, dict]:
+    """Study 19 at twice the budget (``sweeps/learned-weight-budget.toml``): the learned weight by gradient
+    against ``direction_velocity`` by random search, each with twice the episode rollouts. Its facts: both
+    methods' held-out success per group (mean of the seeds), the learned weight's verdicts against the paper's
+    seed by seed (that comparison's own report, Holm over it), the realised budgets and the steps chosen."""
+    from jaxapf.compare import load_compare_spec
+
+    folder = out / "budget"
+    if compute:
+        runs = _run_comparison(BUDGET_SPEC, folder)
+        for name in ("summary.csv", "comparisons.csv"):
+            shutil.copy(runs / "report" / name, folder / name)
+    longer = load_compare_spec(study.ROOT / "sweeps" / BUDGET_SPEC)[0]
+    table, comparisons = pd.read_csv(folder / "summary.csv"), pd.read_csv(folder / "comparisons.csv")
+    selection = pd.read_csv(folder / "selection.csv")
+    groups = [*longer.test.families, "all"]
+    success = comparisons[comparisons["metric"] == "success"].set_index(["family", "setting"])["verdict"]
+    facts: dict = {"budget": longer.selection.budget, "success": {}, "study_success": {}, "verdict": {},
+                   "all_seeds": {}, "spent": {}, "chosen": {}}
+    for group in groups:
+        for method in longer.methods:
+            facts["success"].setdefault(group, {})[method] = float(np.mean(_tuned(table, longer, method, group,
+                                                                                  "success_rate")))
+            facts["study_success"].setdefault(group, {})[method] = float(np.mean(_tuned(summary, spec, method, group,
+                                                                                        "success_rate")))
+        rows = _rows(table, longer, LEARNED, group)
+        marks = {tag: success[(group, int(rows.at[tag, "setting"]))] for tag in SEEDS}
+        facts["verdict"][group] = marks
+        seen = set(marks.values())
+        facts["all_seeds"][group] = seen.pop() if len(seen) == 1 else "mixed"
+    for method, rows in selection.groupby("method", sort=False):
+        facts["spent"][method] = {"episodes": int(rows["episodes"].sum()), "seconds": float(rows["seconds"].sum())}
+        facts["chosen"][method] = dict(zip((f"seed{s}" for s in rows["seed"]), rows["chosen"]))
+    lines = ["## Twice the budget", "",
+             f"`sweeps/{BUDGET_SPEC}`: the learned weight and `direction_velocity` selected again with "
+             f"{longer.selection.budget:,} episode rollouts per method and seed (the same gradient options, so twice "
+             f"the steps; the same 16 random candidates on twice the fields), tested on the same held-out fields. "
+             f"Held-out success in %, mean of the three seeds, beside this study's at {spec.selection.budget:,}; "
+             f"*vs paper*: the learned weight against `direction_velocity` of the same selection, seed by seed "
+             f"(that comparison's report, Holm over it).", "",
+             "| group | learned, twice the budget | paper, twice the budget | vs paper | learned | paper |",
+             "|---|---|---|---|---|---|"]
+    for group in groups:
+        now, then = facts["success"][group], facts["study_success"][group]
+        lines.append(f"| {group} | {_pct(now[LEARNED])} | {_pct(now[PAPER])} | "
+                     f"{', '.join(facts['verdict'][group][t] for t in SEEDS)} | {_pct(then[LEARNED])} | "
+                     f"{_pct(then[PAPER])} |")
+    lines += ["", "Budgets as realised, over the three seeds: " + ", ".join(
+        f"`{m}` {v['episodes']:,} episode rollouts in {v['seconds']:.0f} s" for m, v in facts["spent"].items())
+        + "; the learned weight's validation chose " + ", ".join(
+            f"{v} ({k})" for k, v in facts["chosen"][LEARNED].items()) + "."]
+    return "\n".join(lines), facts
+
+
 def ablation(out: pathlib.Path, spec, summary: pd.DataFrame, groups: list[str], compute: bool) -> tuple[str, dict]:
     """The input ablation (``sweeps/learned-weight-ablation.toml``): the network retrained with each input fed
     as 0, under the same budget and held-out fields. Its facts: each arm's realised budget, success and
@@ -250,13 +307,13 @@ def ablation(out: pathlib.Path, spec, summary: pd.DataFrame, groups: list[str], 
     variants = {f"{LEARNED}_without_{name}": name for name in INPUTS}
     if compute:
         runs = _run_comparison(ABLATION_SPEC, folder)
-        flown = {method: _rows(runs / "test.parquet", method) for method in (LEARNED, *variants)}
+        flown = {method: _episodes(runs / "test.parquet", method) for method in (LEARNED, *variants)}
         rates, comparisons = paired_arms(flown, groups)
         rates.to_csv(folder / "rates.csv", index=False)
         comparisons.to_csv(folder / "comparisons.csv", index=False)
         keys = ["selection", "family", "field"]
         same = (flown[LEARNED].sort_values(keys).reset_index(drop=True)
-                .equals(_rows(study.ROOT / "runs" / f"compare-{spec.name}" / "test.parquet")
+                .equals(_episodes(study.ROOT / "runs" / f"compare-{spec.name}" / "test.parquet")
                         .sort_values(keys).reset_index(drop=True)))
         (folder / "reproduced.json").write_text(json.dumps({"same_episodes": same}) + "\n")
     rates, comparisons = pd.read_csv(folder / "rates.csv"), pd.read_csv(folder / "comparisons.csv")
