@@ -13,7 +13,8 @@ nothing):
 Once the command has returned, the process exits with its status: signals during the last clean-up
 are ignored, and a stopped command's process ends without tearing down what the stop left running
 (an XLA compilation on its threads, whose teardown crashed the process after its line in 1 of 120
-tries). A signal that arrives while the interpreter itself starts (Python's ``site`` and
+tries); a stop that something swallowed while the command ran still ends the process with its line and
+status, never 0. A signal that arrives while the interpreter itself starts (Python's ``site`` and
 ``.pth`` files, before any line of jaxapf runs) is Python's to handle (docs/sweep.md).
 """
 
@@ -50,7 +51,7 @@ if not _spawned:
 
 import signal  # noqa: E402  (after the hook: from here on an interrupt is one line)
 
-from .stops import on_signal, stopped, unraisable  # noqa: E402
+from .stops import Terminated, on_signal, received, stopped, unraisable  # noqa: E402
 
 __all__ = ["console"]
 
@@ -91,6 +92,10 @@ def console() -> int:
         code = stopped(stop, "jaxapf", "nothing was written")
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, signal.SIG_IGN)
+    swallowed = received()
+    if code == 0 and swallowed is not None:  # a stop some library swallowed whole: the command ran to its end
+        stop = Terminated() if swallowed == signal.SIGTERM else KeyboardInterrupt()
+        code = stopped(stop, "jaxapf", "the command had finished before it stopped: its output is complete")
     if code in (130, 143):  # stopped: end now, without tearing down what the stop left running (an XLA
         _end_children()  # compilation or computation on its threads, whose teardown can crash the process),
         _exit(code)  # and with no process of ours left behind

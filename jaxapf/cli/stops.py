@@ -7,7 +7,9 @@ exception raised inside the initialisation of an extension module (jaxlib's, num
 half made, and the process then crashed (SIGSEGV, or C++'s ``terminate``) instead of stopping. Such
 a signal is held until the import ends, then raised. An interrupt that Python can only report as
 "Exception ignored" (raised in a garbage-collection callback such as JAX's, or a ``__del__``) is
-raised again a moment later by :func:`unraisable`, so the command stops instead of running on.
+raised again a moment later by :func:`unraisable`, so the command stops instead of running on. One
+that something swallowed whole (a library's ``except BaseException``) is still on record: :func:`received`
+lets the program end such a run with the stop's line and status, never a silent 0.
 """
 
 from __future__ import annotations
@@ -16,10 +18,12 @@ import signal
 import sys
 from typing import Any
 
-__all__ = ["Terminated", "on_signal", "unraisable", "stopped"]
+__all__ = ["Terminated", "on_signal", "received", "unraisable", "stopped"]
 
 #: How often a held signal looks whether the import it waits for has ended [s].
 _POLL_S = 0.005
+#: The signals :func:`on_signal` took since :func:`received` last read them.
+_RECEIVED: list[int] = []
 
 
 class Terminated(KeyboardInterrupt):
@@ -51,12 +55,20 @@ def _raise_later(signum: int) -> None:
 
 def on_signal(signum: int, frame: Any) -> None:
     """The handler of SIGINT and SIGTERM (module docstring)."""
+    _RECEIVED.append(signum)
     if _importing(frame):
         import _thread
 
         _thread.start_new_thread(_raise_later, (signum,))
         return
     raise Terminated if signum == signal.SIGTERM else KeyboardInterrupt
+
+
+def received() -> int | None:
+    """The first signal :func:`on_signal` took since the last call (``None``: none), forgetting them all."""
+    first = _RECEIVED[0] if _RECEIVED else None
+    _RECEIVED.clear()
+    return first
 
 
 def unraisable(hook: Any) -> Any:
