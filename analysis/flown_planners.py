@@ -79,9 +79,8 @@ def swarm_facts(rates: pd.DataFrame, comparisons: pd.DataFrame) -> dict:
             out["swarm"].setdefault(family, {}).setdefault(str(agents), {}).setdefault(metric, {})[method] = float(
                 row[metric])
     for (family, agents, metric, method), g in comparisons.groupby(["family", "agents", "metric", "method"]):
-        marks = set(g["verdict"])
         out["swarm_all_seeds"].setdefault(family, {}).setdefault(str(agents), {}).setdefault(metric, {})[method] = (
-            marks.pop() if len(marks) == 1 else "mixed")
+            study.unanimous(g["verdict"]))
     return out
 
 

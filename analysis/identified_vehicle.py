@@ -199,11 +199,6 @@ def verdict_changes(table: pd.DataFrame) -> dict:
     return out
 
 
-def unanimous(values) -> str:
-    marks = set(values)
-    return marks.pop() if len(marks) == 1 else "mixed"
-
-
 def agreement(df: pd.DataFrame, runs: pathlib.Path, spec) -> dict:
     """How many double-integrator episodes flown here have the compare test sweep's outcome (the same
     fields and gains through another program: padded obstacle slots, other batches)."""
@@ -281,7 +276,7 @@ def summarise(df: pd.DataFrame, spec, table: pd.DataFrame, ranks: dict, selectio
         facts[metric] = {short(p): {k: float(m[(p, k)]) for k in spec.methods} for p in PLANTS}
     for against in ("basic", BASE):
         part = table[table["against"] == against]
-        facts[f"all_seeds_vs_{against}"] = {short(p): {m: unanimous(g["verdict"]) for m, g in
+        facts[f"all_seeds_vs_{against}"] = {short(p): {m: study.unanimous(g["verdict"]) for m, g in
                                                        part[part["plant"] == p].groupby("method", sort=False)}
                                             for p in PLANTS if p in set(part["plant"])}
     facts["protocol"] = protocol(spec)

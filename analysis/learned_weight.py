@@ -192,10 +192,8 @@ def arms(out: pathlib.Path, spec, compute: bool) -> tuple[list[str], dict]:
         for group, g in part.groupby("group"):
             facts["arms"][arm].setdefault("success", {})[group] = float(g["success"].mean())
     for group, g in comparisons.groupby("group"):
-        marks = dict(zip(g["seed"], g["verdict"]))
-        facts["arm_verdict"][group] = marks
-        seen = set(marks.values())
-        facts["arm_all_seeds"][group] = seen.pop() if len(seen) == 1 else "mixed"
+        facts["arm_verdict"][group] = dict(zip(g["seed"], g["verdict"]))
+        facts["arm_all_seeds"][group] = study.unanimous(g["verdict"])
     for group in groups:
         learned = float(np.mean(_tuned(summary, spec, LEARNED, group, "success_rate")))
         paper = float(np.mean(_tuned(summary, spec, PAPER, group, "success_rate")))
@@ -269,10 +267,8 @@ def budget(out: pathlib.Path, spec, summary: pd.DataFrame, compute: bool) -> tup
             facts["study_success"].setdefault(group, {})[method] = float(np.mean(_tuned(summary, spec, method, group,
                                                                                         "success_rate")))
         rows = _rows(table, longer, LEARNED, group)
-        marks = {tag: success[(group, int(rows.at[tag, "setting"]))] for tag in SEEDS}
-        facts["verdict"][group] = marks
-        seen = set(marks.values())
-        facts["all_seeds"][group] = seen.pop() if len(seen) == 1 else "mixed"
+        facts["verdict"][group] = {tag: success[(group, int(rows.at[tag, "setting"]))] for tag in SEEDS}
+        facts["all_seeds"][group] = study.unanimous(facts["verdict"][group].values())
     for method, rows in selection.groupby("method", sort=False):
         facts["spent"][method] = {"episodes": int(rows["episodes"].sum()), "seconds": float(rows["seconds"].sum())}
         facts["chosen"][method] = dict(zip((f"seed{s}" for s in rows["seed"]), rows["chosen"]))
@@ -327,10 +323,8 @@ def ablation(out: pathlib.Path, spec, summary: pd.DataFrame, groups: list[str], 
                               "success": {g: float(r["success"].mean()) for g, r in part.groupby("group")},
                               "collision": {g: float(r["collision"].mean()) for g, r in part.groupby("group")}}
     for (arm, group), g in comparisons.groupby(["arm", "group"]):
-        marks = dict(zip(g["seed"], g["verdict"]))
-        facts["verdict"].setdefault(variants[arm], {})[group] = marks
-        seen = set(marks.values())
-        facts["all_seeds"].setdefault(variants[arm], {})[group] = seen.pop() if len(seen) == 1 else "mixed"
+        facts["verdict"].setdefault(variants[arm], {})[group] = dict(zip(g["seed"], g["verdict"]))
+        facts["all_seeds"].setdefault(variants[arm], {})[group] = study.unanimous(g["verdict"])
     full = facts["arms"][LEARNED]["success"]
     vs_basic = pd.read_csv(out / "report" / "comparisons.csv")
     for group in groups:

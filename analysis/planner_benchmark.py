@@ -239,9 +239,8 @@ def facts(spec, summary: pd.DataFrame, vs_basic: pd.DataFrame, vs_paper: pd.Data
                         out["verdict"].setdefault(vs, {}).setdefault(metric, {})[m] = marks
                     out["default_verdict"].setdefault(vs, {}).setdefault(metric, {}).setdefault(g, {})[m] = (
                         marks["default"])
-                    tuned = {marks[s] for s in SEEDS}
                     out["all_seeds"].setdefault(vs, {}).setdefault(metric, {}).setdefault(g, {})[m] = (
-                        tuned.pop() if len(tuned) == 1 else "mixed")
+                        study.unanimous(marks[s] for s in SEEDS))
     return out
 
 

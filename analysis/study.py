@@ -296,6 +296,12 @@ def paired_success(now, then, margin: float) -> dict[str, float]:
             "p_equivalent": r.p_equivalence}
 
 
+def unanimous(verdicts) -> str:
+    """The one verdict all of ``verdicts`` (e.g. the three selection seeds') give, or ``mixed``."""
+    marks = set(verdicts)
+    return marks.pop() if len(marks) == 1 else "mixed"
+
+
 def mark_verdicts(rows: list[dict], margin: float):
     """The rows (dicts, those with a paired comparison carrying :func:`paired_success`'s keys) as a
     table with a ``verdict`` column: :func:`jaxapf.stats.verdicts` over every comparison at once (Holm),
