@@ -27,7 +27,7 @@ from jaxapf.validation import ConfigError
 
 sys.path.insert(0, str(ROOT / "benchmarks"))
 import faults  # noqa: E402  (the benchmark's program and sweep)
-from faults import program, startup_s  # noqa: E402
+from faults import interpreters_own, program, startup_s  # noqa: E402
 
 SPEC = {
     "name": "faults",
@@ -341,12 +341,32 @@ def test_a_signal_ends_a_sweep_with_one_line_and_the_rerun_completes_it(referenc
     pd.testing.assert_frame_equal(df, reference[1])
 
 
+def test_only_a_signal_while_the_interpreter_starts_is_pythons_own():
+    """The classifier of the signal tests and benchmarks/faults.py: Python's "Exception ignored" report of an
+    interrupt in its own import callback (seen in CI: the command then ran to exit 0) counts as Python's only
+    before the startup time and only with every frame Python's own; jaxapf's one line is never Python's."""
+    ignored = ('Exception ignored in: <function _get_module_lock.<locals>.cb at 0x7f0da0b872e0>\n'
+               'Traceback (most recent call last):\n  File "<frozen importlib._bootstrap>", line 207, in cb\n'
+               'KeyboardInterrupt: \n')
+    assert interpreters_own(0.02, 0.1, 0, ignored)
+    assert not interpreters_own(0.2, 0.1, 0, ignored)  # past the start: jaxapf's hook was in place
+    assert not interpreters_own(0.02, 0.1, 0, ignored.replace("<frozen importlib._bootstrap>", "/x/jaxapf/a.py"))
+    assert not interpreters_own(0.02, 0.1, 0, ignored.replace("KeyboardInterrupt", "ValueError"))
+    assert not interpreters_own(0.02, 0.1, 0, ignored + ignored)
+    assert not interpreters_own(0.02, 0.1, 0, "")  # a silent exit 0: the signal was lost
+    assert interpreters_own(0.02, 0.1, -2, "") and interpreters_own(0.02, 0.1, 1, "Traceback ...")
+    assert interpreters_own(3.0, 0.1, 1, "Fatal Python error: init_import_site: Failed to import the site module")
+    assert not interpreters_own(3.0, 0.1, 1, "Traceback ...")
+
+
 @pytest.mark.slow
 def test_a_signal_while_the_command_starts_is_one_line(tmp_path):
     """Ctrl-C in the first second (imports, the catalogue, JAX's start) used to print a traceback, crash the
     process (SIGSEGV, C++'s terminate, when raised inside an extension module's import) or be swallowed by
     JAX's garbage-collection callback (the run went on to exit 0). Only a signal while the interpreter itself
-    starts (before any line of jaxapf) is Python's own."""
+    starts (before any line of jaxapf) is Python's own: it ends the process, or Python ignores it (raised in an
+    import lock's callback, python/cpython#95959; about 1 in 400 signals in the first 80 ms under load) and the
+    command runs to its end, its output complete."""
     startup = 2 * startup_s() + 0.02
     spec = tmp_path / "faults.toml"
     spec.write_text(SPEC_TOML)
@@ -358,8 +378,9 @@ def test_a_signal_while_the_command_starts_is_one_line(tmp_path):
         time.sleep(float(delay))
         run.send_signal(signal.SIGINT)
         _, err = run.communicate(timeout=120)
-        if delay < startup and run.returncode != 130:
-            assert run.returncode != 0, err  # the interpreter was starting: Python's own, never an exit 0
+        if run.returncode != 130 and interpreters_own(float(delay), startup, run.returncode, err):
+            if run.returncode == 0:  # Python ignored it and ran the command to its end: its output is complete
+                assert read_sweep(tmp_path / f"early-{i}")[1]["complete"], err
             continue
         assert run.returncode == 130, (delay, err)
         assert _one_line(err).startswith("jaxapf"), err
@@ -497,8 +518,9 @@ def _sigint_stream(stream: int, trials: int, spec: pathlib.Path, cache: pathlib.
         elif (run.returncode == 130 and len(lines) == 1 and "interrupted; " in lines[0]
               and lines[0].startswith("jaxapf")):
             seen["stopped"] += 1
-        elif run.returncode != 0 and (moment < startup or "Fatal Python error: init_import_site" in stderr):
+        elif interpreters_own(moment, startup, run.returncode, stderr):
             seen["interpreter"] += 1  # the interpreter itself was starting (on a loaded machine past `startup`)
+            out = None if run.returncode == 0 else out  # Python ignored it: the command ran to its end
         else:
             seen["bad"].append((moment, run.returncode, stderr[-2000:]))
     return seen
@@ -507,9 +529,10 @@ def _sigint_stream(stream: int, trials: int, spec: pathlib.Path, cache: pathlib.
 @pytest.mark.slow
 def test_ctrl_c_at_fifty_random_moments_is_one_line_and_the_resumed_rows_are_exact(tmp_path):
     """SIGINT at 50 random moments in 0-8 s of `jaxapf sweep` (the script and python -m jaxapf): one line and
-    status 130 every time, never a traceback or an exit 0; every output resumed to completion holds the
-    one-process rows bit for bit. (JAX's garbage-collection callback used to swallow the interrupt, the
-    run went on to exit 0; an interrupt inside an import crashed the process; tracebacks while starting.)
+    status 130 every time, never a traceback or an exit 0 (but Python's own, test above); every output resumed
+    to completion holds the one-process rows bit for bit. (JAX's garbage-collection callback used to swallow
+    the interrupt, the run went on to exit 0; an interrupt inside an import crashed the process; tracebacks
+    while starting.)
     Only a signal while the interpreter itself starts (before any line of jaxapf) is Python's to handle."""
     import concurrent.futures
 
