@@ -84,11 +84,11 @@ def swarm_facts(rates: pd.DataFrame, comparisons: pd.DataFrame) -> dict:
     return out
 
 
-def swarms(out: pathlib.Path, spec, compute: bool) -> tuple[list[str], dict]:
+def swarms(out: pathlib.Path, spec, args, runs: pathlib.Path | None) -> tuple[list[str], dict]:
     """The swarm stage (module docstring): its section and facts; its rates and comparisons go to
-    ``out/swarms/`` (read back with ``--facts-only``)."""
+    ``out/swarms/`` (read back with ``--facts-only``, ``runs`` None)."""
     folder = out / "swarms"
-    if compute:
+    if runs is not None:
         rates, comparisons = swarm_study.summarise(swarm_cells(out, spec))
         folder.mkdir(exist_ok=True)
         rates.to_csv(folder / "rates.csv", index=False)

@@ -139,33 +139,29 @@ def _ceiling() -> dict:
     return json.loads((study.RESULTS / "flown_planners" / "facts.json").read_text())["success"]
 
 
-def _run_comparison(spec_file: str, folder: pathlib.Path, suffix: str = "") -> pathlib.Path:
-    """``jaxapf compare sweeps/<spec_file>`` into ``runs/compare-NAME`` (resuming what is there); its
-    ``compare.md`` and ``selection.csv`` copied into ``folder`` (names ending in ``suffix``). Returns the run."""
-    from jaxapf.compare import load_compare_spec, run_compare_spec
-
-    spec, text = load_compare_spec(study.ROOT / "sweeps" / spec_file)
-    runs = study.ROOT / "runs" / f"compare-{spec.name}"
-    run_compare_spec(spec, text, runs, quiet=True)
+def _run_comparison(spec_file: str, folder: pathlib.Path, args, suffix: str = "") -> pathlib.Path:
+    """One of the study's other comparisons (:func:`study.run_comparison`: the study's ``--fields`` and
+    ``--resamples``), its ``compare.md`` and ``selection.csv`` copied into ``folder`` (names ending in
+    ``suffix``). Returns its runs folder."""
+    runs = study.run_comparison(args, spec_file)[1]
     folder.mkdir(exist_ok=True)
     shutil.copy(runs / "compare.md", folder / f"compare{suffix}.md")
     shutil.copy(runs / "selection.csv", folder / f"selection{suffix}.csv")
     return runs
 
 
-def arms(out: pathlib.Path, spec, compute: bool) -> tuple[list[str], dict]:
-    """The black-box arm, the ceiling, the cost per step and the weight's figure: sections and facts (computed,
-    or read back from ``out/arms/`` with ``--facts-only``)."""
+def arms(out: pathlib.Path, spec, args, runs: pathlib.Path | None) -> tuple[list[str], dict]:
+    """The black-box arm, the ceiling, the cost per step and the weight's figure: sections and facts (computed
+    beside the comparison in ``runs``, or read back from ``out/arms/`` with ``--facts-only``, ``runs`` None)."""
     from jaxapf.planners.learned import SIZE
 
     folder = out / "arms"
-    runs = study.ROOT / "runs" / f"compare-{spec.name}"
     summary = pd.read_csv(out / "report" / "summary.csv")
     groups = [*spec.test.families, "all"]  # (the trap kinds are the report's)
-    if compute:
+    if runs is not None:
         from jaxapf.bench.world import run_world_benchmark
 
-        black_runs = _run_comparison(BLACK_BOX_SPEC, folder, "_sep_cmaes")
+        black_runs = _run_comparison(BLACK_BOX_SPEC, folder, args, "_sep_cmaes")
         rates, comparisons = paired_arms({"gradient": _episodes(runs / "test.parquet"),
                                           "sep_cmaes": _episodes(black_runs / "test.parquet")}, groups)
         rates.to_csv(folder / "rates.csv", index=False)
@@ -200,13 +196,13 @@ def arms(out: pathlib.Path, spec, compute: bool) -> tuple[list[str], dict]:
         facts["ceiling"][group] = {m: ceiling[group][m] for m in CEILING if group in ceiling}
         top = ceiling.get(group, {}).get("mppi")
         facts["gap_closed"][group] = (learned - paper) / (top - paper) if top is not None and top > paper else None
-    families, facts["held_out"] = held_out(out, spec, compute)
-    longer, facts["twice_budget"] = budget(out, spec, summary, compute)
-    text, facts["ablation"] = ablation(out, spec, summary, groups, compute)
+    families, facts["held_out"] = held_out(out, spec, args, runs)
+    longer, facts["twice_budget"] = budget(out, spec, summary, args, runs is not None)
+    text, facts["ablation"] = ablation(out, spec, summary, groups, args, runs)
     return [section(facts, groups), families, longer, text], facts
 
 
-def held_out(out: pathlib.Path, spec, compute: bool) -> tuple[str, dict]:
+def held_out(out: pathlib.Path, spec, args, runs: pathlib.Path | None) -> tuple[str, dict]:
     """Every selection of the comparison (defaults and the three seeds' choices) flown on :data:`HELD_OUT`,
     families no selection saw, with the test's fields per family and seed; reported against ``basic`` and
     against the paper's method of the same selection, as the held-out fields are (facts of the same shape)."""
@@ -217,17 +213,16 @@ def held_out(out: pathlib.Path, spec, compute: bool) -> tuple[str, dict]:
 
     held = dataclasses.replace(spec, test=dataclasses.replace(spec.test, families=tuple(HELD_OUT)),
                                params={**spec.params, **HELD_OUT})
-    if compute:
+    if runs is not None:
         from jaxapf.sweep import run_sweep
 
-        runs = study.ROOT / "runs" / f"compare-{spec.name}"
         selections = [saved_selection(spec, m, seed, runs / "selection") for seed in spec.selection.seeds
                       for m in spec.methods]
         parquet = runs / "held_out.parquet"
         run_sweep(test_sweep_spec(held, selections), parquet, quiet=True)
         for folder, base in (("held_out/report", spec), ("held_out/report_vs_paper",
                                                         dataclasses.replace(spec, baseline=PAPER))):
-            study.report(parquet, out, resamples=2000, folder=folder, baseline=baseline_filter(base),
+            study.report(parquet, out, resamples=args.resamples, folder=folder, baseline=baseline_filter(base),
                          pair_on=("selection",), heatmap=None)
     vs_basic, vs_paper = (study.committed_report(out, f) for f in ("held_out/report", "held_out/report_vs_paper"))
     facts = benchmark_facts(held, vs_basic.summary, vs_basic.comparisons, vs_paper.comparisons,
@@ -241,7 +236,7 @@ def held_out(out: pathlib.Path, spec, compute: bool) -> tuple[str, dict]:
     return intro + board.removeprefix("## Leaderboard"), facts
 
 
-def budget(out: pathlib.Path, spec, summary: pd.DataFrame, compute: bool) -> tuple[str, dict]:
+def budget(out: pathlib.Path, spec, summary: pd.DataFrame, args, compute: bool) -> tuple[str, dict]:
     """Study 19 at twice the budget (``sweeps/learned-weight-budget.toml``): the learned weight by gradient
     against ``direction_velocity`` by random search, each with twice the episode rollouts. Its facts: both
     methods' held-out success per group (mean of the seeds), the learned weight's verdicts against the paper's
@@ -250,7 +245,7 @@ def budget(out: pathlib.Path, spec, summary: pd.DataFrame, compute: bool) -> tup
 
     folder = out / "budget"
     if compute:
-        runs = _run_comparison(BUDGET_SPEC, folder)
+        runs = _run_comparison(BUDGET_SPEC, folder, args)
         for name in ("summary.csv", "comparisons.csv"):
             shutil.copy(runs / "report" / name, folder / name)
     longer = load_compare_spec(study.ROOT / "sweeps" / BUDGET_SPEC)[0]
@@ -293,7 +288,8 @@ def budget(out: pathlib.Path, spec, summary: pd.DataFrame, compute: bool) -> tup
     return "\n".join(lines), facts
 
 
-def ablation(out: pathlib.Path, spec, summary: pd.DataFrame, groups: list[str], compute: bool) -> tuple[str, dict]:
+def ablation(out: pathlib.Path, spec, summary: pd.DataFrame, groups: list[str], args,
+             runs: pathlib.Path | None) -> tuple[str, dict]:
     """The input ablation (``sweeps/learned-weight-ablation.toml``): the network retrained with each input fed
     as 0, under the same budget and held-out fields. Its facts: each arm's realised budget, success and
     collisions; the full network's success against each variant's, seed by seed (Holm over all); and the share
@@ -301,15 +297,15 @@ def ablation(out: pathlib.Path, spec, summary: pd.DataFrame, groups: list[str], 
     study 19 finds that change *better* for every seed (elsewhere there is no shown change to share)."""
     folder = out / "ablation"
     variants = {f"{LEARNED}_without_{name}": name for name in INPUTS}
-    if compute:
-        runs = _run_comparison(ABLATION_SPEC, folder)
-        flown = {method: _episodes(runs / "test.parquet", method) for method in (LEARNED, *variants)}
+    if runs is not None:
+        ablated = _run_comparison(ABLATION_SPEC, folder, args)
+        flown = {method: _episodes(ablated / "test.parquet", method) for method in (LEARNED, *variants)}
         rates, comparisons = paired_arms(flown, groups)
         rates.to_csv(folder / "rates.csv", index=False)
         comparisons.to_csv(folder / "comparisons.csv", index=False)
         keys = ["selection", "family", "field"]
         same = (flown[LEARNED].sort_values(keys).reset_index(drop=True)
-                .equals(_episodes(study.ROOT / "runs" / f"compare-{spec.name}" / "test.parquet")
+                .equals(_episodes(runs / "test.parquet")
                         .sort_values(keys).reset_index(drop=True)))
         (folder / "reproduced.json").write_text(json.dumps({"same_episodes": same}) + "\n")
     rates, comparisons = pd.read_csv(folder / "rates.csv"), pd.read_csv(folder / "comparisons.csv")

@@ -247,8 +247,8 @@ def facts(spec, summary: pd.DataFrame, vs_basic: pd.DataFrame, vs_paper: pd.Data
 def run_benchmark(doc: str, name: str, spec_file: str, title: str, extra=None) -> None:
     """Study 11's protocol on ``sweeps/<spec_file>`` into ``analysis/results/<name>``: the comparison, the
     second report against the paper's method, facts, findings, leaderboard and trajectory figures.
-    ``extra(out, spec, compute)``, if given, returns more ``(sections, facts)`` (``compute`` False with
-    ``--facts-only``: from what it committed)."""
+    ``extra(out, spec, args, runs)``, if given, returns more ``(sections, facts)`` (``runs``, the comparison's
+    folder, is None with ``--facts-only``: from what it committed)."""
     from jaxapf.compare.protocol import baseline_filter
 
     args, out = study.begin(doc, name)
@@ -258,7 +258,7 @@ def run_benchmark(doc: str, name: str, spec_file: str, title: str, extra=None) -
         spec = load_compare_spec(study.ROOT / "sweeps" / spec_file)[0]
         report = study.committed_report(out)
         vs_paper = pd.read_csv(out / "report_vs_paper" / "comparisons.csv")
-        more = extra(out, spec, False)[1] if extra is not None else {}
+        more = extra(out, spec, args, None)[1] if extra is not None else {}
         study.write_facts(out, facts(spec, report.summary, report.comparisons, vs_paper,
                                      pd.read_csv(out / "selection.csv")) | more)
         return
@@ -272,7 +272,7 @@ def run_benchmark(doc: str, name: str, spec_file: str, title: str, extra=None) -
                 "the full reports: [`report/report.md`](report/report.md) (against `basic`) and "
                 "[`report_vs_paper/report.md`](report_vs_paper/report.md) (against `direction_velocity`).",
                 findings(spec, summary, vs_basic, vs_paper), leaderboard(spec, summary, vs_basic, vs_paper)]
-    more_sections, more = extra(out, spec, True) if extra is not None else ([], {})
+    more_sections, more = extra(out, spec, args, runs) if extra is not None else ([], {})
     study.write_facts(out, facts(spec, summary, vs_basic, vs_paper, pd.read_csv(out / "selection.csv")) | more)
     command = f"python analysis/{name}.py" + (f" --fields {args.fields}" if args.fields else "")
     study.write_readme(out, title, command, runs / "test.parquet", sections + more_sections,

@@ -119,10 +119,9 @@ def report(parquet: pathlib.Path, out: pathlib.Path, *, resamples: int, folder: 
     return result
 
 
-def run_compare_study(args: argparse.Namespace, out: pathlib.Path, spec_file: str):
-    """What a ``jaxapf compare`` study does after :func:`begin`: run the comparison of ``sweeps/<spec_file>``
-    into ``runs/compare-NAME[-fN]`` (resuming what is finished), and copy its report (without its HTML),
-    ``compare.md`` and ``selection.csv`` into the results folder ``out``. Returns ``(spec, runs folder)``."""
+def run_comparison(args: argparse.Namespace, spec_file: str):
+    """``jaxapf compare sweeps/<spec_file>`` with the study's ``--fields`` and ``--resamples``, into
+    ``runs/compare-NAME[-fN]`` (resuming what is finished). Returns ``(spec, runs folder)``."""
     from jaxapf.compare import load_compare_spec, run_compare_spec
 
     spec, text = load_compare_spec(ROOT / "sweeps" / spec_file)
@@ -132,6 +131,14 @@ def run_compare_study(args: argparse.Namespace, out: pathlib.Path, spec_file: st
         suffix = f"-f{args.fields}"
     runs = ROOT / "runs" / f"compare-{spec.name}{suffix}"
     run_compare_spec(spec, text, runs, quiet=True, resamples=args.resamples)
+    return spec, runs
+
+
+def run_compare_study(args: argparse.Namespace, out: pathlib.Path, spec_file: str):
+    """What a ``jaxapf compare`` study does after :func:`begin`: :func:`run_comparison`, then its report
+    (without its HTML), ``compare.md`` and ``selection.csv`` copied into the results folder ``out``. Returns
+    ``(spec, runs folder)``."""
+    spec, runs = run_comparison(args, spec_file)
     target = out / "report"
     if target.exists():
         shutil.rmtree(target)
