@@ -17,7 +17,7 @@ reference made once in this process:
 - **Ctrl-C**: SIGINT at a random moment in 0–8 s of a longer sweep (16 times the fields), alternately
   to the script and to ``python -m jaxapf``; each run must end with one line and status 130 (or
   finish before the signal, status 0 and a complete output), never a traceback, except a signal
-  while the interpreter itself starts, before any line of jaxapf (Python's own: :func:`interpreters_own`);
+  before jaxapf's hook is in place, while the interpreter itself starts (Python's own: :func:`interpreters_own`);
   the output is resumed until complete and then compared.
 - **bit flips**: one random bit of one random part is flipped; reading must refuse (naming the
   part) or return exactly the reference rows, and a resume must refuse too (or find nothing wrong).
@@ -288,10 +288,27 @@ def ignored_by_python(stderr: str) -> bool:
             and lines[-1].strip().rstrip(":") == "KeyboardInterrupt" and all(_pythons_own(f) for f in files))
 
 
-def interpreters_own(moment: float, startup: float, returncode: int, stderr: str) -> bool:
-    """Whether a SIGINT sent ``moment`` s after the start came while the interpreter itself was starting
-    (``startup``, or Python's own fatal error in ``site``): it ends the process (never with one of
-    jaxapf's lines), or Python ignores it (:func:`ignored_by_python`) and the command runs to its end."""
+def hooked(pid: int) -> bool | None:
+    """Whether jaxapf's signal hook is in place in the process ``pid``: ``jaxapf.cli.program`` installs it for
+    SIGINT, then SIGTERM, and CPython leaves SIGTERM alone, so a caught SIGTERM (its ``SigCgt`` mask in /proc)
+    is the hook. None where /proc cannot tell (no /proc, or the process has ended)."""
+    try:
+        status = pathlib.Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return None
+    caught = re.search(r"^SigCgt:\s*([0-9a-fA-F]+)", status, flags=re.M)
+    return None if caught is None else bool(int(caught.group(1), 16) >> (signal.SIGTERM - 1) & 1)
+
+
+def interpreters_own(hook: bool | None, moment: float, startup: float, returncode: int, stderr: str) -> bool:
+    """Whether what a SIGINT did is CPython's own, the signal having come before jaxapf's hook was in place:
+    with ``hook`` read by :func:`hooked` just before sending it, whenever it was not (CPython then ended the
+    process, printed a traceback, or lost the interrupt in one of its own callbacks and ran the command to its
+    end, python/cpython#95959); where /proc cannot tell, a signal ``moment`` s after the start within
+    ``startup`` (or Python's own fatal error in ``site``) that ended the process or that Python reported
+    ignored (:func:`ignored_by_python`)."""
+    if hook is not None:
+        return not hook
     starting = moment < startup or "Fatal Python error: init_import_site" in stderr
     return starting and (returncode != 0 or ignored_by_python(stderr))
 
@@ -315,6 +332,7 @@ def sigints(n: int, spec: pathlib.Path, tmp: pathlib.Path, ref: pd.DataFrame, rn
         proc = subprocess.Popen(program("script" if i % 2 else "module") + command(out), stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, text=True)
         time.sleep(moment)
+        hook = hooked(proc.pid)
         proc.send_signal(signal.SIGINT)
         stdout, err = proc.communicate()
         lines = _lines(err)
@@ -324,9 +342,9 @@ def sigints(n: int, spec: pathlib.Path, tmp: pathlib.Path, ref: pd.DataFrame, rn
             continue
         if proc.returncode == 130 and len(lines) == 1 and "interrupted; " in lines[0]:
             totals["stopped"] += 1
-        elif interpreters_own(moment, startup, proc.returncode, err):
+        elif interpreters_own(hook, moment, startup, proc.returncode, err):
             totals["interpreter"] += 1  # the interpreter itself was starting: Python's own
-            if proc.returncode == 0:  # Python ignored it: the command ran to its end
+            if proc.returncode == 0:  # Python lost it: the command ran to its end
                 out = None
         else:
             totals["tracebacks"] += _traceback(err)
