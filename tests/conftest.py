@@ -13,6 +13,28 @@ from jaxapf import Obstacles, Scenario
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 
+def pytest_configure(config):
+    """One persistent compilation cache for the processes of one run (the xdist workers inherit its folder from
+    the process that starts them): a program one test module compiled is loaded, not compiled again, by a later
+    module (each frees its programs) or by the other worker. A folder of its own per run, removed at its end,
+    so no run reads another's programs."""
+    import os
+    import tempfile
+
+    if "JAXAPF_TESTS_XLA" not in os.environ:  # the run's first process: the controller, or the only one
+        os.environ["JAXAPF_TESTS_XLA"] = config._jaxapf_xla = tempfile.mkdtemp(prefix="jaxapf-tests-xla-")
+    jax.config.update("jax_compilation_cache_dir", os.environ["JAXAPF_TESTS_XLA"])
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.1)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+
+
+def pytest_unconfigure(config):
+    import shutil
+
+    if hasattr(config, "_jaxapf_xla"):
+        shutil.rmtree(config._jaxapf_xla, ignore_errors=True)
+
+
 @pytest.fixture(autouse=True, scope="module")
 def _free_compiled_programs():
     """Free a module's compiled programs after it: a worker process runs a hundred modules, and
