@@ -300,6 +300,14 @@ def hooked(pid: int) -> bool | None:
     return None if caught is None else bool(int(caught.group(1), 16) >> (signal.SIGTERM - 1) & 1)
 
 
+def interrupt(proc: subprocess.Popen) -> bool | None:
+    """Send SIGINT to ``proc``; returns :func:`hooked` as read just before (the hook is never removed, so in
+    place then means in place when the signal came)."""
+    hook = hooked(proc.pid)
+    proc.send_signal(signal.SIGINT)
+    return hook
+
+
 def interpreters_own(hook: bool | None, moment: float, startup: float, returncode: int, stderr: str) -> bool:
     """Whether what a SIGINT did is CPython's own, the signal having come before jaxapf's hook was in place:
     with ``hook`` read by :func:`hooked` just before sending it, whenever it was not (CPython then ended the
@@ -332,8 +340,7 @@ def sigints(n: int, spec: pathlib.Path, tmp: pathlib.Path, ref: pd.DataFrame, rn
         proc = subprocess.Popen(program("script" if i % 2 else "module") + command(out), stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, text=True)
         time.sleep(moment)
-        hook = hooked(proc.pid)
-        proc.send_signal(signal.SIGINT)
+        hook = interrupt(proc)
         stdout, err = proc.communicate()
         lines = _lines(err)
         if proc.returncode == 0 and not lines:

@@ -21,11 +21,11 @@ def pytest_configure(config):
     import os
     import tempfile
 
+    from jaxapf.engine.runtime import configure_jax
+
     if "JAXAPF_TESTS_XLA" not in os.environ:  # the run's first process: the controller, or the only one
         os.environ["JAXAPF_TESTS_XLA"] = config._jaxapf_xla = tempfile.mkdtemp(prefix="jaxapf-tests-xla-")
-    jax.config.update("jax_compilation_cache_dir", os.environ["JAXAPF_TESTS_XLA"])
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.1)
-    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    configure_jax(cache_dir=os.environ["JAXAPF_TESTS_XLA"])
 
 
 def pytest_unconfigure(config):

@@ -396,8 +396,7 @@ def test_a_signal_while_the_command_starts_is_one_line(tmp_path):
             "sweep", str(spec), "--out", str(tmp_path / f"early-{i}"), "--no-cache", "--quiet"], stdout=subprocess.PIPE,
             stderr=subprocess.PIPE, text=True, env=env)
         time.sleep(float(delay))
-        hook = hooked(run.pid)
-        run.send_signal(signal.SIGINT)
+        hook = faults.interrupt(run)
         _, err = run.communicate(timeout=120)
         if run.returncode != 130 and interpreters_own(hook, float(delay), startup, run.returncode, err):
             if run.returncode == 0:  # Python lost it and ran the command to its end: its output is complete
@@ -530,8 +529,7 @@ def _sigint_stream(stream: int, trials: int, spec: pathlib.Path, cache: pathlib.
             "sweep", str(spec), "--out", str(out), "--cache-dir", str(cache), "--quiet", "--chunk-fields", "2"]
         run = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
         time.sleep(moment)
-        hook = hooked(run.pid)
-        run.send_signal(signal.SIGINT)
+        hook = faults.interrupt(run)
         stdout, stderr = run.communicate(timeout=300)
         lines = [line for line in stderr.splitlines() if line.strip()]
         if run.returncode == 0 and stdout.startswith("sweep faults:") and not lines:
