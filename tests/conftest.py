@@ -13,19 +13,39 @@ from jaxapf import Obstacles, Scenario
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 
+#: LLVM's optimisation level for the programs the pytest processes compile (docs/testing.md): XLA's own passes
+#: (fusion, layout, the XLA_OPTIONS of jaxapf.engine) run as in use; only the machine code is less optimised,
+#: which takes about 40 % less time to compile a closed loop and runs it up to twice as long: the right trade
+#: for tests' short episodes, not for the sweeps of the commands they start (those keep the default).
+#: ``XLA_FLAGS`` naming a level keeps its own.
+TEST_XLA_FLAGS = "--xla_backend_optimization_level=0"
+
+
 def pytest_configure(config):
     """One persistent compilation cache for the processes of one run (the xdist workers inherit its folder from
     the process that starts them): a program one test module compiled is loaded, not compiled again, by a later
-    module (each frees its programs) or by the other worker. A folder of its own per run, removed at its end,
-    so no run reads another's programs."""
+    module (each frees its programs), by the other worker or by a command a test runs (it is the run's
+    ``XDG_CACHE_HOME``, so the user's own cache is never read or written). A folder of its own per run, removed
+    at its end, so no run reads another's programs. Every program is stored, however quick to compile: a
+    module's small array operations are loaded by the next."""
     import os
     import tempfile
 
-    from jaxapf.engine.runtime import configure_jax
+    from jaxapf.engine.runtime import configure_jax, default_cache_dir
 
     if "JAXAPF_TESTS_XLA" not in os.environ:  # the run's first process: the controller, or the only one
         os.environ["JAXAPF_TESTS_XLA"] = config._jaxapf_xla = tempfile.mkdtemp(prefix="jaxapf-tests-xla-")
-    configure_jax(cache_dir=os.environ["JAXAPF_TESTS_XLA"])
+        os.environ["XDG_CACHE_HOME"] = os.environ["JAXAPF_TESTS_XLA"]
+    configure_jax(cache_dir=default_cache_dir())
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    flags = os.environ.get("XLA_FLAGS")
+    if "xla_backend_optimization_level" not in (flags or ""):
+        # this process's backend only: a command a test runs (long sweeps, mostly) compiles as a user's does
+        os.environ["XLA_FLAGS"] = f"{flags or ''} {TEST_XLA_FLAGS}".strip()
+        try:
+            jax.devices()
+        finally:
+            os.environ.pop("XLA_FLAGS") if flags is None else os.environ.update(XLA_FLAGS=flags)
 
 
 def pytest_unconfigure(config):
@@ -35,12 +55,79 @@ def pytest_unconfigure(config):
         shutil.rmtree(config._jaxapf_xla, ignore_errors=True)
 
 
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """Under ``JAXAPF_SUITE_PROFILE=FOLDER`` (benchmarks/suite.py sets it), one JSON line per test in
+    ``FOLDER/<worker>.jsonl``: its wall seconds (setup, call and teardown), the seconds JAX spent tracing,
+    lowering and compiling in this process meanwhile, and the CPU seconds of the programs it ran that ended."""
+    import os
+
+    folder = os.environ.get("JAXAPF_SUITE_PROFILE")
+    if not folder:
+        yield
+        return
+    import json
+    import resource
+    import time
+
+    spent = _compile_seconds()
+    before, children, start = dict(spent), resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
+    yield
+    wall = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    row = {"test": item.nodeid, "wall_s": round(wall, 4),
+           "subprocess_cpu_s": round(after.ru_utime + after.ru_stime - children.ru_utime - children.ru_stime, 4),
+           **{k: round(spent[k] - before.get(k, 0.0), 4) for k in spent}}
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+    with open(os.path.join(folder, f"{worker}.jsonl"), "a") as out:
+        out.write(json.dumps(row) + "\n")
+
+
+_SPENT: dict = {}
+
+
+def _compile_seconds() -> dict:
+    """Seconds this process has spent on JAX's trace, lowering and backend compile (a listener installed at the
+    first call)."""
+    if not _SPENT:
+        import jax.monitoring
+
+        events = {"/jax/core/compile/jaxpr_trace_duration": "trace_s",
+                  "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower_s",
+                  "/jax/core/compile/backend_compile_duration": "compile_s"}
+        _SPENT.update({v: 0.0 for v in events.values()})
+
+        def listen(event, duration, **_):
+            if event in events:
+                _SPENT[events[event]] += duration
+        jax.monitoring.register_event_duration_secs_listener(listen)
+    return _SPENT
+
+
+#: A worker frees every compiled program after a module that leaves it holding more than this (resident bytes).
+KEEP_PROGRAMS_BELOW = 3 * 2**30
+
+
 @pytest.fixture(autouse=True, scope="module")
 def _free_compiled_programs():
-    """Free a module's compiled programs after it: a worker process runs a hundred modules, and
-    keeping every program they compiled made the suite's memory grow with their number."""
+    """Free the compiled programs after a module that leaves its worker holding more than
+    :data:`KEEP_PROGRAMS_BELOW`: a worker runs a hundred modules, and keeping every program they compiled
+    made the suite's memory grow with their number; below it, later modules reuse what earlier ones
+    compiled and traced."""
     yield
-    jax.clear_caches()
+    if _resident_bytes() > KEEP_PROGRAMS_BELOW:
+        jax.clear_caches()
+
+
+def _resident_bytes() -> int:
+    """This process's resident memory (Linux /proc; elsewhere 0: programs are kept)."""
+    import os
+
+    try:
+        with open("/proc/self/statm") as statm:
+            return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except OSError:
+        return 0
 
 
 @pytest.fixture

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 from functools import partial
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -197,6 +198,22 @@ def make_scenarios(seed: int | Array, params: FamilyParams, fields: int | Array)
         if indices.ndim != 1 or not jnp.issubdtype(indices.dtype, jnp.integer):
             raise ConfigError(f"scenario.fields must be a count or a 1-D integer array of field indices; "
                               f"got {indices.dtype} of shape {indices.shape}")
-    keys, u = _draw_batch(jax.random.key(seed), indices, _draw_count(params))
+    padded = padded_indices(indices)
+    keys, u = _draw_batch(jax.random.key(seed), padded, _draw_count(params))
     local, placement = _stage_boundary(_local_batch(u, params), params)
-    return _place_batch(keys, *local, *placement)
+    return first_rows(_place_batch(keys, *local, *placement), indices.shape[0])
+
+
+def padded_indices(indices: Array) -> Array:
+    """``indices`` padded (with its first index) to the next power of two, at least 8: a family's
+    generation compiles once per such size instead of once per field count (a field does not depend on
+    its batch, so the padding changes none)."""
+    n = int(indices.shape[0])
+    size = max(8, 1 << max(n - 1, 0).bit_length())
+    return indices if n == size else jnp.concatenate([indices, jnp.full((size - n,), indices[0] if n else 0,
+                                                                         indices.dtype)])
+
+
+def first_rows(batch: Any, n: int) -> Any:
+    """The first ``n`` rows of every leaf of a batched pytree."""
+    return jax.tree_util.tree_map(lambda x: x if x.shape[0] == n else x[:n], batch)

@@ -26,7 +26,7 @@ from ..datatypes.swarm import Swarm
 from ..registry import Registry
 from ..validation import ConfigError
 from .base import FamilyParams, checked_params, integer, number, span
-from .generate import _to_world
+from .generate import _to_world, first_rows, padded_indices
 from .layout import Draws, Layout, fit, scatter, with_motion
 
 __all__ = ["SwarmParams", "CircleSwapParams", "CrossingFlowsParams", "FormationGapParams", "SwarmClutterParams",
@@ -298,7 +298,7 @@ def make_swarms(seed: int, params: SwarmParams, fields: int | Array) -> Swarm:
     (:func:`~jaxapf.scenarios.field_key`), the same in any batch (``fields``: a count or an array of
     field indices)."""
     indices = jnp.arange(fields) if isinstance(fields, int) else jnp.asarray(fields)
-    return _build(jax.random.key(seed), indices, params)
+    return first_rows(_build(jax.random.key(seed), padded_indices(indices), params), indices.shape[0])
 
 
 @partial(jax.jit, static_argnames="params")
