@@ -87,8 +87,9 @@ def profile(folder: pathlib.Path) -> dict | None:
                          "subprocess_cpu_s": round(max(r["subprocess_cpu_s"], 0.0), 1)} for r in slow]}
 
 
-def measure(rev: str, tier: str, xla_flags: str = "", cores: int | None = None) -> dict:
-    """Run ``tier`` of a fresh clone of ``rev``; what it took."""
+def measure(rev: str, tier: str, xla_flags: str = "", cores: int | None = None,
+            log: pathlib.Path | None = None) -> dict:
+    """Run ``tier`` of a fresh clone of ``rev``; what it took (pytest's output also to ``log``)."""
     with tempfile.TemporaryDirectory(prefix="jaxapf-suite-") as scratch:
         tree, prof = pathlib.Path(scratch) / "jaxapf", pathlib.Path(scratch) / "profile"
         prof.mkdir()
@@ -113,6 +114,8 @@ def measure(rev: str, tier: str, xla_flags: str = "", cores: int | None = None) 
             seconds = time.perf_counter() - start
             out.seek(0)
             stdout = out.read()
+        if log is not None:
+            log.write_text(stdout)
         shares = profile(prof)
     outcome = next((line.strip("= ") for line in reversed(stdout.splitlines()) if " in " in line), "")
     ran = sum(int(n) for n, what in re.findall(r"(\d+) (passed|failed|skipped|errors?|xfailed|xpassed)", outcome)
@@ -131,6 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--xla-flags", default="", help="XLA_FLAGS for the suite (e.g. --xla_cpu_max_isa=AVX2)")
     p.add_argument("--cores", type=int, help="pin the suite to this many cores (1: one process, -n 0)")
     p.add_argument("--json", type=pathlib.Path, help="also write the result to this file")
+    p.add_argument("--log", type=pathlib.Path, help="write pytest's output to this file (REV's to FILE.against)")
     args = p.parse_args(argv)
     options = ((f" --against {args.against}" if args.against else "")
                + (f" --xla-flags={args.xla_flags}" if args.xla_flags else "")
@@ -140,8 +144,9 @@ def main(argv: list[str] | None = None) -> int:
               "xla_flags": args.xla_flags, "cpu_count": args.cores or len(os.sched_getaffinity(0)),
               "compilation_cache": "empty (a fresh clone: the suite makes its own per run)"}
     if args.against:
-        result["against"] = measure(args.against, args.tier, args.xla_flags, args.cores)
-    result |= measure(args.rev, args.tier, args.xla_flags, args.cores)
+        result["against"] = measure(args.against, args.tier, args.xla_flags, args.cores,
+                                    args.log and args.log.with_name(args.log.name + ".against"))
+    result |= measure(args.rev, args.tier, args.xla_flags, args.cores, args.log)
     if args.against:
         result["speedup"] = round(result["against"]["wall_s"] / result["wall_s"], 2)
     print(f"{args.tier} at {result['rev'][:7]}: {result['outcome']}; {result['wall_min']} min, "

@@ -13,14 +13,6 @@ from jaxapf import Obstacles, Scenario
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 
-#: LLVM's optimisation level for the programs the pytest processes compile (docs/testing.md): XLA's own passes
-#: (fusion, layout, the XLA_OPTIONS of jaxapf.engine) run as in use; only the machine code is less optimised,
-#: which takes about 40 % less time to compile a closed loop and runs it up to twice as long: the right trade
-#: for tests' short episodes, not for the sweeps of the commands they start (those keep the default).
-#: ``XLA_FLAGS`` naming a level keeps its own.
-TEST_XLA_FLAGS = "--xla_backend_optimization_level=0"
-
-
 def pytest_configure(config):
     """One persistent compilation cache for the processes of one run (the xdist workers inherit its folder from
     the process that starts them): a program one test module compiled is loaded, not compiled again, by a later
@@ -38,14 +30,6 @@ def pytest_configure(config):
         os.environ["XDG_CACHE_HOME"] = os.environ["JAXAPF_TESTS_XLA"]
     configure_jax(cache_dir=default_cache_dir())
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-    flags = os.environ.get("XLA_FLAGS")
-    if "xla_backend_optimization_level" not in (flags or ""):
-        # this process's backend only: a command a test runs (long sweeps, mostly) compiles as a user's does
-        os.environ["XLA_FLAGS"] = f"{flags or ''} {TEST_XLA_FLAGS}".strip()
-        try:
-            jax.devices()
-        finally:
-            os.environ.pop("XLA_FLAGS") if flags is None else os.environ.update(XLA_FLAGS=flags)
 
 
 def pytest_unconfigure(config):
@@ -105,7 +89,7 @@ def _compile_seconds() -> dict:
 
 
 #: A worker frees every compiled program after a module that leaves it holding more than this (resident bytes).
-KEEP_PROGRAMS_BELOW = 3 * 2**30
+KEEP_PROGRAMS_BELOW = 2 * 2**30
 
 
 @pytest.fixture(autouse=True, scope="module")
