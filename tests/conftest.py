@@ -32,6 +32,17 @@ def pytest_configure(config):
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(session, config, items):
+    """Before ``-m`` deselects any: how many tests each tier holds (``config.jaxapf_tiers``: ``{"all": n,
+    "fast": n}``), where this run collected the whole suite (no paths, ``-k`` or ``--deselect`` narrowed it);
+    None otherwise. tests/test_readme_rules.py holds the suite's recorded times to these counts."""
+    whole = (all(pathlib.Path(a).resolve() == ROOT / "tests" for a in config.args) and not config.option.keyword
+             and not config.getoption("deselect", None))
+    config.jaxapf_tiers = {"all": len(items), "fast": sum(1 for i in items if i.get_closest_marker("slow") is None)
+                           } if whole else None
+
+
 def pytest_unconfigure(config):
     import shutil
 

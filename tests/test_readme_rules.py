@@ -109,3 +109,52 @@ def test_every_documented_time_of_the_quick_start_and_the_suite_names_its_cache(
     assert len(timed) >= 2
     blind = [_plain(s) for s in timed if not re.search(r"cache", s)]
     assert not blind, f"times that do not say which cache they ran with: {blind}"
+
+
+#: How far a recorded suite's test count may be from today's before its times stop describing the suite.
+SUITE_COUNT_TOLERANCE = 0.02
+
+
+def suite_records(repo_root) -> dict[str, set[str]]:
+    """Every suite record (``benchmarks/results/suite-*.json``) the README and docs name, by a binding
+    (``bench/suite-X``) or by its file name, with the documents naming it."""
+    named: dict[str, set[str]] = {}
+    for doc in [repo_root / "README.md", *sorted((repo_root / "docs").glob("*.md"))]:
+        for name in re.findall(r"bench/(suite-[a-z0-9-]+)|\b(suite-[a-z0-9-]+)\.json", doc.read_text()):
+            named.setdefault(next(n for n in name if n), set()).add(doc.name)
+    return named
+
+
+def tier_counts(request, repo_root) -> dict[str, int]:
+    """How many tests each tier holds today: from this run where it collected the whole suite, else from
+    ``pytest --collect-only``."""
+    import sys
+
+    if getattr(request.config, "jaxapf_tiers", None):
+        return request.config.jaxapf_tiers
+    counts = {}
+    for tier, marks in (("all", []), ("fast", ["-m", "not slow"])):
+        out = subprocess.run([sys.executable, "-m", "pytest", "--collect-only", "-q", "-n", "0", "-p",
+                              "no:cacheprovider", *marks], cwd=repo_root, capture_output=True, text=True).stdout
+        counts[tier] = sum(1 for line in out.splitlines() if "::" in line)
+    return counts
+
+
+def test_every_suite_time_stated_comes_from_a_record_of_todays_suite(request, repo_root):
+    """A suite time in the README or docs holds for the suite that was measured: its record's test count is
+    today's for that tier, within 2 %, so a suite that grows past its records fails here until they are rerun
+    (python benchmarks/suite.py; docs/testing.md)."""
+    import json
+
+    named = suite_records(repo_root)
+    assert {"suite-fast", "suite-all"} <= set(named), named
+    counts = tier_counts(request, repo_root)
+    stale = []
+    for name, docs in sorted(named.items()):
+        path = repo_root / "benchmarks" / "results" / f"{name}.json"
+        record = json.loads(path.read_text()) if path.exists() else {}
+        tests, tier = record.get("tests"), record.get("tier")
+        today = counts.get(tier)
+        if today is None or not isinstance(tests, int) or abs(tests - today) > SUITE_COUNT_TOLERANCE * today:
+            stale.append(f"{name} ({', '.join(sorted(docs))}): {tests} tests of tier {tier!r}, today {today}")
+    assert not stale, "suite records that no longer describe the suite (rerun benchmarks/suite.py): " + "; ".join(stale)
