@@ -99,30 +99,13 @@ def _compile_seconds() -> dict:
     return _SPENT
 
 
-#: A worker frees every compiled program after a module that leaves it holding more than this (resident bytes).
-KEEP_PROGRAMS_BELOW = 2 * 2**30
-
-
 @pytest.fixture(autouse=True, scope="module")
 def _free_compiled_programs():
-    """Free the compiled programs after a module that leaves its worker holding more than
-    :data:`KEEP_PROGRAMS_BELOW`: a worker runs a hundred modules, and keeping every program they compiled
-    made the suite's memory grow with their number; below it, later modules reuse what earlier ones
-    compiled and traced."""
+    """Free a module's compiled programs after it: a worker process runs a hundred modules, and keeping every
+    program they compiled made the suite's memory grow with their number (a peak of 11 GB for the whole suite
+    when each worker kept up to 2 GB of them). A later module loads what it shares from the run's cache."""
     yield
-    if _resident_bytes() > KEEP_PROGRAMS_BELOW:
-        jax.clear_caches()
-
-
-def _resident_bytes() -> int:
-    """This process's resident memory (Linux /proc; elsewhere 0: programs are kept)."""
-    import os
-
-    try:
-        with open("/proc/self/statm") as statm:
-            return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
-    except OSError:
-        return 0
+    jax.clear_caches()
 
 
 @pytest.fixture
