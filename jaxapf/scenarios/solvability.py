@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
+from typing import Any, Iterable, Iterator
 
 import numpy as np
 from scipy import ndimage
@@ -104,8 +104,8 @@ class _Grid:
 
     def cell(self, xy: np.ndarray) -> tuple[int, int]:
         """(row, column) of the cell holding ``xy`` (clipped into the grid)."""
-        j, i = np.floor((xy - self.origin) / self.h).astype(int)
-        return int(np.clip(i, 0, self.ny - 1)), int(np.clip(j, 0, self.nx - 1))
+        j, i = (math.floor(v) for v in (xy - self.origin) / self.h)
+        return min(max(i, 0), self.ny - 1), min(max(j, 0), self.nx - 1)
 
     def window(self, centre: np.ndarray, radius: float) -> tuple[slice, slice]:
         """Rows and columns of the cells whose centres may lie within ``radius`` of ``centre``."""
@@ -178,7 +178,8 @@ def _chebyshev_sum(p: np.ndarray, start: np.ndarray, goal: np.ndarray) -> np.nda
     return np.abs(p - start).max(-1) + np.abs(p - goal).max(-1)
 
 
-def _connected(f: _Field, keep: np.ndarray, r2: np.ndarray, r_goal: float, h: float, travel: float) -> bool:
+def _connected(f: _Field, keep: np.ndarray, r2: np.ndarray, r_goal: float, h: float, travel: float,
+               certify: bool = True) -> bool:
     """Whether start and goal cells share an 8-connected component of free cells (static fields),
     on a grid of ``h`` in the frame of the start–goal line (rotations do not change connectivity),
     within the region a UAV that flies at most ``travel`` [m] per axis could visit
@@ -194,20 +195,81 @@ def _connected(f: _Field, keep: np.ndarray, r2: np.ndarray, r_goal: float, h: fl
     # the region: |p - s|_inf + |p - g|_inf <= budget lies in the ellipse |p - s| + |p - g| <= sqrt 2 budget
     budget = travel + r_goal + h
     axis = math.sqrt(2.0) * budget
-    lo = np.maximum(lo, [0.5 * (length - axis), -0.5 * math.sqrt(max(axis * axis - length * length, 0.0))])
-    hi = np.minimum(hi, [0.5 * (length + axis), 0.5 * math.sqrt(max(axis * axis - length * length, 0.0))])
+    cut_lo = np.maximum(lo, [0.5 * (length - axis), -0.5 * math.sqrt(max(axis * axis - length * length, 0.0))])
+    cut_hi = np.minimum(hi, [0.5 * (length + axis), 0.5 * math.sqrt(max(axis * axis - length * length, 0.0))])
+    uncut = bool(np.all(cut_lo == lo) and np.all(cut_hi == hi))  # every disc inside the box: the ring is free
+    lo, hi = cut_lo, cut_hi
     grid = _Grid(lo, np.maximum(hi, lo), h)
-    blocked = np.zeros(grid.shape, bool)
-    grid.paint(blocked, centres, r2)
     to_world = lambda x, y: f.start[:2] + x[..., None] * u + y[..., None] * np.array([-u[1], u[0]])  # noqa: E731
     corners = to_world(np.array([grid.x[0], grid.x[-1], grid.x[0], grid.x[-1]]),
                        np.array([grid.y[0], grid.y[0], grid.y[-1], grid.y[-1]]))
-    if np.any(_chebyshev_sum(corners, f.start[:2], f.goal[:2]) > budget):  # the region is convex
+    clipped = np.any(_chebyshev_sum(corners, f.start[:2], f.goal[:2]) > budget)  # the region is convex
+    window, near = grid.within(goal, r_goal + h / math.sqrt(2))
+    start = grid.cell(np.zeros(2))
+    inside = (lambda x, y: _chebyshev_sum(to_world(x, y), f.start[:2], f.goal[:2]) <= budget * (1.0 - 1e-12)
+              ) if clipped else None
+    if certify and _coarsely_connected(grid, centres, r2, start, window, near, inside, uncut and not clipped):
+        return True
+    blocked = np.zeros(grid.shape, bool)
+    grid.paint(blocked, centres, r2)
+    if clipped:
         blocked |= _chebyshev_sum(to_world(grid.x[None, :], grid.y[:, None]), f.start[:2], f.goal[:2]) > budget
     labels, _ = ndimage.label(~blocked, structure=_EIGHT)
-    mine = labels[grid.cell(np.zeros(2))]
-    window, near = grid.within(goal, r_goal + h / math.sqrt(2))
+    mine = labels[start]
     return bool(mine > 0 and np.any(labels[window][near] == mine))
+
+
+#: Fine cells per side of a block of the static test's certificate (:func:`_coarsely_connected`).
+_BLOCK = 4
+
+
+def _coarsely_connected(grid: _Grid, centres: np.ndarray, r2: np.ndarray, start: tuple[int, int],
+                        window: tuple[slice, slice], near: np.ndarray, inside: Any, ring_free: bool) -> bool:
+    """A certificate of the static test: whether the start's cell and a goal cell are joined by blocks of
+    ``_BLOCK`` × ``_BLOCK`` cells (fewer at the grid's far edges) that are wholly free (no disc reaches the rectangle of their cells' centres,
+    with a margin for rounding; ``inside(x, y)``, the region's test where it cuts the grid, holds at its corners:
+    the region is convex)
+    and 8-connected, or (``ring_free``: no disc reaches the grid's outermost ring of cells, nor does the region
+    cut it) both joined to blocks on the grid's edge, which the ring joins. Every cell of such a block is free
+    and 8-adjacent blocks touch, so the fine grid's components join them too: the search would answer
+    solvable. A sixteenth of the cells to label; ``False``
+    asks the search itself."""
+    b = _BLOCK
+    ny, nx = -(-grid.ny // b), -(-grid.nx // b)  # the last row and column of blocks may hold fewer cells
+    xa, xb = grid.x[0::b], grid.x[np.minimum(np.arange(nx) * b + b - 1, grid.nx - 1)]  # first and last centres
+    ya, yb = grid.y[0::b], grid.y[np.minimum(np.arange(ny) * b + b - 1, grid.ny - 1)]
+    margin = 1e-9 * (1.0 + np.abs(centres).max(initial=0.0))
+    clear = np.ones((ny, nx), bool)
+    side = b * grid.h
+    for (cx, cy), q in zip(centres, r2):
+        if q <= 0:
+            continue
+        reach = math.sqrt(q) + margin
+        j0, j1 = max(int((cx - reach - grid.origin[0]) // side) - 1, 0), min(int((cx + reach - grid.origin[0]) // side) + 2, nx)
+        i0, i1 = max(int((cy - reach - grid.origin[1]) // side) - 1, 0), min(int((cy + reach - grid.origin[1]) // side) + 2, ny)
+        if j0 >= j1 or i0 >= i1:
+            continue
+        dx = np.maximum(np.maximum(xa[j0:j1] - cx, cx - xb[j0:j1]), 0.0)
+        dy = np.maximum(np.maximum(ya[i0:i1] - cy, cy - yb[i0:i1]), 0.0)
+        clear[i0:i1, j0:j1] &= dy[:, None] ** 2 + dx[None, :] ** 2 >= reach * reach
+    for x, y in ((xa, ya), (xb, ya), (xa, yb), (xb, yb)) if inside is not None else ():
+        clear &= inside(x[None, :], y[:, None])
+    si, sj = start[0] // b, start[1] // b
+    if not clear[si, sj]:
+        return False
+    rows, cols = np.nonzero(near)  # the goal cells, as blocks
+    rows, cols = (rows + window[0].start) // b, (cols + window[1].start) // b
+    rows, cols = rows[clear[rows, cols]], cols[clear[rows, cols]]
+    if rows.size == 0:
+        return False
+    labels, _ = ndimage.label(clear, structure=_EIGHT)
+    mine, goals = labels[si, sj], labels[rows, cols]
+    if np.any(goals == mine):
+        return True
+    if not ring_free:
+        return False
+    edge = np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]])
+    return bool(np.isin(mine, edge) and np.any(np.isin(goals, edge[edge > 0])))
 
 
 def _presence(f: _Field, lo: np.ndarray, hi: np.ndarray, height: float,
@@ -232,7 +294,7 @@ def _presence(f: _Field, lo: np.ndarray, hi: np.ndarray, height: float,
 
 
 def _reachable(f: _Field, movers: np.ndarray, lo: np.ndarray, hi: np.ndarray, r_uav: float, v_max: float,
-               t_max: float, r_goal: float, h: float) -> bool:
+               t_max: float, r_goal: float, h: float, certify: bool = True) -> bool:
     """Space–time reachability on a grid of ``h`` in world axes over the box ``lo … hi``
     (docs/scenarios.md); ``movers`` (n,) marks the obstacles to move, the others are painted once."""
     height = f.start[2]
@@ -260,9 +322,15 @@ def _reachable(f: _Field, movers: np.ndarray, lo: np.ndarray, hi: np.ndarray, r_
     dt = h / v_max
     steps = int(math.floor(t_max / dt + 1e-9))
 
+    si, sj = grid.cell(f.start[:2])
+    goal_cells = np.zeros(grid.shape, bool)
+    goal_cells[goal_window] = goal_near
+    discs = _mover_discs(m, moving, t_first, t_quiet, t_in, t_out, climbing, height, m_reach, m_r2,
+                         np.arange(steps + 1) * dt)
+    if certify and _flown(_moving_paths(f, grid, (si, sj), steps), free, goal_cells, discs, grid):
+        return True
     reached = np.zeros(grid.shape, bool)
     flat = reached.reshape(-1)
-    si, sj = grid.cell(f.start[:2])
     reached[si, sj] = True
     if np.any(reached[goal_window][goal_near]):
         return True
@@ -281,10 +349,9 @@ def _reachable(f: _Field, movers: np.ndarray, lo: np.ndarray, hi: np.ndarray, r_
         new &= free[r0:r1, c0:c1]
         reached[r0:r1, c0:c1] = new
         if moving and t_first <= t <= t_quiet:
-            active = (t_in <= t) & (t <= t_out)
-            r2 = _blocking_r2(m, active, t, height, m_reach) if climbing else np.where(active, m_r2, 0.0)
+            centres, r2 = _mover_discs(m, moving, t_first, t_quiet, t_in, t_out, climbing, height, m_reach, m_r2, t)
             on = r2 > 0
-            flat[grid.cover(m.position[on, :2] + m.velocity[on, :2] * t, r2[on], half)] = False
+            flat[grid.cover(centres[on], r2[on], half)] = False
         if reached[goal_window][goal_near].any():
             return True
         if k % 8 == 0:  # shrink the box to the reachable set; stop if it is empty or has stopped growing
@@ -298,6 +365,74 @@ def _reachable(f: _Field, movers: np.ndarray, lo: np.ndarray, hi: np.ndarray, r_
             if grown == count and (k - 8) * dt > t_quiet:  # static for 8 steps, the set only grows: stuck
                 return False
             count = grown
+    return False
+
+
+def _mover_discs(m: _Field, moving: bool, t_first: float, t_quiet: float, t_in: np.ndarray, t_out: np.ndarray,
+                 climbing: bool, height: float, reach: np.ndarray, r2_still: np.ndarray,
+                 t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Centres (..., n, 2) and squared radii (..., n) of the discs the movers block at the times ``t`` (any
+    shape; a radius <= 0: no disc, as outside the movers' presence in the grid)."""
+    t = np.asarray(t, np.float64)[..., None]
+    active = (t_in <= t) & (t <= t_out) & ((t_first <= t) & (t <= t_quiet) if moving else False)
+    if climbing:
+        dz = np.where(m.cylinder, 0.0, height - (m.position[:, 2] + m.velocity[:, 2] * t))
+        r2 = np.where(active & (reach > 0), np.where(reach > 0, reach * reach, 0.0) - dz * dz, 0.0)
+    else:
+        r2 = np.where(active, r2_still, 0.0)
+    return m.position[:, :2] + m.velocity[:, :2] * t[..., None], r2
+
+
+#: The candidate flights of the reachability's certificate (:func:`_moving_paths`): a waypoint this far [m] to
+#: either side of the start–goal line, at these fractions of the way, and these waits [steps] before the start.
+_SIDESTEPS = (1.0, 2.0, 3.5, 5.0)
+_WAYPOINTS_AT = (0.1, 0.5)
+_WAITS = (10, 25, 50)
+
+
+def _line(a: tuple[int, int], b: tuple[int, int]) -> np.ndarray:
+    """Cells (n, 2) of the straight line from ``a`` (excluded) to ``b`` in n = max(|Δrow|, |Δcolumn|) steps of at
+    most one cell per axis (8-connected, and as fast as the per-axis limit allows)."""
+    d = np.subtract(b, a)
+    n = int(np.abs(d).max(initial=0))
+    return np.asarray(a) + np.rint(np.arange(1, n + 1)[:, None] * d / max(n, 1)).astype(int)
+
+
+def _moving_paths(f: _Field, grid: _Grid, start: tuple[int, int], steps: int) -> Iterator[np.ndarray]:
+    """Candidate flights on ``grid``, each the (row, column) of its cell at steps 0, 1, ... (at most ``steps``),
+    made as they are asked for: straight to the goal, through a waypoint beside the start–goal line, after a
+    wait."""
+    goal = grid.cell(f.goal[:2])
+    along = f.goal[:2] - f.start[:2]
+    side = np.array([-along[1], along[0]]) / max(float(np.hypot(*along)), 1e-9)
+    plans = [(0, [])] + [(0, [f.start[:2] + at * along + sign * d * side]) for at in _WAYPOINTS_AT
+                         for d in _SIDESTEPS for sign in (1.0, -1.0)] + [(w, []) for w in _WAITS]
+    for wait, waypoints in plans:
+        legs, here = [np.repeat([start], wait + 1, axis=0)], start
+        for target in [grid.cell(w) for w in waypoints] + [goal]:
+            legs.append(_line(here, target))
+            here = target
+        yield np.concatenate(legs)[:steps + 1]
+
+
+def _flown(paths: Iterable[np.ndarray], free: np.ndarray, goal_cells: np.ndarray, discs: tuple[np.ndarray, np.ndarray],
+           grid: _Grid) -> bool:
+    """Whether one of ``paths`` (cells at steps 0, 1, ...) is a flight of the space–time reachability: every
+    cell after the start free of static obstacles and of the movers' discs at its step (``discs``: centres
+    (K, n, 2) and squared radii (K, n) at steps 0 … K-1, the search's own arithmetic), until one is a goal
+    cell. Each such flight lies in the reachable sets (R_k holds its k-th cell), so the search would answer
+    solvable too: a certificate, never another answer."""
+    centres, r2 = discs
+    for path in paths:
+        rows, cols = path[:, 0], path[:, 1]
+        k = len(path)
+        dx2 = (grid.x[cols][:, None] - centres[:k, :, 0]) ** 2
+        dy2 = (grid.y[rows][:, None] - centres[:k, :, 1]) ** 2
+        ok = free[rows, cols] & ~np.any(dy2 + dx2 < r2[:k], axis=1)
+        ok[0] = True  # R_0 is the start's cell, whatever lies there
+        goal = np.flatnonzero(goal_cells[rows, cols][1:])
+        if goal.size and ok[:goal[0] + 2].all():
+            return True
     return False
 
 
@@ -321,7 +456,7 @@ def _field(start: Any, goal: Any, position: Any, velocity: Any, radius: Any, cyl
 def solvable_field(start: Any, goal: Any, position: Any, velocity: Any, radius: Any, cylinder: Any,
                    valid: Any = None, *, r_uav: float, v_max: float, t_max: float, r_goal: float = 0.5,
                    resolution: float = RESOLUTION, reach_resolution: float = REACH_RESOLUTION,
-                   margin: float = MARGIN, cell_steps: float = CELL_STEPS) -> bool:
+                   margin: float = MARGIN, cell_steps: float = CELL_STEPS, certify: bool = True) -> bool:
     """Whether one field is solvable (docs/scenarios.md). Arrays as in
     :class:`~jaxapf.datatypes.Scenario` and :class:`~jaxapf.datatypes.Obstacles` without batch axes
     (``valid`` defaults to all True); keyword arguments as for :func:`solvable`, unchecked."""
@@ -335,17 +470,17 @@ def solvable_field(start: Any, goal: Any, position: Any, velocity: Any, radius: 
         return False  # too far to fly even without obstacles
     if np.all(statics):
         keep, r2 = _static_discs(f, r_uav, resolution, margin)
-        return _connected(f, keep, r2, r_goal, resolution, v_max * t_max)
+        return _connected(f, keep, r2, r_goal, resolution, v_max * t_max, certify)
     lo = np.minimum(f.start[:2], f.goal[:2]) - margin
     hi = np.maximum(f.start[:2], f.goal[:2]) + margin
     h = reach_cell(float(np.prod(hi - lo)), v_max=v_max, t_max=t_max, resolution=reach_resolution,
                    cell_steps=cell_steps)
-    return _reachable(f, ~statics, lo, hi, r_uav, v_max, t_max, r_goal, h)
+    return _reachable(f, ~statics, lo, hi, r_uav, v_max, t_max, r_goal, h, certify)
 
 
 def solvable(scenarios: Any, *, r_uav: float, v_max: float, t_max: float, r_goal: float = 0.5,
              resolution: float = RESOLUTION, reach_resolution: float = REACH_RESOLUTION,
-             margin: float = MARGIN, cell_steps: float = CELL_STEPS) -> np.ndarray:
+             margin: float = MARGIN, cell_steps: float = CELL_STEPS, certify: bool = True) -> np.ndarray:
     """Whether each field of a batch is solvable: a bool array of the batch's shape.
 
     Args:
@@ -382,6 +517,6 @@ def solvable(scenarios: Any, *, r_uav: float, v_max: float, t_max: float, r_goal
               np.asarray(o.velocity).reshape(n, m, 3), np.asarray(o.radius).reshape(n, m),
               np.asarray(o.cylinder).reshape(n, m), np.asarray(o.valid).reshape(n, m))
     out = [solvable_field(*(a[i] for a in arrays), r_uav=r_uav, v_max=v_max, t_max=t_max, r_goal=r_goal,
-                          resolution=resolution, reach_resolution=reach_resolution, margin=margin,
+                          resolution=resolution, reach_resolution=reach_resolution, margin=margin, certify=certify,
                           cell_steps=cell_steps) for i in range(n)]
     return np.array(out, bool).reshape(batch)
