@@ -88,7 +88,7 @@ def compare(family: str, count: int, old, new) -> dict:
     vehicle = vehicle_of(family)
     answers, seconds = {"old": [], "new": []}, {"old": 0.0, "new": 0.0}
     for first in range(0, count, BLOCK):
-        block = jax.tree_util.tree_map(lambda x: x[first:first + BLOCK], fields)
+        block = jax.tree_util.tree_map(lambda x, first=first: x[first:first + BLOCK], fields)
         for name, oracle in (("old", old), ("new", new)):
             start = time.perf_counter()
             answers[name].append(ask(oracle, block, swarm, vehicle))

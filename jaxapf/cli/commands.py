@@ -201,7 +201,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="output folder (default runs/compare-NAME); what is finished there is reused")
     cmp.add_argument("--resamples", type=int, default=2000, help="bootstrap resamples of the report (default 2000)")
     cmp.add_argument("--gallery", type=int, default=0, help="worst test episodes to re-simulate and draw (default 0)")
-    cmp.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
+    cmp.add_argument("--no-cache", action="store_true",
+                     help="do not use the persistent compilation cache nor the oracle's kept answers")
     cmp.add_argument("--shard", metavar="I/N",
                      help="run only shard I of N: every N-th selection and, once all selections are in --out, "
                           "shard I/N of the test sweep; then the command without --shard writes the report "
@@ -315,7 +316,9 @@ def _add_sweep_parser(sub: argparse._SubParsersAction) -> None:
                          "engine's wide kernels over the cores)")
     sw.add_argument("--cache-dir", type=pathlib.Path, metavar="DIR",
                     help="persistent XLA compilation cache (default ~/.cache/jaxapf/xla)")
-    sw.add_argument("--no-cache", action="store_true", help="no persistent compilation cache")
+    sw.add_argument("--no-cache", action="store_true",
+                    help="no persistent compilation cache, and the solvability oracle asked anew (its answers are "
+                         "kept in ~/.cache/jaxapf/oracle otherwise)")
     sw.add_argument("--shard", metavar="I/N",
                     help="run only shard I of N (0 <= I < N): a fixed, cost-balanced share of the chunks, the same "
                          "for every process reading the spec; shards run at any time, on one output or each in "
@@ -474,6 +477,7 @@ def _tune(args: argparse.Namespace) -> int:
 def _compare(args: argparse.Namespace) -> int:
     from ..compare import run_compare
     from ..engine.runtime import configure_jax, default_cache_dir
+    from ..scenarios import answers
     from ..sweep.plan import parse_shard
     from ..tune import TuneError
     from ..validation import ConfigError
@@ -482,7 +486,7 @@ def _compare(args: argparse.Namespace) -> int:
     configure_jax(cache_dir=None if args.no_cache else default_cache_dir())
     try:
         run_compare(args.spec, args.out, quiet=args.quiet, resamples=args.resamples, gallery=args.gallery,
-                    shard=shard)
+                    shard=shard, answers=None if args.no_cache else answers.folder())
     except ConfigError:
         raise
     except TuneError as err:
@@ -555,6 +559,7 @@ def _margins(texts: Sequence[str]) -> tuple[tuple[str, float], ...]:
 
 def _sweep(args: argparse.Namespace) -> int:
     from ..engine.runtime import configure_jax, default_cache_dir
+    from ..scenarios import answers
     from ..sweep import dry_run, load_spec, parse_size, run_sweep
     from ..sweep.cluster import RayCluster, RaySession
     from ..sweep.plan import parse_shard
@@ -585,7 +590,7 @@ def _sweep(args: argparse.Namespace) -> int:
         return 0
     result = run_sweep(spec, out, memory_budget=budget, chunk_fields=args.chunk_fields, overwrite=args.overwrite,
                        repair=args.repair, quiet=args.quiet, shard=shard, devices=args.devices, ray=cluster,
-                       policy=args.policy)
+                       policy=args.policy, answers=None if args.no_cache else answers.folder())
     print(result.summary(spec.name))
     return 0
 

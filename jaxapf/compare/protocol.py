@@ -85,25 +85,28 @@ def test_sweep_spec(spec: CompareSpec, selections: Sequence[Selection]):
 
 
 def run_compare(spec_path: str | pathlib.Path, out: str | pathlib.Path | None = None, *, quiet: bool = False,
-                resamples: int = 2000, gallery: int = 0, shard: tuple[int, int] | None = None) -> dict[str, Any]:
+                resamples: int = 2000, gallery: int = 0, shard: tuple[int, int] | None = None,
+                answers: str | pathlib.Path | None = None) -> dict[str, Any]:
     """Run the protocol on the spec file at ``spec_path`` (module docstring); ``out`` defaults to
-    ``runs/compare-NAME``. Returns the summary written to ``summary.json`` (with ``shard``: what the
-    shard did)."""
+    ``runs/compare-NAME``; ``answers``: the folder of the oracle's kept answers for the test sweep
+    (:func:`~jaxapf.sweep.run_sweep`). Returns the summary written to ``summary.json`` (with ``shard``: what
+    the shard did)."""
     spec, text = load_compare_spec(spec_path)
     return run_compare_spec(spec, text, out if out is not None else pathlib.Path("runs") / f"compare-{spec.name}",
-                            quiet=quiet, resamples=resamples, gallery=gallery, shard=shard)
+                            quiet=quiet, resamples=resamples, gallery=gallery, shard=shard, answers=answers)
 
 
 def run_compare_spec(spec: CompareSpec, text: str, out: str | pathlib.Path, *, quiet: bool = False,
-                     resamples: int = 2000, gallery: int = 0, shard: tuple[int, int] | None = None) -> dict[str, Any]:
+                     resamples: int = 2000, gallery: int = 0, shard: tuple[int, int] | None = None,
+                     answers: str | pathlib.Path | None = None) -> dict[str, Any]:
     """:func:`run_compare` on a validated spec; ``text`` is recorded as the spec file."""
     out = pathlib.Path(out)
     with writing(out, "finished selections and test parts are kept", shard):
-        return _run(spec, text, out, quiet=quiet, resamples=resamples, gallery=gallery, shard=shard)
+        return _run(spec, text, out, quiet=quiet, resamples=resamples, gallery=gallery, shard=shard, answers=answers)
 
 
 def _run(spec: CompareSpec, text: str, out: pathlib.Path, *, quiet: bool, resamples: int, gallery: int,
-         shard: tuple[int, int] | None) -> dict[str, Any]:
+         shard: tuple[int, int] | None, answers: str | pathlib.Path | None = None) -> dict[str, Any]:
     """The body of :func:`run_compare_spec`, under the lock."""
     from ..io.lock import write_atomic
     from ..io.names import check_kind, read_own
@@ -138,7 +141,7 @@ def _run(spec: CompareSpec, text: str, out: pathlib.Path, *, quiet: bool, resamp
                 "selections_missing": missing}
     if shard is not None:
         test = test_sweep_spec(spec, selections)
-        result = run_sweep(test, out / "test.parquet", quiet=quiet, shard=shard)
+        result = run_sweep(test, out / "test.parquet", quiet=quiet, shard=shard, answers=answers)
         _say(quiet, result.summary(test.name) + "; `jaxapf compare` without --shard writes the report once every "
                     "shard's test parts are there")
         return {"name": spec.name, "shard": list(shard), "selections_done": len(jobs), "selections_missing": 0,
@@ -149,7 +152,7 @@ def _run(spec: CompareSpec, text: str, out: pathlib.Path, *, quiet: bool, resamp
     write_atomic(out / "selection.csv", table.to_csv(index=False))
 
     test = test_sweep_spec(spec, selections)
-    result = run_sweep(test, out / "test.parquet", quiet=quiet)
+    result = run_sweep(test, out / "test.parquet", quiet=quiet, answers=answers)
     _say(quiet, result.summary(test.name))
     report = build_report(out / "test.parquet", out / "report",
                           ReportOptions(baseline=baseline_filter(spec), pair_on=("selection",), heatmap=None,

@@ -8,7 +8,10 @@ It answers a relaxation of the question: "unsolvable" is a proof (no collision-f
 "solvable" may be optimistic (the acceleration limit is ignored). Static fields are an
 8-connectivity test on a rasterised plane, moving fields a space–time reachability on a grid;
 docs/scenarios.md ("The solvability oracle") states the definition, its assumptions and why each
-answer means what it says.
+answer means what it says. Before either search, a certificate answers most solvable fields at a
+fraction of its cost (a free path of whole blocks of cells; a flight through the reachable sets): it
+can only find what the search would, so the answers are the search's (``certify=False`` runs the
+search alone, the reference the tests hold the certificates to).
 """
 
 from __future__ import annotations
@@ -226,9 +229,9 @@ _BLOCK = 4
 def _coarsely_connected(grid: _Grid, centres: np.ndarray, r2: np.ndarray, start: tuple[int, int],
                         window: tuple[slice, slice], near: np.ndarray, inside: Any, ring_free: bool) -> bool:
     """A certificate of the static test: whether the start's cell and a goal cell are joined by blocks of
-    ``_BLOCK`` × ``_BLOCK`` cells (fewer at the grid's far edges) that are wholly free (no disc reaches the rectangle of their cells' centres,
-    with a margin for rounding; ``inside(x, y)``, the region's test where it cuts the grid, holds at its corners:
-    the region is convex)
+    ``_BLOCK`` × ``_BLOCK`` cells (fewer at the grid's far edges) that are wholly free (no disc reaches the
+    rectangle of their cells' centres, with a margin for rounding; ``inside(x, y)``, the region's test where it
+    cuts the grid, holds at its corners: the region is convex)
     and 8-connected, or (``ring_free``: no disc reaches the grid's outermost ring of cells, nor does the region
     cut it) both joined to blocks on the grid's edge, which the ring joins. Every cell of such a block is free
     and 8-adjacent blocks touch, so the fine grid's components join them too: the search would answer
@@ -245,8 +248,8 @@ def _coarsely_connected(grid: _Grid, centres: np.ndarray, r2: np.ndarray, start:
         if q <= 0:
             continue
         reach = math.sqrt(q) + margin
-        j0, j1 = max(int((cx - reach - grid.origin[0]) // side) - 1, 0), min(int((cx + reach - grid.origin[0]) // side) + 2, nx)
-        i0, i1 = max(int((cy - reach - grid.origin[1]) // side) - 1, 0), min(int((cy + reach - grid.origin[1]) // side) + 2, ny)
+        (j0, i0), (j1, i1) = ((np.array([cx, cy]) + sign * reach - grid.origin) // side for sign in (-1, 1))
+        j0, j1, i0, i1 = max(int(j0) - 1, 0), min(int(j1) + 2, nx), max(int(i0) - 1, 0), min(int(i1) + 2, ny)
         if j0 >= j1 or i0 >= i1:
             continue
         dx = np.maximum(np.maximum(xa[j0:j1] - cx, cx - xb[j0:j1]), 0.0)
@@ -495,6 +498,7 @@ def solvable(scenarios: Any, *, r_uav: float, v_max: float, t_max: float, r_goal
         large boxes, see :func:`reach_cell`).
       margin: growth [m] >= 0 of the start–goal bounding box that the search covers.
       cell_steps: budget > 0 of (grid cells) × (time steps) of the space–time reachability.
+      certify: try the certificates first (the same answers, sooner); False runs each search alone.
 
     "Unsolvable" is a proof: no collision-free flight exists under the assumptions in
     docs/scenarios.md (for a moving field, none inside the searched box). "Solvable" may be optimistic: by

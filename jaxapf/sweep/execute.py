@@ -55,9 +55,11 @@ class ChunkRunner:
 
     def _solvable(self, chunk: Chunk, fields: Any, sim: Any) -> np.ndarray:
         """:func:`~jaxapf.scenarios.solvable` of the chunk's real fields, once per field and vehicle
-        (variants that differ only in method or gains share the answer); of a swarm field, whether every
+        (variants that differ only in method or gains share the answer; with the plan's ``answers`` folder,
+        runs that fly the same fields too: :mod:`jaxapf.scenarios.answers`); of a swarm field, whether every
         UAV passes it alone (:func:`~jaxapf.scenarios.swarms.agents_solvable`)."""
         from ..scenarios import solvable
+        from ..scenarios.answers import remembered
         from ..scenarios.swarms import agents_solvable
 
         oracle = (lambda real, **v: agents_solvable(real, **v).all(axis=-1)) if self.plan.spec.swarm else solvable
@@ -67,7 +69,11 @@ class ChunkRunner:
         if key not in self._oracle:
             n = chunk.stop - chunk.start
             real = jax.tree_util.tree_map(lambda a: np.asarray(a)[:n], fields)
-            self._oracle[key] = oracle(real, **vehicle)
+            arrays = {name: leaf for name, leaf in ((jax.tree_util.keystr(path), leaf) for path, leaf in
+                                                    jax.tree_util.tree_flatten_with_path(real)[0])
+                      if name not in (".kind", ".key")}  # the geometry, not the field's name
+            question = vehicle | {"swarm": self.plan.spec.swarm}
+            self._oracle[key] = remembered(self.plan.answers, arrays, question, (n,), lambda: oracle(real, **vehicle))
         return self._oracle[key]
 
 

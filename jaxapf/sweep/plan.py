@@ -277,6 +277,7 @@ class Plan:
       chunk_fields, memory_budget: what cut the chunks (``--chunk-fields``, ``--memory-budget``).
       policy: how the chunks fill the backend (:class:`~jaxapf.engine.policy.Policy`).
       obstacle_slots: the slot count every family is padded to (the policy's ``common_slots``), or None.
+      answers: the folder of the oracle's kept answers (:mod:`jaxapf.scenarios.answers`), or None (asked anew).
     """
 
     spec: SweepSpec
@@ -294,6 +295,7 @@ class Plan:
     memory_budget: int = DEFAULT_MEMORY_BUDGET
     policy: Policy = CPU
     obstacle_slots: int | None = None
+    answers: str | None = None
 
     def resumed(self, done: Sequence[Chunk]) -> "Plan":
         """This plan with ``done`` finished and :meth:`chunks_left` to run (the blocks, the costly part of

@@ -112,6 +112,7 @@ def run_sweep(
     ray: RayCluster | None = None,
     after_part: Callable[[Chunk], None] | None = None,
     policy: str | None = None,
+    answers: str | os.PathLike | None = None,
 ) -> SweepResult:
     """Run (or resume) ``spec`` into the Parquet dataset directory ``out``.
 
@@ -140,13 +141,13 @@ def run_sweep(
     with contextlib.ExitStack() as stack:
         session = None if ray is None else stack.enter_context(RaySession(ray))
         result = _run(spec, out, dict(memory_budget=memory_budget, chunk_fields=chunk_fields, policy=policy),
-                      overwrite, repair, quiet, devices, shard, session, after_part)
+                      overwrite, repair, quiet, devices, shard, session, after_part, answers)
     return dataclasses.replace(result, seconds=time.perf_counter() - start)
 
 
 def _run(spec: SweepSpec, out: pathlib.Path, options: dict[str, Any], overwrite: bool, repair: bool, quiet: bool,
          devices: int | None, shard: tuple[int, int] | None, session: RaySession | None,
-         after_part: Callable[[Chunk], None] | None) -> SweepResult:
+         after_part: Callable[[Chunk], None] | None, answers: str | os.PathLike | None = None) -> SweepResult:
     """:func:`run_sweep` once its Ray session, if any, is open; ``options``: :func:`plan_sweep`'s."""
     if session is not None:  # the workers' backend, free device memory and versions, not this process's
         found = session.probe()
@@ -154,7 +155,8 @@ def _run(spec: SweepSpec, out: pathlib.Path, options: dict[str, Any], overwrite:
         options |= dict(backend=found["backend"], versions=found["versions"], free=found.get("free"))
     if shard is not None:
         devices = 1
-    plan = plan_sweep(spec, devices=devices, out=out, **options)
+    plan = dataclasses.replace(plan_sweep(spec, devices=devices, out=out, **options),
+                               answers=None if answers is None else str(answers))
     note = (lambda line: None) if quiet else (lambda line: print(f"note: {line}", file=sys.stderr, flush=True))
     check_writable(out)
     with OutputLock(out, shard):

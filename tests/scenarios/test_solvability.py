@@ -9,6 +9,8 @@ import dataclasses
 import jax
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from jaxapf.datatypes import Obstacles, Scenario
 from jaxapf.scenarios import FAMILIES, family_params, make_scenarios, reach_cell, solvable
@@ -67,9 +69,12 @@ UAV = {"r_uav": 0.3, "v_max": 2.0, "t_max": 60.0}
 
 
 def answer(scenario: Scenario, **kwargs) -> bool:
-    """The oracle's answer for one field, with the engine's UAV and a 60 s episode by default."""
+    """The oracle's answer for one field, with the engine's UAV and a 60 s episode by default; the same as the
+    search's own (``certify=False``: the oracle of 360a044, without the certificates that answer most fields
+    before the search), float64."""
     out = solvable(scenario, **(UAV | kwargs))
     assert out.shape == () and out.dtype == bool
+    assert out == solvable(scenario, **(UAV | kwargs), certify=False)
     return bool(out)
 
 
@@ -96,6 +101,22 @@ def test_a_finite_wall_can_be_flown_around_when_there_is_time():
 def test_a_gap_a_little_wider_than_the_uav_is_open_and_a_little_narrower_is_closed(spare, expected):
     # surfaces 2 r_uav ± 0.1 m apart: 0.05 m to spare or missing on each side, 2 cells of 0.025 m
     assert answer(field(*gap_wall(0.6 + spare)), t_max=20.0) is expected
+
+
+def test_a_gap_one_cell_wider_than_the_uav_is_open():
+    # the gap between surfaces is the UAV's diameter and one cell of the static grid (0.025 m)
+    assert answer(field(*gap_wall(2 * UAV["r_uav"] + 0.025)))
+
+
+def test_a_mover_that_seals_a_corridor_delays_the_uav():
+    # a corridor between walls along y = ±2.1 m (x from 2 to 18 m); a cylinder of radius 1.6 m crossing it at
+    # x = 10 m at 3.2 m/s, on the line at t = 5 s, when the UAV flying at v_max would pass: it seals the
+    # corridor for about a second and the UAV arrives about 0.6 s later than in the empty corridor
+    walls = [Ob(x, s * 2.1, radius=0.6) for x in np.arange(2.0, 18.01, 0.8) for s in (1.0, -1.0)]
+    mover = Ob(10.0, -16.0, radius=1.6, v=(0.0, 3.2, 0.0))
+    assert answer(field(*walls), t_max=10.0)
+    assert not answer(field(*walls, mover), t_max=10.0)
+    assert answer(field(*walls, mover), t_max=10.6)
 
 
 def test_the_gap_decides_at_a_coarser_resolution_too():
@@ -196,6 +217,18 @@ def test_a_mover_that_keeps_the_uav_shut_in_is_unsolvable_until_it_leaves():
     assert answer(field(*ring))
 
 
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.tuples(st.floats(3.0, 17.0), st.floats(-4.0, 4.0), st.floats(0.3, 2.0), st.floats(-2.0, 2.0),
+                          st.floats(-2.0, 2.0), st.booleans()), min_size=1, max_size=12),
+       st.floats(8.0, 40.0))
+def test_the_certificates_never_change_an_answer(obstacles, t_max):
+    """Random fields of up to twelve obstacles across the line, still or moving (a moving field takes the
+    reachability's flights, a still one the static test's blocks): the search's answer whatever the
+    certificates found."""
+    rows = [Ob(x, y, radius=r, v=(vx, vy, 0.0) if moves else (0.0, 0.0, 0.0)) for x, y, r, vx, vy, moves in obstacles]
+    answer(field(*rows), t_max=t_max)
+
+
 # ------------------------------------------------------------------------------------------
 # batches, arguments, built-in families
 # ------------------------------------------------------------------------------------------
@@ -238,6 +271,15 @@ def family_answers():
         batch = jax.device_get(make_scenarios(0, p, _FIELDS))
         out[name] = (batch, p, solvable(batch, r_uav=p.r_uav, v_max=2.0, t_max=p.t_max))
     return out
+
+
+def test_the_certificates_answer_as_the_search_does_on_every_family(family_answers):
+    """A certificate (a free path of whole blocks, a flight through the reachable sets) only ever says
+    solvable where the search would: on 64 fields of every family the answers are the search's alone
+    (benchmarks/oracle.py checks 8,192 fields of every family, single-UAV and swarm)."""
+    for name, (batch, p, answers) in family_answers.items():
+        np.testing.assert_array_equal(answers, solvable(batch, r_uav=p.r_uav, v_max=2.0, t_max=p.t_max,
+                                                        certify=False), err_msg=name)
 
 
 @pytest.mark.slow
