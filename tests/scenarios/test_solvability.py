@@ -273,6 +273,7 @@ def family_answers():
     return out
 
 
+@pytest.mark.slow
 def test_the_certificates_answer_as_the_search_does_on_every_family(family_answers):
     """A certificate (a free path of whole blocks, a flight through the reachable sets) only ever says
     solvable where the search would: on 64 fields of every family the answers are the search's alone
