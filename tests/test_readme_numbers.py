@@ -158,6 +158,7 @@ def test_the_solvability_oracles_page_states_the_codes_numbers():
         2 * static.r_uav, 2 * static.cup_radius * math.sin(math.pi / 8) - 2 * static.radius,  # a cup's gap
         *(s / 2 for s in trap.gap_slack),  # a narrow gap's room on each side
         1, 2, 3, 8,  # SPEC 1 and 2, the 3×3 dilation, 8-connectivity
+        oracle._BLOCK, *oracle._SIDESTEPS, *oracle._WAITS,  # the certificates' blocks, waypoints and waits
     }
     body = section((ROOT / "docs" / "scenarios.md").read_text(), "The solvability oracle")
     missing = unmatched(numbers(prose(body)), {repr(v) for v in source})

@@ -477,7 +477,6 @@ def _tune(args: argparse.Namespace) -> int:
 def _compare(args: argparse.Namespace) -> int:
     from ..compare import run_compare
     from ..engine.runtime import configure_jax, default_cache_dir
-    from ..scenarios import answers
     from ..sweep.plan import parse_shard
     from ..tune import TuneError
     from ..validation import ConfigError
@@ -486,7 +485,7 @@ def _compare(args: argparse.Namespace) -> int:
     configure_jax(cache_dir=None if args.no_cache else default_cache_dir())
     try:
         run_compare(args.spec, args.out, quiet=args.quiet, resamples=args.resamples, gallery=args.gallery,
-                    shard=shard, answers=None if args.no_cache else answers.folder())
+                    shard=shard, answers=None if args.no_cache else default_cache_dir("oracle"))
     except ConfigError:
         raise
     except TuneError as err:
@@ -559,7 +558,6 @@ def _margins(texts: Sequence[str]) -> tuple[tuple[str, float], ...]:
 
 def _sweep(args: argparse.Namespace) -> int:
     from ..engine.runtime import configure_jax, default_cache_dir
-    from ..scenarios import answers
     from ..sweep import dry_run, load_spec, parse_size, run_sweep
     from ..sweep.cluster import RayCluster, RaySession
     from ..sweep.plan import parse_shard
@@ -590,7 +588,7 @@ def _sweep(args: argparse.Namespace) -> int:
         return 0
     result = run_sweep(spec, out, memory_budget=budget, chunk_fields=args.chunk_fields, overwrite=args.overwrite,
                        repair=args.repair, quiet=args.quiet, shard=shard, devices=args.devices, ray=cluster,
-                       policy=args.policy, answers=None if args.no_cache else answers.folder())
+                       policy=args.policy, answers=None if args.no_cache else default_cache_dir("oracle"))
     print(result.summary(spec.name))
     return 0
 

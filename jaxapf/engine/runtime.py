@@ -13,10 +13,11 @@ from ..validation import ConfigError, first_line
 __all__ = ["configure_jax", "default_cache_dir"]
 
 
-def default_cache_dir() -> pathlib.Path:
-    """``$XDG_CACHE_HOME/jaxapf/xla`` (default ``~/.cache/jaxapf/xla``)."""
+def default_cache_dir(what: str = "xla") -> pathlib.Path:
+    """``$XDG_CACHE_HOME/jaxapf/WHAT`` (default ``~/.cache/jaxapf/xla``, the compilation cache; ``oracle``: the
+    solvability oracle's kept answers, :mod:`jaxapf.scenarios.answers`)."""
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return pathlib.Path(base) / "jaxapf" / "xla"
+    return pathlib.Path(base) / "jaxapf" / what
 
 
 def configure_jax(*, x64: bool = False, cache_dir: str | os.PathLike | None = None,

@@ -8,7 +8,8 @@ byte for byte; :func:`key`): a different field, vehicle or oracle is another nam
 data: a NumPy array read without pickles, through jaxapf's checked opener (a regular file, no link
 followed, never blocking, at most the bytes the answers take), and used only if it is a bool array of
 the chunk's shape; anything else is asked again and written anew. Writing is atomic, and a folder that
-cannot be written only means asking again.
+cannot be written only means asking again. The commands keep them in ``$XDG_CACHE_HOME/jaxapf/oracle``
+(``jaxapf.engine.runtime.default_cache_dir("oracle")``).
 """
 
 from __future__ import annotations
@@ -23,14 +24,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-__all__ = ["folder", "key", "recall", "keep", "remembered"]
-
-
-def folder() -> pathlib.Path:
-    """``$XDG_CACHE_HOME/jaxapf/oracle`` (default ``~/.cache/jaxapf/oracle``), beside the compilation cache."""
-    from ..engine.runtime import default_cache_dir
-
-    return default_cache_dir().parent / "oracle"
+__all__ = ["key", "recall", "keep", "remembered"]
 
 
 @functools.cache

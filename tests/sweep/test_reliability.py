@@ -406,6 +406,14 @@ def test_a_signal_while_the_command_starts_is_one_line(tmp_path):
         assert _one_line(err).startswith("jaxapf"), err
 
 
+def _wait(seconds: float) -> None:
+    """Sleep ``seconds`` in steps of 10 ms: an interrupt made pending in the main thread (not a signal, which
+    would end a sleep) is raised between two steps, not after the whole of it."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        time.sleep(0.01)
+
+
 def test_a_signal_inside_an_import_waits_for_its_end_and_a_swallowed_one_is_raised_again(tmp_path, monkeypatch):
     """The handler of the command line holds a signal that comes while a module is imported (raised inside an
     extension module's initialisation, it crashed the process) and raises it once the import ended; an
@@ -426,14 +434,14 @@ def test_a_signal_inside_an_import_waits_for_its_end_and_a_swallowed_one_is_rais
         with pytest.raises(KeyboardInterrupt):
             module = importlib.import_module("signalled_during_import")  # held: the import completes
             assert module.DONE
-            time.sleep(5)  # then it is raised here, at the latest
+            _wait(5.0)  # then it is raised here, at the latest
         assert "signalled_during_import" in sys.modules
         with pytest.raises(stops.Terminated):
             stops.on_signal(signal.SIGTERM, sys._getframe())  # outside an import: at once
         hook = stops.unraisable(lambda report: None)
         with pytest.raises(KeyboardInterrupt):
             hook(types.SimpleNamespace(exc_value=KeyboardInterrupt()))
-            time.sleep(5)
+            _wait(5.0)
     finally:
         signal.signal(signal.SIGINT, previous if previous is not None else signal.SIG_DFL)
 
