@@ -50,14 +50,13 @@ def _bare_run(spec: Any, streaming: bool) -> Any:
     from ..scenarios import make_scenarios
     from ..sweep import plan_sweep
 
-    dtype = jnp.result_type(float)
     plan = plan_sweep(spec, devices=1)
     work = []
     for v in plan.variants:
         for family in spec.families:
             block = plan.blocks[(v.index, family)]  # the sweep's vmap width (narrower for long episodes)
             fields = _block(make_scenarios(spec.seed, spec.family_params(family), spec.fields))
-            work.append((fields, v.gains(dtype), block.sim, block.mpc, block.width))
+            work.append((fields, plan.gains(v), block.flown, block.mpc, block.width))
     calls = [lambda w=w: _block(evaluate(*w, streaming=streaming)) for w in work]
     results = [call() for call in calls]
 

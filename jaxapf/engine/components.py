@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any, Mapping
 
 from ..control import ESTIMATORS, FILTERS, MPC_GAINS
 from ..planners import PLANNERS
+from ..planners.apf import FUSED, fused
 from ..registry import Registry
 from ..world import DISTURBANCES, PLANTS
 from ..world.sensing import SENSORS
@@ -28,18 +29,26 @@ from ..world.sensing import SENSORS
 if TYPE_CHECKING:
     from ..config import SimConfig
 
-__all__ = ["COMPONENTS", "components_read_gains", "component_names", "gains_read", "metrics_in_use"]
+__all__ = ["COMPONENTS", "component", "components_read_gains", "component_names", "gains_read", "metrics_in_use"]
 
 #: Static key of a simulation setting -> the registry of the components it names.
 COMPONENTS: Mapping[str, Registry[Any]] = {"method": PLANNERS, "filter": FILTERS, "plant": PLANTS,
                                            "sensor": SENSORS, "disturbance": DISTURBANCES, "estimator": ESTIMATORS}
 
 
+def component(key: str, name: str, where: str = "sim") -> Any:
+    """The component ``name`` of :data:`COMPONENTS` ``key``; a method holding :data:`~jaxapf.planners.apf.FUSED` is a
+    fused program's planner (:func:`~jaxapf.planners.apf.fused`). An unknown name raises
+    :class:`~jaxapf.validation.ConfigError` naming ``where.key``."""
+    if key == "method" and FUSED in name:
+        return fused(name)
+    return COMPONENTS[key].get(name, f"{where}.{key}")
+
+
 def components_read_gains(names: Mapping[str, str], where: str = "sim") -> frozenset[str]:
     """The gains the components ``names`` (``{key: name}`` for every key of :data:`COMPONENTS`)
-    declare; an unknown name raises :class:`~jaxapf.validation.ConfigError` naming ``where.key``."""
-    return frozenset(g.name for key, registry in COMPONENTS.items()
-                     for g in registry.get(names[key], f"{where}.{key}").gains)
+    declare (:func:`component`)."""
+    return frozenset(g.name for key in COMPONENTS for g in component(key, names[key], where).gains)
 
 
 def component_names(sim: SimConfig) -> dict[str, str]:

@@ -70,12 +70,12 @@ class DeviceBatch:
         CPU devices at once (:attr:`~jaxapf.planners.Planner.concurrent_cpu_devices`) has its blocks run
         one after another, each waited for."""
 
-        from ..planners import PLANNERS
+        from .components import component
 
         placed = jax.device_put(scenarios, self.fields)
         shards = [jax.tree_util.tree_map(lambda x, i=i: _shard(x, i), placed) for i in range(len(self.devices))]
         run = partial(self.pool.submit, program, sim=sim, mpc=mpc, width=width, metrics=metrics, refill=refill)
-        if PLANNERS.get(sim.planner.method, "method").concurrent_cpu_devices or self.devices[0].platform != "cpu":
+        if component("method", sim.planner.method).concurrent_cpu_devices or self.devices[0].platform != "cpu":
             futures = [run(s, g) for s, g in zip(shards, gains)]
             outs = [f.result() for f in futures]
         else:  # one block after another (Planner.concurrent_cpu_devices)

@@ -42,7 +42,7 @@ from ..datatypes import Scenario, Trajectory
 from ..gains import Gains
 from ..metrics import episode_metrics
 from ..validation import ConfigError
-from .components import COMPONENTS, component_names, gains_read
+from .components import component, component_names, gains_read
 
 __all__ = ["rollout", "rollout_metrics", "closed_loop", "episode_loop", "loop_init", "loop_step", "record_trajectory",
            "ideal_tracking", "check_tracked"]
@@ -64,7 +64,7 @@ class ClosedLoop(NamedTuple):
 def closed_loop(sim: SimConfig, mpc: MPCConfig, dtype: Any) -> ClosedLoop:
     """The registered components of ``sim`` and the MPC problem on the plant's linear model (``None``
     with ``sim.mpc_weights = "gains"``: each episode builds its own, :func:`episode_loop`)."""
-    parts = {key: COMPONENTS[key].get(name, f"sim.{key}") for key, name in component_names(sim).items()}
+    parts = {key: component(key, name) for key, name in component_names(sim).items()}
     check_tracked(parts["method"], sim)
     static = sim.planner.mpc_weights == "static"
     return ClosedLoop(parts["method"], parts["filter"], parts["plant"], parts["sensor"], parts["disturbance"],

@@ -9,12 +9,14 @@ what the accelerator runs:
   step computes padded slots; 256 MiB per chunk.
 * :data:`ACCELERATOR`: every episode of a chunk flies side by side (a GPU step costs about the same from
   1,024 to 4,096 episodes: the device is launch-bound, not compute-bound), up to 65,536 at once; the
-  families of a sweep are padded to one obstacle slot count, so one program serves them all; the chunk's
+  families of a sweep are padded to one obstacle slot count, so one program serves them all; potential-field
+  methods that differ only in their weight fly one program too (:func:`jaxapf.sweep.plan.fuse`); the chunk's
   budget is half the device's free memory.
 
 Neither changes an episode's numbers through its width (the streaming engine's contract,
 ``tests/engine/test_stream.py``); padded obstacle slots contribute nothing but are summed in a different
-order, so :data:`ACCELERATOR` rows agree with :data:`CPU` rows up to rounding (docs/testing.md).
+order, and a fused program computes every weight and selects one (a program compiled apart), so
+:data:`ACCELERATOR` rows agree with :data:`CPU` rows up to rounding (docs/testing.md).
 """
 
 from __future__ import annotations
@@ -39,6 +41,8 @@ class Policy:
         (:func:`~jaxapf.engine.stream.stream_slots`); False: as many slots as the vmap width holds.
       common_slots: pad every family of a sweep to the largest obstacle slot count, so families share
         one compiled program per static variant.
+      fuse: potential-field methods that differ only in their weight fly one program
+        (:func:`jaxapf.sweep.plan.fuse`).
       width: the widest vmap of a sweep.
       budget: a chunk's default working-set budget [bytes]; ``None``: half the device's free memory
         (:func:`free_memory`).
@@ -52,6 +56,7 @@ class Policy:
     width: int
     budget: int | None
     width_budget: int | None
+    fuse: bool = False
 
     def memory_budget(self, free: int | None) -> int:
         """The default ``--memory-budget``: :attr:`budget`, or half of ``free`` device memory (256 MiB where
@@ -68,7 +73,8 @@ class Policy:
 #: The CPU's chunk budget, and the least an accelerator's default takes [bytes].
 CPU_BUDGET = 256 * 2**20
 CPU = Policy("cpu", refill=True, common_slots=False, width=CPU_WIDTH, budget=CPU_BUDGET, width_budget=CPU_BUDGET // 2)
-ACCELERATOR = Policy("accelerator", refill=False, common_slots=True, width=65_536, budget=None, width_budget=None)
+ACCELERATOR = Policy("accelerator", refill=False, common_slots=True, width=65_536, budget=None, width_budget=None,
+                     fuse=True)
 POLICIES = {p.name: p for p in (CPU, ACCELERATOR)}
 
 

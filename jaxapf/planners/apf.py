@@ -15,7 +15,8 @@ methods). The MPC reference is ``(P_pred, 0)`` (the paper's zero velocity refere
 ``PlannerConfig.reference_velocity``, ``(P_pred, [v, u_0, …, u_{N-1}])``.
 
 The paper's three methods are ``APF(Basic())``, ``APF(Direction())`` and
-``APF(DirectionVelocity())``, registered as ``basic``, ``direction`` and ``direction_velocity``.
+``APF(DirectionVelocity())``, registered as ``basic``, ``direction`` and ``direction_velocity``;
+:func:`fused` flies several potential-field methods in one program (the accelerator policy).
 """
 
 from __future__ import annotations
@@ -30,15 +31,16 @@ from jax import Array
 
 from ..datatypes import ObstacleColumns, Obstacles, safe_norm
 from ..gains import GainSpec, declare_gains
-from .base import Planner, reference_states, register_planner
+from ..validation import ConfigError
+from .base import PLANNERS, Planner, reference_states, register_planner
 from .potentials import attractive_potential, total_force
-from .weights import GAMMA, Basic, Direction, DirectionVelocity, K, Normalised, Weight
+from .weights import GAMMA, Basic, Chosen, Direction, DirectionVelocity, K, Normalised, Weight
 
 if TYPE_CHECKING:
     from ..config import SimConfig
     from ..gains import Gains
 
-__all__ = ["K_REP", "D_S", "K_ATT", "ETA", "ForceTerm", "APF", "saturate"]
+__all__ = ["K_REP", "D_S", "K_ATT", "ETA", "ForceTerm", "APF", "saturate", "FUSED", "fusable", "fused"]
 
 K_REP = GainSpec("k_rep", 10.0, low=0.0, low_open=True, doc="repulsive gain k_rep (paper eq. 13)")
 D_S = GainSpec("d_s", 4.0, low=0.0, low_open=True, unit="m", doc="influence distance d_s (paper eq. 13)")
@@ -134,6 +136,29 @@ class APF(Planner):
 
         _, (points, flows) = jax.lax.scan(flow, (x[:3], x[3:]), jnp.arange(horizon, dtype=x.dtype))
         return reference_states(x, points, flows, sim), state
+
+
+#: What joins the methods of a fused program's name: ``basic+direction+direction_velocity``.
+FUSED = "+"
+
+
+def fusable(planner: Planner) -> bool:
+    """Whether ``planner`` can fly in a fused program (:func:`fused`): a potential-field planner that differs
+    from the others only in its weight (no extra force terms)."""
+    return type(planner) is APF and not planner.terms
+
+
+def fused(name: str) -> APF:
+    """The planner of a fused program ``name`` (methods joined by :data:`FUSED`): the potential-field flow whose
+    weight is each method's own, chosen per episode by the gain ``weight_choice`` (its method's position in
+    ``name``), so that methods differing only in their weight share one compiled program. Each must be
+    :func:`fusable`."""
+    planners = [PLANNERS.get(m, "method") for m in name.split(FUSED)]
+    odd = [m for m, p in zip(name.split(FUSED), planners) if not fusable(p)]
+    if odd or len(planners) < 2:
+        raise ConfigError(f"method = {name!r}: a fused program flies two or more potential-field planners without "
+                          f"extra force terms{'; not ' + ', '.join(odd) if odd else ''}")
+    return APF(Chosen(tuple(p.weight for p in planners)), description=f"the weights of {', '.join(name.split(FUSED))}")
 
 
 # The paper's gains, in the order of its tables, then its three methods.

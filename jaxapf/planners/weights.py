@@ -2,7 +2,8 @@ r"""Repulsive weights ω (paper eq. 14–20): a factor on each obstacle's repuls
 
 ``Basic`` (ω = 1), ``Direction`` (eq. 15) and ``DirectionVelocity`` (eq. 19, the paper's proposal), read
 under either sign convention (``intent``, ``literal``); :class:`Normalised` divides a weight by its value
-abeam at zero closing speed, so only the weighting's shape differs from ``basic``. The force is ``-∇_p`` of
+abeam at zero closing speed, so only the weighting's shape differs from ``basic``; :class:`Chosen` flies
+several weights in one compiled program, each episode the one its gains choose. The force is ``-∇_p`` of
 ``ω U_rep`` (:mod:`jaxapf.planners.potentials`), so a weight that depends on ``p`` adds its sideways term
 by itself. A new weight is a subclass of :class:`Weight`, flown by registering ``APF(weight)``. The
 formulas, the conventions and why equal gains compare strengths: docs/spec.md §3.
@@ -21,7 +22,7 @@ from ..gains import GainSpec
 from ..validation import ConfigError
 from .sight import Sight, dot, norm
 
-__all__ = ["GAMMA", "K", "Weight", "Basic", "Direction", "DirectionVelocity", "Normalised",
+__all__ = ["GAMMA", "K", "CHOICE", "Weight", "Basic", "Direction", "DirectionVelocity", "Normalised", "Chosen",
            "reference_sight", "direction_weight", "velocity_weight"]
 
 GAMMA = GainSpec("gamma", 1.0, low=0.0, symbol="γ",
@@ -30,6 +31,11 @@ K = GainSpec("k", 0.5, low=0.0, tune_high=1.0, warn_above=1.0,
              doc="relative-velocity gain k in (2 + k tanh c) (paper eq. 19)",
              warning="the paper's bound ω >= 1 fails (min ω = 2 - k < 1); for k >= 2 a receding obstacle's "
                      "'repulsion' becomes attraction")
+
+#: Which weight of a :class:`Chosen` an episode flies: the position of its method among the program's
+#: (set by the sweep that fuses them, never by a spec; not declared, so no spec, flag or column sees it).
+CHOICE = GainSpec("weight_choice", 0.0, low=0.0, tunable=False,
+                  doc="which weight of a fused program an episode flies (its method's position)")
 
 
 def direction_weight(cos_theta: Array, gamma: Array) -> Array:
@@ -150,3 +156,34 @@ class Normalised(Weight):
         lo, hi = self.inner.bounds(gains)
         ref = self.inner.reference(gains)
         return lo / ref, hi / ref
+
+
+@dataclasses.dataclass(frozen=True)
+class Chosen(Weight):
+    """One of ``weights``, chosen per episode by the gain ``weight_choice`` (:data:`CHOICE`: 0 the first):
+    methods that differ only in their weight fly one compiled program (the accelerator policy,
+    :mod:`jaxapf.engine.policy`). Every weight is computed and the chosen one selected, so the chosen
+    weight's value and gradient are its own."""
+
+    weights: tuple[Weight, ...]
+
+    @property
+    def gains(self) -> tuple[GainSpec, ...]:  # type: ignore[override]
+        return tuple({g.name: g for w in self.weights for g in w.gains}.values()) + (CHOICE,)
+
+    @property
+    def uses_convention(self) -> bool:  # type: ignore[override]
+        return any(w.uses_convention for w in self.weights)
+
+    def _select(self, gains: Any, values: list[Any]) -> Any:
+        out = values[-1]
+        for i in range(len(values) - 2, -1, -1):
+            out = jnp.where(gains[CHOICE.name] == i, values[i], out)
+        return out
+
+    def __call__(self, sight: Sight, gains: Any, *, convention: str, eps_v: float) -> Array:
+        return self._select(gains, [w(sight, gains, convention=convention, eps_v=eps_v) for w in self.weights])
+
+    def bounds(self, gains: Any) -> tuple[Array, Array]:
+        lows, highs = zip(*(w.bounds(gains) for w in self.weights))
+        return self._select(gains, list(lows)), self._select(gains, list(highs))

@@ -31,7 +31,7 @@ class ChunkRunner:
 
     def _variant_gains(self, variant: Variant) -> list[Gains]:
         if variant.index not in self._gains:
-            self._gains[variant.index] = self.batch.put_gains(variant.gains(self.plan.dtype))
+            self._gains[variant.index] = self.batch.put_gains(self.plan.gains(variant))
         return self._gains[variant.index]
 
     def dispatch(self, chunk: Chunk) -> tuple[dict[str, jax.Array], jax.Array, np.ndarray | None]:
@@ -49,8 +49,9 @@ class ChunkRunner:
         indices[: chunk.stop - chunk.start] = np.arange(chunk.start, chunk.stop)
         make, program = (make_swarms, evaluate_swarms) if plan.spec.swarm else (make_scenarios, evaluate_program)
         fields = make(plan.spec.seed, plan.spec.family_params(chunk.family), jnp.asarray(indices))
-        metrics = self.batch.evaluate(plan.flown(fields), self._variant_gains(plan.variants[chunk.variant]), block.sim,
-                                      block.mpc, block.width, plan.metrics, program, refill=plan.policy.refill)
+        gains = self._variant_gains(plan.variants[chunk.variant])
+        metrics = self.batch.evaluate(plan.flown(fields), gains, block.flown, block.mpc, block.width, plan.metrics,
+                                      program, refill=plan.policy.refill)
         return metrics, fields.kind, self._solvable(chunk, fields, block.sim) if plan.spec.oracle else None
 
     def _solvable(self, chunk: Chunk, fields: Any, sim: Any) -> np.ndarray:

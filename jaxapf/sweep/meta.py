@@ -83,17 +83,20 @@ def needed(meta: Mapping[str, Any], keys: Sequence[str] = ("spec", "dtype", "met
 
 def identity(meta: Mapping[str, Any]) -> dict[str, Any]:
     """What must match for parts to belong to one sweep (numbers bit for bit)."""
-    return {k: meta.get(k) for k in ("format", "spec_hash", "dtype", "vmap_width", "metrics", "obstacle_slots")}
+    return {k: meta.get(k) for k in ("format", "spec_hash", "dtype", "vmap_width", "metrics", "obstacle_slots",
+                                     "fused")}
 
 
 def sweep_meta(spec: SweepSpec, dtype: str, width: int, metrics: Sequence[str], out: str | pathlib.Path | None = None,
-               versions: Mapping[str, str] | None = None, obstacle_slots: int | None = None) -> dict[str, Any]:
+               versions: Mapping[str, str] | None = None, obstacle_slots: int | None = None,
+               fused: Sequence[str] = ()) -> dict[str, Any]:
     """The ``jaxapf`` metadata of every part of ``spec`` run in ``dtype`` at vmap ``width``, yielding
     ``metrics`` (:attr:`~jaxapf.sweep.plan.Plan.meta`); with ``.py`` plugins and the output folder ``out``,
     ``plugin_files`` records where each was imported from. ``versions``: of the process that computes the
     chunks (default this one's; a Ray run's are a worker's); ``obstacle_slots``: the slot count every
     family was padded to (the accelerator policy), which rounds some numbers apart, so it is part of the
-    sweep's identity (absent: each family at its own)."""
+    sweep's identity (absent: each family at its own); ``fused``: the methods flown in one program (the
+    accelerator policy, :func:`~jaxapf.sweep.plan.fuse`), which rounds apart too (absent: each its own)."""
     from ..io.versions import versions as here
 
     files = plugin_files(spec, out)
@@ -101,7 +104,8 @@ def sweep_meta(spec: SweepSpec, dtype: str, width: int, metrics: Sequence[str], 
             "versions": dict(versions) if versions is not None else here(),
             "prng": PRNG, "dtype": dtype, "vmap_width": width, "metrics": list(metrics)}
     return (meta | ({"plugin_files": files} if files else {})
-            | ({"obstacle_slots": obstacle_slots} if obstacle_slots is not None else {}))
+            | ({"obstacle_slots": obstacle_slots} if obstacle_slots is not None else {})
+            | ({"fused": list(fused)} if fused else {}))
 
 
 def plugin_files(spec: SweepSpec, out: str | pathlib.Path | None) -> list[dict[str, str] | None]:

@@ -149,7 +149,8 @@ class Chunk:
 class Block:
     """Shapes of the chunks of one (variant, family): ``fields`` per chunk, padded to ``padded =
     devices · per_device`` fields with ``per_device · settings`` at least its vmap ``width``;
-    ``bytes``: the memory estimate of one chunk; ``agents``: UAVs per field (1 but in a swarm family)."""
+    ``bytes``: the memory estimate of one chunk; ``agents``: UAVs per field (1 but in a swarm family);
+    ``fused``: the fused program its method flies in (:func:`fuse`; empty: its own), as method ``choice``."""
 
     sim: SimConfig
     mpc: MPCConfig
@@ -161,11 +162,39 @@ class Block:
     padded: int
     bytes: int
     width: int
+    fused: str = ""
+    choice: int = 0
+
+    @property
+    def flown(self) -> SimConfig:
+        """The configuration the engine compiles: :attr:`sim`, or with the fused program's method."""
+        return self.sim.replace(method=self.fused) if self.fused else self.sim
 
 
 def _program(block: Block) -> tuple:
     """What identifies a compiled ``evaluate`` program: static configuration and shapes."""
-    return block.sim, block.mpc, block.obstacles, block.agents, block.settings, block.per_device, block.width
+    return block.flown, block.mpc, block.obstacles, block.agents, block.settings, block.per_device, block.width
+
+
+def fuse(spec: SweepSpec, groups: Sequence[Variant]) -> dict[int, tuple[str, int]]:
+    """The fused program (its method, :func:`~jaxapf.planners.apf.fused`) and method choice of each variant whose
+    static settings differ from another's only in a potential-field method (:func:`~jaxapf.planners.apf.fusable`):
+    such variants fly one compiled program, each episode with its own weight (the accelerator policy)."""
+    from ..planners import PLANNERS
+    from ..planners.apf import FUSED, fusable
+
+    alike: dict[tuple, dict[str, list[int]]] = {}
+    for v in groups:
+        method = spec.configs(v.static, spec.families[0])[0].planner.method
+        if fusable(PLANNERS.get(method, "method")):
+            rest = tuple((k, x) for k, x in v.static if k != "method")
+            alike.setdefault(rest, {}).setdefault(method, []).append(v.index)
+    out = {}
+    for methods in alike.values():
+        if len(methods) > 1:
+            name = FUSED.join(methods)
+            out |= {i: (name, choice) for choice, indices in enumerate(methods.values()) for i in indices}
+    return out
 
 
 def working_set_bytes(width: int, steps: int, obstacles: int, itemsize: int, agents: int = 1) -> int:
@@ -338,7 +367,7 @@ class Plan:
     @property
     def static_variants(self) -> int:
         """Distinct (SimConfig, MPCConfig) pairs over variants and families."""
-        return len({(b.sim, b.mpc) for b in self.blocks.values()})
+        return len({(b.flown, b.mpc) for b in self.blocks.values()})
 
     def estimate_seconds(self) -> tuple[float, float]:
         """(run, cold compile) seconds from the cost model, for the chunks still to run; the run is an
@@ -350,6 +379,22 @@ class Plan:
             run += b.settings * b.padded * b.sim.episode.steps * step_cost_us(b.mpc, seen, b.agents) * 1e-6
         programs = len({_program(self.blocks[(c.variant, c.family)]) for c in self.chunks})
         return run / self.devices, programs * COMPILE_S * self.devices
+
+    def gains(self, variant: Variant) -> Gains:
+        """The gains the engine flies ``variant``'s simulated settings with: :meth:`Variant.gains`, and in a fused
+        program the method's choice (``weight_choice``, :class:`~jaxapf.planners.weights.Chosen`)."""
+        gains = variant.gains(self.dtype)
+        block = self.blocks[(variant.index, self.spec.families[0])]
+        if not block.fused:
+            return gains
+        from ..planners.weights import CHOICE
+
+        return Gains.unchecked({**gains, CHOICE.name: np.full(len(variant.simulated), block.choice, self.dtype)})
+
+    @property
+    def fused(self) -> tuple[str, ...]:
+        """The fused programs' methods (:func:`fuse`)."""
+        return tuple(sorted({b.fused for b in self.blocks.values() if b.fused}))
 
     def flown(self, fields: Any) -> Any:
         """A chunk's ``fields`` as the engine flies them: padded to :attr:`obstacle_slots` where the policy
@@ -436,6 +481,7 @@ def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: in
     # (a swarm's neighbour slots follow its agents, so swarm families keep their own)
     counts = {spec.family_params(f).max_obstacles for f in spec.families}
     slots = max(counts) if chosen.common_slots and not spec.swarm and len(counts) > 1 else None  # None: no padding
+    fused = fuse(spec, groups) if chosen.fuse else {}
     blocks = {}
     for v in groups:
         for family in spec.families:
@@ -445,13 +491,15 @@ def plan_sweep(spec: SweepSpec, *, done: Sequence[Chunk] = (), memory_budget: in
             block = _block(sim, mpc, slots or params.max_obstacles, agents, len(v.simulated), spec.fields,
                            devices=devices, width=width, itemsize=dtype.itemsize, budget=memory_budget,
                            chunk_fields=chunk_fields, family=family, width_budget=chosen.batch_budget(memory_budget))
-            blocks[(v.index, family)] = block
+            blocks[(v.index, family)] = dataclasses.replace(block, fused=fused[v.index][0], choice=fused[v.index][1]) \
+                if v.index in fused else block
     count = sum(-(-spec.fields // b.fields) for b in blocks.values())
     if count > MAX_CHUNKS:
         raise ConfigError(f"the sweep would be cut into {count:,} chunks (parts); at most {MAX_CHUNKS:,} are allowed: "
                           "fewer scenario.fields, or larger chunks (--chunk-fields, --memory-budget)")
     metrics = tuple(metrics or (swarm_metric_names() if spec.swarm else METRICS.names()))
-    meta = sweep_meta(spec, str(dtype), width, metrics, out, versions, slots)
+    meta = sweep_meta(spec, str(dtype), width, metrics, out, versions, slots,
+                      sorted({name for name, _ in fused.values()}))
     return Plan(spec, tuple(groups), blocks, (), (), devices, width, str(dtype), metrics, spec.gain_columns(), meta,
                 chunk_fields, memory_budget, chosen, slots).resumed(done)
 
@@ -518,6 +566,7 @@ def describe_plan(plan: Plan) -> str:
            if plan.policy.refill else "every episode of a chunk side by side, up to the vmap width")
         + (f"; every family padded to {plan.obstacle_slots} obstacle slots (one program per variant)"
            if plan.obstacle_slots is not None else "")
+        + "".join(f"; {', '.join(name.split('+'))} fly one program" for name in plan.fused)
         + f"; --memory-budget {format_bytes(plan.memory_budget)}",
         f"  chunks:            {len(plan.chunks)} to run" + (f", {len(plan.done)} done" if plan.done else "")
         + f" (one Parquet part each), on {plan.devices} device(s), "

@@ -268,3 +268,47 @@ def test_normalised_weights_are_the_paper_weights_over_their_abeam_values():
     v = jnp.array([0.5, 0.3, 0.0])
     np.testing.assert_allclose(repulsive_force(p, v, p_o, jnp.zeros(3), method="direction_normalised", **kw),
                                repulsive_force(p, v, p_o, jnp.zeros(3), method="basic", **kw), rtol=1e-6)
+
+
+#: The members of the fused program the accelerator policy flies the paper's methods in (and a normalised one).
+FUSED = ("basic", "direction", "direction_velocity", "direction_velocity_normalised")
+
+
+@pytest.mark.parametrize("convention", CONVENTIONS)
+@pytest.mark.parametrize("choice", range(len(FUSED)))
+def test_a_fused_weight_is_the_chosen_methods_own_in_value_and_force(choice, convention):
+    """``Chosen`` at choice i: the weight, the potential and the force (its gradient) of method i, to float64
+    rounding, on a field with a cylinder, a moving sphere and a padded slot; a weight chosen wrongly differs by
+    far more (γ = 1.5, k = 0.7 and a closing obstacle make every member's ω different)."""
+    from jaxapf.planners.apf import fused
+
+    planner = fused("+".join(FUSED))
+    own = PLANNERS.get(FUSED[choice]).weight
+    gains = Gains(k_rep=3.0, d_s=4.0, gamma=1.5, k=0.7)
+    chosen = Gains.unchecked({**gains, "weight_choice": float(choice)})
+    kw = dict(convention=convention, r_uav=0.3)
+    with jax.enable_x64(True):
+        field = jax.tree_util.tree_map(lambda a: jnp.asarray(a, jnp.float64) if a.dtype.kind == "f" else a,
+                                       _field(True))
+        p, v, goal = jnp.array([0.2, -0.4, 0.3]), jnp.array([1.0, 0.2, -0.1]), jnp.array([10.0, 0.0, 0.0])
+        forces = {m: total_force(p, v, 0.5, goal, field, gains, method=PLANNERS.get(m).weight, **kw) for m in FUSED}
+        force = total_force(p, v, 0.5, goal, field, chosen, method=planner.weight, **kw)
+        np.testing.assert_allclose(force, forces[FUSED[choice]], rtol=1e-12, atol=1e-12)
+        assert all(np.abs(forces[m] - force).max() > 1e-3 for m in FUSED if m != FUSED[choice])
+        u = total_potential(p, v, 0.5, goal, field, chosen, method=planner.weight, **kw)
+        np.testing.assert_allclose(u, total_potential(p, v, 0.5, goal, field, gains, method=own, **kw), rtol=1e-12)
+        lo, hi = planner.weight.bounds(chosen)
+        np.testing.assert_allclose([lo, hi], own.bounds(gains), rtol=1e-12)
+
+
+def test_only_potential_field_planners_without_extra_forces_fuse():
+    from jaxapf.planners.apf import fusable, fused
+
+    assert fusable(PLANNERS.get("basic")) and fusable(PLANNERS.get("direction_velocity_normalised"))
+    assert not fusable(PLANNERS.get("vortex")) and not fusable(PLANNERS.get("mppi"))
+    assert set(fused("basic+direction").gains) >= {*PLANNERS.get("direction").gains}
+    assert "weight_choice" in {g.name for g in fused("basic+direction").gains}
+    with pytest.raises(ConfigError, match=r"method = 'basic\+vortex'.*not vortex"):
+        fused("basic+vortex")
+    with pytest.raises(ConfigError, match="is not a registered planner"):
+        fused("basic+magic")

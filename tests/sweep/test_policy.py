@@ -1,5 +1,5 @@
-"""``jaxapf sweep --policy``: the accelerator's policy chosen on the CPU writes the CPU policy's rows (bit for
-bit where only the slots differ, up to rounding where families are padded), in fewer programs."""
+"""``jaxapf sweep --policy``: the accelerator's policy chosen on the CPU writes the CPU policy's rows (up to
+rounding: families padded to one slot count, potential-field methods fused in one program), in fewer programs."""
 
 import os
 import subprocess
@@ -8,7 +8,6 @@ import textwrap
 
 import jax
 import numpy as np
-import pandas as pd
 import pytest
 from conftest import assert_same_episodes
 
@@ -63,19 +62,41 @@ def test_padded_obstacle_slots_are_invalid_and_change_no_clearance():
 
 def test_dry_run_counts_programs_and_sequential_steps_by_hand():
     """2 methods × 2 families (crossing 3 slots, overtake 2), 40 fields, 60 steps: the CPU policy compiles a
-    program per (method, slot count), 4; the accelerator's pads overtake to 3 slots, 2. 40 episodes a chunk:
-    the CPU's 64 slots (the narrowest) and the accelerator's fly all 40 at once, so 60 steps per chunk."""
+    program per (method, slot count), 4; the accelerator's pads overtake to 3 slots and flies both methods in one
+    fused program, 1. 40 episodes a chunk: the CPU's 64 slots (the narrowest) and the accelerator's fly all 40 at
+    once, so 60 steps per chunk."""
     spec = _spec(("crossing", "overtake"))
     cpu, acc = (plan_sweep(spec, devices=1, policy=p) for p in ("cpu", "accelerator"))
-    assert (cpu.programs, acc.programs) == (4, 2)
+    assert (cpu.programs, acc.programs) == (4, 1)
     assert {b.obstacles for b in acc.blocks.values()} == {3} and acc.obstacle_slots == 3
     assert cpu.obstacle_slots is None and "obstacle_slots" not in cpu.meta and acc.meta["obstacle_slots"] == 3
+    assert acc.fused == ("basic+direction_velocity",) and acc.meta["fused"] == ["basic+direction_velocity"]
+    assert {(b.fused, b.choice) for b in cpu.blocks.values()} == {("", 0)} and "fused" not in cpu.meta
+    assert {b.choice for (v, _), b in acc.blocks.items() if v == 1} == {1}  # direction_velocity's weight
+    np.testing.assert_array_equal(acc.gains(acc.variants[1])["weight_choice"], [1.0])
+    assert "weight_choice" not in cpu.gains(cpu.variants[1])
     one = plan_sweep(_spec(), devices=1, policy="accelerator")  # one slot count: nothing padded, nothing recorded
     assert one.obstacle_slots is None and "obstacle_slots" not in one.meta
     assert cpu.control_steps() == acc.control_steps() == 4 * SEGMENT * 6
     text = describe_plan(acc)
-    assert "2 evaluate program(s)" in text and "every family padded to 3 obstacle slots" in text
+    assert "1 evaluate program(s)" in text and "every family padded to 3 obstacle slots" in text
+    assert "basic, direction_velocity fly one program" in text
     assert "policy:            accelerator" in text and "policy:            cpu" in describe_plan(cpu)
+
+
+def test_only_methods_alike_but_in_their_weight_fuse():
+    """A vortex (an extra force term) and MPPI (its own plan) keep their programs; a method at two conventions
+    (a static setting) fuses with the others at each convention apart."""
+    spec = parse_spec({"name": "f", "scenario": {"families": ["crossing"], "fields": 8, "seed": 0},
+                       "sim": {"t_max": 4.0}, "grid": {"method": ["basic", "direction", "vortex", "mppi"],
+                                                       "convention": ["intent", "literal"]}})
+    acc = plan_sweep(spec, devices=1, policy="accelerator")
+    fused = {dict(v.static)["method"] + "/" + dict(v.static)["convention"]: acc.blocks[(v.index, "crossing")].fused
+             for v in acc.variants}
+    assert fused == {"basic/intent": "basic+direction", "direction/intent": "basic+direction",
+                     "basic/literal": "basic+direction", "direction/literal": "basic+direction",
+                     "vortex/intent": "", "vortex/literal": "", "mppi/intent": "", "mppi/literal": ""}
+    assert acc.programs == 2 + 4  # the fused pair at each convention, vortex and mppi at each
 
 
 def test_a_wide_chunk_is_one_round_on_the_accelerator_and_several_on_the_cpu():
@@ -89,24 +110,27 @@ def test_a_wide_chunk_is_one_round_on_the_accelerator_and_several_on_the_cpu():
 
 @pytest.mark.slow
 def test_the_policies_write_the_same_rows(tmp_path):
-    """One slot count (crossing alone): only the slots differ, and an episode's numbers do not depend on
-    them, so bit for bit. Two slot counts: overtake's fields fly with a padded slot, which rounds some sums
-    apart, within what assert_same_episodes allows; the padding is recorded, so the outputs are not mixed."""
+    """One slot count (crossing alone): the accelerator flies both methods in one fused program, compiled apart,
+    so its rows round apart from the CPU's, within what assert_same_episodes allows. Two slot counts: overtake's
+    fields fly with a padded slot in the same fused program, compiled once for both families. The fusing and the
+    padding are recorded, so the outputs are not mixed."""
     one = _spec()
     a = read_sweep(run_sweep(one, tmp_path / "cpu", quiet=True, policy="cpu").out)[0]
     b = read_sweep(run_sweep(one, tmp_path / "acc", quiet=True, policy="accelerator").out)[0]
-    pd.testing.assert_frame_equal(a, b)
+    assert_same_episodes(a, b, 0.1)
     two = _spec(("crossing", "overtake"))
     before = evaluate_program._cache_size()
     c = read_sweep(run_sweep(two, tmp_path / "cpu2", quiet=True, policy="cpu").out)[0]
     between = evaluate_program._cache_size()
     d = read_sweep(run_sweep(two, tmp_path / "acc2", quiet=True, policy="accelerator").out)[0]
     # the CPU compiled overtake's two programs (crossing's were compiled above); the accelerator none: its
-    # padded overtake fields fly crossing's programs
+    # padded overtake fields fly the fused program crossing's compiled
     assert (between - before, evaluate_program._cache_size() - between) == (2, 0)
     assert_same_episodes(c, d, 0.1)
     with pytest.raises(ConfigError, match="different sweep"):
         run_sweep(two, tmp_path / "acc2", quiet=True, policy="cpu")
+    with pytest.raises(ConfigError, match="different sweep"):
+        run_sweep(one, tmp_path / "acc", quiet=True, policy="cpu")
 
 
 _DEVICES = textwrap.dedent("""
