@@ -1,7 +1,7 @@
 """The sweep's path from spec to device under each backend policy, end to end and phase by phase.
 
     python benchmarks/policy.py [--spec sweeps/compare-small.toml] [--fields N] [--policy cpu accelerator]
-                                [--phases] [--json FILE]
+                                [--phases | --phases-only] [--json FILE]
 
 Per policy (:mod:`jaxapf.engine.policy`, ``jaxapf sweep --policy``):
 
@@ -19,8 +19,9 @@ Per policy (:mod:`jaxapf.engine.policy`, ``jaxapf sweep --policy``):
 * **rows**: every policy's rows against the first policy's: outcomes (success, collision, stalled, steps)
   equal, and each continuous metric within 1e-3 (absolute, or relative above one).
 
-``--fields N`` runs the spec with N fields per family (the 98,304-episode sweep of issue 62 is
-``--fields 8192`` on compare-small). The same script runs on a GPU (``benchmarks/gpu.sh``).
+``--fields N`` runs the spec with N fields per family (the 98,304-episode sweep is ``--fields 8192`` on
+compare-small); ``--phases-only`` times the phases alone (no end-to-end runs: at that size each takes
+minutes on a CPU). The same script runs on a GPU (``benchmarks/gpu.sh``).
 """
 
 from __future__ import annotations
@@ -136,7 +137,7 @@ def phases(spec_path: pathlib.Path, policy: str) -> dict:
             fields = clock("fields", make_scenarios, spec.seed, spec.family_params(chunk.family), jnp.asarray(indices))
             flown = plan.flown(fields)
             gains = runner._variant_gains(plan.variants[chunk.variant])[0]
-            static = dict(sim=block.sim, mpc=block.mpc, width=block.width, metrics=plan.metrics,
+            static = dict(sim=block.flown, mpc=block.mpc, width=block.width, metrics=plan.metrics,
                           refill=plan.policy.refill)
             shapes = jax.tree_util.tree_map(lambda x: (x.shape, x.dtype), flown)
             program = (repr(static), str(shapes))
@@ -153,7 +154,8 @@ def phases(spec_path: pathlib.Path, policy: str) -> dict:
             "programs": len(compiled), "chunks": len(plan.chunks)}
 
 
-def measure(spec: pathlib.Path, fields: int | None, policies: list[str], with_phases: bool, repeats: int) -> dict:
+def measure(spec: pathlib.Path, fields: int | None, policies: list[str], with_phases: bool, repeats: int,
+            end_to_end: bool = True) -> dict:
     from jaxapf.bench.engine import environment
     from jaxapf.sweep import read_sweep
 
@@ -163,6 +165,9 @@ def measure(spec: pathlib.Path, fields: int | None, policies: list[str], with_ph
         path = _spec_file(ROOT / spec, fields, tmp)
         for policy in policies:
             env = os.environ | {"XDG_CACHE_HOME": str(tmp / f"cache-{policy}")}  # an empty compilation cache
+            if not end_to_end:
+                runs[policy] = {"plan": _dry_run(path, policy, env), "phases": phases(path, policy)}
+                continue
             cold = _sweep(path, tmp / f"{policy}-cold.parquet", policy, env)
             warms = [_sweep(path, tmp / f"{policy}-warm-{i}.parquet", policy, env) for i in range(repeats)]
             warm = min(warms, key=lambda w: w["seconds"]) | {"all_s": [w["seconds"] for w in warms]}
@@ -176,7 +181,7 @@ def measure(spec: pathlib.Path, fields: int | None, policies: list[str], with_ph
             if with_phases:
                 runs[policy]["phases"] = phases(path, policy)
         first = policies[0]
-        for policy in policies[1:]:
+        for policy in policies[1:] if end_to_end else ():
             runs[policy]["rows_against_" + first] = agreement(frames[first], frames[policy])
     return {"command": "python benchmarks/policy.py " + " ".join(sys.argv[1:]),
             "date": datetime.date.today().isoformat(), "spec": str(spec), "fields": fields,
@@ -189,11 +194,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--fields", type=int, help="fields per family (default the spec's)")
     p.add_argument("--policy", nargs="+", default=["cpu", "accelerator"], choices=("cpu", "accelerator"))
     p.add_argument("--phases", action="store_true", help="also time the phases one after another in this process")
+    p.add_argument("--phases-only", action="store_true", help="time the phases alone, no end-to-end runs")
     p.add_argument("--repeats", type=int, default=2, help="warm runs per policy (default 2; the fastest is quoted)")
     p.add_argument("--json", type=pathlib.Path, help="also write the result to this file")
     args = p.parse_args(argv)
-    result = measure(args.spec, args.fields, args.policy, args.phases, args.repeats)
+    result = measure(args.spec, args.fields, args.policy, args.phases or args.phases_only, args.repeats,
+                     end_to_end=not args.phases_only)
     for name, run in result["policies"].items():
+        if "cold" not in run:
+            print(f"{name}: plan {run['plan']}; phases {run['phases']}")
+            continue
         print(f"{name}: cold {run['cold']['seconds']} s ({run['cold']['programs_built']} programs), warm "
               f"{run['warm']['seconds']} s; plan {run['plan']}" + (f"; phases {run['phases']}" if "phases" in run
                                                                     else ""))
