@@ -1,12 +1,14 @@
 """The solvability oracle against the one of an earlier commit: the same answers, and the time per field.
 
-    python benchmarks/oracle.py [--against 360a044] [--fields 8192] [--families trap crossing ...] [--json FILE]
+    python benchmarks/oracle.py [--against 360a044] [--fields 8192] [--families trap crossing ...] [--jobs 2]
+                                [--json FILE]
 
 For every shipped family (single-UAV fields, and each UAV of a swarm field alone, as a swarm sweep asks), the
 first ``--fields`` fields of seed 0 at the vehicle's defaults and the family's ``t_max``: the answers of
 ``jaxapf.scenarios.solvable`` and of the same function of commit ``--against`` (its module as that commit
 holds it, loaded from git), field by field; where they differ, the fields are listed. Both run in this process,
 interleaved in blocks of 64 fields, so a drift of the machine hits both; the time per field of each.
+``--jobs N`` compares N families at a time, each in a process of its own (both oracles are single-threaded).
 
 ``--quick-start`` instead times the quick start's oracle phase: the 2,048 fields of sweeps/compare-small.toml
 (its four families at 512 fields; ``--fields`` changes that), as the sweep asks about them, per family, and
@@ -19,6 +21,7 @@ import argparse
 import datetime
 import importlib.util
 import json
+import multiprocessing
 import pathlib
 import subprocess
 import sys
@@ -103,6 +106,14 @@ def compare(family: str, count: int, old, new) -> dict:
             "speedup": round(seconds["old"] / seconds["new"], 1)}
 
 
+def _compare_family(job: tuple[str, int, str]) -> tuple[str, dict]:
+    """:func:`compare` of one family in a worker process (``job``: family, fields, the reference commit)."""
+    from jaxapf.scenarios import solvable
+
+    family, count, against = job
+    return family, compare(family, count, module_at(against).solvable, solvable)
+
+
 def quick_start(count: int | None, old, new) -> dict:
     """The quick start's oracle phase, per family and in all, for both oracles (interleaved by family)."""
     import tomllib
@@ -138,6 +149,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--fields", type=int, default=None, help="fields per family (default 8192; quick start 512)")
     p.add_argument("--families", nargs="*", help="default: every shipped family, single-UAV and swarm")
     p.add_argument("--quick-start", action="store_true", help="time the quick start's oracle phase instead")
+    p.add_argument("--jobs", type=int, default=1, help="families compared at a time, one process each")
     p.add_argument("--json", type=pathlib.Path)
     args = p.parse_args(argv)
     old = module_at(args.against).solvable
@@ -153,8 +165,11 @@ def main(argv: list[str] | None = None) -> int:
     else:
         names = args.families or [*FAMILIES.names(), *SWARM_FAMILIES.names()]
         result["families"] = {}
+        jobs = [(family, args.fields or 8192, args.against) for family in names]
+        with multiprocessing.get_context("spawn").Pool(args.jobs) as pool:
+            done = dict(pool.imap_unordered(_compare_family, jobs))
         for family in names:
-            r = result["families"][family] = compare(family, args.fields or 8192, old, solvable)
+            r = result["families"][family] = done[family]
             print(f"{family}: {r['questions']} questions, {r['differ']} differ; {r['old_ms_per_field']} -> "
                   f"{r['new_ms_per_field']} ms per field ({r['speedup']}x)", flush=True)
         failed = sum(r["differ"] for r in result["families"].values())
