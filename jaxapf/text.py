@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import re
 
-__all__ = ["format_seconds", "format_bytes", "plain_text"]
+__all__ = ["format_seconds", "format_bytes", "plain_text", "inert"]
 
 
 def format_seconds(s: float) -> str:
@@ -25,6 +25,13 @@ def format_bytes(n: float) -> str:
     """``512.0 B``, ``1.5 KiB``, ``256.0 MiB``, ``2.0 GiB``."""
     power = min(3, int(math.log(max(n, 1), 1024)))
     return f"{n / 1024 ** power:.1f} {('B', 'KiB', 'MiB', 'GiB')[power]}"
+
+
+def inert(text: str) -> str:
+    """``text`` with every character a terminal could act on (control characters, line breaks, and any other
+    that is not printable but the space) written as its escape (``\\x1b``): what came from a file or a spec
+    is printed as data, on one line."""
+    return "".join(c if c.isprintable() or c == " " else c.encode("unicode_escape").decode("ascii") for c in text)
 
 
 _ROLE = re.compile(r":[a-z]+(?::[a-z]+)?:`(~?)([^`<]*?)(?:\s*<[^>]*>)?`")

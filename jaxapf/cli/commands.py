@@ -18,6 +18,8 @@ import threading
 import time
 from typing import Any, Sequence
 
+from ..text import inert
+
 __all__ = ["main", "build_parser"]
 
 #: The registries' catalogue the parser is built from (:func:`jaxapf.cli.catalog.catalog`); set by :func:`main`.
@@ -679,7 +681,7 @@ def _main(argv: list[str], running: list[str]) -> int:
         for plugin in known.plugin:
             load_plugin(plugin, "--plugin")
     except ConfigError as err:
-        print(f"jaxapf: error: {err}", file=sys.stderr)
+        print(f"jaxapf: error: {inert(str(err))}", file=sys.stderr)
         return 2
     from .catalog import catalog
 
@@ -698,7 +700,7 @@ def _main(argv: list[str], running: list[str]) -> int:
     from ..validation import Interrupted
 
     def one_line(message, category, filename, lineno, file=None, line=None):
-        print(f"jaxapf {command}: warning: {str(message).strip().splitlines()[0]}", file=sys.stderr)
+        print(f"jaxapf {command}: warning: {inert(str(message).strip().splitlines()[0])}", file=sys.stderr)
 
     running.append(args.command)
     try:
@@ -710,7 +712,7 @@ def _main(argv: list[str], running: list[str]) -> int:
                     "sweep": _sweep, "sweep-verify": _sweep_verify, "sweep-merge": _sweep_merge,
                     "list": _list}[args.command](args)
     except ConfigError as err:
-        print(f"jaxapf {command}: error: {err}", file=sys.stderr)
+        print(f"jaxapf {command}: error: {inert(str(err))}", file=sys.stderr)
         return 2
     except Interrupted as err:  # a runner's own line of what it kept
         stop = err.__context__ if isinstance(err.__context__, KeyboardInterrupt) else err
@@ -718,7 +720,7 @@ def _main(argv: list[str], running: list[str]) -> int:
     except KeyboardInterrupt as stop:
         return stopped(stop, f"jaxapf {command}", _KEPT[args.command])
     except ImportError as err:
-        print(f"jaxapf {command}: error: {err}", file=sys.stderr)
+        print(f"jaxapf {command}: error: {inert(str(err))}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # the reader went away (`jaxapf ... | head`): stop quietly, as Python's docs advise
         import os

@@ -34,6 +34,7 @@ import sys
 import time
 from typing import IO, Any, Callable, Iterator
 
+from ..text import inert
 from ..validation import ConfigError, Interrupted, first_line
 from .names import FLAGS, check_kind, create, open_own, read_own
 
@@ -138,8 +139,17 @@ class LockInfo:
         return cls(os.getpid(), socket.gethostname(), time.time(), " ".join(sys.argv) or "python")
 
     def describe(self) -> str:
+        """The owner in a few words, its host and command escaped (:func:`~jaxapf.text.inert`) and cut short."""
         when = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(self.since))
-        return f"pid {self.pid} on {self.host} since {when} ({self.command})"
+        command = inert(self.command[:_SHOWN]) + ("…" if len(self.command) > _SHOWN else "")
+        return f"pid {self.pid} on {inert(self.host[:_SHOWN])} since {when} ({command})"
+
+
+#: The most characters of an owner note's host or command a refusal shows.
+_SHOWN = 200
+#: The range of an owner note's start time that a note of a real writer holds [s since the epoch]: up to the
+#: year 9999, which every platform's calendar shows.
+_SINCE = (0.0, 253_402_300_799.0)
 
 
 #: How long :func:`_take` keeps trying a lock that is taken [s]: another process looking whether a lock is
@@ -198,9 +208,16 @@ def live_shard_locks(folder: pathlib.Path) -> list[pathlib.Path]:
 def _read_note(path: pathlib.Path) -> LockInfo | None:
     try:
         data: dict[str, Any] = json.loads(read_own(path, 64 * 1024))
-        return LockInfo(int(data["pid"]), str(data["host"]), float(data["since"]), str(data.get("command", "")))
-    except (OSError, ValueError, KeyError, TypeError, RecursionError):
+        pid, host, since, command = data["pid"], data["host"], data["since"], data.get("command", "")
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, RecursionError):
         return None
+    # every field as a writer writes it (LockInfo.mine), else no note: a pid a kernel can hold, a start a
+    # calendar shows (1e20, NaN and inf are not), texts
+    if (not isinstance(pid, int) or isinstance(pid, bool) or not 0 < pid < 2**31
+            or not isinstance(since, (int, float)) or isinstance(since, bool)
+            or not _SINCE[0] <= since <= _SINCE[1] or not isinstance(host, str) or not isinstance(command, str)):
+        return None
+    return LockInfo(pid, host, float(since), command)
 
 
 class OutputLock:
@@ -269,7 +286,8 @@ class OutputLock:
         where = f"{self.folder}" + (f" ({what})" if what else "")
         if owner is None:
             raise ConfigError(f"{where} is being written by another process (it has not written its owner note "
-                              "yet); wait for it to finish or write elsewhere (one writer per output)")
+                              "yet, or the note is not one a writer writes); wait for it to finish or write "
+                              "elsewhere (one writer per output)")
         if owner.pid == os.getpid() and owner.host == socket.gethostname():
             raise ConfigError(f"{where} is already being written by this process")
         raise ConfigError(f"{where} is being written by {owner.describe()}; wait for it to "

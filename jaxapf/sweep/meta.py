@@ -70,6 +70,7 @@ _SHAPE = {
     "prng": lambda v: v is None or isinstance(v, dict),
     "plugin_files": lambda v: v is None or isinstance(v, list),
     "obstacle_slots": lambda v: v is None or (isinstance(v, int) and not isinstance(v, bool) and v >= 1),
+    "fused": _texts,
 }
 
 

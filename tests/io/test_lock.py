@@ -221,3 +221,50 @@ def test_the_last_shard_to_leave_removes_the_shared_lock_files(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == []
     with OutputLock(tmp_path):  # and the output is free for a whole-output writer
         pass
+
+
+@pytest.mark.parametrize("note", [
+    {"since": 1e20}, {"since": float("nan")}, {"since": float("inf")}, {"since": -5.0}, {"since": "today"},
+    {"pid": 2**40}, {"pid": True}, {"pid": "12"}, {"host": 7}, {"command": ["rm"]}, "[1, 2]", "{"])
+def test_an_owner_note_not_as_a_writer_writes_it_is_one_line(tmp_path, note):
+    """Each field of an owner note is checked before use: a start no calendar shows (1e20 s, NaN, inf: a
+    traceback from time.localtime before), a pid no kernel holds, a field of another type, a note that is no
+    object; the refusal is one line that says the note is not a writer's."""
+    good = {"pid": 4242, "host": "h", "since": time.time(), "command": "jaxapf sweep x.toml"}
+    text = json.dumps(good | note) if isinstance(note, dict) else note
+    holder = _holder(tmp_path, text)
+    try:
+        with pytest.raises(ConfigError) as err:
+            OutputLock(tmp_path).acquire()
+        line = str(err.value)
+        assert "not one a writer writes" in line and "\n" not in line, line
+    finally:
+        holder.kill()
+        holder.wait()
+
+
+def test_what_a_note_says_reaches_the_terminal_inert(tmp_path):
+    """A host or command with escape sequences (clear the screen, set the window title) or line breaks is shown
+    escaped, on one line, and a command of 10,000 characters cut short."""
+    note = {"pid": 4242, "host": "h\x1b[2J\x1b]0;owned\x07", "since": time.time(),
+            "command": "jaxapf sweep\nrm -rf ~ \u202e" + "x" * 10_000}
+    holder = _holder(tmp_path, json.dumps(note))
+    try:
+        with pytest.raises(ConfigError) as err:
+            OutputLock(tmp_path).acquire()
+        line = str(err.value)
+        assert "h\\x1b[2J\\x1b]0;owned\\x07" in line and "jaxapf sweep\\nrm -rf ~ \\u202e" in line
+        assert all(c.isprintable() for c in line) and len(line) < 1000 and "…" in line
+    finally:
+        holder.kill()
+        holder.wait()
+
+
+def test_the_command_lines_error_is_printed_inert(tmp_path, capsys):
+    from jaxapf.cli import main
+
+    spec = tmp_path / "s.toml"
+    spec.write_text('name = "s"\n[scenario]\nfamilies = ["crossing\\u001b[2J"]\nfields = 4\n')
+    assert main(["sweep", str(spec), "--dry-run"]) == 2
+    err = capsys.readouterr().err
+    assert "\x1b" not in err and "\\x1b[2J" in err and err.count("\n") == 1, err
