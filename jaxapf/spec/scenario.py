@@ -15,6 +15,9 @@ __all__ = ["variant_names", "spec_family_params"]
 
 #: A variant's name: letters, digits and ``_`` (``/`` separates a family from its kind in reports).
 _VARIANT = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+#: The longest variant name: a part's file name holds it with 53 more characters at most (its temporary
+#: name while it is written, jaxapf.io.lock.staged), within the 255 bytes a file name may have.
+MAX_VARIANT_NAME = 128
 
 
 def variant_names(params: Any) -> tuple[str, ...]:
@@ -48,6 +51,9 @@ def spec_family_params(label: str, overrides: Any, *, swarms: bool = False) -> F
     if label not in registered:
         if not _VARIANT.fullmatch(label):
             raise ConfigError(f"{where}: a variant's name is letters, digits and '_', starting with a letter")
+        if len(label) > MAX_VARIANT_NAME:
+            raise ConfigError(f"{where[:60]}…: a variant's name is at most {MAX_VARIANT_NAME} characters (it is "
+                              f"{len(label)}): it names the parts' files, which a file system holds to 255 bytes")
         check_choice(f"{where}.family", base, registered)
     try:
         params = swarm_params(base, **overrides) if base in SWARM_FAMILIES else family_params(base, **overrides)

@@ -78,6 +78,22 @@ def test_a_name_too_long_for_a_file_name_is_refused_with_the_limit(tmp_path, mon
     assert rc == 0, stderr
 
 
+def test_a_variant_name_too_long_for_its_parts_file_names_is_refused_before_any_work(tmp_path):
+    """A variant names its parts' files: 300 characters passed --dry-run, then every run failed after computing
+    ("File name too long"); 128 characters, the longest allowed, are written (a part and its temporary name)."""
+    def spec(label):
+        path = tmp_path / f"{len(label)}.toml"
+        text = SPEC.format(name="v", t_max=2.0, params=f'[scenario.params.{label}]\nfamily = "clutter"')
+        path.write_text(text.replace('families = ["clutter"]', f'families = ["{label}"]'))
+        return path
+
+    _refused(["sweep", str(spec("a" * 300)), "--dry-run"], "at most 128 characters (it is 300)", "255 bytes")
+    assert not (tmp_path / "runs").exists()
+    rc, _, stderr = capture(main, ["sweep", str(spec("b" * 128)), "--out", str(tmp_path / "o"), "--quiet",
+                                   "--no-cache"])
+    assert rc == 0 and len(list((tmp_path / "o").glob("part-*-" + "b" * 128 + "-*.parquet"))) == 1, stderr
+
+
 def test_more_devices_than_cores_are_refused_before_jax_makes_them(tmp_path):
     """--devices 100000 was accepted and grew to 2.5 GB in 110 s."""
     cores = len(os.sched_getaffinity(0))
