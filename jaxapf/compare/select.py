@@ -40,7 +40,7 @@ import numpy as np
 from ..config import SimConfig
 from ..gains import Gains
 from ..io.lock import write_atomic
-from ..io.names import subfolder
+from ..io.names import read_own, subfolder
 from ..spec.scenario import spec_family_params
 from ..tune import TuneError, Tuner, parse_tune_spec
 from ..tune.proof import select_best, tuning_budget
@@ -183,11 +183,11 @@ def _write_json(path: pathlib.Path, data: dict) -> None:
 def saved_selection(spec: CompareSpec, method: str, seed: int, out: pathlib.Path) -> Selection | None:
     """The finished selection of ``method`` with seed ``seed`` of this spec in ``out``, or None."""
     path = out / f"{method}-seed{seed}.json"
-    if not path.exists():
-        return None
     try:
-        saved = json.loads(path.read_text(encoding="utf-8"))
+        saved = json.loads(read_own(path, 2**20).decode("utf-8"))
         return Selection(**saved["selection"]) if saved.get("spec_digest") == spec_digest(spec) else None
+    except FileNotFoundError:
+        return None
     except (OSError, ValueError, RecursionError, KeyError, TypeError, AttributeError) as err:
         raise ConfigError(f"{path} is damaged ({type(err).__name__}: {first_line(err)}); remove it and rerun to "
                           "select that method again") from None

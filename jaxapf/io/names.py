@@ -7,7 +7,8 @@ its final name, which replaces whatever that name was without writing through it
 (a lock) is opened with ``O_NOFOLLOW`` and must be a regular file with one link (:func:`open_own`); a
 subfolder must be a folder, not a link to one (:func:`subfolder`); a leftover is removed only if it is
 a regular file (:func:`remove_leftover`). A name of the wrong type is refused in one line naming it
-(:class:`Planted`), and nothing is written.
+(:class:`Planted`), and nothing is written. A file jaxapf *reads* from a folder it was handed is opened
+the same way, once, and refused past the size the file can hold (:func:`open_read`, :func:`read_own`).
 """
 
 from __future__ import annotations
@@ -16,10 +17,12 @@ import errno
 import os
 import pathlib
 import stat
+from typing import BinaryIO
 
 from ..validation import ConfigError
 
-__all__ = ["Planted", "kind", "create", "open_own", "read_own", "subfolder", "remove_leftover", "check_kind", "FLAGS"]
+__all__ = ["Planted", "TooLarge", "kind", "create", "open_own", "open_read", "read_own", "subfolder", "remove_leftover",
+           "check_kind", "FLAGS"]
 
 #: Flags of every open in a folder jaxapf writes: no link followed, no FIFO waited on, not inherited.
 FLAGS = os.O_NOFOLLOW | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0)
@@ -97,11 +100,33 @@ def open_own(path: str | os.PathLike, flags: int, mode: int = 0o644, *, one_name
     return fd
 
 
+class TooLarge(ConfigError):
+    """A file jaxapf reads is larger than any it writes under that name."""
+
+
+def open_read(path: str | os.PathLike, limit: int) -> BinaryIO:
+    """The regular file ``path`` open for reading through :func:`open_own` (no link followed, no FIFO or device
+    waited on); :class:`TooLarge` if it holds more than ``limit`` bytes, the most a file jaxapf writes under
+    that name can hold; ``FileNotFoundError`` if it is missing. Every file jaxapf reads from a folder it was
+    handed is opened here, once, and read from this descriptor alone."""
+    fh = open(open_own(path, os.O_RDONLY, one_name=False), "rb")
+    size = os.fstat(fh.fileno()).st_size
+    if size > limit:
+        fh.close()
+        raise TooLarge(f"{path} holds {size:,} bytes, more than the {limit:,} a file jaxapf writes there can hold; "
+                       "it was not written by jaxapf (nothing was read)")
+    return fh
+
+
 def read_own(path: str | os.PathLike, limit: int = 1 << 20) -> bytes:
-    """The first ``limit`` bytes of the regular file ``path`` (a small record jaxapf wrote), read through
-    :func:`open_own`; ``FileNotFoundError`` if it is missing."""
-    with open(open_own(path, os.O_RDONLY, one_name=False), "rb") as fh:
-        return fh.read(limit)
+    """The bytes of the regular file ``path``, read through :func:`open_read`; :class:`TooLarge` also if it grows
+    past ``limit`` while it is read."""
+    with open_read(path, limit) as fh:
+        data = fh.read(limit + 1)
+    if len(data) > limit:
+        raise TooLarge(f"{path} grew past the {limit:,} bytes a file jaxapf writes there can hold while it was "
+                       "read; it was not written by jaxapf")
+    return data
 
 
 def subfolder(path: str | os.PathLike) -> pathlib.Path:

@@ -9,6 +9,7 @@ from typing import Any, Mapping
 
 import pandas as pd
 
+from ..io.names import read_own
 from ..simulate.figures import plain_text
 from ..validation import ConfigError, first_line
 from .document import FigureFile, save_figure
@@ -17,6 +18,9 @@ from .select import Selection
 from .tables import _num
 
 __all__ = ["worst_episodes", "resimulate", "gallery"]
+
+#: The most an animated gallery figure (GIF) holds [bytes].
+GIF_BYTES = 2**30
 
 
 def worst_episodes(data: pd.DataFrame, count: int) -> list[tuple[str, pd.Series]]:
@@ -99,8 +103,8 @@ def _animation(runs, field, figdir: pathlib.Path, i: int, title: str) -> FigureF
     tracks = tracks_of_swarm(runs, field) if swarm else tracks_of_runs(runs, field)
     stem = f"gallery_{i}_animated"
     animate(tracks, field.field if swarm else field, figdir, stem=stem, title=f"#{i}")
-    return FigureFile(stem, f"{title}, animated (MP4: figures/{stem}.mp4)", (figdir / f"{stem}.gif").read_bytes(),
-                      format="gif")
+    gif = read_own(figdir / f"{stem}.gif", GIF_BYTES)  # written just now, in a folder it was handed
+    return FigureFile(stem, f"{title}, animated (MP4: figures/{stem}.mp4)", gif, format="gif")
 
 
 @plain_text

@@ -12,15 +12,16 @@ after an interruption copies only what is not there yet.
 from __future__ import annotations
 
 import dataclasses
+import os
 import pathlib
-import shutil
+import re
 from typing import Sequence
 
 from ..io.lock import OutputLock, check_writable, write_atomic
 from ..validation import ConfigError
 from .audit import Audit, audit_folder, check_folder, clear_temporaries
 from .meta import identity, read_meta
-from .output import part_record, verify_part
+from .output import open_part, part_record, verify_part
 from .plan import Chunk
 
 __all__ = ["MergeResult", "merge_outputs"]
@@ -40,6 +41,25 @@ class MergeResult:
             f"{self.audit.rows:,} of {self.audit.expected:,} episodes; `jaxapf sweep verify {self.out}` lists the rest")
         return (f"merged into {self.out}: {self.copied} part(s) copied, {self.present} already there; "
                 f"{len(self.audit.sound)} part(s), {state}")
+
+
+def _copy(src: pathlib.Path, fh, copied: int) -> None:
+    """The part ``src`` copied into ``fh`` from the descriptor it was opened and checked with
+    (:func:`~jaxapf.sweep.output.open_part`), the bytes it held then and no more: a source swapped for a link or
+    a FIFO is refused unread, one that grows while it is copied is refused when it does."""
+    try:
+        part = open_part(src)
+    except ConfigError as err:  # planted or grown since the audit
+        said = re.sub(r" \(nothing was \w+\)$", "", str(err))
+        raise ConfigError(f"sweep merge: {said}; {copied} part(s) were copied before it") from None
+    with part:
+        left = os.fstat(part.fileno()).st_size
+        while left > 0 and (block := part.read(min(left, 1 << 20))):
+            fh.write(block)
+            left -= len(block)
+        if part.read(1):
+            raise ConfigError(f"sweep merge: {src} grew while it was copied (a part never changes once written); "
+                              f"{copied} part(s) were copied before it")
 
 
 def merge_outputs(sources: Sequence[str | pathlib.Path], out: str | pathlib.Path) -> MergeResult:
@@ -109,11 +129,11 @@ def merge_outputs(sources: Sequence[str | pathlib.Path], out: str | pathlib.Path
         for name, src in chosen.items():
             if src.parent == out:
                 continue
-            def copy(fh, src=src):
-                with open(src, "rb") as part:
-                    shutil.copyfileobj(part, fh)
-            write_atomic(out / name, copy)
+            audited = part_record(src).get("sha256")
+            write_atomic(out / name, lambda fh, src=src, copied=copied: _copy(src, fh, copied))
             problem = verify_part(out / name)
+            if problem is None and part_record(out / name).get("sha256") != audited:
+                problem = "another part's content: the source changed after it was audited"
             if problem is not None:
                 (out / name).unlink(missing_ok=True)
                 raise ConfigError(f"sweep merge: the copy of {src} did not read back ({problem}); "

@@ -36,8 +36,11 @@ def read_meta(path: pathlib.Path) -> dict[str, Any]:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
+    from .output import open_part
+
     try:
-        raw = (pq.read_schema(path).metadata or {}).get(META_KEY)
+        with open_part(path) as fh:
+            raw = (pq.read_schema(fh).metadata or {}).get(META_KEY)
     except (OSError, pa.ArrowException, ValueError) as err:
         raise ConfigError(f"{path} is not a readable sweep output (Parquet): {first_line(err)}") from None
     try:

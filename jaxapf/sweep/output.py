@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from ..io.lock import write_atomic
+from ..io.names import open_read
 from ..validation import ConfigError, first_line
 from .meta import LEGACY_FORMAT, META_KEY
 from .plan import Chunk
@@ -39,6 +40,15 @@ class PartUnreadable(ConfigError):
     """A part that cannot be read now (permissions, an I/O error): unlike a damaged one, it is left alone."""
 #: Parquet metadata key of a part's own record: ``{"sha256": ..., "rows": ...}``.
 PART_KEY = b"jaxapf_part"
+#: The most a part file holds [bytes]: a chunk's rows, of at most a device's memory, compressed; a file past it
+#: is refused unread (a link to ``/dev/zero`` is refused before, as a link).
+PART_BYTES = 64 * 2**30
+
+
+def open_part(path: pathlib.Path):
+    """A part file open for reading, checked (:func:`jaxapf.io.names.open_read`): a regular file, no link
+    followed, no FIFO waited on, at most :data:`PART_BYTES`; every read of a part goes through it."""
+    return open_read(path, PART_BYTES)
 
 
 def content_hash(table) -> str:
@@ -82,7 +92,10 @@ def read_part(path: pathlib.Path):
     import pyarrow.parquet as pq
 
     try:
-        table = pq.read_table(path, page_checksum_verification=True)
+        with open_part(path) as fh:
+            table = pq.read_table(fh, page_checksum_verification=True)
+    except ConfigError:  # planted, too large
+        raise
     except OSError as err:
         if err.errno is not None:  # permissions, I/O errors, too many open files: the file is not judged
             raise PartUnreadable(f"{path}: cannot be read now ({err.strerror or first_line(err)}); nothing was "
@@ -131,7 +144,8 @@ def part_record(path: pathlib.Path) -> dict[str, Any]:
     import pyarrow.parquet as pq
 
     try:
-        record = json.loads((pq.read_schema(path).metadata or {}).get(PART_KEY, b"{}"))
+        with open_part(path) as fh:
+            record = json.loads((pq.read_schema(fh).metadata or {}).get(PART_KEY, b"{}"))
     except (OSError, ValueError, RecursionError, pa.ArrowException):  # damaged: no record (reading names it)
         return {}
     return record if isinstance(record, dict) else {}

@@ -24,6 +24,7 @@ interrupted (Ctrl-C), it keeps the checkpoint and finished searches for the reru
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import pathlib
@@ -34,6 +35,7 @@ from typing import Any
 import pandas as pd
 
 from ..io.lock import write_atomic, writing
+from ..io.names import read_own
 from ..io.versions import versions
 from .proof import candidates, comparison_table, plot_test, plot_training, test_episodes, tuning_budget
 from .searches import SEARCHES
@@ -99,6 +101,8 @@ def run_tune(spec_path: str | pathlib.Path, out: str | pathlib.Path | None = Non
                          quiet=quiet)
 
 
+#: The most a tune run's JSON record (``summary.json``, ``searches.json``) holds [bytes].
+RECORD_BYTES = 64 * 2**20
 #: Files a finished run leaves (``checkpoint.npz`` and ``searches.json`` come earlier).
 OUTPUTS: tuple[str, ...] = ("gains.toml", "summary.json", "history.csv", "test_results.csv", "test_episodes.parquet",
                             "training.png", "test.png")
@@ -107,8 +111,8 @@ OUTPUTS: tuple[str, ...] = ("gains.toml", "summary.json", "history.csv", "test_r
 def finished_summary(out: pathlib.Path, digest: str) -> dict[str, Any] | None:
     """The summary of a finished run of the spec with ``digest`` in ``out``, None if there is none."""
     try:
-        summary = json.loads((out / "summary.json").read_text())
-    except (OSError, ValueError, RecursionError):
+        summary = json.loads(read_own(out / "summary.json", RECORD_BYTES))
+    except (OSError, ValueError, RecursionError):  # missing, planted, too large (ConfigErrors), damaged
         return None
     if summary.get("spec_digest") != digest or not all((out / name).is_file() for name in OUTPUTS):
         return None
@@ -120,7 +124,7 @@ def _search(tuner: Tuner, label: str, budget: int, out: pathlib.Path, digest: st
     ``out/searches.json`` by a run of the same spec and budget."""
     path = out / "searches.json"
     try:
-        stored = json.loads(path.read_text())
+        stored = json.loads(read_own(path, RECORD_BYTES))
     except (OSError, ValueError, RecursionError):
         stored = {}
     if stored.get("spec_digest") != digest or stored.get("budget") != budget:
@@ -148,7 +152,7 @@ def _run(spec: TuneSpec, text: str, out: pathlib.Path, quiet: bool) -> dict[str,
     done = finished_summary(out, digest)
     if done is not None:
         _say(quiet, f"{out} already holds this tuning run (finished); nothing to do. Its test table:")
-        _say(quiet, format_table(pd.read_csv(out / "test_results.csv")))
+        _say(quiet, format_table(pd.read_csv(io.BytesIO(read_own(out / "test_results.csv", RECORD_BYTES)))))
         return done
     tuner = Tuner(spec)
 

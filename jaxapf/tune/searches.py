@@ -42,6 +42,7 @@ import numpy as np
 
 from ..datatypes import Scenario
 from ..io.lock import write_atomic
+from ..io.names import read_own
 from .proof import random_settings, search_ranges, select_best
 from .spec import split_count
 from .train import CheckpointError, TuneError, Tuner
@@ -74,7 +75,7 @@ class _Checkpoint:
         ``keys`` or holds it as another type than the one given is damaged
         (:class:`~jaxapf.tune.train.CheckpointError`)."""
         try:
-            state = json.loads(self.path.read_text(), object_hook=_decode)
+            state = json.loads(read_own(self.path, STATE_BYTES), object_hook=_decode)
         except (OSError, ValueError, TypeError, KeyError, RecursionError):
             return None
         if not isinstance(state, dict) or state.get("digest") != self.digest:
@@ -129,6 +130,8 @@ def _decode(obj: dict[str, Any]) -> Any:
     return obj
 
 
+#: The most a search's saved state holds [bytes] (an optimiser's state and its history of trials).
+STATE_BYTES = 256 * 2**20
 #: How a search's state names the ``cmaes`` library's optimisers.
 _CMA_TAGS = {"CMA": "__cma__", "SepCMA": "__sepcma__"}
 

@@ -24,6 +24,7 @@ uninterrupted one.
 from __future__ import annotations
 
 import dataclasses
+import io
 import json
 import math
 import pathlib
@@ -43,6 +44,7 @@ from ..datatypes import Obstacles, Scenario
 from ..engine import default_width, episode_index, program, rollout
 from ..gains import Gains
 from ..io.lock import write_atomic
+from ..io.names import read_own
 from ..metrics import METRICS, episode_metrics
 from ..progress import Progress
 from ..scenarios import FamilyParams, make_scenarios
@@ -67,6 +69,13 @@ __all__ = [
 #: File name of the checkpoint inside the output folder.
 CHECKPOINT = "checkpoint.npz"
 _CHECKPOINT_FORMAT = "jaxapf.tune-checkpoint/1"
+
+
+def _checkpoint_bytes(like: "TrainState") -> int:
+    """The most a checkpoint of states shaped like ``like`` holds: its arrays (parameters, best parameters and
+    the optimiser's state) at 8 bytes a number, twice over, and 1 MiB of metadata and archive headers."""
+    numbers = sum(int(np.size(x)) for x in jax.tree_util.tree_leaves((like.theta, like.best_theta, like.opt_state)))
+    return 16 * numbers + 2**20
 #: Columns of a history row (NaN where a row has no value: validation columns between validations,
 #: training columns of the step-0 validation).
 HISTORY_COLUMNS: tuple[str, ...] = (
@@ -190,7 +199,7 @@ class TrainState:
 
     @classmethod
     def _read(cls, path: pathlib.Path, digest: str, like: "TrainState") -> "TrainState":
-        with np.load(path) as data:
+        with np.load(io.BytesIO(read_own(path, _checkpoint_bytes(like))), allow_pickle=False) as data:
             meta = json.loads(str(data["meta"]))
             if meta.get("format") != _CHECKPOINT_FORMAT or meta.get("spec_digest") != digest:
                 raise CheckpointError(f"{path} belongs to a different spec; use another --out or delete it")
