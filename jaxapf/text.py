@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import re
 
-__all__ = ["format_seconds", "format_bytes", "plain_text", "inert"]
+__all__ = ["format_seconds", "format_bytes", "plain_text", "inert", "csv_text"]
 
 
 def format_seconds(s: float) -> str:
@@ -32,6 +32,23 @@ def inert(text: str) -> str:
     that is not printable but the space) written as its escape (``\\x1b``): what came from a file or a spec
     is printed as data, on one line."""
     return "".join(c if c.isprintable() or c == " " else c.encode("unicode_escape").decode("ascii") for c in text)
+
+
+#: What a spreadsheet executes at the start of a cell (OWASP, "CSV Injection").
+_FORMULA = ("=", "+", "-", "@", "\t", "\r")
+
+
+def csv_text(frame) -> str:
+    """``frame`` (a pandas DataFrame) as CSV text, every text cell and column name that a spreadsheet would run
+    as a formula (starting with ``= + - @``, a tab or a carriage return) prefixed with ``'``, as OWASP's
+    CSV-injection guidance says: a name from a spec or a file is shown, never run. Numbers are written as
+    they are (a negative number is a number, not text)."""
+    def safe(value):
+        return "'" + value if isinstance(value, str) and value.startswith(_FORMULA) else value
+
+    frame = frame.rename(columns=safe)
+    text = frame.select_dtypes(include=["object", "string", "category"]).columns
+    return frame.assign(**{c: frame[c].map(safe) for c in text}).to_csv(index=False)
 
 
 _ROLE = re.compile(r":[a-z]+(?::[a-z]+)?:`(~?)([^`<]*?)(?:\s*<[^>]*>)?`")

@@ -39,6 +39,7 @@ from .. import stats
 from ..gains import GAINS
 from ..io.lock import writing
 from ..io.versions import versions
+from ..text import csv_text
 from ..validation import ConfigError
 from .select import Selection, saved_selection, select, spec_digest
 from .spec import CompareSpec, load_compare_spec
@@ -149,7 +150,7 @@ def _run(spec: CompareSpec, text: str, out: pathlib.Path, *, quiet: bool, resamp
     table = pd.DataFrame([{k: v for k, v in s.to_json().items() if k != "gains"}  # arrays: in selection/*.json
                           | {g: s.gains[g] for g in spec.method_gains(s.method) if not GAINS.get(g).shape}
                           for s in selections])
-    write_atomic(out / "selection.csv", table.to_csv(index=False))
+    write_atomic(out / "selection.csv", csv_text(table))
 
     test = test_sweep_spec(spec, selections)
     result = run_sweep(test, out / "test.parquet", quiet=quiet, answers=answers)

@@ -29,6 +29,7 @@ from .. import stats
 from ..io.lock import write_atomic
 from ..io.names import subfolder
 from ..metrics import all_metrics, find_metric, is_metric
+from ..text import csv_text
 from ..validation import MAX_SEED
 from .document import VERDICT_MARKS, Document, render_html, render_markdown
 from .figures import DEFAULT_HEATMAP, check_heatmap, table_figures
@@ -332,7 +333,7 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
     paths = []
     summary_path, comp_path, tex_path, md_path, html_path = (
         out / n for n in ("summary.csv", "comparisons.csv", "table.tex", "report.md", "report.html"))
-    for path, text in ((summary_path, summary.to_csv(index=False)), (comp_path, comparisons.to_csv(index=False)),
+    for path, text in ((summary_path, csv_text(summary)), (comp_path, csv_text(comparisons)),
                        (tex_path, latex_tables(summary, comparisons, sel, pooled, options, spec_name, rates)),
                        (md_path, render_markdown(doc)), (html_path, render_html(doc, title))):
         write_atomic(path, text, durable=False)

@@ -31,6 +31,7 @@ from ..io.versions import versions
 from ..metrics import METRICS, all_metrics, clearance_history, episode_end, episode_metrics, find_metric
 from ..progress import Progress
 from ..scenarios import FAMILIES, family_params, make_scenarios
+from ..text import csv_text
 from .figures import Field, Run, plot_all
 
 __all__ = ["simulate_runs", "write_outputs", "format_metrics_table", "defining_field", "DEFINING_SEARCH"]
@@ -142,8 +143,8 @@ def write_outputs(out: pathlib.Path, field: Field, runs: Sequence[Run], table: p
     out.mkdir(parents=True, exist_ok=True)
     paths = [out / "trajectories.parquet", out / "metrics.csv", out / "run.json"]
     write_atomic(paths[0], lambda fh: table.to_parquet(fh, index=False), durable=False)
-    write_atomic(paths[1], pd.DataFrame([{"method": r.label, **{m: r.metrics[m] for m in METRICS if m in r.metrics}}
-                                         for r in runs]).to_csv(index=False), durable=False)
+    rows = [{"method": r.label, **{m: r.metrics[m] for m in METRICS if m in r.metrics}} for r in runs]
+    write_atomic(paths[1], csv_text(pd.DataFrame(rows)), durable=False)
     record = {
         **config,
         "field": {k: np.asarray(v).tolist() if isinstance(v, np.ndarray) else v

@@ -36,6 +36,7 @@ from ..io.versions import versions
 from ..metrics import find_metric
 from ..metrics.swarm import agent_outcomes, swarm_metrics
 from ..scenarios.swarms import make_swarms, swarm_params
+from ..text import csv_text
 from .figures import (
     DPI,
     Field,
@@ -277,7 +278,7 @@ def write_swarm_outputs(out: pathlib.Path, swarm: SwarmField, runs: Sequence[Swa
     out.mkdir(parents=True, exist_ok=True)
     paths = [out / "trajectories.parquet", out / "metrics.csv", out / "run.json"]
     write_atomic(paths[0], lambda fh: table.to_parquet(fh, index=False), durable=False)
-    write_atomic(paths[1], pd.DataFrame([{"method": r.label, **r.metrics} for r in runs]).to_csv(index=False),
+    write_atomic(paths[1], csv_text(pd.DataFrame([{"method": r.label, **r.metrics} for r in runs])),
                  durable=False)
     record = {**config, "starts": swarm.starts.tolist(), "goals": swarm.goals.tolist(),
               "field": {k: np.asarray(v).tolist() if isinstance(v, np.ndarray) else v

@@ -37,6 +37,7 @@ import pandas as pd
 from ..io.lock import write_atomic, writing
 from ..io.names import read_own
 from ..io.versions import versions
+from ..text import csv_text
 from .proof import candidates, comparison_table, plot_test, plot_training, test_episodes, tuning_budget
 from .searches import SEARCHES
 from .spec import TuneSpec, load_tune_spec
@@ -158,7 +159,7 @@ def _run(spec: TuneSpec, text: str, out: pathlib.Path, quiet: bool) -> dict[str,
 
     state = tuner.train(out, quiet=quiet)
     history = pd.DataFrame(state.history, columns=list(HISTORY_COLUMNS))
-    write_atomic(out / "history.csv", history.to_csv(index=False))
+    write_atomic(out / "history.csv", csv_text(history))
     plot_training(history, spec.train.clip, out / "training.png")
     tuned = spec.reparam.gains(state.best_theta)
     write_gains_toml(out / "gains.toml", tuned.floats(),
@@ -182,7 +183,7 @@ def _run(spec: TuneSpec, text: str, out: pathlib.Path, quiet: bool) -> dict[str,
     test_seconds = time.perf_counter() - start
     write_atomic(out / "test_episodes.parquet", lambda fh: episodes.to_parquet(fh, index=False))
     table = comparison_table(episodes, spec.test.families)
-    write_atomic(out / "test_results.csv", table.to_csv(index=False))
+    write_atomic(out / "test_results.csv", csv_text(table))
     plot_test(table, f"{spec.name}: held-out test fields (seed {spec.test.seed})", out / "test.png")
 
     summary = {
