@@ -47,7 +47,7 @@ import numpy as np
 from ..config import MPCConfig, SimConfig
 from ..gains import Gains
 from ..metrics import metric_names
-from ..text import format_seconds
+from ..text import format_bytes, format_seconds
 from ..validation import ConfigError, check_int
 
 __all__ = ["run_benchmark", "format_benchmark", "bench_case", "lower_case", "interleaved", "environment",
@@ -95,6 +95,25 @@ def rates_summary(metrics: dict[str, Any]) -> dict[str, float]:
     return out
 
 
+def check_fits(fields: int, obstacles: int, steps: int, width: int, agents: int = 1) -> None:
+    """Refuse, in one line and before anything is made, a benchmark whose fields and episodes would take more
+    memory than the device has free (:func:`~jaxapf.engine.policy.available_memory`), by the sweep's memory model
+    (:func:`~jaxapf.sweep.plan.working_set_bytes`, :func:`~jaxapf.sweep.plan.episode_bytes`); the most fields that
+    fit are named."""
+    from ..engine.policy import available_memory
+    from ..sweep.plan import episode_bytes, working_set_bytes
+
+    free = available_memory()
+    itemsize = jnp.dtype(jnp.result_type(float)).itemsize
+    batch = working_set_bytes(min(width, fields), steps, obstacles, itemsize, agents)
+    each = episode_bytes(obstacles, itemsize, agents)
+    if free is not None and batch + fields * each > free:
+        most = max((free - batch) // each, 0)
+        raise ConfigError(f"bench.fields = {fields:,} needs about {format_bytes(batch + fields * each)} of memory "
+                          f"({obstacles} obstacle slots, {steps:,} steps), more than the {format_bytes(free)} this "
+                          f"device has free: at most {most:,} fields here")
+
+
 def bench_case(fields: int, obstacles: int, horizon: int, iters: int, steps: int, family: str, *, seed: int = 0,
                method: str = "direction_velocity", width: int | None = None, gains: Gains | None = None,
                scenarios: Any = None) -> dict[str, Any]:
@@ -110,6 +129,7 @@ def bench_case(fields: int, obstacles: int, horizon: int, iters: int, steps: int
     if scenarios is None:
         from ..scenarios import family_params, make_scenarios
 
+        check_fits(fields, obstacles, steps, default_width() if width is None else width)
         scenarios = make_scenarios(seed, family_params(family, max_obstacles=obstacles), fields)
         source = family
     else:

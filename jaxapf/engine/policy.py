@@ -28,7 +28,7 @@ import jax
 from ..validation import ConfigError
 from .batch import CPU_WIDTH
 
-__all__ = ["Policy", "CPU", "ACCELERATOR", "POLICIES", "CPU_BUDGET", "policy_for", "free_memory"]
+__all__ = ["Policy", "CPU", "ACCELERATOR", "POLICIES", "CPU_BUDGET", "policy_for", "free_memory", "available_memory"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -94,3 +94,18 @@ def free_memory(device: jax.Device | None = None) -> int | None:
     if not stats or "bytes_limit" not in stats:
         return None
     return int(stats["bytes_limit"]) - int(stats.get("bytes_in_use", 0))
+
+
+def available_memory(device: jax.Device | None = None) -> int | None:
+    """Bytes a computation on ``device`` (default the first local one) may still take: its free memory
+    (:func:`free_memory`), or on the CPU the host's available memory (``MemAvailable``); None where neither
+    says."""
+    free = free_memory(device)
+    if free is not None:
+        return free
+    try:
+        with open("/proc/meminfo") as fh:
+            found = next((line for line in fh if line.startswith("MemAvailable:")), None)
+    except OSError:
+        return None
+    return int(found.split()[1]) * 1024 if found else None

@@ -237,3 +237,25 @@ def test_the_gpu_script_runs_on_a_cpu_in_its_smoke_mode(tmp_path):
     assert set(large["policies"]) == {"accelerator"} and large["policies"]["accelerator"]["episodes"] == 64
     for name in ("compare", "tune"):
         assert json.loads((tmp_path / f"{name}-gpu.json").read_text())["rc"] == 0
+
+
+def test_a_bench_too_large_for_the_devices_memory_is_refused_up_front(monkeypatch, capsys):
+    """``jaxapf bench engine --fields 100000000`` ran out of memory with a traceback; now the size is weighed
+    against the device's free memory first: the fields it names as the most fit, one more does not."""
+    import re
+
+    from jaxapf.bench import engine
+    from jaxapf.cli import main
+    from jaxapf.engine import policy
+
+    monkeypatch.setattr(policy, "available_memory", lambda device=None: 300 * 2**20)
+    with pytest.raises(ConfigError) as err:
+        engine.check_fits(10**6, 16, 300, 1024)
+    most = int(re.search(r"at most ([\d,]+) fields", str(err.value))[1].replace(",", ""))
+    assert 0 < most < 10**6 and "300.0 MiB this device has free" in str(err.value)
+    engine.check_fits(most, 16, 300, 1024)
+    with pytest.raises(ConfigError):
+        engine.check_fits(most + 1, 16, 300, 1024)
+    assert main(["bench", "engine", "--fields", "100000000"]) == 2
+    out = capsys.readouterr().err
+    assert out.count("\n") == 1 and "bench.fields = 100,000,000 needs about" in out and "Traceback" not in out
