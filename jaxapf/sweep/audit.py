@@ -32,7 +32,7 @@ from ..io.lock import LOCK_NAME
 from ..io.names import check_kind, kind, remove_leftover, subfolder
 from ..validation import ConfigError
 from .division import Division, agree_division, forget_division, is_division_file
-from .meta import identity, needed, read_meta, sweep_spec
+from .meta import identity, needed, read_meta, stored_spec_bound, sweep_spec
 from .output import _PROBE, _TMP, PartUnreadable, part_files, part_record, read_part
 from .plan import Chunk, Plan, Variant, gaps, shard_chunks, variants
 from .spec import SweepSpec
@@ -165,7 +165,9 @@ def judge(tables: Mapping[str, Any], metas: Mapping[str, dict], damaged: Mapping
     for name, table in tables.items():
         chunk = Chunk.from_name(name)
         other = identity(metas[name])
-        if other != want:
+        if not stored_spec_bound(metas[name]):
+            foreign[name] = "its stored spec is not the one its spec_hash names (edited after it was written)"
+        elif other != want:
             differ = ", ".join(k for k in want if other[k] != want[k])
             foreign[name] = f"of another sweep ({differ} {'differs' if ',' not in differ else 'differ'})"
             other_sweep.add(name)

@@ -87,9 +87,9 @@ def merge_outputs(sources: Sequence[str | pathlib.Path], out: str | pathlib.Path
                               "nothing merged")
         audits.append(found)
         metas.append(meta)
-    first = identity(metas[0]) | {"jaxapf": metas[0].get("versions", {}).get("jaxapf")}
+    first = identity(metas[0])  # the jaxapf version among it: one output holds one version's parts
     for s, meta in zip(sources[1:], metas[1:]):
-        other = identity(meta) | {"jaxapf": meta.get("versions", {}).get("jaxapf")}
+        other = identity(meta)
         if other != first:
             differ = ", ".join(k for k in first if other[k] != first[k])
             raise ConfigError(f"sweep merge: {s} is of another sweep or version than {sources[0]} ({differ} differ); "

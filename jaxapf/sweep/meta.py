@@ -14,7 +14,7 @@ from ..validation import ConfigError, first_line
 from .spec import SweepSpec
 
 __all__ = ["FORMAT", "LEGACY_FORMAT", "READABLE_FORMATS", "META_KEY", "PRNG", "sweep_meta", "read_meta", "identity",
-           "plugin_files", "sweep_spec"]
+           "plugin_files", "sweep_spec", "stored_spec_bound"]
 
 FORMAT = "jaxapf.sweep/2"
 #: The format before kinds, solvability and content hashes; still read (its parts are not verified).
@@ -86,9 +86,24 @@ def needed(meta: Mapping[str, Any], keys: Sequence[str] = ("spec", "dtype", "met
 
 
 def identity(meta: Mapping[str, Any]) -> dict[str, Any]:
-    """What must match for parts to belong to one sweep (numbers bit for bit)."""
-    return {k: meta.get(k) for k in ("format", "spec_hash", "dtype", "vmap_width", "metrics", "obstacle_slots",
-                                     "fused")}
+    """What must match for parts to belong to one sweep (numbers bit for bit), the jaxapf version that wrote
+    them included: one output holds one version's parts (docs/sweep-format.md)."""
+    versions = meta.get("versions")
+    return {**{k: meta.get(k) for k in ("format", "spec_hash", "dtype", "vmap_width", "metrics", "obstacle_slots",
+                                        "fused")},
+            "jaxapf": versions.get("jaxapf") if isinstance(versions, Mapping) else None}
+
+
+def stored_spec_bound(meta: Mapping[str, Any]) -> bool:
+    """Whether the spec a part stores is the one its ``spec_hash`` names: the SHA-256 of its canonical JSON
+    (:attr:`~jaxapf.sweep.spec.SweepSpec.hash`), so a stored spec edited with its hash kept is caught."""
+    import hashlib
+
+    try:
+        text = json.dumps(meta.get("spec"), sort_keys=True, separators=(",", ":"))
+    except (TypeError, ValueError, RecursionError):
+        return False
+    return hashlib.sha256(text.encode()).hexdigest() == meta.get("spec_hash")
 
 
 def sweep_meta(spec: SweepSpec, dtype: str, width: int, metrics: Sequence[str], out: str | pathlib.Path | None = None,
@@ -128,7 +143,10 @@ def plugin_files(spec: SweepSpec, out: str | pathlib.Path | None) -> list[dict[s
 
 
 def sweep_spec(meta: Mapping[str, Any]) -> SweepSpec:
-    """:func:`_sweep_spec`; metadata whose spec cannot be read back is a :class:`ConfigError` in one line."""
+    """:func:`_sweep_spec`; metadata whose spec cannot be read back, or is not the one its ``spec_hash`` names
+    (:func:`stored_spec_bound`), is a :class:`ConfigError` in one line."""
+    if "spec_hash" in meta and not stored_spec_bound(meta):
+        raise ConfigError("the sweep's stored spec is not the one its spec_hash names: edited after it was written")
     try:
         return _sweep_spec(meta)
     except ConfigError:

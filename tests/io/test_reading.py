@@ -130,7 +130,8 @@ def test_every_file_the_package_reads_goes_through_jaxapf_io(repo_root):
     allowed = {"jaxapf/cli/catalog.py": "the catalogue cache, in the user's own cache folder",
                "jaxapf/scenarios/answers.py": "its own source file, hashed into the answers' key",
                "jaxapf/validation.py": "the spec file a user names, checked to be a regular file",
-               "jaxapf/simulate/animate.py": "ffmpeg's pipe"}
+               "jaxapf/simulate/animate.py": "ffmpeg's pipe",
+               "jaxapf/engine/policy.py": "the kernel's /proc/meminfo"}
     readers = {"read_text", "read_bytes", "read_table", "read_schema", "ParquetFile", "read_parquet", "read_csv",
                "load"}  # load: numpy's (a method named load of jaxapf's own is not a reader)
     found = []

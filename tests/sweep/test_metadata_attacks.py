@@ -111,3 +111,55 @@ def test_a_stray_parquet_file_never_switches_the_audit_off(dataset, tmp_path):
     rc, text, rows = _verdicts(out)
     assert rc == 0 and "zz-notes.parquet" in text
     assert rows.equals(dataset[1]) and read_sweep(out)[1]["stray"] == ["NOTES.txt", "zz-notes.parquet"]
+
+
+def _remeta(part, change) -> None:
+    """Rewrite the part's ``jaxapf`` metadata with ``change(meta)``, its content hash re-sealed."""
+    table = pq.read_table(part)
+    meta = json.loads(table.schema.metadata[b"jaxapf"])
+    change(meta)
+    _rewrite(part, table.replace_schema_metadata({**table.schema.metadata, b"jaxapf": json.dumps(meta).encode()}))
+
+
+def test_every_parts_stored_spec_rewritten_with_its_hash_kept_is_refused_everywhere(dataset, tmp_path):
+    """The break-in: every part's stored grid rewritten (a gain's values swapped), ``spec_hash`` kept, content
+    hashes re-sealed: verify called it complete and sound, resume accepted it, the report re-simulated under
+    the wrong labels. The stored spec is now bound to its hash: verify, the report, resume and merge refuse."""
+    out = _crafted(dataset, tmp_path)[0]
+
+    def swap(meta):
+        meta["spec"]["grid"] = [["k_rep", [10.0, 5.0]]]
+
+    for part in part_files(out):
+        _remeta(part, swap)
+    rc, text, rows = _verdicts(out)
+    assert rc != 0 and "complete and sound" not in text and isinstance(rows, str), text
+    assert "spec_hash" in text or "spec_hash" in rows
+    with pytest.raises(ConfigError, match="cannot be trusted|spec_hash"):
+        run_sweep(parse_spec(SPEC), out, chunk_fields=2, quiet=True)
+    rc, _, err = capture(main, ["sweep", "merge", str(out), "--out", str(tmp_path / "m")])
+    assert rc == 2 and "Traceback" not in err and err.count("\n") == 1, err
+
+
+def test_half_a_folders_parts_of_another_jaxapf_version_are_not_one_sweep(dataset, tmp_path):
+    """Half the parts recorded as written by another jaxapf version: verify, report and merge called the folder
+    complete and sound, and resume added parts to it. One output holds one version's parts."""
+    out = _crafted(dataset, tmp_path)[0]
+    parts = part_files(out)
+
+    def older(meta):
+        meta["versions"]["jaxapf"] = "0.0.1"
+
+    for part in parts[: len(parts) // 2]:
+        _remeta(part, older)
+    rc, text, rows = _verdicts(out)
+    assert rc == 1 and "jaxapf differs" in text and isinstance(rows, str), text
+    with pytest.raises(ConfigError, match="cannot be trusted"):
+        run_sweep(parse_spec(SPEC), out, chunk_fields=2, quiet=True)
+    rc, _, err = capture(main, ["sweep", "merge", str(out), "--out", str(tmp_path / "m")])
+    assert rc == 2 and "Traceback" not in err and err.count("\n") == 1, err
+    for part in parts[len(parts) // 2:]:  # all of another version: resume says what to do
+        _remeta(part, older)
+    with pytest.raises(ConfigError, match=r"holds a different sweep \(jaxapf 0\.0\.1 here, .* now\); rerun with "
+                                          r"--overwrite"):
+        run_sweep(parse_spec(SPEC), out, chunk_fields=2, quiet=True)
