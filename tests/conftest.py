@@ -250,3 +250,18 @@ def changed(table: dict, **changes) -> dict:
             at = at.setdefault(part, {})
         at[key] = value
     return data
+
+
+def package_calls(root: pathlib.Path, allowed=(), outside_io: bool = True):
+    """``(file, call, name)`` of every call in the package's modules but ``allowed`` (and jaxapf/io, with
+    ``outside_io``): what the tests that hold every write, read and CSV to jaxapf's own helpers walk."""
+    import ast
+
+    for path in sorted((root / "jaxapf").rglob("*.py")):
+        rel = str(path.relative_to(root))
+        if (outside_io and rel.startswith("jaxapf/io/")) or rel in allowed:
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Call):
+                f = node.func
+                yield rel, node, f.attr if isinstance(f, ast.Attribute) else f.id if isinstance(f, ast.Name) else ""

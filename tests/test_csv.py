@@ -4,6 +4,7 @@ import ast
 import io
 
 import pandas as pd
+from conftest import package_calls
 
 from jaxapf.text import csv_text
 
@@ -21,10 +22,6 @@ def test_a_cell_a_spreadsheet_would_run_is_prefixed_and_numbers_are_left_alone()
 
 
 def test_every_csv_the_package_writes_goes_through_csv_text(repo_root):
-    found = []
-    for path in sorted((repo_root / "jaxapf").rglob("*.py")):
-        for node in ast.walk(ast.parse(path.read_text())):
-            if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "to_csv":
-                if path.name != "text.py":
-                    found.append(f"{path.relative_to(repo_root)}:{node.lineno}")
+    found = [f"{rel}:{node.lineno}" for rel, node, name in package_calls(repo_root, {"jaxapf/text.py"}, False)
+             if name == "to_csv" and isinstance(node.func, ast.Attribute)]
     assert found == [], "write CSV through jaxapf.text.csv_text: " + ", ".join(found)

@@ -16,6 +16,7 @@ import shutil
 
 import pytest
 from cli_capture import capture
+from conftest import package_calls
 
 from jaxapf.cli import main
 from jaxapf.io.lock import OutputLock, check_writable, staged, write_atomic, writing
@@ -292,20 +293,12 @@ def test_every_file_the_package_writes_goes_through_jaxapf_io(repo_root):
 
     allowed = {"jaxapf/cli/catalog.py"}  # the catalogue cache, in the user's own cache folder (tempfile)
     found = []
-    for path in sorted((repo_root / "jaxapf").rglob("*.py")):
-        rel = str(path.relative_to(repo_root))
-        if rel.startswith("jaxapf/io/") or rel in allowed:
-            continue
-        for node in ast.walk(ast.parse(path.read_text())):
-            if not isinstance(node, ast.Call):
-                continue
-            f = node.func
-            name = f.attr if isinstance(f, ast.Attribute) else f.id if isinstance(f, ast.Name) else ""
-            first = node.args[0] if node.args else None
-            to_path = first is not None and not (isinstance(first, ast.Name) and first.id in ("fh", "buf"))
-            mode = next((a.value for a in node.args[1:2] if isinstance(a, ast.Constant)), "r")
-            if (name in ("write_text", "write_bytes")
-                    or (name == "open" and isinstance(f, ast.Name) and any(c in str(mode) for c in "wax+"))
-                    or (name in ("savefig", "to_csv", "to_parquet", "to_html", "savez") and to_path)):
-                found.append(f"{rel}:{node.lineno} {name}")
+    for rel, node, name in package_calls(repo_root, allowed):
+        first = node.args[0] if node.args else None
+        to_path = first is not None and not (isinstance(first, ast.Name) and first.id in ("fh", "buf"))
+        mode = next((a.value for a in node.args[1:2] if isinstance(a, ast.Constant)), "r")
+        if (name in ("write_text", "write_bytes")
+                or (name == "open" and isinstance(node.func, ast.Name) and any(c in str(mode) for c in "wax+"))
+                or (name in ("savefig", "to_csv", "to_parquet", "to_html", "savez") and to_path)):
+            found.append(f"{rel}:{node.lineno} {name}")
     assert found == [], "write through jaxapf.io.lock.write_atomic or staged: " + ", ".join(found)

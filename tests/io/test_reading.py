@@ -16,6 +16,7 @@ import pathlib
 
 import numpy as np
 import pytest
+from conftest import package_calls
 
 from jaxapf.io.names import Planted, TooLarge, open_read, read_own
 from jaxapf.validation import ConfigError
@@ -135,25 +136,16 @@ def test_every_file_the_package_reads_goes_through_jaxapf_io(repo_root):
     readers = {"read_text", "read_bytes", "read_table", "read_schema", "ParquetFile", "read_parquet", "read_csv",
                "load"}  # load: numpy's (a method named load of jaxapf's own is not a reader)
     found = []
-    for path in sorted((repo_root / "jaxapf").rglob("*.py")):
-        rel = str(path.relative_to(repo_root))
-        if rel.startswith("jaxapf/io/") or rel in allowed:
-            continue
-        for node in ast.walk(ast.parse(path.read_text())):
-            if not isinstance(node, ast.Call):
-                continue
-            f = node.func
-            name = f.attr if isinstance(f, ast.Attribute) else f.id if isinstance(f, ast.Name) else ""
-            first = node.args[0] if node.args else None
-            called = (getattr(first.func, "id", getattr(first.func, "attr", "")) if isinstance(first, ast.Call)
-                      else "")
-            # a handle or bytes jaxapf.io opened and read, not a name
-            checked = (isinstance(first, ast.Name) and first.id in ("fh", "buf", "part")) or called in (
-                "BytesIO", "open_own", "open_read", "open_part", "read_own")
-            owner = f.value.id if isinstance(f, ast.Attribute) and isinstance(f.value, ast.Name) else ""
-            mode = next((a.value for a in node.args[1:2] if isinstance(a, ast.Constant)), "r")
-            opens = name == "open" and isinstance(f, ast.Name) and not any(c in str(mode) for c in "wax+")
-            reads = name in readers and (name != "load" or owner in ("np", "numpy", "pickle"))
-            if (reads or opens) and not checked:
-                found.append(f"{rel}:{node.lineno} {name}")
+    for rel, node, name in package_calls(repo_root, allowed):
+        f, first = node.func, node.args[0] if node.args else None
+        called = getattr(first.func, "id", getattr(first.func, "attr", "")) if isinstance(first, ast.Call) else ""
+        # a handle or bytes jaxapf.io opened and read, not a name
+        checked = (isinstance(first, ast.Name) and first.id in ("fh", "buf", "part")) or called in (
+            "BytesIO", "open_own", "open_read", "open_part", "read_own")
+        owner = f.value.id if isinstance(f, ast.Attribute) and isinstance(f.value, ast.Name) else ""
+        mode = next((a.value for a in node.args[1:2] if isinstance(a, ast.Constant)), "r")
+        opens = name == "open" and isinstance(f, ast.Name) and not any(c in str(mode) for c in "wax+")
+        reads = name in readers and (name != "load" or owner in ("np", "numpy", "pickle"))
+        if (reads or opens) and not checked:
+            found.append(f"{rel}:{node.lineno} {name}")
     assert found == [], "read through jaxapf.io.names.open_read or read_own: " + ", ".join(found)
