@@ -20,8 +20,8 @@ from typing import Sequence
 from ..io.lock import OutputLock, check_writable, write_atomic
 from ..validation import ConfigError
 from .audit import Audit, audit_folder, check_folder, clear_temporaries
-from .meta import identity, read_meta
-from .output import open_part, part_record, verify_part
+from .meta import identity, open_part, read_meta
+from .output import part_record, verify_part
 from .plan import Chunk
 
 __all__ = ["MergeResult", "merge_outputs"]
@@ -45,7 +45,7 @@ class MergeResult:
 
 def _copy(src: pathlib.Path, fh, copied: int) -> None:
     """The part ``src`` copied into ``fh`` from the descriptor it was opened and checked with
-    (:func:`~jaxapf.sweep.output.open_part`), the bytes it held then and no more: a source swapped for a link or
+    (:func:`~jaxapf.sweep.meta.open_part`), the bytes it held then and no more: a source swapped for a link or
     a FIFO is refused unread, one that grows while it is copied is refused when it does."""
     try:
         part = open_part(src)

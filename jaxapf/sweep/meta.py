@@ -10,11 +10,12 @@ from typing import Any, Mapping, Sequence
 
 import jax
 
+from ..io.names import open_read
 from ..validation import ConfigError, first_line
 from .spec import SweepSpec
 
 __all__ = ["FORMAT", "LEGACY_FORMAT", "READABLE_FORMATS", "META_KEY", "PRNG", "sweep_meta", "read_meta", "identity",
-           "plugin_files", "sweep_spec", "stored_spec_bound"]
+           "plugin_files", "sweep_spec", "stored_spec_bound", "open_part", "PART_BYTES"]
 
 FORMAT = "jaxapf.sweep/2"
 #: The format before kinds, solvability and content hashes; still read (its parts are not verified).
@@ -31,12 +32,21 @@ PRNG = {
 }
 
 
+#: The most a part file holds [bytes]: a chunk's rows, of at most a device's memory, compressed; a file past it
+#: is refused unread (a link to ``/dev/zero`` is refused before, as a link).
+PART_BYTES = 64 * 2**30
+
+
+def open_part(path: pathlib.Path):
+    """A part file open for reading, checked (:func:`jaxapf.io.names.open_read`): a regular file, no link
+    followed, no FIFO waited on, at most :data:`PART_BYTES`; every read of a part goes through it."""
+    return open_read(path, PART_BYTES)
+
+
 def read_meta(path: pathlib.Path) -> dict[str, Any]:
     """The ``jaxapf`` metadata of a part file; :class:`ConfigError` if it has none."""
     import pyarrow as pa
     import pyarrow.parquet as pq
-
-    from .output import open_part
 
     try:
         with open_part(path) as fh:

@@ -23,9 +23,8 @@ from typing import Any
 import numpy as np
 
 from ..io.lock import write_atomic
-from ..io.names import open_read
 from ..validation import ConfigError, first_line
-from .meta import LEGACY_FORMAT, META_KEY
+from .meta import LEGACY_FORMAT, META_KEY, open_part
 from .plan import Chunk
 
 __all__ = ["PART_KEY", "write_part", "part_files", "content_hash", "verify_part", "read_part", "PartUnreadable",
@@ -40,15 +39,6 @@ class PartUnreadable(ConfigError):
     """A part that cannot be read now (permissions, an I/O error): unlike a damaged one, it is left alone."""
 #: Parquet metadata key of a part's own record: ``{"sha256": ..., "rows": ...}``.
 PART_KEY = b"jaxapf_part"
-#: The most a part file holds [bytes]: a chunk's rows, of at most a device's memory, compressed; a file past it
-#: is refused unread (a link to ``/dev/zero`` is refused before, as a link).
-PART_BYTES = 64 * 2**30
-
-
-def open_part(path: pathlib.Path):
-    """A part file open for reading, checked (:func:`jaxapf.io.names.open_read`): a regular file, no link
-    followed, no FIFO waited on, at most :data:`PART_BYTES`; every read of a part goes through it."""
-    return open_read(path, PART_BYTES)
 
 
 def content_hash(table) -> str:
