@@ -231,8 +231,10 @@ def test_the_gpu_script_runs_on_a_cpu_in_its_smoke_mode(tmp_path):
     assert done.returncode == 0, done.stderr[-2000:]
     quick = json.loads((tmp_path / "policy-gpu.json").read_text())
     assert set(quick["policies"]) == {"cpu", "accelerator"}
-    assert quick["policies"]["accelerator"]["plan"]["programs"] == 2  # quick.toml: one slot count, two methods
-    assert quick["policies"]["accelerator"]["phases"]["programs"] == 2
+    # quick.toml: one slot count, two potential-field methods: one program each on the CPU policy, one fused
+    assert quick["policies"]["cpu"]["plan"]["programs"] == 2
+    assert quick["policies"]["accelerator"]["plan"]["programs"] == 1
+    assert quick["policies"]["accelerator"]["phases"]["programs"] == 1
     large = json.loads((tmp_path / "policy-gpu-large.json").read_text())
     assert set(large["policies"]) == {"accelerator"} and large["policies"]["accelerator"]["episodes"] == 64
     for name in ("compare", "tune"):
