@@ -544,6 +544,8 @@ def shard_chunks(plan: Plan, shard: int, shards: int) -> tuple[Chunk, ...]:
 
 def describe_plan(plan: Plan) -> str:
     """What a run of ``plan`` does (``jaxapf sweep --dry-run``)."""
+    from ..planners.apf import FUSED
+
     spec = plan.spec
     run_s, compile_s = plan.estimate_seconds()
     remaining = plan.episodes_of(plan.chunks)
@@ -566,7 +568,7 @@ def describe_plan(plan: Plan) -> str:
            if plan.policy.refill else "every episode of a chunk side by side, up to the vmap width")
         + (f"; every family padded to {plan.obstacle_slots} obstacle slots (one program per variant)"
            if plan.obstacle_slots is not None else "")
-        + "".join(f"; {', '.join(name.split('+'))} fly one program" for name in plan.fused)
+        + "".join(f"; {', '.join(name.split(FUSED))} fly one program" for name in plan.fused)
         + f"; --memory-budget {format_bytes(plan.memory_budget)}",
         f"  chunks:            {len(plan.chunks)} to run" + (f", {len(plan.done)} done" if plan.done else "")
         + f" (one Parquet part each), on {plan.devices} device(s), "
