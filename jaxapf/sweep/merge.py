@@ -112,14 +112,17 @@ def merge_outputs(sources: Sequence[str | pathlib.Path], out: str | pathlib.Path
                               "them); nothing merged")
         # every part by name, once; a name with two contents, or two names over the same fields, conflict
         chosen: dict[str, pathlib.Path] = {c.name: out / c.name for c in (here.sound if here else ())}
+        audited: dict[str, str | None] = {}  # each chosen source part's content hash, read once, after the audit
         for s, found in zip(sources, audits):
             for c in found.sound:
+                digest = part_record(s / c.name).get("sha256")
                 if c.name in chosen:
-                    if part_record(chosen[c.name]).get("sha256") != part_record(s / c.name).get("sha256"):
+                    kept = audited[c.name] if c.name in audited else part_record(chosen[c.name]).get("sha256")
+                    if kept != digest:
                         raise ConfigError(f"sweep merge: {c.name} differs between {chosen[c.name].parent} and {s}; "
                                           "nothing merged")
                     continue
-                chosen[c.name] = s / c.name
+                chosen[c.name], audited[c.name] = s / c.name, digest
         chunks = sorted((Chunk.from_name(n) for n in chosen), key=lambda c: (c.variant, c.family, c.start))
         for a, b in zip(chunks, chunks[1:]):
             if (a.variant, a.family) == (b.variant, b.family) and b.start < a.stop:
@@ -129,10 +132,9 @@ def merge_outputs(sources: Sequence[str | pathlib.Path], out: str | pathlib.Path
         for name, src in chosen.items():
             if src.parent == out:
                 continue
-            audited = part_record(src).get("sha256")
             write_atomic(out / name, lambda fh, src=src, copied=copied: _copy(src, fh, copied))
             problem = verify_part(out / name)
-            if problem is None and part_record(out / name).get("sha256") != audited:
+            if problem is None and part_record(out / name).get("sha256") != audited[name]:
                 problem = "another part's content: the source changed after it was audited"
             if problem is not None:
                 (out / name).unlink(missing_ok=True)

@@ -393,8 +393,8 @@ class Plan:
 
     @property
     def fused(self) -> tuple[str, ...]:
-        """The fused programs' methods (:func:`fuse`)."""
-        return tuple(sorted({b.fused for b in self.blocks.values() if b.fused}))
+        """The fused programs' methods (:func:`fuse`), as the parts record them."""
+        return tuple(self.meta.get("fused", ()))
 
     def flown(self, fields: Any) -> Any:
         """A chunk's ``fields`` as the engine flies them: padded to :attr:`obstacle_slots` where the policy

@@ -76,6 +76,8 @@ def _checkpoint_bytes(like: "TrainState") -> int:
     the optimiser's state) at 8 bytes a number, twice over, and 1 MiB of metadata and archive headers."""
     numbers = sum(int(np.size(x)) for x in jax.tree_util.tree_leaves((like.theta, like.best_theta, like.opt_state)))
     return 16 * numbers + 2**20
+
+
 #: Columns of a history row (NaN where a row has no value: validation columns between validations,
 #: training columns of the step-0 validation).
 HISTORY_COLUMNS: tuple[str, ...] = (
