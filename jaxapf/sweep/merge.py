@@ -62,12 +62,9 @@ def _copy(src: pathlib.Path, fh, copied: int) -> None:
                               f"{copied} part(s) were copied before it")
 
 
-def merge_outputs(sources: Sequence[str | pathlib.Path], out: str | pathlib.Path) -> MergeResult:
-    """Merge the sweep outputs ``sources`` into ``out`` (module docstring); :class:`ConfigError` in one
-    line, before anything is copied, for a source that is not sound or of another sweep or version,
-    or parts that conflict."""
-    out = pathlib.Path(out)
-    sources = [pathlib.Path(s) for s in sources]
+def _audited_sources(sources: list[pathlib.Path], out: pathlib.Path) -> tuple[list[Audit], list[dict], dict]:
+    """Each source's audit and metadata, and their common identity: :class:`ConfigError` for a source that
+    is no folder, holds ``out``, has a part that cannot be trusted, or is of another sweep or version."""
     if not sources:
         raise ConfigError("sweep merge: name at least one folder to merge")
     for s in sources:
@@ -94,6 +91,16 @@ def merge_outputs(sources: Sequence[str | pathlib.Path], out: str | pathlib.Path
             differ = ", ".join(k for k in first if other[k] != first[k])
             raise ConfigError(f"sweep merge: {s} is of another sweep or version than {sources[0]} ({differ} differ); "
                               "nothing merged")
+    return audits, metas, first
+
+
+def merge_outputs(sources: Sequence[str | pathlib.Path], out: str | pathlib.Path) -> MergeResult:
+    """Merge the sweep outputs ``sources`` into ``out`` (module docstring); :class:`ConfigError` in one
+    line, before anything is copied, for a source that is not sound or of another sweep or version,
+    or parts that conflict."""
+    out = pathlib.Path(out)
+    sources = [pathlib.Path(s) for s in sources]
+    audits, metas, first = _audited_sources(sources, out)
     if out.is_dir():
         check_folder(out)  # a folder of other files is not a dataset to merge into
     check_writable(out)
