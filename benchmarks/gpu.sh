@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The GPU figures of docs/performance.md ("A policy per backend"), in one run on a lent GPU machine
-# (about 8 minutes on one H200). Results go to $OUT (default benchmarks/results), one JSON per figure:
+# (about 8 minutes on one H200, and at most 4 for the flood fill's step). Results go to $OUT (default benchmarks/results), one JSON per figure:
 #
 #   bash benchmarks/gpu.sh                 # on a GPU machine with jaxapf installed
 #   OUT=/tmp/gpu bash benchmarks/gpu.sh    # elsewhere
@@ -23,14 +23,17 @@ export PYTHONUNBUFFERED=1
 "$PY" -c "import jax; print(jax.__version__, jax.devices())"
 if [ "${SMOKE:-0}" = 1 ]; then  # sweeps/quick.toml: short episodes, a small MPC
   QUICK="--spec sweeps/quick.toml --fields 8 --repeats 1"; LARGE="--spec sweeps/quick.toml --fields 16 --repeats 1"
+  FILL="--fields 8 --batch 8"
 else
-  QUICK=""; LARGE="--fields 8192"
+  QUICK=""; LARGE="--fields 8192"; FILL="--fields 2048 --batch 512"
 fi
 
 # the quick start (6,144 episodes): cold and warm, under both policies, phase by phase
 timeout 240 "$PY" benchmarks/policy.py $QUICK --phases --json "$OUT/policy-gpu.json"
 # the 98,304-episode sweep: compare-small at 8,192 fields per family, the accelerator's policy
 timeout 240 "$PY" benchmarks/policy.py $LARGE --policy accelerator --json "$OUT/policy-gpu-large.json"
+# the oracle's static test as a JAX flood fill on the device, against the certificates on the host
+timeout 240 "$PY" benchmarks/oracle_fill.py $FILL --json "$OUT/oracle-fill-gpu.json"
 # compare and tune on the same path, cold compilation cache
 export XDG_CACHE_HOME=$(mktemp -d)
 for step in "compare sweeps/compare-quick.toml" "tune sweeps/tune-tiny.toml"; do

@@ -239,6 +239,9 @@ def test_the_gpu_script_runs_on_a_cpu_in_its_smoke_mode(tmp_path):
     assert set(large["policies"]) == {"accelerator"} and large["policies"]["accelerator"]["episodes"] == 64
     for name in ("compare", "tune"):
         assert json.loads((tmp_path / f"{name}-gpu.json").read_text())["rc"] == 0
+    fill = json.loads((tmp_path / "oracle-fill-gpu.json").read_text())["families"]
+    assert set(fill) == {"clutter", "paper_static", "trap"}
+    assert all(f["fields"] == 8 and f["differ"] == {"scan": 0, "associative": 0} for f in fill.values())
 
 
 def test_a_bench_too_large_for_the_devices_memory_is_refused_up_front(monkeypatch, capsys):
@@ -261,3 +264,28 @@ def test_a_bench_too_large_for_the_devices_memory_is_refused_up_front(monkeypatc
     assert main(["bench", "engine", "--fields", "100000000"]) == 2
     out = capsys.readouterr().err
     assert out.count("\n") == 1 and "bench.fields = 100,000,000 needs about" in out and "Traceback" not in out
+
+
+@pytest.mark.slow
+def test_the_oracles_flood_fill_in_jax_answers_as_the_search_on_a_closed_and_an_opened_ring():
+    """benchmarks/oracle_fill.py, the option measured and not kept: a start ringed by 16 cylinders (closed:
+    unsolvable) and the same ring with one left out (solvable), both sweeps of the fill against the search."""
+    import oracle_fill
+    from oracle import vehicle_of
+
+    from jaxapf.datatypes import Obstacles, Scenario
+    from jaxapf.scenarios import solvable
+    from jaxapf.scenarios.solvability import RESOLUTION
+
+    angle = np.linspace(0.0, 2 * np.pi, 16, endpoint=False)
+    ring = np.stack([2.0 * np.cos(angle), 2.0 * np.sin(angle), np.ones(16)], 1)
+    valid = np.ones((2, 16), bool)
+    valid[1, 3] = False
+    fields = Scenario(start=np.array([[0.0, 0, 1]] * 2), goal=np.array([[6.0, 0, 1]] * 2),
+                      obstacles=Obstacles(position=np.stack([ring, ring]), velocity=np.zeros((2, 16, 3)),
+                                          radius=np.full((2, 16), 0.4), cylinder=np.ones((2, 16), bool), valid=valid))
+    vehicle = vehicle_of("clutter")
+    assert solvable(fields, **vehicle, certify=False).tolist() == [False, True]
+    prepared = oracle_fill.prepare(fields, vehicle, RESOLUTION)
+    for sweep in oracle_fill.SWEEPS:
+        assert oracle_fill.fill(*prepared, RESOLUTION, sweep).tolist() == [False, True]
