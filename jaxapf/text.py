@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import io
 import math
 import re
 
-__all__ = ["format_seconds", "format_bytes", "plain_text", "inert", "csv_text"]
+__all__ = ["format_seconds", "format_bytes", "plain_text", "inert", "InertLines", "csv_text"]
 
 
 def format_seconds(s: float) -> str:
@@ -32,6 +33,32 @@ def inert(text: str) -> str:
     that is not printable but the space) written as its escape (``\\x1b``): what came from a file or a spec
     is printed as data, on one line."""
     return "".join(c if c.isprintable() or c == " " else c.encode("unicode_escape").decode("ascii") for c in text)
+
+
+class InertLines(io.TextIOBase):
+    """A text stream that passes what is written to ``stream`` line by line through :func:`inert`, the line
+    breaks kept: a command's standard output prints names and labels from files and specs (a part's name, a
+    setting's label) as data, however they were made."""
+
+    def __init__(self, stream) -> None:
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        self._stream.write("\n".join(inert(line) for line in text.split("\n")))
+        return len(text)
+
+    def flush(self) -> None:
+        self._stream.flush()
+
+    def fileno(self) -> int:
+        return self._stream.fileno()
+
+    def isatty(self) -> bool:
+        return self._stream.isatty()
+
+    @property
+    def encoding(self) -> str:
+        return getattr(self._stream, "encoding", "utf-8")
 
 
 #: What a spreadsheet executes at the start of a cell (OWASP, "CSV Injection").

@@ -27,7 +27,7 @@ import jax.numpy as jnp
 from ..config import MPCConfig, SimConfig
 from ..gains import Gains
 from ..validation import check_int
-from .engine import environment, interleaved
+from .engine import check_fits, environment, interleaved
 
 __all__ = ["AGENTS", "run_swarm_benchmark", "format_swarm_benchmark"]
 
@@ -54,8 +54,10 @@ def run_swarm_benchmark(agents: Sequence[int] = AGENTS, uavs: int = 256, steps: 
     for a in sizes:
         fields = -(-uavs // a)
         diameter = max(12.0, 0.5 * a)  # UAVs at least 1.5 m apart on the circle
-        swarms = jax.block_until_ready(make_swarms(seed, swarm_params("circle_swap", agents=a,
-                                                                      distance=(diameter, diameter)), fields))
+        params = swarm_params("circle_swap", agents=a, distance=(diameter, diameter))
+        check_fits(fields, params.max_obstacles, steps, fields, agents=a,  # every swarm in one call
+                   what=f"bench.uavs = {uavs:,} ({fields:,} swarms of {a})")
+        swarms = jax.block_until_ready(make_swarms(seed, params, fields))
         t0 = time.perf_counter()
         compiled = evaluate_swarms.lower(swarms, gains, sim=sim, mpc=mpc).compile()
         memory = compiled.memory_analysis()

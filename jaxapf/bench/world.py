@@ -36,7 +36,7 @@ from ..config import MPCConfig, SimConfig
 from ..gains import Gains
 from ..metrics import METRICS
 from ..validation import check_int
-from .engine import environment, interleaved
+from .engine import check_fits, environment, interleaved
 
 __all__ = ["VARIANTS", "run_world_benchmark", "format_world_benchmark"]
 
@@ -81,7 +81,9 @@ def run_world_benchmark(fields: int = 256, steps: int = 200, family: str = "dyna
     fields = check_int("bench.fields", fields, 1)
     steps = check_int("bench.steps", steps, 1)
     repeats = check_int("bench.repeats", repeats, 1)
-    scenarios = jax.block_until_ready(make_scenarios(seed, family_params(family), fields))
+    params = family_params(family)
+    check_fits(fields, params.max_obstacles, steps, fields)  # every field in one call
+    scenarios = jax.block_until_ready(make_scenarios(seed, params, fields))
     mpc = MPCConfig(horizon=horizon, iters=iters)
     base = SimConfig.from_flat(method=method, t_max=steps * 0.1, substeps=substeps)
     runs, out = {}, {}

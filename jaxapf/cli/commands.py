@@ -11,6 +11,7 @@ Help, ``list`` and argument errors import no JAX: they read the registries' cata
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import pathlib
 import sys
@@ -18,7 +19,7 @@ import threading
 import time
 from typing import Any, Sequence
 
-from ..text import inert
+from ..text import InertLines, inert
 
 __all__ = ["main", "build_parser"]
 
@@ -706,7 +707,7 @@ def _main(argv: list[str], running: list[str]) -> int:
     try:
         if args.command != "list":
             _check_address_space()
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), contextlib.redirect_stdout(InertLines(sys.stdout)):
             warnings.showwarning = one_line
             return {"simulate": _simulate, "bench": _bench, "tune": _tune, "compare": _compare, "report": _report,
                     "sweep": _sweep, "sweep-verify": _sweep_verify, "sweep-merge": _sweep_merge,

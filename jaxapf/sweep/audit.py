@@ -141,15 +141,21 @@ def read_parts(out: pathlib.Path, files: list[pathlib.Path] | None = None
 
 
 def reference_meta(out: pathlib.Path, metas: Mapping[str, dict]) -> dict:
-    """The metadata of the sweep most of the readable parts belong to (``location``: ``out``)."""
+    """The metadata of the sweep most of the readable parts belong to (``location``: ``out``), among the parts
+    whose stored spec is the one their ``spec_hash`` names; :class:`ConfigError` naming a part if none is."""
     counts: dict[str, int] = {}
-    for m in metas.values():
+    bound = {name: m for name, m in metas.items() if stored_spec_bound(m)}
+    for m in bound.values():
         key = json.dumps(identity(m), sort_keys=True)
         counts[key] = counts.get(key, 0) + 1
+    if not counts and metas:
+        first = sorted(metas)[0]
+        raise ConfigError(f"{out / first}{f' and {len(metas) - 1} other part(s)' if len(metas) > 1 else ''}: its "
+                          "stored spec is not the one its spec_hash names (edited after it was written)")
     if not counts:
         raise ConfigError(f"{out} is not the output of jaxapf sweep: no readable part file")
     reference = max(counts, key=counts.get)
-    meta = next(m for m in metas.values() if json.dumps(identity(m), sort_keys=True) == reference)
+    meta = next(m for m in bound.values() if json.dumps(identity(m), sort_keys=True) == reference)
     return {**meta, "location": str(out.resolve())}
 
 

@@ -53,8 +53,8 @@ def read_sweep(path: str | os.PathLike) -> tuple["pd.DataFrame", dict[str, Any]]
         if not tables:
             raise ConfigError(f"{path} is not the output of jaxapf sweep: the directory holds no Parquet part file")
         if len({json.dumps(identity(m), sort_keys=True) for m in metas.values()}) > 1:
-            raise ConfigError(f"{path} mixes parts of different sweeps (their spec_hash, dtype, vmap_width or "
-                              "metrics differ); `jaxapf sweep verify` lists them")
+            raise ConfigError(f"{path} mixes parts of different sweeps or jaxapf versions (their spec_hash, dtype, "
+                              "vmap_width, metrics or version differ); `jaxapf sweep verify` lists them")
         meta = reference_meta(path, metas)
         parts = len(tables)
     else:

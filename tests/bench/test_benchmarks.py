@@ -261,9 +261,11 @@ def test_a_bench_too_large_for_the_devices_memory_is_refused_up_front(monkeypatc
     engine.check_fits(most, 16, 300, 1024)
     with pytest.raises(ConfigError):
         engine.check_fits(most + 1, 16, 300, 1024)
-    assert main(["bench", "engine", "--fields", "100000000"]) == 2
-    out = capsys.readouterr().err
-    assert out.count("\n") == 1 and "bench.fields = 100,000,000 needs about" in out and "Traceback" not in out
+    for argv in (["engine", "--fields", "100000000"], ["world", "--fields", "100000000"],
+                 ["swarm", "--uavs", "100000000", "--agents", "4"]):
+        assert main(["bench", *argv]) == 2
+        out = capsys.readouterr().err
+        assert out.count("\n") == 1 and f"bench.{argv[1][2:]} = 100,000,000" in out and "needs about" in out, out
 
 
 @pytest.mark.slow

@@ -268,3 +268,15 @@ def test_the_command_lines_error_is_printed_inert(tmp_path, capsys):
     assert main(["sweep", str(spec), "--dry-run"]) == 2
     err = capsys.readouterr().err
     assert "\x1b" not in err and "\\x1b[2J" in err and err.count("\n") == 1, err
+
+
+def test_what_a_command_prints_to_its_output_is_inert(tmp_path, capsys, monkeypatch):
+    """Every command's standard output goes through jaxapf.text.InertLines: a name from a handed folder (here
+    printed by a stand-in for ``sweep verify``) reaches the terminal escaped, its line breaks kept."""
+    from jaxapf.cli import commands, main
+
+    monkeypatch.setattr(commands, "_sweep_verify", lambda args: print(f"{args.out}/part\x1b[2J\x07: sound\nnext") or 0)
+    assert main(["sweep", "verify", str(tmp_path / "handed\x1b]0;owned")]) == 0
+    out = capsys.readouterr().out
+    assert "\x1b" not in out and "\x07" not in out
+    assert out == f"{tmp_path}/handed\\x1b]0;owned/part\\x1b[2J\\x07: sound\nnext\n"
