@@ -1,11 +1,12 @@
 """Fault injection on ``jaxapf``: kill -9 and Ctrl-C at random moments, bit flips in parts and their
 footers, racing writers and shards, a full disk, a port that is not Ray; and a folder from someone else:
 names planted in it, part metadata edited, a report's process killed or hung up, two reports into one
-folder, mutated specs.
+folder, mutated specs; and names jaxapf reads: planted, swapped under a running command, forged.
 
     python benchmarks/faults.py [--kills 100] [--flips 60] [--races 10] [--shard-races 20] [--sigints 50]
                                 [--footer-flips 300] [--disks 8] [--planted 40] [--edits 35] [--deaths 10]
-                                [--reports 6] [--fuzz 300] [--only CLASS ...] [--seed 0] [--json]
+                                [--reports 6] [--fuzz 300] [--reads 24] [--swaps 12] [--forged 24] [--versions 8]
+                                [--notes 7] [--only CLASS ...] [--seed 0] [--json]
 
 Every trial runs the real command (``python -m jaxapf sweep``, or the installed ``jaxapf`` script) on a
 small sweep (2 families × 2 settings × 16 fields, parts of 1–4 fields) and checks the output against a
@@ -48,6 +49,19 @@ reference made once in this process:
   refused in one line (or runs after the other), and the folder holds one report whole.
 - **spec fuzz**: the shipped specs mutated (a value replaced by one a user can mistype or a file can
   hold, or a key removed) and given to the command line's parsing: one line, status 2, or accepted.
+- **planted read**: a name a command *reads* made a FIFO, a link to ``/dev/zero`` or a link to a file
+  outside: a part handed to ``sweep verify``, ``report``, ``sweep merge`` or a resume, ``jaxapf tune``'s
+  checkpoint, a ``jaxapf compare`` selection: one line naming it (or the record ignored and the command run),
+  no hang, nothing written past twice the reference's size.
+- **swapped part**: a part of the folder handed to ``sweep merge`` or ``report`` renamed over by a FIFO or a
+  link to ``/dev/zero`` at a random moment in the command's first 4 s: the same, and a merge that finishes
+  holds the reference's rows.
+- **forged spec**: every part's stored spec edited (settings reversed, families swapped, seed, horizon,
+  fields or name changed) with its ``spec_hash`` kept and the content hash resealed: verify, report, merge
+  and resume refuse in one line naming a part.
+- **mixed versions**: half the parts resealed as another jaxapf version: the same four refuse in one line.
+- **owner note**: a lock held by another process whose note has a start no calendar shows (1e20, NaN, inf,
+  -1), a pid no kernel holds, or escape sequences in its host or command: one line, nothing raw printed.
 
 It prints, per fault kind, what was survived: rows lost, rows duplicated, numbers changed
 silently, tracebacks seen. All must be zero; the exit status is 1 otherwise.
@@ -83,6 +97,7 @@ iters = 4
 k_rep = [5.0, 10.0]
 """
 KEY = ["setting", "family", "field"]
+ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 
 def _command(spec: pathlib.Path, out: pathlib.Path, chunk: int) -> list[str]:
@@ -649,6 +664,265 @@ def metadata_edits(n: int, tmp: pathlib.Path, ref_out: pathlib.Path, ref: pd.Dat
     return totals
 
 
+# --- names jaxapf reads: planted, swapped under a running command, crafted, of mixed versions --------------
+
+#: What a hostile folder can hold where jaxapf reads a name.
+READ_KINDS = ("fifo", "dev-zero", "link")
+#: The commands that read a sweep's parts, ``{src}`` a folder handed over, ``{out}`` a fresh one.
+READERS = {"verify": ["sweep", "verify", "{src}"],
+           "report": ["report", "{src}", "--out", "{out}", "--baseline", "setting=0", "--gallery", "0",
+                      "--resamples", "200"],
+           "merge": ["sweep", "merge", "{src}", "--out", "{out}"],
+           "resume": ["sweep", "{spec}", "--out", "{src}", "--quiet", "--chunk-fields", "4"]}
+#: How long a command handed a hostile folder may take before it counts as hung [s].
+HANG_S = 120.0
+
+
+def _plant_read(path: pathlib.Path, how: str, outside: pathlib.Path) -> None:
+    """``path`` made a FIFO, a link to ``/dev/zero`` or a link to the regular file ``outside``."""
+    path.unlink(missing_ok=True)
+    if how == "fifo":
+        os.mkfifo(path)
+    else:
+        os.symlink("/dev/zero" if how == "dev-zero" else outside, path)
+
+
+def _size(folder: pathlib.Path) -> int:
+    """Bytes under ``folder`` (links not followed)."""
+    return sum(p.lstat().st_size for p in folder.rglob("*")) if folder.exists() else 0
+
+
+def _judge(totals: dict[str, Any], proc: subprocess.Popen, timeout: float, name: str | None, what: str,
+           out: pathlib.Path | None = None, bound: int = 0) -> int | None:
+    """Wait for ``proc`` and count how it ended: ``refused`` (status 2 in one line, naming ``name`` where
+    given), ``ran`` (status 0), ``hangs`` (killed after ``timeout``), ``not_one_line``, ``tracebacks``,
+    ``raw_escapes`` (an ESC or BEL byte reached its stderr), ``past_bound`` (``out`` grew past ``bound``
+    bytes). Returns the status, None for a hang."""
+    try:
+        listing, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        totals["hangs"] += 1
+        totals.setdefault("examples", []).append(f"{what}: hung")
+        return None
+    totals["tracebacks"] += _traceback(err)
+    totals["raw_escapes"] += int("\x1b" in err or "\x07" in err)
+    if out is not None:
+        totals["past_bound"] += int(_size(out) > bound)
+    if proc.returncode == 1 and "NOT complete and sound" in (listing or "") and not _errors(err):
+        totals["refused"] += 1  # `sweep verify`'s own refusal: status 1, the parts listed with what to do
+        return 1
+    bad = proc.returncode not in (0, 2) or (proc.returncode == 2 and (
+        len(_errors(err)) != 1 or (name is not None and name not in err)))
+    totals["refused" if proc.returncode == 2 else "ran"] += int(proc.returncode in (0, 2))
+    totals["not_one_line"] += int(bad)
+    if bad:
+        totals.setdefault("examples", []).append(f"{what}: status {proc.returncode}: {err.strip()[-300:]}")
+    return proc.returncode
+
+
+def _read_totals(n: int) -> dict[str, Any]:
+    return {"trials": n, "refused": 0, "ran": 0, "hangs": 0, "not_one_line": 0, "tracebacks": 0, "raw_escapes": 0,
+            "past_bound": 0, "accepted": 0, "changed": 0}
+
+
+def _tune_and_compare(tmp: pathlib.Path) -> dict[str, tuple[list[str], str]]:
+    """Commands that read records of their own from ``{out}`` (a fresh folder): ``jaxapf tune`` its
+    checkpoint, ``jaxapf compare`` a selection; each with the record's name relative to ``{out}``."""
+    return {"tune": (["tune", str(ROOT / "sweeps" / "tune-tiny.toml"), "--out", "{out}", "--quiet"], "checkpoint.npz"),
+            "compare": (["compare", str(ROOT / "sweeps" / "compare-quick.toml"), "--out", "{out}", "--quiet"],
+                        "selection/basic-seed1.json")}
+
+
+def planted_reads(n: int, spec: pathlib.Path, tmp: pathlib.Path, ref_out: pathlib.Path, rng: np.random.Generator
+                  ) -> dict[str, Any]:
+    """``n`` commands handed a folder where a name they read is a FIFO, a link to ``/dev/zero`` or a link to
+    a file outside: a part (verify, report, merge, resume), tune's checkpoint, a compare selection. Each must
+    refuse in one line naming it (or ignore it and run), never hang, and write nothing past a bound (the
+    reference's size twice over)."""
+    import shutil
+
+    totals = _read_totals(n)
+    parts = sorted(p.name for p in ref_out.iterdir() if p.name.startswith("part-"))
+    others = _tune_and_compare(tmp)
+    bound = 2 * _size(ref_out) + (1 << 20)
+    for i in range(n):
+        command = [*READERS, *others][i % (len(READERS) + len(others))]
+        how = READ_KINDS[int(rng.integers(len(READ_KINDS)))]
+        place = tmp / f"read-{i}"
+        src, out = place / "handed", place / "out"
+        place.mkdir()
+        outside = place / "outside.parquet"
+        shutil.copyfile(ref_out / parts[0], outside)
+        if command in READERS:
+            shutil.copytree(ref_out, src)
+            name = parts[int(rng.integers(len(parts)))]
+            _plant_read(src / name, how, outside)
+            argv = [a.format(spec=spec, src=src, out=out) for a in READERS[command]]
+            timeout = HANG_S
+        else:
+            argv_t, name = others[command]
+            (out / name).parent.mkdir(parents=True)
+            _plant_read(out / name, how, outside)
+            argv, name = [a.format(out=out) for a in argv_t], name.split("/")[-1]
+            timeout = 3 * HANG_S  # a record ignored: the command runs whole
+        proc = subprocess.Popen(program("module") + argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        _judge(totals, proc, timeout, name, f"{command} {name} as {how}", out, bound)
+        shutil.rmtree(place, ignore_errors=True)
+    return totals
+
+
+def swapped_under(n: int, tmp: pathlib.Path, ref_out: pathlib.Path, ref: pd.DataFrame, rng: np.random.Generator
+                  ) -> dict[str, Any]:
+    """``n`` merges and reports of a folder one of whose parts is swapped, at a random moment in the command's
+    first 4 s, for a FIFO or a link to ``/dev/zero`` (renamed over it, as an attacker would): never a hang or a
+    disk filled (the output within twice the reference's size), a refusal in one line, or a result whose rows
+    are the reference's (merge)."""
+    import shutil
+
+    totals = _read_totals(n)
+    bound = 2 * _size(ref_out) + (1 << 20)
+    for i in range(n):
+        command = ("merge", "report")[i % 2]
+        how = ("fifo", "dev-zero")[int(rng.integers(2))]
+        place = tmp / f"swap-{i}"
+        src, out = place / "handed", place / "out"
+        shutil.copytree(ref_out, src)
+        parts = sorted(p for p in src.iterdir() if p.name.startswith("part-"))
+        victim = parts[int(rng.integers(len(parts)))]
+        argv = [a.format(src=src, out=out) for a in READERS[command]]
+        proc = subprocess.Popen(program("module") + argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        time.sleep(float(rng.uniform(0.0, 4.0)))
+        swap = place / "swap"
+        _plant_read(swap, how, victim)
+        os.replace(swap, victim)
+        rc = _judge(totals, proc, HANG_S, None, f"{command}, {victim.name} swapped for a {how}", out, bound)
+        if command == "merge" and rc == 0:
+            state = _check(out, ref)
+            totals["changed"] += int(state["changed"] > 0 or state["refused"] > 0 or state["duplicated"] > 0)
+        shutil.rmtree(place, ignore_errors=True)
+    return totals
+
+
+def _reseal(part: pathlib.Path, edit) -> None:
+    """``part``'s jaxapf metadata passed through ``edit`` (a function of the dict, in place), the part's
+    content hash recomputed, as someone who knows the format would forge it."""
+    import json as _json
+
+    import pyarrow.parquet as pq
+
+    from jaxapf.sweep.meta import META_KEY
+    from jaxapf.sweep.output import PART_KEY, content_hash
+
+    table = pq.read_table(part)
+    meta = dict(table.schema.metadata)
+    stored = _json.loads(meta[META_KEY])
+    edit(stored)
+    meta[META_KEY] = _json.dumps(stored).encode()
+    plain = table.replace_schema_metadata({k: v for k, v in meta.items() if k != PART_KEY})
+    meta[PART_KEY] = _json.dumps({"sha256": content_hash(plain), "rows": table.num_rows}).encode()
+    pq.write_table(table.replace_schema_metadata(meta), part, write_page_checksum=True)
+
+
+def _spec_forgeries() -> dict[str, Any]:
+    """Edits of a stored spec that keep its ``spec_hash``: each names what it changes."""
+    def swap_settings(spec):
+        spec["grid"] = [[key, values[::-1]] for key, values in spec["grid"]]
+
+    def set_(path, value):
+        def edit(spec):
+            node = spec
+            for key in path[:-1]:
+                node = node[key]
+            node[path[-1]] = value
+        return edit
+
+    return {"grid reversed": swap_settings, "families swapped": set_(("scenario", "families"), ["crossing", "trap"]),
+            "seed changed": set_(("scenario", "seed"), 12), "horizon changed": set_(("sim", "horizon"), 5),
+            "fields changed": set_(("scenario", "fields"), 15), "name changed": set_(("name",), "other")}
+
+
+def crafted_specs(n: int, spec: pathlib.Path, tmp: pathlib.Path, ref_out: pathlib.Path) -> dict[str, Any]:
+    """``n`` folders whose every part stores an edited spec with the ``spec_hash`` kept and the content hash
+    resealed (:func:`_spec_forgeries`), handed to verify, report, merge and resume: each must refuse in one
+    line; one that accepts the folder counts in ``accepted``."""
+    import shutil
+
+    totals = _read_totals(n)
+    forgeries = _spec_forgeries()
+    for i in range(n):
+        command, forgery = list(READERS)[i % len(READERS)], list(forgeries)[(i // len(READERS)) % len(forgeries)]
+        place = tmp / f"forged-{i}"
+        src, out = place / "handed", place / "out"
+        shutil.copytree(ref_out, src)
+        for part in sorted(src.glob("part-*")):
+            _reseal(part, lambda meta, f=forgeries[forgery]: f(meta["spec"]))
+        argv = [a.format(spec=spec, src=src, out=out) for a in READERS[command]]
+        proc = subprocess.Popen(program("module") + argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        rc = _judge(totals, proc, HANG_S, "part-", f"{command}, stored spec's {forgery}")
+        totals["accepted"] += int(rc == 0)
+        shutil.rmtree(place, ignore_errors=True)
+    return totals
+
+
+def mixed_versions(n: int, spec: pathlib.Path, tmp: pathlib.Path, ref_out: pathlib.Path,
+                   rng: np.random.Generator) -> dict[str, Any]:
+    """``n`` folders where a random half of the parts (at least one, never all) record another jaxapf version,
+    resealed, handed to verify, report, merge and resume: each must refuse in one line."""
+    import shutil
+
+    totals = _read_totals(n)
+    for i in range(n):
+        command = list(READERS)[i % len(READERS)]
+        place = tmp / f"versions-{i}"
+        src, out = place / "handed", place / "out"
+        shutil.copytree(ref_out, src)
+        parts = sorted(src.glob("part-*"))
+        chosen = rng.choice(len(parts), size=max(1, len(parts) // 2), replace=False)
+        for k in chosen:
+            _reseal(parts[int(k)], lambda meta: meta["versions"].update(jaxapf="0.0.1"))
+        argv = [a.format(spec=spec, src=src, out=out) for a in READERS[command]]
+        proc = subprocess.Popen(program("module") + argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        rc = _judge(totals, proc, HANG_S, None, f"{command}, {len(chosen)} of {len(parts)} parts of 0.0.1")
+        totals["accepted"] += int(rc == 0)
+        shutil.rmtree(place, ignore_errors=True)
+    return totals
+
+
+#: Owner notes a hostile lock file can hold: times no calendar shows, escapes for the refused user's terminal.
+NOTES = {"since 1e20": {"since": 1e20}, "since NaN": {"since": float("nan")}, "since inf": {"since": float("inf")},
+         "since -1": {"since": -1.0}, "pid 2**40": {"pid": 2 ** 40},
+         "host escapes": {"host": "\x1b[2J\x1b]0;owned\x07"}, "command escapes": {"command": "\x1b[31mrm -rf ~\x07"}}
+
+
+def crafted_notes(n: int, spec: pathlib.Path, tmp: pathlib.Path) -> dict[str, Any]:
+    """``n`` sweeps into a folder whose lock another process holds with a crafted owner note (:data:`NOTES`):
+    each must refuse in one line, no traceback, no ESC or BEL byte printed raw."""
+    import json as _json
+
+    totals = _read_totals(n)
+    for i in range(n):
+        what = list(NOTES)[i % len(NOTES)]
+        out = tmp / f"noted-{i}"
+        out.mkdir()
+        note = {"pid": 4242, "host": "elsewhere", "since": 1.7e9, "command": "jaxapf sweep", **NOTES[what]}
+        (out / ".lock").write_text(_json.dumps(note))
+        holder = subprocess.Popen([sys.executable, "-c", "import fcntl, sys, time; f = open(sys.argv[1], 'rb'); "
+                                   "fcntl.flock(f, fcntl.LOCK_EX); print('held', flush=True); time.sleep(600)",
+                                   str(out / ".lock")], stdout=subprocess.PIPE, text=True)
+        holder.stdout.readline()
+        try:
+            proc = subprocess.Popen(program("module") + ["sweep", str(spec), "--out", str(out), "--quiet"],
+                                    stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+            rc = _judge(totals, proc, HANG_S, None, f"a lock noted with {what}")
+            totals["accepted"] += int(rc == 0)
+        finally:
+            holder.kill()
+            holder.wait()
+    return totals
+
+
 def _children(pid: int) -> set[int]:
     found = set()
     for entry in pathlib.Path("/proc").iterdir():
@@ -826,7 +1100,8 @@ def _toml(data: dict, prefix: str = "") -> str:
 def run_faults(kills_n: int = 100, flips_n: int = 60, races_n: int = 10, shard_races_n: int = 20,
                sigints_n: int = 50, footer_flips_n: int = 300, disks_n: int = 8, seed: int = 0,
                planted_n: int = 40, edits_n: int = 35, deaths_n: int = 10, reports_n: int = 6, fuzz_n: int = 300,
-               only: Sequence[str] | None = None) -> dict[str, Any]:
+               only: Sequence[str] | None = None, reads_n: int = 24, swaps_n: int = 12, forged_n: int = 24,
+               versions_n: int = 8, notes_n: int = 7) -> dict[str, Any]:
     """Every fault class of :data:`KINDS` (``only``: those named), on one reference output."""
     from jaxapf.sweep import read_sweep
 
@@ -862,7 +1137,12 @@ def run_faults(kills_n: int = 100, flips_n: int = 60, races_n: int = 10, shard_r
                    "metadata edit": lambda: metadata_edits(edits_n, tmp, ref_out, ref, rng),
                    "parent death": lambda: parent_deaths(deaths_n, tmp, ref_out, rng),
                    "two reports": lambda: concurrent_reports(reports_n, spec, tmp, ref_out, rng),
-                   "spec fuzz": lambda: spec_fuzz(fuzz_n, rng)}
+                   "spec fuzz": lambda: spec_fuzz(fuzz_n, rng),
+                   "planted read": lambda: planted_reads(reads_n, spec, tmp, ref_out, rng),
+                   "swapped part": lambda: swapped_under(swaps_n, tmp, ref_out, ref, rng),
+                   "forged spec": lambda: crafted_specs(forged_n, spec, tmp, ref_out),
+                   "mixed versions": lambda: mixed_versions(versions_n, spec, tmp, ref_out, rng),
+                   "owner note": lambda: crafted_notes(notes_n, spec, tmp)}
         result = {"rows": len(ref), "run_s": run_s, "sigint_rows": len(long_ref)}
         for kind in KINDS:
             if kind in only:
@@ -872,7 +1152,8 @@ def run_faults(kills_n: int = 100, flips_n: int = 60, races_n: int = 10, shard_r
 
 
 KINDS = ("kill -9", "Ctrl-C", "bit flip", "footer flip", "race", "shard race", "full disk", "not Ray", "planted name",
-         "metadata edit", "parent death", "two reports", "spec fuzz")
+         "metadata edit", "parent death", "two reports", "spec fuzz", "planted read", "swapped part", "forged spec",
+         "mixed versions", "owner note")
 
 
 def _details(kind: str, r: dict[str, Any]) -> str:
@@ -904,6 +1185,15 @@ def _details(kind: str, r: dict[str, Any]) -> str:
         "two reports": f"{r.get('one_refused', 0)} second reports refused in one line, {r.get('both_ran', 0)} ran "
                        f"after the first finished; {r.get('mixed', 0)} folders mixing the two",
         "spec fuzz": f"{r.get('refused', 0)} refused in one line, {r.get('accepted', 0)} accepted",
+        "planted read": f"{r.get('refused', 0)} refused in one line naming it, {r.get('ran', 0)} ran past it; "
+                        f"{r.get('hangs', 0)} hangs, {r.get('past_bound', 0)} outputs past their bound",
+        "swapped part": f"{r.get('refused', 0)} refused in one line, {r.get('ran', 0)} finished before the swap "
+                        f"(merges' rows the reference's); {r.get('hangs', 0)} hangs, {r.get('past_bound', 0)} past "
+                        "their bound",
+        "forged spec": f"{r.get('refused', 0)} refused in one line naming a part, {r.get('accepted', 0)} accepted",
+        "mixed versions": f"{r.get('refused', 0)} refused in one line, {r.get('accepted', 0)} accepted",
+        "owner note": f"{r.get('refused', 0)} refused in one line, {r.get('raw_escapes', 0)} escapes printed raw, "
+                      f"{r.get('accepted', 0)} ran",
     }[kind]
 
 
@@ -929,7 +1219,9 @@ def failures(result: dict[str, Any]) -> int:
     bad = sum(result[k].get(m, 0) for k in KINDS if k in result
               for m in ("lost", "duplicated", "changed", "tracebacks", "bad_refusals", "not_one_line",
                         "exit_0_interrupted", "hangs", "written_outside", "unchecked", "disagree", "orphans", "mixed",
-                        "no_worker"))
+                        "no_worker", "raw_escapes", "past_bound"))
+    # a forged spec, a mixed folder or a crafted lock note accepted is broken (a fuzzed spec may be accepted)
+    bad += sum(result[k].get("accepted", 0) for k in ("forged spec", "mixed versions", "owner note") if k in result)
     ray = result.get("not Ray")
     return bad + (ray["trials"] - ray["refused"] if ray else 0)
 
@@ -948,6 +1240,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--deaths", type=int, default=10)
     parser.add_argument("--reports", type=int, default=6)
     parser.add_argument("--fuzz", type=int, default=300)
+    parser.add_argument("--reads", type=int, default=24)
+    parser.add_argument("--swaps", type=int, default=12)
+    parser.add_argument("--forged", type=int, default=24)
+    parser.add_argument("--versions", type=int, default=8)
+    parser.add_argument("--notes", type=int, default=7)
     parser.add_argument("--only", action="append", choices=KINDS, help="run only this class (repeatable)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
@@ -955,7 +1252,7 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("JAX_PLATFORMS", "cpu")
     result = run_faults(args.kills, args.flips, args.races, args.shard_races, args.sigints, args.footer_flips,
                         args.disks, args.seed, args.planted, args.edits, args.deaths, args.reports, args.fuzz,
-                        args.only)
+                        args.only, args.reads, args.swaps, args.forged, args.versions, args.notes)
     print(json.dumps(result, indent=2) if args.json else format_faults(result))
     return int(failures(result) > 0)
 

@@ -638,3 +638,16 @@ def test_ctrl_c_on_a_report_leaves_no_process_and_one_line(reference, tmp_path):
                 break
             time.sleep(0.1)
         assert not live, live
+
+
+@pytest.mark.slow
+def test_the_fault_classes_of_reading_find_nothing_broken():
+    """benchmarks/faults.py's classes of names jaxapf reads, each at its smallest full round (every command of
+    a class once): a part, tune's checkpoint and a compare selection planted; parts swapped under merge and
+    report; forged stored specs; mixed versions; crafted owner notes. Everything that must be zero is."""
+    kinds = ["planted read", "swapped part", "forged spec", "mixed versions", "owner note"]
+    result = faults.run_faults(only=kinds, reads_n=6, swaps_n=2, forged_n=4, versions_n=4, notes_n=7)
+    assert faults.failures(result) == 0, {k: result[k] for k in kinds}
+    assert result["planted read"]["refused"] + result["planted read"]["ran"] == 6
+    assert result["forged spec"]["refused"] == 4 and result["mixed versions"]["refused"] == 4
+    assert result["owner note"]["refused"] == 7
