@@ -32,8 +32,8 @@ from ..io.lock import LOCK_NAME
 from ..io.names import check_kind, kind, remove_leftover, subfolder
 from ..validation import ConfigError
 from .division import Division, agree_division, forget_division, is_division_file
-from .meta import identity, needed, read_meta, stored_spec_bound, sweep_spec
-from .output import _PROBE, _TMP, PartUnreadable, part_files, part_record, read_part
+from .meta import META_KEY, identity, needed, parse_meta, read_meta, stored_spec_bound, sweep_spec
+from .output import _PROBE, _TMP, PartUnreadable, part_files, part_record, read_part, verified_hash
 from .plan import Chunk, Plan, Variant, gaps, shard_chunks, variants
 from .spec import SweepSpec
 
@@ -48,7 +48,8 @@ SET_ASIDE = ".set-aside"
 class Audit:
     """The parts of an output by what they hold (module docstring); ``missing``: the (variant, family,
     start, stop) field ranges no sound part covers; ``rows``: rows in sound parts; ``expected``: rows of
-    the whole sweep; ``other_sweep``: the foreign parts that belong to another sweep altogether."""
+    the whole sweep; ``other_sweep``: the foreign parts that belong to another sweep altogether; ``hashes``: each
+    sound part's content hash, as the audit read and verified it."""
 
     sound: tuple[Chunk, ...]
     damaged: Mapping[str, str]
@@ -58,6 +59,7 @@ class Audit:
     rows: int
     expected: int
     other_sweep: frozenset[str] = frozenset()
+    hashes: Mapping[str, str | None] = dataclasses.field(default_factory=dict)
 
     @property
     def problems(self) -> dict[str, str]:
@@ -130,8 +132,8 @@ def read_parts(out: pathlib.Path, files: list[pathlib.Path] | None = None
             damaged[p.name] = f"a {what}, not a part file"
             continue
         try:
-            tables[p.name] = read_part(p)
-            metas[p.name] = read_meta(p)
+            tables[p.name] = read_part(p)  # its metadata from the very bytes read and verified: one read
+            metas[p.name] = parse_meta((tables[p.name].schema.metadata or {}).get(META_KEY), p)
         except PartUnreadable:  # cannot be read now (permissions, I/O): not damage, nothing is judged
             raise
         except ConfigError as err:
@@ -140,12 +142,13 @@ def read_parts(out: pathlib.Path, files: list[pathlib.Path] | None = None
     return tables, metas, damaged
 
 
-def reference_meta(out: pathlib.Path, metas: Mapping[str, dict]) -> dict:
+def reference_meta(out: pathlib.Path, metas: Mapping[str, dict], bound: bool = True) -> dict:
     """The metadata of the sweep most of the readable parts belong to (``location``: ``out``), among the parts
-    whose stored spec is the one their ``spec_hash`` names; :class:`ConfigError` naming a part if none is."""
+    whose stored spec is the one their ``spec_hash`` names; :class:`ConfigError` naming a part if none is.
+    ``bound=False`` counts every part (files not named as a sweep names its parts, read as they are)."""
     counts: dict[str, int] = {}
-    bound = {name: m for name, m in metas.items() if stored_spec_bound(m)}
-    for m in bound.values():
+    counted = {name: m for name, m in metas.items() if not bound or stored_spec_bound(m)}
+    for m in counted.values():
         key = json.dumps(identity(m), sort_keys=True)
         counts[key] = counts.get(key, 0) + 1
     if not counts and metas:
@@ -155,7 +158,7 @@ def reference_meta(out: pathlib.Path, metas: Mapping[str, dict]) -> dict:
     if not counts:
         raise ConfigError(f"{out} is not the output of jaxapf sweep: no readable part file")
     reference = max(counts, key=counts.get)
-    meta = next(m for m in bound.values() if json.dumps(identity(m), sort_keys=True) == reference)
+    meta = next(m for m in counted.values() if json.dumps(identity(m), sort_keys=True) == reference)
     return {**meta, "location": str(out.resolve())}
 
 
@@ -208,7 +211,7 @@ def judge(tables: Mapping[str, Any], metas: Mapping[str, dict], damaged: Mapping
     rows = sum(len(settings[c.variant]) * (c.stop - c.start) for c in sound)
     expected = sum(len(s) for s in settings.values()) * len(spec.families) * spec.fields
     return Audit(tuple(sorted(sound, key=lambda c: c.name)), dict(damaged), foreign, overlapping, tuple(missing),
-                 rows, expected, frozenset(other_sweep))
+                 rows, expected, frozenset(other_sweep), {c.name: verified_hash(tables[c.name]) for c in sound})
 
 
 def audit_output(out: pathlib.Path, plan: Plan) -> Audit:

@@ -21,7 +21,7 @@ from ..io.lock import OutputLock, check_writable, write_atomic
 from ..validation import ConfigError
 from .audit import Audit, audit_folder, check_folder, clear_temporaries
 from .meta import identity, open_part, read_meta
-from .output import part_record, verify_part
+from .output import read_part, verified_hash
 from .plan import Chunk
 
 __all__ = ["MergeResult", "merge_outputs"]
@@ -117,19 +117,18 @@ def merge_outputs(sources: Sequence[str | pathlib.Path], out: str | pathlib.Path
             raise ConfigError(f"sweep merge: {out} has {len(here.problems)} part(s) that cannot be trusted or of "
                               f"another sweep (e.g. {first}: {here.problems[first]}; `jaxapf sweep verify {out}` lists "
                               "them); nothing merged")
-        # every part by name, once; a name with two contents, or two names over the same fields, conflict
+        # every part by name, once; a name with two contents, or two names over the same fields, conflict. Each
+        # content hash is the one its audit verified on the bytes it read, and the copy must have it too
         chosen: dict[str, pathlib.Path] = {c.name: out / c.name for c in (here.sound if here else ())}
-        audited: dict[str, str | None] = {}  # each chosen source part's content hash, read once, after the audit
+        audited: dict[str, str | None] = dict(here.hashes) if here else {}
         for s, found in zip(sources, audits):
             for c in found.sound:
-                digest = part_record(s / c.name).get("sha256")
                 if c.name in chosen:
-                    kept = audited[c.name] if c.name in audited else part_record(chosen[c.name]).get("sha256")
-                    if kept != digest:
+                    if audited[c.name] != found.hashes[c.name]:
                         raise ConfigError(f"sweep merge: {c.name} differs between {chosen[c.name].parent} and {s}; "
                                           "nothing merged")
                     continue
-                chosen[c.name], audited[c.name] = s / c.name, digest
+                chosen[c.name], audited[c.name] = s / c.name, found.hashes[c.name]
         chunks = sorted((Chunk.from_name(n) for n in chosen), key=lambda c: (c.variant, c.family, c.start))
         for a, b in zip(chunks, chunks[1:]):
             if (a.variant, a.family) == (b.variant, b.family) and b.start < a.stop:
@@ -140,9 +139,11 @@ def merge_outputs(sources: Sequence[str | pathlib.Path], out: str | pathlib.Path
             if src.parent == out:
                 continue
             write_atomic(out / name, lambda fh, src=src, copied=copied: _copy(src, fh, copied))
-            problem = verify_part(out / name)
-            if problem is None and part_record(out / name).get("sha256") != audited[name]:
-                problem = "another part's content: the source changed after it was audited"
+            try:  # the copy read once: intact, and the content its source's audit verified
+                problem = None if verified_hash(read_part(out / name)) == audited[name] else (
+                    "another part's content: the source changed after it was audited")
+            except ConfigError as err:
+                problem = str(err).split(": ", 1)[-1]
             if problem is not None:
                 (out / name).unlink(missing_ok=True)
                 raise ConfigError(f"sweep merge: the copy of {src} did not read back ({problem}); "

@@ -14,8 +14,8 @@ from ..io.names import open_read
 from ..validation import ConfigError, first_line
 from .spec import SweepSpec
 
-__all__ = ["FORMAT", "LEGACY_FORMAT", "READABLE_FORMATS", "META_KEY", "PRNG", "sweep_meta", "read_meta", "identity",
-           "plugin_files", "sweep_spec", "stored_spec_bound", "open_part", "PART_BYTES"]
+__all__ = ["FORMAT", "LEGACY_FORMAT", "READABLE_FORMATS", "META_KEY", "PRNG", "sweep_meta", "read_meta", "parse_meta",
+           "identity", "plugin_files", "sweep_spec", "stored_spec_bound", "open_part", "PART_BYTES"]
 
 FORMAT = "jaxapf.sweep/2"
 #: The format before kinds, solvability and content hashes; still read (its parts are not verified).
@@ -53,6 +53,12 @@ def read_meta(path: pathlib.Path) -> dict[str, Any]:
             raw = (pq.read_schema(fh).metadata or {}).get(META_KEY)
     except (OSError, pa.ArrowException, ValueError) as err:
         raise ConfigError(f"{path} is not a readable sweep output (Parquet): {first_line(err)}") from None
+    return parse_meta(raw, path)
+
+
+def parse_meta(raw: bytes | None, path: pathlib.Path) -> dict[str, Any]:
+    """The ``jaxapf`` metadata ``raw`` (the bytes of a part's schema key) of the part ``path``, checked as
+    :func:`read_meta` checks it: the audit parses it from the very table it read and verified."""
     try:
         meta = json.loads(raw) if raw else None
     except (ValueError, RecursionError):  # bad JSON, bytes that are not UTF-8, nesting no reader follows

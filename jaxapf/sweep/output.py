@@ -27,7 +27,8 @@ from ..validation import ConfigError, first_line
 from .meta import LEGACY_FORMAT, META_KEY, open_part
 from .plan import Chunk
 
-__all__ = ["PART_KEY", "write_part", "part_files", "content_hash", "verify_part", "read_part", "PartUnreadable",
+__all__ = ["PART_KEY", "write_part", "part_files", "content_hash", "verify_part", "read_part", "verified_hash",
+           "PartUnreadable",
            "part_record"]
 
 _TMP = re.compile(r"^\.part-.*\.tmp-\d+$")
@@ -114,17 +115,28 @@ def read_part(path: pathlib.Path):
         raise ConfigError(f"{path.name}: unreadable ({type(err).__name__}: {first_line(err)})") from None
     if found != expected:
         raise ConfigError(f"{path.name}: content hash mismatch (the file was changed after it was written)")
-    return _own_keys(table, metadata)
+    return _own_keys(table, {**metadata, PART_KEY: raw})
 
 
 def _own_keys(table, metadata: dict):
-    """``table`` with no metadata but jaxapf's own: another key (``pandas``, a field's) could rename,
-    retype or reindex columns when the table is read, and the content hash covers only what is kept."""
+    """``table`` with no metadata but jaxapf's own (its sweep's, and the part's record of its verified content
+    hash): another key (``pandas``, a field's) could rename, retype or reindex columns when the table is read,
+    and the content hash covers only the sweep's key."""
     import pyarrow as pa
 
-    plain = pa.schema([f.remove_metadata() for f in table.schema],
-                      metadata={META_KEY: metadata[META_KEY]} if META_KEY in metadata else None)
+    own = {k: metadata[k] for k in (META_KEY, PART_KEY) if metadata.get(k) is not None}
+    plain = pa.schema([f.remove_metadata() for f in table.schema], metadata=own or None)
     return pa.Table.from_arrays(table.columns, schema=plain)
+
+
+def verified_hash(table) -> str | None:
+    """The content hash a table :func:`read_part` returned was verified against (None for a legacy part):
+    what was audited is what a merge copies."""
+    try:
+        record = json.loads((table.schema.metadata or {}).get(PART_KEY, b"{}"))
+    except (ValueError, RecursionError):
+        return None
+    return record.get("sha256") if isinstance(record, dict) else None
 
 
 def part_record(path: pathlib.Path) -> dict[str, Any]:

@@ -55,7 +55,7 @@ def read_sweep(path: str | os.PathLike) -> tuple["pd.DataFrame", dict[str, Any]]
         if len({json.dumps(identity(m), sort_keys=True) for m in metas.values()}) > 1:
             raise ConfigError(f"{path} mixes parts of different sweeps or jaxapf versions (their spec_hash, dtype, "
                               "vmap_width, metrics or version differ); `jaxapf sweep verify` lists them")
-        meta = reference_meta(path, metas)
+        meta = reference_meta(path, metas, bound=named)
         parts = len(tables)
     else:
         meta = {**read_meta(path), "location": str(path.parent.resolve())}

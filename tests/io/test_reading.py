@@ -100,6 +100,40 @@ def test_merge_refuses_a_source_part_swapped_for_a_fifo_after_its_audit(tmp_path
     assert len(part_files(tmp_path / "out")) == 1
 
 
+def test_merge_copies_what_the_audit_read_and_refuses_a_sound_part_swapped_in_after_it(tmp_path, monkeypatch):
+    """The audit reads each part once (its table, its metadata and its verified content hash from the same bytes)
+    and the merge holds the copy to that hash: a source part replaced after the audit by a sound part of another
+    sweep under the same name (before, its record was read again and agreed with the new bytes) is refused, the
+    parts copied before it kept."""
+    import shutil
+
+    from jaxapf.sweep import merge as merging
+    from jaxapf.sweep import parse_spec, run_sweep
+    from jaxapf.sweep.output import part_files, read_part, verified_hash
+
+    table = {"name": "m", "scenario": {"families": ["trap"], "fields": 4, "seed": 1},
+             "sim": {"t_max": 1.0, "horizon": 3, "iters": 3}}
+    src = run_sweep(parse_spec(table), tmp_path / "src", quiet=True, chunk_fields=2).out
+    other = run_sweep(parse_spec({**table, "scenario": {**table["scenario"], "seed": 2}}), tmp_path / "other",
+                      quiet=True, chunk_fields=2).out
+    real = merging.audit_folder
+    hashes = {}
+
+    def audit_then_swap(folder, *args):
+        found = real(folder, *args)
+        if pathlib.Path(folder) == src:
+            hashes.update(found[0].hashes)
+            last = part_files(src)[-1]
+            shutil.copyfile(other / last.name, last)  # sound, of another sweep
+        return found
+
+    monkeypatch.setattr(merging, "audit_folder", audit_then_swap)
+    with pytest.raises(ConfigError, match=r"did not read back \(another part's content.*1 part\(s\) were copied"):
+        merging.merge_outputs([src], tmp_path / "out")
+    first = part_files(tmp_path / "out")
+    assert len(first) == 1 and verified_hash(read_part(first[0])) == hashes[first[0].name]
+
+
 def test_tune_and_compare_records_planted_as_fifos_are_refused_or_ignored_at_once(tmp_path, repo_root):
     """A FIFO as tune's ``summary.json`` (no finished run) or a search's state (none saved), as its checkpoint
     (damaged: one line) or as a compare selection (damaged: one line): none blocks, as each did before."""
