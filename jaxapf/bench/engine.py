@@ -95,11 +95,13 @@ def rates_summary(metrics: dict[str, Any]) -> dict[str, float]:
     return out
 
 
-def check_fits(fields: int, obstacles: int, steps: int, width: int, agents: int = 1, what: str | None = None) -> None:
+def check_fits(fields: int, obstacles: int, steps: int, width: int, agents: int = 1, what: str | None = None,
+               unit: str | None = None) -> None:
     """Refuse, in one line and before anything is made, a benchmark whose fields and episodes would take more
     memory than the device has free (:func:`~jaxapf.engine.policy.available_memory`), by the sweep's memory model
     (:func:`~jaxapf.sweep.plan.working_set_bytes`, :func:`~jaxapf.sweep.plan.episode_bytes`); the most fields that
-    fit are named. ``what``: the option the size came from, as the refusal names it (default ``bench.fields``)."""
+    fit are named. ``what``: the option the size came from, as the refusal names it (default ``bench.fields``);
+    ``unit``: what ``fields`` counts (default fields, or swarms of ``agents``)."""
     from ..engine.policy import available_memory
     from ..sweep.plan import episode_bytes, working_set_bytes
 
@@ -109,7 +111,7 @@ def check_fits(fields: int, obstacles: int, steps: int, width: int, agents: int 
     each = episode_bytes(obstacles, itemsize, agents)
     if free is not None and batch + fields * each > free:
         most = max((free - batch) // each, 0)
-        need, unit = format_bytes(batch + fields * each), "fields" if agents == 1 else "swarms"
+        need, unit = format_bytes(batch + fields * each), unit or ("fields" if agents == 1 else "swarms")
         raise ConfigError(f"{what or f'bench.fields = {fields:,}'} needs about {need} of memory ({obstacles} obstacle "
                           f"slots, {steps:,} steps), more than the {format_bytes(free)} this device has free: at most "
                           f"{most:,} {unit} here")

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..metrics import METRICS
 from ..text import format_seconds
-from .engine import _block, environment, interleaved
+from .engine import _block, check_fits, environment, interleaved
 
 __all__ = ["SWEEP_BENCH_SPEC", "time_sweep", "run_sweep_benchmark", "format_sweep_benchmark"]
 
@@ -55,7 +55,11 @@ def _bare_run(spec: Any, streaming: bool) -> Any:
     for v in plan.variants:
         for family in spec.families:
             block = plan.blocks[(v.index, family)]  # the sweep's vmap width (narrower for long episodes)
-            fields = _block(make_scenarios(spec.seed, spec.family_params(family), spec.fields))
+            params = spec.family_params(family)
+            episodes = spec.fields * len(v.simulated)  # one call holds every field of the family, every setting
+            check_fits(episodes, params.max_obstacles, block.sim.episode.steps, block.width,
+                       what=f"scenario.fields = {spec.fields:,} ({episodes:,} episodes in one call)", unit="episodes")
+            fields = _block(make_scenarios(spec.seed, params, spec.fields))
             work.append((fields, plan.gains(v), block.flown, block.mpc, block.width))
     calls = [lambda w=w: _block(evaluate(*w, streaming=streaming)) for w in work]
     results = [call() for call in calls]

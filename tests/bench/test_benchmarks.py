@@ -244,7 +244,7 @@ def test_the_gpu_script_runs_on_a_cpu_in_its_smoke_mode(tmp_path):
     assert all(f["fields"] == 8 and f["differ"] == {"scan": 0, "associative": 0} for f in fill.values())
 
 
-def test_a_bench_too_large_for_the_devices_memory_is_refused_up_front(monkeypatch, capsys):
+def test_a_bench_too_large_for_the_devices_memory_is_refused_up_front(monkeypatch, capsys, tmp_path):
     """``jaxapf bench engine --fields 100000000`` ran out of memory with a traceback; now the size is weighed
     against the device's free memory first: the fields it names as the most fit, one more does not."""
     import re
@@ -261,11 +261,14 @@ def test_a_bench_too_large_for_the_devices_memory_is_refused_up_front(monkeypatc
     engine.check_fits(most, 16, 300, 1024)
     with pytest.raises(ConfigError):
         engine.check_fits(most + 1, 16, 300, 1024)
-    for argv in (["engine", "--fields", "100000000"], ["world", "--fields", "100000000"],
-                 ["swarm", "--uavs", "100000000", "--agents", "4"]):
+    huge = tmp_path / "huge.toml"
+    huge.write_text('name = "huge"\n[scenario]\nfamilies = ["trap"]\nfields = 100000000\n')
+    for argv, said in ((["engine", "--fields", "100000000"], "bench.fields"), (["world", "--fields", "100000000"],
+                       "bench.fields"), (["swarm", "--uavs", "100000000", "--agents", "4"], "bench.uavs"),
+                       (["sweep", str(huge)], "scenario.fields")):
         assert main(["bench", *argv]) == 2
         out = capsys.readouterr().err
-        assert out.count("\n") == 1 and f"bench.{argv[1][2:]} = 100,000,000" in out and "needs about" in out, out
+        assert out.count("\n") == 1 and f"{said} = 100,000,000" in out and "needs about" in out, out
 
 
 @pytest.mark.slow
