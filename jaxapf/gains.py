@@ -26,7 +26,7 @@ import numpy as np
 from .registry import Registry, loop_rank
 from .validation import BoundWarning, ConfigError, check_range, check_table, describe_range, read_toml_file
 
-__all__ = ["GainSpec", "GAINS", "declare_gains", "declare_entry_gains", "Gains", "validate_gains",
+__all__ = ["GainSpec", "GAINS", "declare_gains", "declare_entry_gains", "Gains", "UndeclaredGain", "validate_gains",
            "gains_from_mapping", "load_gains", "read_gains_file", "check_gain_name", "setting_count",
            "gain_shape", "setting_shape"]
 
@@ -187,6 +187,11 @@ def _lists_as_arrays(values: Mapping[str, Any]) -> dict[str, Any]:
     return {k: np.asarray(v, np.float64) if isinstance(v, (list, tuple)) else v for k, v in values.items()}
 
 
+class UndeclaredGain(AttributeError, ConfigError):
+    """A gain read that the setting does not hold: an ``AttributeError`` (attribute access), and a
+    :class:`ConfigError`, so that the command line says it in one line."""
+
+
 @jax.tree_util.register_pytree_node_class
 class Gains(Mapping[str, Any]):
     """A value (scalar or batched array) for every declared gain: ``Gains(gamma=2.0)`` takes the
@@ -226,7 +231,8 @@ class Gains(Mapping[str, Any]):
         try:
             return values[name]
         except KeyError:
-            raise AttributeError(f"no gain {name!r}; gains: {', '.join(values)}") from None
+            raise UndeclaredGain(f"no gain {name!r} here (misspelled, or not declared by the component that reads "
+                                 f"it: docs/extending.md, 'Gains'); gains: {', '.join(values)}") from None
 
     def __setattr__(self, name: str, value: Any) -> None:
         raise dataclasses.FrozenInstanceError(f"Gains are immutable; use .replace({name}=...)")

@@ -128,3 +128,37 @@ def test_out_of_package_components_run_through_sweep_report_and_tune(tmp_path):
     # tune: the tunable gains of the planner and the filter, by default
     assert out["tuned_params"] == ["k_rep", "d_s", "k_att", "eta", "beta", "drift", "c_d"]
     assert 0.0 <= out["tuned_gains"]["c_d"] <= 1.0
+
+
+MISTAKES = ROOT / "tests" / "plugins" / "mistakes.py"
+
+CALLS = textwrap.dedent("""
+    import contextlib, io, pathlib, sys
+    from jaxapf.cli import main
+
+    root, plugin = pathlib.Path(sys.argv[1]), sys.argv[2]
+    for method in ("wide", "misspelled", "short"):
+        spec = root / f"{method}.toml"
+        spec.write_text(f'name = "m"\\nplugins = ["{plugin}"]\\n[scenario]\\nfamilies = ["trap"]\\nfields = 2\\n'
+                        f'[sim]\\nt_max = 0.5\\nhorizon = 3\\niters = 2\\nmethod = "{method}"\\n')
+        err = io.StringIO()
+        with contextlib.redirect_stderr(err):
+            code = main(["sweep", str(spec), "--out", str(root / method), "--quiet"])
+        print(f"{method} {code} {err.getvalue()!r}")
+""")
+
+
+def test_a_plugins_wrong_shapes_and_misspelled_gains_are_one_line_each(tmp_path):
+    """A weight of shape (3, M), a gain read that no component declares, a planner's reference one point
+    short: each refused while the program is traced, in one line naming what was wrong (before: a weight's
+    wrong shape broadcast into other obstacles' ω without a word, a misspelled gain was a 102-line traceback)."""
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"} | {"JAX_PLATFORMS": "cpu"}
+    proc = subprocess.run([sys.executable, "-c", CALLS, str(tmp_path), str(MISTAKES)], env=env, capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    said = {line.split(" ", 2)[0]: line.split(" ", 2)[1:] for line in proc.stdout.splitlines()}
+    for method, words in (("wide", "the weight ω of 'Wide' returned shape (3, "),
+                          ("misspelled", "no gain 'k_cc' here (misspelled"),
+                          ("short", "planner 'short' returned shape (3, 6) where the closed loop reads its reference")):
+        code, err = said[method]
+        assert code == "2" and err.count("\\n") == 1 and words in err and "Traceback" not in err, (method, err)

@@ -115,6 +115,7 @@ def loop_step(loop: ClosedLoop, carry: tuple, k: Array, scenario: Scenario, obst
     # (jaxapf.control.estimators); with no estimator nothing of it is compiled in
     d_hat, estimates = loop.estimator(estimated, x, gains, sim) if loop.estimator.active else (None, {})
     x_ref, plan = loop.planner.reference(plan, x, t, scenario.goal, observed, gains, sim, mpc.horizon)
+    _check_shape(x_ref, (mpc.horizon + 1, 6), f"planner {sim.planner.method!r}", "its reference x(k..k+N), (N + 1, 6)")
     planned = loop.planner.diagnostics(plan)
     own = loop.planner.command(plan)
     if own is not None:
@@ -125,6 +126,7 @@ def loop_step(loop: ClosedLoop, carry: tuple, k: Array, scenario: Scenario, obst
         u = solve_axes(loop.prob, x, x_ref, warm, a_max=sim.vehicle.a_max, v_max=sim.vehicle.v_max,
                        iters=mpc.iters, shift=d_hat)
     accel, guard, filtered = loop.safety(guard, u[:, 0], x, t, observed, gains, sim)
+    _check_shape(accel, (3,), f"safety filter {sim.planner.filter!r}", "the acceleration it lets through, (3,)")
     if loop.estimator.active:
         accel = jnp.clip(accel - d_hat, -sim.vehicle.a_max, sim.vehicle.a_max)
         estimated = loop.estimator.advance(x, accel, d_hat)
@@ -132,6 +134,14 @@ def loop_step(loop: ClosedLoop, carry: tuple, k: Array, scenario: Scenario, obst
     state, integrated = loop.plant.step(state, accel, push, gains, sim)
     return ((state, shift_warm_start(u), plan, guard, seen, gust, estimated),
             (loop.plant.kinematics(state), accel, sensed | estimates | planned | filtered | integrated))
+
+
+def _check_shape(value: Array, shape: tuple[int, ...], who: str, what: str) -> None:
+    """While the loop is traced: :class:`ConfigError` in one line where a component (a plugin's, most often)
+    returns another shape than the loop reads, which would otherwise broadcast into other episodes."""
+    if jnp.shape(value) != shape:
+        raise ConfigError(f"{who} returned shape {jnp.shape(value)} where the closed loop reads {what} "
+                          "(docs/extending.md)")
 
 
 def ideal_tracking(x: Array, x_ref: Array, dt: float, horizon: int) -> Array:
