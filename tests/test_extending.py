@@ -137,10 +137,11 @@ CALLS = textwrap.dedent("""
     from jaxapf.cli import main
 
     root, plugin = pathlib.Path(sys.argv[1]), sys.argv[2]
-    for method in ("wide", "misspelled", "short"):
+    for method in ("wide", "misspelled", "short", "not_a_number"):
         spec = root / f"{method}.toml"
+        t_max = 20.0 if method == "not_a_number" else 0.5  # long enough to come within d_s of an obstacle
         spec.write_text(f'name = "m"\\nplugins = ["{plugin}"]\\n[scenario]\\nfamilies = ["trap"]\\nfields = 2\\n'
-                        f'[sim]\\nt_max = 0.5\\nhorizon = 3\\niters = 2\\nmethod = "{method}"\\n')
+                        f'[sim]\\nt_max = {t_max}\\nhorizon = 3\\niters = 2\\nmethod = "{method}"\\n')
         err = io.StringIO()
         with contextlib.redirect_stderr(err):
             code = main(["sweep", str(spec), "--out", str(root / method), "--quiet"])
@@ -148,10 +149,12 @@ CALLS = textwrap.dedent("""
 """)
 
 
-def test_a_plugins_wrong_shapes_and_misspelled_gains_are_one_line_each(tmp_path):
+def test_a_plugins_wrong_shapes_misspelled_gains_and_nan_are_one_line_each(tmp_path):
     """A weight of shape (3, M), a gain read that no component declares, a planner's reference one point
     short: each refused while the program is traced, in one line naming what was wrong (before: a weight's
-    wrong shape broadcast into other obstacles' ω without a word, a misspelled gain was a 102-line traceback)."""
+    wrong shape broadcast into other obstacles' ω without a word, a misspelled gain was a 102-line traceback).
+    A weight that is NaN near obstacles: refused on the variant's first chunk, naming the setting's planner,
+    the family and the field (before: exit 0, episodes neither success, collision nor stall)."""
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"} | {"JAX_PLATFORMS": "cpu"}
     proc = subprocess.run([sys.executable, "-c", CALLS, str(tmp_path), str(MISTAKES)], env=env, capture_output=True,
                           text=True, timeout=300)
@@ -159,6 +162,7 @@ def test_a_plugins_wrong_shapes_and_misspelled_gains_are_one_line_each(tmp_path)
     said = {line.split(" ", 2)[0]: line.split(" ", 2)[1:] for line in proc.stdout.splitlines()}
     for method, words in (("wide", "the weight ω of 'Wide' returned shape (3, "),
                           ("misspelled", "no gain 'k_cc' here (misspelled"),
-                          ("short", "planner 'short' returned shape (3, 6) where the closed loop reads its reference")):
+                          ("short", "planner 'short' returned shape (3, 6) where the closed loop reads its reference"),
+                          ("not_a_number", "(method = 'not_a_number') flew field 0 of trap into a non-finite state")):
         code, err = said[method]
         assert code == "2" and err.count("\\n") == 1 and words in err and "Traceback" not in err, (method, err)

@@ -107,6 +107,14 @@ def _position_error_max(ctx: EpisodeContext) -> Array:
     return jnp.max(jnp.where(ctx.interval_valid, error, 0.0))
 
 
+def _invalid(ctx: EpisodeContext) -> Array:
+    """Whether a state or an applied control turned non-finite (NaN or ±inf) before the episode ended."""
+    traj = ctx.traj
+    state = jnp.isfinite(traj.position).all(-1) & jnp.isfinite(traj.velocity).all(-1)
+    control = jnp.isfinite(traj.control).all(-1)
+    return jnp.any(ctx.sample_valid & ~state) | jnp.any(ctx.interval_valid & ~control)
+
+
 def _time_near(ctx: EpisodeContext) -> Array:
     nearest = jnp.min(clearance_history(ctx.traj, ctx.scenario, ctx.sim), axis=-1)  # (T+1,)
     closing = (nearest[1:] < nearest[:-1]) | (ctx.swept < jnp.minimum(nearest[1:], nearest[:-1]))
@@ -147,6 +155,9 @@ for _metric in (
            doc="RMS of the realised minus the applied acceleration"),
     Metric("position_error_max", _position_error_max, unit="m", higher_is_better=False, margin=0.01,
            doc="largest one-step miss of the plant against the MPC's double-integrator prediction"),
+    Metric("invalid", _invalid, dtype="bool", kind="rate", higher_is_better=False,
+           doc="the state or the control turned non-finite before the episode ended (a component's output was "
+               "not a number): an outcome of its own, never a success, a collision or a stall"),
 ):
     register_metric(_metric)
 

@@ -133,6 +133,15 @@ class ReportOptions:
     def alpha(self) -> float:
         return 1.0 - self.confidence
 
+def invalid_note(data: Any, labels: Mapping[int, str]) -> str:
+    """The episodes whose state turned non-finite (metric ``invalid``), per setting and family: an outcome of
+    their own, counted in no rate (neither success, collision nor stall)."""
+    bad = data[data["invalid"].astype(bool)].groupby(["setting", "family"]).size()
+    said = "; ".join(f"{labels.get(int(s), s)} on {f}: {n}" for (s, f), n in bad.items())
+    return (f"{int(bad.sum())} episode(s) turned non-finite (NaN or inf; the invalid outcome, in no rate: neither "
+            f"success, collision nor stall): {said}")
+
+
 def _spec_name(meta: Mapping, path: pathlib.Path) -> str:
     spec = meta.get("spec") if isinstance(meta.get("spec"), Mapping) else {}
     for key in ("name", "title"):
@@ -187,6 +196,8 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
     if meta.get("stray"):
         notes.append(f"{path} holds {len(meta['stray'])} file(s) that are not parts of the sweep, never read as rows: "
                      + ", ".join(meta["stray"][:5]) + (" …" if len(meta["stray"]) > 5 else ""))
+    if "invalid" in sel.data.columns and sel.data["invalid"].astype(bool).any():
+        notes.insert(0, invalid_note(sel.data, sel.labels))
     incomplete = None
     if meta.get("complete") is False and meta.get("rows_expected"):
         incomplete = (f"the sweep is incomplete: {len(df)} of {meta['rows_expected']} episodes are present "

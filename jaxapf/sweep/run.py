@@ -169,6 +169,22 @@ def _run(spec: SweepSpec, out: pathlib.Path, options: dict[str, Any], overwrite:
     return SweepResult(out, plan.episodes_of(todo), plan.episodes_of(done), written, 0.0, plan.duplicates, shard)
 
 
+def _refuse_invalid(plan: Plan, chunk: Chunk, metrics: dict[str, np.ndarray], kept: Callable[[], str]) -> None:
+    """:class:`ConfigError` in one line where an episode of ``chunk`` (the first of its variant this run) turned
+    non-finite (the ``invalid`` metric): the setting's components named, with the family and the field. Later
+    chunks keep such an episode as the outcome it is."""
+    invalid = np.asarray(metrics.get("invalid", np.zeros(0, bool)), bool)
+    if not invalid.any():
+        return
+    i, j = (int(k) for k in np.argwhere(invalid)[0])
+    setting = plan.variants[chunk.variant].settings[i]
+    stack = ", ".join(f"{k} = {v!r}" for k, v in setting.static if k in ("method", "filter", "plant", "sensor",
+                                                                        "disturbance", "estimator")) or "the defaults"
+    raise ConfigError(f"setting {setting.index} ({stack}) flew field {chunk.start + j} of {chunk.family} into a "
+                      f"non-finite state (NaN or inf): a component's output is not a number there ({int(invalid.sum())}"
+                      f" of {invalid.size} episodes of its first chunk); {kept()}")
+
+
 def _write_chunks(plan: Plan, chunks: tuple[Chunk, ...], out: pathlib.Path, quiet: bool,
                   after_part: Callable[[Chunk], None] | None, shard: tuple[int, int] | None = None,
                   results: Callable[[Plan, tuple[Chunk, ...]], Iterator[Finished]] = local_results) -> int:
@@ -186,10 +202,14 @@ def _write_chunks(plan: Plan, chunks: tuple[Chunk, ...], out: pathlib.Path, quie
 
     def kept() -> str:
         return f"{kept_before + written} finished part(s) are kept in {out}"
+    checked: set[int] = set()
     try:
         for chunk, arrays, kinds, solvable in finished:
             inverse = np.asarray(plan.variants[chunk.variant].inverse)  # identical settings
             metrics = {m: np.asarray(a)[inverse] for m, a in arrays.items()}
+            if chunk.variant not in checked:  # a variant's first chunk: a component that is not a number stops it
+                checked.add(chunk.variant)
+                _refuse_invalid(plan, chunk, metrics, kept)
             table = part_table(plan, layout, chunk, metrics, np.asarray(kinds), solvable)
             try:
                 write_part(out, chunk.name, table, shard)

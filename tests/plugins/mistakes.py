@@ -1,5 +1,6 @@
 """Plugin components with the mistakes a newcomer makes (tests/test_extending.py): a weight ω of the wrong
-shape, a weight reading a gain nobody declared, a planner whose reference has the wrong shape."""
+shape, a weight reading a gain nobody declared, a planner whose reference has the wrong shape, a weight that is
+not a number near an obstacle."""
 
 import dataclasses
 from typing import ClassVar
@@ -31,6 +32,14 @@ class Misspelled(Wide):
 
 
 @dataclasses.dataclass(frozen=True)
+class NotANumber(Wide):
+    """ω = NaN: harmless while every obstacle is beyond the influence distance d_s, poison once one is within."""
+
+    def __call__(self, sight, gains, *, convention, eps_v):
+        return jnp.full(jnp.shape(sight.s[0]), jnp.nan)
+
+
+@dataclasses.dataclass(frozen=True)
 class Short(jaxapf.Planner):
     """The basic planner's reference without its last point: (N, 6) where (N + 1, 6) is read."""
 
@@ -55,3 +64,4 @@ class Short(jaxapf.Planner):
 jaxapf.register_planner("wide", jaxapf.APF(Wide()))
 jaxapf.register_planner("misspelled", jaxapf.APF(Misspelled()))
 jaxapf.register_planner("short", Short(jaxapf.PLANNERS["basic"]))
+jaxapf.register_planner("not_a_number", jaxapf.APF(NotANumber()))

@@ -611,3 +611,22 @@ def test_the_page_colours_each_verdict_cell_and_its_tables_sort(report):
     assert len(cells) == len(comp[comp["family"].isin(shown)])
     assert sorted(v for v, _, _ in cells) == sorted(comp.loc[comp["family"].isin(shown), "verdict"])
     assert page.count('<table class="sortable">') >= 5
+
+
+def test_invalid_episodes_are_named_and_the_report_still_written(tmp_path):
+    """Episodes whose state turned non-finite (a plugin's NaN: the ``invalid`` outcome, neither success,
+    collision nor stall, their continuous metrics NaN) break no table: the report is written, names how many
+    per setting and family, and counts them in no rate."""
+    df = make_rows()
+    df["invalid"] = False
+    bad = (df["method"] == "direction_velocity") & (df["family"] == "trap") & (df["field"] < 3)
+    df.loc[bad, ["success", "collision", "stalled", "invalid"]] = [False, False, False, True]
+    for column in ("min_clearance", "time_to_goal", "path_length", "path_ratio", "final_distance", "control_effort",
+                   "jerk_rms", "min_ttc", "spl"):
+        df.loc[bad, column] = math.nan
+    path = write_sweep(tmp_path / "invalid.parquet", df)
+    out = tmp_path / "report"
+    assert main(["report", str(path), "--out", str(out), "--resamples", str(RESAMPLES), "--gallery", "0"]) == 0
+    md = (out / "report.md").read_text()
+    assert f"{int(bad.sum())} episode(s) turned non-finite" in md
+    assert "trap: 3" in md and "clutter:" not in md.split("turned non-finite")[1].split("\n")[0]
