@@ -781,7 +781,7 @@ def swapped_under(n: int, tmp: pathlib.Path, ref_out: pathlib.Path, ref: pd.Data
     are the reference's (merge)."""
     import shutil
 
-    totals = _read_totals(n)
+    totals = _read_totals(n) | {"finished_first": 0, "read_before_swap": 0}
     bound = 2 * _size(ref_out) + (1 << 20)
     for i in range(n):
         command = ("merge", "report")[i % 2]
@@ -796,8 +796,11 @@ def swapped_under(n: int, tmp: pathlib.Path, ref_out: pathlib.Path, ref: pd.Data
         time.sleep(float(rng.uniform(0.0, 4.0)))
         swap = place / "swap"
         _plant_read(swap, how, victim)
+        alive = proc.poll() is None
         os.replace(swap, victim)
         rc = _judge(totals, proc, HANG_S, None, f"{command}, {victim.name} swapped for a {how}", out, bound)
+        if rc == 0:  # ended before the swap, or had read the part whole before it
+            totals["read_before_swap" if alive else "finished_first"] += 1
         if command == "merge" and rc == 0:
             state = _check(out, ref)
             totals["changed"] += int(state["changed"] > 0 or state["refused"] > 0 or state["duplicated"] > 0)
@@ -1187,9 +1190,9 @@ def _details(kind: str, r: dict[str, Any]) -> str:
         "spec fuzz": f"{r.get('refused', 0)} refused in one line, {r.get('accepted', 0)} accepted",
         "planted read": f"{r.get('refused', 0)} refused in one line naming it, {r.get('ran', 0)} ran past it; "
                         f"{r.get('hangs', 0)} hangs, {r.get('past_bound', 0)} outputs past their bound",
-        "swapped part": f"{r.get('refused', 0)} refused in one line, {r.get('ran', 0)} finished before the swap "
-                        f"(merges' rows the reference's); {r.get('hangs', 0)} hangs, {r.get('past_bound', 0)} past "
-                        "their bound",
+        "swapped part": f"{r.get('refused', 0)} refused in one line, {r.get('finished_first', 0)} ended before the "
+                        f"swap, {r.get('read_before_swap', 0)} had read the part before it; {r.get('changed', 0)} "
+                        f"merges with other rows than the reference's, {r.get('hangs', 0)} hangs",
         "forged spec": f"{r.get('refused', 0)} refused in one line naming a part, {r.get('accepted', 0)} accepted",
         "mixed versions": f"{r.get('refused', 0)} refused in one line, {r.get('accepted', 0)} accepted",
         "owner note": f"{r.get('refused', 0)} refused in one line, {r.get('raw_escapes', 0)} escapes printed raw, "

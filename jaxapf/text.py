@@ -50,6 +50,9 @@ class InertLines(io.TextIOBase):
     def flush(self) -> None:
         self._stream.flush()
 
+    def writable(self) -> bool:
+        return True
+
     def fileno(self) -> int:
         return self._stream.fileno()
 

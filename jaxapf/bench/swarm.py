@@ -43,6 +43,7 @@ def run_swarm_benchmark(agents: Sequence[int] = AGENTS, uavs: int = 256, steps: 
     from ..engine.swarm import evaluate_swarms
     from ..metrics import METRICS
     from ..scenarios.swarms import make_swarms, swarm_params
+    from ..sweep.plan import seen_slots
 
     uavs, steps, repeats = (check_int(f"bench.{k}", v, 1) for k, v in (("uavs", uavs), ("steps", steps),
                                                                        ("repeats", repeats)))
@@ -55,7 +56,7 @@ def run_swarm_benchmark(agents: Sequence[int] = AGENTS, uavs: int = 256, steps: 
         fields = -(-uavs // a)
         diameter = max(12.0, 0.5 * a)  # UAVs at least 1.5 m apart on the circle
         params = swarm_params("circle_swap", agents=a, distance=(diameter, diameter))
-        check_fits(fields, params.max_obstacles, steps, fields, agents=a,  # every swarm in one call
+        check_fits(fields, seen_slots(sim, params.max_obstacles, a), steps, fields, agents=a,  # one call
                    what=f"bench.uavs = {uavs:,} ({fields:,} swarms of {a})")
         swarms = jax.block_until_ready(make_swarms(seed, params, fields))
         t0 = time.perf_counter()

@@ -11,11 +11,12 @@ nothing):
   between its lines): one line and status 130 (143 for SIGTERM), never a traceback.
 
 Once the command has returned, the process exits with its status: signals during the last clean-up
-are ignored, and a stopped command's process ends without tearing down what the stop left running
-(an XLA compilation on its threads, whose teardown crashed the process after its line in 1 of 120
-tries); a stop that something swallowed while the command ran still ends the process with its line and
-status, never 0. A signal that arrives while the interpreter itself starts (Python's ``site`` and
-``.pth`` files, before any line of jaxapf runs) is Python's to handle (docs/sweep.md).
+are ignored, and a stopped or refused command's process ends without tearing down what was left
+running (an XLA compilation on its threads, whose teardown crashed the process after its line in 1 of
+120 tries; the runtime's threads after a refused merge's line, in 1 of 24 forged-spec trials); a stop
+that something swallowed while the command ran still ends the process with its line and status, never
+0. A signal that arrives while the interpreter itself starts (Python's ``site`` and ``.pth`` files,
+before any line of jaxapf runs) is Python's to handle (docs/sweep.md).
 """
 
 import sys
@@ -96,8 +97,8 @@ def console() -> int:
     if code == 0 and swallowed is not None:  # a stop some library swallowed whole: the command ran to its end
         stop = Terminated() if swallowed == signal.SIGTERM else KeyboardInterrupt()
         code = stopped(stop, "jaxapf", "the command had finished before it stopped: its output is complete")
-    if code in (130, 143):  # stopped: end now, without tearing down what the stop left running (an XLA
-        _end_children()  # compilation or computation on its threads, whose teardown can crash the process),
-        _exit(code)  # and with no process of ours left behind
+    if code in (2, 130, 143):  # refused or stopped: end now, without tearing down what is left running (an
+        _end_children()  # XLA compilation or computation on its threads, or the runtime's own threads, whose
+        _exit(code)  # teardown can crash the process after its line), and with no process of ours left behind
     gc.freeze()
     return code

@@ -129,7 +129,7 @@ def _repulsion(p: Array, v: Array, p_o: Array, v_o: Array, radius: Array | float
     sight = line_of_sight(p, p_o, cylinder)
     d = norm(sight) - radius
     w = _weight(method)(Sight(sight, v, v_o, p, goal, d), gains, convention=convention, eps_v=eps_v)
-    if jnp.ndim(w) and jnp.shape(w) != jnp.shape(d):  # broadcast, ω of one obstacle would weigh another's
+    if jnp.size(w) != 1 and jnp.shape(w) != jnp.shape(d):  # broadcast, ω of one obstacle would weigh another's
         name = method if isinstance(method, str) else type(method).__name__
         raise ConfigError(f"the weight ω of {name!r} returned shape {jnp.shape(w)}, not {jnp.shape(d)}: one ω per "
                           "obstacle (or one for all), as docs/extending.md ('A repulsive weight ω') says")

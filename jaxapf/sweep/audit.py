@@ -33,7 +33,7 @@ from ..io.names import check_kind, kind, remove_leftover, subfolder
 from ..validation import ConfigError
 from .division import Division, agree_division, forget_division, is_division_file
 from .meta import META_KEY, identity, needed, parse_meta, read_meta, stored_spec_bound, sweep_spec
-from .output import _PROBE, _TMP, PartUnreadable, part_files, part_record, read_part, verified_hash
+from .output import _PROBE, _TMP, PartUnreadable, audited_hash, part_files, part_record, read_part
 from .plan import Chunk, Plan, Variant, gaps, shard_chunks, variants
 from .spec import SweepSpec
 
@@ -59,7 +59,7 @@ class Audit:
     rows: int
     expected: int
     other_sweep: frozenset[str] = frozenset()
-    hashes: Mapping[str, str | None] = dataclasses.field(default_factory=dict)
+    hashes: Mapping[str, str] = dataclasses.field(default_factory=dict)
 
     @property
     def problems(self) -> dict[str, str]:
@@ -211,7 +211,7 @@ def judge(tables: Mapping[str, Any], metas: Mapping[str, dict], damaged: Mapping
     rows = sum(len(settings[c.variant]) * (c.stop - c.start) for c in sound)
     expected = sum(len(s) for s in settings.values()) * len(spec.families) * spec.fields
     return Audit(tuple(sorted(sound, key=lambda c: c.name)), dict(damaged), foreign, overlapping, tuple(missing),
-                 rows, expected, frozenset(other_sweep), {c.name: verified_hash(tables[c.name]) for c in sound})
+                 rows, expected, frozenset(other_sweep), {c.name: audited_hash(tables[c.name]) for c in sound})
 
 
 def audit_output(out: pathlib.Path, plan: Plan) -> Audit:

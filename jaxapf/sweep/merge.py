@@ -21,7 +21,7 @@ from ..io.lock import OutputLock, check_writable, write_atomic
 from ..validation import ConfigError
 from .audit import Audit, audit_folder, check_folder, clear_temporaries
 from .meta import identity, open_part, read_meta
-from .output import read_part, verified_hash
+from .output import audited_hash, read_part
 from .plan import Chunk
 
 __all__ = ["MergeResult", "merge_outputs"]
@@ -120,7 +120,7 @@ def merge_outputs(sources: Sequence[str | pathlib.Path], out: str | pathlib.Path
         # every part by name, once; a name with two contents, or two names over the same fields, conflict. Each
         # content hash is the one its audit verified on the bytes it read, and the copy must have it too
         chosen: dict[str, pathlib.Path] = {c.name: out / c.name for c in (here.sound if here else ())}
-        audited: dict[str, str | None] = dict(here.hashes) if here else {}
+        audited: dict[str, str] = dict(here.hashes) if here else {}
         for s, found in zip(sources, audits):
             for c in found.sound:
                 if c.name in chosen:
@@ -140,7 +140,7 @@ def merge_outputs(sources: Sequence[str | pathlib.Path], out: str | pathlib.Path
                 continue
             write_atomic(out / name, lambda fh, src=src, copied=copied: _copy(src, fh, copied))
             try:  # the copy read once: intact, and the content its source's audit verified
-                problem = None if verified_hash(read_part(out / name)) == audited[name] else (
+                problem = None if audited_hash(read_part(out / name)) == audited[name] else (
                     "another part's content: the source changed after it was audited")
             except ConfigError as err:
                 problem = str(err).split(": ", 1)[-1]

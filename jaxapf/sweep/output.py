@@ -27,7 +27,7 @@ from ..validation import ConfigError, first_line
 from .meta import LEGACY_FORMAT, META_KEY, open_part
 from .plan import Chunk
 
-__all__ = ["PART_KEY", "write_part", "part_files", "content_hash", "verify_part", "read_part", "verified_hash",
+__all__ = ["PART_KEY", "write_part", "part_files", "content_hash", "verify_part", "read_part", "audited_hash",
            "PartUnreadable",
            "part_record"]
 
@@ -129,14 +129,15 @@ def _own_keys(table, metadata: dict):
     return pa.Table.from_arrays(table.columns, schema=plain)
 
 
-def verified_hash(table) -> str | None:
-    """The content hash a table :func:`read_part` returned was verified against (None for a legacy part):
-    what was audited is what a merge copies."""
+def audited_hash(table) -> str:
+    """The content hash of a table :func:`read_part` returned: the one its part's record holds, which the read
+    verified (a legacy part, which holds none, hashed here): what was audited is what a merge copies."""
     try:
         record = json.loads((table.schema.metadata or {}).get(PART_KEY, b"{}"))
     except (ValueError, RecursionError):
-        return None
-    return record.get("sha256") if isinstance(record, dict) else None
+        record = None
+    found = record.get("sha256") if isinstance(record, dict) else None
+    return found if isinstance(found, str) else content_hash(table)
 
 
 def part_record(path: pathlib.Path) -> dict[str, Any]:

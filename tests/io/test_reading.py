@@ -109,7 +109,7 @@ def test_merge_copies_what_the_audit_read_and_refuses_a_sound_part_swapped_in_af
 
     from jaxapf.sweep import merge as merging
     from jaxapf.sweep import parse_spec, run_sweep
-    from jaxapf.sweep.output import part_files, read_part, verified_hash
+    from jaxapf.sweep.output import audited_hash, part_files, read_part
 
     table = {"name": "m", "scenario": {"families": ["trap"], "fields": 4, "seed": 1},
              "sim": {"t_max": 1.0, "horizon": 3, "iters": 3}}
@@ -131,7 +131,7 @@ def test_merge_copies_what_the_audit_read_and_refuses_a_sound_part_swapped_in_af
     with pytest.raises(ConfigError, match=r"did not read back \(another part's content.*1 part\(s\) were copied"):
         merging.merge_outputs([src], tmp_path / "out")
     first = part_files(tmp_path / "out")
-    assert len(first) == 1 and verified_hash(read_part(first[0])) == hashes[first[0].name]
+    assert len(first) == 1 and audited_hash(read_part(first[0])) == hashes[first[0].name]
 
 
 def test_tune_and_compare_records_planted_as_fifos_are_refused_or_ignored_at_once(tmp_path, repo_root):
