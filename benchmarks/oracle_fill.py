@@ -46,22 +46,11 @@ def _geometry(f, r_uav: float, v_max: float, t_max: float, r_goal: float, h: flo
         return None
     assert np.all(statics), "a static family"
     keep, r2 = s._static_discs(f, r_uav, h, margin)
-    travel = v_max * t_max
-    along = f.goal[:2] - f.start[:2]
-    length = float(np.hypot(*along))
-    u = along / length if length > 0 else np.array([1.0, 0.0])
-    rot = np.array([[u[0], u[1]], [-u[1], u[0]]])
-    centres, r2 = (f.position[keep, :2] - f.start[:2]) @ rot.T, r2[keep]
-    goal, reach = np.array([length, 0.0]), np.sqrt(r2)
-    lo = np.min([np.zeros(2), goal, *(centres - reach[:, None])], 0)
-    hi = np.max([np.zeros(2), goal, *(centres + reach[:, None])], 0)
-    budget = travel + r_goal + h
-    axis = math.sqrt(2.0) * budget
-    lo = np.maximum(lo, [0.5 * (length - axis), -0.5 * math.sqrt(max(axis * axis - length * length, 0.0))])
-    hi = np.minimum(hi, [0.5 * (length + axis), 0.5 * math.sqrt(max(axis * axis - length * length, 0.0))])
-    grid = s._Grid(lo, np.maximum(hi, lo), h)
-    return dict(origin=grid.origin, shape=(grid.ny, grid.nx), start=grid.cell(np.zeros(2)), centres=centres, r2=r2,
-                goal=goal, u=u, s=f.start[:2], g=f.goal[:2], budget=budget, goal_r=r_goal + h / math.sqrt(2))
+    frame = s._static_frame(f, keep, r2, r_goal, h, v_max * t_max)
+    grid = frame.grid
+    return dict(origin=grid.origin, shape=(grid.ny, grid.nx), start=grid.cell(np.zeros(2)), centres=frame.centres,
+                r2=frame.r2, goal=frame.goal, u=frame.u, s=f.start[:2], g=f.goal[:2], budget=frame.budget,
+                goal_r=r_goal + h / math.sqrt(2))
 
 
 def _pack(geoms: list[dict], slots: int, h: float) -> dict:

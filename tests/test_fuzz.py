@@ -15,20 +15,25 @@ import os
 import pathlib
 import random
 import shutil
+import sys
 import tomllib
 
 import pyarrow.parquet as pq
 import pytest
 from cli_capture import capture
+from conftest import ROOT
 
 from jaxapf.cli import main
 from jaxapf.compare.spec import parse_compare_spec
 from jaxapf.report.load import ReportError, load_sweep
 from jaxapf.sweep import parse_spec, run_sweep
 from jaxapf.sweep.meta import META_KEY
-from jaxapf.sweep.output import PART_KEY, content_hash, part_files
+from jaxapf.sweep.output import part_files
 from jaxapf.tune.spec import parse_tune_spec
 from jaxapf.validation import ConfigError
+
+sys.path.insert(0, str(ROOT / "benchmarks"))
+import faults  # noqa: E402  (the benchmark's forgery of a part's metadata)
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SPECS = sorted((ROOT / "sweeps").glob("*.toml"))
@@ -105,16 +110,10 @@ def dataset(tmp_path_factory):
 
 
 def _craft(out: pathlib.Path, change) -> None:
-    """Every part's ``jaxapf`` metadata changed by ``change(meta)``, the content hash recomputed."""
+    """Every part's ``jaxapf`` metadata changed by ``change(meta)``, the content hash recomputed (as the faults
+    benchmark forges it)."""
     for part in part_files(out):
-        table = pq.read_table(part)
-        metadata = dict(table.schema.metadata)
-        meta = json.loads(metadata[META_KEY])
-        change(meta)
-        metadata[META_KEY] = json.dumps(meta).encode()
-        plain = table.replace_schema_metadata({k: v for k, v in metadata.items() if k != PART_KEY})
-        metadata[PART_KEY] = json.dumps({"sha256": content_hash(plain), "rows": table.num_rows}).encode()
-        pq.write_table(table.replace_schema_metadata(metadata), part, write_page_checksum=True)
+        faults._reseal(part, change)
 
 
 def test_crafted_part_metadata_leaves_verify_and_the_report_agreeing(dataset, tmp_path):

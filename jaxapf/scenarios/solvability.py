@@ -181,12 +181,24 @@ def _chebyshev_sum(p: np.ndarray, start: np.ndarray, goal: np.ndarray) -> np.nda
     return np.abs(p - start).max(-1) + np.abs(p - goal).max(-1)
 
 
-def _connected(f: _Field, keep: np.ndarray, r2: np.ndarray, r_goal: float, h: float, travel: float,
-               certify: bool = True) -> bool:
-    """Whether start and goal cells share an 8-connected component of free cells (static fields),
-    on a grid of ``h`` in the frame of the start–goal line (rotations do not change connectivity),
-    within the region a UAV that flies at most ``travel`` [m] per axis could visit
-    (docs/scenarios.md)."""
+@dataclasses.dataclass(frozen=True)
+class _Frame:
+    """The static test's grid in the frame of the start–goal line (x along it from the start, y to its left):
+    the discs it rasterises (``centres`` (m, 2), ``r2`` (m,)), the goal (2,), the line's direction ``u``
+    (world), the region's ``budget`` and whether its box left every disc uncut (:func:`_static_frame`)."""
+
+    grid: _Grid
+    centres: np.ndarray
+    r2: np.ndarray
+    goal: np.ndarray
+    u: np.ndarray
+    budget: float
+    uncut: bool
+
+
+def _static_frame(f: _Field, keep: np.ndarray, r2: np.ndarray, r_goal: float, h: float, travel: float) -> _Frame:
+    """The grid of :func:`_connected`: the box holding start, goal and the ``keep`` discs, cut to the ellipse
+    that holds the region a UAV flying at most ``travel`` [m] per axis could visit (docs/scenarios.md)."""
     along = f.goal[:2] - f.start[:2]
     length = float(np.hypot(*along))
     u = along / length if length > 0 else np.array([1.0, 0.0])
@@ -201,8 +213,17 @@ def _connected(f: _Field, keep: np.ndarray, r2: np.ndarray, r_goal: float, h: fl
     cut_lo = np.maximum(lo, [0.5 * (length - axis), -0.5 * math.sqrt(max(axis * axis - length * length, 0.0))])
     cut_hi = np.minimum(hi, [0.5 * (length + axis), 0.5 * math.sqrt(max(axis * axis - length * length, 0.0))])
     uncut = bool(np.all(cut_lo == lo) and np.all(cut_hi == hi))  # every disc inside the box: the ring is free
-    lo, hi = cut_lo, cut_hi
-    grid = _Grid(lo, np.maximum(hi, lo), h)
+    return _Frame(_Grid(cut_lo, np.maximum(cut_hi, cut_lo), h), centres, r2, goal, u, budget, uncut)
+
+
+def _connected(f: _Field, keep: np.ndarray, r2: np.ndarray, r_goal: float, h: float, travel: float,
+               certify: bool = True) -> bool:
+    """Whether start and goal cells share an 8-connected component of free cells (static fields),
+    on a grid of ``h`` in the frame of the start–goal line (rotations do not change connectivity),
+    within the region a UAV that flies at most ``travel`` [m] per axis could visit
+    (docs/scenarios.md)."""
+    frame = _static_frame(f, keep, r2, r_goal, h, travel)
+    grid, centres, r2, goal, u, budget = frame.grid, frame.centres, frame.r2, frame.goal, frame.u, frame.budget
     to_world = lambda x, y: f.start[:2] + x[..., None] * u + y[..., None] * np.array([-u[1], u[0]])  # noqa: E731
     corners = to_world(np.array([grid.x[0], grid.x[-1], grid.x[0], grid.x[-1]]),
                        np.array([grid.y[0], grid.y[0], grid.y[-1], grid.y[-1]]))
@@ -211,7 +232,7 @@ def _connected(f: _Field, keep: np.ndarray, r2: np.ndarray, r_goal: float, h: fl
     start = grid.cell(np.zeros(2))
     inside = (lambda x, y: _chebyshev_sum(to_world(x, y), f.start[:2], f.goal[:2]) <= budget * (1.0 - 1e-12)
               ) if clipped else None
-    if certify and _coarsely_connected(grid, centres, r2, start, window, near, inside, uncut and not clipped):
+    if certify and _coarsely_connected(grid, centres, r2, start, window, near, inside, frame.uncut and not clipped):
         return True
     blocked = np.zeros(grid.shape, bool)
     grid.paint(blocked, centres, r2)
