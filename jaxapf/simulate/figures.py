@@ -230,8 +230,18 @@ def _collision_index(run: Run) -> int | None:
     return None
 
 
+def _nonfinite_index(run: Run) -> int | None:
+    """The first sample whose position is not finite (the ``invalid`` outcome), or None."""
+    bad = np.flatnonzero(~np.all(np.isfinite(run.position), axis=1))
+    return int(bad[0]) if bad.size else None
+
+
 def outcome(run: Run, field: Field) -> str:
-    """A short outcome text: ``"reached in 42.1 s"``, ``"collision at 12.3 s"``, ``"stalled, 3.2 m from goal"``."""
+    """A short outcome text: ``"reached in 42.1 s"``, ``"collision at 12.3 s"``, ``"stalled, 3.2 m from goal"``,
+    ``"non-finite (invalid) at 13.3 s"``."""
+    bad = _nonfinite_index(run)
+    if bad is not None and (_flag(run.metrics, "invalid") or _collision_index(run) is None):
+        return f"non-finite (invalid) at {run.time[bad]:.1f} s"
     t_goal = _time_to_goal(run, field)
     final = run.metrics.get("final_distance")
     final = float(final) if final is not None and math.isfinite(float(final)) else float(run.goal_distance[-1])
@@ -471,9 +481,13 @@ def plot_trajectories(runs: Sequence[Run], field: Field, title: str | None = Non
 
 
 def _failure_index(run: Run) -> int:
-    """The sample a failure is seen at: the first collision, else the last sample (a stall or a timeout)."""
+    """The sample a failure is seen at: the first collision, else the last finite sample (a stall, a timeout,
+    or the last before the state turned non-finite)."""
     hit = _collision_index(run)
-    return len(run.time) - 1 if hit is None else hit
+    bad = _nonfinite_index(run)
+    if hit is not None and (bad is None or hit < bad):
+        return hit
+    return len(run.time) - 1 if bad is None else max(bad - 1, 0)
 
 
 def failure_cause(run: Run, field: Field) -> str:

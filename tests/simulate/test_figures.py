@@ -295,3 +295,12 @@ def test_failure_cause_states_the_outcome_the_nearest_obstacle_and_a_bad_start()
     assert why == "collision at 3.0 s after flying 3.00 m; obstacle 1 nearest there (-0.30 m from its surface)"
     fig = plot_failure(make_run("basic", field, path, collision=True), field, "title")
     assert [ax.get_ylabel() for ax in fig.axes] == ["y [m]", "clearance [m]"]
+    # a state that turned non-finite (the invalid outcome): seen at its last finite sample, drawn, no error
+    # (before: numpy's "All-NaN slice encountered" ended the report)
+    path = np.stack([np.full(9, 12.0), np.linspace(-3.0, -1.0, 9), np.full(9, 5.0)], axis=1)
+    path[6:] = np.nan
+    run = make_run("nan", field, path, invalid=True, final_distance=float("nan"))
+    assert failure_cause(run, field) == ("non-finite (invalid) at 3.0 s after flying 1.25 m; obstacle 1 nearest "
+                                         "there (1.45 m from its surface)")
+    fig = plot_failure(run, field, "title")
+    assert [ax.get_ylabel() for ax in fig.axes] == ["y [m]", "clearance [m]"]
