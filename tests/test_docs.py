@@ -48,6 +48,11 @@ CHECK = textwrap.dedent("""
     ''')
     assert main(["sweep", str(root / "spec.toml"), "--out", str(root / "out.parquet"), "--quiet", "--no-cache"]) == 0
     rows = pd.concat([pd.read_parquet(p) for p in sorted((root / "out.parquet").glob("part-*.parquet"))])
+    # "Using them": the report of a dataset whose components come from a plugin, the plugin named (its gallery
+    # re-simulates episodes with them)
+    reported = main(["--plugin", plugin, "report", str(root / "out.parquet"), "--out", str(root / "report"),
+                     "--baseline", "method=closing", "--gallery", "1", "--resamples", "200"])
+    page = (root / "report" / "report.md").read_text()
     lag = rows.groupby("tau")["mean_speed"].mean()
     # a weight is also called with no goal (sight.goal None): its reference value, the functional API
     import jaxapf
@@ -64,6 +69,7 @@ CHECK = textwrap.dedent("""
         "listing": listing.getvalue(), "rows": len(rows), "columns": list(rows.columns),
         "finite": bool(rows[["mean_speed", "final_distance"]].notna().all().all()),
         "methods": sorted(set(rows["method"])), "lag_matters": bool(lag.loc[0.05] != lag.loc[0.2]),
+        "report": [reported, "could not re-simulate" in page, "## " in page],
     }))
 """)
 
@@ -91,6 +97,8 @@ def test_extending_examples_run_as_documented(tmp_path, repo_root):
                    "downdraft", "mean_speed"):
         assert column in out["columns"], column
     assert out["lag_matters"]  # the plant's traced time constant reaches the episodes
+    reported, failed, written = out["report"]
+    assert reported == 0 and written and not failed
 
 
 def test_spec_examples_in_the_docs_parse(repo_root):
