@@ -40,7 +40,7 @@ CHECK = textwrap.dedent("""
     horizon = 3
     iters = 3
     [grid]
-    method = ["closing", "closing_damped", "smoothed_dv", "closing_goal_normalised"]
+    method = ["closing", "closing_damped", "smoothed_dv", "closing_goal_normalised", "ttc"]
     tau = [0.05, 0.2]
     [gains]
     flicker = 0.3
@@ -87,9 +87,9 @@ def test_extending_examples_run_as_documented(tmp_path, repo_root):
     assert proc.returncode == 0, proc.stderr[-3000:]
     out = json.loads(next(line for line in proc.stdout.splitlines() if line.startswith("RESULT "))[7:])
     assert {"closing", "closing_damped", "smoothed_dv", "closing_goal", "closing_goal_normalised", "flicker",
-            "downdraft", "downdraft_forecast"} <= set(out["listing"].split())
-    assert out["rows"] == 4 * 2 * 4 and out["finite"]
-    assert out["methods"] == ["closing", "closing_damped", "closing_goal_normalised", "smoothed_dv"]
+            "downdraft", "downdraft_forecast", "ttc"} <= set(out["listing"].split())
+    assert out["rows"] == 5 * 2 * 4 and out["finite"]
+    assert out["methods"] == ["closing", "closing_damped", "closing_goal_normalised", "smoothed_dv", "ttc"]
     # sight.goal None: the weight is the closing one (> 1: the obstacle closes in); at the goal it fades to 1
     assert out["no_goal"][0] > 1.0 and out["at_goal"] == 1.0 and out["reference"] == 1.0
     assert out["no_goal"][1] == out["no_goal"][0]  # normalised by its reference value 1
