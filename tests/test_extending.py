@@ -137,11 +137,12 @@ CALLS = textwrap.dedent("""
     from jaxapf.cli import main
 
     root, plugin = pathlib.Path(sys.argv[1]), sys.argv[2]
-    for method in ("wide", "misspelled", "short", "not_a_number"):
+    for method in ("wide", "misspelled", "short", "not_a_number", "flat"):
         spec = root / f"{method}.toml"
         t_max = 20.0 if method == "not_a_number" else 0.5  # long enough to come within d_s of an obstacle
+        stack = 'method = "basic"\\nfilter = "flat"' if method == "flat" else f'method = "{method}"'
         spec.write_text(f'name = "m"\\nplugins = ["{plugin}"]\\n[scenario]\\nfamilies = ["trap"]\\nfields = 2\\n'
-                        f'[sim]\\nt_max = {t_max}\\nhorizon = 3\\niters = 2\\nmethod = "{method}"\\n')
+                        f'[sim]\\nt_max = {t_max}\\nhorizon = 3\\niters = 2\\n{stack}\\n')
         err = io.StringIO()
         with contextlib.redirect_stderr(err):
             code = main(["sweep", str(spec), "--out", str(root / method), "--quiet"])
@@ -163,6 +164,7 @@ def test_a_plugins_wrong_shapes_misspelled_gains_and_nan_are_one_line_each(tmp_p
     for method, words in (("wide", "the weight ω of 'Wide' returned shape (3, "),
                           ("misspelled", "no gain 'k_cc' here (misspelled"),
                           ("short", "planner 'short' returned shape (3, 6) where the closed loop reads its reference"),
-                          ("not_a_number", "(method = 'not_a_number') flew field 0 of trap into a non-finite state")):
+                          ("not_a_number", "(method = 'not_a_number') flew field 0 of trap into a non-finite state"),
+                          ("flat", "safety filter 'flat' returned shape (2,) where the closed loop reads the")):
         code, err = said[method]
         assert code == "2" and err.count("\\n") == 1 and words in err and "Traceback" not in err, (method, err)

@@ -1,6 +1,6 @@
 """Plugin components with the mistakes a newcomer makes (tests/test_extending.py): a weight ω of the wrong
-shape, a weight reading a gain nobody declared, a planner whose reference has the wrong shape, a weight that is
-not a number near an obstacle."""
+shape, a weight reading a gain nobody declared, a planner whose reference has the wrong shape, a filter that
+lets a horizontal acceleration through in place of the whole, a weight that is not a number near an obstacle."""
 
 import dataclasses
 from typing import ClassVar
@@ -61,7 +61,16 @@ class Short(jaxapf.Planner):
         return x_ref[:-1], state
 
 
+@dataclasses.dataclass(frozen=True)
+class Flat(jaxapf.SafetyFilter):
+    """Returns the horizontal acceleration, (2,), where the loop reads (3,)."""
+
+    def __call__(self, state, accel, x, t, obstacles, gains, sim):
+        return accel[:2], state, {}
+
+
 jaxapf.register_planner("wide", jaxapf.APF(Wide()))
+jaxapf.register_filter("flat", Flat())
 jaxapf.register_planner("misspelled", jaxapf.APF(Misspelled()))
 jaxapf.register_planner("short", Short(jaxapf.PLANNERS["basic"]))
 jaxapf.register_planner("not_a_number", jaxapf.APF(NotANumber()))
