@@ -595,15 +595,7 @@ def metadata_edits(n: int, tmp: pathlib.Path, ref_out: pathlib.Path, ref: pd.Dat
 
     from jaxapf.sweep import read_sweep
     from jaxapf.sweep.meta import META_KEY
-    from jaxapf.sweep.output import PART_KEY, content_hash
     from jaxapf.validation import ConfigError
-
-    def rewrite(path, table, rehash=True):
-        meta = dict(table.schema.metadata or {})
-        if rehash:
-            plain = table.replace_schema_metadata({k: v for k, v in meta.items() if k != PART_KEY})
-            meta[PART_KEY] = _json.dumps({"sha256": content_hash(plain), "rows": table.num_rows}).encode()
-        pq.write_table(table.replace_schema_metadata(meta), path, write_page_checksum=True)
 
     edits = ("pandas swap", "retype", "add column", "drop column", "meta key removed", "meta key retyped", "stray")
     totals = {"trials": n, "unchecked": 0, "disagree": 0, "refused": 0, "read": 0, "tracebacks": 0,
@@ -623,16 +615,16 @@ def metadata_edits(n: int, tmp: pathlib.Path, ref_out: pathlib.Path, ref: pd.Dat
             for col in pandas["columns"]:
                 col["name"] = {"min_clearance": "path_length", "path_length": "min_clearance"}.get(col["name"],
                                                                                                   col["name"])
-            rewrite(part, table.replace_schema_metadata({**table.schema.metadata,
+            _rewrite(part, table.replace_schema_metadata({**table.schema.metadata,
                                                          b"pandas": _json.dumps(pandas).encode()}), rehash=False)
         elif edit == "retype":
             target = pa.string() if table.schema.field(metric).type == pa.bool_() else pa.float64()
-            rewrite(part, table.set_column(names.index(metric), pa.field(metric, target),
+            _rewrite(part, table.set_column(names.index(metric), pa.field(metric, target),
                                            table.column(metric).cast(target)))
         elif edit == "add column":
-            rewrite(part, table.append_column("bonus", pa.array(np.ones(table.num_rows))))
+            _rewrite(part, table.append_column("bonus", pa.array(np.ones(table.num_rows))))
         elif edit == "drop column":
-            rewrite(part, table.drop_columns([metric]))
+            _rewrite(part, table.drop_columns([metric]))
         elif edit.startswith("meta key"):
             meta = _json.loads(table.schema.metadata[META_KEY])
             key = list(meta)[int(rng.integers(len(meta)))]
@@ -640,7 +632,7 @@ def metadata_edits(n: int, tmp: pathlib.Path, ref_out: pathlib.Path, ref: pd.Dat
                 meta.pop(key)
             else:
                 meta[key] = [[], "x", 5, None, {"a": 1}][int(rng.integers(5))]
-            rewrite(part, table.replace_schema_metadata({**table.schema.metadata,
+            _rewrite(part, table.replace_schema_metadata({**table.schema.metadata,
                                                          META_KEY: _json.dumps(meta).encode()}))
         else:
             changed = table.set_column(names.index("min_clearance"), "min_clearance",
@@ -808,24 +800,35 @@ def swapped_under(n: int, tmp: pathlib.Path, ref_out: pathlib.Path, ref: pd.Data
     return totals
 
 
+def _rewrite(path: pathlib.Path, table, rehash: bool = True) -> None:
+    """Write ``table`` over the part ``path``, its content hash recomputed as an editor with jaxapf's own code
+    would (``rehash``), or the old record kept."""
+    import json as _json
+
+    import pyarrow.parquet as pq
+
+    from jaxapf.sweep.output import PART_KEY, content_hash
+
+    meta = dict(table.schema.metadata or {})
+    if rehash:
+        plain = table.replace_schema_metadata({k: v for k, v in meta.items() if k != PART_KEY})
+        meta[PART_KEY] = _json.dumps({"sha256": content_hash(plain), "rows": table.num_rows}).encode()
+    pq.write_table(table.replace_schema_metadata(meta), path, write_page_checksum=True)
+
+
 def _reseal(part: pathlib.Path, edit) -> None:
     """``part``'s jaxapf metadata passed through ``edit`` (a function of the dict, in place), the part's
-    content hash recomputed, as someone who knows the format would forge it."""
+    content hash recomputed (:func:`_rewrite`), as someone who knows the format would forge it."""
     import json as _json
 
     import pyarrow.parquet as pq
 
     from jaxapf.sweep.meta import META_KEY
-    from jaxapf.sweep.output import PART_KEY, content_hash
 
     table = pq.read_table(part)
-    meta = dict(table.schema.metadata)
-    stored = _json.loads(meta[META_KEY])
+    stored = _json.loads(table.schema.metadata[META_KEY])
     edit(stored)
-    meta[META_KEY] = _json.dumps(stored).encode()
-    plain = table.replace_schema_metadata({k: v for k, v in meta.items() if k != PART_KEY})
-    meta[PART_KEY] = _json.dumps({"sha256": content_hash(plain), "rows": table.num_rows}).encode()
-    pq.write_table(table.replace_schema_metadata(meta), part, write_page_checksum=True)
+    _rewrite(part, table.replace_schema_metadata({**table.schema.metadata, META_KEY: _json.dumps(stored).encode()}))
 
 
 def _spec_forgeries() -> dict[str, Any]:

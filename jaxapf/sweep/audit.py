@@ -40,6 +40,8 @@ from .spec import SweepSpec
 __all__ = ["Audit", "audit_output", "audit_folder", "read_parts", "reference_meta", "judge", "describe_audit",
            "SET_ASIDE", "resume", "prepare_output", "check_folder", "clear_temporaries", "repair_parts", "not_parts"]
 
+#: What a part whose stored spec fails :func:`~jaxapf.sweep.meta.stored_spec_bound` is said to be.
+_EDITED_SPEC = "its stored spec is not the one its spec_hash names (edited after it was written)"
 #: Where ``--repair`` moves foreign parts (hidden: Parquet readers skip it).
 SET_ASIDE = ".set-aside"
 
@@ -153,8 +155,8 @@ def reference_meta(out: pathlib.Path, metas: Mapping[str, dict], bound: bool = T
         counts[key] = counts.get(key, 0) + 1
     if not counts and metas:
         first = sorted(metas)[0]
-        raise ConfigError(f"{out / first}{f' and {len(metas) - 1} other part(s)' if len(metas) > 1 else ''}: its "
-                          "stored spec is not the one its spec_hash names (edited after it was written)")
+        raise ConfigError(f"{out / first}{f' and {len(metas) - 1} other part(s)' if len(metas) > 1 else ''}: "
+                          f"{_EDITED_SPEC}")
     if not counts:
         raise ConfigError(f"{out} is not the output of jaxapf sweep: no readable part file")
     reference = max(counts, key=counts.get)
@@ -175,7 +177,7 @@ def judge(tables: Mapping[str, Any], metas: Mapping[str, dict], damaged: Mapping
         chunk = Chunk.from_name(name)
         other = identity(metas[name])
         if not stored_spec_bound(metas[name]):
-            foreign[name] = "its stored spec is not the one its spec_hash names (edited after it was written)"
+            foreign[name] = _EDITED_SPEC
         elif other != want:
             differ = ", ".join(k for k in want if other[k] != want[k])
             foreign[name] = f"of another sweep ({differ} {'differs' if ',' not in differ else 'differ'})"

@@ -20,7 +20,7 @@ from typing import Sequence
 from ..io.lock import OutputLock, check_writable, write_atomic
 from ..validation import ConfigError
 from .audit import Audit, audit_folder, check_folder, clear_temporaries
-from .meta import identity, open_part, read_meta
+from .meta import identity, open_part
 from .output import audited_hash, read_part
 from .plan import Chunk
 
@@ -62,8 +62,8 @@ def _copy(src: pathlib.Path, fh, copied: int) -> None:
                               f"{copied} part(s) were copied before it")
 
 
-def _audited_sources(sources: list[pathlib.Path], out: pathlib.Path) -> tuple[list[Audit], list[dict], dict]:
-    """Each source's audit and metadata, and their common identity: :class:`ConfigError` for a source that
+def _audited_sources(sources: list[pathlib.Path], out: pathlib.Path) -> tuple[list[Audit], list[dict]]:
+    """Each source's audit and metadata, all of one sweep and version: :class:`ConfigError` for a source that
     is no folder, holds ``out``, has a part that cannot be trusted, or is of another sweep or version."""
     if not sources:
         raise ConfigError("sweep merge: name at least one folder to merge")
@@ -78,9 +78,9 @@ def _audited_sources(sources: list[pathlib.Path], out: pathlib.Path) -> tuple[li
     for s in sources:
         found, meta = audit_folder(s)
         if found.problems:
-            first = sorted(found.problems)[0]
+            name = sorted(found.problems)[0]
             raise ConfigError(f"sweep merge: {s} has {len(found.problems)} part(s) that cannot be trusted (e.g. "
-                              f"{first}: {found.problems[first]}; `jaxapf sweep verify {s}` lists them); "
+                              f"{name}: {found.problems[name]}; `jaxapf sweep verify {s}` lists them); "
                               "nothing merged")
         audits.append(found)
         metas.append(meta)
@@ -91,7 +91,7 @@ def _audited_sources(sources: list[pathlib.Path], out: pathlib.Path) -> tuple[li
             differ = ", ".join(k for k in first if other[k] != first[k])
             raise ConfigError(f"sweep merge: {s} is of another sweep or version than {sources[0]} ({differ} differ); "
                               "nothing merged")
-    return audits, metas, first
+    return audits, metas
 
 
 def merge_outputs(sources: Sequence[str | pathlib.Path], out: str | pathlib.Path) -> MergeResult:
@@ -100,22 +100,17 @@ def merge_outputs(sources: Sequence[str | pathlib.Path], out: str | pathlib.Path
     or parts that conflict."""
     out = pathlib.Path(out)
     sources = [pathlib.Path(s) for s in sources]
-    audits, metas, first = _audited_sources(sources, out)
+    audits, metas = _audited_sources(sources, out)
     if out.is_dir():
         check_folder(out)  # a folder of other files is not a dataset to merge into
     check_writable(out)
     with OutputLock(out):
         clear_temporaries(out)  # the lock is ours: a temporary part is a dead merge's
         here = audit_folder(out, metas[0])[0] if any(Chunk.from_name(p.name) for p in out.iterdir()) else None
-        if here is not None and here.sound:
-            version = read_meta(out / here.sound[0].name).get("versions", {}).get("jaxapf")
-            if version != first["jaxapf"]:
-                raise ConfigError(f"sweep merge: {out} was written by jaxapf {version}, the folders by "
-                                  f"{first['jaxapf']}; nothing merged")
-        if here is not None and here.problems:
-            first = sorted(here.problems)[0]
+        if here is not None and here.problems:  # another jaxapf version's parts among them: identity holds it
+            name = sorted(here.problems)[0]
             raise ConfigError(f"sweep merge: {out} has {len(here.problems)} part(s) that cannot be trusted or of "
-                              f"another sweep (e.g. {first}: {here.problems[first]}; `jaxapf sweep verify {out}` lists "
+                              f"another sweep (e.g. {name}: {here.problems[name]}; `jaxapf sweep verify {out}` lists "
                               "them); nothing merged")
         # every part by name, once; a name with two contents, or two names over the same fields, conflict. Each
         # content hash is the one its audit verified on the bytes it read, and the copy must have it too

@@ -176,10 +176,11 @@ def _refuse_invalid(plan: Plan, chunk: Chunk, metrics: dict[str, np.ndarray], ke
     invalid = np.asarray(metrics.get("invalid", np.zeros(0, bool)), bool)
     if not invalid.any():
         return
+    from ..engine.components import COMPONENTS
+
     i, j = (int(k) for k in np.argwhere(invalid)[0])
     setting = plan.variants[chunk.variant].settings[i]
-    stack = ", ".join(f"{k} = {v!r}" for k, v in setting.static if k in ("method", "filter", "plant", "sensor",
-                                                                        "disturbance", "estimator")) or "the defaults"
+    stack = ", ".join(f"{k} = {v!r}" for k, v in setting.static if k in COMPONENTS) or "the defaults"
     raise ConfigError(f"setting {setting.index} ({stack}) flew field {chunk.start + j} of {chunk.family} into a "
                       f"non-finite state (NaN or inf): a component's output is not a number there ({int(invalid.sum())}"
                       f" of {invalid.size} episodes of its first chunk); {kept()}")

@@ -10,17 +10,22 @@ from __future__ import annotations
 
 import json
 import shutil
+import sys
 
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 from cli_capture import capture
+from conftest import ROOT
 
 from jaxapf.cli import main
 from jaxapf.report.load import ReportError, load_sweep
 from jaxapf.sweep import parse_spec, read_sweep, run_sweep
-from jaxapf.sweep.output import PART_KEY, content_hash, part_files
+from jaxapf.sweep.output import part_files
 from jaxapf.validation import ConfigError
+
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from faults import _reseal, _rewrite  # noqa: E402  (a part's content forged as the faults benchmark forges it)
 
 SPEC = {"name": "crafted", "scenario": {"families": ["trap", "crossing"], "fields": 4, "seed": 5},
         "sim": {"t_max": 1.5, "horizon": 3, "iters": 3}, "grid": {"k_rep": [5.0, 10.0]}}
@@ -31,16 +36,6 @@ def dataset(tmp_path_factory):
     out = tmp_path_factory.mktemp("crafted") / "ds"
     run_sweep(parse_spec(SPEC), out, chunk_fields=2, quiet=True)
     return out, read_sweep(out)[0]
-
-
-def _rewrite(path, table, rehash: bool = True) -> None:
-    """Write ``table`` over the part ``path``, its content hash recomputed as an editor with jaxapf's own
-    code would (``rehash``), or the old record kept."""
-    meta = dict(table.schema.metadata or {})
-    if rehash:
-        plain = table.replace_schema_metadata({k: v for k, v in meta.items() if k != PART_KEY})
-        meta[PART_KEY] = json.dumps({"sha256": content_hash(plain), "rows": table.num_rows}).encode()
-    pq.write_table(table.replace_schema_metadata(meta), path, write_page_checksum=True)
 
 
 def _crafted(dataset, tmp_path):
@@ -113,14 +108,6 @@ def test_a_stray_parquet_file_never_switches_the_audit_off(dataset, tmp_path):
     assert rows.equals(dataset[1]) and read_sweep(out)[1]["stray"] == ["NOTES.txt", "zz-notes.parquet"]
 
 
-def _remeta(part, change) -> None:
-    """Rewrite the part's ``jaxapf`` metadata with ``change(meta)``, its content hash re-sealed."""
-    table = pq.read_table(part)
-    meta = json.loads(table.schema.metadata[b"jaxapf"])
-    change(meta)
-    _rewrite(part, table.replace_schema_metadata({**table.schema.metadata, b"jaxapf": json.dumps(meta).encode()}))
-
-
 def test_every_parts_stored_spec_rewritten_with_its_hash_kept_is_refused_everywhere(dataset, tmp_path):
     """The break-in: every part's stored grid rewritten (a gain's values swapped), ``spec_hash`` kept, content
     hashes re-sealed: verify called it complete and sound, resume accepted it, the report re-simulated under
@@ -131,7 +118,7 @@ def test_every_parts_stored_spec_rewritten_with_its_hash_kept_is_refused_everywh
         meta["spec"]["grid"] = [["k_rep", [10.0, 5.0]]]
 
     for part in part_files(out):
-        _remeta(part, swap)
+        _reseal(part, swap)
     rc, text, rows = _verdicts(out)
     assert rc != 0 and "complete and sound" not in text and isinstance(rows, str), text
     assert "spec_hash" in text or "spec_hash" in rows
@@ -152,7 +139,7 @@ def test_half_a_folders_parts_of_another_jaxapf_version_are_not_one_sweep(datase
         meta["versions"]["jaxapf"] = "0.0.1"
 
     for part in parts[: len(parts) // 2]:
-        _remeta(part, older)
+        _reseal(part, older)
     rc, text, rows = _verdicts(out)
     assert rc == 1 and "jaxapf differs" in text and isinstance(rows, str) and "version" in rows, (text, rows)
     with pytest.raises(ConfigError, match="cannot be trusted"):
@@ -160,7 +147,7 @@ def test_half_a_folders_parts_of_another_jaxapf_version_are_not_one_sweep(datase
     rc, _, err = capture(main, ["sweep", "merge", str(out), "--out", str(tmp_path / "m")])
     assert rc == 2 and "Traceback" not in err and err.count("\n") == 1, err
     for part in parts[len(parts) // 2:]:  # all of another version: resume says what to do
-        _remeta(part, older)
+        _reseal(part, older)
     with pytest.raises(ConfigError, match=r"holds a different sweep \(jaxapf 0\.0\.1 here, .* now\); rerun with "
                                           r"--overwrite"):
         run_sweep(parse_spec(SPEC), out, chunk_fields=2, quiet=True)
