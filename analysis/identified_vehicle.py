@@ -161,15 +161,14 @@ def comparisons(success: np.ndarray, spec) -> pd.DataFrame:
                 now = success[i, j, k].astype(bool)
                 if j != b:
                     rows.append({"plant": plant, "method": method, "seed": seed, "against": "basic"}
-                                | study.paired_success(now, success[i, b, k].astype(bool), MARGIN))
+                                | study.paired_success(now, success[i, b, k].astype(bool)))
                 if i:
                     rows.append({"plant": plant, "method": method, "seed": seed, "against": BASE}
-                                | study.paired_success(now, success[0, j, k].astype(bool), MARGIN))
+                                | study.paired_success(now, success[0, j, k].astype(bool)))
                 if plant in RUNGS:  # the ladder's step itself, where its lower rung is not the double integrator
                     rows.append({"plant": plant, "method": method, "seed": seed, "against": "rung"}
-                                | study.paired_success(now, success[plants.index(RUNGS[plant]), j, k].astype(bool),
-                                                       MARGIN))
-    return study.mark_verdicts(rows, MARGIN)
+                                | study.paired_success(now, success[plants.index(RUNGS[plant]), j, k].astype(bool)))
+    return study.mark_verdicts(rows, MARGIN, family=[r["against"] for r in rows])
 
 
 def verdict_changes(table: pd.DataFrame) -> dict:

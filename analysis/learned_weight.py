@@ -75,8 +75,7 @@ def paired_arms(arms: dict[str, pd.DataFrame], groups: list[str]) -> tuple[pd.Da
                               "success": frame["success"].mean(), "collision": frame["collision"].mean()})
                 if arm != first:
                     rows.append({"arm": arm, "seed": tag, "group": group, "n": len(a)}
-                                | study.paired_success(a["success"].to_numpy(bool), frame["success"].to_numpy(bool),
-                                                       MARGIN))
+                                | study.paired_success(a["success"].to_numpy(bool), frame["success"].to_numpy(bool)))
     return pd.DataFrame(rates), study.mark_verdicts(rows, MARGIN)
 
 

@@ -139,7 +139,7 @@ def summarise(df: pd.DataFrame) -> pd.DataFrame:
                 "infeasible_steps": int(g["cbf_infeasible_steps"].sum())}
         if arm != ARMS[0][0]:
             then = base.loc[(method, seed, family)].loc[g["field"]].to_numpy(bool)
-            row |= study.paired_success(g["success"].to_numpy(bool), then, MARGIN)
+            row |= study.paired_success(g["success"].to_numpy(bool), then)
         out.append(row)
     return study.mark_verdicts(out, MARGIN)
 

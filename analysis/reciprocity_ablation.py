@@ -75,10 +75,8 @@ def run(count: int, cache: pathlib.Path) -> pd.DataFrame:
 
 def summarise(df: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
     """``(rates, comparisons)``: per (method, arm, A, selection) each outcome's rate; every paired comparison
-    (reciprocal vs unilateral per arm; ideal vs MPC tracking per method and τ) with its verdict, Holm over
-    all of them at once."""
-    from jaxapf.stats import verdicts
-
+    (reciprocal vs unilateral per arm; ideal vs MPC tracking per method and τ) with its verdict
+    (:func:`swarm_study.verdicts`: Holm within each question's families)."""
     key = ["method", "arm", "agents", "seed"]
     rates = (df.groupby(key + ["tracking", "tau", "neighbours"], sort=False)
              [[m for m, _ in swarm.OUTCOMES] + ["min_agent_clearance", "truncated_steps", "field"]]
@@ -104,11 +102,7 @@ def summarise(df: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
                     compare("ideal tracking", method, here, arm("mpc", tau), agents, seed)
                 if seen != swarm.NEIGHBOURS:
                     compare("every UAV seen", method, here, arm(tracking, tau), agents, seed)
-    comparisons = pd.DataFrame(rows)
-    p_holm, p_eq_holm, marks = verdicts(comparisons["change_lo"], comparisons["change_hi"], comparisons["p"],
-                                        comparisons["p_equivalent"], comparisons["margin"],
-                                        comparisons["higher_is_better"])
-    comparisons["p_holm"], comparisons["p_equivalent_holm"], comparisons["verdict"] = p_holm, p_eq_holm, marks
+    comparisons = swarm.verdicts(pd.DataFrame(rows))
     return rates, comparisons
 
 

@@ -171,7 +171,7 @@ def summarise(df: pd.DataFrame, resamples: int) -> pd.DataFrame:
     """Per (method, seed, axis, level): rates with Wilson intervals, mean clearance with a bootstrap
     interval, and the paired change in success against the same selection in the ideal world with
     the study's verdict (:func:`jaxapf.stats.verdicts` over every such comparison at once)."""
-    from jaxapf.stats import bootstrap_ci, verdicts
+    from jaxapf.stats import bootstrap_ci
 
     ideal = df[df["axis"] == "ideal"].set_index(["method", "seed", "field"])
     out = []
@@ -185,18 +185,11 @@ def summarise(df: pd.DataFrame, resamples: int) -> pd.DataFrame:
         row["unseen_steps"] = float(g["unseen_steps"].mean())
         row["final_distance"] = float(g["final_distance"].median())
         base = ideal.loc[(method, seed)].loc[g["field"]]["success"].to_numpy(bool)
-        row |= study.paired_success(g["success"].to_numpy(bool), base, MARGIN)
-        if axis == "ideal":  # its own baseline: no test
-            row |= {"p": np.nan, "p_equivalent": np.nan}
+        if axis != "ideal":  # the ideal world is its own baseline: no test
+            row |= study.paired_success(g["success"].to_numpy(bool), base)
         out.append(row)
-    summary = pd.DataFrame(out)
-    tested = summary["axis"] != "ideal"
-    part = summary[tested]
-    p_holm, p_eq_holm, verdict = verdicts(part["change_lo"], part["change_hi"], part["p"], part["p_equivalent"],
-                                          MARGIN, True)
-    summary.loc[tested, "p_holm"], summary.loc[tested, "p_equivalent_holm"] = p_holm, p_eq_holm
-    summary["verdict"] = "—"
-    summary.loc[tested, "verdict"] = verdict
+    summary = study.mark_verdicts(out, MARGIN)
+    summary["verdict"] = summary["verdict"].fillna("—")
     return summary
 
 

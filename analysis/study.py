@@ -292,15 +292,14 @@ def rates(episodes) -> dict[str, float]:
     return row
 
 
-def paired_success(now, then, margin: float) -> dict[str, float]:
-    """The change in success of ``now`` against ``then`` on the same fields (bool arrays, paired):
-    Newcombe's interval, the exact McNemar p and the TOST p within ``margin``, ready for
-    :func:`jaxapf.stats.verdicts`."""
-    from jaxapf.stats import paired_rate_row
+def paired_success(now, then) -> dict[str, float]:
+    """The change in success of ``now`` against ``then`` on the same fields (bool arrays, paired) and the counts
+    the verdict reads (``b``: pairs only ``now`` succeeds in, ``c``: only ``then``, ``n_pairs``), for
+    :func:`mark_verdicts`."""
+    from jaxapf.stats import RatePairs
 
-    r = paired_rate_row(now, then, margin)
-    return {"success_change": r.difference, "change_lo": r.lo, "change_hi": r.hi, "p": r.p,
-            "p_equivalent": r.p_equivalence}
+    r = RatePairs.of(now, then)
+    return {"success_change": r.estimate, "b": r.b, "c": r.c, "n_pairs": r.n}
 
 
 def unanimous(verdicts) -> str:
@@ -309,19 +308,27 @@ def unanimous(verdicts) -> str:
     return marks.pop() if len(marks) == 1 else "mixed"
 
 
-def mark_verdicts(rows: list[dict], margin: float):
-    """The rows (dicts, those with a paired comparison carrying :func:`paired_success`'s keys) as a
-    table with a ``verdict`` column: :func:`jaxapf.stats.verdicts` over every comparison at once (Holm),
-    success higher being better."""
+def mark_verdicts(rows, margin, family=None, higher_is_better=True):
+    """The rows (dicts or a table; those with a paired comparison carry :func:`paired_success`'s ``b``, ``c``,
+    ``n_pairs``) as a table with the verdict of :func:`jaxapf.stats.decide`: Holm within each ``family`` (one per
+    row, or one for the study), each row's interval ``change_lo``, ``change_hi`` at the level that decided it
+    (``confidence``), its tests ``p``, ``p_equivalent`` and their Holm-adjusted ``p_holm``,
+    ``p_equivalent_holm``. ``margin``, ``family`` and ``higher_is_better`` may be columns (sequences)."""
     import pandas as pd
 
-    from jaxapf.stats import verdicts
+    from jaxapf.stats import RatePairs, decide
 
-    table = pd.DataFrame(rows)
-    tested = table["p"].notna()
-    _, _, marks = verdicts(table.loc[tested, "change_lo"], table.loc[tested, "change_hi"], table.loc[tested, "p"],
-                           table.loc[tested, "p_equivalent"], margin, True)
-    table.loc[tested, "verdict"] = marks
+    table = pd.DataFrame(rows).reset_index(drop=True)
+    tested = table["b"].notna().to_numpy() if "b" in table.columns else np.zeros(len(table), bool)
+    pick = lambda v: np.broadcast_to(np.asarray(v, dtype=object), (len(table),))[tested]  # noqa: E731
+    part = table[tested]
+    found = [RatePairs(int(r.b), int(r.c), int(r.n_pairs)) for r in part.itertuples()]
+    d = decide(found, pick(margin).astype(np.float64), pick(higher_is_better).astype(bool),
+               None if family is None else pick(family), 0.05)
+    for column, values in (("change_lo", d.lo), ("change_hi", d.hi), ("confidence", d.confidence), ("p", d.p),
+                           ("p_equivalent", d.p_equivalence), ("p_holm", d.p_holm),
+                           ("p_equivalent_holm", d.p_equivalence_holm), ("verdict", d.verdict)):
+        table.loc[tested, column] = values
     return table
 
 

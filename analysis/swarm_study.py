@@ -120,24 +120,33 @@ def run(count: int, cache: pathlib.Path) -> pd.DataFrame:
 
 def paired(now: pd.DataFrame, then: pd.DataFrame) -> list[dict]:
     """The paired comparison of ``now`` against ``then`` (same fields) on every outcome, ready for
-    :func:`jaxapf.stats.verdicts`."""
+    :func:`verdicts`."""
     from jaxapf.metrics import SWARM_METRICS
-    from jaxapf.stats import paired_rate_row
+    from jaxapf.stats import RatePairs
 
     rows = []
     for metric, up in OUTCOMES:
-        margin = SWARM_METRICS.get(metric).margin
-        r = paired_rate_row(now[metric].to_numpy(bool), then[metric].to_numpy(bool), margin)
-        rows.append({"metric": metric, "higher_is_better": up, "change": r.difference, "change_lo": r.lo,
-                     "change_hi": r.hi, "margin": margin, "p": r.p, "p_equivalent": r.p_equivalence})
+        r = RatePairs.of(now[metric].to_numpy(bool), then[metric].to_numpy(bool))
+        rows.append({"metric": metric, "higher_is_better": up, "change": r.estimate, "b": r.b, "c": r.c,
+                     "n_pairs": r.n, "margin": SWARM_METRICS.get(metric).margin})
     return rows
+
+
+def verdicts(comparisons: pd.DataFrame) -> pd.DataFrame:
+    """``comparisons`` (rows of :func:`paired` with a ``question``) with their verdicts
+    (:func:`study.mark_verdicts`): Holm within each question's primary family (swarm success and collision
+    between UAVs) and, exploratory, within each of its other outcomes."""
+    primary = {m for m, _ in OUTCOMES[:2]}
+    family = [f"{q}: primary" if m in primary else f"{q}: exploratory {m}"
+              for q, m in zip(comparisons["question"], comparisons["metric"])]
+    return study.mark_verdicts(comparisons, comparisons["margin"], family, comparisons["higher_is_better"])
 
 
 def summarise(df: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
     """``(rates, comparisons)``: per (method, family, A, seed) every outcome's rate with its Wilson interval;
-    and every paired comparison (method vs ``basic``, reciprocal vs unilateral) with its verdict, Holm over
-    all of them at once."""
-    from jaxapf.stats import rate_row, verdicts
+    and every paired comparison (method vs ``basic``, reciprocal vs unilateral) with its verdict
+    (:func:`verdicts`: Holm within each question's families)."""
+    from jaxapf.stats import rate_row
 
     rates = []
     key = ["method", "family", "agents", "seed"]
@@ -162,11 +171,7 @@ def summarise(df: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
             for r in paired(now, then):
                 comparisons.append({"method": method, "baseline": base, "question": question, "family": family,
                                     "agents": agents, "seed": seed} | r)
-    comparisons = pd.DataFrame(comparisons)
-    p_holm, p_eq_holm, marks = verdicts(comparisons["change_lo"], comparisons["change_hi"], comparisons["p"],
-                                        comparisons["p_equivalent"], comparisons["margin"],
-                                        comparisons["higher_is_better"])
-    comparisons["p_holm"], comparisons["p_equivalent_holm"], comparisons["verdict"] = p_holm, p_eq_holm, marks
+    comparisons = verdicts(pd.DataFrame(comparisons))
     return pd.DataFrame(rates), comparisons
 
 

@@ -291,7 +291,7 @@ def summarise(episodes: pd.DataFrame, cost: pd.DataFrame) -> pd.DataFrame:
                    "gradient_episodes": int(spent["gradient_episodes"])}
             if tuner != "gradient":
                 then = base.loc[list(zip(t["family"], t["field"]))].to_numpy(bool)
-                row |= study.paired_success(t["success"].to_numpy(bool), then, MARGIN)
+                row |= study.paired_success(t["success"].to_numpy(bool), then)
             rows.append(row)
     return study.mark_verdicts(rows, MARGIN)
 

@@ -117,23 +117,22 @@ MARGIN = 0.02
 
 
 def paired(episodes: pd.DataFrame, a: str, b: str, families: list[str]) -> pd.DataFrame:
-    """Success of setting ``a`` vs ``b`` on the same fields, per family and pooled: difference of
-    rates with Newcombe's interval, exact McNemar (``b`` = a succeeds where b fails), equivalence
-    within :data:`MARGIN` (Tango TOST), both Holm-adjusted over the rows, and the verdict
-    (:func:`jaxapf.stats.verdict`, as ``jaxapf report`` gives it)."""
+    """Success of setting ``a`` vs ``b`` on the same fields, per family and pooled: the difference of rates
+    (``wins``: ``a`` succeeds where ``b`` fails, ``losses`` the reverse) with its verdict
+    (:func:`study.mark_verdicts`, Holm over these rows: the question's family), the interval that decided it
+    and its level."""
     rows = []
     for family in families + ["all"]:
         sub = episodes if family == "all" else episodes[episodes.family == family]
         x = sub[sub.setting == a].sort_values(["family", "field"]).success.to_numpy()
         y = sub[sub.setting == b].sort_values(["family", "field"]).success.to_numpy()
-        r = stats.paired_rate_row(x, y, MARGIN)
+        r = study.paired_success(x.astype(bool), y.astype(bool))
         rows.append({"family": family, "n": len(x), f"{a}": x.mean(), f"{b}": y.mean(),
-                     "difference": r.difference, "lo": r.lo, "hi": r.hi, "wins": r.b, "losses": r.c, "p": r.p,
-                     "p_equivalence": r.p_equivalence})
-    table = pd.DataFrame(rows)
-    table["p_holm"], table["p_equivalence_holm"], table["verdict"] = stats.verdicts(
-        table.lo, table.hi, table.p, table.p_equivalence, MARGIN, True)
-    return table
+                     "difference": r["success_change"], "wins": r["b"], "losses": r["c"]} | r)
+    table = study.mark_verdicts(rows, MARGIN).rename(columns={"change_lo": "lo", "change_hi": "hi",
+                                                               "p_equivalent": "p_equivalence",
+                                                               "p_equivalent_holm": "p_equivalence_holm"})
+    return table.drop(columns=["success_change", "b", "c"])
 
 
 def markdown_table(frame: pd.DataFrame, floats: str = "{:.3f}") -> str:

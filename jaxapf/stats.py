@@ -11,15 +11,14 @@ function                               what
 :func:`iqm`                            interquartile mean (25 % trimmed mean, as rliable)
 :func:`bootstrap_ci`                   percentile bootstrap CI of a statistic, stratified resampling
 :func:`paired_bootstrap_ci`            CI of ``stat(x) - stat(y)`` resampling *pairs* (stratified)
-:func:`mcnemar_exact`                  exact McNemar test (binomial test on the discordant pairs)
-:func:`wilcoxon_paired`                Wilcoxon signed-rank test on paired differences
 :func:`probability_of_improvement_paired`  ``P(x_i > y_i) + ½ P(x_i = y_i)`` over the pairs
-:func:`paired_proportion_difference`   ``p_x - p_y`` of paired booleans, Newcombe's hybrid score CI
 :func:`hodges_lehmann_paired`          Hodges–Lehmann paired shift, signed-rank (Walsh average) CI
-:func:`equivalence_test`               two one-sided tests (TOST) of ``|Δ| < margin``, rates or shifts
-:func:`verdict`                        better / worse / equivalent / inconclusive, weighing relevance
-:func:`verdicts`                       a study's verdicts: Holm on both tests, then :func:`verdict`
+:class:`RatePairs`                     paired booleans: Tango's score interval, McNemar and TOST
+:class:`ShiftPairs`                    paired values: Walsh-average interval and its signed-rank tests
+:func:`decide`                         a study's verdicts: Holm per family, each interval at its level
+:func:`verdict`                        better / worse / equivalent / inconclusive, read from an interval
 :func:`minimum_detectable_difference`  smallest difference the paired test detects (power 0.8)
+:func:`seed_interval`                  mean over replicates (selection seeds) with its t interval
 :func:`holm`                           Holm step-down adjusted p-values
 :func:`performance_profile`            fraction of values above each threshold τ
 :func:`ecdf`                           empirical CDF
@@ -38,8 +37,8 @@ from scipy import stats as _st
 __all__ = [
     "DEFAULT_RESAMPLES",
     "verdict_basis",
-    "verdict_visible",
     "format_p",
+    "format_level",
     "wilson_interval",
     "iqm",
     "median",
@@ -47,25 +46,22 @@ __all__ = [
     "bootstrap_ci",
     "bootstrap_cis",
     "paired_bootstrap_ci",
-    "McNemarResult",
-    "mcnemar_exact",
-    "WilcoxonResult",
-    "wilcoxon_paired",
     "pair_scores",
     "probability_of_improvement_paired",
-    "paired_proportion_difference",
     "hodges_lehmann_paired",
-    "EquivalenceResult",
-    "equivalence_test",
+    "RatePairs",
+    "ShiftPairs",
+    "Evidence",
+    "paired_evidence",
     "RateRow",
     "rate_row",
-    "PairedRateRow",
-    "paired_rate_row",
     "VERDICTS",
     "VERDICT_RULE",
     "verdict",
-    "verdicts",
+    "Decision",
+    "decide",
     "minimum_detectable_difference",
+    "seed_interval",
     "holm",
     "performance_profile",
     "ecdf",
@@ -347,41 +343,6 @@ def paired_bootstrap_ci(x, y, statistic: Statistic = np.mean, *, strata=None,
 # --------------------------------------------------------------------------------------------
 
 
-@dataclasses.dataclass(frozen=True)
-class McNemarResult:
-    """``b`` = pairs with x true and y false, ``c`` = x false and y true, two-sided exact ``pvalue``."""
-
-    b: int
-    c: int
-    pvalue: float
-
-
-def mcnemar_exact(x, y) -> McNemarResult:
-    """Exact McNemar test of paired binary outcomes.
-
-    Under H0 (same marginal rate) each discordant pair is equally likely to be ``(1, 0)`` or
-    ``(0, 1)``, so ``b ~ Binomial(b + c, ½)``; the p-value is
-    ``scipy.stats.binomtest(b, b + c, 0.5)`` (two-sided). No discordant pair: p = 1.
-    """
-    _, b, c, _ = _paired_counts(x, y)
-    p = 1.0 if b + c == 0 else float(_st.binomtest(b, b + c, 0.5).pvalue)
-    return McNemarResult(b, c, min(p, 1.0))
-
-
-@dataclasses.dataclass(frozen=True)
-class WilcoxonResult:
-    """Signed-rank ``statistic`` (scipy's), ``pvalue`` (two-sided), ``n`` pairs, ``n_nonzero`` non-tied pairs."""
-
-    statistic: float
-    pvalue: float
-    n: int
-    n_nonzero: int
-
-
-#: Up to this many non-zero differences the signed-rank p-value is exact (:func:`_signed_rank_exact`).
-EXACT_WILCOXON_MAX = 100
-
-
 def _signed_rank_null(twice: np.ndarray) -> np.ndarray:
     """Null distribution of ``2 T+`` for the doubled (mid)ranks ``twice`` (integers):
     ``dist[t] = P(Σ twice_i B_i = t)``, ``B_i ~ Bernoulli(½)`` independent, ``t = 0..Σ twice``."""
@@ -393,51 +354,6 @@ def _signed_rank_null(twice: np.ndarray) -> np.ndarray:
         shifted[r:] = dist[: total + 1 - r]
         dist = 0.5 * (dist + shifted)
     return dist
-
-
-def _signed_rank_exact(d: np.ndarray) -> tuple[float, float]:
-    """Exact two-sided signed-rank test of the non-zero differences ``d``, ties included.
-
-    Conditional on the (mid)ranks ``r_i`` of ``|d_i|``, under H0 each sign is + or − with
-    probability ½ independently, so ``T+ = Σ r_i [d_i > 0]`` has the distribution of a sum of
-    independent ``r_i · Bernoulli(½)``. Midranks are multiples of ½, so ``2 T+`` is an integer and
-    the distribution is a convolution over integers (O(n³) at worst). This is the permutation
-    test that ``scipy.stats.wilcoxon`` runs for ties, without enumerating 2^n sign patterns.
-    Returns ``(min(T+, T-), p)``, p = ``min(1, 2 min(P(T+ <= t), P(T+ >= t)))``.
-    """
-    ranks = _st.rankdata(np.abs(d))
-    twice = np.rint(2.0 * ranks).astype(np.int64)
-    total = int(twice.sum())
-    dist = _signed_rank_null(twice)
-    t_plus = int(twice[d > 0].sum())
-    lower = float(dist[: t_plus + 1].sum())
-    upper = float(dist[t_plus:].sum())
-    p = min(1.0, 2.0 * min(lower, upper))
-    stat = min(t_plus, total - t_plus) / 2.0
-    return float(stat), float(p)
-
-
-def wilcoxon_paired(x, y) -> WilcoxonResult:
-    """Wilcoxon signed-rank test of ``x_i - y_i`` (two-sided).
-
-    Zero differences are dropped (Wilcoxon's original treatment, scipy's ``zero_method="wilcox"``;
-    with common random numbers many pairs can be exactly equal, e.g. when a gain does not change
-    the trajectory). Up to :data:`EXACT_WILCOXON_MAX` non-zero differences the p-value is exact,
-    ties handled by midranks (:func:`_signed_rank_exact`); beyond, ``scipy.stats.wilcoxon`` with
-    the normal approximation (tie-corrected). The statistic is ``min(T+, T-)``, as scipy's.
-    Every difference zero: statistic 0, p = 1. No pairs: NaNs.
-    """
-    d = _paired_differences(x, y, "wilcoxon_paired")
-    nonzero = int(np.count_nonzero(d))
-    if d.size == 0:
-        return WilcoxonResult(math.nan, math.nan, 0, 0)
-    if nonzero == 0:
-        return WilcoxonResult(0.0, 1.0, int(d.size), 0)
-    if nonzero <= EXACT_WILCOXON_MAX:
-        stat, p = _signed_rank_exact(d[d != 0])
-        return WilcoxonResult(stat, p, int(d.size), nonzero)
-    res = _st.wilcoxon(d, zero_method="wilcox", alternative="two-sided", method="approx")
-    return WilcoxonResult(float(res.statistic), float(min(res.pvalue, 1.0)), int(d.size), nonzero)
 
 
 def pair_scores(x, y, higher_is_better: bool = True) -> np.ndarray:
@@ -479,52 +395,6 @@ def _paired_differences(x, y, who: str) -> np.ndarray:
     if np.any(~np.isfinite(d)):
         raise ValueError(f"{who} needs finite values; filter the pairs first")
     return d
-
-
-def paired_proportion_difference(x, y, confidence: float = 0.95) -> tuple[float, float, float]:
-    r"""Difference of paired proportions ``p_x - p_y`` with Newcombe's hybrid score interval.
-
-    With ``a`` pairs where both are true, ``b`` only x, ``c`` only y, ``d`` neither (``n`` pairs),
-    the estimate is ``θ̂ = p̂_x - p̂_y = (b - c) / n``: the difference that McNemar's test
-    (:func:`mcnemar_exact`) is about. The interval is Newcombe's (1998) method 10, the "square
-    and add" of the Wilson intervals ``[l_x, u_x]``, ``[l_y, u_y]`` of the two marginal
-    proportions (:func:`wilson_interval`), corrected for their correlation ``φ̂``:
-
-    .. math::
-        L = θ̂ - \sqrt{(p̂_x - l_x)^2 - 2φ̂(p̂_x - l_x)(u_y - p̂_y) + (u_y - p̂_y)^2},\quad
-        U = θ̂ + \sqrt{(p̂_y - l_y)^2 - 2φ̂(p̂_y - l_y)(u_x - p̂_x) + (u_x - p̂_x)^2},
-
-    where ``φ̂`` is the phi coefficient of the 2×2 table with Newcombe's continuity correction:
-    with ``A = ad - bc`` and ``D = (a+b)(c+d)(a+c)(b+d)``, ``φ̂ = (A - n/2)/√D`` if ``A > n/2``,
-    0 if ``0 <= A <= n/2``, ``A/√D`` if ``A < 0``, and 0 when ``D = 0``. This is the form of
-    Newcombe, "Improved confidence intervals for the difference between binomial proportions
-    based on paired data", Stat. Med. 17 (1998) 2635–2650, as given by Fagerland, Lydersen & Laake,
-    Stat. Med. 33 (2014) 2850–2875 ("Newcombe square-and-add"), who recommend it; it reproduces
-    their worked example (Cavo et al. 2012: −0.0621, 95 % CI −0.1186 to −0.0046). It never
-    leaves [−1, 1] (``L >= l_x - u_y``), contains ``θ̂``, and swapping x and y negates it.
-
-    Returns ``(estimate, lower, upper)``; NaNs for no pairs.
-    """
-    _z(confidence)
-    a, b, c, d = _paired_counts(x, y)
-    n = a + b + c + d
-    if n == 0:
-        return math.nan, math.nan, math.nan
-    px, py = (a + b) / n, (a + c) / n
-    lx, ux = (float(v) for v in wilson_interval(a + b, n, confidence))
-    ly, uy = (float(v) for v in wilson_interval(a + c, n, confidence))
-    cross = a * d - b * c  # Python ints: exact
-    margins = (a + b) * (c + d) * (a + c) * (b + d)
-    if margins == 0 or 0 <= cross <= n / 2:
-        phi = 0.0
-    else:
-        phi = ((cross - n / 2) if cross > 0 else cross) / math.sqrt(margins)
-    theta = (b - c) / n
-    dl, du = px - lx, uy - py  # distances that pull θ down
-    el, eu = py - ly, ux - px  # distances that push θ up
-    lower = theta - math.sqrt(max(dl * dl - 2.0 * phi * dl * du + du * du, 0.0))
-    upper = theta + math.sqrt(max(el * el - 2.0 * phi * el * eu + eu * eu, 0.0))
-    return theta, max(lower, -1.0), min(upper, 1.0)
 
 
 #: Up to this many pairs the Hodges–Lehmann interval takes its rank from the exact null
@@ -630,7 +500,7 @@ def hodges_lehmann_paired(x, y, confidence: float = 0.95) -> tuple[float, float,
     With ``d = x - y`` (``n`` pairs) and the ``M = n(n+1)/2`` Walsh averages
     ``W_ij = (d_i + d_j)/2, i <= j``, the estimate is ``median(W)``: the shift ``θ`` for which
     the signed-rank statistic of ``d - θ`` is balanced, i.e. the estimate the Wilcoxon
-    signed-rank test (:func:`wilcoxon_paired`) is about. Zero differences are kept, as in the
+    signed-rank test (:meth:`ShiftPairs.p_difference`) is about. Zero differences are kept, as in the
     standard definition (Hollander & Wolfe, *Nonparametric Statistical Methods*, §3.2); they
     are dropped only by the *test*. The interval is ``[W_(k), W_(M+1-k)]`` (k-th smallest and
     k-th largest), ``k`` from the signed-rank null distribution (:func:`_walsh_rank`: exact up
@@ -648,44 +518,48 @@ def hodges_lehmann_paired(x, y, confidence: float = 0.95) -> tuple[float, float,
     """
     _z(confidence)
     d = np.sort(_paired_differences(x, y, "hodges_lehmann_paired"))
-    n = d.size
-    if n == 0:
+    if d.size == 0:
         return math.nan, math.nan, math.nan
-    m = n * (n + 1) // 2
+    return (_walsh_median(d), *_walsh_interval(d, confidence))
+
+
+def _walsh_median(d: np.ndarray) -> float:
+    """The median of the Walsh averages of sorted ``d`` (``n >= 1``): the Hodges–Lehmann estimate."""
+    m = d.size * (d.size + 1) // 2
     if m % 2:
-        estimate = _walsh_kth(d, (m + 1) // 2) / 2.0
-    else:
-        estimate = (_walsh_kth(d, m // 2) + _walsh_kth(d, m // 2 + 1)) / 4.0
-    k = _walsh_rank(n, confidence)
+        return float(_walsh_kth(d, (m + 1) // 2) / 2.0)
+    return float((_walsh_kth(d, m // 2) + _walsh_kth(d, m // 2 + 1)) / 4.0)
+
+
+def _walsh_interval(d: np.ndarray, confidence: float) -> tuple[float, float]:
+    """``[W_(k), W_(M+1-k)]`` of sorted ``d`` (``n >= 1``), ``k`` by :func:`_walsh_rank`; ``(-inf, inf)`` at
+    ``k = 0``."""
+    m = d.size * (d.size + 1) // 2
+    k = _walsh_rank(d.size, confidence)
     if k == 0:
-        return float(estimate), -math.inf, math.inf
-    return float(estimate), _walsh_kth(d, k) / 2.0, _walsh_kth(d, m + 1 - k) / 2.0
+        return -math.inf, math.inf
+    return _walsh_kth(d, k) / 2.0, _walsh_kth(d, m + 1 - k) / 2.0
 
 
 # --------------------------------------------------------------------------------------------
-# equivalence, relevance, power
+# the evidence of one paired comparison, at any level
 # --------------------------------------------------------------------------------------------
-
-
-@dataclasses.dataclass(frozen=True)
-class EquivalenceResult:
-    """Two one-sided tests: ``p_lower`` of H0 ``Δ <= -margin``, ``p_upper`` of H0 ``Δ >= margin``,
-    ``p = max(p_lower, p_upper)``; ``equivalent`` when ``p <= α``, ``α = 1 - confidence``."""
-
-    p_lower: float
-    p_upper: float
-    p: float
-    equivalent: bool
 
 
 def _tango_z(b: int, c: int, n: int, delta: float) -> float:
-    r"""Tango's score statistic for H0 ``p_x - p_y = delta`` (``0 < delta < 1``) of paired booleans.
+    r"""Tango's score statistic for H0 ``p_x - p_y = delta`` (``-1 < delta < 1``) of paired booleans.
 
-    ``Z = (b - c - nδ) / \sqrt{n(2 q̃ + δ(1 - δ))}``, where ``q̃`` is the maximum-likelihood
-    estimate of ``P(only y)`` under H0 (cells ``q + δ``, ``q``, rest concordant), the positive
-    root of ``2n q² + w q - c δ(1-δ) = 0``, ``w = -b - c + (2n - b + c) δ``. For ``δ > 0`` the
-    variance is at least ``nδ(1 - δ) > 0``, so no discordant pair still gives a finite statistic.
+    For ``δ > 0``: ``Z = (b - c - nδ) / \sqrt{n(2 q̃ + δ(1 - δ))}``, ``q̃`` the maximum-likelihood estimate of
+    ``P(only y)`` under H0 (cells ``q + δ``, ``q``, rest concordant), the positive root of
+    ``2n q² + w q - c δ(1-δ) = 0``, ``w = -b - c + (2n - b + c) δ``; the variance is at least
+    ``nδ(1 - δ) > 0``, so no discordant pair still gives a finite statistic. For ``δ < 0`` the same with x
+    and y swapped, ``Z(b, c, δ) = -Z(c, b, -δ)``; at ``δ = 0`` McNemar's ``(b - c)/√(b + c)`` (0 without
+    a discordant pair). ``Z`` decreases in ``δ`` (Tango 1998), so ``{δ: |Z(δ)| <= z}`` is an interval.
     """
+    if delta < 0:
+        return -_tango_z(c, b, n, -delta)
+    if delta == 0:
+        return 0.0 if b + c == 0 else (b - c) / math.sqrt(b + c)
     w = -b - c + (2 * n - b + c) * delta
     disc = 8.0 * n * c * delta * (1.0 - delta)
     root = math.sqrt(w * w + disc)
@@ -693,87 +567,150 @@ def _tango_z(b: int, c: int, n: int, delta: float) -> float:
     return (b - c - n * delta) / math.sqrt(n * (2.0 * q + delta * (1.0 - delta)))
 
 
-def _signed_rank_one_sided(e: np.ndarray, alternative: str) -> float:
-    """One-sided signed-rank p-value of ``e`` (H1: location ``> 0`` for "greater", ``< 0`` for
-    "less"), treated exactly as :func:`wilcoxon_paired` treats its differences: zeros dropped,
-    midranks, exact up to :data:`EXACT_WILCOXON_MAX` non-zero values, scipy's normal
-    approximation beyond. No non-zero value: p = 1."""
-    nz = e[e != 0]
-    if nz.size == 0:
-        return 1.0
-    if nz.size > EXACT_WILCOXON_MAX:
-        res = _st.wilcoxon(nz, zero_method="wilcox", alternative=alternative, method="approx")
-        return float(min(res.pvalue, 1.0))
-    twice = np.rint(2.0 * _st.rankdata(np.abs(nz))).astype(np.int64)
-    dist = _signed_rank_null(twice)
-    t_plus = int(twice[nz > 0].sum())
-    p = dist[t_plus:].sum() if alternative == "greater" else dist[: t_plus + 1].sum()
-    return float(min(p, 1.0))
+def _tango_root(b: int, c: int, n: int, target: float) -> float:
+    """The ``δ`` in ``[-1, 1]`` where the decreasing :func:`_tango_z` crosses ``target`` (bisection to
+    rounding; ``±1`` where it never does)."""
+    lo, hi = -1.0, 1.0
+    for _ in range(64):
+        mid = 0.5 * (lo + hi)
+        if not lo < mid < hi:
+            break
+        if _tango_z(b, c, n, mid) > target:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
 
 
-def equivalence_test(x, y, margin: float, *, kind: str, confidence: float = 0.95) -> EquivalenceResult:
-    r"""Two one-sided tests (TOST) that the paired difference ``Δ`` (x minus y) lies in ``(-margin, margin)``.
+class RatePairs(NamedTuple):
+    r"""Paired booleans as the score statistic sees them: ``b`` pairs true only for x, ``c`` only for y,
+    ``n`` pairs. One statistic, Tango's score :func:`_tango_z` of ``Δ = p_x - p_y = (b - c)/n``
+    (Tango, Stat. Med. 17 (1998) 891–908), gives all three answers, so they agree exactly:
 
-    ``p_lower`` tests H0 ``Δ <= -margin`` against ``Δ > -margin``, ``p_upper`` tests H0
-    ``Δ >= margin`` against ``Δ < margin``; equivalence is shown at level ``α = 1 - confidence``
-    when both reject, ``p = max(p_lower, p_upper) <= α`` (Schuirmann 1987). Each one-sided test
-    at α corresponds to one side of a ``1 - 2α`` interval (90 % for α = 0.05).
-
-    ``kind="rate"`` (booleans; ``Δ = p_x - p_y = (b - c)/n`` as in
-    :func:`paired_proportion_difference`, ``0 < margin < 1``): Tango's score test (Tango,
-    Stat. Med. 17 (1998) 891–908; :func:`_tango_z`), the statistic whose inversion is Tango's
-    score interval. Chosen over the Wald test with the discordant-pair standard error
-    ``√(b + c - (b - c)²/n) / n``, which is 0 when no pair is discordant and then "proves"
-    equivalence from any number of pairs; the score test evaluates the variance under each
-    null (``Δ = ±margin``), which keeps it positive; Liu, Hsueh, Hsieh & Chen (Stat. Med. 21
-    (2002) 231–245) compare the two for paired equivalence and recommend the restricted-MLE test.
-    ``p_upper = Φ(Z(b, c, margin))``, ``p_lower = Φ(Z(c, b, margin))`` (the lower test is the
-    upper one with x and y swapped).
-
-    ``kind="continuous"``: ``Δ`` is the shift of the differences ``d = x - y``, tested by the
-    one-sided Wilcoxon signed-rank test of ``d + margin`` (H1 location > 0) and of
-    ``d - margin`` (H1 location < 0), computed as :func:`wilcoxon_paired` computes its test
-    (zeros dropped, midranks, exact up to :data:`EXACT_WILCOXON_MAX` non-zero differences).
-    It agrees with the rule "the ``1 - 2α`` :func:`hodges_lehmann_paired` interval lies inside
-    ``(-margin, margin)``" exactly for untied differences up to :data:`EXACT_HL_MAX` pairs (both
-    exact), approximately beyond (normal approximations) and with ties or zeros.
-
-    No pairs: NaN p-values, not equivalent.
+    * :meth:`interval`: Tango's score interval ``{δ: |Z(δ)| <= z}`` (Fagerland, Lydersen & Laake,
+      Stat. Med. 33 (2014) 2850–2875, recommend it);
+    * :meth:`p_difference`: ``2Φ(-|Z(0)|)``, the asymptotic McNemar test, the largest ``γ`` whose
+      ``1 - γ`` interval holds 0 (Fagerland, Lydersen & Laake, BMC Med. Res. Methodol. 13 (2013) 91: it
+      keeps its level and has more power than the exact conditional test);
+    * :meth:`p_equivalence`: ``2 max(Φ(Z(m)), Φ(-Z(-m)))``, twice the two one-sided tests' p, the
+      smallest ``γ`` whose ``1 - γ`` interval lies inside ``(-m, m)``.
     """
-    _z(confidence)
-    if not (math.isfinite(margin) and margin > 0):
-        raise ValueError(f"margin = {margin!r} must be positive and finite")
-    alpha = 1.0 - confidence
+
+    b: int
+    c: int
+    n: int
+
+    @classmethod
+    def of(cls, x, y) -> "RatePairs":
+        """The counts of paired booleans ``x``, ``y``."""
+        _, b, c, _ = _paired_counts(x, y)
+        return cls(b, c, len(np.asarray(x)))
+
+    @property
+    def estimate(self) -> float:
+        return (self.b - self.c) / self.n if self.n else math.nan
+
+    def interval(self, confidence: float) -> tuple[float, float]:
+        if not self.n:
+            return math.nan, math.nan
+        z = _z(confidence)
+        return _tango_root(self.b, self.c, self.n, z), _tango_root(self.b, self.c, self.n, -z)
+
+    def p_difference(self) -> float:
+        if not self.n:
+            return math.nan
+        return float(min(1.0, 2.0 * _st.norm.sf(abs(_tango_z(self.b, self.c, self.n, 0.0)))))
+
+    def p_equivalence(self, margin: float) -> float:
+        if not self.n:
+            return math.nan
+        if not 0 < margin < 1:
+            raise ValueError(f"margin = {margin!r} must lie strictly between 0 and 1 for a rate")
+        upper = _st.norm.cdf(_tango_z(self.b, self.c, self.n, margin))
+        lower = _st.norm.sf(_tango_z(self.b, self.c, self.n, -margin))
+        return float(min(1.0, 2.0 * max(upper, lower)))
+
+
+def _signed_rank_cdf(n: int, t: int) -> float:
+    """``P(T+ <= t)`` of the signed-rank statistic of ``n`` untied pairs, as :func:`_walsh_rank` takes it:
+    exact up to :data:`EXACT_HL_MAX` pairs, ``Φ((t + ½ - M/2)/σ)`` beyond."""
+    if t < 0:
+        return 0.0
+    m = n * (n + 1) // 2
+    if n <= EXACT_HL_MAX:
+        cdf = np.cumsum(_signed_rank_null(2 * np.arange(1, n + 1))[::2])
+        return float(cdf[min(t, m)])
+    sigma = math.sqrt(n * (n + 1) * (2 * n + 1) / 24.0)
+    return float(_st.norm.cdf((t + 0.5 - m / 2.0) / sigma))
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class ShiftPairs:
+    r"""Paired differences ``d = x - y`` (finite, sorted) as the Hodges–Lehmann shift sees them. The
+    interval ``[W_(k), W_(M+1-k)]`` of the ``M`` Walsh averages (:func:`hodges_lehmann_paired`) gives the
+    tests its own duality defines, so they agree with it exactly:
+
+    * :meth:`p_difference`: ``2 P(T+ <= t)``, ``t = min(#{W <= 0}, #{W >= 0})``: 0 leaves the interval
+      exactly when ``k > t`` (the signed-rank test for untied non-zero differences; zero differences
+      are kept, as the estimate keeps them, which makes it conservative);
+    * :meth:`p_equivalence`: ``2 P(T+ <= s)``, ``s = max(#{W <= -m}, #{W >= m})``: the interval lies
+      inside ``(-m, m)`` exactly when ``k > s``.
+    """
+
+    d: np.ndarray
+
+    @classmethod
+    def of(cls, x, y) -> "ShiftPairs":
+        """The sorted finite differences of paired ``x``, ``y``."""
+        return cls(np.sort(_paired_differences(x, y, "ShiftPairs")))
+
+    @property
+    def n(self) -> int:
+        return int(self.d.size)
+
+    @property
+    def estimate(self) -> float:
+        return _walsh_median(self.d) if self.n else math.nan
+
+    def interval(self, confidence: float) -> tuple[float, float]:
+        """The Walsh-average interval at ``confidence``; ``(-inf, inf)`` where too few pairs allow none."""
+        _z(confidence)
+        return _walsh_interval(self.d, confidence) if self.n else (math.nan, math.nan)
+
+    def _count(self, pivot: float, strict: bool) -> int:
+        """Walsh sums ``d_i + d_j`` (``i <= j``) below ``pivot`` (``strict``) or up to it."""
+        return int((_walsh_split(self.d, pivot, strict) - np.arange(self.n)).sum())
+
+    def _p(self, count: int) -> float:
+        m = self.n * (self.n + 1) // 2
+        return 1.0 if count >= (m + 1) // 2 else min(1.0, 2.0 * _signed_rank_cdf(self.n, count))
+
+    def p_difference(self) -> float:
+        if not self.n:
+            return math.nan
+        m = self.n * (self.n + 1) // 2
+        return self._p(min(self._count(0.0, False), m - self._count(0.0, True)))
+
+    def p_equivalence(self, margin: float) -> float:
+        if not self.n:
+            return math.nan
+        if not (math.isfinite(margin) and margin > 0):
+            raise ValueError(f"margin = {margin!r} must be positive and finite")
+        m = self.n * (self.n + 1) // 2
+        return self._p(max(self._count(-2.0 * margin, False), m - self._count(2.0 * margin, True)))
+
+
+Evidence = RatePairs | ShiftPairs
+
+
+def paired_evidence(x, y, *, kind: str) -> Evidence:
+    """The paired evidence of ``x`` against ``y``: :class:`RatePairs` (``kind="rate"``, booleans) or
+    :class:`ShiftPairs` (``kind="continuous"``, finite values)."""
     if kind == "rate":
-        if margin >= 1:
-            raise ValueError(f"margin = {margin!r} must lie strictly between 0 and 1 for kind='rate'")
-        a, b, c, d = _paired_counts(x, y)
-        n = a + b + c + d
-        if n == 0:
-            return EquivalenceResult(math.nan, math.nan, math.nan, False)
-        p_upper = float(_st.norm.cdf(_tango_z(b, c, n, margin)))
-        p_lower = float(_st.norm.cdf(_tango_z(c, b, n, margin)))
-    elif kind == "continuous":
-        diff = _paired_differences(x, y, "equivalence_test")
-        if diff.size == 0:
-            return EquivalenceResult(math.nan, math.nan, math.nan, False)
-        p_lower = _signed_rank_one_sided(diff + margin, "greater")
-        p_upper = _signed_rank_one_sided(diff - margin, "less")
-    else:
-        raise ValueError(f"kind = {kind!r} must be 'rate' or 'continuous'")
-    p = max(p_lower, p_upper)
-    return EquivalenceResult(p_lower, p_upper, p, bool(p <= alpha))
-
-
-#: The four verdicts of :func:`verdict`.
-VERDICTS = ("better", "worse", "equivalent", "inconclusive")
-
-#: The rule of :func:`verdict` in one sentence, for every report and study that prints verdicts.
-VERDICT_RULE = ("verdict: equivalent when the Holm-adjusted equivalence test (TOST within the margin) rejects; "
-                "otherwise better or worse when the Holm-adjusted difference test is significant and the "
-                "difference's 95 % interval excludes 0 on that side (the estimate may still be smaller than the "
-                "margin: relevance is then not shown either way); inconclusive otherwise. Holm runs over every "
-                "comparison of the study, separately for the difference and the equivalence tests")
+        return RatePairs.of(x, y)
+    if kind == "continuous":
+        return ShiftPairs.of(x, y)
+    raise ValueError(f"kind = {kind!r} must be 'rate' or 'continuous'")
 
 
 class RateRow(NamedTuple):
@@ -794,106 +731,107 @@ def rate_row(outcomes, confidence: float = 0.95) -> RateRow:
     return RateRow(k, n, k / n, float(lo), float(hi))
 
 
-class PairedRateRow(NamedTuple):
-    """``x`` against ``y`` on the same fields: the difference of rates with Newcombe's interval, the
-    discordant pairs ``b`` (x only) and ``c`` (y only), the exact McNemar ``p`` and the TOST
-    ``p_equivalence`` within the margin (NaN without one)."""
-
-    difference: float
-    lo: float
-    hi: float
-    b: int
-    c: int
-    p: float
-    p_equivalence: float
+# --------------------------------------------------------------------------------------------
+# verdicts: declared families, each interval at the level that decides it
+# --------------------------------------------------------------------------------------------
 
 
-def paired_rate_row(x, y, margin: float | None = None, *, confidence: float = 0.95,
-                    equivalence_confidence: float = 0.95) -> PairedRateRow:
-    """The paired comparison of two rates (booleans ``x``, ``y`` on the same fields), ready for
-    :func:`verdicts`: :func:`paired_proportion_difference`, :func:`mcnemar_exact` and, with a ``margin``,
-    :func:`equivalence_test`; no pairs give NaN."""
-    test = mcnemar_exact(x, y)
-    if len(x) == 0:
-        return PairedRateRow(math.nan, math.nan, math.nan, test.b, test.c, test.pvalue, math.nan)
-    diff, lo, hi = paired_proportion_difference(x, y, confidence)
-    p_eq = (math.nan if margin is None else
-            equivalence_test(x, y, margin, kind="rate", confidence=equivalence_confidence).p)
-    return PairedRateRow(diff, lo, hi, test.b, test.c, test.pvalue, p_eq)
+#: The four verdicts of :func:`verdict`.
+VERDICTS = ("better", "worse", "equivalent", "inconclusive")
+
+#: The rule of :func:`decide` in one sentence, for every report and study that prints verdicts.
+VERDICT_RULE = ("verdict, read from the interval beside it: equivalent when it lies inside ±margin, else better or "
+                "worse when it excludes 0 on that side, else inconclusive; each interval is at the level Holm "
+                "allows its comparison within its declared family (primary: success and collision of each "
+                "setting against its baseline; exploratory: one family per other metric)")
 
 
-def verdict(lo: float, hi: float, p_difference: float, p_equivalence: float, margin: float,
-            higher_is_better: bool, alpha: float = 0.05) -> str:
-    """Verdict of one comparison of x against y, weighing significance *and* relevance.
-
-    Args:
-      lo, hi: confidence interval of the difference ``Δ = x - y`` (e.g. of
-        :func:`paired_proportion_difference` or :func:`hodges_lehmann_paired`).
-      p_difference: p-value of the test of ``Δ = 0`` (McNemar / Wilcoxon), *adjusted* for the
-        study's multiplicity (:func:`verdicts` does both adjustments).
-      p_equivalence: TOST p-value of ``|Δ| < margin`` (:func:`equivalence_test`), adjusted alike.
-      margin: the smallest difference that matters (>= 0; 0 switches relevance off).
-      higher_is_better: direction of the metric (``collision``: False).
-      alpha: level of both tests.
-
-    Rule (:data:`VERDICT_RULE`), with "up" meaning better for x (the interval is mirrored when
-    lower is better):
-
-    * **"equivalent"** when the equivalence test rejects (``p_equivalence <= alpha``), whether or
-      not the difference test is significant: a real but irrelevant difference is equivalent;
-    * otherwise **"better"** / **"worse"** when the difference test is significant
-      (``p_difference <= alpha``) *and* the whole interval lies beyond 0 in that direction;
-    * otherwise **"inconclusive"**.
-
-    Both relevance and direction rest on multiplicity-adjusted tests, so "equivalent" carries the
-    same family-wise error control as "better" and "worse". An interval inside the margin is *not*
-    taken as equivalence by itself: the interval is unadjusted, and at the study's multiplicity
-    it would claim equivalence more easily than the adjusted tests claim a difference.
-
-    Why "better" needs the interval beyond 0 and not beyond the margin: the verdict states the
-    *direction* the data establish; relevance overrides it only when the data establish that
-    the difference is too small to matter (the equivalence-trial criterion, Schuirmann 1987).
-    Requiring the whole interval beyond the margin would test superiority *by* the margin, a
-    stronger question that leaves most real improvements "inconclusive". A "better" difference
-    may therefore be smaller than the margin; the interval in the report shows how large it may
-    be. Both the p-value and the interval are required so that the verdict never contradicts
-    the interval shown next to it (the exact McNemar test and the score interval can disagree at
-    the edge). NaN inputs count as "not significant", so a comparison without pairs is
-    "inconclusive".
-    """
-    if not 0.0 < alpha < 1.0:
-        raise ValueError(f"alpha = {alpha!r} must lie strictly between 0 and 1")
-    if not (math.isfinite(margin) and margin >= 0):
-        raise ValueError(f"margin = {margin!r} must be non-negative and finite")
+def verdict(lo: float, hi: float, margin: float, higher_is_better: bool) -> str:
+    """The verdict an interval ``[lo, hi]`` of ``Δ = x - y`` states, with ``margin`` the smallest difference
+    that matters (0: none) and "better" meaning better for x: **equivalent** when it lies inside
+    ``(-margin, margin)``; otherwise **better** / **worse** when it lies wholly beyond 0 on that side;
+    otherwise (or without an interval) **inconclusive**. :func:`decide` chooses the interval's level."""
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        return "inconclusive"
     if lo > hi:
         raise ValueError(f"interval ({lo!r}, {hi!r}) has lower > upper")
     if not higher_is_better:
         lo, hi = -hi, -lo
-    if margin > 0 and p_equivalence <= alpha:
+    if margin > 0 and -margin < lo and hi < margin:
         return "equivalent"
-    if p_difference <= alpha and (lo > 0 or hi < 0):
-        return "better" if lo > 0 else "worse"
-    return "inconclusive"
+    return "better" if lo > 0 else "worse" if hi < 0 else "inconclusive"
 
 
-def verdicts(lo, hi, p_difference, p_equivalence, margin, higher_is_better,
-             alpha: float = 0.05) -> tuple[np.ndarray, np.ndarray, list[str]]:
-    """The verdicts of a whole study: Holm over all its comparisons, then :func:`verdict` per row.
+class Decision(NamedTuple):
+    """:func:`decide`'s answer, arrays over the comparisons: the estimate; the difference test's ``p`` and
+    the equivalence test's ``p_equivalence`` (NaN without a margin), each Holm-adjusted within the row's
+    family; ``confidence``, the level of the interval ``[lo, hi]`` that decided ``verdict`` (NaN bounds
+    where the data allow no interval at that level)."""
 
-    Every study and report calls this one function, so every claim (better, worse and equivalent
-    alike) gets the same correction. The arguments are sequences over the study's comparisons
-    (``margin`` and ``higher_is_better`` may be scalars); NaN p-values do not count in Holm's
-    ``m`` and give "inconclusive". Returns ``(p_holm, p_equivalence_holm, verdicts)``.
+    estimate: np.ndarray
+    p: np.ndarray
+    p_equivalence: np.ndarray
+    p_holm: np.ndarray
+    p_equivalence_holm: np.ndarray
+    confidence: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    verdict: list[str]
+
+
+def _share(p: np.ndarray, adjusted: np.ndarray) -> np.ndarray:
+    """``p / p_Holm``: the part of α Holm grants each test (``1/m`` where both underflow to 0)."""
+    m = max(int(np.isfinite(p).sum()), 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(adjusted > 0, p / adjusted, 1.0 / m)
+
+
+def decide(evidence: Sequence[Evidence], margin, higher_is_better, family=None, alpha: float = 0.05) -> Decision:
+    r"""The verdicts of a study: Holm within each family, then each comparison's interval at its own level.
+
+    ``margin`` (0 or NaN: none), ``higher_is_better`` and ``family`` (the Holm family of each row; one
+    family by default) may be scalars. Within a family, Holm adjusts the difference tests ``p`` and,
+    separately, the equivalence tests ``q``; each row then gets the level ``α_r``:
+
+    * ``α_r = α q/q_Holm`` where equivalence is shown (``q_Holm <= α``),
+    * ``α_r = α min(p/p_Holm, q/q_Holm)`` otherwise (without a margin ``α p/p_Holm``),
+
+    and the verdict is read from the ``1 - α_r`` interval alone (:func:`verdict`). Since the tests are the
+    interval's own (:class:`RatePairs`, :class:`ShiftPairs`), the interval holds 0 exactly when
+    ``p > α_r`` and lies inside the margin exactly when ``q <= α_r``: *better*/*worse* only where Holm
+    rejects ``Δ = 0`` and *equivalent* only where Holm rejects ``|Δ| >= margin``, at family-wise level α
+    within each family, and no verdict contradicts its interval. The price: where both tests are near
+    their thresholds and equivalence is not shown, a difference Holm finds may stay *inconclusive*.
     """
-    p_holm = holm(np.asarray(p_difference, np.float64))
-    p_eq_holm = holm(np.asarray(p_equivalence, np.float64))
-    n = p_holm.size
-    lo, hi = np.broadcast_to(np.asarray(lo, np.float64), (n,)), np.broadcast_to(np.asarray(hi, np.float64), (n,))
-    margin = np.broadcast_to(np.nan_to_num(np.asarray(margin, np.float64), nan=0.0), (n,))
+    if not 0.0 < alpha < 1.0:
+        raise ValueError(f"alpha = {alpha!r} must lie strictly between 0 and 1")
+    evidence = list(evidence)
+    n = len(evidence)
+    margin = np.nan_to_num(np.broadcast_to(np.asarray(margin, np.float64), (n,)), nan=0.0)
+    if np.any(margin < 0) or not np.all(np.isfinite(margin)):
+        raise ValueError("margins must be non-negative and finite")
     up = np.broadcast_to(np.asarray(higher_is_better, bool), (n,))
-    out = [verdict(float(a), float(b), float(p), float(q), float(m), bool(u), alpha)
-           for a, b, p, q, m, u in zip(lo, hi, p_holm, p_eq_holm, margin, up)]
-    return p_holm, p_eq_holm, out
+    family = np.broadcast_to(np.asarray("" if family is None else family, object), (n,))
+    p = np.array([e.p_difference() for e in evidence], np.float64)
+    q = np.array([e.p_equivalence(m) if m > 0 else math.nan for e, m in zip(evidence, margin)], np.float64)
+    p_holm, q_holm = np.full(n, np.nan), np.full(n, np.nan)
+    share_p, share_q = np.full(n, np.nan), np.full(n, np.nan)
+    for f in dict.fromkeys(family.tolist()):
+        rows = np.flatnonzero(family == f)
+        p_holm[rows], q_holm[rows] = holm(p[rows]), holm(q[rows])
+        share_p[rows], share_q[rows] = _share(p[rows], p_holm[rows]), _share(q[rows], q_holm[rows])
+    shown = q_holm <= alpha
+    level = alpha * np.where(shown, share_q, np.fmin(share_p, share_q))
+    level[~np.isfinite(p)] = np.nan
+    lo, hi = np.full(n, np.nan), np.full(n, np.nan)
+    for i, (e, a) in enumerate(zip(evidence, level)):
+        if math.isfinite(a):
+            bounds = e.interval(1.0 - a)
+            if all(math.isfinite(v) for v in bounds):
+                lo[i], hi[i] = bounds
+    out = [verdict(float(a), float(b), float(m), bool(u)) for a, b, m, u in zip(lo, hi, margin, up)]
+    estimate = np.array([e.estimate for e in evidence], np.float64)
+    return Decision(estimate, p, q, p_holm, q_holm, 1.0 - level, lo, hi, out)
 
 
 def format_p(p: float) -> str:
@@ -902,45 +840,30 @@ def format_p(p: float) -> str:
     return "–" if not math.isfinite(p) else "<0.001" if p < 0.001 else f"{p:.3f}"
 
 
-def verdict_basis(lo: float, hi: float, p_holm: float, p_equivalence_holm: float, margin: float,
-                  higher_is_better: bool, alpha: float = 0.05) -> str:
-    """What decided :func:`verdict` on these (Holm-adjusted) inputs, in a few words a table cell holds, so a
-    reader checks the verdict from its cell: the equivalence test (TOST within ``±margin``) for
-    *equivalent*; the difference test and the interval's side for *better*/*worse*; for *inconclusive*
-    each condition that failed. The interval shown beside a verdict is the 95 % one, unadjusted; an
-    interval inside the margin that is not *equivalent*, or one excluding 0 that is *inconclusive*, is
-    explained here by the adjusted p-value that fell short."""
-    found = verdict(lo, hi, p_holm, p_equivalence_holm, margin, higher_is_better, alpha)
-    a = f"{alpha:g}"
-    tost = f"TOST p Holm {format_p(p_equivalence_holm)}"
-    diff = f"p Holm {format_p(p_holm)}"
+def format_level(confidence: float) -> str:
+    """An interval's level as every table prints it: the decimals that show ``1 - confidence`` to two
+    significant digits (``95 %``, ``97.5 %``, ``99.6 %``, ``99.988 %``)."""
+    c = float(confidence)
+    if not (math.isfinite(c) and 0.0 < c < 1.0):
+        return "–"
+    rest = np.format_float_positional(100.0 * (1.0 - c), precision=2, fractional=False, trim="-")
+    digits = len(rest.partition(".")[2])
+    return f"{100.0 * c:.{digits}f} %"
+
+
+def verdict_basis(lo: float, hi: float, confidence: float, margin: float, higher_is_better: bool = True) -> str:
+    """Why the interval gives its verdict, in the words of :func:`verdict` with its level, e.g. ``99.6 % CI
+    inside ±0.02``, ``97.5 % CI above 0``, ``99.9 % CI holds 0``; where the data allow no interval at the
+    level, that."""
+    level = format_level(confidence)
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        return f"no {level} CI with these pairs" if math.isfinite(confidence) else "no pairs"
+    found = verdict(lo, hi, margin, higher_is_better)
     if found == "equivalent":
-        return f"{tost} ≤ {a}"
-    if found in ("better", "worse"):  # hidden only where the interval lies inside the margin: why not equivalent
-        shown = verdict_visible(lo, hi, margin, found, higher_is_better)
-        return f"{diff} ≤ {a}, CI excludes 0" + ("" if shown else f"; {tost} > {a}")
-    reasons = [f"{tost} > {a}" if margin > 0 and math.isfinite(p_equivalence_holm) else "no margin"
-               if margin <= 0 else "no TOST"]
-    excludes = lo > 0 or hi < 0
-    if not math.isfinite(p_holm):
-        reasons.append("no pairs")
-    elif p_holm > alpha:
-        reasons.append(f"{diff} > {a}")
-    elif not excludes:
-        reasons.append(f"{diff} but CI includes 0")
-    return "; ".join(reasons)
-
-
-def verdict_visible(lo: float, hi: float, margin: float, verdict_: str, higher_is_better: bool = True) -> bool:
-    """Whether ``verdict_`` follows from the interval ``[lo, hi]`` and the ``margin`` alone, as a reader checks
-    it: *equivalent* inside ``(-margin, margin)``; *better*/*worse* wholly beyond 0 on its side and not
-    inside the margin; *inconclusive* holding 0 and not inside the margin. Where it does not, the cell
-    shows :func:`verdict_basis`."""
-    if not higher_is_better:
-        lo, hi = -hi, -lo
-    inside = margin > 0 and -margin < lo and hi < margin
-    return {"equivalent": inside, "better": lo > 0 and not inside, "worse": hi < 0 and not inside,
-            "inconclusive": lo <= 0 <= hi and not inside}.get(verdict_, False)
+        return f"{level} CI inside ±{margin:.3g}"
+    if found == "inconclusive":
+        return f"{level} CI holds 0" + (f", not inside ±{margin:.3g}" if margin > 0 else "")
+    return f"{level} CI " + ("above 0" if lo > 0 else "below 0")
 
 
 def minimum_detectable_difference(x, y, *, kind: str, alpha: float = 0.05, power: float = 0.8) -> float:
@@ -988,6 +911,20 @@ def minimum_detectable_difference(x, y, *, kind: str, alpha: float = 0.05, power
             return math.inf
         return float(k * math.sqrt(math.pi / 3.0) * np.std(diff, ddof=1) / math.sqrt(n))
     raise ValueError(f"kind = {kind!r} must be 'rate' or 'continuous'")
+
+
+def seed_interval(values, confidence: float = 0.95) -> tuple[float, float, float]:
+    """The mean of a few replicate values (e.g. one estimate per selection seed) with its Student-t interval
+    over them, ``x̄ ± t_{n-1} s/√n``: the selection's randomness as a sample. NaN interval below two values."""
+    x = np.asarray(values, np.float64).reshape(-1)
+    if x.size == 0:
+        return math.nan, math.nan, math.nan
+    mean = float(x.mean())
+    if x.size < 2:
+        return mean, math.nan, math.nan
+    _z(confidence)
+    half = float(_st.t.ppf(0.5 + confidence / 2.0, x.size - 1) * x.std(ddof=1) / math.sqrt(x.size))
+    return mean, mean - half, mean + half
 
 
 # --------------------------------------------------------------------------------------------

@@ -66,43 +66,35 @@ def test_wilson_contains_estimate_and_stays_in_unit_interval(n, frac, conf):
 # --------------------------------------------------------------------------------------------
 
 
-def test_mcnemar_hand_computed():
-    # 12 pairs: 3 both succeed, 1 only x, 7 only y, 1 neither -> b = 1, c = 7.
-    x = np.array([1, 1, 1, 1] + [0] * 7 + [0], bool)
-    y = np.array([1, 1, 1, 0] + [1] * 7 + [0], bool)
-    res = stats.mcnemar_exact(x, y)
-    assert (res.b, res.c) == (1, 7)
-    # b ~ Bin(8, ½): P(b <= 1) = (C(8,0) + C(8,1)) / 2⁸ = 9/256; two-sided p = 2 · 9/256 = 18/256.
-    assert res.pvalue == pytest.approx(18 / 256, rel=1e-12)
-    assert stats.mcnemar_exact(y, x).pvalue == pytest.approx(res.pvalue)
-    # no discordant pair: nothing to test, p = 1
-    assert stats.mcnemar_exact(x, x).pvalue == 1.0
+def test_the_score_test_at_zero_is_mcnemars_asymptotic_test():
+    # b = 1, c = 7: Z = (1 - 7)/sqrt(8) = -2.121320, p = 2 Φ(-2.121320) = 0.033895 (the chi-squared form
+    # (b - c)²/(b + c) = 4.5 on 1 df gives the same p)
+    r = stats.RatePairs.of(*_table(3, 1, 7, 1))
+    assert (r.b, r.c, r.n) == (1, 7, 12)
+    assert r.p_difference() == pytest.approx(0.033895, abs=1e-6)
+    assert r.p_difference() == pytest.approx(sst.chi2.sf(4.5, 1), rel=1e-12)
+    assert stats.RatePairs(7, 1, 12).p_difference() == r.p_difference()
+    assert stats.RatePairs(0, 0, 12).p_difference() == 1.0  # no discordant pair: nothing to test
+    assert math.isnan(stats.RatePairs(0, 0, 0).p_difference())
 
 
-def test_wilcoxon_matches_scipy_exact_without_ties():
+def test_the_shift_test_is_the_signed_rank_test_without_ties():
+    """The test dual to the Walsh-average interval is Wilcoxon's for untied non-zero differences: exact up to
+    50 pairs, the normal approximation with continuity correction beyond (scipy's)."""
     rng = np.random.default_rng(3)
-    for n in (6, 11, 20):
+    for n in (6, 11, 20, 50):
         x, y = rng.normal(size=n) + 0.4, rng.normal(size=n)
-        ours = stats.wilcoxon_paired(x, y)
         ref = sst.wilcoxon(x - y, method="exact")
-        assert ours.statistic == pytest.approx(ref.statistic)
-        assert ours.pvalue == pytest.approx(ref.pvalue, rel=1e-9)
-
-
-def test_wilcoxon_exact_with_ties_and_zeros():
-    # ties among |d| and zero differences: compare with the full enumeration of the 2^n signs
-    d = np.array([1.0, -1.0, 2.0, 2.0, 3.0, 0.0, 3.0, 4.0, -2.0, 0.0])
-    ours = stats.wilcoxon_paired(d, np.zeros_like(d))
-    nz = d[d != 0]
-    ranks = sst.rankdata(np.abs(nz))
-    t_obs = ranks[nz > 0].sum()
-    signs = (np.arange(2 ** nz.size)[:, None] >> np.arange(nz.size)) & 1
-    t_all = signs @ ranks
-    p = min(1.0, 2 * min(np.mean(t_all <= t_obs + 1e-9), np.mean(t_all >= t_obs - 1e-9)))
-    assert ours.pvalue == pytest.approx(p, rel=1e-12)
-    assert ours.n == 10 and ours.n_nonzero == 8
-    assert stats.wilcoxon_paired([1.0, 2.0], [1.0, 2.0]).pvalue == 1.0
-    assert math.isnan(stats.wilcoxon_paired([], []).pvalue)
+        assert stats.ShiftPairs.of(x, y).p_difference() == pytest.approx(ref.pvalue, rel=1e-9)
+    for n in (51, 300):
+        d = rng.normal(0.15, 1, size=n)
+        ref = sst.wilcoxon(d, method="approx", correction=True)
+        assert stats.ShiftPairs.of(d, np.zeros(n)).p_difference() == pytest.approx(ref.pvalue, rel=1e-9)
+    # a zero difference counts on both sides (kept, as the estimate keeps it): never more significant
+    d = np.array([1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 0.0])
+    assert stats.ShiftPairs.of(d, np.zeros(7)).p_difference() >= sst.wilcoxon(d[:6], method="exact").pvalue
+    assert stats.ShiftPairs.of([1.0, 2.0], [1.0, 2.0]).p_difference() == 1.0
+    assert math.isnan(stats.ShiftPairs.of([], []).p_difference())
 
 
 def test_probability_of_improvement_counts_pairs():
@@ -234,72 +226,38 @@ def _table(a, b, c, d):
     return x, y
 
 
-def _newcombe_reference(a, b, c, d, conf):
-    """Newcombe's method 10 written out from the paper's formulas (scalar arithmetic throughout)."""
-    n = a + b + c + d
-    z = sst.norm.ppf(0.5 + conf / 2)
+def test_tangos_interval_published_and_by_an_independent_solver():
+    # Fagerland, Lydersen & Laake (Stat. Med. 2014) give Tango's 95 % interval for Cavo et al. (2012),
+    # a = 59, b = 6, c = 16, d = 80: -0.1240 to -0.0054
+    r = stats.RatePairs.of(*_table(59, 6, 16, 80))
+    assert r.estimate == pytest.approx(-10 / 161, rel=1e-12)
+    assert r.interval(0.95) == pytest.approx((-0.1240, -0.0054), abs=5e-5)
+    from scipy.optimize import brentq
 
-    def wilson(k):
-        p = k / n
-        centre = (2 * n * p + z * z) / (2 * (n + z * z))
-        half = z * math.sqrt(z * z + 4 * n * p * (1 - p)) / (2 * (n + z * z))
-        return centre - half, centre + half
-
-    p1, p2 = (a + b) / n, (a + c) / n
-    (l1, u1), (l2, u2) = wilson(a + b), wilson(a + c)
-    big_a, denom = a * d - b * c, (a + b) * (c + d) * (a + c) * (b + d)
-    corrected = big_a - n / 2 if big_a > n / 2 else (0 if big_a >= 0 else big_a)
-    phi = corrected / math.sqrt(denom) if denom else 0.0
-    delta = math.sqrt(max((p1 - l1) ** 2 - 2 * phi * (p1 - l1) * (u2 - p2) + (u2 - p2) ** 2, 0))
-    eps = math.sqrt(max((p2 - l2) ** 2 - 2 * phi * (p2 - l2) * (u1 - p1) + (u1 - p1) ** 2, 0))
-    return (b - c) / n, (b - c) / n - delta, (b - c) / n + eps
-
-
-def test_paired_proportion_difference_published_and_hand_computed():
-    # Fagerland, Lydersen & Laake (Stat. Med. 2014; their book §8 and R package contingencytables)
-    # work Newcombe's square-and-add interval on Cavo et al. (2012): a = 59, b = 6, c = 16, d = 80,
-    # estimate -10/161 = -0.0621, 95 % CI -0.1186 to -0.0046.
-    est, lo, hi = stats.paired_proportion_difference(*_table(59, 6, 16, 80))
-    assert est == pytest.approx(-10 / 161, rel=1e-12)
-    assert lo == pytest.approx(-0.1186, abs=5e-5)
-    assert hi == pytest.approx(-0.0046, abs=5e-5)
-    # Bentur et al. (2009), a = 1, b = 1, c = 7, d = 12, n = 21: ad - bc = 5 lies in [0, n/2], so the
-    # corrected φ̂ = 0 and the interval is plain square-and-add of the marginal Wilson intervals:
-    #   p̂x = 2/21 = 0.095238, Wilson [0.026519, 0.289141]; p̂y = 8/21 = 0.380952, Wilson [0.207510, 0.591213]
-    #   L = -6/21 - sqrt((0.095238 - 0.026519)² + (0.591213 - 0.380952)²) = -0.285714 - 0.221206 = -0.506920
-    #   U = -6/21 + sqrt((0.380952 - 0.207510)² + (0.289141 - 0.095238)²) = -0.285714 + 0.260155 = -0.025559
-    est, lo, hi = stats.paired_proportion_difference(*_table(1, 1, 7, 12))
-    assert est == pytest.approx(-6 / 21, rel=1e-12)
-    assert lo == pytest.approx(-0.506920, abs=2e-6)
-    assert hi == pytest.approx(-0.025559, abs=2e-6)
-    # negative ad - bc (φ̂ = A/√D uncorrected) and the other branches against the written-out formulas
-    for cells in [(2, 10, 8, 1), (12, 9, 2, 21), (0, 0, 0, 5), (0, 3, 0, 0), (40, 0, 0, 0)]:
-        assert stats.paired_proportion_difference(*_table(*cells)) == pytest.approx(
-            _newcombe_reference(*cells, 0.95), abs=1e-12)
+    # the ends solve Z(δ) = ±z with the restricted MLE found numerically (_tango_reference)
+    for b, c, n in [(6, 16, 161), (0, 0, 20), (12, 3, 40), (5, 0, 5), (30, 28, 500)]:
+        z = sst.norm.ppf(0.995)
+        lo, hi = stats.RatePairs(b, c, n).interval(0.99)
+        f = lambda delta, t, b=b, c=c, n=n: _tango_reference(b, c, n, delta) - t  # noqa: E731
+        mid = min(max((b - c) / n, -1 + 1e-9), 1 - 1e-9)
+        want_lo = brentq(f, -1 + 1e-9, mid, args=(z,)) if f(-1 + 1e-9, z) > 0 else -1.0
+        want_hi = brentq(f, mid, 1 - 1e-9, args=(-z,)) if f(1 - 1e-9, -z) < 0 else 1.0
+        assert (lo, hi) == pytest.approx((want_lo, want_hi), abs=2e-6)
 
 
 @settings(max_examples=300, deadline=None)
 @given(cells=st.tuples(*[st.integers(0, 60)] * 4), conf=st.sampled_from([0.8, 0.9, 0.95, 0.99]))
-def test_paired_proportion_difference_properties(cells, conf):
-    x, y = _table(*cells)
-    est, lo, hi = stats.paired_proportion_difference(x, y, conf)
+def test_tangos_interval_properties(cells, conf):
+    r = stats.RatePairs.of(*_table(*cells))
+    lo, hi = r.interval(conf)
     if sum(cells) == 0:
-        assert all(math.isnan(v) for v in (est, lo, hi))
+        assert math.isnan(lo) and math.isnan(hi) and math.isnan(r.estimate)
         return
-    assert -1.0 <= lo <= est <= hi <= 1.0
-    assert est == pytest.approx(stats.mean(x.astype(float)) - stats.mean(y.astype(float)))
-    assert (est, lo, hi) == pytest.approx(_newcombe_reference(*cells, conf), abs=1e-12)
-    est_s, lo_s, hi_s = stats.paired_proportion_difference(y, x, conf)  # swapping x and y mirrors it
-    assert (est_s, lo_s, hi_s) == pytest.approx((-est, -hi, -lo), abs=1e-12)
-    wide = stats.paired_proportion_difference(x, y, 0.995)
-    assert wide[1] <= lo + 1e-12 and hi <= wide[2] + 1e-12
-
-
-def test_paired_proportion_difference_errors():
-    with pytest.raises(ValueError, match="confidence"):
-        stats.paired_proportion_difference([True], [False], confidence=1.0)
-    with pytest.raises(ValueError, match="differ in size"):
-        stats.paired_proportion_difference([True, False], [False])
+    assert -1.0 <= lo <= r.estimate <= hi <= 1.0
+    swapped = stats.RatePairs(r.c, r.b, r.n).interval(conf)  # swapping x and y mirrors it
+    assert swapped == pytest.approx((-hi, -lo), abs=1e-12)
+    wide = r.interval(0.995)
+    assert wide[0] <= lo + 1e-12 and hi <= wide[1] + 1e-12
 
 
 def _walsh_brute_force(d, k):
@@ -435,155 +393,109 @@ def _tango_reference(b, c, n, delta):
     return (b - c - n * delta) / math.sqrt(var)
 
 
-def test_equivalence_rate_is_tango_score_test():
-    # p_upper = Φ(Z(δ = margin)); p_lower = 1 - Φ(Z(δ = -margin)); Z with the restricted MLE
+def test_the_equivalence_test_of_a_rate_is_tangos_two_one_sided_tests_doubled():
+    # q = 2 max(Φ(Z(margin)), 1 - Φ(Z(-margin))), Z with the restricted MLE: the level at which the two-sided
+    # interval first lies inside the margin
     for a, b, c, d in [(59, 6, 16, 80), (10, 0, 0, 10), (3, 12, 1, 30), (0, 5, 9, 0)]:
         n = a + b + c + d
         for margin in (0.05, 0.2, 0.45):
-            res = stats.equivalence_test(*_table(a, b, c, d), margin, kind="rate")
-            assert res.p_upper == pytest.approx(sst.norm.cdf(_tango_reference(b, c, n, margin)), abs=1e-6)
-            assert res.p_lower == pytest.approx(sst.norm.sf(_tango_reference(b, c, n, -margin)), abs=1e-6)
-            assert res.p == max(res.p_lower, res.p_upper)
-    # inverting it gives Tango's interval: Fagerland et al. (2014) report -0.1240 to -0.0054 (95 %) for
-    # Cavo et al.; the margin at which the lower test has p = 0.025 is the lower limit
-    from scipy.optimize import brentq
-
-    x, y = _table(59, 6, 16, 80)
-    limit = brentq(lambda m: stats.equivalence_test(x, y, m, kind="rate").p_lower - 0.025, 0.07, 0.5)
-    assert limit == pytest.approx(0.1240, abs=5e-5)
-
-
-def test_equivalence_hand_cases():
+            upper = sst.norm.cdf(_tango_reference(b, c, n, margin))
+            lower = sst.norm.sf(_tango_reference(b, c, n, -margin))
+            q = stats.RatePairs(b, c, n).p_equivalence(margin)
+            assert q == pytest.approx(min(1.0, 2 * max(upper, lower)), abs=2e-6)
     # no discordant pair among n = 10, margin 0.1: q̃ = 0, Z = (0 - 10·0.1)/sqrt(10·0.1·0.9) = -1.054093,
-    # p = Φ(-1.054093) = 0.145920 on each side -> not shown (a Wald test, se = 0, would claim it).
-    # n = 100: Z = -10/sqrt(100·0.09) = -3.333333, p = 0.000429 -> equivalent.
-    res = stats.equivalence_test(*_table(5, 0, 0, 5), 0.1, kind="rate")
-    assert res.p_lower == pytest.approx(0.145920, abs=1e-6) and res.p_upper == pytest.approx(0.145920, abs=1e-6)
-    assert not res.equivalent
-    res = stats.equivalence_test(*_table(50, 0, 0, 50), 0.1, kind="rate")
-    assert res.p == pytest.approx(0.000429, abs=1e-6) and res.equivalent
-    # identical samples, many pairs, generous margin: equivalent; the same for continuous values
+    # each side p = Φ(-1.054093) = 0.145920, q = 0.291840: not shown (a Wald test, se = 0, would claim it).
+    # n = 100: Z = -3.333333, q = 2 · 0.000429 = 0.000858
+    assert stats.RatePairs(0, 0, 10).p_equivalence(0.1) == pytest.approx(0.291840, abs=1e-6)
+    assert stats.RatePairs(0, 0, 100).p_equivalence(0.1) == pytest.approx(0.000858, abs=1e-6)
+    assert stats.RatePairs(30, 0, 100).p_equivalence(0.1) > 0.99  # Δ = 0.3: far outside
+    assert math.isnan(stats.RatePairs(0, 0, 0).p_equivalence(0.1))
+    with pytest.raises(ValueError, match="margin"):
+        stats.RatePairs(1, 0, 3).p_equivalence(1.0)
+
+
+def test_the_equivalence_test_of_a_shift_by_hand():
+    # d = 1..6, margin 10: every Walsh average lies inside (-10, 10), s = 0, q = 2 P(T+ <= 0) = 2 · 2⁻⁶
+    assert stats.ShiftPairs.of(np.arange(1.0, 7.0), np.zeros(6)).p_equivalence(10.0) == pytest.approx(2.0 ** -5)
     rng = np.random.default_rng(8)
-    x = rng.uniform(size=2000) < 0.3
-    assert stats.equivalence_test(x, x, 0.02, kind="rate").equivalent
     v = rng.normal(size=2000)
-    res = stats.equivalence_test(v, v, 0.01, kind="continuous")
-    assert res.equivalent and res.p < 1e-6
-    # a clear shift beyond the margin: not equivalent (the side it lies beyond has p near 1)
-    res = stats.equivalence_test(v + 1.0 + 0.1 * rng.normal(size=2000), v, 0.5, kind="continuous")
-    assert not res.equivalent and res.p_upper > 0.99 and res.p_lower < 1e-6
-    res = stats.equivalence_test(*_table(40, 30, 0, 30), 0.1, kind="rate")  # Δ = 0.3
-    assert not res.equivalent and res.p_upper > 0.99
-    # continuous, small n: exact one-sided signed-rank tests on d ± margin. d = 1..6, margin 10:
-    # every d + 10 > 0 and every d - 10 < 0, so both p = P(T+ = 21) = 2⁻⁶
-    res = stats.equivalence_test(np.arange(1.0, 7.0), np.zeros(6), 10.0, kind="continuous")
-    assert res.p_lower == pytest.approx(2.0 ** -6) and res.p_upper == pytest.approx(2.0 ** -6) and res.equivalent
-    # no pairs
-    res = stats.equivalence_test([], [], 0.1, kind="rate")
-    assert math.isnan(res.p) and not res.equivalent
-    assert math.isnan(stats.equivalence_test([], [], 0.1, kind="continuous").p)
-
-
-def test_equivalence_errors():
-    with pytest.raises(ValueError, match="kind"):
-        stats.equivalence_test([1.0], [1.0], 0.1, kind="rates")
+    assert stats.ShiftPairs.of(v, v).p_equivalence(0.01) < 1e-6
+    assert stats.ShiftPairs.of(v + 1.0 + 0.1 * rng.normal(size=2000), v).p_equivalence(0.5) == 1.0
     with pytest.raises(ValueError, match="margin"):
-        stats.equivalence_test([1.0], [1.0], 0.0, kind="continuous")
-    with pytest.raises(ValueError, match="margin"):
-        stats.equivalence_test([True], [True], 1.0, kind="rate")
-    with pytest.raises(ValueError, match="confidence"):
-        stats.equivalence_test([1.0], [1.0], 0.1, kind="continuous", confidence=1.5)
-    with pytest.raises(ValueError, match="differ in size"):
-        stats.equivalence_test([True, False], [True], 0.1, kind="rate")
+        stats.ShiftPairs.of([1.0], [0.0]).p_equivalence(0.0)
 
 
-def test_equivalence_rate_agrees_with_interval_rule():
-    # TOST at α (p <= 0.05) is the 1 - 2α = 90 % interval inside (-margin, margin). Tango's test and
-    # Newcombe's interval are different approximations, so they may disagree only when an end of the
-    # interval lies within a small distance of the margin.
-    rng = np.random.default_rng(9)
-    disagree = 0
-    for _ in range(1500):
-        cells = rng.multinomial(int(rng.integers(30, 500)), rng.dirichlet(np.ones(4)))
-        margin = float(rng.uniform(0.02, 0.4))
-        x, y = _table(*cells)
-        equivalent = stats.equivalence_test(x, y, margin, kind="rate", confidence=0.95).equivalent
-        _, lo, hi = stats.paired_proportion_difference(x, y, confidence=0.90)
-        if equivalent != (-margin < lo and hi < margin):
-            disagree += 1
-            assert min(abs(lo + margin), abs(hi - margin)) < 0.01, (cells, margin, lo, hi)
-    assert disagree < 15  # 1 %
+def _check_duality(evidence, margin):
+    """The tests are the interval's own: 0 leaves the 1 - γ interval exactly past p, the interval lies inside
+    the margin exactly from q on (checked just either side of each, for the levels a family of up to 50,000
+    comparisons at α = 0.05 gives; far below them 1 - γ no longer holds γ's digits)."""
+    p, q = evidence.p_difference(), evidence.p_equivalence(margin)
+    for gamma, outside in ((p * (1 - 1e-7), False), (p * (1 + 1e-7), True)):
+        if 1e-6 < gamma < 1:
+            lo, hi = evidence.interval(1 - gamma)
+            assert (not lo <= 0 <= hi) == outside, (gamma, p, lo, hi)
+    for gamma, inside in ((q * (1 - 1e-7), False), (q * (1 + 1e-7), True)):
+        if 1e-6 < gamma < 1:
+            lo, hi = evidence.interval(1 - gamma)
+            assert (-margin < lo and hi < margin) == inside, (gamma, q, lo, hi)
 
 
-def test_equivalence_continuous_agrees_with_hodges_lehmann_interval():
-    # for continuous data (no ties, no zeros) and n <= 50 both are exact and the rule holds exactly:
-    # TOST at α <=> the 1 - 2α Hodges–Lehmann interval lies inside (-margin, margin)
-    rng = np.random.default_rng(10)
-    for _ in range(300):
-        n = int(rng.integers(6, 51))
-        d = rng.normal(rng.uniform(-1, 1), 1, size=n)
-        margin = float(rng.uniform(0.05, 1.5))
-        res = stats.equivalence_test(d, np.zeros(n), margin, kind="continuous", confidence=0.95)
-        _, lo, hi = stats.hodges_lehmann_paired(d, np.zeros(n), confidence=0.90)
-        assert res.equivalent == (-margin < lo and hi < margin)
+@settings(max_examples=150, deadline=None)
+@given(cells=st.tuples(*[st.integers(0, 80)] * 4), margin=st.floats(0.01, 0.5))
+def test_a_rates_tests_are_its_intervals_own(cells, margin):
+    if sum(cells) == 0:
+        return
+    _check_duality(stats.RatePairs.of(*_table(*cells)), margin)
 
 
-def test_verdicts_adjust_both_tests_alike_over_the_study():
-    """Three comparisons: a clear difference, one whose equivalence p = 0.03 is significant alone but
-    not after Holm over three (0.03 x 2 = 0.06, the second smallest), and a null. Holm must move
-    the equivalence p-values exactly as it moves the difference p-values; NaN rows stay out of m."""
-    lo, hi = [0.10, -0.01, -0.2], [0.30, 0.01, 0.3]
-    p, p_eq = [0.001, 0.5, 0.9], [0.9, 0.03, 0.001]
-    p_holm, p_eq_holm, out = stats.verdicts(lo, hi, p, p_eq, 0.05, True)
-    np.testing.assert_allclose(p_holm, stats.holm(p))
-    np.testing.assert_allclose(p_eq_holm, [0.9, 0.06, 0.003])
-    assert out == ["better", "inconclusive", "equivalent"]
-    assert stats.verdict(-0.01, 0.01, 0.5, 0.03, 0.05, True) == "equivalent"  # the same row alone
-    # lower is better per row; a NaN row is inconclusive and leaves m = 2 for the others
-    p_holm, _, out = stats.verdicts([0.1, 0.1, np.nan], [0.3, 0.3, np.nan], [0.02, 0.02, np.nan],
-                                    [0.9, 0.9, np.nan], 0.05, [True, False, True])
-    np.testing.assert_allclose(p_holm[:2], [0.04, 0.04])
-    assert out == ["better", "worse", "inconclusive"]
+@settings(max_examples=150, deadline=None)
+@given(n=st.integers(2, 120), shift=st.floats(-1, 1), margin=st.floats(0.05, 1.5), seed=st.integers(0, 2**31 - 1),
+       ties=st.booleans())
+def test_a_shifts_tests_are_its_intervals_own(n, shift, margin, seed, ties):
+    d = np.random.default_rng(seed).normal(shift, 1, size=n)
+    _check_duality(stats.ShiftPairs.of(np.round(d, 1) if ties else d, np.zeros(n)), margin)
 
 
-def test_verdict_every_branch():
+def test_verdict_is_read_from_the_interval():
     v = stats.verdict
-    # significant, interval beyond 0, reaching past the margin: better / worse
-    assert v(0.05, 0.30, 0.001, 0.9, 0.1, True) == "better"
-    assert v(-0.30, -0.05, 0.001, 0.9, 0.1, True) == "worse"
-    # significant and the interval beyond 0 but straddling the margin: still better (direction shown,
-    # relevance not excluded)
-    assert v(0.02, 0.15, 0.01, 0.2, 0.1, True) == "better"
-    # significant, interval inside the margin, equivalence not shown: better (a direction, shown; its
-    # irrelevance is not): the unadjusted interval alone never makes "equivalent"
-    assert v(0.01, 0.04, 0.001, 0.2, 0.1, True) == "better"
-    # lower is better (collisions): a negative difference is an improvement
-    assert v(-0.30, -0.05, 0.001, 0.9, 0.1, False) == "better"
-    assert v(0.05, 0.30, 0.001, 0.9, 0.1, False) == "worse"
-    # the equivalence test rejects: equivalent, significant or not
-    assert v(0.01, 0.04, 0.001, 0.03, 0.1, True) == "equivalent"
-    assert v(-0.04, -0.01, 0.001, 0.01, 0.1, False) == "equivalent"
-    assert v(-0.03, 0.04, 0.6, 0.01, 0.1, True) == "equivalent"
-    # not significant, interval inside the margin but the equivalence test does not reject: inconclusive
-    assert v(-0.03, 0.04, 0.6, 0.2, 0.1, True) == "inconclusive"
-    # otherwise inconclusive: wide interval; significant p but interval touching 0 (methods disagree)
-    assert v(-0.2, 0.3, 0.4, 0.6, 0.1, True) == "inconclusive"
-    assert v(0.0, 0.3, 0.04, 0.6, 0.1, True) == "inconclusive"
-    assert v(0.05, 0.3, 0.06, 0.6, 0.1, True) == "inconclusive"  # interval beyond 0, test not significant
-    # alpha is the caller's (e.g. compare the Holm-adjusted p with it)
-    assert v(0.05, 0.30, 0.02, 0.9, 0.1, True, alpha=0.01) == "inconclusive"
-    assert v(-0.01, 0.01, 0.5, 0.02, 0.1, True, alpha=0.01) == "inconclusive"
-    # margin 0 switches relevance off; NaN (no pairs) is inconclusive
-    assert v(0.001, 0.002, 0.001, math.nan, 0.0, True) == "better"
-    assert v(-0.001, 0.002, 0.5, 0.0, 0.0, True) == "inconclusive"
-    assert v(math.nan, math.nan, math.nan, math.nan, 0.1, True) == "inconclusive"
+    assert v(0.05, 0.30, 0.1, True) == "better" and v(-0.30, -0.05, 0.1, True) == "worse"
+    assert v(0.02, 0.15, 0.1, True) == "better"  # beyond 0, straddling the margin: a direction, not its size
+    assert v(-0.30, -0.05, 0.1, False) == "better" and v(0.05, 0.30, 0.1, False) == "worse"  # lower is better
+    assert v(0.01, 0.04, 0.1, True) == "equivalent"  # inside the margin, whether or not it excludes 0
+    assert v(-0.03, 0.04, 0.1, True) == "equivalent"
+    assert v(-0.2, 0.3, 0.1, True) == "inconclusive" and v(0.0, 0.3, 0.1, True) == "inconclusive"
+    assert v(0.001, 0.002, 0.0, True) == "better"  # margin 0: no relevance
+    assert v(math.nan, math.nan, 0.1, True) == "inconclusive" and v(-math.inf, math.inf, 0.1, True) == "inconclusive"
     assert set(stats.VERDICTS) == {"better", "worse", "equivalent", "inconclusive"}
-    with pytest.raises(ValueError, match="alpha"):
-        v(0.0, 1.0, 0.5, 0.5, 0.1, True, alpha=1.0)
-    with pytest.raises(ValueError, match="margin"):
-        v(0.0, 1.0, 0.5, 0.5, -0.1, True)
     with pytest.raises(ValueError, match="lower > upper"):
-        v(1.0, 0.0, 0.5, 0.5, 0.1, True)
+        v(1.0, 0.0, 0.1, True)
+
+
+def test_decide_gives_each_row_the_level_holm_allows_it_within_its_family():
+    """Three rates in one family, one in another: the levels by hand (α p/p_Holm, or α q/q_Holm where
+    equivalence is shown), the interval at that level, and Holm never crossing families."""
+    rows = [stats.RatePairs(40, 10, 400), stats.RatePairs(25, 12, 400), stats.RatePairs(3, 2, 2000),
+            stats.RatePairs(25, 12, 400)]
+    d = stats.decide(rows, 0.02, True, ["a", "a", "a", "b"], 0.05)
+    p = np.array([r.p_difference() for r in rows])
+    q = np.array([r.p_equivalence(0.02) for r in rows])
+    np.testing.assert_array_equal(d.p_holm[:3], stats.holm(p[:3]))
+    np.testing.assert_array_equal(d.p_equivalence_holm[:3], stats.holm(q[:3]))
+    assert d.p_holm[3] == p[3] and d.p_equivalence_holm[3] == q[3]  # a family of its own: unadjusted
+    # row 0: far from equivalence, the smallest p of three: level α p/p_Holm = α/3 (q's share is larger)
+    assert d.p_holm[0] == pytest.approx(3 * p[0]) and d.confidence[0] == pytest.approx(1 - 0.05 / 3)
+    assert (d.lo[0], d.hi[0]) == rows[0].interval(d.confidence[0]) and d.verdict[0] == "better"
+    # row 2: 2,000 pairs, 5 discordant: equivalence shown, level α q/q_Holm, interval inside ±0.02
+    assert d.p_equivalence_holm[2] <= 0.05 and d.verdict[2] == "equivalent"
+    assert 1 - d.confidence[2] == pytest.approx(0.05 * q[2] / d.p_equivalence_holm[2])
+    # the same evidence alone in its family gets a wider level than in a family of three
+    assert d.confidence[3] <= d.confidence[1]
+    assert all(v == stats.verdict(lo, hi, 0.02, True) for v, lo, hi in zip(d.verdict, d.lo, d.hi))
+    # no pairs: NaN, inconclusive, out of Holm's m
+    d = stats.decide([stats.RatePairs(0, 0, 0), stats.RatePairs(40, 10, 400)], 0.02, True)
+    assert math.isnan(d.confidence[0]) and d.verdict[0] == "inconclusive" and d.p_holm[1] == p[0]
+    with pytest.raises(ValueError, match="alpha"):
+        stats.decide(rows, 0.02, True, alpha=1.0)
 
 
 def test_minimum_detectable_difference_hand_computed():
@@ -662,19 +574,18 @@ def test_order_statistics_resampled_as_ranks_equal_resampled_values(values, stra
     np.testing.assert_array_equal(ranks, direct)
 
 
-def test_the_rate_row_and_the_paired_row_are_their_parts():
-    """stats.rate_row and stats.paired_rate_row, the rows every table of rates and every paired comparison
-    of rates show, are Wilson's interval and Newcombe's, McNemar's and the TOST, each exactly."""
+def test_the_rate_row_is_wilsons():
+    """stats.rate_row, the row every table of rates shows, is Wilson's interval exactly."""
     rng = np.random.default_rng(3)
-    x, y = rng.random(200) < 0.6, rng.random(200) < 0.5
+    x = rng.random(200) < 0.6
     r = stats.rate_row(x, 0.9)
     lo, hi = stats.wilson_interval(int(x.sum()), 200, 0.9)
     assert (r.k, r.n, r.rate, r.lo, r.hi) == (int(x.sum()), 200, x.mean(), float(lo), float(hi))
-    p = stats.paired_rate_row(x, y, 0.02, confidence=0.9, equivalence_confidence=0.95)
-    test = stats.mcnemar_exact(x, y)
-    assert (p.difference, p.lo, p.hi) == stats.paired_proportion_difference(x, y, 0.9)
-    assert (p.b, p.c, p.p) == (test.b, test.c, test.pvalue)
-    assert p.p_equivalence == stats.equivalence_test(x, y, 0.02, kind="rate", confidence=0.95).p
-    assert np.isnan(stats.paired_rate_row(x, y).p_equivalence)  # no margin, no equivalence test
-    empty = stats.paired_rate_row(x[:0], y[:0], 0.02)
-    assert np.isnan([empty.difference, empty.lo, empty.hi, empty.p_equivalence]).all() and empty.p == 1.0
+
+
+def test_the_seeds_interval_by_hand():
+    # 1, 2, 3: mean 2, s = 1, t_{0.975, 2} = 4.302653, half width 4.302653/√3 = 2.484138
+    assert stats.seed_interval([1.0, 2.0, 3.0]) == pytest.approx((2.0, 2.0 - 2.484138, 2.0 + 2.484138), abs=1e-6)
+    mean, lo, hi = stats.seed_interval([0.5])
+    assert mean == 0.5 and math.isnan(lo) and math.isnan(hi)
+    assert all(math.isnan(v) for v in stats.seed_interval([]))

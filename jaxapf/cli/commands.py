@@ -180,6 +180,9 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--margin", action="append", default=[], metavar="METRIC=VALUE",
                      help="relevance margin of a metric, overriding its registered one (repeatable; rates as "
                           "proportions, e.g. success=0.05)")
+    rep.add_argument("--primary", action="append", default=[], metavar="METRIC",
+                     help="a metric of the primary Holm family (repeatable; default success and collision, of a "
+                          "swarm sweep swarm_success and agent_collision); every other metric is exploratory")
     rep.add_argument("--pair-on", default="", metavar="COLUMN[,COLUMN...]",
                      help="with several baseline settings, pair each setting with the baseline that equals it on "
                           "these columns (default: every swept column the baseline reads)")
@@ -527,6 +530,7 @@ def _report_with(args: argparse.Namespace, pool: Any) -> int:
                             gallery=args.gallery, resamples=args.resamples, confidence=args.confidence,
                             seed=args.seed, profile_metric=args.profile_metric, margins=_margins(args.margin),
                             efficiency=args.efficiency, svg=args.svg, animate=args.animate,
+                            primary=tuple(args.primary),
                             pair_on=tuple(c.strip() for c in args.pair_on.split(",") if c.strip()))
     name = args.sweep.name.removesuffix(".parquet") or "report"
     out = args.out if args.out is not None else pathlib.Path("reports") / name

@@ -276,25 +276,14 @@ def _test_rates(spec: CompareSpec, summary: pd.DataFrame, tags: list[str]) -> li
     return lines
 
 
-def _why(r: Any) -> str:
-    """`` (what decided it)`` after a verdict that does not follow from its interval and margin alone
-    (:func:`~jaxapf.stats.verdict_visible`), else nothing."""
-    from ..report.tables import verdict_inputs
-
-    lo, hi, p_holm, p_equivalence_holm, margin, up = verdict_inputs(r)
-    if stats.verdict_visible(lo, hi, margin, str(r["verdict"]), up):
-        return ""
-    return f" ({stats.verdict_basis(lo, hi, p_holm, p_equivalence_holm, margin, up)})"
-
-
 def _verdict_tables(spec: CompareSpec, summary: pd.DataFrame, comparisons: pd.DataFrame, tags: list[str]
                     ) -> tuple[list[str], list[tuple[str, str, pd.Series]]]:
     """compare.md's paired differences to the baseline seed by seed, and the pooled verdict counts of each
     method on success and collision (``findings``)."""
     lines = ["## Against the baseline, seed by seed", "",
-             f"Each cell: the paired difference to {spec.baseline} of the same selection with its 95 % "
-             "interval (rates in percentage points; Newcombe / Hodges-Lehmann) and the verdict (better, worse, "
-             "equivalent within the metric's relevance margin, or inconclusive; Holm over the whole report).", ""]
+             f"Each cell: the paired difference to {spec.baseline} of the same selection with the interval that "
+             "decided its verdict and that interval's level (rates in percentage points; Tango score / "
+             f"Hodges-Lehmann), then the verdict: {stats.VERDICT_RULE}.", ""]
     findings = []
     for m in spec.methods:
         if m == spec.baseline:
@@ -302,7 +291,7 @@ def _verdict_tables(spec: CompareSpec, summary: pd.DataFrame, comparisons: pd.Da
         rows = []
         for group in dict.fromkeys(summary["family"]):
             for metric in _VERDICT_METRICS:
-                cells, verdicts = {}, []
+                cells, verdicts, deltas = {}, [], []
                 for t in (DEFAULT, *tags):
                     sid = _setting_of(summary, spec, m, t)
                     r = comparisons[(comparisons["setting"] == sid) & (comparisons["family"] == group)
@@ -313,31 +302,42 @@ def _verdict_tables(spec: CompareSpec, summary: pd.DataFrame, comparisons: pd.Da
                     r = r.iloc[0]
                     scale = 100.0 if metric in ("success", "collision", "stalled") else 1.0
                     lo, hi = scale * r["delta_lo"], scale * r["delta_hi"]
-                    cells[t] = (f"{scale * r['delta']:+.3g} [{lo:+.3g}, {hi:+.3g}] {r['verdict']}"
-                                if math.isfinite(r["delta"]) else f"– {r['verdict']}") + _why(r)
+                    level = stats.format_level(r["confidence"])
+                    cells[t] = (f"– {r['verdict']}" if not math.isfinite(r["delta"]) else
+                                f"{scale * r['delta']:+.3g} [no {level} CI from {int(r['n_pairs'])} pairs] "
+                                f"{r['verdict']}" if not (math.isfinite(lo) and math.isfinite(hi)) else
+                                f"{scale * r['delta']:+.3g} [{lo:+.3g}, {hi:+.3g}] at {level} {r['verdict']}")
                     if t != DEFAULT:
                         verdicts.append(str(r["verdict"]))
+                        deltas.append(scale * float(r["delta"]))
                 counts = pd.Series(verdicts).value_counts()
                 agreement = ", ".join(f"{v} {c}/{len(tags)}" for v, c in counts.items())
                 rows.append({"group": group, "metric": metric, **cells, "tuned seeds": agreement})
                 if group == "all" and metric in ("success", "collision") and len(verdicts) == len(tags):
-                    findings.append((m, metric, counts))
+                    findings.append((m, metric, counts, stats.seed_interval(deltas)))
         lines += [f"### {m} vs {spec.baseline}", ""] + _md(pd.DataFrame(rows))
     return lines, findings
 
 
-def _conclusions(spec: CompareSpec, findings: list[tuple[str, str, pd.Series]], tags: list[str]) -> list[str]:
-    """compare.md's closing list: what every selection seed agrees on, and where they do not."""
-    lines = ["## What the test says (pooled over the test families)", ""]
-    for m, metric, counts in findings:
+def _conclusions(spec: CompareSpec, findings: list[tuple[str, str, pd.Series, tuple]], tags: list[str]) -> list[str]:
+    """compare.md's closing list: what every selection seed agrees on, and where they do not, each with the mean
+    difference over the seeds and its t interval (the seeds as a sample of selections)."""
+    lines = ["## What the test says (pooled over the test families)", "",
+             "Per method and rate: the selection seeds' verdicts against the baseline (the answer follows them), "
+             "then the mean paired difference over the seeds in percentage points with its 95 % t interval over "
+             "the seeds.", ""]
+    for m, metric, counts, (mean, lo, hi) in findings:
         top, n = counts.index[0], int(counts.iloc[0])
         tally = ", ".join(f"{v} {c}" for v, c in counts.items())
+        over = (f"; mean over the seeds {mean:+.3g} [{lo:+.3g}, {hi:+.3g}] pp" if math.isfinite(lo) else
+                f"; mean over the seeds {mean:+.3g} pp")
         if n == len(tags):
-            lines.append(f"- {m} vs {spec.baseline}, {metric}: **{top}** for every selection seed ({n}/{len(tags)}).")
+            lines.append(f"- {m} vs {spec.baseline}, {metric}: **{top}** for every selection seed ({n}/{len(tags)})"
+                         f"{over}.")
         elif "better" in counts.index and "worse" in counts.index:
-            lines.append(f"- {m} vs {spec.baseline}, {metric}: the selection seeds contradict each other ({tally}): "
-                         "no conclusion survives the selection's randomness.")
+            lines.append(f"- {m} vs {spec.baseline}, {metric}: the selection seeds contradict each other ({tally})"
+                         f"{over}: no conclusion survives the selection's randomness.")
         else:
-            lines.append(f"- {m} vs {spec.baseline}, {metric}: {top} for {n} of {len(tags)} selection seeds ({tally}): "
-                         "not robust to the selection's randomness.")
+            lines.append(f"- {m} vs {spec.baseline}, {metric}: {top} for {n} of {len(tags)} selection seeds ({tally})"
+                         f"{over}: not robust to the selection's randomness.")
     return lines + [""]

@@ -47,6 +47,7 @@ from .tables import (
     groups,
     headline,
     margins,
+    primary_metrics,
     rates_table,
     summarize,
     swept_name,
@@ -88,6 +89,9 @@ class ReportOptions:
       svg: also write every figure as SVG (``--svg``; a second draw of each figure).
       animate: also animate each gallery episode (``--animate``): ``gallery_N.gif`` shown in the page,
         ``gallery_N.mp4`` beside it (:mod:`jaxapf.simulate.animate`).
+      primary: the metrics of the primary Holm family (``--primary``; empty: success and collision, of a swarm
+        sweep ``swarm_success`` and ``agent_collision``), compared per family and pooled; every other
+        comparison is exploratory, corrected within its metric (:func:`~jaxapf.report.tables.holm_family`).
     """
 
     baseline: str = "method=basic"
@@ -103,8 +107,13 @@ class ReportOptions:
     pair_on: tuple[str, ...] = ()
     svg: bool = False
     animate: bool = False
+    primary: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
+        for name in self.primary:
+            if not is_metric(name):
+                raise ReportError(f"--primary {name}: {name!r} is not a metric; choose one of "
+                                  f"{', '.join(name for name, _ in all_metrics())}")
         if self.efficiency not in ("both-success", "all-pairs"):
             raise ReportError(f"--efficiency = {self.efficiency!r} is not allowed; "
                               "choose one of both-success, all-pairs")
@@ -213,7 +222,7 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
                      f"families of unequal sizes: the pooled '{ALL}' rows weight each family by its episodes ("
                      + ", ".join(f"{f} {n} fields" for f, n in sizes.items()) + "); read the per-family rows first")
     versions = meta.get("versions") if isinstance(meta.get("versions"), Mapping) else {}
-    n_tests = int(comparisons["p"].notna().sum()) if len(comparisons) else 0
+    n_primary = int((comparisons["holm_family"] == "primary").sum()) if len(comparisons) else 0
 
     doc = Document()
     title = f"jaxapf report — {spec_name}" + (" (INCOMPLETE SWEEP)" if incomplete else "")
@@ -253,10 +262,13 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
         f"statistics: {100 * options.confidence:g} % intervals; rates: Wilson score intervals; medians and IQMs "
         f"(25 % trimmed means): percentile bootstrap, {options.resamples} resamples, seed {options.seed}, "
         f"stratified by family and kind for pooled groups; paired differences: for rates the difference in "
-        f"proportions with Newcombe's score interval and the exact McNemar test, for continuous metrics the "
-        f"Hodges-Lehmann shift with its signed-rank interval and the Wilcoxon signed-rank test; Holm correction "
-        f"over all {n_tests} difference tests of the comparison tables (*: Holm-adjusted p <= {options.alpha:.3g}) "
-        f"and, separately, over the equivalence tests (two one-sided tests within each metric's relevance margin)",
+        f"proportions with Tango's score interval and the asymptotic McNemar (score) test, for continuous metrics "
+        f"the Hodges-Lehmann shift with its Walsh-average interval and signed-rank test; Holm within declared "
+        f"families: primary ({', '.join(primary_metrics(options, sel.data.columns))} of each setting against its "
+        f"baseline, per family and pooled: {n_primary} tests), exploratory (each other metric, and each kind of a "
+        f"family, within its metric); each interval beside a verdict is at the level Holm allows its comparison "
+        f"(*: Holm-adjusted p <= {options.alpha:.3g}; the unadjusted {100 * options.confidence:g} % intervals are "
+        f"in comparisons.csv as delta_lo_95, delta_hi_95)",
         "groups: each family, each kind of a family with several kinds "
         f"({', '.join(g for g in names if '/' in g) or 'none'}), and '{ALL}' pooling the families; a pooled row "
         "says what it pools",
@@ -309,15 +321,19 @@ def build_report(path: str | pathlib.Path, out: str | pathlib.Path,
     if len(comparisons):
         doc.p("Rows with equal (family, kind, field, seed) are the same obstacle field (common random numbers) and "
               "are paired. "
-              "Δ pp = setting − baseline difference in proportions (percentage points) with Newcombe's score "
-              "interval, tested by exact McNemar; HL shift = the Hodges-Lehmann estimate of the paired differences "
-              "(setting − baseline) with its signed-rank interval, tested by Wilcoxon signed-rank. margin: the "
-              "difference below which it does not matter; p equiv.: two one-sided tests that the difference lies "
-              "within it; MDE: the smallest difference this many pairs detects with power 0.8. PoI = P(setting "
-              "better than baseline on the same field) + ½ P(tie): > 0.5 favours the setting. Better means higher "
+              "Δ pp = setting − baseline difference in proportions (percentage points) with Tango's score "
+              "interval; HL shift = the Hodges-Lehmann estimate of the paired differences (setting − baseline) with "
+              "its Walsh-average interval. Each interval is at the level Holm allows its comparison within its Holm "
+              f"family (primary: {', '.join(primary_metrics(options, sel.data.columns))} per family and pooled, "
+              f"{n_primary} tests; exploratory: each other metric and each kind of a family), and the verdict is "
+              "read from it: equivalent inside ±margin, else better or worse when it excludes 0 on that side, else "
+              "inconclusive. margin: the difference below which it does not matter; p Holm and p equiv. Holm: the "
+              "interval's own difference and equivalence tests, Holm-adjusted within the family; MDE: the smallest "
+              "difference this many pairs detects with power 0.8 at the row's level. PoI = P(setting better than "
+              "baseline on the same field) + ½ P(tie): > 0.5 favours the setting. Better means higher "
               f"for {', '.join(m for m in rates + continuous if find_metric(m).higher_is_better)}, lower for "
-              f"{', '.join(m for m in rates + continuous if not find_metric(m).higher_is_better)}. "
-              f"p Holm: Holm-adjusted over all {n_tests} difference tests; * = significant at {options.alpha:.3g}.")
+              f"{', '.join(m for m in rates + continuous if not find_metric(m).higher_is_better)}; "
+              f"* = Holm-adjusted p <= {options.alpha:.3g}.")
         for m in rates + continuous:
             doc.h(3, f"{m}: {find_metric(m).doc}" + (" (higher is better)" if find_metric(m).higher_is_better
                                                       else " (lower is better)"))

@@ -271,7 +271,8 @@ def plot_continuous(summary: pd.DataFrame, labels: Mapping[int, str], metrics: S
 
 def plot_differences(comparisons: pd.DataFrame, labels: Mapping[int, str], metrics: Sequence[str],
                      alpha: float, baseline: str) -> Figure:
-    """Forest plot: paired difference (setting − ``baseline``) with its CI, one panel per metric; rates
+    """Forest plot: paired difference (setting − ``baseline``) with the interval that decided its verdict (at
+    the level Holm allows it in its family), one panel per metric; rates
     in percentage points as in the tables, continuous metrics in their units; grey band: the relevance
     margin. Colour: the comparison's verdict (:data:`~jaxapf.report.document.VERDICT_COLORS`, the words
     of the key findings); filled markers: a verdict other than inconclusive."""
@@ -309,8 +310,8 @@ def plot_differences(comparisons: pd.DataFrame, labels: Mapping[int, str], metri
     handles = [Line2D([], [], color=c, marker="o", linestyle="", markerfacecolor=c if v != "inconclusive" else "white",
                       label=v) for v, c in VERDICT_COLORS.items()]
     _legend_below(fig, handles, ncol=4)
-    fig.suptitle(f"Paired differences, setting − baseline ({baseline}); colour: verdict (Holm α = {alpha:g}), "
-                 "grey band: relevance margin", fontsize=9)
+    fig.suptitle(f"Paired differences, setting − baseline ({baseline}), each interval at the level Holm allows it "
+                 f"(α = {alpha:g} per family); colour: its verdict; grey band: relevance margin", fontsize=9)
     return fig
 
 

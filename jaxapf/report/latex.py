@@ -7,6 +7,7 @@ from typing import Any, Callable, Sequence
 
 import pandas as pd
 
+from .. import stats
 from ..gains import GAINS
 from .load import roles
 from .select import Selection, format_value, ignored_columns
@@ -113,9 +114,9 @@ def latex_tables(summary: pd.DataFrame, comparisons: pd.DataFrame, sel: Selectio
         lines += [
             r"\begin{table}[t]", r"\centering", r"\small",
             rf"\caption{{Paired comparison with the baseline ({_tex(options.baseline)}; {_tex(group)}): "
-            rf"difference in rate (percentage points, Newcombe {conf}\,\% interval), paired probability "
-            rf"of improvement (PoI) and Holm-adjusted exact McNemar $p$ over {int(comparisons['p'].notna().sum())} "
-            rf"tests.}}",
+            rf"difference in rate (percentage points, Tango score interval at the level Holm allows it within "
+            rf"the primary family of {int((comparisons['holm_family'] == 'primary').sum())} tests, which decides "
+            rf"its verdict), the level, paired probability of improvement (PoI) and Holm-adjusted score $p$.}}",
             r"\label{tab:jaxapf-paired}", r"\begin{tabular}{llllll}", r"\toprule",
             r"Setting & Baseline & $\Delta$ success [pp] & $\Delta$ collision [pp] & PoI success & $p_{\mathrm{Holm}}$ "
             r"(succ./coll.) \\ \midrule",
@@ -127,8 +128,10 @@ def latex_tables(summary: pd.DataFrame, comparisons: pd.DataFrame, sel: Selectio
             succ, coll = cs.loc[role.success], cs.loc[role.collision]
             lines.append(" & ".join([
                 _tex_label(int(s), sel.table, sel.swept), _tex(f"#{int(succ['baseline'])}"),
-                _tex_ci(succ["delta"], succ["delta_lo"], succ["delta_hi"], _tex_signed_pct),
-                _tex_ci(coll["delta"], coll["delta_lo"], coll["delta_hi"], _tex_signed_pct),
+                _tex_ci(succ["delta"], succ["delta_lo"], succ["delta_hi"], _tex_signed_pct)
+                + rf" ({_tex(stats.format_level(succ['confidence']))})",
+                _tex_ci(coll["delta"], coll["delta_lo"], coll["delta_hi"], _tex_signed_pct)
+                + rf" ({_tex(stats.format_level(coll['confidence']))})",
                 _tex_num(succ["poi"]), f"{_tex_p(succ['p_holm'])} / {_tex_p(coll['p_holm'])}"]) + r" \\")
         lines += [r"\bottomrule", r"\end{tabular}", r"\end{table}", ""]
     return "\n".join(lines)

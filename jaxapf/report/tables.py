@@ -3,17 +3,17 @@
 Groups. Rows are summarised and compared per family, per kind of a family that draws several kinds
 (``trap/gnron``), and pooled over families (``all``); a pooled row says what it pools (``pools``).
 
-Comparisons. Each comparison reports the estimate its test is about, with an interval: for a rate,
-the paired difference in proportions (Newcombe's hybrid score interval) next to the exact McNemar
-test; for a continuous metric, the Hodges–Lehmann shift of the paired differences (its
-signed-rank interval) next to the Wilcoxon signed-rank test. A metric that is meaningful only on
-successful episodes (``Metric.on_success``: time to goal, path ratio, effort, jerk, TTC) is
-compared on the pairs where both settings succeed (``conditioning``), unless the report asks for
-all pairs. Each comparison is also tested for equivalence within the metric's relevance margin
-(two one-sided tests: Tango's score test for rates, signed-rank tests for continuous metrics), gets
-a verdict — better, worse, equivalent or inconclusive (:func:`jaxapf.stats.verdict`) — and states
-the smallest difference it could detect at its sample size (power 0.8). Difference and
-equivalence p-values are each Holm-adjusted over the table.
+Comparisons. Each comparison reports the estimate its test is about, with an interval and the tests
+that interval implies (:func:`jaxapf.stats.decide`): for a rate, the paired difference in proportions
+(Tango's score interval, the asymptotic McNemar test); for a continuous metric, the Hodges–Lehmann
+shift of the paired differences (its Walsh-average interval, the signed-rank test). A metric that is
+meaningful only on successful episodes (``Metric.on_success``: time to goal, path ratio, effort,
+jerk, TTC) is compared on the pairs where both settings succeed (``conditioning``), unless the report
+asks for all pairs. Holm runs within declared families (:func:`holm_family`): the primary one (success
+and collision, or ``--primary``, per family and pooled) and one exploratory family per other metric;
+each interval is at the level Holm allows its comparison, and the verdict — better, worse, equivalent
+within the metric's relevance margin, or inconclusive (:func:`jaxapf.stats.verdict`) — is read from it.
+Each states the smallest difference it could detect at that level (power 0.8).
 """
 
 from __future__ import annotations
@@ -27,10 +27,10 @@ import pandas as pd
 from .. import stats
 from ..metrics import all_metrics, find_metric
 from .document import VERDICT_MARKS
-from .load import ROW_COLUMNS, SINGLE_ROLES, SWARM_ROLES, report_metrics
+from .load import ROW_COLUMNS, SINGLE_ROLES, SWARM_ROLES, report_metrics, roles
 
-__all__ = ["ALL", "groups", "group_rows", "pools", "summarize", "compare", "rates_table", "continuous_table",
-           "comparison_table", "findings", "margins", "REPORT_COLUMNS", "swept_name"]
+__all__ = ["ALL", "groups", "group_rows", "pools", "summarize", "compare", "holm_family", "primary_metrics",
+           "rates_table", "continuous_table", "comparison_table", "findings", "margins", "REPORT_COLUMNS", "swept_name"]
 
 #: The name of the group that pools every family of a report.
 ALL = "all"
@@ -157,30 +157,29 @@ def summarize(data: pd.DataFrame, settings: Sequence[int], table: pd.DataFrame, 
     return pd.DataFrame.from_records(records)
 
 
-def _compare_one(metric: str, x: np.ndarray, y: np.ndarray, rate: bool, margin: float | None,
-                 options: Any) -> dict[str, Any]:
-    """The statistics of one paired comparison (``x``: the setting, ``y``: its baseline)."""
-    conf, alpha = options.confidence, options.alpha
+def _compare_one(metric: str, x: np.ndarray, y: np.ndarray, rate: bool) -> tuple[dict[str, Any], stats.Evidence]:
+    """What one paired comparison shows before its family's Holm (``x``: the setting, ``y``: its baseline),
+    and its evidence for :func:`~jaxapf.stats.decide`."""
     if rate:
         x, y = x.astype(bool), y.astype(bool)
-        row = stats.paired_rate_row(x, y, margin, confidence=conf, equivalence_confidence=1.0 - alpha)
-        est, lo, hi = row.difference, row.lo, row.hi
-        out = dict(test="mcnemar", statistic=float(row.b), discordant=f"b={row.b}, c={row.c}", p=row.p,
+        found = stats.RatePairs.of(x, y)
+        out = dict(test="score", statistic=float(found.b), discordant=f"b={found.b}, c={found.c}",
                    value=float(np.mean(x)) if len(x) else math.nan,
                    baseline_value=float(np.mean(y)) if len(y) else math.nan)
-        p_eq = row.p_equivalence
     else:
-        w = stats.wilcoxon_paired(x, y)
-        est, lo, hi = stats.hodges_lehmann_paired(x, y, conf) if len(x) else (math.nan,) * 3
-        out = dict(test="wilcoxon", statistic=w.statistic, discordant=f"nonzero={w.n_nonzero}", p=w.pvalue,
+        found = stats.ShiftPairs.of(x, y)
+        out = dict(test="signed rank", statistic=float(np.count_nonzero(x != y)),
+                   discordant=f"nonzero={int(np.count_nonzero(x != y))}",
                    value=float(np.median(x)) if len(x) else math.nan,
                    baseline_value=float(np.median(y)) if len(y) else math.nan)
-        p_eq = (stats.equivalence_test(x, y, margin, kind="continuous", confidence=1.0 - alpha).p
-                if margin is not None and len(x) else math.nan)
-    kind = "rate" if rate else "continuous"
-    mde = stats.minimum_detectable_difference(x, y, kind=kind, alpha=alpha) if len(x) > 1 else math.inf
-    return out | dict(delta=est, delta_lo=lo, delta_hi=hi, margin=math.nan if margin is None else margin,
-                      p_equivalence=p_eq, mde=mde)
+    return out, found
+
+
+def holm_family(metric: str, group: str, primary: Sequence[str]) -> str:
+    """The Holm family of a comparison: ``primary`` for a ``primary`` metric in a family or the pooled group,
+    else ``exploratory: METRIC`` (a kind of a family is always exploratory, so adding one changes no
+    primary verdict)."""
+    return "primary" if metric in primary and "/" not in group else f"exploratory: {metric}"
 
 
 def compare(data: pd.DataFrame, pairs: Mapping[int, int], labels: Mapping[int, str],
@@ -188,18 +187,21 @@ def compare(data: pd.DataFrame, pairs: Mapping[int, int], labels: Mapping[int, s
     """Paired comparisons of every setting with its baseline, per group and metric (module docstring).
 
     Rows are paired on (family, kind, field, seed). Columns: ``setting, label, baseline,
-    baseline_label, family`` (the group), ``metric, higher_is_better, test, conditioning``
+    baseline_label, family`` (the group), ``metric, higher_is_better, holm_family, test, conditioning``
     (``all pairs`` or ``both succeed``), ``n_pairs, value, baseline_value`` (rates, or medians over
-    the pairs), ``delta, delta_lo, delta_hi`` (the test's estimate and interval), ``statistic,
-    discordant, p, margin, p_equivalence, mde``, ``poi, poi_lo, poi_hi`` (paired probability of
-    improvement), ``p_holm``, ``p_equivalence_holm``, ``significant``, ``verdict``.
+    the pairs), ``delta`` (the estimate), ``confidence`` (the level Holm allows the row within its family),
+    ``delta_lo, delta_hi`` (the interval at that level, which decided ``verdict``; NaN where the pairs allow
+    none), ``delta_lo_95, delta_hi_95`` (the unadjusted interval at ``options.confidence``), ``statistic,
+    discordant, p, margin, p_equivalence, mde`` (at the row's level), ``poi, poi_lo, poi_hi`` (paired
+    probability of improvement), ``p_holm``, ``p_equivalence_holm``, ``significant``, ``verdict``.
     """
     key = [c for c in ROW_COLUMNS if c in data.columns]
     boot = dict(n_resamples=options.resamples, confidence=options.confidence, seed=options.seed)
     rates, continuous = report_metrics(data.columns)
     margin_of = margins(options)
+    primary = primary_metrics(options, data.columns)
     names = groups(data)
-    records = []
+    records, found, samples = [], [], []
     for s, b in pairs.items():
         merged = pd.merge(data[data["setting"] == s], data[data["setting"] == b], on=key, suffixes=("_x", "_y"))
         for group in names:
@@ -220,23 +222,47 @@ def compare(data: pd.DataFrame, pairs: Mapping[int, int], labels: Mapping[int, s
                     conditioning = "both succeed"
                 x, y = x[keep], y[keep]
                 st = strata[keep] if strata is not None else None
+                margin = margin_of.get(metric)
                 rec: dict[str, Any] = {"setting": int(s), "label": labels[s], "baseline": int(b),
                                        "baseline_label": labels[b], "family": group, "metric": metric,
-                                       "higher_is_better": entry.higher_is_better, "conditioning": conditioning,
-                                       "n_pairs": len(x)}
-                rec.update(_compare_one(metric, x, y, rate, margin_of.get(metric), options))
+                                       "higher_is_better": entry.higher_is_better,
+                                       "holm_family": holm_family(metric, group, primary),
+                                       "conditioning": conditioning, "n_pairs": len(x),
+                                       "margin": math.nan if margin is None else margin}
+                shown, evidence = _compare_one(metric, x, y, rate)
+                rec.update(shown)
+                lo95, hi95 = evidence.interval(options.confidence) if len(x) else (math.nan, math.nan)
+                rec.update(delta_lo_95=lo95 if math.isfinite(lo95) else math.nan,
+                           delta_hi_95=hi95 if math.isfinite(hi95) else math.nan)
                 scores = stats.pair_scores(x, y, entry.higher_is_better)
                 poi_lo, poi_hi = stats.bootstrap_ci(scores, stats.mean, strata=st, **boot)
                 rec.update(poi=float(stats.mean(scores)) if len(scores) else math.nan, poi_lo=poi_lo, poi_hi=poi_hi)
                 records.append(rec)
+                found.append(evidence)
+                samples.append((x, y, "rate" if rate else "continuous"))
     frame = pd.DataFrame.from_records(records)
     if len(frame):
-        margin = frame["margin"].to_numpy(np.float64)
-        frame["p_holm"], frame["p_equivalence_holm"], frame["verdict"] = stats.verdicts(
-            frame["delta_lo"], frame["delta_hi"], frame["p"], frame["p_equivalence"], margin,
-            frame["higher_is_better"].to_numpy(bool), options.alpha)
-        frame["significant"] = frame["p_holm"] <= options.alpha
+        alpha = 1.0 - options.confidence
+        decision = stats.decide(found, frame["margin"].to_numpy(np.float64), frame["higher_is_better"].to_numpy(bool),
+                                frame["holm_family"].to_numpy(object), alpha)
+        frame["delta"], frame["p"], frame["p_equivalence"] = decision.estimate, decision.p, decision.p_equivalence
+        frame["p_holm"], frame["p_equivalence_holm"] = decision.p_holm, decision.p_equivalence_holm
+        frame["confidence"], frame["delta_lo"], frame["delta_hi"] = decision.confidence, decision.lo, decision.hi
+        frame["verdict"] = decision.verdict
+        frame["significant"] = frame["p_holm"] <= alpha
+        frame["mde"] = [stats.minimum_detectable_difference(x, y, kind=kind, alpha=1.0 - c)
+                        if len(x) > 1 and math.isfinite(c) else math.inf
+                        for (x, y, kind), c in zip(samples, decision.confidence)]
     return frame
+
+
+def primary_metrics(options: Any, columns: Sequence[str]) -> tuple[str, ...]:
+    """The metrics of the primary Holm family: ``options.primary``, by default the report's success and
+    collision (a swarm's ``swarm_success`` and ``agent_collision``)."""
+    if options.primary:
+        return tuple(options.primary)
+    role = roles(columns)
+    return (role.success, role.collision)
 
 
 def _num(v: Any, digits: int = 3) -> str:
@@ -302,29 +328,32 @@ def continuous_table(summary: pd.DataFrame, metric: str) -> pd.DataFrame:
 
 
 def _delta_text(r: Any, rate: bool) -> str:
+    """The estimate with the interval that decided the verdict (``at 99.6 %``), or why there is none."""
     fmt = (lambda v: _signed(v, 100.0, 3)) if rate else _signed
-    return _with_ci(r["delta"], r["delta_lo"], r["delta_hi"], fmt)
-
-
-def verdict_inputs(r: Any) -> tuple[float, float, float, float, float, bool]:
-    """``(lo, hi, p_holm, p_equivalence_holm, margin, higher_is_better)`` of one row of comparisons, as
-    :func:`~jaxapf.stats.verdict_basis` takes them (no margin: 0)."""
-    return (float(r["delta_lo"]), float(r["delta_hi"]), float(r["p_holm"]), float(r["p_equivalence_holm"]),
-            float(np.nan_to_num(r["margin"], nan=0.0)), bool(r["higher_is_better"]))
+    if not math.isfinite(float(r["delta"])):
+        return "–"
+    level = stats.format_level(r["confidence"])
+    if not (math.isfinite(float(r["delta_lo"])) and math.isfinite(float(r["delta_hi"]))):
+        return f"{fmt(r['delta'])} [no {level} CI from {int(r['n_pairs'])} pairs]"
+    return f"{fmt(r['delta'])} [{fmt(r['delta_lo'])}, {fmt(r['delta_hi'])}] at {level}"
 
 
 def _decided_by(r: Any, rate: bool) -> str:
-    """:func:`~jaxapf.stats.verdict_basis` of one comparison; for a continuous metric whose medians differ by
-    more than the interval of the paired shift allows, also that the test compared paired differences."""
-    basis = stats.verdict_basis(*verdict_inputs(r))
+    """:func:`~jaxapf.stats.verdict_basis` of one comparison, with its Holm family; for a continuous metric
+    whose medians differ by more than the interval of the paired shift allows, also that the test compared
+    paired differences."""
+    basis = stats.verdict_basis(float(r["delta_lo"]), float(r["delta_hi"]), float(r["confidence"]),
+                                float(np.nan_to_num(r["margin"], nan=0.0)), bool(r["higher_is_better"]))
     gap = float(r["value"]) - float(r["baseline_value"])
-    if not rate and math.isfinite(gap) and not float(r["delta_lo"]) <= gap <= float(r["delta_hi"]):
+    bounded = math.isfinite(float(r["delta_lo"])) and math.isfinite(float(r["delta_hi"]))
+    if not rate and bounded and math.isfinite(gap) and not float(r["delta_lo"]) <= gap <= float(r["delta_hi"]):
         basis += f"; medians differ by {_signed(gap)}, the test compares paired differences"
     return basis
 
 
 def comparison_table(comp: pd.DataFrame, metric: str) -> pd.DataFrame:
-    """The paired comparisons of one metric: estimate and interval, verdict, tests, margin, MDE."""
+    """The paired comparisons of one metric: the estimate with the interval at the level Holm allows it in
+    its family (which decides the verdict), the family, tests, margin, MDE."""
     rows = []
     rate = find_metric(metric).kind == "rate"
     scale = (lambda v: _signed(v, 100.0, 3)) if rate else (lambda v: _num(v))
@@ -335,13 +364,14 @@ def comparison_table(comp: pd.DataFrame, metric: str) -> pd.DataFrame:
             "setting": r["label"], "baseline": f"#{int(r['baseline'])}", "group": r["family"],
             "pairs": f"{int(r['n_pairs'])}" + (" (both succeed)" if r["conditioning"] == "both succeed" else ""),
             ("rate %" if rate else "median") + " (setting vs baseline)": value,
-            ("Δ pp [CI]" if rate else "HL shift [CI]"): _delta_text(r, rate),
+            ("Δ pp [CI at its level]" if rate else "HL shift [CI at its level]"): _delta_text(r, rate),
             "verdict": r["verdict"],
             "decided by": _decided_by(r, rate),
+            "Holm family": r["holm_family"],
             "p Holm": stats.format_p(r["p_holm"]) + (" *" if bool(r["significant"]) else ""),
             "margin": "–" if not math.isfinite(float(r["margin"])) else scale(r["margin"]).lstrip("+"),
             "p equiv. Holm": stats.format_p(r["p_equivalence_holm"]),
-            "MDE": scale(r["mde"]).lstrip("+") if math.isfinite(float(r["mde"])) else "∞",
+            "MDE": scale(r["mde"]).lstrip("+") if math.isfinite(float(r["mde"])) else "none",
             "PoI [CI]": _with_ci(r["poi"], r["poi_lo"], r["poi_hi"], lambda v: f"{float(v):.2f}"),
             "test": f"{r['test']} ({r['discordant']})",
         })
@@ -376,18 +406,27 @@ def findings(summary: pd.DataFrame, comparisons: pd.DataFrame, group: str, optio
         out.append(f"{text} ({group}): {names}: {value}.")
     if len(comparisons):
         comp = comparisons[comparisons["family"] == group]
-        total = int(comparisons["p"].notna().sum())
-        counts = comp["verdict"].value_counts()
-        out.append(f"Verdicts against the baseline ({group}, {len(comp)} comparisons; Holm over {total} tests, "
-                   f"α = {options.alpha:.3g}; relevance margins per metric): "
-                   + ", ".join(f"{counts.get(v, 0)} {v}" for v in stats.VERDICTS) + ".")
+        primary = comparisons[comparisons["holm_family"] == "primary"]
+        metrics = ", ".join(pd.unique(primary["metric"])) or "none"
+        for family, rows in (("primary", comp[comp["holm_family"] == "primary"]),
+                             ("exploratory", comp[comp["holm_family"] != "primary"])):
+            if not len(rows):
+                continue
+            counts = rows["verdict"].value_counts()
+            scope = (f"{metrics}, Holm over its {int(primary['p'].notna().sum())} tests" if family == "primary"
+                     else "Holm within each metric")
+            out.append(f"{family.capitalize()} verdicts against the baseline ({group}, {len(rows)} comparisons; "
+                       f"{scope}, α = {options.alpha:.3g}): "
+                       + ", ".join(f"{counts.get(v, 0)} {v}" for v in stats.VERDICTS) + ".")
         relevant = comp[comp["verdict"].isin(("better", "worse"))]
-        for _, r in relevant.sort_values(["p_holm", "setting"]).head(10).iterrows():
+        relevant = relevant.assign(order=relevant["holm_family"] != "primary")
+        for _, r in relevant.sort_values(["order", "p_holm", "setting"]).head(10).iterrows():
             rate = find_metric(r["metric"]).kind == "rate"
-            what = "Δ " + _delta_text(r, rate) + " pp" if rate else "shift " + _delta_text(r, rate)
+            what = "Δ " + _delta_text(r, rate).replace(" [", " pp [", 1) if rate else "shift " + _delta_text(r, rate)
             unit = "" if rate else f" {find_metric(r['metric']).unit}".rstrip()
             pairs = f"{int(r['n_pairs'])} pairs" + (", both succeed" if r["conditioning"] == "both succeed" else "")
-            out.append(f"{r['verdict'].capitalize()}: {r['label']} vs #{int(r['baseline'])}, {r['metric']} "
+            tag = "" if r["holm_family"] == "primary" else " (exploratory)"
+            out.append(f"{r['verdict'].capitalize()}{tag}: {r['label']} vs #{int(r['baseline'])}, {r['metric']} "
                        f"{what}{unit} ({pairs}; p Holm {stats.format_p(r['p_holm'])}).")
     return out
 
@@ -412,15 +451,21 @@ def verdict_matrix(comparisons: pd.DataFrame, metrics: Sequence[str], groups: Se
 
 #: The rule of :func:`bottom_line`, stated under it on every report.
 BOTTOM_LINE_RULE = ("Rates in %, each setting against its baseline on the same fields: the paired difference in "
-                    "percentage points with its 95 % interval and the verdict; the settings with the most better "
+                    "percentage points with the interval that decided its verdict (at the level Holm allows it in its "
+                    "family) and the verdict; the settings with the most better "
                     "minus worse verdicts first (at most two of each end); then each family where a setting is "
                     "better or worse on a rate than it is pooled.")
 
 
 def _rate_clause(r: Any) -> str:
-    """``success 55.0 vs 57.5 (-2.5 [-4.1, -0.9], worse)``: one rate of one setting against its baseline."""
+    """``success 55.0 vs 57.5 (-2.5 [-4.1, -0.9] at 99.6 %, worse)``: one rate of one setting against its
+    baseline, with the interval that decided the verdict; an exploratory one says so."""
+    tag = "" if r["holm_family"] == "primary" else ", exploratory"
+    if not (math.isfinite(float(r["delta_lo"])) and math.isfinite(float(r["delta_hi"]))):
+        return f"{r['metric']} {_pct(r['value'])} vs {_pct(r['baseline_value'])} (no pairs{tag}, {r['verdict']})"
     return (f"{r['metric']} {_pct(r['value'])} vs {_pct(r['baseline_value'])} ({_signed(r['delta'], 100.0, 2)} "
-            f"[{_signed(r['delta_lo'], 100.0, 2)}, {_signed(r['delta_hi'], 100.0, 2)}], {r['verdict']})")
+            f"[{_signed(r['delta_lo'], 100.0, 2)}, {_signed(r['delta_hi'], 100.0, 2)}] at "
+            f"{stats.format_level(r['confidence'])}{tag}, {r['verdict']})")
 
 
 def bottom_line(comparisons: pd.DataFrame, group: str, families: Sequence[str], rates: Sequence[str],

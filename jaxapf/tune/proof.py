@@ -17,7 +17,7 @@ The settings -- ``tuned`` (the gradient tuner's), ``default`` (:class:`~jaxapf.g
 paper-style defaults) and each black-box tuner's of ``search.tuners`` (:mod:`jaxapf.tune.searches`) --
 fly the same held-out fields (seed ``test.seed``, never seen in training or selection) of every test
 family, so outcomes are paired. For each family and pooled over all of them: success and collision
-rates with Wilson 95 % intervals, and exact McNemar tests of each setting against ``default``
+rates with Wilson 95 % intervals, and McNemar (score) tests of each setting against ``default``
 (Holm-adjusted over the whole table, per outcome).
 """
 
@@ -144,7 +144,7 @@ def test_episodes(tuner: Tuner, candidates: Mapping[str, Gains]) -> pd.DataFrame
 
 
 def comparison_table(episodes: pd.DataFrame, families: Sequence[str]) -> pd.DataFrame:
-    """Per family (and ``all``) and setting: rates with Wilson 95 % CIs, McNemar tests against
+    """Per family (and ``all``) and setting: rates with Wilson 95 % CIs, McNemar (score) tests against
     ``default`` (``b`` = pairs where the setting has the outcome and ``default`` not, ``c`` the
     reverse), Holm-adjusted p-values, and mean/median continuous metrics."""
     rows = []
@@ -159,9 +159,9 @@ def comparison_table(episodes: pd.DataFrame, families: Sequence[str]) -> pd.Data
                 r = stats.rate_row(e[outcome].to_numpy())
                 row |= {outcome: r.rate, f"{outcome}_lo": r.lo, f"{outcome}_hi": r.hi}
             for outcome in ("success", "collision"):
-                r = stats.paired_rate_row(e[outcome].to_numpy(), ref[outcome].to_numpy())
+                r = stats.RatePairs.of(e[outcome].to_numpy(bool), ref[outcome].to_numpy(bool))
                 row |= {f"{outcome}_b": r.b, f"{outcome}_c": r.c,
-                        f"{outcome}_p": math.nan if setting == "default" else r.p}
+                        f"{outcome}_p": math.nan if setting == "default" else r.p_difference()}
             row |= {"min_clearance": float(e.min_clearance.mean()), "time_to_goal": float(e.time_to_goal.median()),
                     "spl": float(e.spl.mean()), "loss": float(e.loss.mean())}
             row |= {t: float(e[t].mean()) for t in TERMS}

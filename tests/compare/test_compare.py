@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from jaxapf import evaluate
+from jaxapf import evaluate, stats
 from jaxapf.cli import main
 from jaxapf.compare import parse_compare_spec, run_compare_spec
 from jaxapf.compare.select import gradient_steps, grid_candidates, random_candidates
@@ -366,3 +366,22 @@ def test_each_method_by_its_own_search_under_the_same_budget(tmp_path):
     assert "random search (gradient for direction_velocity; sep_cmaes for learned_weight)" in text
     assert "1,217 numbers (selection/learned_weight-seed2.json)" in text
     assert "omega_params" not in (tmp_path / "out" / "selection.csv").read_text()
+
+
+def test_the_headline_gives_each_seeds_verdict_and_the_mean_over_the_seeds_with_its_interval(run):
+    """compare.md's conclusion per rate: the seeds' verdicts, and the mean of the seeds' pooled differences with
+    the t interval over the seeds, recomputed here from comparisons.csv."""
+    _, out, _ = run
+    comparisons = pd.read_csv(out / "report" / "comparisons.csv")
+    summary = pd.read_csv(out / "report" / "summary.csv")
+    tuned = summary[(summary["method"] == "direction_velocity") & (summary["selection"] != "default")]
+    md = (out / "compare.md").read_text()
+    for metric in ("success", "collision"):
+        rows = comparisons[comparisons["setting"].isin(tuned["setting"]) & (comparisons["family"] == "all")
+                           & (comparisons["metric"] == metric)]
+        assert len(rows) == 3
+        mean, lo, hi = stats.seed_interval(100 * rows["delta"].to_numpy())
+        line = next(line for line in md.splitlines() if line.startswith(f"- direction_velocity vs basic, {metric}:"))
+        assert f"mean over the seeds {mean:+.3g} [{lo:+.3g}, {hi:+.3g}] pp" in line
+        for v in rows["verdict"]:
+            assert v in line

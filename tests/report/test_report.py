@@ -204,7 +204,9 @@ def test_header_states_spec_versions_and_statistics(report, sweep):
     assert "spec_hash " + "f" * 64 in md
     assert "| jax | 0.0.test |" in md
     assert f"{RESAMPLES} resamples, seed 0" in md
-    assert "Holm correction over all 108 difference tests" in md  # 4 settings × 3 groups × 9 metrics
+    # 4 settings × 3 groups × 2 primary metrics; the other 7 metrics are exploratory, each its own family
+    assert "Holm within declared families: primary (success, collision of each setting against its baseline, " \
+           "per family and pooled: 24 tests)" in md
     assert "successful episodes only" in md
     # key findings come from the rows: the settings with the highest pooled success rate
     rate = df.groupby("setting")["success"].agg(["sum", "count"])
@@ -255,24 +257,27 @@ def test_comparisons_pair_fields_and_match_direct_computation(report, sweep):
     # direction_velocity settings 4..7 are each paired with basic #0 (basic ignores γ and k)
     assert sorted(set(comp["setting"])) == [4, 5, 6, 7]
     assert set(comp["baseline"]) == {0}
-    # 4 settings × (2 families + all) × (3 rates + 5 continuous) = 96 rows; Holm over their 96 p's
+    # 4 settings × (2 families + all) × 9 metrics = 108 rows; Holm within each declared family
     assert len(comp) == 108
     assert np.all(comp["p_holm"] >= comp["p"] - 1e-12)
-    np.testing.assert_allclose(comp["p_holm"], stats.holm(comp["p"].to_numpy()))
+    assert (comp["holm_family"] == "primary").sum() == 24
+    for _, rows in comp.groupby("holm_family"):
+        np.testing.assert_allclose(rows["p_holm"], stats.holm(rows["p"].to_numpy()))
     pairs = df[df.setting == 6].merge(df[df.setting == 0], on=["family", "field", "seed"])
     for metric in ("success", "collision"):
         row = comp[(comp.setting == 6) & (comp.family == "all") & (comp.metric == metric)].iloc[0]
         x, y = pairs[f"{metric}_x"].to_numpy(bool), pairs[f"{metric}_y"].to_numpy(bool)
         b, c = int(np.sum(x & ~y)), int(np.sum(~x & y))
         assert row["discordant"] == f"b={b}, c={c}"
-        assert row["p"] == pytest.approx(sst.binomtest(b, b + c, 0.5).pvalue if b + c else 1.0)
+        # McNemar's asymptotic test: (b - c)²/(b + c) on one degree of freedom
+        assert row["p"] == pytest.approx(sst.chi2.sf((b - c) ** 2 / (b + c), 1) if b + c else 1.0)
         assert row["delta"] == pytest.approx(x.mean() - y.mean())
         wins = np.sum(x > y) if metric == "success" else np.sum(x < y)
         assert row["poi"] == pytest.approx((wins + 0.5 * np.sum(x == y)) / len(x))
     row = comp[(comp.setting == 6) & (comp.family == "trap") & (comp.metric == "time_to_goal")].iloc[0]
     trap = pairs[(pairs.family == "trap") & pairs.success_x & pairs.success_y]
     assert row["n_pairs"] == len(trap)  # pairs where both succeeded
-    assert row["p"] == pytest.approx(stats.wilcoxon_paired(trap.time_to_goal_x, trap.time_to_goal_y).pvalue)
+    assert row["p"] == pytest.approx(stats.ShiftPairs.of(trap.time_to_goal_x, trap.time_to_goal_y).p_difference())
 
 
 def test_latex_table_is_booktabs_and_escaped(report):
@@ -551,10 +556,12 @@ def test_swept_tags_named_like_the_reports_columns_and_holding_html_are_shown_as
 
 def _verdicts(rows):
     """A comparisons frame of hand-made verdicts: (setting, family, metric, verdict), each rate at 50 % against
-    the baseline's 40 %, Δ +10 pp [+2, +18]."""
+    the baseline's 40 %, Δ +10 pp [+2, +18] at 97.5 %; stalled exploratory."""
     return pd.DataFrame([{"setting": s, "label": f"#{s} m{s}", "baseline": 0, "baseline_label": "#0 base",
                           "family": f, "metric": m, "verdict": v, "value": 0.5, "baseline_value": 0.4,
-                          "delta": 0.1, "delta_lo": 0.02, "delta_hi": 0.18} for s, f, m, v in rows])
+                          "delta": 0.1, "delta_lo": 0.02, "delta_hi": 0.18, "confidence": 0.975,
+                          "holm_family": "primary" if m in ("success", "collision") else f"exploratory: {m}"}
+                         for s, f, m, v in rows])
 
 
 def test_the_bottom_line_names_each_settings_rates_and_the_families_that_differ():
@@ -567,10 +574,10 @@ def test_the_bottom_line_names_each_settings_rates_and_the_families_that_differ(
                       (2, "trap", "success", "inconclusive"), (1, "clutter", "success", "inconclusive")])
     text = bottom_line(comp, "all", ["trap", "clutter"], ["success", "collision"])
     assert text == [
-        "Pooled over the families (against #0 base): #1 m1: success 50.0 vs 40.0 (+10 [+2, +18], better), "
-        "collision 50.0 vs 40.0 (+10 [+2, +18], equivalent); #2 m2: success 50.0 vs 40.0 (+10 [+2, +18], "
-        "inconclusive), collision 50.0 vs 40.0 (+10 [+2, +18], inconclusive).",
-        "In trap: #1 m1: success 50.0 vs 40.0 (+10 [+2, +18], worse)."]  # clutter: inconclusive says nothing new
+        "Pooled over the families (against #0 base): #1 m1: success 50.0 vs 40.0 (+10 [+2, +18] at 97.5 %, better), "
+        "collision 50.0 vs 40.0 (+10 [+2, +18] at 97.5 %, equivalent); #2 m2: success 50.0 vs 40.0 (+10 [+2, +18] "
+        "at 97.5 %, inconclusive), collision 50.0 vs 40.0 (+10 [+2, +18] at 97.5 %, inconclusive).",
+        "In trap: #1 m1: success 50.0 vs 40.0 (+10 [+2, +18] at 97.5 %, worse)."]  # clutter: nothing new
     assert bottom_line(comp.iloc[:0], "all", [], []) == ["Nothing to compare: every reported setting is a "
                                                          "baseline setting."]
 

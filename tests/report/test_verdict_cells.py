@@ -1,103 +1,120 @@
-"""A verdict a reviewer can check from its cell: where the interval and margin shown do not decide it, the
-cell says which adjusted test did (jaxapf.stats.verdict_basis), in the report and in compare.md."""
+"""A verdict a reviewer checks from its cell: every interval printed beside a verdict is the one that decided
+it (at the level Holm allows its comparison within its declared family), so the verdict follows from the
+interval and the margin alone, in comparisons.csv, the report's tables and compare.md; and every claim it
+makes is one Holm makes within the family."""
 
-import re
-
+import numpy as np
 import pandas as pd
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from jaxapf import stats
-from jaxapf.compare.protocol import _why
-from jaxapf.report.tables import comparison_table
+from jaxapf.report import ReportOptions
+from jaxapf.report.tables import compare, comparison_table
 
 ALPHA = 0.05
 
 
-def _row(delta, lo, hi, p_holm, p_eq, margin, verdict=None, *, metric="success", up=True, value=0.5, baseline=0.5):
-    verdict = verdict or stats.verdict(lo, hi, p_holm, p_eq, margin, up)
-    return {"setting": 1, "label": "#1 direction_velocity", "baseline": 0, "family": "clutter", "metric": metric,
-            "n_pairs": 512, "conditioning": "all", "value": value, "baseline_value": baseline, "delta": delta,
-            "delta_lo": lo, "delta_hi": hi, "verdict": verdict, "p_holm": p_holm, "significant": p_holm <= ALPHA,
-            "margin": margin, "p_equivalence_holm": p_eq, "mde": 0.01, "poi": 0.5, "poi_lo": 0.4, "poi_hi": 0.6,
-            "test": "McNemar", "discordant": "3/5", "higher_is_better": up}
+def _read(cell: str) -> tuple[float, float]:
+    """The interval a table cell prints: ``+1.2 [-0.3, +2.7] at 99.6 %``."""
+    inner = cell.split("[", 1)[1].split("]", 1)[0]
+    lo, hi = (float(v) for v in inner.split(","))
+    return lo, hi
 
 
-def _cell(row) -> tuple[str, str]:
-    table = comparison_table(pd.DataFrame([row]), row["metric"])
-    return table["verdict"].iloc[0], table["decided by"].iloc[0]
+@st.composite
+def studies(draw):
+    """A random study: a few settings, each flying the baseline's fields with its own success and clearance
+    (some settings identical to the baseline, some tiny or large shifts), one or two families."""
+    n = draw(st.integers(8, 160))
+    settings_ = draw(st.integers(1, 4))
+    seed = draw(st.integers(0, 2**31 - 1))
+    rng = np.random.default_rng(seed)
+    rows = []
+    base_success = rng.uniform(size=n) < draw(st.floats(0.2, 0.95))
+    base_clear = rng.uniform(0.2, 2.0, n)
+    for s in range(settings_ + 1):
+        flip = draw(st.floats(0.0, 0.3)) if s else 0.0
+        shift = draw(st.sampled_from([0.0, 0.001, 0.03, 0.3, -0.3])) if s else 0.0
+        success = np.where(rng.uniform(size=n) < flip, ~base_success, base_success)
+        clearance = base_clear + shift + (rng.normal(0, 0.01, n) if s and shift else 0.0)
+        for f in range(n):
+            rows.append(dict(setting=s, method="basic" if s == 0 else f"m{s}", family="ab"[f % 2], kind="k",
+                             field=f, seed=0, success=bool(success[f]), collision=not bool(success[f]),
+                             stalled=False, min_clearance=float(clearance[f])))
+    frame = pd.DataFrame(rows)
+    labels = {s: f"#{s}" for s in range(settings_ + 1)}
+    return frame, {s: 0 for s in range(1, settings_ + 1)}, labels
 
 
-def test_an_interval_inside_the_margin_that_is_not_equivalent_says_why():
-    """crossing: 99.8 % vs 99.8 %, Δ +0 [−0.917, +0.917] pp inside ±2 pp, TOST p Holm 0.072: inconclusive."""
-    row = _row(0.0, -0.00917, 0.00917, 1.0, 0.072, 0.02)
-    assert _cell(row) == ("inconclusive", "TOST p Holm 0.072 > 0.05; p Holm 1.000 > 0.05")
-    assert _why(pd.Series(row)) == " (TOST p Holm 0.072 > 0.05; p Holm 1.000 > 0.05)"
+@settings(max_examples=40, deadline=None)
+@given(studies())
+def test_no_cell_shows_a_verdict_its_interval_contradicts_and_every_claim_is_holms(study):
+    frame, pairs, labels = study
+    comp = compare(frame, pairs, labels, ReportOptions(resamples=100))
+    for _, r in comp.iterrows():
+        margin = float(np.nan_to_num(r["margin"], nan=0.0))
+        up = bool(r["higher_is_better"])
+        assert r["verdict"] == stats.verdict(r["delta_lo"], r["delta_hi"], margin, up)
+        if r["verdict"] in ("better", "worse"):
+            assert r["p_holm"] <= ALPHA
+        if r["verdict"] == "equivalent":
+            assert r["p_equivalence_holm"] <= ALPHA
+        elif r["p_equivalence_holm"] <= ALPHA:
+            raise AssertionError(f"Holm shows equivalence but the interval does not: {dict(r)}")
+        if np.isfinite(r["delta_lo"]):
+            assert r["delta_lo"] <= r["delta"] <= r["delta_hi"]
+            assert r["delta_lo"] <= r["delta_lo_95"] + 1e-12 and r["delta_hi_95"] <= r["delta_hi"] + 1e-12
+    for metric in pd.unique(comp["metric"]):
+        table = comparison_table(comp, metric)
+        column = next(c for c in table.columns if "CI at its level" in c)
+        scale = 100.0 if metric in ("success", "collision", "stalled") else 1.0
+        rows = comp[comp["metric"] == metric]
+        for (_, r), cell, verdict in zip(rows.iterrows(), table[column], table["verdict"]):
+            if "no " in cell or cell == "–":
+                assert verdict == "inconclusive"
+                continue
+            lo, hi = _read(cell)
+            # the printed bounds are rounded to 3 significant digits; away from the edges they give the verdict
+            margin = scale * float(np.nan_to_num(r["margin"], nan=0.0))
+            edges = [0.0, margin, -margin]
+            if all(abs(v - e) > 2e-3 * max(1.0, abs(e)) for v in (lo, hi) for e in edges):
+                assert verdict == stats.verdict(lo, hi, margin, bool(r["higher_is_better"]))
 
 
-def test_a_significant_test_whose_interval_holds_zero_says_why():
-    """spl on trap: the Wilcoxon test significant (p Holm < 0.001), the Hodges–Lehmann interval through 0."""
-    row = _row(0.001, -0.002, 0.004, 0.0004, 0.2, 0.05, metric="spl", value=0.5, baseline=0.5)
-    assert _cell(row) == ("inconclusive", "TOST p Holm 0.200 > 0.05; p Holm <0.001 but CI includes 0")
+def test_the_holm_family_of_each_row_reproduces_its_p_holm():
+    rng = np.random.default_rng(3)
+    frame = []
+    for s in range(3):
+        success = rng.uniform(size=60) < 0.5 + 0.1 * s
+        for f in range(60):
+            frame.append(dict(setting=s, method=f"m{s}", family="ab"[f % 2], kind="k", field=f, seed=0,
+                              success=bool(success[f]), collision=False, stalled=not bool(success[f]),
+                              min_clearance=float(rng.uniform(0.2, 2.0))))
+    comp = compare(pd.DataFrame(frame), {1: 0, 2: 0}, {0: "#0", 1: "#1", 2: "#2"}, ReportOptions(resamples=100))
+    assert set(comp.loc[comp["metric"].isin(["success", "collision"]), "holm_family"]) == {"primary"}
+    assert set(comp.loc[comp["metric"] == "stalled", "holm_family"]) == {"exploratory: stalled"}
+    for _, rows in comp.groupby("holm_family"):
+        np.testing.assert_array_equal(stats.holm(rows["p"].to_numpy()), rows["p_holm"].to_numpy())
+        np.testing.assert_array_equal(stats.holm(rows["p_equivalence"].to_numpy()),
+                                      rows["p_equivalence_holm"].to_numpy())
 
 
-def test_an_equivalent_shift_beside_far_apart_medians_says_what_was_compared():
-    """spl in clutter: medians 0 vs 0.943, the paired shift −0.0116 inside ±0.05: equivalent, and the cell says
-    that the paired differences were compared, not the medians."""
-    row = _row(-0.0116, -0.02, -0.004, 0.01, 0.001, 0.05, metric="spl", value=0.0, baseline=0.943)
-    verdict, basis = _cell(row)
-    assert verdict == "equivalent"
-    assert basis == "TOST p Holm 0.001 ≤ 0.05; medians differ by -0.943, the test compares paired differences"
-
-
-def test_an_interval_excluding_zero_and_the_margin_that_is_inconclusive_says_why():
-    """clutter success −4.69 [−7.93, −1.41] pp with p Holm 0.081: inconclusive, because of the adjusted test."""
-    row = _row(-0.0469, -0.0793, -0.0141, 0.081, 0.9, 0.02)
-    assert _cell(row) == ("inconclusive", "TOST p Holm 0.900 > 0.05; p Holm 0.081 > 0.05")
-    assert "p Holm 0.081 > 0.05" in _why(pd.Series(row))
-
-
-def test_a_verdict_that_follows_from_its_interval_adds_nothing_to_compare_md():
-    row = _row(-0.0469, -0.0793, -0.0141, 0.001, 0.9, 0.02)
-    assert row["verdict"] == "worse" and _why(pd.Series(row)) == ""
-    assert _cell(row) == ("worse", "p Holm 0.001 ≤ 0.05, CI excludes 0")
-
-
-def _p_in(basis: str, name: str) -> float:
-    """The p-value the basis states for ``name`` (``TOST p Holm`` or ``p Holm``)."""
-    found = re.search(rf"(?:^|; ){name} (<0\.001|[0-9.]+)", basis)
-    return 0.0 if found[1] == "<0.001" else float(found[1])
-
-
-@settings(max_examples=400, deadline=None)
-@given(lo=st.floats(-0.2, 0.2), width=st.floats(0.0, 0.2), p=st.floats(0, 1), q=st.floats(0, 1),
-       margin=st.sampled_from([0.0, 0.02, 0.05]), up=st.booleans())
-def test_no_cell_shows_a_verdict_its_interval_contradicts_without_saying_why(lo, width, p, q, margin, up):
-    """Over random comparisons: an interval inside the margin marked other than equivalent, or one excluding 0
-    and the margin marked inconclusive, always comes with the adjusted test that decided, and that test's
-    p-value (as printed) is on the side of α the verdict needs."""
-    hi = lo + width
-    row = _row((lo + hi) / 2, lo, hi, p, q, margin, up=up)
-    verdict, basis = _cell(row)
-    a, b = (lo, hi) if up else (-hi, -lo)
-    inside = margin > 0 and -margin < a and b < margin
-    outside = (a > 0 or b < 0) and not inside
-    why = _why(pd.Series(row))
-    if inside and verdict != "equivalent":
-        assert _p_in(basis, "TOST p Holm") > ALPHA - 1e-3 and why
-    if outside and verdict == "inconclusive":
-        assert _p_in(basis, "p Holm") > ALPHA - 1e-3 and why
-    if verdict == "equivalent":
-        assert _p_in(basis, "TOST p Holm") <= ALPHA
-    if verdict in ("better", "worse"):
-        assert _p_in(basis, "p Holm") <= ALPHA and (a > 0 if verdict == "better" else b < 0)
-    assert bool(why) == (not stats.verdict_visible(lo, hi, margin, verdict, up))
-
-
-def test_visibility_by_hand():
-    assert stats.verdict_visible(-0.01, 0.01, 0.02, "equivalent")
-    assert not stats.verdict_visible(-0.01, 0.03, 0.02, "equivalent")
-    assert stats.verdict_visible(0.01, 0.05, 0.02, "better") and not stats.verdict_visible(0.01, 0.015, 0.02, "better")
-    assert stats.verdict_visible(0.01, 0.05, 0.02, "worse", higher_is_better=False)
-    assert stats.verdict_visible(-0.05, 0.05, 0.02, "inconclusive")
-    assert not stats.verdict_visible(-0.05, -0.03, 0.02, "inconclusive")
+def test_cells_by_hand():
+    """Two comparisons, one family: the table's cell shows the interval at its level and why it decided."""
+    row = dict(setting=1, label="#1", baseline=0, family="clutter", metric="success", n_pairs=512,
+               conditioning="all pairs", value=0.5, baseline_value=0.48, delta=0.02, delta_lo=0.004, delta_hi=0.036,
+               confidence=0.975, verdict="better", holm_family="primary", p_holm=0.01, significant=True,
+               margin=0.02, p_equivalence_holm=0.9, mde=0.01, poi=0.51, poi_lo=0.5, poi_hi=0.52, test="score",
+               discordant="b=20, c=10", higher_is_better=True)
+    table = comparison_table(pd.DataFrame([row]), "success")
+    assert table["Δ pp [CI at its level]"].iloc[0] == "+2 [+0.4, +3.6] at 97.5 %"
+    assert table["decided by"].iloc[0] == "97.5 % CI above 0"
+    assert table["Holm family"].iloc[0] == "primary"
+    inside = row | dict(delta=0.0, delta_lo=-0.01, delta_hi=0.012, confidence=0.99, verdict="equivalent")
+    assert comparison_table(pd.DataFrame([inside]), "success")["decided by"].iloc[0] == "99 % CI inside ±0.02"
+    none = row | dict(metric="min_clearance", delta=0.1, delta_lo=np.nan, delta_hi=np.nan, n_pairs=4,
+                      verdict="inconclusive", value=1.0, baseline_value=0.9, margin=0.05)
+    cell = comparison_table(pd.DataFrame([none]), "min_clearance")
+    assert cell["HL shift [CI at its level]"].iloc[0] == "+0.1 [no 97.5 % CI from 4 pairs]"
+    assert cell["decided by"].iloc[0] == "no 97.5 % CI with these pairs"

@@ -63,21 +63,41 @@ def test_no_margin_no_equivalence():
     assert comp.loc["min_clearance", "verdict"] in ("equivalent", "inconclusive")
 
 
-def test_rate_difference_and_interval_are_newcombes_and_shift_is_hodges_lehmann():
+def test_rate_difference_and_interval_are_tangos_and_shift_is_hodges_lehmann_at_the_rows_level():
     rng = np.random.default_rng(1)
     sx, sy = rng.uniform(size=N) < 0.7, rng.uniform(size=N) < 0.6
     df = _rows(0.1, sx, sy)
     comp = _compare(df)
-    est, lo, hi = stats.paired_proportion_difference(sx, sy, 0.95)
     row = comp.loc["success"]
-    assert (row["delta"], row["delta_lo"], row["delta_hi"]) == pytest.approx((est, lo, hi))
-    assert row["discordant"] == f"b={int(np.sum(sx & ~sy))}, c={int(np.sum(~sx & sy))}"
+    pairs = stats.RatePairs(int(np.sum(sx & ~sy)), int(np.sum(~sx & sy)), N)
+    assert (row["delta"], row["delta_lo"], row["delta_hi"]) == pytest.approx(
+        (pairs.estimate, *pairs.interval(row["confidence"])))
+    assert (row["delta_lo_95"], row["delta_hi_95"]) == pytest.approx(pairs.interval(0.95))
+    assert row["discordant"] == f"b={pairs.b}, c={pairs.c}"
     x = df[df.setting == 1]["min_clearance"].to_numpy()
     y = df[df.setting == 0]["min_clearance"].to_numpy()
-    est, lo, hi = stats.hodges_lehmann_paired(x, y, 0.95)
     row = comp.loc["min_clearance"]
+    est, lo, hi = stats.hodges_lehmann_paired(x, y, row["confidence"])
     assert (row["delta"], row["delta_lo"], row["delta_hi"]) == pytest.approx((est, lo, hi))
     assert row["conditioning"] == "all pairs"
+    assert row["holm_family"] == "exploratory: min_clearance" and comp.loc["success", "holm_family"] == "primary"
+
+
+def test_an_exploratory_metric_a_kind_or_a_gallery_changes_no_primary_verdict():
+    """The primary family (success and collision, per family and pooled) is the question's: a report that adds
+    an exploratory metric or splits a family into kinds gives the same primary rows."""
+    rng = np.random.default_rng(4)
+    sx, sy = rng.uniform(size=N) < 0.66, rng.uniform(size=N) < 0.6
+    df = _rows(0.02, sx, sy)
+    df["family"] = np.where(df["field"] % 2, "clutter", "trap")
+    base = compare(df.drop(columns=["time_to_goal"]), {1: 0}, {0: "#0", 1: "#1"}, ReportOptions(resamples=200))
+    df["kind"] = np.where(df["field"] % 4 < 2, "a", "b")
+    more = compare(df, {1: 0}, {0: "#0", 1: "#1"}, ReportOptions(resamples=200, gallery=0))
+    assert set(more["family"]) - set(base["family"])  # the kinds are new groups
+    assert set(more["metric"]) - set(base["metric"]) == {"time_to_goal"}
+    columns = ["family", "metric", "p", "p_holm", "confidence", "delta_lo", "delta_hi", "verdict"]
+    pick = lambda c: c[c["holm_family"] == "primary"][columns].reset_index(drop=True)  # noqa: E731
+    pd.testing.assert_frame_equal(pick(base), pick(more))
 
 
 def test_efficiency_compared_where_both_succeed_unless_asked_otherwise():
@@ -122,3 +142,14 @@ def test_bad_margins_are_refused_in_one_line(margin, message):
 
     with pytest.raises(ReportError, match=message):
         ReportOptions(margins=(margin,))
+
+
+def test_a_declared_primary_family_replaces_the_default():
+    ok = np.ones(N, bool)
+    comp = _compare(_rows(0.01, ok, ok), primary=("min_clearance",))
+    assert comp.loc["min_clearance", "holm_family"] == "primary"
+    assert comp.loc["success", "holm_family"] == "exploratory: success"
+    from jaxapf.report import ReportError
+
+    with pytest.raises(ReportError, match="--primary speed: 'speed' is not a metric"):
+        ReportOptions(primary=("speed",))
