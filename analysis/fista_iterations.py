@@ -185,7 +185,7 @@ def main() -> None:
     if args.facts_only:
         study.write_facts(out, facts(pd.read_csv(out / "agreement.csv"), study.Numbers(study.committed_report(out))))
         return
-    parquet = study.run_spec(SPEC, args.fields)
+    parquet = study.sweep_source(args, out, SPEC)
     result = study.report(parquet, out, resamples=args.resamples, baseline=f"iters={REFERENCE}", heatmap=None,
                           gallery=0)
     from jaxapf.sweep import read_sweep

@@ -24,9 +24,11 @@ import numpy as np
 import pandas as pd
 import study
 import swarm_study
-from planner_benchmark import run_benchmark
+from planner_benchmark import SEEDS, run_benchmark
 
 FLOWS = ("circle_swap", "crossing_flows")
+#: The planners the paper's field flies (module docstring): the question's other side.
+FLOWN = ("velocity_obstacle", "mppi", "keepout_mpc")
 AGENTS = (8, 32)
 
 
@@ -109,9 +111,17 @@ def swarms(out: pathlib.Path, spec, args, runs: pathlib.Path | None) -> tuple[li
     return ["\n".join(lines)], swarm_facts(rates, comparisons)
 
 
+def question(facts: dict) -> dict:
+    """Does the paper's field beat the planners it flies? Each flown planner's pooled success against the
+    paper's, every selection seed, seen from the paper's side."""
+    paper = facts["verdict"]["paper"]["success"]
+    return study.answer_fact({f"{m} {s}": paper[m][s] for m in FLOWN for s in SEEDS}, mirror=True)
+
+
 def main() -> None:
     run_benchmark(__doc__, "flown_planners", "flown-planners.toml",
-                  "Study 17 — the planners the field flies against the paper's potential field", extra=swarms)
+                  "Study 17 — the planners the field flies against the paper's potential field", extra=swarms,
+                  question=question)
 
 
 if __name__ == "__main__":

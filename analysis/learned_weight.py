@@ -404,9 +404,17 @@ OMEGA_CAPTION = ("Each selection seed's weight over the direction cosine and the
                  "at the γ and k its random search chose, bottom the learned ω_θ")
 
 
+def question(facts: dict) -> dict:
+    """Can the learned weight beat the paper's? Its pooled success against ``direction_velocity``, every
+    selection seed, at study 17's budget and at twice it."""
+    verdicts = {f"{s}": facts["verdict"]["paper"]["success"][LEARNED][s] for s in SEEDS}
+    verdicts |= {f"twice the budget {s}": v for s, v in facts["twice_budget"]["verdict"]["all"].items()}
+    return study.answer_fact(verdicts)
+
+
 def main() -> None:
     run_benchmark(__doc__, NAME, SPEC, "Study 19 — a weight learned through the closed loop against the paper's",
-                  extra=arms)
+                  extra=arms, question=question)
 
 
 if __name__ == "__main__":

@@ -133,6 +133,7 @@ def facts(n: study.Numbers) -> dict:
                for k in ("success", "stalled")},
             "delta": compared(lambda d: d.delta), "delta_lo": compared(lambda d: d.lo),
             "delta_hi": compared(lambda d: d.hi), "verdict": compared(lambda d: d.verdict),
+            "answer": study.answer_fact({m: deltas["trap", m, "success"].verdict for m in weights}),
             "margin": float(n.comparisons.loc[n.comparisons["metric"] == "success", "margin"].iloc[0]),
             "groups": len(GROUPS), "groups_better": count("better"), "groups_worse": count("worse"),
             "comparisons": len(deltas), "comparisons_better": sum(d.better for d in deltas.values()),

@@ -111,6 +111,7 @@ def facts(numbers: dict[str, study.Numbers]) -> dict:
             "collision": collision, "clearance_median": per_method("min_clearance_median"),
             "delta": compared(lambda d: d.delta), "delta_lo": compared(lambda d: d.lo),
             "delta_hi": compared(lambda d: d.hi), "verdict": compared(lambda d: d.verdict),
+            "answer": study.answer_fact({CASES[c]: deltas[c, "all", "collision"].verdict for c in PAIRS}),
             "margin": {k: float(table.loc[table["metric"] == k, "margin"].iloc[0]) for k in METRICS},
             "families_safer": {CASES[c]: families(c, "collision", "better") for c in PAIRS},
             "families_riskier": {CASES[c]: families(c, "collision", "worse") for c in PAIRS},
@@ -126,7 +127,7 @@ def main() -> None:
         committed = {case: study.Numbers(study.committed_report(out, FOLDERS[case])) for case in PAIRS}
         study.write_facts(out, facts(committed))
         return
-    parquet = study.run_spec("family-variants", args.fields)
+    parquet = study.sweep_source(args, out, "family-variants")
     numbers = {}
     for case, (base, dv) in PAIRS.items():
         result = study.report(parquet, out, resamples=args.resamples, folder=FOLDERS[case],

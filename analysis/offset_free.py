@@ -403,7 +403,9 @@ def main() -> None:
     if args.facts_only:  # the page and its facts from the committed tables; the guarantee check ("braking")
         # needs the episodes: kept from the committed facts
         kept = json.loads((out / "facts.json").read_text())
-        write(pd.read_csv(out / "summary.csv"), pd.read_csv(out / "selection_wind.csv"), kept["braking"], out)
+        summary = study.rederive(pd.read_csv(out / "summary.csv"), MARGIN, change="success_change")
+        summary.to_csv(out / "summary.csv", index=False)
+        write(summary, pd.read_csv(out / "selection_wind.csv"), kept["braking"], out)
         return
     from jaxapf.compare.spec import load_compare_spec
 

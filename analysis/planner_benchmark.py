@@ -22,6 +22,8 @@ import numpy as np
 import pandas as pd
 import study
 
+from jaxapf import stats
+
 STUDY = "planner_benchmark"
 SPEC = "planner-benchmark.toml"
 PAPER = "direction_velocity"
@@ -215,6 +217,9 @@ def facts(spec, summary: pd.DataFrame, vs_basic: pd.DataFrame, vs_paper: pd.Data
     for rate in RATES:
         out[rate] = {g: {m: float(np.mean(_tuned(summary, spec, m, g, f"{rate}_rate"))) for m in spec.methods}
                      for g in groups}
+        # the mean over the seeds with its t interval over them: the seeds as a sample of selections
+        out[f"{rate}_interval"] = {g: {m: dict(zip(("lo", "hi"), stats.seed_interval(
+            _tuned(summary, spec, m, g, f"{rate}_rate"))[1:])) for m in spec.methods} for g in groups}
         out["default"][rate] = {g: {m: float(_rows(summary, spec, m, g).at["default", f"{rate}_rate"])
                                     for m in spec.methods} for g in groups}
     for name, column in (("clearance", "min_clearance_median"), ("time_to_goal", "time_to_goal_median")):
@@ -244,11 +249,12 @@ def facts(spec, summary: pd.DataFrame, vs_basic: pd.DataFrame, vs_paper: pd.Data
     return out
 
 
-def run_benchmark(doc: str, name: str, spec_file: str, title: str, extra=None) -> None:
+def run_benchmark(doc: str, name: str, spec_file: str, title: str, extra=None, question=None) -> None:
     """Study 11's protocol on ``sweeps/<spec_file>`` into ``analysis/results/<name>``: the comparison, the
     second report against the paper's method, facts, findings, leaderboard and trajectory figures.
     ``extra(out, spec, args, runs)``, if given, returns more ``(sections, facts)`` (``runs``, the comparison's
-    folder, is None with ``--facts-only``: from what it committed)."""
+    folder, is None with ``--facts-only``: from what it committed); ``question(facts)``, if given, the
+    study's yes/no question's answer fact (:func:`study.answer_fact`) from the facts."""
     from jaxapf.compare.protocol import baseline_filter
 
     args, out = study.begin(doc, name)
@@ -259,8 +265,8 @@ def run_benchmark(doc: str, name: str, spec_file: str, title: str, extra=None) -
         report = study.committed_report(out)
         vs_paper = pd.read_csv(out / "report_vs_paper" / "comparisons.csv")
         more = extra(out, spec, args, None)[1] if extra is not None else {}
-        study.write_facts(out, facts(spec, report.summary, report.comparisons, vs_paper,
-                                     pd.read_csv(out / "selection.csv")) | more)
+        found = facts(spec, report.summary, report.comparisons, vs_paper, pd.read_csv(out / "selection.csv")) | more
+        study.write_facts(out, found | ({"answer": question(found)} if question is not None else {}))
         return
     spec, runs = study.run_compare_study(args, out, spec_file)
     paper = dataclasses.replace(spec, baseline=PAPER)
@@ -273,7 +279,8 @@ def run_benchmark(doc: str, name: str, spec_file: str, title: str, extra=None) -
                 "[`report_vs_paper/report.md`](report_vs_paper/report.md) (against `direction_velocity`).",
                 findings(spec, summary, vs_basic, vs_paper), leaderboard(spec, summary, vs_basic, vs_paper)]
     more_sections, more = extra(out, spec, args, runs) if extra is not None else ([], {})
-    study.write_facts(out, facts(spec, summary, vs_basic, vs_paper, pd.read_csv(out / "selection.csv")) | more)
+    found = facts(spec, summary, vs_basic, vs_paper, pd.read_csv(out / "selection.csv")) | more
+    study.write_facts(out, found | ({"answer": question(found)} if question is not None else {}))
     command = f"python analysis/{name}.py" + (f" --fields {args.fields}" if args.fields else "")
     study.write_readme(out, title, command, runs / "test.parquet", sections + more_sections,
                        trajectory_figures(spec, runs, out) + [study.RATES_FIGURE])

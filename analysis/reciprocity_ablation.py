@@ -165,6 +165,12 @@ def main() -> None:
     count = args.fields or swarm.FIELDS
     if args.facts_only:
         rates, comparisons = pd.read_csv(out / "rates.csv"), pd.read_csv(out / "comparisons.csv")
+        if "b" not in comparisons.columns:  # committed before the tables kept the counts: n from the rates
+            n = rates.set_index(["method", "arm", "agents", "seed"])["n"]
+            comparisons["n"] = [int(n[k]) for k in zip(comparisons["method"], comparisons["arm"],
+                                                          comparisons["agents"], comparisons["seed"])]
+        comparisons = swarm.verdicts(comparisons)
+        comparisons.to_csv(out / "comparisons.csv", index=False)
         study.write_facts(out, facts(rates, comparisons))
         return
     rates, comparisons = summarise(run(count, study.ROOT / "runs" / f"reciprocity-ablation-f{count}"))

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import datetime
+import math
 import os
 import pathlib
 import shutil
@@ -48,6 +49,9 @@ def parser(doc: str) -> argparse.ArgumentParser:
     p.add_argument("--facts-only", action="store_true",
                    help="rewrite facts.json from the committed results (the report's tables and the study's own), "
                         "simulating nothing")
+    p.add_argument("--from-episodes", action="store_true",
+                   help="rebuild the reports, the findings and facts.json from the committed episodes "
+                        "(episodes.parquet in the results folder), simulating nothing")
     return p
 
 
@@ -87,6 +91,46 @@ def begin(doc: str, name: str, flags: dict[str, str] | None = None) -> tuple[arg
     out = args.out or RESULTS / name
     out.mkdir(parents=True, exist_ok=True)
     return args, out
+
+
+def keep_episodes(parquet: pathlib.Path, out: pathlib.Path) -> pathlib.Path:
+    """``out/episodes.parquet``: the sweep's episodes with only the columns its report reads (the settings'
+    columns, the field keys, ``solvable`` and the report's metrics), as one verified sweep part that
+    ``jaxapf report`` reads: a later change to the statistics re-derives the study from it
+    (``--from-episodes``) without a rerun."""
+    import json
+
+    import pyarrow as pa
+
+    from jaxapf.report.load import report_metrics
+    from jaxapf.sweep import read_sweep
+    from jaxapf.sweep.meta import META_KEY
+    from jaxapf.sweep.output import write_part
+
+    df, meta = read_sweep(parquet)
+    rates, continuous = report_metrics(meta["metrics"])
+    metrics = [m for m in meta["metrics"] if m in (*rates, *continuous, "invalid")]
+    columns = [c for c in df.columns if c not in meta["metrics"] or c in metrics]
+    own = {k: meta[k] for k in ("format", "spec", "spec_hash", "dtype", "prng", "versions", "vmap_width") if k in meta}
+    table = pa.Table.from_pandas(df[columns], preserve_index=False)
+    table = table.replace_schema_metadata({META_KEY: json.dumps(own | {"metrics": metrics}).encode()})
+    write_part(out, "episodes.parquet", table)
+    return out / "episodes.parquet"
+
+
+def sweep_source(args: argparse.Namespace, out: pathlib.Path, name: str) -> pathlib.Path:
+    """The episodes a study reports: ``sweeps/<name>.toml`` run now (:func:`run_spec`) and kept in
+    ``out/episodes.parquet`` (:func:`keep_episodes`), or with ``--from-episodes`` the committed ones."""
+    from jaxapf.validation import ConfigError
+
+    kept = out / "episodes.parquet"
+    if args.from_episodes:
+        if not kept.exists():
+            raise ConfigError(f"--from-episodes: {kept} does not exist; run the study once without it")
+        return kept
+    parquet = run_spec(name, args.fields)
+    keep_episodes(parquet, out)
+    return parquet
 
 
 def run_spec(name: str, fields: int | None = None) -> pathlib.Path:
@@ -161,10 +205,11 @@ def run_study(doc: str, *, name: str, spec: str, title: str, findings: Callable[
     args, out = begin(doc, name)
     if not args.facts_only:
         sections = before(out) if before is not None else []
-        parquet = run_spec(spec, args.fields)
+        parquet = sweep_source(args, out, spec)
         result = report(parquet, out, resamples=args.resamples, **report_options)
         sections.append(findings(Numbers(result)))
-        command = f"python analysis/{name}.py" + (f" --fields {args.fields}" if args.fields else "")
+        command = f"python analysis/{name}.py" + (f" --fields {args.fields}" if args.fields else "") + (
+            " --from-episodes" if args.from_episodes else "")
         write_readme(out, title, command, parquet, sections, figures(out) if callable(figures) else figures)
         print(f"wrote {out}/README.md")
     if facts is not None:
@@ -308,6 +353,61 @@ def unanimous(verdicts) -> str:
     return marks.pop() if len(marks) == 1 else "mixed"
 
 
+#: A verdict of the other side against the question's: the same evidence, the question's side's word.
+MIRROR = {"better": "worse", "worse": "better", "equivalent": "equivalent", "inconclusive": "inconclusive"}
+
+
+def answer_fact(verdicts: Mapping[str, str], mirror: bool = False) -> dict:
+    """A yes/no question's answer fact: its deciding verdicts (named, e.g. ``direction seed1``) and the word
+    :func:`jaxapf.stats.answer` derives from them (tests/bindings.py checks both where a page binds the word).
+    ``mirror``: the verdicts are of the other side against the question's."""
+    from jaxapf.stats import answer
+
+    named = {k: MIRROR[v] if mirror else v for k, v in verdicts.items()}
+    return {"word": answer(list(named.values())), "verdicts": named}
+
+
+def recover_counts(change: float, n: int, p: float, p_equivalent: float, margin: float) -> tuple[int, int]:
+    """The discordant counts ``(b, c)`` behind a row committed before the tables kept them: the one pair with
+    ``(b - c)/n = change`` whose exact McNemar p and Tango TOST p (the tests of that time) are the row's ``p``
+    and ``p_equivalent`` to ten digits; LookupError where none or several are."""
+    from scipy.stats import binomtest, norm
+
+    from jaxapf.stats import _tango_z  # the statistic of the tests the row holds
+
+    d = round(change * n)
+    found = []
+    for total in range(abs(d), n + 1, 2):
+        b, c = (total + d) // 2, (total - d) // 2
+        exact = 1.0 if total == 0 else min(1.0, float(binomtest(b, total, 0.5).pvalue))
+        # the TOST p of that time: the larger one-sided p of Tango's score tests at ±margin (uncapped)
+        tost = max(norm.cdf(_tango_z(b, c, n, margin)), norm.cdf(_tango_z(c, b, n, margin)))
+        if math.isclose(exact, p, rel_tol=1e-10, abs_tol=1e-300) and (
+                math.isnan(p_equivalent) or math.isclose(tost, p_equivalent, rel_tol=1e-8, abs_tol=1e-300)):
+            found.append((b, c))
+    if len(found) != 1:
+        raise LookupError(f"{len(found)} count pairs give change {change!r}, p {p!r}, p_equivalent {p_equivalent!r} "
+                          f"over {n} pairs")
+    return found[0]
+
+
+def rederive(table, margin, family=None, higher_is_better=True, change: str = "change", n: str = "n"):
+    """A committed table of paired rates (``change``, ``p``, ``p_equivalent`` per row, ``n`` pairs; rows without
+    ``p`` untested) with its verdicts derived again by today's :func:`mark_verdicts`, from the counts it holds
+    (``b``, ``c``, ``n_pairs``) or, for a table committed before it held them, from :func:`recover_counts`."""
+    import pandas as pd
+
+    table = pd.DataFrame(table).reset_index(drop=True)
+    if "b" not in table.columns:
+        tested = table["p"].notna()
+        margins = np.broadcast_to(np.asarray(margin, dtype=np.float64), (len(table),))
+        counts = [recover_counts(float(r[change]), int(r[n]), float(r["p"]), float(r["p_equivalent"]), float(m))
+                  if t else (np.nan, np.nan) for (_, r), t, m in zip(table.iterrows(), tested, margins)]
+        table["b"], table["c"] = [b for b, _ in counts], [c for _, c in counts]
+        table["n_pairs"] = np.where(tested, table[n], np.nan)
+    return mark_verdicts(table, margin, family, higher_is_better)
+
+
 def mark_verdicts(rows, margin, family=None, higher_is_better=True):
     """The rows (dicts or a table; those with a paired comparison carry :func:`paired_success`'s ``b``, ``c``,
     ``n_pairs``) as a table with the verdict of :func:`jaxapf.stats.decide`: Holm within each ``family`` (one per
@@ -372,10 +472,16 @@ def write_readme(out: pathlib.Path, title: str, command: str, parquet: pathlib.P
     from jaxapf.io.versions import versions
 
     v = versions()
+    kept = parquet if parquet.resolve().parent == out.resolve() else (
+        out / "episodes.parquet" if (out / "episodes.parquet").exists() else None)
     lines = [f"# {title}", "",
              f"Produced by `{command}` on {datetime.date.today().isoformat()} "
              f"(jaxapf {v.get('jaxapf')}, jax {jax.__version__}, {jax.devices()[0].platform} × {jax.device_count()}); "
-             f"episodes: `{parquet.relative_to(ROOT)}` (git-ignored, rebuilt by the command). "
+             + (f"episodes: [`{kept.name}`]({kept.name}) (the columns the study reads, committed; "
+                "`--from-episodes` rebuilds this page from them without simulating). "
+                if kept is not None else
+                f"episodes: `{parquet.relative_to(ROOT)}` (git-ignored, rebuilt by the command). ")
+             +
              "Every number below is read from the report in `report/` (`summary.csv`, `comparisons.csv`); "
              "the full tables and their definitions are in [`report/report.md`](report/report.md).", ""]
     for section in sections:

@@ -133,13 +133,14 @@ def paired(now: pd.DataFrame, then: pd.DataFrame) -> list[dict]:
 
 
 def verdicts(comparisons: pd.DataFrame) -> pd.DataFrame:
-    """``comparisons`` (rows of :func:`paired` with a ``question``) with their verdicts
-    (:func:`study.mark_verdicts`): Holm within each question's primary family (swarm success and collision
-    between UAVs) and, exploratory, within each of its other outcomes."""
+    """``comparisons`` (rows of :func:`paired` with a ``question``; or committed rows, with ``n`` pairs, whose
+    counts :func:`study.rederive` finds again) with their verdicts: Holm within each question's primary family
+    (swarm success and collision between UAVs) and, exploratory, within each of its other outcomes."""
     primary = {m for m, _ in OUTCOMES[:2]}
     family = [f"{q}: primary" if m in primary else f"{q}: exploratory {m}"
               for q, m in zip(comparisons["question"], comparisons["metric"])]
-    return study.mark_verdicts(comparisons, comparisons["margin"], family, comparisons["higher_is_better"])
+    return study.rederive(comparisons, comparisons["margin"], family, comparisons["higher_is_better"]).drop(
+        columns=["n"], errors="ignore")
 
 
 def summarise(df: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
@@ -226,7 +227,7 @@ def exact(df: pd.DataFrame) -> pd.Series:
     return df.groupby(["method", "family"])["truncated_steps"].transform("sum") == 0
 
 
-def facts(df: pd.DataFrame, rates: pd.DataFrame, comparisons: pd.DataFrame) -> dict:
+def facts(df: pd.DataFrame | None, rates: pd.DataFrame, comparisons: pd.DataFrame) -> dict:
     """The numbers the README and the project README quote (``facts.json``)."""
     mean = rates.groupby(["method", "family", "agents"])[[m for m, _ in OUTCOMES]].mean()
     out = {"comparisons": int(len(comparisons)),
@@ -236,7 +237,8 @@ def facts(df: pd.DataFrame, rates: pd.DataFrame, comparisons: pd.DataFrame) -> d
     rec = comparisons[comparisons["question"] == "reciprocity"]
     out["reciprocity_verdicts"] = {f"{m}/{v}": int(((rec["metric"] == m) & (rec["verdict"] == v)).sum())
                                    for m, _ in OUTCOMES for v in MARK}
-    out["truncated_steps"] = truncation(df)
+    if df is not None:  # the per-swarm rows (not committed): with --facts-only kept from the committed facts
+        out["truncated_steps"] = truncation(df)
     vs = comparisons[comparisons["question"] == "vs basic"]
     out["vs_basic_verdicts"] = {f"{m}/{v}": int(((vs["metric"] == m) & (vs["verdict"] == v)).sum())
                                 for m, _ in OUTCOMES for v in MARK}
@@ -348,7 +350,15 @@ def main() -> None:
         import json
 
         committed = json.loads((out / "facts.json").read_text())
-        study.write_facts(out, committed | {"setting": setting()} | totals(committed))
+        rates, comparisons = pd.read_csv(out / "rates.csv"), pd.read_csv(out / "comparisons.csv")
+        if "b" not in comparisons.columns:  # committed before the tables kept the counts: n from the rates
+            n = rates.set_index(["method", "family", "agents", "seed"])["n"]
+            comparisons["n"] = [int(n[k]) for k in zip(comparisons["method"], comparisons["family"],
+                                                          comparisons["agents"], comparisons["seed"])]
+        comparisons = verdicts(comparisons)
+        comparisons.to_csv(out / "comparisons.csv", index=False)
+        found = {k: v for k, v in facts(None, rates, comparisons).items() if k != "truncated_steps"}
+        study.write_facts(out, committed | found)
         return
     count = args.fields or FIELDS
     flown = run(count, study.ROOT / "runs" / f"swarm-study-f{count}")

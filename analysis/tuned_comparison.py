@@ -16,6 +16,8 @@ import numpy as np
 import pandas as pd
 import study
 
+from jaxapf import stats
+
 STUDY = "tuned_comparison"
 SPEC = "tuned-comparison.toml"
 METRICS = ("success", "collision", "stalled")
@@ -104,8 +106,10 @@ def facts(spec, summary: pd.DataFrame, comparisons: pd.DataFrame) -> dict:
     for metric in METRICS:
         for m in spec.methods:
             default, per_seed = _tuned(summary, "all", m, metric)
-            rates.setdefault(metric, {})[m] = {"default": default, "mean": float(np.mean(per_seed)),
-                                               "min": min(per_seed), "max": max(per_seed), **dict(zip(seeds, per_seed))}
+            _, lo, hi = stats.seed_interval(per_seed)  # the seeds as a sample of selections
+            rates.setdefault(metric, {})[m] = {"default": default, "mean": float(np.mean(per_seed)), "mean_lo": lo,
+                                               "mean_hi": hi, "min": min(per_seed), "max": max(per_seed),
+                                               **dict(zip(seeds, per_seed))}
     spread = {m: r["max"] - r["min"] for m, r in rates["success"].items()}
     label = summary.groupby("setting")[["method", "selection"]].first()
     verdict: dict = {}
@@ -125,6 +129,7 @@ def facts(spec, summary: pd.DataFrame, comparisons: pd.DataFrame) -> dict:
                               for m, r in rates["success"].items()},
             "spread": {"max": max(spread.values()), "method": max(spread, key=spread.get), **spread},
             "verdict": verdict, "all_seeds": seeds_agree,
+            "answer": study.answer_fact({f"{m} {s}": verdict["all"][m]["success"][s] for m in methods for s in seeds}),
             "all_seeds_count": {"cells": len(cells), "flips": sum({"better", "worse"} <= v for v in tuned.values()),
                                 **{v: cells.count(v) for v in ("better", "worse", "equivalent", "inconclusive")}}}
 

@@ -135,6 +135,17 @@ def paired(episodes: pd.DataFrame, a: str, b: str, families: list[str]) -> pd.Da
     return table.drop(columns=["success_change", "b", "c"])
 
 
+def rederive(table: pd.DataFrame) -> pd.DataFrame:
+    """A committed paired table (:func:`paired`) with its verdicts derived again from its counts (``wins``,
+    ``losses``, ``n``) by today's verdict function: what the statistics need is in the table."""
+    counts = table.assign(b=table["wins"], c=table["losses"], n_pairs=table["n"])
+    kept = [c for c in table.columns if c not in ("lo", "hi", "p", "p_equivalence", "p_holm", "p_equivalence_holm",
+                                                   "verdict", "confidence")]
+    found = study.mark_verdicts(counts[kept + ["b", "c", "n_pairs"]], MARGIN)
+    return found.rename(columns={"change_lo": "lo", "change_hi": "hi", "p_equivalent": "p_equivalence",
+                                 "p_equivalent_holm": "p_equivalence_holm"}).drop(columns=["b", "c", "n_pairs"])
+
+
 def markdown_table(frame: pd.DataFrame, floats: str = "{:.3f}") -> str:
     cols = list(frame.columns)
     fmt = lambda v: floats.format(v) if isinstance(v, (float, np.floating)) else str(v)  # noqa: E731
@@ -323,7 +334,7 @@ def facts(out: pathlib.Path, run: dict) -> dict:
     summary = json.loads((out / "summary.json").read_text())
     history = pd.read_csv(out / "history.csv")
     table = pd.read_csv(out / "test_results.csv")
-    pairs = {name: pd.read_csv(out / f"tuned_vs_{name}.csv") for name in ("grid", "default")}
+    pairs = {name: rederive(pd.read_csv(out / f"tuned_vs_{name}.csv")) for name in ("grid", "default")}
     spec = summary["spec"]
     train = spec["train"]["families"]
     held = [f for f in spec["test"]["families"] if f not in train]
@@ -351,6 +362,7 @@ def facts(out: pathlib.Path, run: dict) -> dict:
         **{f"vs_{name}": {r.family: {"difference": r.difference, "lo": r.lo, "hi": r.hi, "wins": r.wins,
                                      "losses": r.losses, "verdict": r.verdict} for r in frame.itertuples()}
            for name, frame in pairs.items()},
+        "answer": study.answer_fact({"pooled": pairs["grid"].set_index("family").at["all", "verdict"]}),
         "verdicts": {f"vs_{name}": {v: int((frame[frame.family != "all"].verdict == v).sum())
                                     for v in ("better", "worse", "equivalent", "inconclusive")}
                      for name, frame in pairs.items()},
@@ -388,6 +400,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.facts_only:
         committed = args.out / "facts.json"
         run = json.loads(committed.read_text()).get("run", {}) if committed.exists() else {}
+        for name in ("grid", "default"):  # the paired tables with their verdicts derived again from their counts
+            path = args.out / f"tuned_vs_{name}.csv"
+            rederive(pd.read_csv(path)).to_csv(path, index=False)
         study.write_facts(args.out, facts(args.out, run))
         return 0
     start = time.perf_counter()

@@ -17,6 +17,7 @@ function                               what
 :class:`ShiftPairs`                    paired values: Walsh-average interval and its signed-rank tests
 :func:`decide`                         a study's verdicts: Holm per family, each interval at its level
 :func:`verdict`                        better / worse / equivalent / inconclusive, read from an interval
+:func:`answer`                         Yes / No / Not shown / In part / Mixed from a question's verdicts
 :func:`minimum_detectable_difference`  smallest difference the paired test detects (power 0.8)
 :func:`seed_interval`                  mean over replicates (selection seeds) with its t interval
 :func:`holm`                           Holm step-down adjusted p-values
@@ -57,6 +58,9 @@ __all__ = [
     "rate_row",
     "VERDICTS",
     "VERDICT_RULE",
+    "ANSWERS",
+    "ANSWER_RULE",
+    "answer",
     "verdict",
     "Decision",
     "decide",
@@ -832,6 +836,32 @@ def decide(evidence: Sequence[Evidence], margin, higher_is_better, family=None, 
     out = [verdict(float(a), float(b), float(m), bool(u)) for a, b, m, u in zip(lo, hi, margin, up)]
     estimate = np.array([e.estimate for e in evidence], np.float64)
     return Decision(estimate, p, q, p_holm, q_holm, 1.0 - level, lo, hi, out)
+
+
+#: The answers of :func:`answer`, the bold first words of a yes/no question's answer.
+ANSWERS = ("Yes", "No", "Not shown", "In part", "Mixed")
+
+#: The rule of :func:`answer`, stated wherever such answers are given.
+ANSWER_RULE = ("a yes/no answer is derived from the verdicts of its deciding comparisons (the question's side "
+               "against the other, every selection seed and family it names): Yes where all are better; No "
+               "where all are worse or equivalent; Mixed where some are better and some worse; In part where "
+               "some are better and none worse; Not shown otherwise (none better, some inconclusive)")
+
+
+def answer(verdicts: Sequence[str]) -> str:
+    """The answer (:data:`ANSWERS`) that the ``verdicts`` of a question's deciding comparisons allow, by
+    :data:`ANSWER_RULE`: no word wider than the verdicts."""
+    found = list(verdicts)
+    if not found or any(v not in VERDICTS for v in found):
+        raise ValueError(f"verdicts {found!r} must be a non-empty list of {', '.join(VERDICTS)}")
+    better, worse = found.count("better"), found.count("worse")
+    if better == len(found):
+        return "Yes"
+    if better and worse:
+        return "Mixed"
+    if better:
+        return "In part"
+    return "No" if worse + found.count("equivalent") == len(found) else "Not shown"
 
 
 def format_p(p: float) -> str:

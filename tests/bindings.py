@@ -20,6 +20,9 @@ the fact's, a number written without one is compared by size ("falls by 11.3" fo
 verdict word (``*better*``, ``*worse*``, ``*equivalent*``, ``*inconclusive*``) bound the same way must be
 the fact's text, or, bound to a count of verdicts, the last word of the count's key
 (``*worse* in 7<!--=…:reciprocity_verdicts.swarm_success/worse--> of 60`` binds both to the one count).
+A bold answer (``**No<!--=study/learned_weight:answer-->, …**``, one of :data:`jaxapf.stats.ANSWERS`) is
+bound to an answer fact, ``{"word": ..., "verdicts": {name: verdict}}``: the word written must be the
+fact's, and the fact's word the one :func:`jaxapf.stats.answer` derives from its verdicts.
 In a strict document every number is bound, but identifiers: inline code, dates, "study
 11", "§3", "eq. 2". :func:`problems` says what is wrong with a text; :func:`mutations` gives every ±1 change
 of a bound number's last digit and every swap of a bound verdict word, each of which :func:`problems` must
@@ -52,6 +55,8 @@ IDENTIFIERS = re.compile(r"```.*?```|`[^`\n]*`|<!--.*?-->|\]\([^)]*\)|\d{4}-\d{2
                          r"\d(?:\.\d+)?e-?\d+|[A-Za-z]+-\d+|"
                          r"\b(?:[Ss]tud(?:y|ies)|§|[Ee]q\.|[Ii]ssue|[Rr]ows?|[Cc]ommit)\s*\d[\d, and–-]*", re.S)
 VERDICT = re.compile(r"\*(?P<word>" + "|".join(VERDICTS) + r")\*")
+#: A bold answer's first words, right before its binding.
+ANSWER = re.compile(r"\*\*(?P<word>Yes|No|Not shown|In part|Mixed)$")
 
 
 @functools.cache
@@ -125,6 +130,10 @@ def problems(text: str, strict: bool = True) -> list[str]:
         except (KeyError, IndexError, ValueError, TypeError, OSError):
             out.append(f"{where}: no fact {b['source']}:{b['expr']}")
             continue
+        said = ANSWER.search(before)
+        if said is not None:
+            out += [f"{where}: {p}" for p in _answer_problems(said["word"], fact, f"{b['source']}:{b['expr']}")]
+            continue
         if verdict is not None:
             # a verdict word is its fact's text, or (a count of verdicts) the last word of its count's key
             counted = not isinstance(fact, str) and re.split(r"[./]", b["expr"])[-1] == verdict[1]
@@ -145,6 +154,26 @@ def problems(text: str, strict: bool = True) -> list[str]:
         for v in VERDICT.finditer(masked):
             if not text.startswith("<!--=", v.end()):
                 out.append(f"…{text[max(0, v.start() - 40):v.end()]}: *{v['word']}* is bound to no fact")
+        for a in re.finditer(r"\*\*(?P<word>Yes|No|Not shown|In part|Mixed)(?=[.,:;])", masked):
+            if not text.startswith("<!--=", a.end()):
+                out.append(f"…{text[max(0, a.start() - 40):a.end()]}: the answer **{a['word']}** is bound to no "
+                           "answer fact")
+    return out
+
+
+def _answer_problems(word: str, fact: Any, name: str) -> list[str]:
+    """What is wrong with the bold answer ``word`` bound to the answer fact ``name``."""
+    from jaxapf.stats import answer
+
+    if not (isinstance(fact, dict) and isinstance(fact.get("word"), str) and isinstance(fact.get("verdicts"), dict)):
+        return [f"the answer is bound to {name}, which is no answer fact (word and verdicts)"]
+    out = [] if word == fact["word"] else [f"answers **{word}**, the fact {name} is {fact['word']!r}"]
+    try:
+        derived = answer(list(fact["verdicts"].values()))
+    except ValueError as err:
+        return out + [f"{name}: {err}"]
+    if derived != fact["word"]:
+        out.append(f"{name} answers {fact['word']!r} where its verdicts allow {derived!r}")
     return out
 
 
@@ -154,6 +183,13 @@ def mutations(text: str) -> Iterator[tuple[str, str]]:
     for b in BINDING.finditer(text):
         before = text[max(0, b.start() - 80):b.start()]
         offset = b.start() - len(before)
+        said = ANSWER.search(before)
+        if said is not None:
+            at, end = offset + said.start("word"), offset + said.end("word")
+            for other in ("Yes", "No", "Not shown", "In part", "Mixed"):
+                if other != said["word"]:
+                    yield (f"**{said['word']}** -> **{other}**", text[:at] + other + text[end:])
+            continue
         verdict = re.search(r"\*(\w+)\*$", before)
         if verdict is not None:
             at, end = offset + verdict.start(1), offset + verdict.end(1)

@@ -53,7 +53,7 @@ def test_a_bound_verdict_is_its_facts_word():
 
 def test_a_verdict_word_bound_to_a_count_is_the_counts_word():
     text = ("*worse*<!--=study/swarm_study:reciprocity_verdicts.swarm_success/worse--> in "
-            "7<!--=study/swarm_study:reciprocity_verdicts.swarm_success/worse--> of 60")
+            "8<!--=study/swarm_study:reciprocity_verdicts.swarm_success/worse--> of 60")
     assert problems(text, strict=False) == []
     assert problems(text.replace("*worse*", "*better*"), strict=False)
 
@@ -103,3 +103,20 @@ def test_every_change_of_a_bound_number_or_verdict_is_caught():
                 missed.append(f"{page}: {what}")
     assert total >= 500, f"only {total} mutations: bind more of the documents"
     assert not missed, missed[:20]
+
+
+def test_a_bound_answer_is_its_facts_word_and_the_rule_gives_that_word(monkeypatch):
+    import bindings
+
+    facts = {"answer": {"word": "Not shown", "verdicts": {"seed1": "inconclusive", "seed2": "worse"}},
+             "wide": {"word": "No", "verdicts": {"seed1": "inconclusive", "seed2": "worse"}}}
+    monkeypatch.setattr(bindings, "_source", lambda source: facts)
+    text = "| Can it? | **Not shown<!--=study/x:answer-->.** The seeds disagree. |"
+    assert problems(text) == []
+    assert any("the fact study/x:answer is 'Not shown'" in p for p in problems(text.replace("Not shown", "No")))
+    # a word wider than its verdicts: the fact itself breaks the rule
+    assert any("verdicts allow 'Not shown'" in p for p in problems("**No<!--=study/x:wide-->.**"))
+    assert any("bound to no answer fact" in p for p in problems("**No.** Nothing bound."))
+    assert any("no answer fact" in p for p in problems("**No<!--=study/x:answer.verdicts.seed1-->.**"))
+    caught = [what for what, changed in mutations(text) if problems(changed)]
+    assert len(caught) == 4  # every other answer word

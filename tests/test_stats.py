@@ -589,3 +589,18 @@ def test_the_seeds_interval_by_hand():
     mean, lo, hi = stats.seed_interval([0.5])
     assert mean == 0.5 and math.isnan(lo) and math.isnan(hi)
     assert all(math.isnan(v) for v in stats.seed_interval([]))
+
+
+def test_an_answer_is_no_wider_than_its_verdicts():
+    a = stats.answer
+    assert a(["better"] * 3) == "Yes"
+    assert a(["worse", "equivalent", "worse"]) == "No" and a(["equivalent"]) == "No"
+    assert a(["inconclusive"] * 3) == "Not shown" and a(["worse", "inconclusive"]) == "Not shown"
+    assert a(["better", "inconclusive", "equivalent"]) == "In part"
+    assert a(["better", "worse", "inconclusive"]) == "Mixed"
+    assert set(stats.ANSWERS) == {a(v) for v in (["better"], ["worse"], ["inconclusive"], ["better", "equivalent"],
+                                                 ["better", "worse"])}
+    with pytest.raises(ValueError, match="non-empty"):
+        a([])
+    with pytest.raises(ValueError, match="non-empty"):
+        a(["maybe"])
