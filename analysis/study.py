@@ -179,10 +179,11 @@ def run_comparison(args: argparse.Namespace, spec_file: str):
 
 
 def run_compare_study(args: argparse.Namespace, out: pathlib.Path, spec_file: str):
-    """What a ``jaxapf compare`` study does after :func:`begin`: :func:`run_comparison`, then its report
-    (without its HTML), ``compare.md`` and ``selection.csv`` copied into the results folder ``out``. Returns
-    ``(spec, runs folder)``."""
+    """What a ``jaxapf compare`` study does after :func:`begin`: :func:`run_comparison`, then its test's episodes
+    kept (:func:`keep_episodes`), its report (without its HTML), ``compare.md`` and ``selection.csv`` copied into
+    the results folder ``out``. Returns ``(spec, runs folder)``."""
     spec, runs = run_comparison(args, spec_file)
+    keep_episodes(runs / "test.parquet", out)
     target = out / "report"
     if target.exists():
         shutil.rmtree(target)

@@ -69,3 +69,22 @@ def test_the_results_hold_no_file_a_clean_clone_would_lack():
     ignored = subprocess.run(["git", "ls-files", "--others", "--ignored", "--exclude-standard", "analysis/results"],
                              cwd=ROOT, capture_output=True, text=True, check=True).stdout.split()
     assert [p for p in ignored if "__pycache__" not in p] == []
+
+
+@pytest.mark.slow
+def test_a_studys_report_is_what_its_committed_episodes_give(tmp_path):
+    """``--from-episodes`` rebuilds a study's report from its committed ``episodes.parquet`` without simulating:
+    the comparisons come out as committed (what lets the next change to the statistics re-derive every study
+    that keeps its episodes without a rerun)."""
+    import pandas as pd
+
+    committed = ROOT / "analysis" / "results" / "sign_convention"
+    copy = tmp_path / "sign_convention"
+    shutil.copytree(committed, copy)
+    done = subprocess.run([sys.executable, "analysis/sign_convention.py", "--from-episodes", "--out", str(copy)],
+                          cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    found, kept = (pd.read_csv(folder / "report" / "comparisons.csv") for folder in (copy, committed))
+    pd.testing.assert_frame_equal(found, kept, check_exact=False, rtol=REL)
+    assert _differences(json.loads((copy / "facts.json").read_text()),
+                        json.loads((committed / "facts.json").read_text())) == []
