@@ -32,6 +32,7 @@ _KEPT = {
     "report": "the report folder may be incomplete; rerun the same command to rewrite it",
     "tune": "the last checkpoint is kept; rerun the same command to resume",
     "compare": "finished selections and test parts are kept; rerun the same command to resume",
+    "scorecard": "finished selections and test parts are kept; rerun the same command to resume",
     "bench": "nothing was written",
     "list": "nothing was written",
     "sweep-verify": "nothing was written",
@@ -109,7 +110,8 @@ def build_parser() -> argparse.ArgumentParser:
                              "(repeatable; docs/extending.md)")
     # `jaxapf sweep verify|merge` are the parsers sweep-verify and sweep-merge: help names them as users type them
     sub = parser.add_subparsers(dest="command", required=True,
-                                metavar="{simulate,sweep,sweep verify,sweep merge,report,tune,compare,bench,list}")
+                                metavar="{simulate,sweep,sweep verify,sweep merge,report,tune,compare,scorecard,bench,"
+                                        "list}")
 
     sim = sub.add_parser("simulate", help="one field, several planners side by side, figures and trajectories",
                          description="Run planners on one field and write trajectories, metrics and the paper's "
@@ -214,6 +216,23 @@ def build_parser() -> argparse.ArgumentParser:
                           "shard I/N of the test sweep; then the command without --shard writes the report "
                           "(docs/compare.md)")
     cmp.add_argument("--quiet", action="store_true", help="no progress bar or messages")
+
+    card = sub.add_parser("scorecard", help="rank a method against the shipped zoo on a frozen benchmark, paired "
+                                            "with the stored episodes (docs/scorecard.md)",
+                          description="Select a method's gains under a frozen scorecard's budget and seeds, fly its "
+                                      "held-out fields and rank it against every stored zoo member, paired field by "
+                                      "field; without --method, print the stored leaderboard.")
+    card.add_argument("--card", default="v1",
+                      help="a shipped scorecard's version (default v1) or a folder holding a scorecard.toml")
+    card.add_argument("--method", help="the method to score: PLANNER or PLANNER+FILTER (a plugin's, with --plugin)")
+    card.add_argument("--name", help="the method's row in the leaderboard (default the method)")
+    card.add_argument("--out", type=pathlib.Path,
+                      help="output folder (default runs/scorecard-VERSION-NAME); what is finished there is reused")
+    card.add_argument("--rescore", action="store_true",
+                      help="score the whole zoo again and store it beside the scorecard (hours on a CPU)")
+    card.add_argument("--resamples", type=int, default=2000, help="bootstrap resamples (default 2000)")
+    card.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
+    card.add_argument("--quiet", action="store_true", help="no progress bar or messages")
 
     bench = sub.add_parser("bench", help="speed: the engine against a vectorised numpy peer and the numpy + OSQP "
                                          "oracle, and whole sweeps",
@@ -500,6 +519,41 @@ def _compare(args: argparse.Namespace) -> int:
     return 0
 
 
+def _scorecard(args: argparse.Namespace) -> int:
+    from ..compare.scorecard import load_scorecard, score_method, score_zoo
+    from ..engine.runtime import configure_jax, default_cache_dir
+    from ..tune import TuneError
+    from ..validation import ConfigError
+
+    where = pathlib.Path(args.card)
+    card = load_scorecard(folder=where) if (where / "scorecard.toml").is_file() else load_scorecard(args.card)
+    if args.rescore and args.method:
+        raise ConfigError("--rescore scores the zoo; --method scores one method against it: give one of them")
+    if not (args.rescore or args.method):
+        board = card.folder / "leaderboard.md"
+        if not board.is_file():
+            raise ConfigError(f"scorecard {card.version}: no stored leaderboard at {board}; score the zoo first "
+                              "(--rescore)")
+        print(board.read_text(), end="")
+        return 0
+    configure_jax(cache_dir=None if args.no_cache else default_cache_dir())
+    label = args.name or args.method or "zoo"
+    out = args.out if args.out is not None else pathlib.Path("runs") / f"scorecard-{card.version}-{label}"
+    try:
+        if args.rescore:
+            score_zoo(card, out, quiet=args.quiet)
+            print(f"scored the zoo of scorecard {card.version} into {card.folder}")
+        else:
+            board = score_method(card, args.method, out, name=args.name, quiet=args.quiet, resamples=args.resamples)
+            row = board.table[board.table["method"] == label].iloc[0]
+            print(f"{label}: rank {int(row['rank'])} of {len(board.table)} on scorecard {card.version}; wrote "
+                  f"{out}/leaderboard.md, leaderboard.html, leaderboard.csv, comparisons.csv")
+    except TuneError as err:
+        print(f"jaxapf scorecard: error: {err}", file=sys.stderr)
+        return 1
+    return 0
+
+
 def _report(args: argparse.Namespace) -> int:
     from ..report.worker import close, spawn
 
@@ -713,7 +767,8 @@ def _main(argv: list[str], running: list[str]) -> int:
             _check_address_space()
         with warnings.catch_warnings(), contextlib.redirect_stdout(InertLines(sys.stdout)):
             warnings.showwarning = one_line
-            return {"simulate": _simulate, "bench": _bench, "tune": _tune, "compare": _compare, "report": _report,
+            return {"simulate": _simulate, "bench": _bench, "tune": _tune, "compare": _compare,
+                    "scorecard": _scorecard, "report": _report,
                     "sweep": _sweep, "sweep-verify": _sweep_verify, "sweep-merge": _sweep_merge,
                     "list": _list}[args.command](args)
     except ConfigError as err:

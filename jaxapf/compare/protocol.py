@@ -44,7 +44,8 @@ from ..validation import ConfigError
 from .select import Selection, saved_selection, select, spec_digest
 from .spec import CompareSpec, load_compare_spec
 
-__all__ = ["run_compare", "run_compare_spec", "test_sweep_spec", "baseline_filter", "rows_of", "DEFAULT"]
+__all__ = ["run_compare", "run_compare_spec", "test_sweep_spec", "selection_table", "baseline_filter", "rows_of",
+           "DEFAULT"]
 
 #: The ``selection`` tag of a method at its default gains.
 DEFAULT = "default"
@@ -61,18 +62,22 @@ def _tag(seed: int) -> str:
     return f"seed{seed}"
 
 
-def test_sweep_spec(spec: CompareSpec, selections: Sequence[Selection]):
-    """The held-out test as a sweep spec: one ``[[setting]]`` per (selection, method), defaults first."""
+def test_sweep_spec(spec: CompareSpec, selections: Sequence[Selection], members: bool = False):
+    """The held-out test as a sweep spec: one ``[[setting]]`` per (selection, method), defaults first;
+    ``members`` (a scorecard's test, :mod:`jaxapf.compare.scorecard`): the selections alone, each tagged with
+    its method's name (``member``) as well. The selections flown are those given, in the spec's seed order."""
     from ..sweep.spec import parse_spec
 
-    settings = [{**spec.settings(m), "tags": {"selection": DEFAULT}} for m in spec.methods]
+    settings = [] if members else [{**spec.settings(m), "tags": {"selection": DEFAULT}} for m in spec.methods]
     by = {(s.method, s.seed): s for s in selections}
     for seed in spec.selection.seeds:
         for m in spec.methods:
+            if (m, seed) not in by:
+                continue
             chosen = by[(m, seed)].gains
             searched = spec.method_gains(m)
-            settings.append({**spec.settings(m), **{g: chosen[g] for g in searched},
-                             "tags": {"selection": _tag(seed)}})
+            settings.append({**spec.settings(m), **{g: chosen[g] for g in searched if g in chosen},
+                             "tags": ({"member": m} if members else {}) | {"selection": _tag(seed)}})
     data = {
         "name": f"{spec.name}-test",
         "plugins": list(spec.plugins),
@@ -147,10 +152,7 @@ def _run(spec: CompareSpec, text: str, out: pathlib.Path, *, quiet: bool, resamp
                     "shard's test parts are there")
         return {"name": spec.name, "shard": list(shard), "selections_done": len(jobs), "selections_missing": 0,
                 "test": {"episodes": result.episodes + result.skipped, "seconds": result.seconds}}
-    table = pd.DataFrame([{k: v for k, v in s.to_json().items() if k != "gains"}  # arrays: in selection/*.json
-                          | {g: s.gains[g] for g in spec.method_gains(s.method) if not GAINS.get(g).shape}
-                          for s in selections])
-    write_atomic(out / "selection.csv", csv_text(table))
+    write_atomic(out / "selection.csv", csv_text(selection_table(spec, selections)))
 
     test = test_sweep_spec(spec, selections)
     result = run_sweep(test, out / "test.parquet", quiet=quiet, answers=answers)
@@ -166,6 +168,14 @@ def _run(spec: CompareSpec, text: str, out: pathlib.Path, *, quiet: bool, resamp
     write_atomic(out / "summary.json", json.dumps(summary, indent=2, default=_plain) + "\n")
     _say(quiet, f"wrote {out}/: compare.md, selection.csv, summary.json, test.parquet, report/")
     return summary
+
+
+def selection_table(spec: CompareSpec, selections: Sequence[Selection]) -> pd.DataFrame:
+    """``selection.csv``: each selection's budget, outcome and the scalar gains it chose (an array-valued gain's
+    numbers are in ``selection/<method>-seed<s>.json``)."""
+    return pd.DataFrame([{k: v for k, v in s.to_json().items() if k != "gains"}
+                         | {g: s.gains[g] for g in spec.method_gains(s.method) if not GAINS.get(g).shape}
+                         for s in selections])
 
 
 def _plain(x: Any) -> Any:

@@ -1,0 +1,125 @@
+"""The scorecard (jaxapf.compare.scorecard) on a tiny frozen benchmark (tests/data/scorecard-tiny): the zoo scored
+once and stored, a member scored again under another name reproducing its stored row bit for bit and equivalent
+to it on every primary comparison, the leaderboard's numbers recomputed here, a stored part edited by hand
+refused, and a changed engine checked by flying a sample again."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pandas as pd
+import pytest
+from conftest import ROOT
+
+from jaxapf import stats
+from jaxapf.cli import main
+from jaxapf.compare.scorecard import DriftError, check_drift, load_scorecard, score_method, score_zoo
+
+pytestmark = pytest.mark.slow  # the module fixture scores a zoo (tens of seconds)
+
+
+@pytest.fixture(scope="module")
+def zoo(tmp_path_factory):
+    root = tmp_path_factory.mktemp("scorecard")
+    folder = root / "card"
+    shutil.copytree(ROOT / "tests" / "data" / "scorecard-tiny", folder)
+    card = load_scorecard(folder=folder)
+    score_zoo(card, root / "zoo", quiet=True)
+    return card, root
+
+
+@pytest.fixture(scope="module")
+def again(zoo):
+    card, root = zoo
+    return score_method(card, "basic", root / "again", name="basic_again", quiet=True, resamples=200)
+
+
+def test_a_member_scored_again_under_another_name_reproduces_its_stored_row(zoo, again):
+    table = again.table.set_index("method")
+    columns = ["episodes", "success", "success_lo", "success_hi", "collision", "collision_lo", "collision_hi",
+               "clearance_median"]
+    pd.testing.assert_series_equal(table.loc["basic", columns], table.loc["basic_again", columns], check_names=False,
+                                   check_exact=True)
+    primary = again.comparisons[(again.comparisons["member"] == "basic")
+                                & (again.comparisons["holm_family"] == "primary")]
+    assert len(primary) == 2 and set(primary["verdict"]) == {"equivalent"}
+    assert (primary["delta"] == 0).all()
+
+
+def test_the_leaderboard_is_the_stored_episodes_recomputed(zoo, again):
+    card, root = zoo
+    from jaxapf.sweep import read_sweep
+
+    stored, _ = read_sweep(card.folder / "episodes.parquet")
+    for member, rows in stored.groupby("member"):
+        per_seed = rows.groupby("selection")["success"].mean().to_numpy()
+        mean, lo, hi = stats.seed_interval(per_seed)
+        row = again.table.set_index("method").loc[member]
+        assert (row["success"], row["success_lo"], row["success_hi"]) == pytest.approx((mean, lo, hi), rel=1e-12)
+    # every member against the new method on the same (selection, field) pairs: the counts recomputed
+    mine = stored[stored["member"] == "direction"].sort_values(["selection", "field"])
+    base = stored[stored["member"] == "basic"].sort_values(["selection", "field"])
+    row = again.comparisons.query("member == 'direction' and metric == 'success'").iloc[0]
+    b = int(np.sum(base["success"].to_numpy() & ~mine["success"].to_numpy()))
+    c = int(np.sum(~base["success"].to_numpy() & mine["success"].to_numpy()))
+    assert row["discordant"] == f"b={b}, c={c}" and row["n_pairs"] == len(base)
+    md = (root / "again" / "leaderboard.md").read_text()
+    assert f"digest {card.digest}" in md and "basic_again (new)" in md and "at " in md
+
+
+def test_a_stored_part_edited_by_hand_is_refused_in_one_line(zoo, tmp_path, capsys):
+    card, _ = zoo
+    folder = tmp_path / "card"
+    shutil.copytree(card.folder, folder)
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(folder / "episodes.parquet")
+    flipped = table.set_column(table.schema.get_field_index("success"), "success", _flip(table.column("success")))
+    pq.write_table(flipped, folder / "episodes.parquet")
+    code = main(["scorecard", "--card", str(folder), "--method", "direction", "--name", "d2", "--out",
+                 str(tmp_path / "out"), "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "stored episodes are refused" in err[0]
+
+
+def _flip(column):
+    import pyarrow as pa
+
+    values = column.to_numpy(zero_copy_only=False)
+    values = values.copy()
+    values[0] = not values[0]
+    return pa.array(values)
+
+
+def test_a_changed_engine_flies_a_sample_again_and_pairs_only_if_it_agrees(zoo, tmp_path):
+    card, _ = zoo
+    folder = tmp_path / "card"
+    shutil.copytree(card.folder, folder)
+    kept = json.loads((folder / "identity.json").read_text())
+    (folder / "identity.json").write_text(json.dumps(kept | {"jax": "0.0.elsewhere"}))
+    moved = load_scorecard(folder=folder)
+    said = check_drift(moved, tmp_path / "drift")
+    assert said.startswith("engine changed (jax 0.0.elsewhere -> ") and "agree" in said
+    # stored episodes another engine made differently: the sample disagrees, one line says how to rescore
+    from jaxapf.compare.scorecard import _store
+    from jaxapf.sweep import read_sweep
+
+    df, _ = read_sweep(folder / "episodes.parquet")
+    df.loc[df["member"] == card.spec.methods[0], "min_clearance"] += 0.01
+    shutil.copytree(card.folder.parent / "zoo" / "test.parquet", tmp_path / "test.parquet")
+    _store(df, tmp_path)
+    shutil.copy(tmp_path / "episodes.parquet", folder / "episodes.parquet")
+    with pytest.raises(DriftError, match="--rescore"):
+        check_drift(load_scorecard(folder=folder), tmp_path / "drift2")
+
+
+def test_a_name_of_the_zoo_and_a_missing_card_are_one_line(zoo, tmp_path, capsys):
+    card, _ = zoo
+    assert main(["scorecard", "--card", str(card.folder), "--method", "basic", "--out", str(tmp_path / "o")]) == 2
+    assert "a zoo member of scorecard card has that name" in capsys.readouterr().err
+    assert main(["scorecard", "--card", "v0"]) == 2
+    assert "no scorecard at" in capsys.readouterr().err
+    assert main(["scorecard", "--card", str(card.folder)]) == 0
+    assert "| rank | method |" in capsys.readouterr().out
