@@ -6,6 +6,7 @@ refused, and a changed engine checked by flying a sample again."""
 from __future__ import annotations
 
 import json
+import re
 import shutil
 
 import numpy as np
@@ -123,3 +124,47 @@ def test_a_name_of_the_zoo_and_a_missing_card_are_one_line(zoo, tmp_path, capsys
     assert "no scorecard at" in capsys.readouterr().err
     assert main(["scorecard", "--card", str(card.folder)]) == 0
     assert "| rank | method |" in capsys.readouterr().out
+
+
+def test_the_tutorial_ranks_its_plugin_as_the_page_says(zoo, tmp_path, capsys):
+    """docs/scorecard.md's path, run: its plugin block saved as the page names it, its command on the tiny card."""
+    import subprocess
+    import sys
+
+    card, _ = zoo
+    page = (ROOT / "docs" / "scorecard.md").read_text(encoding="utf-8")
+    (plugin,) = re.findall(r"```python\n(.*?)```", page, flags=re.S)
+    (command,) = re.findall(r"```bash\n(.*?)```", page, flags=re.S)
+    (tmp_path / "ttc_weight.py").write_text(plugin, encoding="utf-8")
+    args = command.split()[1:] + ["--card", str(card.folder), "--quiet", "--resamples", "200"]
+    done = subprocess.run([sys.executable, "-m", "jaxapf", *args], cwd=tmp_path, capture_output=True, text=True,
+                          timeout=900)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.startswith("ttc_weight: rank ")
+    out = tmp_path / "runs" / "scorecard-card-ttc_weight"
+    board = pd.read_csv(out / "leaderboard.csv")
+    assert set(board["method"]) == {"basic", "direction", "ttc_weight"}
+    comparisons = pd.read_csv(out / "comparisons.csv")
+    assert set(comparisons["member"]) == {"basic", "direction"}
+    chosen = json.loads((out / "selection" / "ttc_weight-seed1.json").read_text())["selection"]["gains"]
+    assert "k_ttc" in chosen  # the plugin's gain is searched beside the field's
+
+
+def test_the_pages_numbers_are_the_shipped_cards():
+    """What docs/scorecard.md states of v1 and of the drift check is what the code holds."""
+    from jaxapf.compare import scorecard
+
+    page = (ROOT / "docs" / "scorecard.md").read_text(encoding="utf-8")
+    spec = load_scorecard("v1").spec
+    sel = spec.selection
+    assert (f"random search of {sel.candidates} candidates on {sel.budget // sel.candidates} training fields, "
+            f"{sel.budget:,} episode rollouts per method") in page.replace("\n", " ")
+    assert f"{spec.test.fields} fields of each family, drawn from seed {spec.test.seed}" in page.replace("\n", " ")
+    assert f"seeds {sel.seeds[0]}, {sel.seeds[1]} and {sel.seeds[2]}" in page
+    assert f"({scorecard.SAMPLE_FIELDS} fields of each family" in page.replace("\n", " ")
+    assert scorecard.AGREE == 1e-3 and "within 1 mm" in page.replace("\n", " ")
+    assert len(sel.families) == 6 and "on six families" in page.replace("\n", " ")
+    # the held-out seed is one no study's sweep or script draws from
+    drawn = [p for p in (*(ROOT / "sweeps").glob("*.toml"), *(ROOT / "analysis").glob("*.py"))
+             if re.search(rf"\bseed\s*=\s*{spec.test.seed}\b|SEED\s*=\s*{spec.test.seed}\b", p.read_text())]
+    assert drawn == []
