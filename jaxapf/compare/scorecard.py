@@ -179,7 +179,11 @@ def check_drift(card: Scorecard, out: pathlib.Path, *, quiet: bool = True) -> st
     again and compared within :data:`AGREE`: what was found, or :class:`DriftError` in one line."""
     from ..sweep import read_sweep, run_sweep
 
-    kept = json.loads((card.folder / "identity.json").read_text())
+    path = card.folder / "identity.json"
+    if not path.is_file():
+        raise ConfigError(f"scorecard {card.version}: no {path.name} beside its stored episodes; score the zoo again "
+                          f"(jaxapf scorecard --card {card.version} --rescore)")
+    kept = json.loads(path.read_text())
     here = identity()
     changed = {k: (kept.get(k), v) for k, v in here.items() if kept.get(k) != v}
     if not changed:
@@ -257,7 +261,7 @@ def _versus(zoo: pd.DataFrame, new: pd.DataFrame, name: str, resamples: int) -> 
     from ..report import ReportOptions
     from ..report.tables import compare
 
-    keep = ["family", "kind", "field", "seed", *READ]
+    keep = [c for c in ("family", "kind", "field", "seed", *READ) if c in zoo.columns and c in new.columns]
     members = list(dict.fromkeys(zoo["member"]))
     parts, pairs, labels = [], {}, {}
     for i, m in enumerate(members):
