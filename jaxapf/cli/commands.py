@@ -522,6 +522,7 @@ def _compare(args: argparse.Namespace) -> int:
 def _scorecard(args: argparse.Namespace) -> int:
     from ..compare.scorecard import load_scorecard, score_method, score_zoo
     from ..engine.runtime import configure_jax, default_cache_dir
+    from ..io.names import read_own
     from ..tune import TuneError
     from ..validation import ConfigError
 
@@ -534,7 +535,7 @@ def _scorecard(args: argparse.Namespace) -> int:
         if not board.is_file():
             raise ConfigError(f"scorecard {card.version}: no stored leaderboard at {board}; score the zoo first "
                               "(--rescore)")
-        print(board.read_text(), end="")
+        print(read_own(board).decode("utf-8"), end="")
         return 0
     configure_jax(cache_dir=None if args.no_cache else default_cache_dir())
     label = args.name or args.method or "zoo"

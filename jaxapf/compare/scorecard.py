@@ -159,15 +159,18 @@ def score_zoo(card: Scorecard, out: str | pathlib.Path, *, quiet: bool = False) 
     scorecard's spec. Returns the leaderboard."""
     import shutil
 
-    from ..io.lock import writing
+    from ..io.lock import write_atomic, writing
+    from ..text import csv_text
 
     out = pathlib.Path(out)
     with writing(out, "finished selections and test parts are kept"):
         df, selections = _fly(card.spec, card.spec.methods, out, quiet)
         _store(df, out)
-    shutil.copy(out / "episodes.parquet", card.folder / "episodes.parquet")
-    selection_table(card.spec, selections).to_csv(card.folder / "selection.csv", index=False)
-    (card.folder / "identity.json").write_text(json.dumps(identity() | {"digest": card.digest}, indent=1) + "\n")
+    shutil.copy(out / "episodes.parquet", card.folder / "episodes.parquet")  # a verified part, copied whole
+    write_atomic(card.folder / "selection.csv",
+                 lambda fh: fh.write(csv_text(selection_table(card.spec, selections)).encode()))
+    record = json.dumps(identity() | {"digest": card.digest}, indent=1) + "\n"
+    write_atomic(card.folder / "identity.json", lambda fh: fh.write(record.encode()))
     board = leaderboard(stored_episodes(card), None)
     write_leaderboard(card, board, None, card.folder)
     return board.table
@@ -177,20 +180,22 @@ def check_drift(card: Scorecard, out: pathlib.Path, *, quiet: bool = True) -> st
     """``"same engine"`` where this engine's identity is the stored results'; else a sample of the stored
     episodes (:data:`SAMPLE_FIELDS` fields of every family, the first member, its first seed's selection) flown
     again and compared within :data:`AGREE`: what was found, or :class:`DriftError` in one line."""
+    from ..io.names import open_read, read_own
     from ..sweep import read_sweep, run_sweep
 
     path = card.folder / "identity.json"
     if not path.is_file():
         raise ConfigError(f"scorecard {card.version}: no {path.name} beside its stored episodes; score the zoo again "
                           f"(jaxapf scorecard --card {card.version} --rescore)")
-    kept = json.loads(path.read_text())
+    kept = json.loads(read_own(path).decode("utf-8"))
     here = identity()
     changed = {k: (kept.get(k), v) for k, v in here.items() if kept.get(k) != v}
     if not changed:
         return "same engine"
     zoo = stored_episodes(card)
     member, seed = card.spec.methods[0], card.spec.selection.seeds[0]
-    table = pd.read_csv(card.folder / "selection.csv")
+    with open_read(card.folder / "selection.csv", 1 << 24) as fh:
+        table = pd.read_csv(fh)
     row = table[(table["method"] == member) & (table["seed"] == seed)].iloc[0]
     gains = {g: float(row[g]) for g in card.spec.method_gains(member) if g in row and pd.notna(row[g])}
     chosen = Selection(member, seed, str(row["search"]), gains, 0, 0, 0, 0, 0.0, math.nan, math.nan, "stored")
