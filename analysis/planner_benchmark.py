@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import pathlib
 
 import numpy as np
 import pandas as pd
@@ -195,9 +196,22 @@ def trajectory_figures(spec, runs, out) -> list[tuple[str, str]]:
         path = f"trajectories_{family}.png"
         fig.savefig(out / path, dpi=110, bbox_inches="tight")
         plt.close(fig)
-        figures.append((path, f"Every method at its seed-1 selection on {family} test field {field_index} (the "
-                              "lowest-numbered field where the outcomes differ)"))
+        figures.append((path, _caption(family, field_index)))
     return figures
+
+
+def _caption(family: str, field_index: int) -> str:
+    return (f"Every method at its seed-1 selection on {family} test field {field_index} (the lowest-numbered field "
+            "where the outcomes differ)")
+
+
+def kept_figures(spec, test: pathlib.Path) -> list[tuple[str, str]]:
+    """The committed trajectory figures with their captions (the fields they show found again in ``test``)."""
+    from jaxapf.sweep import read_sweep
+
+    df, _ = read_sweep(test)
+    return [(f"trajectories_{family}.png", _caption(family, _figure_field(df, spec, family)))
+            for family in ("trap", "overtake")]
 
 
 def facts(spec, summary: pd.DataFrame, vs_basic: pd.DataFrame, vs_paper: pd.DataFrame,
@@ -268,9 +282,13 @@ def run_benchmark(doc: str, name: str, spec_file: str, title: str, extra=None, q
         found = facts(spec, report.summary, report.comparisons, vs_paper, pd.read_csv(out / "selection.csv")) | more
         study.write_facts(out, found | ({"answer": question(found)} if question is not None else {}))
         return
-    spec, runs = study.run_compare_study(args, out, spec_file)
+    if args.from_episodes:  # the reports again from the committed episodes; the trajectory figures kept
+        spec, runs, test = study.rebuild_comparison(args, out, spec_file), None, out / "episodes.parquet"
+    else:
+        spec, runs = study.run_compare_study(args, out, spec_file)
+        test = runs / "test.parquet"
     paper = dataclasses.replace(spec, baseline=PAPER)
-    vs_paper = study.report(runs / "test.parquet", out, resamples=args.resamples, folder="report_vs_paper",
+    vs_paper = study.report(test, out, resamples=args.resamples, folder="report_vs_paper",
                             baseline=baseline_filter(paper), pair_on=("selection",), heatmap=None).comparisons
     summary = pd.read_csv(out / "report" / "summary.csv")
     vs_basic = pd.read_csv(out / "report" / "comparisons.csv")
@@ -281,9 +299,10 @@ def run_benchmark(doc: str, name: str, spec_file: str, title: str, extra=None, q
     more_sections, more = extra(out, spec, args, runs) if extra is not None else ([], {})
     found = facts(spec, summary, vs_basic, vs_paper, pd.read_csv(out / "selection.csv")) | more
     study.write_facts(out, found | ({"answer": question(found)} if question is not None else {}))
-    command = f"python analysis/{name}.py" + (f" --fields {args.fields}" if args.fields else "")
-    study.write_readme(out, title, command, runs / "test.parquet", sections + more_sections,
-                       trajectory_figures(spec, runs, out) + [study.RATES_FIGURE])
+    command = f"python analysis/{name}.py" + (f" --fields {args.fields}" if args.fields else "") + (
+        " --from-episodes" if args.from_episodes else "")
+    figures = trajectory_figures(spec, runs, out) if runs is not None else kept_figures(spec, test)
+    study.write_readme(out, title, command, test, sections + more_sections, figures + [study.RATES_FIGURE])
     print(f"wrote {out}/README.md")
 
 

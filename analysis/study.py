@@ -178,6 +178,38 @@ def run_comparison(args: argparse.Namespace, spec_file: str):
     return spec, runs
 
 
+def committed_selections(spec, out: pathlib.Path) -> list:
+    """The selections a compare study committed (``out/selection.csv``), each with the scalar gains it chose
+    (an array-valued gain's numbers are not committed)."""
+    import pandas as pd
+
+    from jaxapf.compare.select import Selection
+
+    table = pd.read_csv(out / "selection.csv")
+    fields = [f.name for f in dataclasses.fields(Selection) if f.name != "gains"]
+    return [Selection(**{k: r[k] for k in fields}, gains={g: float(r[g]) for g in spec.method_gains(r["method"])
+                                                          if g in r and pd.notna(r[g])})
+            for _, r in table.iterrows()]
+
+
+def rebuild_comparison(args: argparse.Namespace, out: pathlib.Path, spec_file: str):
+    """``--from-episodes`` of a compare study: its report again from the committed ``out/episodes.parquet`` and
+    ``compare.md`` from it and the committed selections, simulating nothing. Returns the spec."""
+    from jaxapf.compare import load_compare_spec
+    from jaxapf.compare.protocol import baseline_filter, compare_markdown
+    from jaxapf.validation import ConfigError
+
+    spec = load_compare_spec(ROOT / "sweeps" / spec_file)[0]
+    kept = out / "episodes.parquet"
+    if not kept.exists():
+        raise ConfigError(f"--from-episodes: {kept} does not exist; run the study once without it")
+    result = report(kept, out, resamples=args.resamples, baseline=baseline_filter(spec), pair_on=("selection",),
+                    heatmap=None, gallery=0)
+    markdown = compare_markdown(spec, committed_selections(spec, out), result.summary, result.comparisons)
+    (out / "compare.md").write_text(markdown)
+    return spec
+
+
 def run_compare_study(args: argparse.Namespace, out: pathlib.Path, spec_file: str):
     """What a ``jaxapf compare`` study does after :func:`begin`: :func:`run_comparison`, then its test's episodes
     kept (:func:`keep_episodes`), its report (without its HTML), ``compare.md`` and ``selection.csv`` copied into

@@ -143,16 +143,21 @@ def main() -> None:
         study.write_facts(out, facts(load_compare_spec(study.ROOT / "sweeps" / SPEC)[0], report.summary,
                                      report.comparisons))
         return
-    spec, runs = study.run_compare_study(args, out, SPEC)
+    if args.from_episodes:
+        spec, test = study.rebuild_comparison(args, out, SPEC), out / "episodes.parquet"
+    else:
+        spec, runs = study.run_compare_study(args, out, SPEC)
+        test = runs / "test.parquet"
     summary = pd.read_csv(out / "report" / "summary.csv")
     comparisons = pd.read_csv(out / "report" / "comparisons.csv")
     study.write_facts(out, facts(spec, summary, comparisons))
     sections = ["Budgets, selected gains, the test rates of every selection and every verdict seed by seed: "
                 "[`compare.md`](compare.md); the full report of the test: [`report/report.md`](report/report.md).",
                 findings(spec, summary, comparisons)]
-    command = "python analysis/tuned_comparison.py" + (f" --fields {args.fields}" if args.fields else "")
-    study.write_readme(out, "Study 8 — each method at its tuned best, under equal budgets", command,
-                       runs / "test.parquet", sections, [study.RATES_FIGURE])
+    command = "python analysis/tuned_comparison.py" + (f" --fields {args.fields}" if args.fields else "") + (
+        " --from-episodes" if args.from_episodes else "")
+    study.write_readme(out, "Study 8 — each method at its tuned best, under equal budgets", command, test, sections,
+                       [study.RATES_FIGURE])
     print(f"wrote {out}/README.md")
 
 
