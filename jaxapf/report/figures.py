@@ -302,6 +302,7 @@ def plot_differences(comparisons: pd.DataFrame, labels: Mapping[int, str], metri
         name += f" [{unit}]" if unit else ""
         if len(sub):
             name += " (↑ better)" if bool(sub["higher_is_better"].iloc[0]) else " (↓ better)"
+            name += "" if (sub["holm_family"] == "primary").all() else ", exploratory"
         else:
             name += " (no pairs)"
         ax.set_xlabel(name, fontsize=8)

@@ -434,13 +434,17 @@ def findings(summary: pd.DataFrame, comparisons: pd.DataFrame, group: str, optio
 def verdict_matrix(comparisons: pd.DataFrame, metrics: Sequence[str], groups: Sequence[str]) -> pd.DataFrame:
     """One row per compared setting (its baseline named where settings have their own), one column per
     (group, metric), each cell the verdict's mark (:data:`VERDICT_MARKS`; empty where not compared);
-    columns are a two-level index (group, metric)."""
+    columns are a two-level index (group, metric), a metric outside the primary Holm family marked
+    ``(exploratory)``."""
     comp = comparisons[comparisons["family"].isin(groups)]
     verdict = comp.set_index(["setting", "family", "metric"])["verdict"]
     settings = list(pd.unique(comp["setting"]))
     label = comp.drop_duplicates("setting").set_index("setting")
     each_own = label["baseline_label"].nunique() > 1
-    columns = [("", "setting")] + [(g, m) for g in groups for m in metrics]
+    other = comp[comp["holm_family"] != "primary"]
+    exploratory = set(zip(other["family"], other["metric"]))
+    columns = [("", "setting")] + [(g, f"{m} (exploratory)" if (g, m) in exploratory else m) for g in groups
+                                   for m in metrics]
     rows = []
     for s in settings:
         row = [label.at[s, "label"] + (f" (vs #{int(label.at[s, 'baseline'])})" if each_own else "")]

@@ -181,7 +181,8 @@ def test_figures_of_many_groups_and_metrics_are_grids_that_fit_a_page(groups, se
     summary = pd.DataFrame(rows)
     comparisons = pd.DataFrame([{"setting": s, "metric": m, "delta": 0.01, "delta_lo": -0.02, "delta_hi": 0.04,
                                  "p_holm": 0.5, "higher_is_better": True, "margin": 0.02, "verdict": "inconclusive",
-                                 "test": "mcnemar" if m in RATES else "wilcoxon"}
+                                 "holm_family": "primary" if m in ("success", "collision") else f"exploratory: {m}",
+                                 "test": "score" if m in RATES else "signed rank"}
                                 for s in range(settings) for m in RATES + CONTINUOUS])
     values = {g: {s: rng.normal(size=50) for s in range(settings)} for g in names}
     taus = np.linspace(0, 1, 20)
