@@ -98,36 +98,32 @@ def keep_episodes(parquet: pathlib.Path, out: pathlib.Path) -> pathlib.Path:
     columns, the field keys, ``solvable`` and the report's metrics), as one verified sweep part that
     ``jaxapf report`` reads: a later change to the statistics re-derives the study from it
     (``--from-episodes``) without a rerun."""
-    import json
-
-    import pyarrow as pa
-
     from jaxapf.report.load import report_metrics
     from jaxapf.sweep import read_sweep
-    from jaxapf.sweep.meta import META_KEY
-    from jaxapf.sweep.output import write_part
+    from jaxapf.sweep.output import write_rows
 
     df, meta = read_sweep(parquet)
     rates, continuous = report_metrics(meta["metrics"])
     metrics = [m for m in meta["metrics"] if m in (*rates, *continuous, "invalid")]
     columns = [c for c in df.columns if c not in meta["metrics"] or c in metrics]
-    own = {k: meta[k] for k in ("format", "spec", "spec_hash", "dtype", "prng", "versions", "vmap_width") if k in meta}
-    table = pa.Table.from_pandas(df[columns], preserve_index=False)
-    table = table.replace_schema_metadata({META_KEY: json.dumps(own | {"metrics": metrics}).encode()})
-    write_part(out, "episodes.parquet", table)
-    return out / "episodes.parquet"
+    return write_rows(out, "episodes.parquet", df[columns], meta, metrics)
+
+
+def kept_episodes(out: pathlib.Path) -> pathlib.Path:
+    """``out/episodes.parquet``, which ``--from-episodes`` reads; one line where the study kept none."""
+    from jaxapf.validation import ConfigError
+
+    kept = out / "episodes.parquet"
+    if not kept.exists():
+        raise ConfigError(f"--from-episodes: {kept} does not exist; run the study once without it")
+    return kept
 
 
 def sweep_source(args: argparse.Namespace, out: pathlib.Path, name: str) -> pathlib.Path:
     """The episodes a study reports: ``sweeps/<name>.toml`` run now (:func:`run_spec`) and kept in
     ``out/episodes.parquet`` (:func:`keep_episodes`), or with ``--from-episodes`` the committed ones."""
-    from jaxapf.validation import ConfigError
-
-    kept = out / "episodes.parquet"
     if args.from_episodes:
-        if not kept.exists():
-            raise ConfigError(f"--from-episodes: {kept} does not exist; run the study once without it")
-        return kept
+        return kept_episodes(out)
     parquet = run_spec(name, args.fields)
     keep_episodes(parquet, out)
     return parquet
@@ -178,34 +174,17 @@ def run_comparison(args: argparse.Namespace, spec_file: str):
     return spec, runs
 
 
-def committed_selections(spec, out: pathlib.Path) -> list:
-    """The selections a compare study committed (``out/selection.csv``), each with the scalar gains it chose
-    (an array-valued gain's numbers are not committed)."""
-    import pandas as pd
-
-    from jaxapf.compare.select import Selection
-
-    table = pd.read_csv(out / "selection.csv")
-    fields = [f.name for f in dataclasses.fields(Selection) if f.name != "gains"]
-    return [Selection(**{k: r[k] for k in fields}, gains={g: float(r[g]) for g in spec.method_gains(r["method"])
-                                                          if g in r and pd.notna(r[g])})
-            for _, r in table.iterrows()]
-
-
 def rebuild_comparison(args: argparse.Namespace, out: pathlib.Path, spec_file: str):
     """``--from-episodes`` of a compare study: its report again from the committed ``out/episodes.parquet`` and
     ``compare.md`` from it and the committed selections, simulating nothing. Returns the spec."""
     from jaxapf.compare import load_compare_spec
-    from jaxapf.compare.protocol import baseline_filter, compare_markdown
-    from jaxapf.validation import ConfigError
+    from jaxapf.compare.protocol import baseline_filter, compare_markdown, read_selections
 
     spec = load_compare_spec(ROOT / "sweeps" / spec_file)[0]
-    kept = out / "episodes.parquet"
-    if not kept.exists():
-        raise ConfigError(f"--from-episodes: {kept} does not exist; run the study once without it")
-    result = report(kept, out, resamples=args.resamples, baseline=baseline_filter(spec), pair_on=("selection",),
-                    heatmap=None, gallery=0)
-    markdown = compare_markdown(spec, committed_selections(spec, out), result.summary, result.comparisons)
+    result = report(kept_episodes(out), out, resamples=args.resamples, baseline=baseline_filter(spec),
+                    pair_on=("selection",), heatmap=None, gallery=0)
+    markdown = compare_markdown(spec, read_selections(spec, out / "selection.csv"), result.summary,
+                                result.comparisons)
     (out / "compare.md").write_text(markdown)
     return spec
 

@@ -44,7 +44,8 @@ from ..validation import ConfigError
 from .select import Selection, saved_selection, select, spec_digest
 from .spec import CompareSpec, load_compare_spec
 
-__all__ = ["run_compare", "run_compare_spec", "test_sweep_spec", "selection_table", "baseline_filter", "rows_of",
+__all__ = ["run_compare", "run_compare_spec", "test_sweep_spec", "selection_table", "read_selections",
+           "baseline_filter", "rows_of",
            "DEFAULT"]
 
 #: The ``selection`` tag of a method at its default gains.
@@ -176,6 +177,21 @@ def selection_table(spec: CompareSpec, selections: Sequence[Selection]) -> pd.Da
     return pd.DataFrame([{k: v for k, v in s.to_json().items() if k != "gains"}
                          | {g: s.gains[g] for g in spec.method_gains(s.method) if not GAINS.get(g).shape}
                          for s in selections])
+
+
+def read_selections(spec: CompareSpec, path: str | pathlib.Path) -> list[Selection]:
+    """The selections of a ``selection.csv`` (:func:`selection_table`), each with the scalar gains it chose (an
+    array-valued gain's numbers are not in the table)."""
+    import dataclasses
+
+    from ..io.names import open_read
+
+    with open_read(path, 1 << 24) as fh:
+        table = pd.read_csv(fh)
+    fields = [f.name for f in dataclasses.fields(Selection) if f.name != "gains"]
+    return [Selection(**{k: r[k] for k in fields}, gains={g: float(r[g]) for g in spec.method_gains(r["method"])
+                                                          if g in r and pd.notna(r[g])})
+            for _, r in table.iterrows()]
 
 
 def _plain(x: Any) -> Any:

@@ -37,8 +37,8 @@ import pandas as pd
 
 from .. import stats
 from ..validation import ConfigError
-from .protocol import selection_table, test_sweep_spec
-from .select import Selection, select, spec_digest
+from .protocol import read_selections, selection_table, test_sweep_spec
+from .select import select, spec_digest
 from .spec import CompareSpec, parse_compare_spec
 
 __all__ = ["SCORECARDS", "Scorecard", "load_scorecard", "identity", "stored_episodes", "score_zoo", "score_method",
@@ -125,33 +125,17 @@ def stored_episodes(card: Scorecard) -> pd.DataFrame:
     return df
 
 
-def _fly(spec: CompareSpec, methods: Sequence[str], out: pathlib.Path, quiet: bool) -> tuple[pd.DataFrame, list]:
+def _fly(spec: CompareSpec, methods: Sequence[str], out: pathlib.Path, quiet: bool
+         ) -> tuple[pd.DataFrame, dict, list]:
     """Every method's selection for each seed (kept in ``out/selection``) and its held-out test episodes (the
-    sweep ``out/test.parquet``, tagged with the member's name and the selection)."""
+    sweep ``out/test.parquet``, tagged with the member's name and the selection) with the sweep's metadata."""
     from ..sweep import read_sweep, run_sweep
 
     selections = [select(spec, m, seed, out / "selection", quiet=quiet) for seed in spec.selection.seeds
                   for m in methods]
     test = test_sweep_spec(spec, selections, members=True)
     run_sweep(test, out / "test.parquet", quiet=quiet)
-    return read_sweep(out / "test.parquet")[0], selections
-
-
-def _store(df: pd.DataFrame, folder: pathlib.Path) -> None:
-    """``folder/episodes.parquet``: the test's episodes with the columns the scorecard reads, one verified part."""
-    import pyarrow as pa
-
-    from ..sweep import read_sweep
-    from ..sweep.meta import META_KEY
-    from ..sweep.output import write_part
-
-    _, meta = read_sweep(folder / "test.parquet") if (folder / "test.parquet").exists() else (None, {})
-    columns = [c for c in df.columns if c in ("setting", "member", "selection", "method", "filter", "family", "kind",
-                                               "field", "seed", *READ)]
-    own = {k: meta[k] for k in ("format", "spec", "spec_hash", "dtype", "prng", "versions", "vmap_width") if k in meta}
-    table = pa.Table.from_pandas(df[columns], preserve_index=False)
-    table = table.replace_schema_metadata({META_KEY: json.dumps(own | {"metrics": list(READ)}).encode()})
-    write_part(folder, "episodes.parquet", table)
+    return (*read_sweep(out / "test.parquet"), selections)
 
 
 def score_zoo(card: Scorecard, out: str | pathlib.Path, *, quiet: bool = False) -> pd.DataFrame:
@@ -160,12 +144,15 @@ def score_zoo(card: Scorecard, out: str | pathlib.Path, *, quiet: bool = False) 
     import shutil
 
     from ..io.lock import write_atomic, writing
+    from ..sweep.output import write_rows
     from ..text import csv_text
 
     out = pathlib.Path(out)
     with writing(out, "finished selections and test parts are kept"):
-        df, selections = _fly(card.spec, card.spec.methods, out, quiet)
-        _store(df, out)
+        df, meta, selections = _fly(card.spec, card.spec.methods, out, quiet)
+        columns = [c for c in df.columns if c in ("setting", "member", "selection", "method", "filter", "family",
+                                                   "kind", "field", "seed", *READ)]
+        write_rows(out, "episodes.parquet", df[columns], meta, list(READ))
     shutil.copy(out / "episodes.parquet", card.folder / "episodes.parquet")  # a verified part, copied whole
     write_atomic(card.folder / "selection.csv",
                  lambda fh: fh.write(csv_text(selection_table(card.spec, selections)).encode()))
@@ -180,7 +167,7 @@ def check_drift(card: Scorecard, out: pathlib.Path, *, quiet: bool = True) -> st
     """``"same engine"`` where this engine's identity is the stored results'; else a sample of the stored
     episodes (:data:`SAMPLE_FIELDS` fields of every family, the first member, its first seed's selection) flown
     again and compared within :data:`AGREE`: what was found, or :class:`DriftError` in one line."""
-    from ..io.names import open_read, read_own
+    from ..io.names import read_own
     from ..sweep import read_sweep, run_sweep
 
     path = card.folder / "identity.json"
@@ -194,11 +181,8 @@ def check_drift(card: Scorecard, out: pathlib.Path, *, quiet: bool = True) -> st
         return "same engine"
     zoo = stored_episodes(card)
     member, seed = card.spec.methods[0], card.spec.selection.seeds[0]
-    with open_read(card.folder / "selection.csv", 1 << 24) as fh:
-        table = pd.read_csv(fh)
-    row = table[(table["method"] == member) & (table["seed"] == seed)].iloc[0]
-    gains = {g: float(row[g]) for g in card.spec.method_gains(member) if g in row and pd.notna(row[g])}
-    chosen = Selection(member, seed, str(row["search"]), gains, 0, 0, 0, 0, 0.0, math.nan, math.nan, "stored")
+    chosen = next(s for s in read_selections(card.spec, card.folder / "selection.csv")
+                  if s.method == member and s.seed == seed)
     sample = dataclasses.replace(card.spec, methods=(member,), baseline=member,
                                  test=dataclasses.replace(card.spec.test, fields=SAMPLE_FIELDS))
     run_sweep(test_sweep_spec(sample, [chosen], members=True), out / "drift.parquet", quiet=quiet)
@@ -366,7 +350,7 @@ def score_method(card: Scorecard, method: str, out: str | pathlib.Path, *, name:
         drift = check_drift(card, out)
         if not quiet:
             print(f"scorecard {card.version}: {drift}", file=sys.stderr)
-        new, _ = _fly(card.for_method(method), [method], out, quiet)
+        new = _fly(card.for_method(method), [method], out, quiet)[0]
         new = new[new["member"] == method]
         board = leaderboard(zoo, new, name, resamples)
         write_leaderboard(card, board, name, out)

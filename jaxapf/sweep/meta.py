@@ -15,7 +15,7 @@ from ..validation import ConfigError, first_line
 from .spec import SweepSpec
 
 __all__ = ["FORMAT", "LEGACY_FORMAT", "READABLE_FORMATS", "META_KEY", "PRNG", "sweep_meta", "read_meta", "parse_meta",
-           "identity", "plugin_files", "sweep_spec", "stored_spec_bound", "open_part", "PART_BYTES"]
+           "identity", "own_meta", "plugin_files", "sweep_spec", "stored_spec_bound", "open_part", "PART_BYTES"]
 
 FORMAT = "jaxapf.sweep/2"
 #: The format before kinds, solvability and content hashes; still read (its parts are not verified).
@@ -108,6 +108,12 @@ def identity(meta: Mapping[str, Any]) -> dict[str, Any]:
     return {**{k: meta.get(k) for k in ("format", "spec_hash", "dtype", "vmap_width", "metrics", "obstacle_slots",
                                         "fused")},
             "jaxapf": versions.get("jaxapf") if isinstance(versions, Mapping) else None}
+
+
+def own_meta(meta: Mapping[str, Any]) -> dict[str, Any]:
+    """The keys a part carries (its format and :data:`_SHAPE`'s), in ``meta``'s order, of a sweep's metadata as
+    :func:`jaxapf.sweep.read_sweep` returns it (which adds what it found: parts, completeness, location)."""
+    return {k: v for k, v in meta.items() if k == "format" or k in _SHAPE}
 
 
 def stored_spec_bound(meta: Mapping[str, Any]) -> bool:

@@ -24,12 +24,11 @@ import numpy as np
 
 from ..io.lock import write_atomic
 from ..validation import ConfigError, first_line
-from .meta import LEGACY_FORMAT, META_KEY, open_part
+from .meta import LEGACY_FORMAT, META_KEY, open_part, own_meta
 from .plan import Chunk
 
-__all__ = ["PART_KEY", "write_part", "part_files", "content_hash", "verify_part", "read_part", "audited_hash",
-           "PartUnreadable",
-           "part_record"]
+__all__ = ["PART_KEY", "write_part", "write_rows", "part_files", "content_hash", "verify_part", "read_part",
+           "audited_hash", "PartUnreadable", "part_record"]
 
 _TMP = re.compile(r"^\.part-.*\.tmp-\d+$")
 #: The probe :func:`jaxapf.io.lock.check_writable` writes and removes (a process starting beside us).
@@ -73,6 +72,18 @@ def write_part(out: pathlib.Path, name: str, table, shard: tuple[int, int] | Non
     record = json.dumps(record).encode()
     table = table.replace_schema_metadata({**(table.schema.metadata or {}), PART_KEY: record})
     write_atomic(out / name, lambda fh: pq.write_table(table, fh, write_page_checksum=True))
+
+
+def write_rows(out: pathlib.Path, name: str, rows, meta: dict, metrics: list[str]) -> pathlib.Path:
+    """``out/name``: ``rows`` (a DataFrame of a sweep's rows, which :func:`jaxapf.sweep.read_sweep` returned with
+    ``meta``) as one verified part carrying the sweep's own metadata, its metrics narrowed to ``metrics`` (those
+    kept among the columns): ``read_sweep`` and ``jaxapf report`` read it as they read the sweep."""
+    import pyarrow as pa
+
+    table = pa.Table.from_pandas(rows, preserve_index=False)
+    table = table.replace_schema_metadata({META_KEY: json.dumps(own_meta(meta) | {"metrics": metrics}).encode()})
+    write_part(out, name, table)
+    return out / name
 
 
 def read_part(path: pathlib.Path):

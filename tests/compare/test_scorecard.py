@@ -104,14 +104,12 @@ def test_a_changed_engine_flies_a_sample_again_and_pairs_only_if_it_agrees(zoo, 
     said = check_drift(moved, tmp_path / "drift")
     assert said.startswith("engine changed (jax 0.0.elsewhere -> ") and "agree" in said
     # stored episodes another engine made differently: the sample disagrees, one line says how to rescore
-    from jaxapf.compare.scorecard import _store
     from jaxapf.sweep import read_sweep
+    from jaxapf.sweep.output import write_rows
 
-    df, _ = read_sweep(folder / "episodes.parquet")
+    df, meta = read_sweep(folder / "episodes.parquet")
     df.loc[df["member"] == card.spec.methods[0], "min_clearance"] += 0.01
-    shutil.copytree(card.folder.parent / "zoo" / "test.parquet", tmp_path / "test.parquet")
-    _store(df, tmp_path)
-    shutil.copy(tmp_path / "episodes.parquet", folder / "episodes.parquet")
+    write_rows(folder, "episodes.parquet", df, meta, meta["metrics"])
     with pytest.raises(DriftError, match="--rescore"):
         check_drift(load_scorecard(folder=folder), tmp_path / "drift2")
 
