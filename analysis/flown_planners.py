@@ -14,6 +14,7 @@ verdict function, Holm over all of these comparisons).
 
     python analysis/flown_planners.py     # the comparison: the selection ~1 h, the held-out flights ~35 min;
                                           # the swarms ~5 h of one core, cached per cell under runs/flown-swarms/
+    python analysis/flown_planners.py --kept-swarms   # the swarms' committed tables, verdicts derived again
 """
 
 from __future__ import annotations
@@ -88,14 +89,16 @@ def swarm_facts(rates: pd.DataFrame, comparisons: pd.DataFrame) -> dict:
 
 def swarms(out: pathlib.Path, spec, args, runs: pathlib.Path | None) -> tuple[list[str], dict]:
     """The swarm stage (module docstring): its section and facts; its rates and comparisons go to
-    ``out/swarms/`` (read back with ``--facts-only``, ``runs`` None)."""
+    ``out/swarms/``. With ``--facts-only`` (``runs`` None) or ``--kept-swarms`` they are read back, their
+    verdicts derived again (:func:`swarm_study.committed`), the swarms not flown."""
     folder = out / "swarms"
-    if runs is not None:
+    if runs is not None and not args.kept_swarms:
         rates, comparisons = swarm_study.summarise(swarm_cells(out, spec))
         folder.mkdir(exist_ok=True)
         rates.to_csv(folder / "rates.csv", index=False)
         comparisons.to_csv(folder / "comparisons.csv", index=False)
-    rates, comparisons = pd.read_csv(folder / "rates.csv"), pd.read_csv(folder / "comparisons.csv")
+    else:
+        rates, comparisons = swarm_study.committed(folder)
     lines = ["## Swarms", "",
              f"Study 16's open flows with {' and '.join(map(str, AGENTS))} UAVs, {swarm_study.FIELDS} held-out fields "
              "per flow and size, every method at its three selections (chosen for a UAV alone). Each cell: "
@@ -121,7 +124,8 @@ def question(facts: dict) -> dict:
 def main() -> None:
     run_benchmark(__doc__, "flown_planners", "flown-planners.toml",
                   "Study 17 — the planners the field flies against the paper's potential field", extra=swarms,
-                  question=question)
+                  question=question, flags={"--kept-swarms": "the swarm stage from its committed tables, verdicts "
+                                                             "derived again (the swarms, ~5 h, not flown again)"})
 
 
 if __name__ == "__main__":

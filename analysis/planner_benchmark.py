@@ -263,15 +263,17 @@ def facts(spec, summary: pd.DataFrame, vs_basic: pd.DataFrame, vs_paper: pd.Data
     return out
 
 
-def run_benchmark(doc: str, name: str, spec_file: str, title: str, extra=None, question=None) -> None:
+def run_benchmark(doc: str, name: str, spec_file: str, title: str, extra=None, question=None,
+                  flags: dict[str, str] | None = None) -> None:
     """Study 11's protocol on ``sweeps/<spec_file>`` into ``analysis/results/<name>``: the comparison, the
     second report against the paper's method, facts, findings, leaderboard and trajectory figures.
     ``extra(out, spec, args, runs)``, if given, returns more ``(sections, facts)`` (``runs``, the comparison's
     folder, is None with ``--facts-only``: from what it committed); ``question(facts)``, if given, the
-    study's yes/no question's answer fact (:func:`study.answer_fact`) from the facts."""
+    study's yes/no question's answer fact (:func:`study.answer_fact`) from the facts; ``flags``, the study's own
+    switches (:func:`study.begin`)."""
     from jaxapf.compare.protocol import baseline_filter
 
-    args, out = study.begin(doc, name)
+    args, out = study.begin(doc, name, flags)
     if args.facts_only:
         from jaxapf.compare.spec import load_compare_spec
 
@@ -300,7 +302,8 @@ def run_benchmark(doc: str, name: str, spec_file: str, title: str, extra=None, q
     found = facts(spec, summary, vs_basic, vs_paper, pd.read_csv(out / "selection.csv")) | more
     study.write_facts(out, found | ({"answer": question(found)} if question is not None else {}))
     command = f"python analysis/{name}.py" + (f" --fields {args.fields}" if args.fields else "") + (
-        " --from-episodes" if args.from_episodes else "")
+        " --from-episodes" if args.from_episodes else "") + "".join(
+        f" {flag}" for flag in flags or {} if getattr(args, flag[2:].replace("-", "_")))
     figures = trajectory_figures(spec, runs, out) if runs is not None else kept_figures(spec, test)
     study.write_readme(out, title, command, test, sections + more_sections, figures + [study.RATES_FIGURE])
     print(f"wrote {out}/README.md")

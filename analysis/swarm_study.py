@@ -143,6 +143,19 @@ def verdicts(comparisons: pd.DataFrame) -> pd.DataFrame:
         columns=["n"], errors="ignore")
 
 
+def committed(folder: pathlib.Path) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """``folder``'s committed ``rates.csv`` and ``comparisons.csv``, the verdicts derived again by :func:`verdicts`
+    (a table committed before it kept the counts gets ``n`` from the rates) and written back."""
+    rates, comparisons = pd.read_csv(folder / "rates.csv"), pd.read_csv(folder / "comparisons.csv")
+    if "b" not in comparisons.columns:
+        n = rates.set_index(["method", "family", "agents", "seed"])["n"]
+        comparisons["n"] = [int(n[k]) for k in zip(comparisons["method"], comparisons["family"],
+                                                      comparisons["agents"], comparisons["seed"])]
+    comparisons = verdicts(comparisons)
+    comparisons.to_csv(folder / "comparisons.csv", index=False)
+    return rates, comparisons
+
+
 def summarise(df: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
     """``(rates, comparisons)``: per (method, family, A, seed) every outcome's rate with its Wilson interval;
     and every paired comparison (method vs ``basic``, reciprocal vs unilateral) with its verdict
@@ -350,13 +363,7 @@ def main() -> None:
         import json
 
         committed = json.loads((out / "facts.json").read_text())
-        rates, comparisons = pd.read_csv(out / "rates.csv"), pd.read_csv(out / "comparisons.csv")
-        if "b" not in comparisons.columns:  # committed before the tables kept the counts: n from the rates
-            n = rates.set_index(["method", "family", "agents", "seed"])["n"]
-            comparisons["n"] = [int(n[k]) for k in zip(comparisons["method"], comparisons["family"],
-                                                          comparisons["agents"], comparisons["seed"])]
-        comparisons = verdicts(comparisons)
-        comparisons.to_csv(out / "comparisons.csv", index=False)
+        rates, comparisons = committed(out)
         found = {k: v for k, v in facts(None, rates, comparisons).items() if k != "truncated_steps"}
         study.write_facts(out, committed | found)
         return
