@@ -142,7 +142,7 @@ def _run_comparison(spec_file: str, folder: pathlib.Path, args, suffix: str = ""
     """One of the study's other comparisons (:func:`study.run_comparison`: the study's ``--fields`` and
     ``--resamples``), its ``compare.md`` and ``selection.csv`` copied into ``folder`` (names ending in
     ``suffix``). Returns its runs folder."""
-    runs = study.run_comparison(args, spec_file)[1]
+    runs = study.run_comparison(args, spec_file, folder / f"selection{suffix}.csv")[1]
     folder.mkdir(exist_ok=True)
     shutil.copy(runs / "compare.md", folder / f"compare{suffix}.md")
     shutil.copy(runs / "selection.csv", folder / f"selection{suffix}.csv")

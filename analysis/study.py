@@ -52,6 +52,9 @@ def parser(doc: str) -> argparse.ArgumentParser:
     p.add_argument("--from-episodes", action="store_true",
                    help="rebuild the reports, the findings and facts.json from the committed episodes "
                         "(episodes.parquet in the results folder), simulating nothing")
+    p.add_argument("--kept-selections", action="store_true",
+                   help="a compare study: fly its test at the selections of its committed selection.csv "
+                        "instead of selecting again")
     return p
 
 
@@ -109,21 +112,21 @@ def keep_episodes(parquet: pathlib.Path, out: pathlib.Path) -> pathlib.Path:
     return write_rows(out, "episodes.parquet", df[columns], meta, metrics)
 
 
-def kept_episodes(out: pathlib.Path) -> pathlib.Path:
-    """``out/episodes.parquet``, which ``--from-episodes`` reads; one line where the study kept none."""
+def kept(out: pathlib.Path, name: str = "episodes.parquet", flag: str = "--from-episodes") -> pathlib.Path:
+    """``out/name``, which ``flag`` reads; one line where the study kept none."""
     from jaxapf.validation import ConfigError
 
-    kept = out / "episodes.parquet"
-    if not kept.exists():
-        raise ConfigError(f"--from-episodes: {kept} does not exist; run the study once without it")
-    return kept
+    path = out / name
+    if not path.exists():
+        raise ConfigError(f"{flag}: {path} does not exist; run the study once without it")
+    return path
 
 
 def sweep_source(args: argparse.Namespace, out: pathlib.Path, name: str) -> pathlib.Path:
     """The episodes a study reports: ``sweeps/<name>.toml`` run now (:func:`run_spec`) and kept in
     ``out/episodes.parquet`` (:func:`keep_episodes`), or with ``--from-episodes`` the committed ones."""
     if args.from_episodes:
-        return kept_episodes(out)
+        return kept(out)
     parquet = run_spec(name, args.fields)
     keep_episodes(parquet, out)
     return parquet
@@ -159,9 +162,10 @@ def report(parquet: pathlib.Path, out: pathlib.Path, *, resamples: int, folder: 
     return result
 
 
-def run_comparison(args: argparse.Namespace, spec_file: str):
+def run_comparison(args: argparse.Namespace, spec_file: str, selections: pathlib.Path):
     """``jaxapf compare sweeps/<spec_file>`` with the study's ``--fields`` and ``--resamples``, into
-    ``runs/compare-NAME[-fN]`` (resuming what is finished). Returns ``(spec, runs folder)``."""
+    ``runs/compare-NAME[-fN]`` (resuming what is finished; with ``--kept-selections`` the test flown at the
+    selections of the committed table ``selections``). Returns ``(spec, runs folder)``."""
     from jaxapf.compare import load_compare_spec, run_compare_spec
 
     spec, text = load_compare_spec(ROOT / "sweeps" / spec_file)
@@ -170,6 +174,12 @@ def run_comparison(args: argparse.Namespace, spec_file: str):
         spec = dataclasses.replace(spec, test=dataclasses.replace(spec.test, fields=args.fields))
         suffix = f"-f{args.fields}"
     runs = ROOT / "runs" / f"compare-{spec.name}{suffix}"
+    if args.kept_selections:
+        from jaxapf.compare.protocol import read_selections
+        from jaxapf.compare.select import restore
+
+        restore(spec, read_selections(spec, kept(selections.parent, selections.name, "--kept-selections")),
+                runs / "selection")
     run_compare_spec(spec, text, runs, quiet=True, resamples=args.resamples)
     return spec, runs
 
@@ -181,7 +191,7 @@ def rebuild_comparison(args: argparse.Namespace, out: pathlib.Path, spec_file: s
     from jaxapf.compare.protocol import baseline_filter, compare_markdown, read_selections
 
     spec = load_compare_spec(ROOT / "sweeps" / spec_file)[0]
-    result = report(kept_episodes(out), out, resamples=args.resamples, baseline=baseline_filter(spec),
+    result = report(kept(out), out, resamples=args.resamples, baseline=baseline_filter(spec),
                     pair_on=("selection",), heatmap=None, gallery=0)
     markdown = compare_markdown(spec, read_selections(spec, out / "selection.csv"), result.summary,
                                 result.comparisons)
@@ -193,7 +203,7 @@ def run_compare_study(args: argparse.Namespace, out: pathlib.Path, spec_file: st
     """What a ``jaxapf compare`` study does after :func:`begin`: :func:`run_comparison`, then its test's episodes
     kept (:func:`keep_episodes`), its report (without its HTML), ``compare.md`` and ``selection.csv`` copied into
     the results folder ``out``. Returns ``(spec, runs folder)``."""
-    spec, runs = run_comparison(args, spec_file)
+    spec, runs = run_comparison(args, spec_file, out / "selection.csv")
     keep_episodes(runs / "test.parquet", out)
     target = out / "report"
     if target.exists():

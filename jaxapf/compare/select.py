@@ -175,6 +175,22 @@ def gradient_steps(budget: int, fields_per_step: int, validation_fields: int, va
     return steps
 
 
+def restore(spec: CompareSpec, selections: list[Selection], out: pathlib.Path) -> None:
+    """Write ``selections`` (e.g. a committed ``selection.csv``'s,
+    :func:`~jaxapf.compare.protocol.read_selections`) into ``out`` as this spec's finished ones, so that a run
+    flies its test at them instead of selecting again."""
+    for s in selections:
+        missing = [g for g in spec.method_gains(s.method) if g not in s.gains]
+        if missing:
+            raise ConfigError(f"the selection of {s.method} seed {s.seed} holds no {missing[0]} (a table keeps no "
+                              "array-valued gain): select it again")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    subfolder(out)
+    digest = spec_digest(spec)
+    for s in selections:
+        _write_json(out / f"{s.method}-seed{s.seed}.json", {"spec_digest": digest, "selection": s.to_json()})
+
+
 def _write_json(path: pathlib.Path, data: dict) -> None:
     text = json.dumps(data, indent=2, sort_keys=True) + "\n"
     write_atomic(path, lambda fh: fh.write(text.encode("utf-8")))

@@ -5,6 +5,7 @@ by hand)."""
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 import re
 
@@ -385,3 +386,23 @@ def test_the_headline_gives_each_seeds_verdict_and_the_mean_over_the_seeds_with_
         assert f"mean over the seeds {mean:+.3g} [{lo:+.3g}, {hi:+.3g}] pp" in line
         for v in rows["verdict"]:
             assert v in line
+
+
+def test_restored_selections_fly_the_same_test_without_selecting(run, tmp_path, monkeypatch):
+    """A run given its table's selections (``restore``, as a study's ``--kept-selections``) selects nothing
+    and flies the test rows of the run that selected them; a selection lacking a searched gain is refused."""
+    import jaxapf.compare.select as select_module
+    from jaxapf.compare.protocol import read_selections
+    from jaxapf.compare.select import restore
+
+    spec, reference, summary = run
+    kept = read_selections(spec, reference / "selection.csv")
+    out = tmp_path / "restored"
+    restore(spec, kept, out / "selection")
+    monkeypatch.setattr(select_module, "select_best", lambda *a, **k: pytest.fail("selected again"))
+    run_compare_spec(spec, "(test)", out, quiet=True, resamples=200)
+    pd.testing.assert_frame_equal(read_sweep(out / "test.parquet")[0], read_sweep(reference / "test.parquet")[0])
+    lacking = dataclasses.replace(kept[0], gains={})
+    with pytest.raises(ConfigError, match=f"{kept[0].method} seed {kept[0].seed} holds no "):
+        restore(spec, [lacking], tmp_path / "refused")
+    assert not (tmp_path / "refused").exists()
