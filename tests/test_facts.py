@@ -88,3 +88,19 @@ def test_a_studys_report_is_what_its_committed_episodes_give(tmp_path):
     pd.testing.assert_frame_equal(found, kept, check_exact=False, rtol=REL)
     assert _differences(json.loads((copy / "facts.json").read_text()),
                         json.loads((committed / "facts.json").read_text())) == []
+
+
+def test_the_flags_analysis_readme_names_are_the_scripts():
+    """Every flag analysis/README.md's paragraph on the scripts' flags names is one the shared parser or the
+    named study's own switches take, and every shared flag is named there."""
+    import re
+
+    sys.path.insert(0, str(ROOT / "analysis"))
+    import study
+
+    text = (ROOT / "analysis" / "README.md").read_text()
+    paragraph = text[text.index("Every script takes"):].split("`study.py` holds")[0]
+    named = set(re.findall(r"`(--[a-z-]+)", paragraph))
+    shared = {o for a in study.parser("x\n")._actions for o in a.option_strings if o.startswith("--")} - {"--help"}
+    own = set(re.findall(r'"(--[a-z-]+)":', (ROOT / "analysis" / "flown_planners.py").read_text()))
+    assert named - shared == own and shared <= named
