@@ -77,11 +77,17 @@ class Scorecard:
 
     def for_method(self, method: str) -> CompareSpec:
         """The scorecard's protocol with ``method`` beside the zoo: the same selection (families, seeds, budget,
-        candidates, the zoo's default search) and test, the gains it reads searched. A method reading no gain
-        the zoo does not draws the zoo's candidates, so a member scored again selects what it selected."""
+        candidates, the zoo's default search) and test, the gains it reads searched (the card's frozen
+        ``selection.gains`` and any tunable gain of its own beyond them). A method reading no gain beyond them
+        draws the zoo's candidates, so a member scored again selects what it selected."""
         data = json.loads(json.dumps(self.data))
         if method not in data["methods"]:
             data["methods"] = [*data["methods"], method]
+        frozen = data["selection"].get("gains")
+        if frozen is not None:
+            every = {k: v for k, v in data["selection"].items() if k != "gains"}
+            own = parse_compare_spec(data | {"selection": every}, base=self.folder).method_gains(method)
+            data["selection"]["gains"] = [*frozen, *(g for g in own if g not in frozen)]
         return parse_compare_spec(data, base=self.folder)
 
 

@@ -166,3 +166,21 @@ def test_the_pages_numbers_are_the_shipped_cards():
     drawn = [p for p in (*(ROOT / "sweeps").glob("*.toml"), *(ROOT / "analysis").glob("*.py"))
              if re.search(rf"\bseed\s*=\s*{spec.test.seed}\b|SEED\s*=\s*{spec.test.seed}\b", p.read_text())]
     assert drawn == []
+
+
+def test_the_searched_gains_are_frozen_and_a_new_methods_own_are_added():
+    """v1 searches the gains its file lists, so a gain registered later moves no member's draws; a member scored
+    again draws the zoo's candidates; a method reading a gain beyond them has it searched, after them."""
+    from jaxapf.compare.select import random_candidates
+    from jaxapf.validation import read_toml_file
+
+    card = load_scorecard("v1")
+    listed, _ = read_toml_file(card.folder / "scorecard.toml")
+    assert card.spec.selection.gains == tuple(listed["selection"]["gains"])
+    again = card.for_method("basic")
+    assert again.selection.gains == card.spec.selection.gains
+    for seed in card.spec.selection.seeds:
+        assert random_candidates(again, "basic", seed) == random_candidates(card.spec, "basic", seed)
+    tiny = load_scorecard(folder=ROOT / "tests" / "data" / "scorecard-tiny")
+    assert "k_v" not in tiny.spec.selection.gains
+    assert tiny.for_method("vortex").selection.gains == (*tiny.spec.selection.gains, "k_v")
