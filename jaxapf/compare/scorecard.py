@@ -42,7 +42,7 @@ from .select import select, spec_digest
 from .spec import CompareSpec, parse_compare_spec
 
 __all__ = ["SCORECARDS", "Scorecard", "load_scorecard", "identity", "stored_episodes", "score_zoo", "score_method",
-           "check_drift", "leaderboard", "AGREE", "DriftError"]
+           "check_drift", "leaderboard", "selection_ties", "AGREE", "DriftError"]
 
 #: The versioned scorecards shipped with jaxapf.
 SCORECARDS = pathlib.Path(__file__).parent / "scorecards"
@@ -208,6 +208,19 @@ def check_drift(card: Scorecard, out: pathlib.Path, *, quiet: bool = True) -> st
     return f"engine changed ({what}); {len(now)} re-flown stored episodes agree (clearance within {gap:.2g} m)"
 
 
+def selection_ties(selections: Sequence[Any]) -> list[tuple[int, str, str]]:
+    """``(seed, member, member)`` for every two members whose selections in one seed the search could not tell
+    apart: the same candidate chosen (the zoo's shared draws) at the same selection success. The card's budget
+    separates the zoo where there is none (docs/scorecard.md)."""
+    ties = []
+    for i, a in enumerate(selections):
+        for b in selections[i + 1:]:
+            if (a.seed == b.seed and a.chosen == b.chosen
+                    and float(a.selection_success) == float(b.selection_success)):
+                ties.append((int(a.seed), a.method, b.method))
+    return ties
+
+
 @dataclasses.dataclass
 class Board:
     """A leaderboard: ``table`` (one row per member, best success first), ``families`` (success per family),
@@ -326,6 +339,11 @@ def write_leaderboard(card: Scorecard, board: Board, name: str | None, out: path
         doc.p(f"{name} against each member, paired on the same fields and selection seeds (seeds pooled): the "
               f"difference in percentage points with the interval that decided its verdict; {stats.VERDICT_RULE}. "
               "MDE: the smallest success difference the pairs detect with power 0.8 at that level.")
+    stored = card.folder / "selection.csv"
+    if stored.is_file():
+        ties = selection_ties(read_selections(spec, stored))
+        doc.p("Selection ties (two members of one seed at the same chosen candidate and selection success): "
+              + ("none." if not ties else "; ".join(f"seed {s}: {a} and {b}" for s, a, b in ties) + "."))
     doc.h(2, "Leaderboard")
     doc.table(shown)
     doc.h(2, "Success per family (%)")

@@ -184,3 +184,25 @@ def test_the_searched_gains_are_frozen_and_a_new_methods_own_are_added():
     tiny = load_scorecard(folder=ROOT / "tests" / "data" / "scorecard-tiny")
     assert "k_v" not in tiny.spec.selection.gains
     assert tiny.for_method("vortex").selection.gains == (*tiny.spec.selection.gains, "k_v")
+
+
+def test_selection_ties_are_found_and_printed(zoo, again):
+    """Two members of one seed at the same chosen candidate and selection success are a tie (hand-made cases);
+    the leaderboard names the stored zoo's ties, recomputed here from its selection.csv."""
+    from jaxapf.compare.scorecard import selection_ties
+    from jaxapf.compare.select import Selection
+
+    def sel(method, seed, chosen, success):
+        return Selection(method, seed, "random", {}, 3, 4, 12, 12, 0.0, success, 0.0, chosen)
+
+    made = [sel("a", 1, "candidate 2", 0.5), sel("b", 1, "candidate 2", 0.5), sel("c", 1, "candidate 2", 0.75),
+            sel("d", 2, "candidate 2", 0.5), sel("e", 1, "candidate 1", 0.5)]
+    assert selection_ties(made) == [(1, "a", "b")]
+    card, root = zoo
+    table = pd.read_csv(card.folder / "selection.csv")
+    expected = [f"seed {s}: {a.method} and {b.method}" for s, g in table.groupby("seed", sort=False)
+                for i, (_, a) in enumerate(g.iterrows()) for _, b in list(g.iterrows())[i + 1:]
+                if a.chosen == b.chosen and a.selection_success == b.selection_success]
+    md = (root / "again" / "leaderboard.md").read_text()
+    line = next(x for x in md.splitlines() if x.startswith("Selection ties"))
+    assert line.endswith("none.") if not expected else all(e in line for e in expected)
