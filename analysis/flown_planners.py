@@ -90,7 +90,7 @@ def swarm_facts(rates: pd.DataFrame, comparisons: pd.DataFrame) -> dict:
 def swarms(out: pathlib.Path, spec, args, runs: pathlib.Path | None) -> tuple[list[str], dict]:
     """The swarm stage (module docstring): its section and facts; its rates and comparisons go to
     ``out/swarms/``. With ``--facts-only`` (``runs`` None) or ``--kept-swarms`` they are read back, their
-    verdicts derived again (:func:`swarm_study.committed`), the swarms not flown."""
+    verdicts derived again (:func:`swarm_study.committed_tables`), the swarms not flown."""
     folder = out / "swarms"
     if runs is not None and not args.kept_swarms:
         rates, comparisons = swarm_study.summarise(swarm_cells(out, spec))
@@ -98,7 +98,7 @@ def swarms(out: pathlib.Path, spec, args, runs: pathlib.Path | None) -> tuple[li
         rates.to_csv(folder / "rates.csv", index=False)
         comparisons.to_csv(folder / "comparisons.csv", index=False)
     else:
-        rates, comparisons = swarm_study.committed(folder)
+        rates, comparisons = swarm_study.committed_tables(folder)
     lines = ["## Swarms", "",
              f"Study 16's open flows with {' and '.join(map(str, AGENTS))} UAVs, {swarm_study.FIELDS} held-out fields "
              "per flow and size, every method at its three selections (chosen for a UAV alone). Each cell: "

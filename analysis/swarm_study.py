@@ -143,7 +143,7 @@ def verdicts(comparisons: pd.DataFrame) -> pd.DataFrame:
         columns=["n"], errors="ignore")
 
 
-def committed(folder: pathlib.Path) -> tuple[pd.DataFrame, pd.DataFrame]:
+def committed_tables(folder: pathlib.Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     """``folder``'s committed ``rates.csv`` and ``comparisons.csv``, the verdicts derived again by :func:`verdicts`
     (a table committed before it kept the counts gets ``n`` from the rates) and written back."""
     rates, comparisons = pd.read_csv(folder / "rates.csv"), pd.read_csv(folder / "comparisons.csv")
@@ -363,7 +363,7 @@ def main() -> None:
         import json
 
         committed = json.loads((out / "facts.json").read_text())
-        rates, comparisons = committed(out)
+        rates, comparisons = committed_tables(out)
         found = {k: v for k, v in facts(None, rates, comparisons).items() if k != "truncated_steps"}
         study.write_facts(out, committed | found)
         return
