@@ -94,7 +94,6 @@ def fly(spec, source: pathlib.Path, cache: pathlib.Path = study.ROOT / "runs" / 
                             field=np.arange(len(family)) % spec.test.fields))
                 pd.concat(rows, ignore_index=True).assign(seconds=time.perf_counter() - start).to_parquet(path)
                 print(f"  {arm} {method}: done", flush=True)
-                jax.clear_caches()  # each cell compiles its own programs: free them (a long run ran out of maps)
             frames.append(pd.read_parquet(path))
     return pd.concat(frames, ignore_index=True)
 

@@ -28,7 +28,7 @@ from .loop import rollout_metrics
 from .stream import stream_metrics, stream_slots
 
 __all__ = ["evaluate", "evaluate_program", "episode_index", "default_width", "CPU_WIDTH", "ACCELERATOR_WIDTH",
-           "XLA_OPTIONS", "program", "settings_read", "fixed_batches"]
+           "XLA_OPTIONS", "MAX_PROGRAMS", "program", "settings_read", "fixed_batches"]
 
 
 #: Episodes vmapped together (the vmap width) on CPU: wide enough that every step's kernels run
@@ -60,20 +60,39 @@ XLA_OPTIONS = {
 }
 
 
+#: Closed-loop programs one process keeps compiled, over every :func:`program`; a call that would pass it
+#: empties their caches first (a program called again compiles again, from the persistent compilation cache
+#: where it is on). On CPU a program holds about 480 memory maps (three per kernel) and Linux allows a process
+#: 65,530 (``vm.max_map_count``): a long study compiling a few hundred programs died in LLVM ("Cannot allocate
+#: memory") before this bound.
+MAX_PROGRAMS = 32
+_JITTED: list = []  # every program's jitted functions, whose compiled programs MAX_PROGRAMS bounds
+
+
 def program(fun: Callable | None = None, *, static_argnames: str | Sequence[str] = ()) -> Callable:
     """``jax.jit`` of a closed-loop program, compiled with :data:`XLA_OPTIONS` when JAX's default backend is
-    the CPU and without them elsewhere (decided at each call; ``.lower`` and ``._cache_size`` follow)."""
+    the CPU and without them elsewhere (decided at each call; ``.lower`` follows), at most
+    :data:`MAX_PROGRAMS` of them kept compiled. ``.compiled()``: how many programs its calls have compiled."""
     if fun is None:
         return partial(program, static_argnames=static_argnames)
     on_cpu = jax.jit(fun, static_argnames=static_argnames, compiler_options=XLA_OPTIONS)
     elsewhere = jax.jit(fun, static_argnames=static_argnames)
+    _JITTED.extend((on_cpu, elsewhere))
     pick = lambda: on_cpu if jax.default_backend() == "cpu" else elsewhere  # noqa: E731
+    compiled = [0]
 
     @functools.wraps(fun)
     def call(*args: Any, **kwargs: Any) -> Any:
-        return pick()(*args, **kwargs)
+        jitted = pick()
+        if sum(j._cache_size() for j in _JITTED) >= MAX_PROGRAMS:
+            for j in _JITTED:
+                j.clear_cache()
+        before = jitted._cache_size()
+        out = jitted(*args, **kwargs)
+        compiled[0] += jitted._cache_size() - before
+        return out
     call.lower = lambda *args, **kwargs: pick().lower(*args, **kwargs)
-    call._cache_size = lambda: pick()._cache_size()
+    call.compiled = lambda: compiled[0]
     return call
 
 

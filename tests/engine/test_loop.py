@@ -1,5 +1,7 @@
 """The closed loop: exact plant, box, masks, determinism, gain grids in one compiled call."""
 
+import pathlib
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -82,10 +84,10 @@ def test_gain_grid_is_one_compiled_call_matching_single_runs():
                  d_s=np.array([3.0, 4.0, 5.0]), k_att=np.ones(3), eta=np.full(3, 0.5))
     metrics = evaluate(scenarios, grid, SIM, MPC)
     assert metrics["min_clearance"].shape == (3, 2)
-    size = evaluate_program._cache_size()
+    size = evaluate_program.compiled()
     other = jax.tree_util.tree_map(lambda g: g * 0.9, grid)
     evaluate(scenarios, other, SIM, MPC)
-    assert evaluate_program._cache_size() == size, "changing gain values must not recompile"
+    assert evaluate_program.compiled() == size, "changing gain values must not recompile"
     # entry (g, f) is the single episode with those gains on that field
     for g, f in [(0, 0), (2, 1)]:
         one = jax.tree_util.tree_map(lambda x, g=g: x[g] if np.ndim(x) else x, grid)  # gains left scalar broadcast
@@ -208,10 +210,10 @@ def test_a_grid_over_mpc_weights_is_one_call_matching_single_runs():
         assert_same_episodes({n: np.asarray(out[n])[i, 0][None] for n in one},
                              {n: np.asarray(v)[None] for n, v in one.items()}, SIM.episode.dt)
     assert len({round(float(v), 3) for v in out["final_distance"][:, 0]}) == 3
-    size = evaluate_program._cache_size()
+    size = evaluate_program.compiled()
     evaluate(scenarios, jax.tree_util.tree_map(lambda g: g * 0.9, batch), gains_mode, MPC,
              metrics=("final_distance", "min_clearance"))
-    assert evaluate_program._cache_size() == size, "changing the MPC's weights must not recompile"
+    assert evaluate_program.compiled() == size, "changing the MPC's weights must not recompile"
 
 
 def test_ideal_tracking_reaches_each_chosen_velocity_within_the_step():
@@ -240,3 +242,50 @@ def test_ideal_tracking_reaches_each_chosen_velocity_within_the_step():
 def test_ideal_tracking_refuses_an_estimator():
     with pytest.raises(Exception, match="sim.estimator must be 'none'"):
         SimConfig.from_flat(tracking="ideal", estimator="observer")
+
+
+def test_compiled_programs_are_bounded_and_their_memory_maps_freed(monkeypatch):
+    """Past MAX_PROGRAMS live programs a call empties every program's cache first, so a process compiling
+    hundreds of them keeps a bounded number of memory maps (Linux allows 65,530); a program called again
+    compiles again and gives the same numbers."""
+    import jaxapf.engine.batch as batch
+
+    def maps():  # 0 where the system does not list them
+        if not pathlib.Path("/proc/self/maps").exists():
+            return 0
+        with open("/proc/self/maps") as fh:
+            return sum(1 for _ in fh)
+
+    @batch.program(static_argnames="n")
+    def f(x, n):
+        for i in range(n):  # n kernels' worth of distinct work
+            x = jnp.sin(x * (i + 1)) + jnp.cumsum(x)
+        return x
+
+    monkeypatch.setattr(batch, "MAX_PROGRAMS", 3)
+    for j in batch._JITTED:
+        j.clear_cache()
+    x = jnp.linspace(0.0, 1.0, 8)
+    first = np.asarray(f(x, 1))
+    peak = 0
+    for n in range(2, 12):
+        f(x, n).block_until_ready()
+        assert sum(j._cache_size() for j in batch._JITTED) <= 3
+        peak = max(peak, maps())
+    assert f.compiled() == 11
+    np.testing.assert_array_equal(np.asarray(f(x, 1)), first)
+    assert f.compiled() == 12  # cleared since: compiled again
+    if maps():
+        unbounded = maps()
+        monkeypatch.setattr(batch, "MAX_PROGRAMS", 1000)
+        for n in range(12, 22):
+            f(x, n).block_until_ready()
+        assert maps() > unbounded and peak < maps()
+
+
+def test_docs_state_the_bound_on_compiled_programs():
+    from conftest import ROOT
+
+    from jaxapf.engine.batch import MAX_PROGRAMS
+
+    assert f"keeps at most {MAX_PROGRAMS}\n  programs compiled" in (ROOT / "docs" / "sweep.md").read_text()

@@ -119,13 +119,13 @@ def test_the_policies_write_the_same_rows(tmp_path):
     b = read_sweep(run_sweep(one, tmp_path / "acc", quiet=True, policy="accelerator").out)[0]
     assert_same_episodes(a, b, 0.1)
     two = _spec(("crossing", "overtake"))
-    before = evaluate_program._cache_size()
+    before = evaluate_program.compiled()
     c = read_sweep(run_sweep(two, tmp_path / "cpu2", quiet=True, policy="cpu").out)[0]
-    between = evaluate_program._cache_size()
+    between = evaluate_program.compiled()
     d = read_sweep(run_sweep(two, tmp_path / "acc2", quiet=True, policy="accelerator").out)[0]
     # the CPU compiled overtake's two programs (crossing's were compiled above); the accelerator none: its
     # padded overtake fields fly the fused program crossing's compiled
-    assert (between - before, evaluate_program._cache_size() - between) == (2, 0)
+    assert (between - before, evaluate_program.compiled() - between) == (2, 0)
     assert_same_episodes(c, d, 0.1)
     with pytest.raises(ConfigError, match="different sweep"):
         run_sweep(two, tmp_path / "acc2", quiet=True, policy="cpu")
