@@ -127,6 +127,11 @@ def fields(spec, count: int, seed: int = SEED) -> list[tuple[object, np.ndarray]
     return out
 
 
+#: The columns of an episode the study reads (kept in ``episodes.parquet``).
+READ = ("method", "seed", "axis", "level", "family", "field", "success", "collision", "stalled", "min_clearance",
+        "max_tilt", "accel_error_rms", "unseen_steps", "final_distance")
+
+
 def run(spec, count: int) -> pd.DataFrame:
     """One row per (method, selection seed, world, field) with the outcome metrics; the selections
     and worlds of one static setting are one vmap over gain settings."""
@@ -428,12 +433,16 @@ def main() -> None:
         return
     count = args.fields or FIELDS
     data = study.ROOT / "runs" / f"robustness-s{len(seeds())}-f{count}.parquet"  # git-ignored; a rerun only redraws
-    if data.exists():
+    if args.from_episodes:
+        df = pd.read_parquet(study.kept(out))
+    elif data.exists():
         df = pd.read_parquet(data)
     else:
         df = run(spec, count)
         data.parent.mkdir(exist_ok=True)
         df.to_parquet(data, index=False)
+    if not args.from_episodes:
+        study.keep_rows(df, out, READ)
     summary = summarise(df, args.resamples)
     summary.to_csv(out / "summary.csv", index=False)
     figure(summary, out / "robustness.png")

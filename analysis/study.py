@@ -112,6 +112,15 @@ def keep_episodes(parquet: pathlib.Path, out: pathlib.Path) -> pathlib.Path:
     return write_rows(out, "episodes.parquet", df[columns], meta, metrics)
 
 
+def keep_rows(df, out: pathlib.Path, columns: tuple[str, ...]) -> pathlib.Path:
+    """``out/episodes.parquet``: a study's own per-episode rows (one it flies without a sweep) with only the
+    ``columns`` its pages and facts read (Parquet's dictionary encoding stores the repeated text once), which
+    ``--from-episodes`` reads back (:func:`kept`) instead of flying them again."""
+    path = out / "episodes.parquet"
+    df[list(columns)].to_parquet(path, index=False, compression="zstd")
+    return path
+
+
 def kept(out: pathlib.Path, name: str = "episodes.parquet", flag: str = "--from-episodes") -> pathlib.Path:
     """``out/name``, which ``flag`` reads; one line where the study kept none."""
     from jaxapf.validation import ConfigError
