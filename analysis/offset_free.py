@@ -125,6 +125,11 @@ def run(spec, tuned: pd.DataFrame, done: pd.DataFrame | None, arms: list | None 
     return pd.concat(rows, ignore_index=True)
 
 
+#: The columns of an episode the study reads (kept in ``episodes.parquet``).
+READ = ("method", "seed", "arm", "family", "field", "success", "collision", "stalled", "min_clearance",
+        "final_distance", "cbf_infeasible_steps")
+
+
 def summarise(df: pd.DataFrame) -> pd.DataFrame:
     """Per (method, selection, arm) and per family (``all``: pooled): rates with Wilson intervals, the
     smallest clearance, the median final distance, the infeasible CBF steps, and the paired change in
@@ -410,15 +415,19 @@ def main() -> None:
     from jaxapf.compare.spec import load_compare_spec
 
     spec, _ = load_compare_spec(robustness.SPEC)
-    # git-ignored; a rerun only rewrites the tables
-    data = study.ROOT / "runs" / f"offset-free-s{len(robustness.seeds())}-f{FIELDS}.parquet"
-    tuned = selections()
-    tuned.to_csv(out / "selection_wind.csv", index=False)
-    done = pd.read_parquet(data) if data.exists() else None
-    df = run(spec, tuned, done)
-    if done is None or len(df) > len(done):
-        data.parent.mkdir(exist_ok=True)
-        df.to_parquet(data, index=False)
+    if args.from_episodes:  # the committed episodes and wind selections: nothing flown
+        df, tuned = pd.read_parquet(study.kept(out)), pd.read_csv(out / "selection_wind.csv")
+    else:
+        # git-ignored; a rerun only rewrites the tables
+        data = study.ROOT / "runs" / f"offset-free-s{len(robustness.seeds())}-f{FIELDS}.parquet"
+        tuned = selections()
+        tuned.to_csv(out / "selection_wind.csv", index=False)
+        done = pd.read_parquet(data) if data.exists() else None
+        df = run(spec, tuned, done)
+        if done is None or len(df) > len(done):
+            data.parent.mkdir(exist_ok=True)
+            df.to_parquet(data, index=False)
+        study.keep_rows(df, out, READ)
     summary = summarise(df)
     summary.to_csv(out / "summary.csv", index=False)
     print(json.dumps(write(summary, tuned, guarantee(df, spec), out), indent=1))
