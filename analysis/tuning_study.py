@@ -175,6 +175,18 @@ def gain_ci(episodes: pd.DataFrame, families: list[str]) -> tuple[float, float, 
                                      strata=tuned.family.astype(str).to_numpy())
 
 
+def transfer(spec: TuneSpec, episodes: pd.DataFrame) -> dict:
+    """The tuned − default success gain with its interval (:func:`gain_ci`) on the training families and on
+    the held-out ones."""
+    held = [f for f in spec.test.families if f not in spec.train.families]
+    return {name: dict(zip(("gain", "lo", "hi"), map(float, gain_ci(episodes, group))))
+            for name, group in (("train", list(spec.train.families)), ("held", held))}
+
+
+#: The columns of a test episode the study reads (kept in ``episodes.parquet``).
+EPISODE_COLUMNS = ("setting", "family", "field", "success")
+
+
 def verdicts(spec: TuneSpec, summary: dict, history: pd.DataFrame, episodes: pd.DataFrame, table: pd.DataFrame,
              vs_grid: pd.DataFrame, vs_default: pd.DataFrame) -> list[str]:
     """Plain-language findings, each computed from the run (no number is typed in by hand)."""
@@ -196,7 +208,7 @@ def verdicts(spec: TuneSpec, summary: dict, history: pd.DataFrame, episodes: pd.
                  f"[{pooled_d.lo:+.3f}, {pooled_d.hi:+.3f}] (Holm p = {pooled_d.p_holm:.3g}; verdict "
                  f"*{pooled_d.verdict}*); relevantly better on {', '.join(sig(vs_default, 1)) or 'no family'}, "
                  f"worse on {', '.join(sig(vs_default, -1)) or 'no family'}.")
-    gain = {name: gain_ci(episodes, fams) for name, fams in (("train", train), ("held", held))}
+    gain = {name: (g["gain"], g["lo"], g["hi"]) for name, g in transfer(spec, episodes).items()}
     (g_train, lo_train, hi_train), (g_held, lo_held, hi_held) = gain["train"], gain["held"]
     overfit = hi_held < g_train
     lines.append(f"Success gain over the defaults (paired, stratified bootstrap 95 % CI) on the training families "
@@ -400,9 +412,18 @@ def main(argv: list[str] | None = None) -> int:
     if args.facts_only:
         committed = args.out / "facts.json"
         run = json.loads(committed.read_text()).get("run", {}) if committed.exists() else {}
-        for name in ("grid", "default"):  # the paired tables with their verdicts derived again from their counts
-            path = args.out / f"tuned_vs_{name}.csv"
-            rederive(pd.read_csv(path)).to_csv(path, index=False)
+        kept = args.out / "episodes.parquet"
+        if kept.exists():  # the paired tables and the transfer interval again from the committed episodes
+            spec = load_spec(args.spec, args)[0]
+            episodes = pd.read_parquet(kept)
+            for name in ("grid", "default"):
+                paired(episodes, "tuned", name, list(spec.test.families)).to_csv(
+                    args.out / f"tuned_vs_{name}.csv", index=False)
+            run["transfer"] = transfer(spec, episodes)
+        else:
+            for name in ("grid", "default"):  # the paired tables' verdicts derived again from their counts
+                path = args.out / f"tuned_vs_{name}.csv"
+                rederive(pd.read_csv(path)).to_csv(path, index=False)
         study.write_facts(args.out, facts(args.out, run))
         return 0
     start = time.perf_counter()
@@ -420,6 +441,7 @@ def main(argv: list[str] | None = None) -> int:
     vs_default = paired(episodes, "tuned", "default", families)
     for name in ("training.png", "test.png", "gains.toml", "summary.json", "test_results.csv", "history.csv"):
         shutil.copy(args.run_dir / name, args.out / name)
+    study.keep_rows(episodes, args.out, EPISODE_COLUMNS)
     vs_grid.to_csv(args.out / "tuned_vs_grid.csv", index=False)
     vs_default.to_csv(args.out / "tuned_vs_default.csv", index=False)
     (args.out / "remat.json").write_text(json.dumps(remat, indent=2) + "\n")
@@ -427,9 +449,7 @@ def main(argv: list[str] | None = None) -> int:
     spec_path = args.spec.resolve().relative_to(ROOT) if args.spec.resolve().is_relative_to(ROOT) else args.spec
     write_markdown(args.out, str(spec_path), spec, summary, history, episodes, table, vs_grid, vs_default, remat,
                    diagnosis, command, changed, time.perf_counter() - start)
-    held = [f for f in families if f not in spec.train.families]
-    run = {"transfer": {name: dict(zip(("gain", "lo", "hi"), map(float, gain_ci(episodes, group))))
-                        for name, group in (("train", list(spec.train.families)), ("held", held))},
+    run = {"transfer": transfer(spec, episodes),
            "diagnosis": {r.outcome: {"episodes": int(r.episodes), "median": float(r.median),
                                      "largest": float(r.largest), "clipped": float(r.clipped)}
                          for r in diagnosis.itertuples()}}
