@@ -63,9 +63,9 @@ XLA_OPTIONS = {
 #: Closed-loop programs one process keeps compiled, over every :func:`program`; a call that would pass it
 #: empties their caches first (a program called again compiles again, from the persistent compilation cache
 #: where it is on). On CPU a program holds about 480 memory maps (three per kernel) and Linux allows a process
-#: 65,530 (``vm.max_map_count``): a long study compiling a few hundred programs died in LLVM ("Cannot allocate
+#: 65,530 (``vm.max_map_count``): a long study compiling over a hundred programs died in LLVM ("Cannot allocate
 #: memory") before this bound.
-MAX_PROGRAMS = 32
+MAX_PROGRAMS = 64
 _JITTED: list = []  # every program's jitted functions, whose compiled programs MAX_PROGRAMS bounds
 
 
