@@ -416,7 +416,7 @@ def main() -> None:
 
     spec, _ = load_compare_spec(robustness.SPEC)
     if args.from_episodes:  # the committed episodes and wind selections: nothing flown
-        df, tuned = pd.read_parquet(study.kept(out)), pd.read_csv(out / "selection_wind.csv")
+        df, tuned = study.kept_rows(out), pd.read_csv(out / "selection_wind.csv")
     else:
         # git-ignored; a rerun only rewrites the tables
         data = study.ROOT / "runs" / f"offset-free-s{len(robustness.seeds())}-f{FIELDS}.parquet"

@@ -434,7 +434,7 @@ def main() -> None:
     count = args.fields or FIELDS
     data = study.ROOT / "runs" / f"robustness-s{len(seeds())}-f{count}.parquet"  # git-ignored; a rerun only redraws
     if args.from_episodes:
-        df = pd.read_parquet(study.kept(out))
+        df = study.kept_rows(out)
     elif data.exists():
         df = pd.read_parquet(data)
     else:

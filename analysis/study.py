@@ -121,6 +121,17 @@ def keep_rows(df, out: pathlib.Path, columns: tuple[str, ...]) -> pathlib.Path:
     return path
 
 
+def kept_rows(out: pathlib.Path):
+    """The rows :func:`keep_rows` kept in ``out``, read through jaxapf's checked opener (a regular file, no link,
+    never blocking, at most 256 MiB); one line where the study kept none."""
+    import pandas as pd
+
+    from jaxapf.io.names import open_read
+
+    with open_read(kept(out), 1 << 28) as fh:
+        return pd.read_parquet(fh)
+
+
 def kept(out: pathlib.Path, name: str = "episodes.parquet", flag: str = "--from-episodes") -> pathlib.Path:
     """``out/name``, which ``flag`` reads; one line where the study kept none."""
     from jaxapf.validation import ConfigError

@@ -415,7 +415,7 @@ def main(argv: list[str] | None = None) -> int:
         kept = args.out / "episodes.parquet"
         if kept.exists():  # the paired tables and the transfer interval again from the committed episodes
             spec = load_spec(args.spec, args)[0]
-            episodes = pd.read_parquet(kept)
+            episodes = study.kept_rows(args.out)
             for name in ("grid", "default"):
                 paired(episodes, "tuned", name, list(spec.test.families)).to_csv(
                     args.out / f"tuned_vs_{name}.csv", index=False)
