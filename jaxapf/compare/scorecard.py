@@ -42,7 +42,7 @@ from .select import select, spec_digest
 from .spec import CompareSpec, parse_compare_spec
 
 __all__ = ["SCORECARDS", "Scorecard", "load_scorecard", "identity", "stored_episodes", "score_zoo", "score_method",
-           "check_drift", "leaderboard", "selection_ties", "AGREE", "DriftError"]
+           "check_drift", "leaderboard", "selection_ties", "identical_members", "AGREE", "DriftError"]
 
 #: The versioned scorecards shipped with jaxapf.
 SCORECARDS = pathlib.Path(__file__).parent / "scorecards"
@@ -209,26 +209,41 @@ def check_drift(card: Scorecard, out: pathlib.Path, *, quiet: bool = True) -> st
 
 
 def selection_ties(selections: Sequence[Any]) -> list[tuple[int, str, str]]:
-    """``(seed, member, member)`` for every two members whose selections in one seed the search could not tell
-    apart: the same candidate chosen (the zoo's shared draws) at the same selection success. The card's budget
-    separates the zoo where there is none (docs/scorecard.md)."""
+    """``(seed, member, member)`` for every two members whose selections in one seed the search could not order:
+    the same candidate chosen (the zoo's shared draws) at the same success and the same surrogate loss, the two
+    keys it ranks by (:mod:`jaxapf.compare.select`). The card's budget separates the zoo where there is none
+    apart from members that fly identical episodes (:func:`identical_members`; docs/scorecard.md)."""
     ties = []
     for i, a in enumerate(selections):
         for b in selections[i + 1:]:
-            if (a.seed == b.seed and a.chosen == b.chosen
-                    and float(a.selection_success) == float(b.selection_success)):
+            if (a.seed == b.seed and a.chosen == b.chosen and float(a.selection_success) == float(b.selection_success)
+                    and float(a.selection_loss) == float(b.selection_loss)):
                 ties.append((int(a.seed), a.method, b.method))
     return ties
+
+
+def identical_members(episodes: pd.DataFrame) -> list[tuple[str, str]]:
+    """Every two members (column ``member``) whose episodes agree in every column the card reads on every
+    selection seed, family and field: one planner on the card's fields (``velocity_obstacle_unilateral`` is
+    ``velocity_obstacle`` where no other UAV flies), which no selection budget can separate."""
+    key = ["selection", "family", "field"]
+    cols = [c for c in READ if c in episodes.columns]
+    frames = {m: g.set_index(key).sort_index()[cols] for m, g in episodes.groupby("member", sort=False)}
+    names = list(frames)
+    return [(a, b) for i, a in enumerate(names) for b in names[i + 1:]
+            if frames[a].index.equals(frames[b].index) and frames[a].equals(frames[b])]
 
 
 @dataclasses.dataclass
 class Board:
     """A leaderboard: ``table`` (one row per member, best success first), ``families`` (success per family),
-    ``comparisons`` (the new method against each member; empty without one)."""
+    ``comparisons`` (the new method against each member; empty without one), ``identical`` (members, the new
+    method included, that fly identical episodes: :func:`identical_members`)."""
 
     table: pd.DataFrame
     families: pd.DataFrame
     comparisons: pd.DataFrame
+    identical: list[tuple[str, str]]
 
 
 def _pooled_rows(df: pd.DataFrame) -> pd.DataFrame:
@@ -260,7 +275,7 @@ def leaderboard(zoo: pd.DataFrame, new: pd.DataFrame | None, name: str | None = 
     table.insert(0, "rank", np.arange(1, len(table) + 1))
     families = pd.DataFrame(fam).set_index("method").loc[table["method"]].reset_index()
     comparisons = _versus(zoo, new, name, resamples) if new is not None else pd.DataFrame()
-    return Board(table.reset_index(drop=True), families, comparisons)
+    return Board(table.reset_index(drop=True), families, comparisons, identical_members(data))
 
 
 def _versus(zoo: pd.DataFrame, new: pd.DataFrame, name: str, resamples: int) -> pd.DataFrame:
@@ -340,9 +355,15 @@ def write_leaderboard(card: Scorecard, board: Board, name: str | None, out: path
               f"difference in percentage points with the interval that decided its verdict; {stats.VERDICT_RULE}. "
               "MDE: the smallest success difference the pairs detect with power 0.8 at that level.")
     stored = card.folder / "selection.csv"
+    same = board.identical
+    alike = {frozenset(pair) for pair in same}
+    if same:
+        doc.p("Identical episodes on every test field (one planner on this card's fields): "
+              + "; ".join(f"{a} and {b}" for a, b in same) + ".")
     if stored.is_file():
-        ties = selection_ties(read_selections(spec, stored))
-        doc.p("Selection ties (two members of one seed at the same chosen candidate and selection success): "
+        ties = [t for t in selection_ties(read_selections(spec, stored)) if frozenset(t[1:]) not in alike]
+        doc.p("Selection ties (two members of one seed that the search could not order: the same chosen candidate "
+              "at the same selection success and surrogate loss; identical members aside): "
               + ("none." if not ties else "; ".join(f"seed {s}: {a} and {b}" for s, a, b in ties) + "."))
     doc.h(2, "Leaderboard")
     doc.table(shown)

@@ -187,22 +187,41 @@ def test_the_searched_gains_are_frozen_and_a_new_methods_own_are_added():
 
 
 def test_selection_ties_are_found_and_printed(zoo, again):
-    """Two members of one seed at the same chosen candidate and selection success are a tie (hand-made cases);
-    the leaderboard names the stored zoo's ties, recomputed here from its selection.csv."""
+    """Two members of one seed at the same chosen candidate, selection success and surrogate loss are a tie
+    (hand-made cases); the leaderboard names the stored zoo's ties, recomputed here from its selection.csv."""
     from jaxapf.compare.scorecard import selection_ties
     from jaxapf.compare.select import Selection
 
-    def sel(method, seed, chosen, success):
-        return Selection(method, seed, "random", {}, 3, 4, 12, 12, 0.0, success, 0.0, chosen)
+    def sel(method, seed, chosen, success, loss=1.0):
+        return Selection(method, seed, "random", {}, 3, 4, 12, 12, 0.0, success, loss, chosen)
 
     made = [sel("a", 1, "candidate 2", 0.5), sel("b", 1, "candidate 2", 0.5), sel("c", 1, "candidate 2", 0.75),
-            sel("d", 2, "candidate 2", 0.5), sel("e", 1, "candidate 1", 0.5)]
+            sel("d", 2, "candidate 2", 0.5), sel("e", 1, "candidate 1", 0.5), sel("f", 1, "candidate 2", 0.5, 1.5)]
     assert selection_ties(made) == [(1, "a", "b")]
     card, root = zoo
     table = pd.read_csv(card.folder / "selection.csv")
     expected = [f"seed {s}: {a.method} and {b.method}" for s, g in table.groupby("seed", sort=False)
                 for i, (_, a) in enumerate(g.iterrows()) for _, b in list(g.iterrows())[i + 1:]
-                if a.chosen == b.chosen and a.selection_success == b.selection_success]
+                if a.chosen == b.chosen and a.selection_success == b.selection_success
+                and a.selection_loss == b.selection_loss]
     md = (root / "again" / "leaderboard.md").read_text()
     line = next(x for x in md.splitlines() if x.startswith("Selection ties"))
     assert line.endswith("none.") if not expected else all(e in line for e in expected)
+    same = next(x for x in md.splitlines() if x.startswith("Identical episodes"))
+    assert same.endswith(": basic and basic_again.")  # basic scored again flies basic's episodes bit for bit
+
+
+def test_identical_members_are_those_with_equal_episodes():
+    """Members whose read columns agree on every (selection, family, field) are identical, NaN clearances
+    included; one differing clearance or one missing field separates them (hand-made)."""
+    from jaxapf.compare.scorecard import identical_members
+
+    def member(name, clearance, fields=(0, 1)):
+        return pd.DataFrame({"member": name, "selection": "seed1", "family": "trap", "field": list(fields),
+                             "success": [True, False][:len(fields)], "collision": [False, True][:len(fields)],
+                             "stalled": False, "min_clearance": clearance[:len(fields)]})
+
+    eps = pd.concat([member("a", [0.5, np.nan]), member("b", [0.5, np.nan]), member("c", [0.5, 0.25]),
+                     member("d", [0.5], fields=(0,))], ignore_index=True)
+    assert identical_members(eps) == [("a", "b")]
+    assert identical_members(eps.iloc[::-1]) == [("b", "a")]
