@@ -162,10 +162,15 @@ def test_the_pages_numbers_are_the_shipped_cards():
     assert f"({scorecard.SAMPLE_FIELDS} fields of each family" in page.replace("\n", " ")
     assert scorecard.AGREE == 1e-3 and "within 1 mm" in page.replace("\n", " ")
     assert len(sel.families) == 6 and "on six families" in page.replace("\n", " ")
-    # the held-out seed is one no study's sweep or script draws from
-    drawn = [p for p in (*(ROOT / "sweeps").glob("*.toml"), *(ROOT / "analysis").glob("*.py"))
-             if re.search(rf"\bseed\s*=\s*{spec.test.seed}\b|SEED\s*=\s*{spec.test.seed}\b", p.read_text())]
-    assert drawn == []
+    # the held-out seed is one no study's sweep or script draws the card's families from: study 16 alone draws
+    # from it (SEED in a tuple too), its swarm families
+    drawn = [p.name for p in (*(ROOT / "sweeps").glob("*.toml"), *(ROOT / "analysis").glob("*.py"))
+             if re.search(rf"\bseed\s*=\s*{spec.test.seed}\b|SEED\s*=[\s\d,]*\b{spec.test.seed}\b",
+                          p.read_text())]
+    assert drawn == ["swarm_study.py"]
+    swarms = re.search(r"^FAMILIES = \((.*)\)$", (ROOT / "analysis" / "swarm_study.py").read_text(), re.M)
+    assert swarms and not set(re.findall(r'"(\w+)"', swarms.group(1))) & {*sel.families, *spec.test.families}
+    assert "study 16 draws its swarms, another kind, from it" in page.replace("\n", " ")
 
 
 def test_the_searched_gains_are_frozen_and_a_new_methods_own_are_added():
