@@ -12,11 +12,11 @@ no box), each at the selections' τ, τ = 3 s and τ = 5 s (every other gain the
 its 8 nearest neighbours, as in study 16; one more arm, at A = 32 with ideal tracking and τ = 5 s, lets each
 see all 31 (16 half-spaces at a time, every step certified exact or counted).
 
-Verdicts (:func:`jaxapf.stats.verdicts`, the verdict function of every study: exact McNemar and TOST
-within the metric's margin, 2 points, Holm-adjusted over all of this ablation's comparisons at once),
-paired on the same fields, per (arm, A, selection): reciprocal against unilateral on swarm success, a
-collision between two UAVs and deadlock; ideal tracking against the MPC, and every UAV seen against 8
-neighbours (same method, τ, A and selection).
+Verdicts (:func:`jaxapf.stats.decide`, the verdict function of every study: exact McNemar and TOST
+within the metric's margin, 2 points), paired on the same fields, per (arm, A, selection): reciprocal
+against unilateral on swarm success, a collision between two UAVs and deadlock; ideal tracking against the
+MPC, and every UAV seen against 8 neighbours (same method, τ, A and selection); Holm within each question's
+declared families (success and collision primary, deadlock exploratory).
 
     python analysis/reciprocity_ablation.py   # cached per cell under runs/reciprocity-ablation-fN/
 """
@@ -51,6 +51,9 @@ def label(tracking: str, tau: float | None, neighbours: int = swarm.NEIGHBOURS) 
     return text + (f", every UAV seen ({neighbours} neighbours)" if neighbours != swarm.NEIGHBOURS else "")
 
 
+#: The per-swarm columns the tables and facts read, kept as ``episodes.parquet`` (``--from-episodes``).
+READ = ("method", "arm", "tracking", "tau", "neighbours", "agents", "seed", "field", *(m for m, _ in swarm.OUTCOMES),
+        "min_agent_clearance", "truncated_steps")
 #: The cells: (A, tracking, τ, neighbours seen).
 CELLS = [(a, tracking, tau, swarm.NEIGHBOURS) for a in AGENTS for tracking in TRACKING for tau in TAUS] + [
     (32, "ideal", 5.0, EVERYONE)]
@@ -173,7 +176,13 @@ def main() -> None:
         comparisons.to_csv(out / "comparisons.csv", index=False)
         study.write_facts(out, facts(rates, comparisons))
         return
-    rates, comparisons = summarise(run(count, study.ROOT / "runs" / f"reciprocity-ablation-f{count}"))
+    if args.from_episodes:
+        flown = study.kept_rows(out)
+        count = int(flown.groupby(["method", "arm", "agents", "seed"]).size().max())
+    else:
+        flown = run(count, study.ROOT / "runs" / f"reciprocity-ablation-f{count}")
+        study.keep_rows(flown, out, READ)
+    rates, comparisons = summarise(flown)
     rates.to_csv(out / "rates.csv", index=False)
     comparisons.to_csv(out / "comparisons.csv", index=False)
     from jaxapf.stats import VERDICT_RULE
@@ -195,7 +204,8 @@ def main() -> None:
     lines += ["", f"UAV-steps not certified exact: {int(rates['truncated_steps'].sum())}.", ""]
     lines += ["`rates.csv`: per method, arm, A and selection every outcome's rate, the median closest "
               "approach between UAVs; `comparisons.csv`: every paired comparison with its interval, raw and "
-              "Holm-adjusted p-values and verdict."]
+              "Holm-adjusted p-values and verdict; `episodes.parquet`: every swarm's outcomes (`--from-episodes` "
+              "rebuilds this page from them)."]
     study.write_results(out, lines, facts(rates, comparisons))
     print("\n".join(lines))
 

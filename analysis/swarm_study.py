@@ -23,11 +23,12 @@ a row left out still violates is counted (``truncated_steps``: ``cbf_truncated_s
 and its count reported, but it is left out of that family's tables and comparisons: its answers were
 not the method's.
 
-Verdicts (:func:`jaxapf.stats.verdicts`, the verdict function every study uses: exact McNemar and TOST
-within the metric's margin, 2 points, both Holm-adjusted over all of the study's comparisons at once),
-paired on the same fields, per (family, A, selection seed): every method against ``basic`` at the same
-selection seed, and ``velocity_obstacle`` against ``velocity_obstacle_unilateral``, on the swarm's
-success (every UAV at its goal), a collision between two UAVs and deadlock.
+Verdicts (:func:`jaxapf.stats.decide`, the verdict function every study uses: exact McNemar and TOST
+within the metric's margin, 2 points), paired on the same fields, per (family, A, selection seed): every
+method against ``basic`` at the same selection seed, and ``velocity_obstacle`` against
+``velocity_obstacle_unilateral``, on the swarm's success (every UAV at its goal), a collision between two
+UAVs and deadlock; Holm within each question's declared families (success and collision primary, deadlock
+exploratory), each interval at the level that decided its verdict.
 
     python analysis/swarm_study.py     # cached per cell under runs/swarm-study-fN/ (the 40 cells with a
                                        # projection among obstacles: 77 min on 2 cores)
@@ -56,6 +57,9 @@ CLUTTERED = ("formation_gap", "swarm_clutter")
 #: The outcomes compared, each with its direction (higher is better?).
 OUTCOMES = (("swarm_success", True), ("agent_collision", False), ("deadlock", False))
 MARK = {"worse": "↓", "better": "↑", "equivalent": "=", "inconclusive": "·"}
+#: The per-swarm columns the pages and facts read, kept as ``episodes.parquet`` (``--from-episodes``).
+READ = ("method", "family", "agents", "seed", "field", *(m for m, _ in OUTCOMES), "at_goal", "min_agent_clearance",
+        "truncated_steps")
 
 
 def methods() -> list[str]:
@@ -367,8 +371,13 @@ def main() -> None:
         found = {k: v for k, v in facts(None, rates, comparisons).items() if k != "truncated_steps"}
         study.write_facts(out, committed | found)
         return
-    count = args.fields or FIELDS
-    flown = run(count, study.ROOT / "runs" / f"swarm-study-f{count}")
+    if args.from_episodes:
+        flown = study.kept_rows(out)
+        count = int(flown.groupby(["method", "family", "agents", "seed"]).size().max())
+    else:
+        count = args.fields or FIELDS
+        flown = run(count, study.ROOT / "runs" / f"swarm-study-f{count}")
+        study.keep_rows(flown, out, READ)
     df = flown[exact(flown)]
     rates, comparisons = summarise(df)
     rates.to_csv(out / "rates.csv", index=False)
@@ -393,7 +402,8 @@ def main() -> None:
               "", "![swarm success, UAV-UAV collision and deadlock against A](swarm_study.png)", "",
               "`rates.csv`: per method, family, A and selection every outcome's rate with its Wilson interval, the "
               "mean fraction of UAVs at their goals and the median closest approach between UAVs; `comparisons.csv`: "
-              "every paired comparison with its interval, raw and Holm-adjusted p-values and verdict."]
+              "every paired comparison with its interval, raw and Holm-adjusted p-values and verdict; "
+              "`episodes.parquet`: every swarm's outcomes (`--from-episodes` rebuilds this page from them)."]
     study.write_results(out, lines, facts(flown, rates, comparisons))
     print("\n".join(found))
 
