@@ -29,8 +29,9 @@ times). Random search and TPE search the same fixed ranges and have no step size
 
 Each black-box tuner's success on the held-out fields is compared with the gradient tuner's of the
 same run and budget, paired on the fields: exact McNemar and TOST within a 2-point margin,
-:func:`jaxapf.stats.verdicts` over all of the study's comparisons (Holm), the verdict function every
-study uses. The headline is read from the per-run verdicts against the best black-box tuner.
+:func:`jaxapf.stats.decide`, the verdict function every study uses, with one declared Holm family, every
+comparison of the study, each interval at the level that decided its verdict. The headline is read from
+the per-run verdicts against the best black-box tuner.
 
     python analysis/tuner_study.py      # ~2 h on 2 cores
 """
@@ -451,11 +452,23 @@ def write(table: pd.DataFrame, cost: pd.DataFrame, selection: pd.DataFrame, epis
     for r in selection.groupby(["dim", "mix", "tuner", "step"], as_index=False)["success"].mean().itertuples():
         mark = "**" if steps[(r.dim, r.mix)][r.tuner] == r.step else ""
         lines.append(f"| {r.dim} | {r.mix} | {r.tuner} | {mark}{r.step:g}{mark} | {100 * r.success:.1f} |")
+    lines += ["", "`episodes.parquet`: every held-out test episode's outcomes (`--from-episodes` rebuilds this page "
+              "from them, `costs.csv` and `selection.csv`)."]
     return study.write_results(out, lines, found)
+
+
+#: The test episodes' columns the pages and facts read, kept as ``episodes.parquet`` (``--from-episodes``).
+READ = ("dim", "mix", "seed", "budget", "held_out", "setting", "family", "field", *study.RATE_COLUMNS)
 
 
 def main() -> None:
     args, out = study.begin(__doc__, STUDY)
+    if args.from_episodes:  # the runs' selections and costs from the committed tables, their episodes kept
+        episodes, cost = study.kept_rows(out), pd.read_csv(out / "costs.csv")
+        table = summarise(episodes, cost)
+        table.to_csv(out / "summary.csv", index=False)
+        print(json.dumps(write(table, cost, pd.read_csv(out / "selection.csv"), episodes, out), indent=1))
+        return
     if args.facts_only:  # the verdicts derived again from the committed table's counts
         summary = study.rederive(pd.read_csv(out / "summary.csv"), MARGIN, change="success_change")
         summary.to_csv(out / "summary.csv", index=False)
@@ -466,6 +479,7 @@ def main() -> None:
     selection = select_step_sizes()
     selection.to_csv(out / "selection.csv", index=False)
     episodes, cost = run_all(chosen(selection))
+    study.keep_rows(episodes, out, READ)
     cost.to_csv(out / "costs.csv", index=False)
     table = summarise(episodes, cost)
     table.to_csv(out / "summary.csv", index=False)
