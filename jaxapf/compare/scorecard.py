@@ -42,7 +42,7 @@ from .select import select, spec_digest
 from .spec import CompareSpec, parse_compare_spec
 
 __all__ = ["SCORECARDS", "Scorecard", "load_scorecard", "identity", "stored_episodes", "score_zoo", "score_method",
-           "check_drift", "leaderboard", "selection_ties", "identical_members", "AGREE", "DriftError"]
+           "check_drift", "leaderboard", "facts", "selection_ties", "identical_members", "AGREE", "DriftError"]
 
 #: The versioned scorecards shipped with jaxapf.
 SCORECARDS = pathlib.Path(__file__).parent / "scorecards"
@@ -164,8 +164,10 @@ def score_zoo(card: Scorecard, out: str | pathlib.Path, *, quiet: bool = False) 
                  lambda fh: fh.write(csv_text(selection_table(card.spec, selections)).encode()))
     record = json.dumps(identity() | {"digest": card.digest}, indent=1) + "\n"
     write_atomic(card.folder / "identity.json", lambda fh: fh.write(record.encode()))
-    board = leaderboard(stored_episodes(card), None)
+    board = leaderboard(stored_episodes(card), None, spent=selections)
     write_leaderboard(card, board, None, card.folder)
+    found = json.dumps(facts(card, board), indent=1, sort_keys=True) + "\n"
+    write_atomic(card.folder / "facts.json", lambda fh: fh.write(found.encode()))
     return board.table
 
 
@@ -234,6 +236,29 @@ def identical_members(episodes: pd.DataFrame) -> list[tuple[str, str]]:
             if frames[a].index.equals(frames[b].index) and frames[a].equals(frames[b])]
 
 
+def zoo_ties(card: Scorecard, board: Board) -> list[tuple[int, str, str]]:
+    """The stored zoo's :func:`selection_ties` but those of members the ``board`` found identical."""
+    alike = {frozenset(pair) for pair in board.identical}
+    return [t for t in selection_ties(read_selections(card.spec, card.folder / "selection.csv"))
+            if frozenset(t[1:]) not in alike]
+
+
+def facts(card: Scorecard, board: Board) -> dict[str, Any]:
+    """The zoo's leaderboard as named facts (``facts.json`` beside the card, which the README binds): per member
+    its rank, success and collision with their intervals over the seeds, median clearance, test episodes,
+    selection episodes and seconds and per-family success; the identical members and the selection ties."""
+    table, fam = board.table.set_index("method"), board.families.set_index("method")
+    numbers = ("success", "success_lo", "success_hi", "collision", "collision_lo", "collision_hi",
+               "clearance_median", "selection_episodes", "selection_seconds")
+    return {"version": card.version, "digest": card.digest, "members": len(table),
+            "rank": {m: int(v) for m, v in table["rank"].items()},
+            "episodes": {m: int(v) for m, v in table["episodes"].items()},
+            **{c: {m: float(v) for m, v in table[c].items()} for c in numbers},
+            "family_success": {f: {m: float(v) for m, v in fam[f].items()} for f in fam.columns},
+            "identical": [f"{a} and {b}" for a, b in board.identical],
+            "selection_ties": [f"seed {s}: {a} and {b}" for s, a, b in zoo_ties(card, board)]}
+
+
 @dataclasses.dataclass
 class Board:
     """A leaderboard: ``table`` (one row per member, best success first), ``families`` (success per family),
@@ -253,11 +278,13 @@ def _pooled_rows(df: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
-def leaderboard(zoo: pd.DataFrame, new: pd.DataFrame | None, name: str | None = None, resamples: int = 2000) -> Board:
+def leaderboard(zoo: pd.DataFrame, new: pd.DataFrame | None, name: str | None = None, resamples: int = 2000,
+                spent: Sequence[Any] = ()) -> Board:
     """The leaderboard of the stored ``zoo`` and, if given, the ``new`` method's episodes (its rows ``name``):
     per member the pooled success and collision (mean over the selection seeds with its t interval over them,
-    :func:`~jaxapf.stats.seed_interval`), the median clearance; per family the success; and the new method
-    against every member (:func:`_versus`)."""
+    :func:`~jaxapf.stats.seed_interval`), the median clearance, and what its selections (``spent``, each
+    :class:`~jaxapf.compare.select.Selection` with ``method`` the member's name) realised: episodes and seconds,
+    mean over the seeds; per family the success; and the new method against every member (:func:`_versus`)."""
     frames = [zoo] + ([new.assign(member=name)] if new is not None else [])
     data = pd.concat(frames, ignore_index=True)
     rows, fam = [], []
@@ -271,7 +298,12 @@ def leaderboard(zoo: pd.DataFrame, new: pd.DataFrame | None, name: str | None = 
                      "clearance_median": float(np.median(clear[np.isfinite(clear)])) if np.isfinite(clear).any()
                      else math.nan})
         fam.append({"method": member, **g.groupby("family")["success"].mean().to_dict()})
-    table = pd.DataFrame(rows).sort_values(["success", "method"], ascending=[False, True], kind="stable")
+    table = pd.DataFrame(rows)
+    cost = pd.DataFrame([{"method": x.method, "selection_episodes": float(x.episodes),
+                          "selection_seconds": float(x.seconds)} for x in spent],
+                        columns=["method", "selection_episodes", "selection_seconds"])
+    table = table.merge(cost.groupby("method", as_index=False).mean(), on="method", how="left")
+    table = table.sort_values(["success", "method"], ascending=[False, True], kind="stable")
     table.insert(0, "rank", np.arange(1, len(table) + 1))
     families = pd.DataFrame(fam).set_index("method").loc[table["method"]].reset_index()
     comparisons = _versus(zoo, new, name, resamples) if new is not None else pd.DataFrame()
@@ -321,7 +353,9 @@ def board_frames(board: Board, name: str | None) -> tuple[pd.DataFrame, pd.DataF
                "success % [seeds' t interval]": f"{_pct(r.success)} [{_pct(r.success_lo)}, {_pct(r.success_hi)}]",
                "collision % [seeds' t interval]":
                    f"{_pct(r.collision)} [{_pct(r.collision_lo)}, {_pct(r.collision_hi)}]",
-               "median clearance m": f"{r.clearance_median:.3f}", "episodes": f"{r.episodes:,}"}
+               "median clearance m": f"{r.clearance_median:.3f}", "test episodes": f"{r.episodes:,}",
+               "selection episodes, s": "–" if not math.isfinite(r.selection_episodes)
+               else f"{r.selection_episodes:,.0f}, {r.selection_seconds:,.0f}"}
         if name is not None and r.method != name:
             mine = comp[(comp["member"] == r.method) & (comp["family"] == pooled)].set_index("metric")
             for metric in ("success", "collision"):
@@ -355,13 +389,11 @@ def write_leaderboard(card: Scorecard, board: Board, name: str | None, out: path
               f"difference in percentage points with the interval that decided its verdict; {stats.VERDICT_RULE}. "
               "MDE: the smallest success difference the pairs detect with power 0.8 at that level.")
     stored = card.folder / "selection.csv"
-    same = board.identical
-    alike = {frozenset(pair) for pair in same}
-    if same:
+    if board.identical:
         doc.p("Identical episodes on every test field (one planner on this card's fields): "
-              + "; ".join(f"{a} and {b}" for a, b in same) + ".")
+              + "; ".join(f"{a} and {b}" for a, b in board.identical) + ".")
     if stored.is_file():
-        ties = [t for t in selection_ties(read_selections(spec, stored)) if frozenset(t[1:]) not in alike]
+        ties = zoo_ties(card, board)
         doc.p("Selection ties (two members of one seed that the search could not order: the same chosen candidate "
               "at the same selection success and surrogate loss; identical members aside): "
               + ("none." if not ties else "; ".join(f"seed {s}: {a} and {b}" for s, a, b in ties) + "."))
@@ -395,8 +427,11 @@ def score_method(card: Scorecard, method: str, out: str | pathlib.Path, *, name:
         drift = check_drift(card, out)
         if not quiet:
             print(f"scorecard {card.version}: {drift}", file=sys.stderr)
-        new = _fly(card.for_method(method), [method], out, quiet)[0]
+        new, _, chosen = _fly(card.for_method(method), [method], out, quiet)
         new = new[new["member"] == method]
-        board = leaderboard(zoo, new, name, resamples)
+        stored = card.folder / "selection.csv"
+        spent = [*(read_selections(card.spec, stored) if stored.is_file() else ()),
+                 *(dataclasses.replace(x, method=name) for x in chosen)]
+        board = leaderboard(zoo, new, name, resamples, spent)
         write_leaderboard(card, board, name, out)
     return board

@@ -47,6 +47,28 @@ def test_a_member_scored_again_under_another_name_reproduces_its_stored_row(zoo,
                                 & (again.comparisons["holm_family"] == "primary")]
     assert len(primary) == 2 and set(primary["verdict"]) == {"equivalent"}
     assert (primary["delta"] == 0).all()
+    # what each selection realised stands beside its row: the same draws, the same episodes
+    assert table.loc["basic_again", "selection_episodes"] == table.loc["basic", "selection_episodes"]
+    assert table["selection_seconds"].gt(0).all()
+
+
+def test_the_zoos_facts_are_its_leaderboard(zoo, again):
+    """facts.json beside the card (what the README binds) holds the zoo's leaderboard, member by member, and
+    each member's realised selection budget: the card's, in every seed."""
+    card, root = zoo
+    found = json.loads((card.folder / "facts.json").read_text())
+    table = pd.read_csv(card.folder / "leaderboard.csv").set_index("method")
+    assert found["digest"] == card.digest and found["members"] == len(card.spec.methods) == len(table)
+    for m in card.spec.methods:
+        assert found["rank"][m] == table.loc[m, "rank"]
+        for key in ("success", "success_lo", "success_hi", "collision", "clearance_median"):
+            assert found[key][m] == pytest.approx(table.loc[m, key], rel=1e-12, abs=1e-15)
+        for f in card.spec.test.families:
+            assert found["family_success"][f][m] == pytest.approx(table.loc[m, f], rel=1e-12)
+        assert found["selection_episodes"][m] == card.spec.selection.budget
+    sel = pd.read_csv(card.folder / "selection.csv")
+    assert (sel["episodes"] == card.spec.selection.budget).all()
+    assert found["identical"] == [] and isinstance(found["selection_ties"], list)
 
 
 def test_the_leaderboard_is_the_stored_episodes_recomputed(zoo, again):
