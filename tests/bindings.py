@@ -8,7 +8,8 @@ committed result (invisible where the Markdown is rendered)::
     the gradient tuner is *better*<!--=study/tuner_study:verdict.d16--> in 3<!--=...--> of 6 runs
 
 - **source**: ``bench/NAME`` is ``benchmarks/results/NAME.json``, ``study/FOLDER`` is
-  ``analysis/results/FOLDER/facts.json``;
+  ``analysis/results/FOLDER/facts.json``, ``scorecard/VERSION`` the stored zoo's
+  ``jaxapf/compare/scorecards/VERSION/facts.json``;
 - **key**: a path into that JSON, its parts separated by ``.`` (a key holding a dot or a space is matched
   whole, the longest first), list items by their index;
 - **transform** (optional): ``×N`` or ``÷N`` by a number, ``÷KEY`` by another fact of the same source (a
@@ -45,7 +46,7 @@ from typing import Any, Iterator
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 VERDICTS = ("better", "worse", "equivalent", "inconclusive")
 #: A binding: ``<!--=SOURCE:KEY[TRANSFORM]-->``.
-BINDING = re.compile(r"<!--=(?P<source>(?:bench|study)/[\w.-]+):(?P<expr>[^>]*?)-->")
+BINDING = re.compile(r"<!--=(?P<source>(?:bench|study|scorecard)/[\w.-]+):(?P<expr>[^>]*?)-->")
 #: A number as prose writes it: thousands separators, decimals; not part of a name (float32).
 NUMBER = re.compile(r"(?<![\w.])(?P<digits>\d[\d,]*(?:\.\d+)?)")
 #: What is not a reported number: code, dates, references to a study, section, equation, issue or row,
@@ -62,8 +63,9 @@ ANSWER = re.compile(r"\*\*(?P<word>Yes|No|Not shown|In part|Mixed)$")
 @functools.cache
 def _source(source: str) -> Any:
     kind, name = source.split("/", 1)
-    path = ROOT / ("benchmarks/results" if kind == "bench" else "analysis/results") / (
-        f"{name}.json" if kind == "bench" else f"{name}/facts.json")
+    path = {"bench": ROOT / "benchmarks" / "results" / f"{name}.json",
+            "study": ROOT / "analysis" / "results" / name / "facts.json",
+            "scorecard": ROOT / "jaxapf" / "compare" / "scorecards" / name / "facts.json"}[kind]
     return json.loads(path.read_text())
 
 
@@ -244,7 +246,8 @@ def suggest(path: pathlib.Path, sources: list[str]) -> Iterator[str]:
 
 if __name__ == "__main__":
     usage = ("usage: python tests/bindings.py check FILE...   (every number bound, every binding its fact)\n"
-             "       python tests/bindings.py suggest FILE [SOURCE ...]   (SOURCE: bench/NAME or study/FOLDER)")
+             "       python tests/bindings.py suggest FILE [SOURCE ...]   "
+             "(SOURCE: bench/NAME, study/FOLDER or scorecard/VERSION)")
     if len(sys.argv) < 3 or sys.argv[1] not in ("check", "suggest"):
         sys.exit(usage)
     if sys.argv[1] == "check":
