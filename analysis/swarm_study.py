@@ -254,7 +254,7 @@ def facts(df: pd.DataFrame | None, rates: pd.DataFrame, comparisons: pd.DataFram
     rec = comparisons[comparisons["question"] == "reciprocity"]
     out["reciprocity_verdicts"] = {f"{m}/{v}": int(((rec["metric"] == m) & (rec["verdict"] == v)).sum())
                                    for m, _ in OUTCOMES for v in MARK}
-    if df is not None:  # the per-swarm rows (not committed): with --facts-only kept from the committed facts
+    if df is not None:  # the per-swarm rows; --facts-only (tables only) keeps the committed facts' count
         out["truncated_steps"] = truncation(df)
     vs = comparisons[comparisons["question"] == "vs basic"]
     out["vs_basic_verdicts"] = {f"{m}/{v}": int(((vs["metric"] == m) & (vs["verdict"] == v)).sum())
@@ -363,7 +363,7 @@ def figure(rates: pd.DataFrame, path: pathlib.Path) -> None:
 
 def main() -> None:
     args, out = study.begin(__doc__, STUDY)
-    if args.facts_only:  # the per-swarm rows are not committed: the protocol's numbers join the committed facts
+    if args.facts_only:  # the verdicts derived again from the tables' counts, joining the committed facts
         import json
 
         committed = json.loads((out / "facts.json").read_text())

@@ -314,8 +314,8 @@ def family_success(episodes: pd.DataFrame) -> pd.Series:
 
 
 def committed_family_success(out) -> pd.Series:
-    """:func:`family_success` as the committed ``README.md`` states it (its per-family table): the test
-    episodes behind it are git-ignored, so ``--facts-only`` reads it there."""
+    """:func:`family_success` as the committed ``README.md`` states it (its per-family table), which
+    ``--facts-only`` reads where the results keep no test episodes (a run before they were kept)."""
     section = (out / "README.md").read_text().split("## Per family")[1].split("\n## ")[0]
     rows = [[c.strip() for c in line.strip().strip("|").split("|")] for line in section.splitlines()
             if line.startswith(tuple(f"| {b} |" for b in BUDGETS))]
@@ -473,7 +473,9 @@ def main() -> None:
         summary = study.rederive(pd.read_csv(out / "summary.csv"), MARGIN, change="success_change")
         summary.to_csv(out / "summary.csv", index=False)
         study.write_facts(out, facts(summary, pd.read_csv(out / "costs.csv"),
-                                     pd.read_csv(out / "selection.csv"), committed_family_success(out)))
+                                     pd.read_csv(out / "selection.csv"),
+                                     family_success(study.kept_rows(out)) if (out / "episodes.parquet").exists()
+                                     else committed_family_success(out)))
         return
     CompileClock.install()
     selection = select_step_sizes()

@@ -4,13 +4,15 @@ every member in minutes, paired field by field, without rerunning the zoo.
 A **scorecard** is a compare spec (docs/compare.md) frozen under a version, ``scorecards/<version>/scorecard.toml``
 beside this module, cited by its digest (the sha256 of its canonical JSON, :func:`~.select.spec_digest`): the
 families and their kinds, the fields per family, the vehicle and episode length (``[sim]``), the selection
-seeds, the selection budget per method and the held-out test's seed, one no committed study uses. Its
+seeds, the selection budget per method and the held-out test's seed, one from which no committed study draws
+fields of the card's families. Its
 ``methods`` are the zoo.
 
 **Scoring the zoo** (:func:`score_zoo`, ``jaxapf scorecard --rescore``): every member's gains selected under the
 budget for each seed (:func:`~.select.select`), every selection flown on the held-out fields, and stored beside
 the spec: ``episodes.parquet`` (one verified sweep part: the columns the scorecard reads), ``selection.csv``,
-``identity.json`` (the engine that made them) and the leaderboard (``leaderboard.md``, ``.csv``, ``.html``).
+``identity.json`` (the engine that made them), the leaderboard (``leaderboard.md``, ``.csv``, ``.html``) and
+its numbers by name (``facts.json``, :func:`facts`).
 
 **Scoring a method** (:func:`score_method`, ``jaxapf [--plugin FILE] scorecard --method NAME``): the same
 selection and test for that method alone, paired with the stored episodes on the same fields and selection
@@ -166,7 +168,7 @@ def score_zoo(card: Scorecard, out: str | pathlib.Path, *, quiet: bool = False) 
     write_atomic(card.folder / "identity.json", lambda fh: fh.write(record.encode()))
     board = leaderboard(stored_episodes(card), None, spent=selections)
     write_leaderboard(card, board, None, card.folder)
-    found = json.dumps(facts(card, board), indent=1, sort_keys=True) + "\n"
+    found = json.dumps(facts(card, board), indent=1, sort_keys=True, allow_nan=False) + "\n"
     write_atomic(card.folder / "facts.json", lambda fh: fh.write(found.encode()))
     return board.table
 
@@ -243,6 +245,11 @@ def zoo_ties(card: Scorecard, board: Board) -> list[tuple[int, str, str]]:
             if frozenset(t[1:]) not in alike]
 
 
+def _finite(v: Any) -> float | None:
+    """A number for JSON: ``None`` where it is undefined (no finite clearance, one seed's interval)."""
+    return float(v) if math.isfinite(float(v)) else None
+
+
 def facts(card: Scorecard, board: Board) -> dict[str, Any]:
     """The zoo's leaderboard as named facts (``facts.json`` beside the card, which the README binds): per member
     its rank, success and collision with their intervals over the seeds, median clearance, test episodes,
@@ -253,8 +260,8 @@ def facts(card: Scorecard, board: Board) -> dict[str, Any]:
     return {"version": card.version, "digest": card.digest, "members": len(table),
             "rank": {m: int(v) for m, v in table["rank"].items()},
             "episodes": {m: int(v) for m, v in table["episodes"].items()},
-            **{c: {m: float(v) for m, v in table[c].items()} for c in numbers},
-            "family_success": {f: {m: float(v) for m, v in fam[f].items()} for f in fam.columns},
+            **{c: {m: _finite(v) for m, v in table[c].items()} for c in numbers},
+            "family_success": {f: {m: _finite(v) for m, v in fam[f].items()} for f in fam.columns},
             "identical": [f"{a} and {b}" for a, b in board.identical],
             "selection_ties": [f"seed {s}: {a} and {b}" for s, a, b in zoo_ties(card, board)]}
 
@@ -301,7 +308,8 @@ def leaderboard(zoo: pd.DataFrame, new: pd.DataFrame | None, name: str | None = 
     table = pd.DataFrame(rows)
     cost = pd.DataFrame([{"method": x.method, "selection_episodes": float(x.episodes),
                           "selection_seconds": float(x.seconds)} for x in spent],
-                        columns=["method", "selection_episodes", "selection_seconds"])
+                        columns=["method", "selection_episodes", "selection_seconds"]).astype(
+        {"selection_episodes": float, "selection_seconds": float})
     table = table.merge(cost.groupby("method", as_index=False).mean(), on="method", how="left")
     table = table.sort_values(["success", "method"], ascending=[False, True], kind="stable")
     table.insert(0, "rank", np.arange(1, len(table) + 1))
