@@ -301,9 +301,7 @@ def run_benchmark(doc: str, name: str, spec_file: str, title: str, extra=None, q
     more_sections, more = extra(out, spec, args, runs) if extra is not None else ([], {})
     found = facts(spec, summary, vs_basic, vs_paper, pd.read_csv(out / "selection.csv")) | more
     study.write_facts(out, found | ({"answer": question(found)} if question is not None else {}))
-    command = f"python analysis/{name}.py" + (f" --fields {args.fields}" if args.fields else "") + (
-        " --from-episodes" if args.from_episodes else "") + "".join(
-        f" {flag}" for flag in flags or {} if getattr(args, flag[2:].replace("-", "_")))
+    command = study.command_line(name, args, flags)
     figures = trajectory_figures(spec, runs, out) if runs is not None else kept_figures(spec, test)
     study.write_readme(out, title, command, test, sections + more_sections, figures + [study.RATES_FIGURE])
     print(f"wrote {out}/README.md")

@@ -250,9 +250,8 @@ def run_study(doc: str, *, name: str, spec: str, title: str, findings: Callable[
         parquet = sweep_source(args, out, spec)
         result = report(parquet, out, resamples=args.resamples, **report_options)
         sections.append(findings(Numbers(result)))
-        command = f"python analysis/{name}.py" + (f" --fields {args.fields}" if args.fields else "") + (
-            " --from-episodes" if args.from_episodes else "")
-        write_readme(out, title, command, parquet, sections, figures(out) if callable(figures) else figures)
+        write_readme(out, title, command_line(name, args), parquet, sections,
+                     figures(out) if callable(figures) else figures)
         print(f"wrote {out}/README.md")
     if facts is not None:
         write_facts(out, facts(Numbers(committed_report(out)), out))
@@ -503,6 +502,15 @@ def write_facts(out: pathlib.Path, facts: Mapping[str, Any]) -> pathlib.Path:
     path = out / "facts.json"
     path.write_text(json.dumps(facts, indent=1, sort_keys=True, default=float) + "\n")
     return path
+
+
+def command_line(name: str, args: argparse.Namespace, flags: Mapping[str, str] | None = None) -> str:
+    """The command that made a study's page: the script with the shared flags that change what it flies or
+    reads (``--fields``, ``--from-episodes``, ``--kept-selections``) and the study's own switches set."""
+    shared = {"--from-episodes": args.from_episodes, "--kept-selections": getattr(args, "kept_selections", False)}
+    own = {flag: getattr(args, flag[2:].replace("-", "_")) for flag in flags or {}}
+    return (f"python analysis/{name}.py" + (f" --fields {args.fields}" if args.fields else "")
+            + "".join(f" {flag}" for flag, on in (shared | own).items() if on))
 
 
 def write_readme(out: pathlib.Path, title: str, command: str, parquet: pathlib.Path, sections: list[str],

@@ -104,3 +104,23 @@ def test_the_flags_analysis_readme_names_are_the_scripts():
     shared = {o for a in study.parser("x\n")._actions for o in a.option_strings if o.startswith("--")} - {"--help"}
     own = set(re.findall(r'"(--[a-z-]+)":', (ROOT / "analysis" / "flown_planners.py").read_text()))
     assert named - shared == own and shared <= named
+
+
+def test_a_pages_command_names_every_flag_that_changed_what_it_flew():
+    """The "Produced by" command of a study's page names --fields, --from-episodes, --kept-selections and the
+    study's own switches that were set, and no other (hand-made flags)."""
+    sys.path.insert(0, str(ROOT / "analysis"))
+    import study
+
+    def args(*given):
+        return study.parser("x\n").parse_args(list(given))
+
+    assert study.command_line("s", args()) == "python analysis/s.py"
+    assert study.command_line("s", args("--kept-selections", "--resamples", "9")) == \
+        "python analysis/s.py --kept-selections"
+    own = study.parser("x\n")
+    own.add_argument("--kept-swarms", action="store_true")
+    given = own.parse_args(["--fields", "4", "--kept-swarms", "--kept-selections"])
+    assert study.command_line("s", given, {"--kept-swarms": "h"}) == \
+        "python analysis/s.py --fields 4 --kept-selections --kept-swarms"
+    assert study.command_line("s", own.parse_args([]), {"--kept-swarms": "h"}) == "python analysis/s.py"
