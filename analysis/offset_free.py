@@ -20,10 +20,11 @@ in. The integral action (``estimator = "integral"``) is tested against control t
 
 Each (method, selection seed, arm) is compared with the calm-air selection of the same seed in the
 gusty wind without an estimator, paired on the fields: exact McNemar and TOST within the 2-point
-margin of success, :func:`jaxapf.stats.verdicts` over all of the study's comparisons (Holm), the
-verdict function every study uses.
+margin of success, :func:`jaxapf.stats.decide`, the verdict function every study uses, with one declared
+Holm family, every comparison of the study, each interval at the level that decided its verdict.
 
-    python analysis/offset_free.py      # ~20 min on 2 cores
+    python analysis/offset_free.py                     # ~20 min on 2 cores once the wind selections exist
+    python analysis/offset_free.py --kept-selections   # at the committed selections in wind
 """
 
 from __future__ import annotations
@@ -77,6 +78,7 @@ def selections() -> pd.DataFrame:
             continue
         spec, _ = load_compare_spec(path)
         out = study.ROOT / "runs" / f"compare-{spec.name}" / "selection"
+        out.parent.mkdir(parents=True, exist_ok=True)
         for seed in spec.selection.seeds:
             for method in spec.methods:
                 chosen = select(spec, method, seed, out)
@@ -310,7 +312,7 @@ def facts(summary: pd.DataFrame, tuned: pd.DataFrame, held: dict) -> dict:
     }
 
 
-def write(summary: pd.DataFrame, tuned: pd.DataFrame, held: dict, out) -> dict:
+def write(summary: pd.DataFrame, tuned: pd.DataFrame, held: dict, out, command: str) -> dict:
     arms = list(dict.fromkeys(summary["arm"]))
     families = [f for f in dict.fromkeys(summary["family"]) if f != "all"]
     found = facts(summary, tuned, held)
@@ -318,7 +320,7 @@ def write(summary: pd.DataFrame, tuned: pd.DataFrame, held: dict, out) -> dict:
     kept = [f for f, v in clear.items() if v >= 0]
     lost = [f for f, v in clear.items() if v < 0]
     lines = [f"# Study 13: offset-free tracking and the robust CBF in wind ({FIELDS} held-out fields per family)", "",
-             "`python analysis/offset_free.py` (" + __doc__.splitlines()[0].split(": ", 1)[1] + ")", "",
+             f"`{command}` (" + __doc__.splitlines()[0].split(": ", 1)[1] + ")", "",
              "## Findings", "",
              f"- On `crossing_fast` the CBF stacks with the observer succeed on "
              f"{100 * found['crossing_fast_cbf_observer_success_min']:.1f} % of the fields or more (every selection "
@@ -403,14 +405,15 @@ def main() -> None:
         kept = json.loads((out / "facts.json").read_text())
         tuned = pd.read_csv(out / "selection_wind.csv")  # the braking arms fly study 11's calm-air selections
         held = guarantee(run(spec, tuned, None, arms=[a for a in ROBUST if a[0] in BRAKING]), spec)
-        write(pd.read_csv(out / "summary.csv"), tuned, held, out)  # the page and its facts, "braking" new
+        # the page and its facts, "braking" new; the tables the run's that made them
+        write(pd.read_csv(out / "summary.csv"), tuned, held, out, "python analysis/offset_free.py")
         return
     if args.facts_only:  # the page and its facts from the committed tables; the guarantee check ("braking")
         # needs the episodes: kept from the committed facts
         kept = json.loads((out / "facts.json").read_text())
         summary = study.rederive(pd.read_csv(out / "summary.csv"), MARGIN, change="success_change")
         summary.to_csv(out / "summary.csv", index=False)
-        write(summary, pd.read_csv(out / "selection_wind.csv"), kept["braking"], out)
+        write(summary, pd.read_csv(out / "selection_wind.csv"), kept["braking"], out, "python analysis/offset_free.py")
         return
     from jaxapf.compare.spec import load_compare_spec
 
@@ -420,8 +423,11 @@ def main() -> None:
     else:
         # git-ignored; a rerun only rewrites the tables
         data = study.ROOT / "runs" / f"offset-free-s{len(robustness.seeds())}-f{FIELDS}.parquet"
-        tuned = selections()
-        tuned.to_csv(out / "selection_wind.csv", index=False)
+        if args.kept_selections:  # the committed selections in wind, not selected again
+            tuned = pd.read_csv(study.kept(out, "selection_wind.csv", "--kept-selections"))
+        else:
+            tuned = selections()
+            tuned.to_csv(out / "selection_wind.csv", index=False)
         done = pd.read_parquet(data) if data.exists() else None
         df = run(spec, tuned, done)
         if done is None or len(df) > len(done):
@@ -430,7 +436,8 @@ def main() -> None:
         study.keep_rows(df, out, READ)
     summary = summarise(df)
     summary.to_csv(out / "summary.csv", index=False)
-    print(json.dumps(write(summary, tuned, guarantee(df, spec), out), indent=1))
+    found = write(summary, tuned, guarantee(df, spec), out, study.command_line("offset_free", args))
+    print(json.dumps(found, indent=1))
 
 
 if __name__ == "__main__":
