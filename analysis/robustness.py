@@ -289,9 +289,10 @@ def findings(summary: pd.DataFrame) -> list[str]:
         if axis == "wind":
             line += (f" Median final distance to the goal {ideal['final_distance'].min():.2f}–"
                      f"{ideal['final_distance'].max():.2f} m in calm air, {at['final_distance'].min():.2f}–"
-                     f"{at['final_distance'].max():.2f} m in this wind (goal tolerance 0.5 m): an MPC that plans "
-                     "without a disturbance estimate keeps a steady offset under a steady push, the larger the "
-                     "weaker its pull toward the goal (the table below, per selection).")
+                     f"{at['final_distance'].max():.2f} m in this wind (goal tolerance 0.5 m; per selection in "
+                     "the table below). Hypothesis, not tested here: an MPC that plans without a disturbance "
+                     "estimate keeps a steady offset under a steady push, the larger the weaker its pull toward "
+                     "the goal; study 13's observer arm (analysis/offset_free.py) tests it.")
         out.append(line)
     return out
 
