@@ -398,6 +398,7 @@ def main() -> None:
     args, out = study.begin(__doc__, STUDY, {"--braking-only": "fly the braking CBF's arms again and rewrite their "
                                                               "guarantee check in facts.json (the other arms' "
                                                               "facts from the committed tables)"})
+    command = study.command_line("offset_free", args)  # the page's; --facts-only and --braking-only name none
     if args.braking_only:  # the braking arms flown again for their guarantee check; the other facts recomputed
         from jaxapf.compare.spec import load_compare_spec
 
@@ -406,14 +407,14 @@ def main() -> None:
         tuned = pd.read_csv(out / "selection_wind.csv")  # the braking arms fly study 11's calm-air selections
         held = guarantee(run(spec, tuned, None, arms=[a for a in ROBUST if a[0] in BRAKING]), spec)
         # the page and its facts, "braking" new; the tables the run's that made them
-        write(pd.read_csv(out / "summary.csv"), tuned, held, out, "python analysis/offset_free.py")
+        write(pd.read_csv(out / "summary.csv"), tuned, held, out, command)
         return
     if args.facts_only:  # the page and its facts from the committed tables; the guarantee check ("braking")
         # needs the episodes: kept from the committed facts
         kept = json.loads((out / "facts.json").read_text())
         summary = study.rederive(pd.read_csv(out / "summary.csv"), MARGIN, change="success_change")
         summary.to_csv(out / "summary.csv", index=False)
-        write(summary, pd.read_csv(out / "selection_wind.csv"), kept["braking"], out, "python analysis/offset_free.py")
+        write(summary, pd.read_csv(out / "selection_wind.csv"), kept["braking"], out, command)
         return
     from jaxapf.compare.spec import load_compare_spec
 
@@ -436,7 +437,7 @@ def main() -> None:
         study.keep_rows(df, out, READ)
     summary = summarise(df)
     summary.to_csv(out / "summary.csv", index=False)
-    found = write(summary, tuned, guarantee(df, spec), out, study.command_line("offset_free", args))
+    found = write(summary, tuned, guarantee(df, spec), out, command)
     print(json.dumps(found, indent=1))
 
 
