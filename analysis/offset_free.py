@@ -425,7 +425,7 @@ def main() -> None:
         # git-ignored; a rerun only rewrites the tables
         data = study.ROOT / "runs" / f"offset-free-s{len(robustness.seeds())}-f{FIELDS}.parquet"
         if args.kept_selections:  # the committed selections in wind, not selected again
-            tuned = pd.read_csv(study.kept(out, "selection_wind.csv", "--kept-selections"))
+            tuned = study.kept_table(out, "selection_wind.csv", "--kept-selections")
         else:
             tuned = selections()
             tuned.to_csv(out / "selection_wind.csv", index=False)

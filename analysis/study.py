@@ -132,6 +132,17 @@ def kept_rows(out: pathlib.Path):
         return pd.read_parquet(fh)
 
 
+def kept_table(out: pathlib.Path, name: str, flag: str):
+    """The committed CSV table ``out/name`` that ``flag`` reads, through jaxapf's checked opener (a regular file,
+    no link, never blocking, at most 16 MiB); one line where it is missing."""
+    import pandas as pd
+
+    from jaxapf.io.names import open_read
+
+    with open_read(kept(out, name, flag), 1 << 24) as fh:
+        return pd.read_csv(fh)
+
+
 def kept(out: pathlib.Path, name: str = "episodes.parquet", flag: str = "--from-episodes") -> pathlib.Path:
     """``out/name``, which ``flag`` reads; one line where the study kept none."""
     from jaxapf.validation import ConfigError
