@@ -464,10 +464,11 @@ READ = ("dim", "mix", "seed", "budget", "held_out", "setting", "family", "field"
 def main() -> None:
     args, out = study.begin(__doc__, STUDY)
     if args.from_episodes:  # the runs' selections and costs from the committed tables, their episodes kept
-        episodes, cost = study.kept_rows(out), pd.read_csv(out / "costs.csv")
+        episodes, cost = study.kept_rows(out), study.kept_table(out, "costs.csv", "--from-episodes")
         table = summarise(episodes, cost)
         table.to_csv(out / "summary.csv", index=False)
-        print(json.dumps(write(table, cost, pd.read_csv(out / "selection.csv"), episodes, out), indent=1))
+        selection = study.kept_table(out, "selection.csv", "--from-episodes")
+        print(json.dumps(write(table, cost, selection, episodes, out), indent=1))
         return
     if args.facts_only:  # the verdicts derived again from the committed table's counts
         summary = study.rederive(pd.read_csv(out / "summary.csv"), MARGIN, change="success_change")
