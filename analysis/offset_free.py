@@ -30,6 +30,7 @@ Holm family, every comparison of the study, each interval at the level that deci
 from __future__ import annotations
 
 import json
+import pathlib
 
 import jax
 import numpy as np
@@ -394,27 +395,40 @@ def write(summary: pd.DataFrame, tuned: pd.DataFrame, held: dict, out, command: 
     return found
 
 
+def page_command(out: pathlib.Path) -> str:
+    """The command the committed page names (the run that flew its episodes), which the flags that only
+    re-derive it keep."""
+    line = (out / "README.md").read_text().splitlines()[2]
+    return line[1:line.index("`", 1)]
+
+
 def main() -> None:
     args, out = study.begin(__doc__, STUDY, {"--braking-only": "fly the braking CBF's arms again and rewrite their "
                                                               "guarantee check in facts.json (the other arms' "
                                                               "facts from the committed tables)"})
-    command = study.command_line("offset_free", args)  # the page's; --facts-only and --braking-only name none
+    # the command that flew the page's episodes: --facts-only and --braking-only keep the committed page's
+    command = (page_command(out) if args.facts_only or args.braking_only
+               else study.command_line("offset_free", args))
     if args.braking_only:  # the braking arms flown again for their guarantee check; the other facts recomputed
         from jaxapf.compare.spec import load_compare_spec
 
         spec, _ = load_compare_spec(robustness.SPEC)
-        kept = json.loads((out / "facts.json").read_text())
         tuned = pd.read_csv(out / "selection_wind.csv")  # the braking arms fly study 11's calm-air selections
         held = guarantee(run(spec, tuned, None, arms=[a for a in ROBUST if a[0] in BRAKING]), spec)
         # the page and its facts, "braking" new; the tables the run's that made them
         write(pd.read_csv(out / "summary.csv"), tuned, held, out, command)
         return
     if args.facts_only:  # the page and its facts from the committed tables; the guarantee check ("braking")
-        # needs the episodes: kept from the committed facts
-        kept = json.loads((out / "facts.json").read_text())
+        # from the kept episodes (a page committed before them: from its facts)
+        from jaxapf.compare.spec import load_compare_spec
+
+        if (out / "episodes.parquet").exists():
+            held = guarantee(study.kept_rows(out), load_compare_spec(robustness.SPEC)[0])
+        else:
+            held = json.loads((out / "facts.json").read_text())["braking"]
         summary = study.rederive(pd.read_csv(out / "summary.csv"), MARGIN, change="success_change")
         summary.to_csv(out / "summary.csv", index=False)
-        write(summary, pd.read_csv(out / "selection_wind.csv"), kept["braking"], out, command)
+        write(summary, pd.read_csv(out / "selection_wind.csv"), held, out, command)
         return
     from jaxapf.compare.spec import load_compare_spec
 

@@ -90,6 +90,19 @@ def test_a_studys_report_is_what_its_committed_episodes_give(tmp_path):
                         json.loads((committed / "facts.json").read_text())) == []
 
 
+@pytest.mark.slow
+def test_study_13s_facts_only_rewrites_its_page_byte_for_byte(tmp_path):
+    """Study 13's ``--facts-only`` rewrites its page from the committed tables and kept episodes: the page comes
+    out as committed, naming the command that flew its episodes (``--kept-selections``), not its own."""
+    committed = ROOT / "analysis" / "results" / "offset_free"
+    copy = tmp_path / "offset_free"
+    shutil.copytree(committed, copy)
+    done = subprocess.run([sys.executable, "analysis/offset_free.py", "--facts-only", "--out", str(copy)],
+                          cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert (copy / "README.md").read_text() == (committed / "README.md").read_text()
+
+
 def test_the_flags_analysis_readme_names_are_the_scripts():
     """Every flag analysis/README.md's paragraph on the scripts' flags names is one the shared parser or the
     named study's own switches take, and every shared flag is named there."""
