@@ -395,11 +395,19 @@ def write(summary: pd.DataFrame, tuned: pd.DataFrame, held: dict, out, command: 
     return found
 
 
-def page_command(out: pathlib.Path) -> str:
+def page_command(out: pathlib.Path, flag: str) -> str:
     """The command the committed page names (the run that flew its episodes), which the flags that only
-    re-derive it keep."""
-    line = (out / "README.md").read_text().splitlines()[2]
-    return line[1:line.index("`", 1)]
+    re-derive it keep; one line where the page names none."""
+    from jaxapf.io.names import open_read
+    from jaxapf.validation import ConfigError
+
+    with open_read(study.kept(out, "README.md", flag), 1 << 24) as fh:
+        lines = fh.read().decode().splitlines()
+    found = lines[2].split("`")[1] if len(lines) > 2 and lines[2].startswith("`python analysis/") else None
+    if found is None:
+        raise ConfigError(f"{flag}: {out / 'README.md'} names no command on its third line; run the study "
+                          "once without it")
+    return found
 
 
 def main() -> None:
@@ -407,8 +415,8 @@ def main() -> None:
                                                               "guarantee check in facts.json (the other arms' "
                                                               "facts from the committed tables)"})
     # the command that flew the page's episodes: --facts-only and --braking-only keep the committed page's
-    command = (page_command(out) if args.facts_only or args.braking_only
-               else study.command_line("offset_free", args))
+    command = (page_command(out, "--facts-only" if args.facts_only else "--braking-only")
+               if args.facts_only or args.braking_only else study.command_line("offset_free", args))
     if args.braking_only:  # the braking arms flown again for their guarantee check; the other facts recomputed
         from jaxapf.compare.spec import load_compare_spec
 
