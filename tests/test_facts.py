@@ -18,15 +18,21 @@ FOLDERS = {folder: stem for stem, (_, folder) in studies().items()
            if (ROOT / "analysis" / "results" / folder / "facts.json").exists()}
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("folder", sorted(FOLDERS))
-def test_a_studys_facts_are_what_its_script_computes_from_its_results(folder, tmp_path):
+def _rerun(script: str, folder: str, flag: str, tmp_path) -> tuple:
+    """``analysis/<script>.py <flag>`` run into a copy of the committed results ``folder``: ``(copy, committed)``."""
     committed = ROOT / "analysis" / "results" / folder
     copy = tmp_path / folder
     shutil.copytree(committed, copy)
-    done = subprocess.run([sys.executable, f"analysis/{FOLDERS[folder]}.py", "--facts-only", "--out", str(copy)],
-                          cwd=ROOT, capture_output=True, text=True, timeout=300)
+    done = subprocess.run([sys.executable, f"analysis/{script}.py", flag, "--out", str(copy)],
+                          cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-2000:]
+    return copy, committed
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("folder", sorted(FOLDERS))
+def test_a_studys_facts_are_what_its_script_computes_from_its_results(folder, tmp_path):
+    copy, committed = _rerun(FOLDERS[folder], folder, "--facts-only", tmp_path)
     found, kept = json.loads((copy / "facts.json").read_text()), json.loads((committed / "facts.json").read_text())
     assert _differences(found, kept) == []
 
@@ -78,12 +84,7 @@ def test_a_studys_report_is_what_its_committed_episodes_give(tmp_path):
     that keeps its episodes without a rerun)."""
     import pandas as pd
 
-    committed = ROOT / "analysis" / "results" / "sign_convention"
-    copy = tmp_path / "sign_convention"
-    shutil.copytree(committed, copy)
-    done = subprocess.run([sys.executable, "analysis/sign_convention.py", "--from-episodes", "--out", str(copy)],
-                          cwd=ROOT, capture_output=True, text=True, timeout=600)
-    assert done.returncode == 0, done.stderr[-2000:]
+    copy, committed = _rerun("sign_convention", "sign_convention", "--from-episodes", tmp_path)
     found, kept = (pd.read_csv(folder / "report" / "comparisons.csv") for folder in (copy, committed))
     pd.testing.assert_frame_equal(found, kept, check_exact=False, rtol=REL)
     assert _differences(json.loads((copy / "facts.json").read_text()),
@@ -94,12 +95,7 @@ def test_a_studys_report_is_what_its_committed_episodes_give(tmp_path):
 def test_study_13s_facts_only_rewrites_its_page_byte_for_byte(tmp_path):
     """Study 13's ``--facts-only`` rewrites its page from the committed tables and kept episodes: the page comes
     out as committed, naming the command that flew its episodes (``--kept-selections``), not its own."""
-    committed = ROOT / "analysis" / "results" / "offset_free"
-    copy = tmp_path / "offset_free"
-    shutil.copytree(committed, copy)
-    done = subprocess.run([sys.executable, "analysis/offset_free.py", "--facts-only", "--out", str(copy)],
-                          cwd=ROOT, capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stderr[-2000:]
+    copy, committed = _rerun("offset_free", "offset_free", "--facts-only", tmp_path)
     assert (copy / "README.md").read_text() == (committed / "README.md").read_text()
 
 
