@@ -18,13 +18,13 @@ FOLDERS = {folder: stem for stem, (_, folder) in studies().items()
            if (ROOT / "analysis" / "results" / folder / "facts.json").exists()}
 
 
-def _rerun(script: str, folder: str, flag: str, tmp_path) -> tuple:
+def _rerun(script: str, folder: str, flag: str, tmp_path, timeout: int = 300) -> tuple:
     """``analysis/<script>.py <flag>`` run into a copy of the committed results ``folder``: ``(copy, committed)``."""
     committed = ROOT / "analysis" / "results" / folder
     copy = tmp_path / folder
     shutil.copytree(committed, copy)
     done = subprocess.run([sys.executable, f"analysis/{script}.py", flag, "--out", str(copy)],
-                          cwd=ROOT, capture_output=True, text=True, timeout=600)
+                          cwd=ROOT, capture_output=True, text=True, timeout=timeout)
     assert done.returncode == 0, done.stderr[-2000:]
     return copy, committed
 
@@ -84,7 +84,7 @@ def test_a_studys_report_is_what_its_committed_episodes_give(tmp_path):
     that keeps its episodes without a rerun)."""
     import pandas as pd
 
-    copy, committed = _rerun("sign_convention", "sign_convention", "--from-episodes", tmp_path)
+    copy, committed = _rerun("sign_convention", "sign_convention", "--from-episodes", tmp_path, timeout=600)
     found, kept = (pd.read_csv(folder / "report" / "comparisons.csv") for folder in (copy, committed))
     pd.testing.assert_frame_equal(found, kept, check_exact=False, rtol=REL)
     assert _differences(json.loads((copy / "facts.json").read_text()),
