@@ -238,13 +238,6 @@ def identical_members(episodes: pd.DataFrame) -> list[tuple[str, str]]:
             if frames[a].index.equals(frames[b].index) and frames[a].equals(frames[b])]
 
 
-def zoo_ties(card: Scorecard, board: Board) -> list[tuple[int, str, str]]:
-    """The stored zoo's :func:`selection_ties` but those of members the ``board`` found identical."""
-    alike = {frozenset(pair) for pair in board.identical}
-    return [t for t in selection_ties(read_selections(card.spec, card.folder / "selection.csv"))
-            if frozenset(t[1:]) not in alike]
-
-
 def _finite(v: Any) -> float | None:
     """A number for JSON: ``None`` where it is undefined (no finite clearance, one seed's interval)."""
     return float(v) if math.isfinite(float(v)) else None
@@ -263,19 +256,21 @@ def facts(card: Scorecard, board: Board) -> dict[str, Any]:
             **{c: {m: _finite(v) for m, v in table[c].items()} for c in numbers},
             "family_success": {f: {m: _finite(v) for m, v in fam[f].items()} for f in fam.columns},
             "identical": [f"{a} and {b}" for a, b in board.identical],
-            "selection_ties": [f"seed {s}: {a} and {b}" for s, a, b in zoo_ties(card, board)]}
+            "selection_ties": [f"seed {s}: {a} and {b}" for s, a, b in board.ties]}
 
 
 @dataclasses.dataclass
 class Board:
     """A leaderboard: ``table`` (one row per member, best success first), ``families`` (success per family),
     ``comparisons`` (the new method against each member; empty without one), ``identical`` (members, the new
-    method included, that fly identical episodes: :func:`identical_members`)."""
+    method included, that fly identical episodes: :func:`identical_members`), ``ties`` (the selections'
+    :func:`selection_ties` but those of identical members)."""
 
     table: pd.DataFrame
     families: pd.DataFrame
     comparisons: pd.DataFrame
     identical: list[tuple[str, str]]
+    ties: list[tuple[int, str, str]]
 
 
 def _pooled_rows(df: pd.DataFrame) -> pd.DataFrame:
@@ -291,7 +286,8 @@ def leaderboard(zoo: pd.DataFrame, new: pd.DataFrame | None, name: str | None = 
     per member the pooled success and collision (mean over the selection seeds with its t interval over them,
     :func:`~jaxapf.stats.seed_interval`), the median clearance, and what its selections (``spent``, each
     :class:`~jaxapf.compare.select.Selection` with ``method`` the member's name) realised: episodes and seconds,
-    mean over the seeds; per family the success; and the new method against every member (:func:`_versus`)."""
+    mean over the seeds, and which of them tie (:func:`selection_ties`); per family the success; and the new method
+    against every member (:func:`_versus`)."""
     frames = [zoo] + ([new.assign(member=name)] if new is not None else [])
     data = pd.concat(frames, ignore_index=True)
     rows, fam = [], []
@@ -315,7 +311,10 @@ def leaderboard(zoo: pd.DataFrame, new: pd.DataFrame | None, name: str | None = 
     table.insert(0, "rank", np.arange(1, len(table) + 1))
     families = pd.DataFrame(fam).set_index("method").loc[table["method"]].reset_index()
     comparisons = _versus(zoo, new, name, resamples) if new is not None else pd.DataFrame()
-    return Board(table.reset_index(drop=True), families, comparisons, identical_members(data))
+    identical = identical_members(data)
+    alike = {frozenset(pair) for pair in identical}
+    ties = [t for t in selection_ties(spent) if frozenset(t[1:]) not in alike]
+    return Board(table.reset_index(drop=True), families, comparisons, identical, ties)
 
 
 def _versus(zoo: pd.DataFrame, new: pd.DataFrame, name: str, resamples: int) -> pd.DataFrame:
@@ -396,15 +395,12 @@ def write_leaderboard(card: Scorecard, board: Board, name: str | None, out: path
         doc.p(f"{name} against each member, paired on the same fields and selection seeds (seeds pooled): the "
               f"difference in percentage points with the interval that decided its verdict; {stats.VERDICT_RULE}. "
               "MDE: the smallest success difference the pairs detect with power 0.8 at that level.")
-    stored = card.folder / "selection.csv"
     if board.identical:
         doc.p("Identical episodes on every test field (one planner on this card's fields): "
               + "; ".join(f"{a} and {b}" for a, b in board.identical) + ".")
-    if stored.is_file():
-        ties = zoo_ties(card, board)
-        doc.p("Selection ties (two members of one seed that the search could not order: the same chosen candidate "
-              "at the same selection success and surrogate loss; identical members aside): "
-              + ("none." if not ties else "; ".join(f"seed {s}: {a} and {b}" for s, a, b in ties) + "."))
+    doc.p("Selection ties (two members of one seed that the search could not order: the same chosen candidate "
+          "at the same selection success and surrogate loss; identical members aside): "
+          + ("none." if not board.ties else "; ".join(f"seed {s}: {a} and {b}" for s, a, b in board.ties) + "."))
     doc.h(2, "Leaderboard")
     doc.table(shown)
     doc.h(2, "Success per family (%)")
