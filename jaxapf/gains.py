@@ -72,6 +72,13 @@ class GainSpec:
     def label(self) -> str:
         return self.symbol or self.name
 
+    @property
+    def tuning_high(self) -> float | None:
+        """The upper end of the range a search tunes the gain over: ``tune_high`` within the allowed ``high``
+        (``None``: unbounded)."""
+        highs = [h for h in (self.tune_high, self.high) if h is not None]
+        return min(highs) if highs else None
+
     def range_text(self) -> str:
         """The allowed range in words, with the unit."""
         return describe_range(self.low, self.high, self.low_open, self.high_open) + (

@@ -108,7 +108,8 @@ def tune_spec(spec: CompareSpec, method: str, seed: int, steps: int = 1):
     """The :class:`~jaxapf.tune.TuneSpec` of one selection: training families and seed, the
     method, the shared ``[sim]``, scenario parameters and objective, the method's searched gains.
     Its validation and (unused) test seeds avoid every selection seed and the test seed; ``steps``
-    matters to a gradient search only (the others use the spec for its fields and scoring)."""
+    matters to a gradient search only (the others use the spec for its fields and scoring), and only
+    the gradient and CMA-ES searches start from the defaults (``parse_tune_spec``'s ``start``)."""
     sel = spec.selection
     options = dict(sel.gradient)
     validation_fields = options.pop("validation_fields", 4 * len(sel.families))
@@ -137,7 +138,8 @@ def tune_spec(spec: CompareSpec, method: str, seed: int, steps: int = 1):
         "tune": {"params": list(names)},
         "search": black_box,
     }
-    return parse_tune_spec(data, plugin_paths=spec.plugin_paths or None)
+    return parse_tune_spec(data, plugin_paths=spec.plugin_paths or None,
+                           start=search in ("gradient", "cmaes", "sep_cmaes"))
 
 
 def random_candidates(spec: CompareSpec, method: str, seed: int) -> list[Gains]:

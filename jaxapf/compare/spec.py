@@ -54,9 +54,9 @@ GRADIENT_KEYS: tuple[str, ...] = ("fields_per_step", "optimizer", "learning_rate
 
 def default_range(spec: GainSpec) -> RandomRange:
     """The random search's range of a gain the spec leaves open: uniform over a bounded tuning range
-    (``k``: [0, 1]), else log-uniform within a factor 4 of the declared default."""
-    if spec.tune_high is not None:
-        return RandomRange(spec.low, spec.tune_high)
+    (``k``: [0, 1], ``cbf_brake``: [0.05, 0.5]), else log-uniform within a factor 4 of the declared default."""
+    if spec.tuning_high is not None:
+        return RandomRange(spec.low, spec.tuning_high)
     return RandomRange(spec.default / 4.0, spec.default * 4.0, log=True)
 
 

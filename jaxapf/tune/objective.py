@@ -165,10 +165,12 @@ class Reparam:
     def bounds(self, name: str) -> tuple[float | None, float | None]:
         """``(a, b)``: the lower end and the tuning upper end (``None``: unbounded) of gain ``name``."""
         spec = GAINS.get(name)
-        high = dict(self.upper).get(name, spec.tune_high)
-        if spec.high is not None:
-            high = spec.high if high is None or high == math.inf else min(high, spec.high)
-        return spec.low, None if high is None or high == math.inf else high
+        high = dict(self.upper).get(name)
+        if high is None or high == math.inf:
+            high = spec.high if high == math.inf else spec.tuning_high
+        elif spec.high is not None:
+            high = min(high, spec.high)
+        return spec.low, high
 
     def _floor(self, name: str) -> float:
         spec = GAINS.get(name)

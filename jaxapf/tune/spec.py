@@ -379,10 +379,12 @@ def _scenario(where: str, data: Any) -> tuple[tuple[str, dict], ...]:
 
 
 def parse_tune_spec(data: Mapping[str, Any], *, base: str | os.PathLike | None = None,
-                    plugin_paths: Sequence[str] | None = None) -> TuneSpec:
+                    plugin_paths: Sequence[str] | None = None, start: bool = True) -> TuneSpec:
     """A :class:`TuneSpec` from a parsed TOML mapping (see docs/tune.md for every key); ``base``:
     the folder relative ``.py`` plugin paths are read from (default the current directory), or
-    ``plugin_paths``: what each plugin imports."""
+    ``plugin_paths``: what each plugin imports. ``start``: a search will start from ``init`` (the
+    gradient tuner, CMA-ES), so its θ must exist; a compare selection that only scores given settings
+    (random, grid) passes False, as a default on a closed bound (``cbf_brake`` = 0.5) has none."""
     data = check_table("", dict(data))
     plugins = check_plugins("plugins", data.get("plugins", []))
     load_plugins(plugins, base=base, paths=plugin_paths)
@@ -415,7 +417,8 @@ def parse_tune_spec(data: Mapping[str, Any], *, base: str | os.PathLike | None =
     scaled = scales_set(init.floats(), varied=d["tune"].get("params", ())) + scales_set(dict(d["search"]["grid"]))
     sim, mpc = sim_configs(d["sim"], scaled)
     reparam = Reparam(d["tune"].get("params", read_gains(sim)), init, d["tune"]["upper"])
-    reparam.theta(init)  # the start must be reachable
+    if start:
+        reparam.theta(init)  # the start must be reachable
     arrays = [n for n in reparam.names if GAINS.get(n).shape]
     ranged = [t for t in d["search"].get("tuners", SearchSpec.tuners) if t in ("random", "tpe")]
     if arrays and ranged:

@@ -239,6 +239,23 @@ def test_a_method_with_a_safety_filter_is_its_own_contender():
     assert list(rows_of(table, spec, "basic+cbf").index) == [0]
 
 
+def test_a_default_on_its_bound_is_searched_at_random_and_refused_where_a_search_starts_from_it(tmp_path):
+    """``cbf_brake``'s default, 0.5, is its upper bound, which no θ reaches: a random selection scores its
+    candidates (the defaults first, 0.5 kept; before, every selection of a braking stack was refused), while a
+    CMA-ES selection, which starts from the defaults, is refused in one line naming ``init.cbf_brake``."""
+    from jaxapf.compare.select import random_candidates, select, tune_spec
+
+    method = "basic+braking_cbf"
+    spec = _spec(methods=["basic", method], **{"selection.gains": ["k_rep", "cbf_brake"]})
+    assert random_candidates(spec, method, 1)[0].cbf_brake == 0.5
+    chosen = select(spec, method, 1, tmp_path / "selection")
+    assert chosen.episodes == 24 and 0.05 <= chosen.gains["cbf_brake"] <= 0.5
+    started = _spec(methods=["basic", method], **{"selection.gains": ["k_rep", "cbf_brake"],
+                                         "selection.searches": {method: "cmaes"}})
+    with pytest.raises(ConfigError, match=r"init\.cbf_brake = 0\.5 must lie strictly inside \(0\.05, 0\.5\)"):
+        tune_spec(started, method, 1)
+
+
 def test_fixed_gains_are_the_world_every_candidate_and_the_test_fly_in():
     """``[gains]`` fixes gains no selection searches (a wind to select and test in): every candidate and
     the tune spec start from them, the test sweep flies them, and a searched gain cannot be fixed too."""
