@@ -131,13 +131,15 @@ def test_out_of_package_components_run_through_sweep_report_and_tune(tmp_path):
 
 
 MISTAKES = ROOT / "tests" / "plugins" / "mistakes.py"
+#: The line of the plugin whose own code fails while traced.
+BROKEN = next(i for i, line in enumerate(MISTAKES.read_text().splitlines(), 1) if "# BROKEN LINE" in line)
 
 CALLS = textwrap.dedent("""
     import contextlib, io, pathlib, sys
     from jaxapf.cli import main
 
     root, plugin = pathlib.Path(sys.argv[1]), sys.argv[2]
-    for method in ("wide", "misspelled", "short", "not_a_number", "flat"):
+    for method in ("wide", "misspelled", "short", "not_a_number", "flat", "broken"):
         spec = root / f"{method}.toml"
         t_max = 20.0 if method == "not_a_number" else 0.5  # long enough to come within d_s of an obstacle
         stack = 'method = "basic"\\nfilter = "flat"' if method == "flat" else f'method = "{method}"'
@@ -165,6 +167,8 @@ def test_a_plugins_wrong_shapes_misspelled_gains_and_nan_are_one_line_each(tmp_p
                           ("misspelled", "no gain 'k_cc' here (misspelled"),
                           ("short", "planner 'short' returned shape (3, 6) where the closed loop reads its reference"),
                           ("not_a_number", "(method = 'not_a_number') flew field 0 of trap into a non-finite state"),
-                          ("flat", "safety filter 'flat' returned shape (2,) where the closed loop reads the")):
+                          ("flat", "safety filter 'flat' returned shape (2,) where the closed loop reads the"),
+                          ("broken", f"the plugin {MISTAKES.name} failed at {MISTAKES.name}:{BROKEN} in __call__: "
+                                     "AttributeError: ")):
         code, err = said[method]
         assert code == "2" and err.count("\\n") == 1 and words in err and "Traceback" not in err, (method, err)

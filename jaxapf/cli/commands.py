@@ -729,7 +729,7 @@ def _check_address_space() -> None:
 
 def _main(argv: list[str], running: list[str]) -> int:
     global _CATALOG
-    from ..spec.plugins import load_plugin
+    from ..spec.plugins import load_plugin, plugin_failure
     from ..validation import ConfigError, first_line
     from .stops import stopped
 
@@ -800,4 +800,10 @@ def _main(argv: list[str], running: list[str]) -> int:
         where = f"{err.filename}: " if err.filename else ""
         print(f"jaxapf {command}: error: {where}{err.strerror or first_line(err)}{full}; {_KEPT[args.command]}",
               file=sys.stderr)
+        return 2
+    except Exception as err:  # a plugin's own code failed: one line saying where; a bug of jaxapf keeps its traceback
+        failed = plugin_failure(err)
+        if failed is None:
+            raise
+        print(f"jaxapf {command}: error: {inert(failed)}; {_KEPT[args.command]}", file=sys.stderr)
         return 2

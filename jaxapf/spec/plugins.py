@@ -20,7 +20,7 @@ from typing import Any, Sequence
 
 from ..validation import ConfigError, first_line
 
-__all__ = ["load_plugin", "load_plugins", "check_plugins", "plugin_path", "LOADED"]
+__all__ = ["load_plugin", "load_plugins", "check_plugins", "plugin_path", "plugin_failure", "LOADED"]
 
 #: Every plugin this process has imported, in order, as ``(name, path)`` (``path``: the ``.py``
 #: file, None for a module name): a second process imports the same ones to see the same registries
@@ -87,3 +87,33 @@ def load_plugins(names: Sequence[str], where: str = "plugins", base: str | os.Pa
     for i, (name, path) in enumerate(zip(names, paths)):
         load_plugin(name, f"{where}[{i}]", path)
     return paths
+
+
+def _sources() -> list[tuple[str, str | None]]:
+    """Each plugin this process imported (:data:`LOADED`) with the file its code is in (a module's own; None where
+    it has none)."""
+    return [(name, path if path is not None else getattr(sys.modules.get(name), "__file__", None))
+            for name, path in LOADED]
+
+
+def plugin_failure(err: BaseException) -> str | None:
+    """``the plugin P failed at FILE:LINE in FUNC: TYPE: message`` where ``err`` (or what caused it) was raised
+    through the code of a plugin this process imported (its innermost frame there), else None: a failure of
+    jaxapf's own, whose traceback is kept for a bug report."""
+    import traceback
+
+    files = {os.path.realpath(source): pathlib.Path(source).name if name.endswith(".py") else name
+             for name, source in _sources() if source}
+    seen, cause = set(), err
+    while cause is not None and id(cause) not in seen:
+        seen.add(id(cause))
+        found = None
+        for frame, line in traceback.walk_tb(cause.__traceback__):
+            where = os.path.realpath(frame.f_code.co_filename)
+            if where in files:
+                found = (files[where], pathlib.Path(where).name, line, frame.f_code.co_name)
+        if found is not None:
+            name, file, line, func = found
+            return f"the plugin {name} failed at {file}:{line} in {func}: {type(err).__name__}: {first_line(err)}"
+        cause = cause.__cause__ or cause.__context__
+    return None

@@ -1,6 +1,7 @@
 """Plugin components with the mistakes a newcomer makes (tests/test_extending.py): a weight ω of the wrong
 shape, a weight reading a gain nobody declared, a planner whose reference has the wrong shape, a filter that
-lets a horizontal acceleration through in place of the whole, a weight that is not a number near an obstacle."""
+lets a horizontal acceleration through in place of the whole, a weight that is not a number near an obstacle, a
+weight whose own code fails while it is traced."""
 
 import dataclasses
 from typing import ClassVar
@@ -40,6 +41,14 @@ class NotANumber(Wide):
 
 
 @dataclasses.dataclass(frozen=True)
+class Broken(Wide):
+    """Reads a field the sight has not: an AttributeError of the plugin's own, raised while the loop is traced."""
+
+    def __call__(self, sight, gains, *, convention, eps_v):
+        return 1.0 + sight.closing_speed  # BROKEN LINE
+
+
+@dataclasses.dataclass(frozen=True)
 class Short(jaxapf.Planner):
     """The basic planner's reference without its last point: (N, 6) where (N + 1, 6) is read."""
 
@@ -74,3 +83,4 @@ jaxapf.register_filter("flat", Flat())
 jaxapf.register_planner("misspelled", jaxapf.APF(Misspelled()))
 jaxapf.register_planner("short", Short(jaxapf.PLANNERS["basic"]))
 jaxapf.register_planner("not_a_number", jaxapf.APF(NotANumber()))
+jaxapf.register_planner("broken", jaxapf.APF(Broken()))
