@@ -92,6 +92,9 @@ class ReportOptions:
       primary: the metrics of the primary Holm family (``--primary``; empty: success and collision, of a swarm
         sweep ``swarm_success`` and ``agent_collision``), compared per family and pooled; every other
         comparison is exploratory, corrected within its metric (:func:`~jaxapf.report.tables.holm_family`).
+      primary_pooled: the primary family holds the pooled comparisons alone (families pooled; a one-family
+        report's family), the per-family ones exploratory: the question is about the whole benchmark
+        (``jaxapf scorecard``'s leaderboard).
     """
 
     baseline: str = "method=basic"
@@ -108,6 +111,7 @@ class ReportOptions:
     svg: bool = False
     animate: bool = False
     primary: tuple[str, ...] = ()
+    primary_pooled: bool = False
 
     def __post_init__(self) -> None:
         for name in self.primary:

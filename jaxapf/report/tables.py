@@ -175,11 +175,13 @@ def _compare_one(metric: str, x: np.ndarray, y: np.ndarray, rate: bool) -> tuple
     return out, found
 
 
-def holm_family(metric: str, group: str, primary: Sequence[str]) -> str:
-    """The Holm family of a comparison: ``primary`` for a ``primary`` metric in a family or the pooled group,
+def holm_family(metric: str, group: str, primary: Sequence[str], pooled: str | None = None) -> str:
+    """The Holm family of a comparison: ``primary`` for a ``primary`` metric in a family or the pooled group
+    (with ``pooled``, the headline group's name, in that group alone: a question about the whole benchmark),
     else ``exploratory: METRIC`` (a kind of a family is always exploratory, so adding one changes no
     primary verdict)."""
-    return "primary" if metric in primary and "/" not in group else f"exploratory: {metric}"
+    inside = group == pooled if pooled is not None else "/" not in group
+    return "primary" if metric in primary and inside else f"exploratory: {metric}"
 
 
 def compare(data: pd.DataFrame, pairs: Mapping[int, int], labels: Mapping[int, str],
@@ -201,6 +203,7 @@ def compare(data: pd.DataFrame, pairs: Mapping[int, int], labels: Mapping[int, s
     margin_of = margins(options)
     primary = primary_metrics(options, data.columns)
     names = groups(data)
+    pooled = headline(names) if options.primary_pooled else None
     records, found, samples = [], [], []
     for s, b in pairs.items():
         merged = pd.merge(data[data["setting"] == s], data[data["setting"] == b], on=key, suffixes=("_x", "_y"))
@@ -226,7 +229,7 @@ def compare(data: pd.DataFrame, pairs: Mapping[int, int], labels: Mapping[int, s
                 rec: dict[str, Any] = {"setting": int(s), "label": labels[s], "baseline": int(b),
                                        "baseline_label": labels[b], "family": group, "metric": metric,
                                        "higher_is_better": entry.higher_is_better,
-                                       "holm_family": holm_family(metric, group, primary),
+                                       "holm_family": holm_family(metric, group, primary, pooled),
                                        "conditioning": conditioning, "n_pairs": len(x),
                                        "margin": math.nan if margin is None else margin}
                 shown, evidence = _compare_one(metric, x, y, rate)

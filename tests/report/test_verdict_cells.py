@@ -82,7 +82,7 @@ def test_no_cell_shows_a_verdict_its_interval_contradicts_and_every_claim_is_hol
                 assert verdict == stats.verdict(lo, hi, margin, bool(r["higher_is_better"]))
 
 
-def test_the_holm_family_of_each_row_reproduces_its_p_holm():
+def _three_settings() -> pd.DataFrame:
     rng = np.random.default_rng(3)
     frame = []
     for s in range(3):
@@ -91,13 +91,32 @@ def test_the_holm_family_of_each_row_reproduces_its_p_holm():
             frame.append(dict(setting=s, method=f"m{s}", family="ab"[f % 2], kind="k", field=f, seed=0,
                               success=bool(success[f]), collision=False, stalled=not bool(success[f]),
                               min_clearance=float(rng.uniform(0.2, 2.0))))
-    comp = compare(pd.DataFrame(frame), {1: 0, 2: 0}, {0: "#0", 1: "#1", 2: "#2"}, ReportOptions(resamples=100))
+    return pd.DataFrame(frame)
+
+
+def test_the_holm_family_of_each_row_reproduces_its_p_holm():
+    comp = compare(_three_settings(), {1: 0, 2: 0}, {0: "#0", 1: "#1", 2: "#2"}, ReportOptions(resamples=100))
     assert set(comp.loc[comp["metric"].isin(["success", "collision"]), "holm_family"]) == {"primary"}
     assert set(comp.loc[comp["metric"] == "stalled", "holm_family"]) == {"exploratory: stalled"}
     for _, rows in comp.groupby("holm_family"):
         np.testing.assert_array_equal(stats.holm(rows["p"].to_numpy()), rows["p_holm"].to_numpy())
         np.testing.assert_array_equal(stats.holm(rows["p_equivalence"].to_numpy()),
                                       rows["p_equivalence_holm"].to_numpy())
+
+
+def test_a_question_about_the_pooled_groups_declares_them_alone_primary():
+    """primary_pooled (the scorecard's question): success and collision pooled over the families are the primary
+    family, per family they are exploratory within their metric, and Holm runs over each family so declared."""
+    options = ReportOptions(resamples=100, primary_pooled=True)
+    comp = compare(_three_settings(), {1: 0, 2: 0}, {0: "#0", 1: "#1", 2: "#2"}, options)
+    primary = comp[comp["holm_family"] == "primary"]
+    assert len(primary) == 4 and set(primary["family"]) == {"all"}
+    assert set(primary["metric"]) == {"success", "collision"}
+    per_family = comp[comp["family"] != "all"]
+    assert set(per_family["holm_family"]) == {"exploratory: success", "exploratory: collision", "exploratory: stalled",
+                                              "exploratory: min_clearance"}
+    for _, rows in comp.groupby("holm_family"):
+        np.testing.assert_array_equal(stats.holm(rows["p"].to_numpy()), rows["p_holm"].to_numpy())
 
 
 def test_cells_by_hand():
