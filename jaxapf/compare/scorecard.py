@@ -16,9 +16,10 @@ its numbers by name (``facts.json``, :func:`facts`).
 
 **Scoring a method** (:func:`score_method`, ``jaxapf [--plugin FILE] scorecard --method NAME``): the same
 selection and test for that method alone, paired with the stored episodes on the same fields and selection
-seeds. Each member is compared with it on success and collision (the primary Holm family, per family and
-pooled; the clearance exploratory), seeds pooled; the leaderboard gains its row and, beside each member, the
-difference with the interval that decided the verdict, and the minimum detectable difference.
+seeds. Each member is compared with it on success and collision over the whole card (the primary Holm family:
+families and seeds pooled; per family, and the clearance, exploratory); the leaderboard gains its row and,
+beside each member, the difference with the interval that decided the verdict, and the minimum detectable
+difference.
 
 **Drift** (:func:`check_drift`): where the engine identity differs from the stored one, a sample of stored
 episodes is flown again; the method is paired with the stored zoo only if the sample agrees within the
@@ -38,13 +39,14 @@ import numpy as np
 import pandas as pd
 
 from .. import stats
-from ..validation import ConfigError
+from ..validation import ConfigError, first_line
 from .protocol import read_selections, selection_table, test_sweep_spec
 from .select import select, spec_digest
 from .spec import CompareSpec, parse_compare_spec
 
-__all__ = ["SCORECARDS", "Scorecard", "load_scorecard", "identity", "stored_episodes", "score_zoo", "score_method",
-           "check_drift", "leaderboard", "facts", "selection_ties", "identical_members", "AGREE", "DriftError"]
+__all__ = ["SCORECARDS", "Scorecard", "load_scorecard", "identity", "stored_identity", "stored_episodes",
+           "stored_selections", "score_zoo", "store_leaderboard", "score_method", "claim", "check_drift", "leaderboard",
+           "facts", "selection_ties", "identical_members", "AGREE", "DriftError"]
 
 #: The versioned scorecards shipped with jaxapf.
 SCORECARDS = pathlib.Path(__file__).parent / "scorecards"
@@ -77,20 +79,30 @@ class Scorecard:
         """What a paper cites: the sha256 of the spec's canonical JSON."""
         return spec_digest(self.spec)
 
+    @property
+    def option(self) -> str:
+        """How the command line names this card: ``--card VERSION`` if shipped, else ``--card FOLDER``."""
+        shipped = self.folder.resolve() == (SCORECARDS / self.version).resolve()
+        return f"--card {self.version}" if shipped else f"--card {self.folder}"
+
     def for_method(self, method: str) -> CompareSpec:
         """The scorecard's protocol with ``method`` beside the zoo: the same selection (families, seeds, budget,
         candidates, the zoo's default search) and test, the gains it reads searched (the card's frozen
-        ``selection.gains`` and any tunable gain of its own beyond them). A method reading no gain beyond them
-        draws the zoo's candidates, so a member scored again selects what it selected."""
+        ``selection.gains`` and any tunable gain of its own beyond them, each drawn from its own stream). So a
+        method draws the zoo's values of every gain it shares with it, and a member scored again selects what it
+        selected."""
         data = json.loads(json.dumps(self.data))
         if method not in data["methods"]:
             data["methods"] = [*data["methods"], method]
         frozen = data["selection"].get("gains")
-        if frozen is not None:
-            every = {k: v for k, v in data["selection"].items() if k != "gains"}
-            own = parse_compare_spec(data | {"selection": every}, base=self.folder).method_gains(method)
-            data["selection"]["gains"] = [*frozen, *(g for g in own if g not in frozen)]
-        return parse_compare_spec(data, base=self.folder)
+        if frozen is None:
+            return parse_compare_spec(data, base=self.folder)
+        every = {k: v for k, v in data["selection"].items() if k != "gains"}
+        own = parse_compare_spec(data | {"selection": every}, base=self.folder).method_gains(method)
+        added = tuple(g for g in own if g not in frozen)
+        data["selection"]["gains"] = [*frozen, *added]
+        spec = parse_compare_spec(data, base=self.folder)
+        return dataclasses.replace(spec, selection=dataclasses.replace(spec.selection, added=added))
 
 
 def load_scorecard(version: str = "v1", folder: str | pathlib.Path | None = None) -> Scorecard:
@@ -108,14 +120,38 @@ def load_scorecard(version: str = "v1", folder: str | pathlib.Path | None = None
 
 
 def identity() -> dict[str, str]:
-    """The engine that flies the episodes: jaxapf's and JAX's versions, the backend and the float type."""
+    """The engine that flies the episodes: jaxapf's version and the digest of its source, JAX's and jaxlib's
+    versions, the backend and its device, the host processor and the float type."""
     import jax
 
-    from ..io.versions import versions
+    from ..io.versions import processor, source_digest, versions
 
     v = versions()
-    return {"jaxapf": str(v.get("jaxapf")), "jax": jax.__version__, "backend": jax.default_backend(),
-            "dtype": "float64" if jax.config.jax_enable_x64 else "float32"}
+    return {"jaxapf": str(v.get("jaxapf")), "source": source_digest(), "jax": jax.__version__,
+            "jaxlib": str(v.get("jaxlib")), "backend": jax.default_backend(), "device": str(v.get("device")),
+            "processor": processor(), "dtype": "float64" if jax.config.jax_enable_x64 else "float32"}
+
+
+def stored_identity(card: Scorecard) -> dict[str, str]:
+    """The engine that made the stored zoo (``identity.json``), refused in one line where it is missing or
+    damaged, or where the zoo was scored under another digest than the card's (its protocol changed since)."""
+    from ..io.names import read_own
+
+    path = card.folder / "identity.json"
+    again = f"score the zoo again (jaxapf scorecard {card.option} --rescore)"
+    if not path.is_file():
+        raise ConfigError(f"scorecard {card.version}: no {path.name} beside its stored episodes; {again}")
+    try:
+        kept = json.loads(read_own(path).decode("utf-8"))
+        if not isinstance(kept, dict):
+            raise ValueError("not a JSON object")
+    except (OSError, ValueError, RecursionError) as err:
+        raise ConfigError(f"scorecard {card.version}: {path} is damaged ({first_line(err)}); {again}") from None
+    if kept.get("digest") != card.digest:
+        raise ConfigError(f"scorecard {card.version}: the stored zoo was scored under digest "
+                          f"{str(kept.get('digest'))[:12]}…, the card's is {card.digest[:12]}… (its protocol "
+                          f"changed since); {again}")
+    return kept
 
 
 def stored_episodes(card: Scorecard) -> pd.DataFrame:
@@ -125,7 +161,7 @@ def stored_episodes(card: Scorecard) -> pd.DataFrame:
     path = card.folder / "episodes.parquet"
     if not path.is_file():
         raise ConfigError(f"scorecard {card.version}: no stored episodes at {path}; score the zoo first "
-                          "(jaxapf scorecard --rescore)")
+                          f"(jaxapf scorecard {card.option} --rescore)")
     try:
         df, _ = read_sweep(path)
     except ConfigError as err:
@@ -157,6 +193,7 @@ def score_zoo(card: Scorecard, out: str | pathlib.Path, *, quiet: bool = False) 
 
     out = pathlib.Path(out)
     with writing(out, "finished selections and test parts are kept"):
+        claim(out)
         df, meta, selections = _fly(card.spec, card.spec.methods, out, quiet)
         columns = [c for c in df.columns if c in ("setting", "member", "selection", "method", "filter", "family",
                                                    "kind", "field", "seed", *READ)]
@@ -166,50 +203,82 @@ def score_zoo(card: Scorecard, out: str | pathlib.Path, *, quiet: bool = False) 
                  lambda fh: fh.write(csv_text(selection_table(card.spec, selections)).encode()))
     record = json.dumps(identity() | {"digest": card.digest}, indent=1) + "\n"
     write_atomic(card.folder / "identity.json", lambda fh: fh.write(record.encode()))
-    board = leaderboard(stored_episodes(card), None, spent=selections)
+    return store_leaderboard(card).table
+
+
+def store_leaderboard(card: Scorecard) -> Board:
+    """The stored zoo's leaderboard, computed from its episodes and ``selection.csv``, written beside the card
+    (``leaderboard.md``, ``.html``, ``.csv``) with its numbers by name (``facts.json``)."""
+    from ..io.lock import write_atomic
+
+    board = leaderboard(stored_episodes(card), None, spent=stored_selections(card))
     write_leaderboard(card, board, None, card.folder)
     found = json.dumps(facts(card, board), indent=1, sort_keys=True, allow_nan=False) + "\n"
     write_atomic(card.folder / "facts.json", lambda fh: fh.write(found.encode()))
-    return board.table
+    return board
 
 
-def check_drift(card: Scorecard, out: pathlib.Path, *, quiet: bool = True) -> str:
-    """``"same engine"`` where this engine's identity is the stored results'; else a sample of the stored
-    episodes (:data:`SAMPLE_FIELDS` fields of every family, the first member, its first seed's selection) flown
-    again and compared within :data:`AGREE`: what was found, or :class:`DriftError` in one line."""
-    from ..io.names import read_own
+def stored_selections(card: Scorecard) -> list[Any]:
+    """The zoo's selections (``selection.csv`` beside the card), refused in one line where it is missing or
+    unreadable."""
+    stored = card.folder / "selection.csv"
+    again = f"score the zoo again (jaxapf scorecard {card.option} --rescore)"
+    if not stored.is_file():
+        raise ConfigError(f"scorecard {card.version}: no {stored.name} beside its stored episodes; {again}")
+    try:
+        return read_selections(card.spec, stored)
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise ConfigError(f"scorecard {card.version}: {stored} cannot be read ({type(err).__name__}: "
+                          f"{first_line(err)}); {again}") from None
+
+
+def check_drift(card: Scorecard, *, quiet: bool = True) -> str:
+    """``"same engine"`` where this engine's identity is the stored results' (:func:`stored_identity`); else a
+    sample of the stored episodes (:data:`SAMPLE_FIELDS` fields of every family, the first member, its first
+    seed's selection) flown again, in a temporary folder, and compared: every outcome equal, every clearance
+    within :data:`AGREE`. What was found, or :class:`DriftError` in one line."""
+    import tempfile
+
     from ..sweep import read_sweep, run_sweep
 
-    path = card.folder / "identity.json"
-    if not path.is_file():
-        raise ConfigError(f"scorecard {card.version}: no {path.name} beside its stored episodes; score the zoo again "
-                          f"(jaxapf scorecard --card {card.version} --rescore)")
-    kept = json.loads(read_own(path).decode("utf-8"))
+    kept = stored_identity(card)
     here = identity()
     changed = {k: (kept.get(k), v) for k, v in here.items() if kept.get(k) != v}
     if not changed:
         return "same engine"
     zoo = stored_episodes(card)
     member, seed = card.spec.methods[0], card.spec.selection.seeds[0]
-    chosen = next(s for s in read_selections(card.spec, card.folder / "selection.csv")
-                  if s.method == member and s.seed == seed)
+    chosen = [s for s in stored_selections(card) if s.method == member and s.seed == seed]
+    if not chosen:
+        raise ConfigError(f"scorecard {card.version}: its selection.csv holds no selection of {member}, seed {seed}; "
+                          f"score the zoo again (jaxapf scorecard {card.option} --rescore)")
     sample = dataclasses.replace(card.spec, methods=(member,), baseline=member,
                                  test=dataclasses.replace(card.spec.test, fields=SAMPLE_FIELDS))
-    run_sweep(test_sweep_spec(sample, [chosen], members=True), out / "drift.parquet", quiet=quiet)
-    again = read_sweep(out / "drift.parquet")[0]
+    with tempfile.TemporaryDirectory() as tmp:  # never a sample another engine flew
+        run_sweep(test_sweep_spec(sample, chosen[:1], members=True), pathlib.Path(tmp) / "drift.parquet",
+                  quiet=quiet)
+        again = read_sweep(pathlib.Path(tmp) / "drift.parquet")[0]
     key = ["family", "field"]
     before = zoo[(zoo["member"] == member) & (zoo["selection"] == f"seed{seed}")].set_index(key)
     now = again.set_index(key)
     both = before.loc[now.index]
-    outcomes = sum(int((both[c].to_numpy(bool) != now[c].to_numpy(bool)).sum()) for c in ("success", "collision"))
-    gap = float(np.nanmax(np.abs(np.where(np.isfinite(both["min_clearance"]), both["min_clearance"], 0.0)
-                                 - np.where(np.isfinite(now["min_clearance"]), now["min_clearance"], 0.0))))
-    what = ", ".join(f"{k} {a} -> {b}" for k, (a, b) in changed.items())
+    outcomes = sum(int((both[c].to_numpy(bool) != now[c].to_numpy(bool)).sum())
+                   for c in ("success", "collision", "stalled") if c in both.columns and c in now.columns)
+    a, b = both["min_clearance"].to_numpy(np.float64), now["min_clearance"].to_numpy(np.float64)
+    finite = np.isfinite(a) & np.isfinite(b)
+    gap = math.inf if (np.isfinite(a) != np.isfinite(b)).any() else float(np.max(np.abs(a - b)[finite], initial=0.0))
+    what = ", ".join(f"{k} {_short(x)} -> {_short(y)}" for k, (x, y) in changed.items())
     if outcomes or gap > AGREE:
         raise DriftError(f"scorecard {card.version}: the engine changed ({what}) and {len(now)} re-flown stored "
                          f"episodes disagree ({outcomes} outcomes, clearance by up to {gap:.3g} m): score the zoo "
-                         f"again with `jaxapf scorecard --card {card.version} --rescore`")
+                         f"again with `jaxapf scorecard {card.option} --rescore`")
     return f"engine changed ({what}); {len(now)} re-flown stored episodes agree (clearance within {gap:.2g} m)"
+
+
+def _short(value: Any) -> str:
+    """An identity's value as a line shows it: a digest by its first 12 characters."""
+    text = str(value)
+    return text[:12] + "…" if len(text) == 64 and all(c in "0123456789abcdef" for c in text) else text
 
 
 def selection_ties(selections: Sequence[Any]) -> list[tuple[int, str, str]]:
@@ -245,29 +314,34 @@ def _finite(v: Any) -> float | None:
 
 def facts(card: Scorecard, board: Board) -> dict[str, Any]:
     """The zoo's leaderboard as named facts (``facts.json`` beside the card, which the README binds): per member
-    its rank, success and collision with their intervals over the seeds, median clearance, test episodes,
-    selection episodes and seconds and per-family success; the identical members and the selection ties."""
-    table, fam = board.table.set_index("method"), board.families.set_index("method")
+    its rank, success, collision and median clearance with their intervals over the seeds, test episodes,
+    selection episodes and seconds, and per-family success and collision; the identical members and the
+    selection ties."""
+    table = board.table.set_index("method")
     numbers = ("success", "success_lo", "success_hi", "collision", "collision_lo", "collision_hi",
-               "clearance_median", "selection_episodes", "selection_seconds")
+               "clearance_median", "clearance_median_lo", "clearance_median_hi", "selection_episodes",
+               "selection_seconds")
     return {"version": card.version, "digest": card.digest, "members": len(table),
             "rank": {m: int(v) for m, v in table["rank"].items()},
             "episodes": {m: int(v) for m, v in table["episodes"].items()},
             **{c: {m: _finite(v) for m, v in table[c].items()} for c in numbers},
-            "family_success": {f: {m: _finite(v) for m, v in fam[f].items()} for f in fam.columns},
+            **{key: {f: {m: _finite(v) for m, v in per[f].items()} for f in per.columns}
+               for key, per in (("family_success", board.families.set_index("method")),
+                                ("family_collision", board.collisions.set_index("method")))},
             "identical": [f"{a} and {b}" for a, b in board.identical],
             "selection_ties": [f"seed {s}: {a} and {b}" for s, a, b in board.ties]}
 
 
 @dataclasses.dataclass
 class Board:
-    """A leaderboard: ``table`` (one row per member, best success first), ``families`` (success per family),
-    ``comparisons`` (the new method against each member; empty without one), ``identical`` (members, the new
-    method included, that fly identical episodes: :func:`identical_members`), ``ties`` (the selections'
-    :func:`selection_ties` but those of identical members)."""
+    """A leaderboard: ``table`` (one row per member, best success first), ``families`` and ``collisions`` (success
+    and collision per family), ``comparisons`` (the new method against each member; empty without one),
+    ``identical`` (members, the new method included, that fly identical episodes: :func:`identical_members`),
+    ``ties`` (the selections' :func:`selection_ties` but those of identical members)."""
 
     table: pd.DataFrame
     families: pd.DataFrame
+    collisions: pd.DataFrame
     comparisons: pd.DataFrame
     identical: list[tuple[str, str]]
     ties: list[tuple[int, str, str]]
@@ -284,23 +358,24 @@ def leaderboard(zoo: pd.DataFrame, new: pd.DataFrame | None, name: str | None = 
                 spent: Sequence[Any] = ()) -> Board:
     """The leaderboard of the stored ``zoo`` and, if given, the ``new`` method's episodes (its rows ``name``):
     per member the pooled success and collision (mean over the selection seeds with its t interval over them,
-    :func:`~jaxapf.stats.seed_interval`), the median clearance, and what its selections (``spent``, each
-    :class:`~jaxapf.compare.select.Selection` with ``method`` the member's name) realised: episodes and seconds,
-    mean over the seeds, and which of them tie (:func:`selection_ties`); per family the success; and the new method
-    against every member (:func:`_versus`)."""
+    :func:`~jaxapf.stats.seed_interval`; members of equal success share a rank), the median clearance (each
+    seed's median of the finite clearances, their mean with its t interval), and what its selections (``spent``,
+    each :class:`~jaxapf.compare.select.Selection` with ``method`` the member's name) realised: episodes and
+    seconds, mean over the seeds, and which of them tie (:func:`selection_ties`); per family the success and the
+    collisions; and the new method against every member (:func:`_versus`)."""
     frames = [zoo] + ([new.assign(member=name)] if new is not None else [])
     data = pd.concat(frames, ignore_index=True)
-    rows, fam = [], []
+    rows, fam, col = [], [], []
     for member, g in data.groupby("member", sort=False):
         per_seed = g.groupby("selection")[["success", "collision"]].mean()
         s_mean, s_lo, s_hi = stats.seed_interval(per_seed["success"].to_numpy())
         c_mean, c_lo, c_hi = stats.seed_interval(per_seed["collision"].to_numpy())
-        clear = g["min_clearance"].to_numpy(np.float64)
+        k_mean, k_lo, k_hi = stats.seed_interval(g.groupby("selection")["min_clearance"].agg(_finite_median))
         rows.append({"method": member, "episodes": len(g), "success": s_mean, "success_lo": s_lo, "success_hi": s_hi,
-                     "collision": c_mean, "collision_lo": c_lo, "collision_hi": c_hi,
-                     "clearance_median": float(np.median(clear[np.isfinite(clear)])) if np.isfinite(clear).any()
-                     else math.nan})
+                     "collision": c_mean, "collision_lo": c_lo, "collision_hi": c_hi, "clearance_median": k_mean,
+                     "clearance_median_lo": k_lo, "clearance_median_hi": k_hi})
         fam.append({"method": member, **g.groupby("family")["success"].mean().to_dict()})
+        col.append({"method": member, **g.groupby("family")["collision"].mean().to_dict()})
     table = pd.DataFrame(rows)
     cost = pd.DataFrame([{"method": x.method, "selection_episodes": float(x.episodes),
                           "selection_seconds": float(x.seconds)} for x in spent],
@@ -308,18 +383,29 @@ def leaderboard(zoo: pd.DataFrame, new: pd.DataFrame | None, name: str | None = 
         {"selection_episodes": float, "selection_seconds": float})
     table = table.merge(cost.groupby("method", as_index=False).mean(), on="method", how="left")
     table = table.sort_values(["success", "method"], ascending=[False, True], kind="stable")
-    table.insert(0, "rank", np.arange(1, len(table) + 1))
-    families = pd.DataFrame(fam).set_index("method").loc[table["method"]].reset_index()
+    table.insert(0, "rank", table["success"].rank(method="min", ascending=False).astype(int))  # equal success, one rank
+    order = table["method"]
+    families = pd.DataFrame(fam).set_index("method").loc[order].reset_index()
+    collisions = pd.DataFrame(col).set_index("method").loc[order].reset_index()
     comparisons = _versus(zoo, new, name, resamples) if new is not None else pd.DataFrame()
     identical = identical_members(data)
     alike = {frozenset(pair) for pair in identical}
     ties = [t for t in selection_ties(spent) if frozenset(t[1:]) not in alike]
-    return Board(table.reset_index(drop=True), families, comparisons, identical, ties)
+    return Board(table.reset_index(drop=True), families, collisions, comparisons, identical, ties)
+
+
+def _finite_median(values: pd.Series) -> float:
+    """The median of the finite values (a clearance is infinite where no obstacle was in range); NaN if none."""
+    x = values.to_numpy(np.float64)
+    x = x[np.isfinite(x)]
+    return float(np.median(x)) if x.size else math.nan
 
 
 def _versus(zoo: pd.DataFrame, new: pd.DataFrame, name: str, resamples: int) -> pd.DataFrame:
-    """The new method against every member, paired on (selection seed, family, field): success and collision in
-    the primary Holm family, per family and pooled; the clearance exploratory (:func:`jaxapf.report.tables.compare`)."""
+    """The new method against every member, paired on (selection seed, family, field), seeds pooled
+    (:func:`jaxapf.report.tables.compare`). The question is the leaderboard's, about the whole card: its primary
+    Holm family is success and collision against every member with the families pooled; per family, and the
+    stalls and clearance, exploratory."""
     from ..report import ReportOptions
     from ..report.tables import compare
 
@@ -331,25 +417,28 @@ def _versus(zoo: pd.DataFrame, new: pd.DataFrame, name: str, resamples: int) -> 
         parts.append(_pooled_rows(new)[keep].assign(setting=2 * i + 1))
         pairs[2 * i + 1], labels[2 * i], labels[2 * i + 1] = 2 * i, m, name
     data = pd.concat(parts, ignore_index=True)
-    comp = compare(data, pairs, labels, ReportOptions(resamples=resamples, gallery=0, heatmap=None))
+    options = ReportOptions(resamples=resamples, gallery=0, heatmap=None, primary_pooled=True)
+    comp = compare(data, pairs, labels, options)
     return comp.rename(columns={"baseline_label": "member"})
 
 
-def _pct(v: float) -> str:
-    return "–" if not math.isfinite(float(v)) else f"{100 * float(v):.1f}"
+def _num(v: float, scale: float = 100.0, digits: int = 1, sign: str = "") -> str:
+    """A number as the pages print it (a rate in percent by default); ``–`` where it is undefined."""
+    return "–" if not math.isfinite(float(v)) else f"{scale * float(v):{sign},.{digits}f}"
 
 
-def _cell(r: Any, scale: float = 100.0) -> str:
+def _cell(r: Any, scale: float = 100.0, digits: int = 1) -> str:
     """``+1.2 [-0.4, +2.8] at 99.6 %, inconclusive``: a comparison's difference with its deciding interval."""
     level = stats.format_level(r["confidence"])
+    delta = _num(r["delta"], scale, digits, "+")
     if not (math.isfinite(float(r["delta_lo"])) and math.isfinite(float(r["delta_hi"]))):
-        return f"{scale * r['delta']:+.1f} [no {level} CI], {r['verdict']}"
-    return (f"{scale * r['delta']:+.1f} [{scale * r['delta_lo']:+.1f}, {scale * r['delta_hi']:+.1f}] at {level}, "
-            f"{r['verdict']}")
+        return f"{delta} [no {level} CI], {r['verdict']}"
+    return (f"{delta} [{_num(r['delta_lo'], scale, digits, '+')}, {_num(r['delta_hi'], scale, digits, '+')}] at "
+            f"{level}, {r['verdict']}")
 
 
-def board_frames(board: Board, name: str | None) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """The leaderboard as the pages print it, and its per-family success table."""
+def board_frames(board: Board, name: str | None) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
+    """The leaderboard as the pages print it, and its per-family success and collision tables (%)."""
     from ..report.tables import headline
 
     shown = []
@@ -357,24 +446,31 @@ def board_frames(board: Board, name: str | None) -> tuple[pd.DataFrame, pd.DataF
     pooled = headline(list(dict.fromkeys(comp["family"]))) if len(comp) else None
     for r in board.table.itertuples():
         row = {"rank": r.rank, "method": r.method + (" (new)" if r.method == name else ""),
-               "success % [seeds' t interval]": f"{_pct(r.success)} [{_pct(r.success_lo)}, {_pct(r.success_hi)}]",
+               "success % [seeds' t interval]": f"{_num(r.success)} [{_num(r.success_lo)}, {_num(r.success_hi)}]",
                "collision % [seeds' t interval]":
-                   f"{_pct(r.collision)} [{_pct(r.collision_lo)}, {_pct(r.collision_hi)}]",
-               "median clearance m": f"{r.clearance_median:.3f}", "test episodes": f"{r.episodes:,}",
+                   f"{_num(r.collision)} [{_num(r.collision_lo)}, {_num(r.collision_hi)}]",
+               "median clearance m [seeds' t interval]":
+                   f"{_num(r.clearance_median, 1, 3)} [{_num(r.clearance_median_lo, 1, 3)}, "
+                   f"{_num(r.clearance_median_hi, 1, 3)}]",
+               "test episodes": f"{r.episodes:,}",
                "selection episodes, s": "–" if not math.isfinite(r.selection_episodes)
                else f"{r.selection_episodes:,.0f}, {r.selection_seconds:,.0f}"}
-        if name is not None and r.method != name:
-            mine = comp[(comp["member"] == r.method) & (comp["family"] == pooled)].set_index("metric")
+        if name is not None:
+            mine = (comp[(comp["member"] == r.method) & (comp["family"] == pooled)].set_index("metric")
+                    if r.method != name else None)
             for metric in ("success", "collision"):
-                row[f"{name} − it: Δ {metric} pp"] = _cell(mine.loc[metric])
-            row["MDE success pp"] = f"{100 * mine.loc['success', 'mde']:.1f}"
-        elif name is not None:
-            row.update({f"{name} − it: Δ success pp": "–", f"{name} − it: Δ collision pp": "–", "MDE success pp": "–"})
+                row[f"{name} − it: Δ {metric} pp"] = _cell(mine.loc[metric]) if mine is not None else "–"
+            row[f"{name} − it: Δ median clearance m (exploratory)"] = (
+                _cell(mine.loc["min_clearance"], 1.0, 3) if mine is not None and "min_clearance" in mine.index else "–")
+            row["MDE success pp"] = _num(mine.loc["success", "mde"]) if mine is not None else "–"
         shown.append(row)
-    families = board.families.copy()
-    for c in families.columns[1:]:
-        families[c] = families[c].map(_pct)
-    return pd.DataFrame(shown), families
+    per_family = []
+    for frame in (board.families, board.collisions):
+        frame = frame.copy()
+        for c in frame.columns[1:]:
+            frame[c] = frame[c].map(_num)
+        per_family.append(frame)
+    return pd.DataFrame(shown), *per_family
 
 
 def write_leaderboard(card: Scorecard, board: Board, name: str | None, out: pathlib.Path) -> list[pathlib.Path]:
@@ -383,7 +479,7 @@ def write_leaderboard(card: Scorecard, board: Board, name: str | None, out: path
     from ..report.document import Document, render_html, render_markdown
     from ..text import csv_text
 
-    shown, families = board_frames(board, name)
+    shown, families, collisions = board_frames(board, name)
     doc = Document()
     doc.h(1, f"jaxapf scorecard {card.version}" + (f": {name} against the zoo" if name else ""))
     spec = card.spec
@@ -405,10 +501,13 @@ def write_leaderboard(card: Scorecard, board: Board, name: str | None, out: path
     doc.table(shown)
     doc.h(2, "Success per family (%)")
     doc.table(families)
+    doc.h(2, "Collision per family (%)")
+    doc.table(collisions)
     paths = [out / "leaderboard.md", out / "leaderboard.html", out / "leaderboard.csv"]
     write_atomic(paths[0], lambda fh: fh.write(render_markdown(doc).encode()))
     write_atomic(paths[1], lambda fh: fh.write(render_html(doc, f"jaxapf scorecard {card.version}").encode()))
-    write_atomic(paths[2], lambda fh: fh.write(csv_text(board.table.merge(board.families, on="method")).encode()))
+    per_family = board.families.merge(board.collisions, on="method", suffixes=(" success", " collision"))
+    write_atomic(paths[2], lambda fh: fh.write(csv_text(board.table.merge(per_family, on="method")).encode()))
     if name is not None:
         paths.append(out / "comparisons.csv")
         write_atomic(paths[-1], lambda fh: fh.write(csv_text(board.comparisons).encode()))
@@ -419,23 +518,54 @@ def score_method(card: Scorecard, method: str, out: str | pathlib.Path, *, name:
                  quiet: bool = False, resamples: int = 2000) -> Board:
     """Score ``method`` (a compare method, ``PLANNER[+FILTER]``) on the scorecard (module docstring) in ``out``
     (resumable), its rows labelled ``name`` (default the method); writes the leaderboard there."""
+    from ..io.lock import writing
+    from ..report import ReportOptions
+
     out = pathlib.Path(out)
     name = name or method
+    spec = card.for_method(method)  # an unknown method or a bad --resamples, before anything flies
+    ReportOptions(resamples=resamples)
     zoo = stored_episodes(card)
     if name in set(zoo["member"]):
         raise ConfigError(f"--name {name}: a zoo member of scorecard {card.version} has that name; name the row "
                           "otherwise (--name)")
-    from ..io.lock import writing
-
     with writing(out, "finished selections and test parts are kept"):
-        drift = check_drift(card, out)
+        claim(out)
+        drift = check_drift(card)
         if not quiet:
             print(f"scorecard {card.version}: {drift}", file=sys.stderr)
-        new, _, chosen = _fly(card.for_method(method), [method], out, quiet)
+        new, _, chosen = _fly(spec, [method], out, quiet)
         new = new[new["member"] == method]
-        stored = card.folder / "selection.csv"
-        spent = [*(read_selections(card.spec, stored) if stored.is_file() else ()),
-                 *(dataclasses.replace(x, method=name) for x in chosen)]
+        spent = [*stored_selections(card), *(dataclasses.replace(x, method=name) for x in chosen)]
         board = leaderboard(zoo, new, name, resamples, spent)
         write_leaderboard(card, board, name, out)
     return board
+
+
+def claim(out: pathlib.Path) -> dict[str, Any]:
+    """The engine and plugins that fly into ``out`` (``out/identity.json``: :func:`identity` and each plugin's
+    sha256): recorded by the first run; a run with another engine or an edited plugin is refused in one line, so
+    that no selection or test part of two engines, or of two versions of a plugin, is ever mixed."""
+    from ..io.lock import write_atomic
+    from ..io.names import read_own
+    from ..spec.plugins import plugin_digests
+
+    here = identity() | {"plugins": plugin_digests()}
+    path = out / "identity.json"
+    if not path.is_file():
+        write_atomic(path, lambda fh: fh.write((json.dumps(here, indent=1) + "\n").encode()))
+        return here
+    try:
+        kept = json.loads(read_own(path).decode("utf-8"))
+        if not isinstance(kept, dict):
+            raise ValueError("not a JSON object")
+    except (OSError, ValueError, RecursionError) as err:
+        raise ConfigError(f"{path} is damaged ({first_line(err)}); remove {out} to fly again") from None
+    plugins = kept.get("plugins") if isinstance(kept.get("plugins"), dict) else {}
+    changed = [k for k in here if k != "plugins" and kept.get(k) != here[k]]
+    changed += [f"plugin {n}" for n in sorted(set(plugins) | set(here["plugins"]))
+                if plugins.get(n) != here["plugins"].get(n)]
+    if changed:
+        raise ConfigError(f"{out} holds what another engine or plugin flew ({', '.join(changed)} changed): score "
+                          f"into a new --out, or remove {out} to fly again")
+    return here

@@ -6,7 +6,9 @@ method reads) are chosen by
 - ``random``: ``candidates`` settings, the method's defaults (:class:`~jaxapf.gains.Gains`) first,
   then ``candidates - 1`` draws from ``[selection.ranges]``. The draws are one matrix of uniforms
   from ``numpy.random.default_rng(s)``, a column per searched gain in declaration order, shared by
-  every method: two methods try the same ``k_rep`` values.
+  every method: two methods try the same ``k_rep`` values. A gain a scorecard adds for one method
+  (``added``) draws from its own stream, ``default_rng([s, crc32(name)])``, so the others draw what
+  every member drew.
 - ``grid``: the product of ``[selection.grid]`` over the gains the method reads (defaults first
   if they are a grid point, which they need not be).
 - ``cmaes``, ``sep_cmaes``: ``jaxapf tune``'s CMA-ES (full or separable covariance,
@@ -33,6 +35,7 @@ import json
 import math
 import pathlib
 import time
+import zlib
 from typing import Any
 
 import numpy as np
@@ -80,7 +83,7 @@ def spec_digest(spec: CompareSpec) -> str:
     fields = {k: v for k, v in dataclasses.asdict(spec).items()
               if k != "plugin_paths" and not (k == "gains" and not v)}  # no [gains]: the digest it always had
     fields["selection"] = {k: v for k, v in fields["selection"].items()
-                           if not (k in ("searches", "cmaes") and not v)}  # nor without per-method searches
+                           if not (k in ("searches", "cmaes", "added") and not v)}  # nor without per-method searches
     t_max = selection_t_max(spec)
     if t_max != SimConfig().episode.t_max:  # selections run at 60 s before the families' own length was read
         fields["selection_t_max"] = t_max
@@ -146,13 +149,14 @@ def random_candidates(spec: CompareSpec, method: str, seed: int) -> list[Gains]:
     """The method's defaults, then ``candidates - 1`` draws (module docstring)."""
     sel = spec.selection
     names = set(spec.method_gains(method))
-    u = np.random.default_rng(seed).uniform(size=(sel.candidates - 1, len(sel.ranges)))
+    shared = [(g, r) for g, r in sel.ranges if g not in sel.added]
+    u = np.random.default_rng(seed).uniform(size=(sel.candidates - 1, len(shared)))
+    columns = {g: u[:, i] for i, (g, _) in enumerate(shared)}
+    columns |= {g: np.random.default_rng([seed, zlib.crc32(g.encode())]).uniform(size=sel.candidates - 1)
+                for g in sel.added}
     base = fixed_gains(spec)
-    out = [base]
-    for row in u:
-        values = {g: float(r.sample(np.array([row[i]]))[0]) for i, (g, r) in enumerate(sel.ranges) if g in names}
-        out.append(base.replace(**values))
-    return out
+    return [base, *(base.replace(**{g: float(r.sample(np.array([columns[g][j]]))[0]) for g, r in sel.ranges
+                                    if g in names}) for j in range(sel.candidates - 1))]
 
 
 def fixed_gains(spec: CompareSpec) -> Gains:

@@ -78,6 +78,8 @@ class SelectionSpec:
       grid: ``(gain, values)`` of a grid search.
       gradient: ``(key, value)`` training options of a gradient search (:data:`GRADIENT_KEYS`).
       cmaes: ``(key, value)`` options of a CMA-ES search (:data:`CMAES_KEYS`).
+      added: gains a scorecard searches for a method beyond its frozen ``gains`` (the last of ``gains``): each
+        draws from a stream of its own, so the frozen ones draw what the zoo drew (:mod:`jaxapf.compare.select`).
     """
 
     families: tuple[str, ...]
@@ -91,6 +93,7 @@ class SelectionSpec:
     gradient: tuple[tuple[str, Any], ...] = ()
     searches: tuple[tuple[str, str], ...] = ()
     cmaes: tuple[tuple[str, Any], ...] = ()
+    added: tuple[str, ...] = ()
 
     def search_of(self, method: str) -> str:
         """How ``method``'s gains are selected."""

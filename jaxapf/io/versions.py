@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import hashlib
 import os
+import pathlib
 import platform
 from importlib import metadata
 
 import jax
 
-__all__ = ["versions"]
+__all__ = ["versions", "source_digest", "processor"]
 
 
 def _version(dist: str) -> str:
@@ -34,3 +36,26 @@ def versions() -> dict[str, str]:
         "device_count": str(jax.device_count()),
         "x64": str(jax.config.jax_enable_x64),
     }
+
+
+def source_digest() -> str:
+    """sha256 of jaxapf's Python source (every ``.py`` file of the package, by relative path): an edit the
+    version number does not show still changes what flies."""
+    root = pathlib.Path(__file__).resolve().parents[1]
+    h = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        h.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+def processor() -> str:
+    """The host processor's model (Linux's ``/proc/cpuinfo``, else what :mod:`platform` knows): XLA compiles for
+    the instructions it has, which may round float32 sums apart."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    return line.partition(":")[2].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()

@@ -20,7 +20,8 @@ from typing import Any, Sequence
 
 from ..validation import ConfigError, first_line
 
-__all__ = ["load_plugin", "load_plugins", "check_plugins", "plugin_path", "plugin_failure", "LOADED"]
+__all__ = ["load_plugin", "load_plugins", "check_plugins", "plugin_path", "plugin_digests", "plugin_failure",
+           "LOADED"]
 
 #: Every plugin this process has imported, in order, as ``(name, path)`` (``path``: the ``.py``
 #: file, None for a module name): a second process imports the same ones to see the same registries
@@ -94,6 +95,20 @@ def _sources() -> list[tuple[str, str | None]]:
     it has none)."""
     return [(name, path if path is not None else getattr(sys.modules.get(name), "__file__", None))
             for name, path in LOADED]
+
+
+def plugin_digests() -> dict[str, str]:
+    """The sha256 of every plugin this process imported, by name (``-`` for a module without a file of its own), so
+    that what was flown with an edited plugin is told apart."""
+    import hashlib
+
+    found = {}
+    for name, source in _sources():
+        try:
+            found[name] = hashlib.sha256(pathlib.Path(source).read_bytes()).hexdigest() if source else "-"
+        except OSError:
+            found[name] = "-"
+    return found
 
 
 def plugin_failure(err: BaseException) -> str | None:

@@ -1,7 +1,8 @@
 """The scorecard (jaxapf.compare.scorecard) on a tiny frozen benchmark (tests/data/scorecard-tiny): the zoo scored
 once and stored, a member scored again under another name reproducing its stored row bit for bit and equivalent
-to it on every primary comparison, the leaderboard's numbers recomputed here, a stored part edited by hand
-refused, and a changed engine checked by flying a sample again."""
+to it on every primary comparison, the leaderboard's numbers recomputed here, a stored part edited by hand, a zoo of
+another digest and a folder flown by another engine or plugin refused, and a changed engine checked by flying a
+sample again."""
 
 from __future__ import annotations
 
@@ -39,14 +40,16 @@ def again(zoo):
 
 def test_a_member_scored_again_under_another_name_reproduces_its_stored_row(zoo, again):
     table = again.table.set_index("method")
-    columns = ["episodes", "success", "success_lo", "success_hi", "collision", "collision_lo", "collision_hi",
-               "clearance_median"]
+    columns = ["rank", "episodes", "success", "success_lo", "success_hi", "collision", "collision_lo", "collision_hi",
+               "clearance_median", "clearance_median_lo", "clearance_median_hi"]
     pd.testing.assert_series_equal(table.loc["basic", columns], table.loc["basic_again", columns], check_names=False,
-                                   check_exact=True)
+                                   check_exact=True)  # equal success, one rank
     primary = again.comparisons[(again.comparisons["member"] == "basic")
                                 & (again.comparisons["holm_family"] == "primary")]
     assert len(primary) == 2 and set(primary["verdict"]) == {"equivalent"}
     assert (primary["delta"] == 0).all()
+    # the question is the whole card's: the primary family is the pooled group (here the one test family) alone
+    assert set(again.comparisons.loc[again.comparisons["holm_family"] == "primary", "family"]) == {"crossing"}
     # what each selection realised stands beside its row: the same draws, the same episodes
     assert table.loc["basic_again", "selection_episodes"] == table.loc["basic", "selection_episodes"]
     assert table["selection_seconds"].gt(0).all()
@@ -61,10 +64,12 @@ def test_the_zoos_facts_are_its_leaderboard(zoo, again):
     assert found["digest"] == card.digest and found["members"] == len(card.spec.methods) == len(table)
     for m in card.spec.methods:
         assert found["rank"][m] == table.loc[m, "rank"]
-        for key in ("success", "success_lo", "success_hi", "collision", "clearance_median"):
+        for key in ("success", "success_lo", "success_hi", "collision", "clearance_median", "clearance_median_lo",
+                    "clearance_median_hi"):
             assert found[key][m] == pytest.approx(table.loc[m, key], rel=1e-12, abs=1e-15)
         for f in card.spec.test.families:
-            assert found["family_success"][f][m] == pytest.approx(table.loc[m, f], rel=1e-12)
+            assert found["family_success"][f][m] == pytest.approx(table.loc[m, f"{f} success"], rel=1e-12)
+            assert found["family_collision"][f][m] == pytest.approx(table.loc[m, f"{f} collision"], rel=1e-12)
         assert found["selection_episodes"][m] == card.spec.selection.budget
     sel = pd.read_csv(card.folder / "selection.csv")
     assert (sel["episodes"] == card.spec.selection.budget).all()
@@ -81,6 +86,9 @@ def test_the_leaderboard_is_the_stored_episodes_recomputed(zoo, again):
         mean, lo, hi = stats.seed_interval(per_seed)
         row = again.table.set_index("method").loc[member]
         assert (row["success"], row["success_lo"], row["success_hi"]) == pytest.approx((mean, lo, hi), rel=1e-12)
+        medians = [np.median(c[np.isfinite(c)]) for _, c in rows.groupby("selection")["min_clearance"]]
+        assert (row["clearance_median"], row["clearance_median_lo"], row["clearance_median_hi"]) == pytest.approx(
+            stats.seed_interval(medians), rel=1e-12)
     # every member against the new method on the same (selection, field) pairs: the counts recomputed
     mine = stored[stored["member"] == "direction"].sort_values(["selection", "field"])
     base = stored[stored["member"] == "basic"].sort_values(["selection", "field"])
@@ -90,6 +98,7 @@ def test_the_leaderboard_is_the_stored_episodes_recomputed(zoo, again):
     assert row["discordant"] == f"b={b}, c={c}" and row["n_pairs"] == len(base)
     md = (root / "again" / "leaderboard.md").read_text()
     assert f"digest {card.digest}" in md and "basic_again (new)" in md and "at " in md
+    assert "## Collision per family (%)" in md and "Δ median clearance m (exploratory)" in md
 
 
 def test_a_stored_part_edited_by_hand_is_refused_in_one_line(zoo, tmp_path, capsys):
@@ -123,8 +132,9 @@ def test_a_changed_engine_flies_a_sample_again_and_pairs_only_if_it_agrees(zoo, 
     kept = json.loads((folder / "identity.json").read_text())
     (folder / "identity.json").write_text(json.dumps(kept | {"jax": "0.0.elsewhere"}))
     moved = load_scorecard(folder=folder)
-    said = check_drift(moved, tmp_path / "drift")
+    said = check_drift(moved)
     assert said.startswith("engine changed (jax 0.0.elsewhere -> ") and "agree" in said
+    assert check_drift(card) == "same engine"
     # stored episodes another engine made differently: the sample disagrees, one line says how to rescore
     from jaxapf.sweep import read_sweep
     from jaxapf.sweep.output import write_rows
@@ -132,8 +142,8 @@ def test_a_changed_engine_flies_a_sample_again_and_pairs_only_if_it_agrees(zoo, 
     df, meta = read_sweep(folder / "episodes.parquet")
     df.loc[df["member"] == card.spec.methods[0], "min_clearance"] += 0.01
     write_rows(folder, "episodes.parquet", df, meta, meta["metrics"])
-    with pytest.raises(DriftError, match="--rescore"):
-        check_drift(load_scorecard(folder=folder), tmp_path / "drift2")
+    with pytest.raises(DriftError, match=f"--card {folder} --rescore"):
+        check_drift(load_scorecard(folder=folder))
 
 
 def test_a_name_of_the_zoo_and_a_missing_card_are_one_line(zoo, tmp_path, capsys):
@@ -252,3 +262,66 @@ def test_identical_members_are_those_with_equal_episodes():
                      member("d", [0.5], fields=(0,))], ignore_index=True)
     assert identical_members(eps) == [("a", "b")]
     assert identical_members(eps.iloc[::-1]) == [("b", "a")]
+
+
+def test_a_zoo_of_another_digest_or_a_damaged_identity_is_refused_in_one_line(zoo, tmp_path, capsys):
+    """Stored episodes scored under another protocol (the digest in identity.json is not the card's) are never
+    paired: one line says so and how to rescore; a damaged identity.json is one line too."""
+    card, _ = zoo
+    folder = tmp_path / "card"
+    shutil.copytree(card.folder, folder)
+    kept = json.loads((folder / "identity.json").read_text())
+    args = ["scorecard", "--card", str(folder), "--method", "direction", "--name", "d2", "--out", str(tmp_path / "o"),
+            "--quiet"]
+    for text, said in ((json.dumps(kept | {"digest": "0" * 64}), "scored under digest 000000000000…"),
+                       ("{not json", "is damaged"), ("[1, 2]", "not a JSON object")):
+        (folder / "identity.json").write_text(text)
+        assert main(args) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and said in err[0] and f"jaxapf scorecard --card {folder} --rescore" in err[0]
+
+
+def test_an_output_folder_flown_by_another_engine_or_plugin_is_refused_not_mixed(zoo, again, tmp_path):
+    """What a scored method's folder holds was flown by one engine and one version of each plugin (its
+    identity.json): a second run there with either changed stops in one line before anything flies, instead of
+    pairing old selections or test parts with new ones."""
+    from jaxapf.validation import ConfigError
+
+    card, root = zoo
+    out = tmp_path / "again"
+    shutil.copytree(root / "again", out)
+    kept = json.loads((out / "identity.json").read_text())
+    assert kept["source"] and isinstance(kept["plugins"], dict) and kept["processor"]
+    for edit, said in (({"source": "0" * 64}, "(source changed)"), ({"plugins": {"mine.py": "0" * 64}},
+                                                                   "(plugin mine.py changed)")):
+        (out / "identity.json").write_text(json.dumps(kept | edit))
+        with pytest.raises(ConfigError, match=re.escape(said)) as err:
+            score_method(card, "basic", out, name="basic_again", quiet=True, resamples=200)
+        assert "new --out" in str(err.value) and "\n" not in str(err.value)
+
+
+def test_a_gain_of_the_scored_method_alone_draws_from_its_own_stream():
+    """A gain the scorecard adds for one method draws from default_rng([seed, crc32(name)]); every gain the
+    method shares with the card draws the zoo's values (hand-computed here), so adding one moves none of them."""
+    import zlib
+
+    from jaxapf.compare.select import random_candidates
+
+    card = load_scorecard(folder=ROOT / "tests" / "data" / "scorecard-tiny")
+    spec = card.for_method("basic+cbf")  # the filter's two gains are not the card's
+    assert spec.selection.added == ("cbf_p1", "cbf_p2")
+    sel = spec.selection
+    ranges = dict(sel.ranges)
+    shared = [g for g, _ in card.spec.selection.ranges]
+    u = np.random.default_rng(2).uniform(size=(sel.candidates - 1, len(shared)))
+    drawn = random_candidates(spec, "basic+cbf", 2)
+    for j, cand in enumerate(drawn[1:]):
+        values = cand.floats()
+        for i, g in enumerate(shared):
+            if g not in spec.method_gains("basic+cbf"):
+                continue  # a gain it does not read keeps its default
+            assert values[g] == pytest.approx(float(ranges[g].sample(np.array([u[j, i]]))[0]), rel=1e-12)
+        for g in sel.added:
+            v = np.random.default_rng([2, zlib.crc32(g.encode())]).uniform(size=sel.candidates - 1)[j]
+            assert values[g] == pytest.approx(float(ranges[g].sample(np.array([v]))[0]), rel=1e-12)
+    assert card.for_method("basic").selection.added == ()  # a member draws what the zoo drew
