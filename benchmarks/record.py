@@ -48,6 +48,7 @@ RECORDS: dict[str, tuple[str, int]] = {
     "projection-rows": ("python benchmarks/projection_rows.py --json", 1),
     "policy": ("python benchmarks/policy.py --phases", 1),
     "compare-quick": ("python benchmarks/timed.py -- compare sweeps/compare-quick.toml --quiet", 1),
+    "scorecard-basic": ("python benchmarks/scorecard.py", 1),
 }
 
 

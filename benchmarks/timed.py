@@ -18,23 +18,28 @@ import subprocess
 import sys
 import tempfile
 import time
+from typing import Callable
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 
-def measure(args: list[str]) -> dict:
+def measure(args: list[str], read: Callable[[pathlib.Path], dict] | None = None) -> dict:
+    """The record of ``jaxapf ARGS --out TMP`` run cold; ``read``: what else to record of what it wrote in TMP."""
     from jaxapf.bench.engine import environment
 
     with tempfile.TemporaryDirectory() as tmp:
-        command = [sys.executable, "-m", "jaxapf", *args, "--out", str(pathlib.Path(tmp) / "out")]
+        out = pathlib.Path(tmp) / "out"
+        command = [sys.executable, "-m", "jaxapf", *args, "--out", str(out)]
         start = time.perf_counter()
         env = os.environ | {"XDG_CACHE_HOME": str(pathlib.Path(tmp) / "cache")}  # an empty compilation cache
         proc = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True)
         seconds = time.perf_counter() - start
-    if proc.returncode != 0:
-        sys.exit(f"timed.py: jaxapf {' '.join(args)} failed: {proc.stderr.strip().splitlines()[-1:]}")
+        if proc.returncode != 0:
+            sys.exit(f"timed.py: jaxapf {' '.join(args)} failed: {proc.stderr.strip().splitlines()[-1:]}")
+        found = read(out) if read is not None else {}
     return {"command": "jaxapf " + " ".join(args), "date": datetime.date.today().isoformat(),
-            "cold_s": round(seconds, 1), "compilation_cache": "empty", "environment": environment("float32")}
+            "cold_s": round(seconds, 1), "compilation_cache": "empty", "environment": environment("float32"),
+            **found}
 
 
 def main(argv: list[str] | None = None) -> int:
