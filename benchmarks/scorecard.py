@@ -35,7 +35,8 @@ def read(out: pathlib.Path) -> dict:
     basic = {c: board.loc["basic", c].item() for c in ROW}
     primary = comp[comp["holm_family"] == "primary"]
     versus = primary[primary["member"] == "basic"]
-    return {"name": NAME, "members": len(board), "row": row, "basic_row": basic, "row_equals_basic": row == basic,
+    same = all(row[c] == basic[c] or (row[c] != row[c] and basic[c] != basic[c]) for c in ROW)  # NaN as NaN
+    return {"name": NAME, "members": len(board), "row": row, "basic_row": basic, "row_equals_basic": same,
             "primary_family": len(primary), "primary_groups": sorted(set(primary["family"])),
             "primary_vs_basic": json.loads(versus[["metric", "family", "n_pairs", "delta", "delta_lo", "delta_hi",
                                                    "confidence", "verdict"]].to_json(orient="records"))}
@@ -47,7 +48,8 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--card", default="v1", help="the scorecard (default v1; a folder holding one, to try the script)")
     args = p.parse_args(argv)
-    command = ["scorecard", "--card", args.card, "--method", "basic", "--name", NAME, "--quiet"]
+    card = str(pathlib.Path(args.card).resolve()) if pathlib.Path(args.card).is_dir() else args.card  # run from ROOT
+    command = ["scorecard", "--card", card, "--method", "basic", "--name", NAME, "--quiet"]
     print(json.dumps(measure(command, read), indent=1))
     return 0
 

@@ -161,3 +161,48 @@ def test_a_second_process_imports_the_plugins_this_one_imported():
     with concurrent.futures.ProcessPoolExecutor(1, mp_context=spawn) as pool:
         planners, loaded = pool.submit(_registered_after, (plugin,)).result()
     assert "sideways" in planners and loaded == [plugin]
+
+
+CALLER = """
+from jaxapf.stats import seed_interval
+
+
+def own():
+    return {}["missing"]  # OWN LINE
+
+
+def into_jaxapf():
+    return seed_interval([1.0, 2.0], confidence=5.0)
+"""
+
+
+def test_a_plugins_own_failure_is_told_from_jaxapfs_called_by_a_plugin(tmp_path, monkeypatch):
+    """plugin_failure names the plugin, file, line and function where the deepest of an error's frames in jaxapf
+    or a plugin is the plugin's, in this process or in a worker's (a remote traceback's text); a jaxapf function
+    failing under a plugin's call keeps its traceback (None), as does an error without a plugin frame."""
+    import concurrent.futures.process as cfp
+    import importlib.util
+
+    import jaxapf.spec.plugins as plugins
+
+    path = tmp_path / "caller.py"
+    path.write_text(CALLER)
+    spec = importlib.util.spec_from_file_location("caller_plugin_test", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    monkeypatch.setattr(plugins, "LOADED", [("caller.py", str(path))])
+    line = next(i for i, text in enumerate(CALLER.splitlines(), 1) if "# OWN LINE" in text)
+    with pytest.raises(KeyError) as own:
+        module.own()
+    said = plugins.plugin_failure(own.value)
+    assert said == f"the plugin caller.py failed at caller.py:{line} in own: KeyError: 'missing'"
+    with pytest.raises(ValueError) as inner:
+        module.into_jaxapf()
+    assert plugins.plugin_failure(inner.value) is None
+    assert plugins.plugin_failure(ValueError("no frames")) is None
+    # raised in a worker process: the parent's error carries the worker's traceback as text
+    remote = RuntimeError("boom")
+    text = f'Traceback:\n  File "{path}", line {line}, in own\n    x\nRuntimeError: boom'
+    remote.__cause__ = cfp._RemoteTraceback(text)
+    said = plugins.plugin_failure(remote)
+    assert said == f"the plugin caller.py failed at caller.py:{line} in own: RuntimeError: boom"

@@ -135,18 +135,11 @@ def identity() -> dict[str, str]:
 def stored_identity(card: Scorecard) -> dict[str, str]:
     """The engine that made the stored zoo (``identity.json``), refused in one line where it is missing or
     damaged, or where the zoo was scored under another digest than the card's (its protocol changed since)."""
-    from ..io.names import read_own
-
     path = card.folder / "identity.json"
     again = f"score the zoo again (jaxapf scorecard {card.option} --rescore)"
     if not path.is_file():
         raise ConfigError(f"scorecard {card.version}: no {path.name} beside its stored episodes; {again}")
-    try:
-        kept = json.loads(read_own(path).decode("utf-8"))
-        if not isinstance(kept, dict):
-            raise ValueError("not a JSON object")
-    except (OSError, ValueError, RecursionError) as err:
-        raise ConfigError(f"scorecard {card.version}: {path} is damaged ({first_line(err)}); {again}") from None
+    kept = _read_record(path, f"scorecard {card.version}: ", again)
     if kept.get("digest") != card.digest:
         raise ConfigError(f"scorecard {card.version}: the stored zoo was scored under digest "
                           f"{str(kept.get('digest'))[:12]}…, the card's is {card.digest[:12]}… (its protocol "
@@ -211,11 +204,25 @@ def store_leaderboard(card: Scorecard) -> Board:
     (``leaderboard.md``, ``.html``, ``.csv``) with its numbers by name (``facts.json``)."""
     from ..io.lock import write_atomic
 
-    board = leaderboard(stored_episodes(card), None, spent=stored_selections(card))
+    spent = stored_selections(card)
+    board = leaderboard(stored_episodes(card), None, spent=spent)
     write_leaderboard(card, board, None, card.folder)
-    found = json.dumps(facts(card, board), indent=1, sort_keys=True, allow_nan=False) + "\n"
+    found = json.dumps(facts(card, board, spent), indent=1, sort_keys=True, allow_nan=False) + "\n"
     write_atomic(card.folder / "facts.json", lambda fh: fh.write(found.encode()))
     return board
+
+
+def _read_record(path: pathlib.Path, who: str, advice: str) -> dict[str, Any]:
+    """An identity record (a JSON object), or :class:`ConfigError` in one line saying it is damaged and ``advice``."""
+    from ..io.names import read_own
+
+    try:
+        kept = json.loads(read_own(path).decode("utf-8"))
+        if not isinstance(kept, dict):
+            raise ValueError("not a JSON object")
+    except (OSError, ValueError, RecursionError) as err:
+        raise ConfigError(f"{who}{path} is damaged ({first_line(err)}); {advice}") from None
+    return kept
 
 
 def stored_selections(card: Scorecard) -> list[Any]:
@@ -266,7 +273,8 @@ def check_drift(card: Scorecard, *, quiet: bool = True) -> str:
                    for c in ("success", "collision", "stalled") if c in both.columns and c in now.columns)
     a, b = both["min_clearance"].to_numpy(np.float64), now["min_clearance"].to_numpy(np.float64)
     finite = np.isfinite(a) & np.isfinite(b)
-    gap = math.inf if (np.isfinite(a) != np.isfinite(b)).any() else float(np.max(np.abs(a - b)[finite], initial=0.0))
+    alike = all((f(a) == f(b)).all() for f in (np.isnan, np.isposinf, np.isneginf))  # undefined where it was
+    gap = float(np.max(np.abs(a - b)[finite], initial=0.0)) if alike else math.inf
     what = ", ".join(f"{k} {_short(x)} -> {_short(y)}" for k, (x, y) in changed.items())
     if outcomes or gap > AGREE:
         raise DriftError(f"scorecard {card.version}: the engine changed ({what}) and {len(now)} re-flown stored "
@@ -312,11 +320,11 @@ def _finite(v: Any) -> float | None:
     return float(v) if math.isfinite(float(v)) else None
 
 
-def facts(card: Scorecard, board: Board) -> dict[str, Any]:
+def facts(card: Scorecard, board: Board, spent: Sequence[Any] = ()) -> dict[str, Any]:
     """The zoo's leaderboard as named facts (``facts.json`` beside the card, which the README binds): per member
     its rank, success, collision and median clearance with their intervals over the seeds, test episodes,
-    selection episodes and seconds, and per-family success and collision; the identical members and the
-    selection ties."""
+    selection episodes and seconds, and per-family success and collision; the identical members, the selection
+    ties and the hours every selection (``spent``) took together."""
     table = board.table.set_index("method")
     numbers = ("success", "success_lo", "success_hi", "collision", "collision_lo", "collision_hi",
                "clearance_median", "clearance_median_lo", "clearance_median_hi", "selection_episodes",
@@ -329,7 +337,8 @@ def facts(card: Scorecard, board: Board) -> dict[str, Any]:
                for key, per in (("family_success", board.families.set_index("method")),
                                 ("family_collision", board.collisions.set_index("method")))},
             "identical": [f"{a} and {b}" for a, b in board.identical],
-            "selection_ties": [f"seed {s}: {a} and {b}" for s, a, b in board.ties]}
+            "selection_ties": [f"seed {s}: {a} and {b}" for s, a, b in board.ties],
+            "selection_hours": sum(float(x.seconds) for x in spent) / 3600.0}
 
 
 @dataclasses.dataclass
@@ -460,7 +469,7 @@ def board_frames(board: Board, name: str | None) -> tuple[pd.DataFrame, pd.DataF
                     if r.method != name else None)
             for metric in ("success", "collision"):
                 row[f"{name} − it: Δ {metric} pp"] = _cell(mine.loc[metric]) if mine is not None else "–"
-            row[f"{name} − it: Δ median clearance m (exploratory)"] = (
+            row[f"{name} − it: clearance shift m (exploratory)"] = (
                 _cell(mine.loc["min_clearance"], 1.0, 3) if mine is not None and "min_clearance" in mine.index else "–")
             row["MDE success pp"] = _num(mine.loc["success", "mde"]) if mine is not None else "–"
         shown.append(row)
@@ -544,10 +553,10 @@ def score_method(card: Scorecard, method: str, out: str | pathlib.Path, *, name:
 
 def claim(out: pathlib.Path) -> dict[str, Any]:
     """The engine and plugins that fly into ``out`` (``out/identity.json``: :func:`identity` and each plugin's
-    sha256): recorded by the first run; a run with another engine or an edited plugin is refused in one line, so
-    that no selection or test part of two engines, or of two versions of a plugin, is ever mixed."""
+    sha256): recorded by the first run; a run with another engine, or with a recorded plugin edited or missing, is
+    refused in one line, so that no selection or test part of two engines, or of two versions of a plugin, is ever
+    mixed (a plugin loaded beside them is no change)."""
     from ..io.lock import write_atomic
-    from ..io.names import read_own
     from ..spec.plugins import plugin_digests
 
     here = identity() | {"plugins": plugin_digests()}
@@ -555,16 +564,10 @@ def claim(out: pathlib.Path) -> dict[str, Any]:
     if not path.is_file():
         write_atomic(path, lambda fh: fh.write((json.dumps(here, indent=1) + "\n").encode()))
         return here
-    try:
-        kept = json.loads(read_own(path).decode("utf-8"))
-        if not isinstance(kept, dict):
-            raise ValueError("not a JSON object")
-    except (OSError, ValueError, RecursionError) as err:
-        raise ConfigError(f"{path} is damaged ({first_line(err)}); remove {out} to fly again") from None
+    kept = _read_record(path, "", f"remove {out} to fly again")
     plugins = kept.get("plugins") if isinstance(kept.get("plugins"), dict) else {}
     changed = [k for k in here if k != "plugins" and kept.get(k) != here[k]]
-    changed += [f"plugin {n}" for n in sorted(set(plugins) | set(here["plugins"]))
-                if plugins.get(n) != here["plugins"].get(n)]
+    changed += [f"plugin {pathlib.Path(n).name}" for n in sorted(plugins) if plugins[n] != here["plugins"].get(n)]
     if changed:
         raise ConfigError(f"{out} holds what another engine or plugin flew ({', '.join(changed)} changed): score "
                           f"into a new --out, or remove {out} to fly again")

@@ -44,7 +44,9 @@ def source_digest() -> str:
     root = pathlib.Path(__file__).resolve().parents[1]
     h = hashlib.sha256()
     for path in sorted(root.rglob("*.py")):
-        h.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
+        name = path.relative_to(root)
+        if path.is_file() and not any(part.startswith(".") for part in name.parts):  # not an editor's lock or backup
+            h.update(name.as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
     return h.hexdigest()
 
 

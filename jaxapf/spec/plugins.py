@@ -14,6 +14,7 @@ import importlib
 import importlib.util
 import os
 import pathlib
+import re
 import sys
 from types import ModuleType
 from typing import Any, Sequence
@@ -97,38 +98,70 @@ def _sources() -> list[tuple[str, str | None]]:
             for name, path in LOADED]
 
 
+def _key(name: str, source: str | None) -> str:
+    """How a plugin is known across runs: a ``.py`` file by its real path, a module by its name."""
+    return os.path.realpath(source) if name.endswith(".py") and source else name
+
+
 def plugin_digests() -> dict[str, str]:
-    """The sha256 of every plugin this process imported, by name (``-`` for a module without a file of its own), so
-    that what was flown with an edited plugin is told apart."""
+    """The sha256 of every plugin this process imported (``-`` for a module without a file of its own), keyed by
+    its real path (a module: its name), so that what was flown with an edited plugin is told apart."""
     import hashlib
 
     found = {}
     for name, source in _sources():
         try:
-            found[name] = hashlib.sha256(pathlib.Path(source).read_bytes()).hexdigest() if source else "-"
+            digest = hashlib.sha256(pathlib.Path(source).read_bytes()).hexdigest() if source else "-"
         except OSError:
-            found[name] = "-"
+            digest = "-"
+        found[_key(name, source)] = digest
     return found
 
 
-def plugin_failure(err: BaseException) -> str | None:
-    """``the plugin P failed at FILE:LINE in FUNC: TYPE: message`` where ``err`` (or what caused it) was raised
-    through the code of a plugin this process imported (its innermost frame there), else None: a failure of
-    jaxapf's own, whose traceback is kept for a bug report."""
+#: A frame of a traceback another process formatted (``concurrent.futures``' remote traceback).
+_REMOTE_FRAME = re.compile(r'File "(?P<file>[^"]+)", line (?P<line>\d+), in (?P<func>\S+)')
+
+
+def _frames(err: BaseException) -> list[tuple[str, int, str]]:
+    """``(file, line, function)`` of each frame ``err`` was raised through, outermost first; a remote traceback's
+    from its text."""
     import traceback
 
-    files = {os.path.realpath(source): pathlib.Path(source).name if name.endswith(".py") else name
-             for name, source in _sources() if source}
-    seen, cause = set(), err
+    if type(err).__name__ == "_RemoteTraceback":
+        return [(m["file"], int(m["line"]), m["func"]) for m in _REMOTE_FRAME.finditer(str(err))]
+    return [(f.f_code.co_filename, line, f.f_code.co_name) for f, line in traceback.walk_tb(err.__traceback__)]
+
+
+def plugin_failure(err: BaseException) -> str | None:
+    """``the plugin P failed at FILE:LINE in FUNC: TYPE: message`` where ``err`` (or the error it was raised from,
+    in this process or in a worker's) failed in a plugin's own code: the deepest of its frames in jaxapf or a plugin
+    this process imported is the plugin's. Else None: a failure of jaxapf's own (a plugin calling it included),
+    whose traceback is kept for a bug report."""
+    package = os.path.dirname(os.path.dirname(os.path.realpath(__file__))) + os.sep
+    files, folders = {}, {}
+    for name, source in _sources():
+        if not source:
+            continue
+        shown = pathlib.Path(source).name if name.endswith(".py") else name
+        files[os.path.realpath(source)] = shown
+        if pathlib.Path(source).name == "__init__.py":  # a package: every file under it
+            folders[os.path.dirname(os.path.realpath(source)) + os.sep] = shown
+    shown_err, cause, seen = err, err, set()
     while cause is not None and id(cause) not in seen:
         seen.add(id(cause))
-        found = None
-        for frame, line in traceback.walk_tb(cause.__traceback__):
-            where = os.path.realpath(frame.f_code.co_filename)
-            if where in files:
-                found = (files[where], pathlib.Path(where).name, line, frame.f_code.co_name)
-        if found is not None:
-            name, file, line, func = found
-            return f"the plugin {name} failed at {file}:{line} in {func}: {type(err).__name__}: {first_line(err)}"
-        cause = cause.__cause__ or cause.__context__
+        deepest = None
+        for file, line, func in _frames(cause):
+            where = os.path.realpath(file)
+            owner = files.get(where) or next((n for d, n in folders.items() if where.startswith(d)), None)
+            if owner is not None:
+                deepest = (owner, pathlib.Path(where).name, line, func)
+            elif where.startswith(package):
+                deepest = None  # jaxapf's own code, deeper than any plugin frame so far
+        if deepest is not None:
+            name, file, line, func = deepest
+            return (f"the plugin {name} failed at {file}:{line} in {func}: {type(shown_err).__name__}: "
+                    f"{first_line(shown_err)}")
+        if type(cause.__cause__).__name__ != "_RemoteTraceback":
+            shown_err = cause.__cause__
+        cause = cause.__cause__
     return None

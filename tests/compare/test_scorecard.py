@@ -73,6 +73,7 @@ def test_the_zoos_facts_are_its_leaderboard(zoo, again):
         assert found["selection_episodes"][m] == card.spec.selection.budget
     sel = pd.read_csv(card.folder / "selection.csv")
     assert (sel["episodes"] == card.spec.selection.budget).all()
+    assert found["selection_hours"] == pytest.approx(sel["seconds"].sum() / 3600, rel=1e-12)
     assert found["identical"] == [] and isinstance(found["selection_ties"], list)
 
 
@@ -98,7 +99,7 @@ def test_the_leaderboard_is_the_stored_episodes_recomputed(zoo, again):
     assert row["discordant"] == f"b={b}, c={c}" and row["n_pairs"] == len(base)
     md = (root / "again" / "leaderboard.md").read_text()
     assert f"digest {card.digest}" in md and "basic_again (new)" in md and "at " in md
-    assert "## Collision per family (%)" in md and "Δ median clearance m (exploratory)" in md
+    assert "## Collision per family (%)" in md and "clearance shift m (exploratory)" in md
 
 
 def test_a_stored_part_edited_by_hand_is_refused_in_one_line(zoo, tmp_path, capsys):
@@ -281,10 +282,9 @@ def test_a_zoo_of_another_digest_or_a_damaged_identity_is_refused_in_one_line(zo
         assert len(err) == 1 and said in err[0] and f"jaxapf scorecard --card {folder} --rescore" in err[0]
 
 
-def test_an_output_folder_flown_by_another_engine_or_plugin_is_refused_not_mixed(zoo, again, tmp_path):
-    """What a scored method's folder holds was flown by one engine and one version of each plugin (its
-    identity.json): a second run there with either changed stops in one line before anything flies, instead of
-    pairing old selections or test parts with new ones."""
+def test_an_output_folder_flown_by_another_engine_is_refused_not_mixed(zoo, again, tmp_path):
+    """What a scored method's folder holds was flown by one engine (its identity.json): a second run there with
+    another stops in one line before anything flies, instead of pairing old selections or test parts with new."""
     from jaxapf.validation import ConfigError
 
     card, root = zoo
@@ -292,12 +292,10 @@ def test_an_output_folder_flown_by_another_engine_or_plugin_is_refused_not_mixed
     shutil.copytree(root / "again", out)
     kept = json.loads((out / "identity.json").read_text())
     assert kept["source"] and isinstance(kept["plugins"], dict) and kept["processor"]
-    for edit, said in (({"source": "0" * 64}, "(source changed)"), ({"plugins": {"mine.py": "0" * 64}},
-                                                                   "(plugin mine.py changed)")):
-        (out / "identity.json").write_text(json.dumps(kept | edit))
-        with pytest.raises(ConfigError, match=re.escape(said)) as err:
-            score_method(card, "basic", out, name="basic_again", quiet=True, resamples=200)
-        assert "new --out" in str(err.value) and "\n" not in str(err.value)
+    (out / "identity.json").write_text(json.dumps(kept | {"source": "0" * 64}))
+    with pytest.raises(ConfigError, match=re.escape("(source changed)")) as err:
+        score_method(card, "basic", out, name="basic_again", quiet=True, resamples=200)
+    assert "new --out" in str(err.value) and "\n" not in str(err.value)
 
 
 def test_a_gain_of_the_scored_method_alone_draws_from_its_own_stream():
@@ -325,3 +323,25 @@ def test_a_gain_of_the_scored_method_alone_draws_from_its_own_stream():
             v = np.random.default_rng([2, zlib.crc32(g.encode())]).uniform(size=sel.candidates - 1)[j]
             assert values[g] == pytest.approx(float(ranges[g].sample(np.array([v]))[0]), rel=1e-12)
     assert card.for_method("basic").selection.added == ()  # a member draws what the zoo drew
+
+
+def test_a_folder_is_claimed_by_its_engine_and_recorded_plugins(tmp_path, monkeypatch):
+    """claim: the first run records the engine and each plugin's sha256; a later one with the same, or with a
+    plugin loaded beside them, goes on; an edited or missing recorded plugin, or another engine, is refused."""
+    import jaxapf.spec.plugins as plugins
+    from jaxapf.compare.scorecard import claim
+    from jaxapf.validation import ConfigError
+
+    monkeypatch.setattr(plugins, "plugin_digests", lambda: {"/p/mine.py": "a" * 64})
+    first = claim(tmp_path)
+    assert claim(tmp_path) == first
+    monkeypatch.setattr(plugins, "plugin_digests", lambda: {"/p/mine.py": "a" * 64, "/p/other.py": "b" * 64})
+    claim(tmp_path)  # a plugin beside the recorded one changes nothing recorded
+    for now, said in (({"/p/mine.py": "c" * 64}, "(plugin mine.py changed)"), ({}, "(plugin mine.py changed)")):
+        monkeypatch.setattr(plugins, "plugin_digests", lambda now=now: now)
+        with pytest.raises(ConfigError, match=re.escape(said)):
+            claim(tmp_path)
+    monkeypatch.setattr(plugins, "plugin_digests", lambda: {"/p/mine.py": "a" * 64})
+    (tmp_path / "identity.json").write_text(json.dumps(first | {"jaxlib": "0.0.elsewhere"}))
+    with pytest.raises(ConfigError, match=re.escape("(jaxlib changed)")):
+        claim(tmp_path)
