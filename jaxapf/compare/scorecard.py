@@ -85,6 +85,11 @@ class Scorecard:
         shipped = self.folder.resolve() == (SCORECARDS / self.version).resolve()
         return f"--card {self.version}" if shipped else f"--card {self.folder}"
 
+    @property
+    def again(self) -> str:
+        """What to do where the stored zoo cannot be used: the command that scores it again."""
+        return f"score the zoo again (jaxapf scorecard {self.option} --rescore)"
+
     def for_method(self, method: str) -> CompareSpec:
         """The scorecard's protocol with ``method`` beside the zoo: the same selection (families, seeds, budget,
         candidates, the zoo's default search) and test, the gains it reads searched (the card's frozen
@@ -136,14 +141,13 @@ def stored_identity(card: Scorecard) -> dict[str, str]:
     """The engine that made the stored zoo (``identity.json``), refused in one line where it is missing or
     damaged, or where the zoo was scored under another digest than the card's (its protocol changed since)."""
     path = card.folder / "identity.json"
-    again = f"score the zoo again (jaxapf scorecard {card.option} --rescore)"
     if not path.is_file():
-        raise ConfigError(f"scorecard {card.version}: no {path.name} beside its stored episodes; {again}")
-    kept = _read_record(path, f"scorecard {card.version}: ", again)
+        raise ConfigError(f"scorecard {card.version}: no {path.name} beside its stored episodes; {card.again}")
+    kept = _read_record(path, f"scorecard {card.version}: ", card.again)
     if kept.get("digest") != card.digest:
         raise ConfigError(f"scorecard {card.version}: the stored zoo was scored under digest "
                           f"{str(kept.get('digest'))[:12]}…, the card's is {card.digest[:12]}… (its protocol "
-                          f"changed since); {again}")
+                          f"changed since); {card.again}")
     return kept
 
 
@@ -229,14 +233,13 @@ def stored_selections(card: Scorecard) -> list[Any]:
     """The zoo's selections (``selection.csv`` beside the card), refused in one line where it is missing or
     unreadable."""
     stored = card.folder / "selection.csv"
-    again = f"score the zoo again (jaxapf scorecard {card.option} --rescore)"
     if not stored.is_file():
-        raise ConfigError(f"scorecard {card.version}: no {stored.name} beside its stored episodes; {again}")
+        raise ConfigError(f"scorecard {card.version}: no {stored.name} beside its stored episodes; {card.again}")
     try:
         return read_selections(card.spec, stored)
     except (OSError, ValueError, KeyError, TypeError) as err:
         raise ConfigError(f"scorecard {card.version}: {stored} cannot be read ({type(err).__name__}: "
-                          f"{first_line(err)}); {again}") from None
+                          f"{first_line(err)}); {card.again}") from None
 
 
 def check_drift(card: Scorecard, *, quiet: bool = True) -> str:
@@ -258,7 +261,7 @@ def check_drift(card: Scorecard, *, quiet: bool = True) -> str:
     chosen = [s for s in stored_selections(card) if s.method == member and s.seed == seed]
     if not chosen:
         raise ConfigError(f"scorecard {card.version}: its selection.csv holds no selection of {member}, seed {seed}; "
-                          f"score the zoo again (jaxapf scorecard {card.option} --rescore)")
+                          + card.again)
     sample = dataclasses.replace(card.spec, methods=(member,), baseline=member,
                                  test=dataclasses.replace(card.spec.test, fields=SAMPLE_FIELDS))
     with tempfile.TemporaryDirectory() as tmp:  # never a sample another engine flew
