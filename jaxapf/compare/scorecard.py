@@ -242,11 +242,13 @@ def stored_selections(card: Scorecard) -> list[Any]:
                           f"{first_line(err)}); {card.again}") from None
 
 
-def check_drift(card: Scorecard, *, quiet: bool = True) -> str:
+def check_drift(card: Scorecard, *, quiet: bool = True, zoo: pd.DataFrame | None = None,
+                selections: Sequence[Any] | None = None) -> str:
     """``"same engine"`` where this engine's identity is the stored results' (:func:`stored_identity`); else a
     sample of the stored episodes (:data:`SAMPLE_FIELDS` fields of every family, the first member, its first
     seed's selection) flown again, in a temporary folder, and compared: every outcome equal, every clearance
-    within :data:`AGREE`. What was found, or :class:`DriftError` in one line."""
+    within :data:`AGREE`. What was found, or :class:`DriftError` in one line. ``zoo``, ``selections``: the stored
+    episodes and selections where the caller has read them already."""
     import tempfile
 
     from ..sweep import read_sweep, run_sweep
@@ -256,9 +258,10 @@ def check_drift(card: Scorecard, *, quiet: bool = True) -> str:
     changed = {k: (kept.get(k), v) for k, v in here.items() if kept.get(k) != v}
     if not changed:
         return "same engine"
-    zoo = stored_episodes(card)
+    zoo = stored_episodes(card) if zoo is None else zoo
     member, seed = card.spec.methods[0], card.spec.selection.seeds[0]
-    chosen = [s for s in stored_selections(card) if s.method == member and s.seed == seed]
+    selections = stored_selections(card) if selections is None else selections
+    chosen = [s for s in selections if s.method == member and s.seed == seed]
     if not chosen:
         raise ConfigError(f"scorecard {card.version}: its selection.csv holds no selection of {member}, seed {seed}; "
                           + card.again)
@@ -543,12 +546,13 @@ def score_method(card: Scorecard, method: str, out: str | pathlib.Path, *, name:
                           "otherwise (--name)")
     with writing(out, "finished selections and test parts are kept"):
         claim(out)
-        drift = check_drift(card)
+        stored = stored_selections(card)
+        drift = check_drift(card, zoo=zoo, selections=stored)
         if not quiet:
             print(f"scorecard {card.version}: {drift}", file=sys.stderr)
         new, _, chosen = _fly(spec, [method], out, quiet)
         new = new[new["member"] == method]
-        spent = [*stored_selections(card), *(dataclasses.replace(x, method=name) for x in chosen)]
+        spent = [*stored, *(dataclasses.replace(x, method=name) for x in chosen)]
         board = leaderboard(zoo, new, name, resamples, spent)
         write_leaderboard(card, board, name, out)
     return board
