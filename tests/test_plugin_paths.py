@@ -171,6 +171,10 @@ def own():
     return {}["missing"]  # OWN LINE
 
 
+def unreadable(args):
+    raise OSError("the calibration table is not there")  # OSERROR LINE
+
+
 def into_jaxapf():
     return seed_interval([1.0, 2.0], confidence=5.0)
 """
@@ -206,3 +210,20 @@ def test_a_plugins_own_failure_is_told_from_jaxapfs_called_by_a_plugin(tmp_path,
     remote.__cause__ = cfp._RemoteTraceback(text)
     said = plugins.plugin_failure(remote)
     assert said == f"the plugin caller.py failed at caller.py:{line} in own: RuntimeError: boom"
+    # a Ray task's error: the worker's traceback as text, the error it raised as its cause
+    ray = pytest.importorskip("ray")
+    task = ray.exceptions.RayTaskError("ChunkWorker.run", text, RuntimeError("boom"))
+    assert plugins.plugin_failure(task) == said
+    assert plugins.plugin_failure(task.as_instanceof_cause()) == said  # what ray.get raises: also a RuntimeError
+    assert plugins.plugin_failure(ray.exceptions.RayTaskError("ChunkWorker.run", "Traceback:\n", KeyError(1))) is None
+    # the command line: a plugin's OSError that is not the system's (no errno) is the plugin's line, no traceback
+    from cli_capture import capture
+
+    import jaxapf.cli.commands as commands
+
+    monkeypatch.setattr(commands, "_list", module.unreadable)
+    rc, _, stderr = capture(commands.main, ["list", "planners"])
+    at = next(i for i, text in enumerate(CALLER.splitlines(), 1) if "# OSERROR LINE" in text)
+    assert rc == 2 and stderr.strip() == (f"jaxapf list: error: the plugin caller.py failed at caller.py:{at} in "
+                                          "unreadable: OSError: the calibration table is not there; "
+                                          + commands._KEPT["list"]), stderr

@@ -791,17 +791,15 @@ def _main(argv: list[str], running: list[str]) -> int:
     except MemoryError:
         print(f"jaxapf {command}: error: out of memory; {_KEPT[args.command]}", file=sys.stderr)
         return 2
-    except OSError as err:  # the system refused (a full disk, a lost mount, permissions): one line, what was kept
-        if err.errno is None:
-            raise
-        import errno
+    except Exception as err:  # the system refused, or a plugin's own code failed: one line; a bug keeps its traceback
+        if isinstance(err, OSError) and err.errno is not None:  # a full disk, a lost mount, permissions
+            import errno
 
-        full = " (the file system is full)" if err.errno in (errno.ENOSPC, errno.EDQUOT) else ""
-        where = f"{err.filename}: " if err.filename else ""
-        print(f"jaxapf {command}: error: {where}{err.strerror or first_line(err)}{full}; {_KEPT[args.command]}",
-              file=sys.stderr)
-        return 2
-    except Exception as err:  # a plugin's own code failed: one line saying where; a bug of jaxapf keeps its traceback
+            full = " (the file system is full)" if err.errno in (errno.ENOSPC, errno.EDQUOT) else ""
+            where = f"{err.filename}: " if err.filename else ""
+            print(f"jaxapf {command}: error: {where}{err.strerror or first_line(err)}{full}; {_KEPT[args.command]}",
+                  file=sys.stderr)
+            return 2
         failed = plugin_failure(err)
         if failed is None:
             raise

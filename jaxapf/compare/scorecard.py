@@ -243,18 +243,18 @@ def stored_selections(card: Scorecard) -> list[Any]:
 
 
 def check_drift(card: Scorecard, *, quiet: bool = True, zoo: pd.DataFrame | None = None,
-                selections: Sequence[Any] | None = None) -> str:
+                selections: Sequence[Any] | None = None, engine: dict[str, Any] | None = None) -> str:
     """``"same engine"`` where this engine's identity is the stored results' (:func:`stored_identity`); else a
     sample of the stored episodes (:data:`SAMPLE_FIELDS` fields of every family, the first member, its first
     seed's selection) flown again, in a temporary folder, and compared: every outcome equal, every clearance
-    within :data:`AGREE`. What was found, or :class:`DriftError` in one line. ``zoo``, ``selections``: the stored
-    episodes and selections where the caller has read them already."""
+    within :data:`AGREE`. What was found, or :class:`DriftError` in one line. ``zoo``, ``selections``, ``engine``:
+    the stored episodes and selections and this engine's :func:`identity` where the caller has them already."""
     import tempfile
 
     from ..sweep import read_sweep, run_sweep
 
     kept = stored_identity(card)
-    here = identity()
+    here = {k: v for k, v in (engine or identity()).items() if k != "plugins"}  # the zoo flew no plugin
     changed = {k: (kept.get(k), v) for k, v in here.items() if kept.get(k) != v}
     if not changed:
         return "same engine"
@@ -545,9 +545,9 @@ def score_method(card: Scorecard, method: str, out: str | pathlib.Path, *, name:
         raise ConfigError(f"--name {name}: a zoo member of scorecard {card.version} has that name; name the row "
                           "otherwise (--name)")
     with writing(out, "finished selections and test parts are kept"):
-        claim(out)
+        engine = claim(out)
         stored = stored_selections(card)
-        drift = check_drift(card, zoo=zoo, selections=stored)
+        drift = check_drift(card, zoo=zoo, selections=stored, engine=engine)
         if not quiet:
             print(f"scorecard {card.version}: {drift}", file=sys.stderr)
         new, _, chosen = _fly(spec, [method], out, quiet)

@@ -38,15 +38,19 @@ def versions() -> dict[str, str]:
     }
 
 
-def source_digest() -> str:
-    """sha256 of jaxapf's Python source (every ``.py`` file of the package, by relative path): an edit the
-    version number does not show still changes what flies."""
-    root = pathlib.Path(__file__).resolve().parents[1]
+def source_digest(root: pathlib.Path | None = None) -> str:
+    """sha256 of jaxapf's Python source (every ``.py`` file of the package, or of ``root``, by relative path; not
+    a dot-file): an edit the version number does not show still changes what flies."""
+    root = pathlib.Path(__file__).resolve().parents[1] if root is None else root
     h = hashlib.sha256()
     for path in sorted(root.rglob("*.py")):
         name = path.relative_to(root)
         if path.is_file() and not any(part.startswith(".") for part in name.parts):  # not an editor's lock or backup
-            h.update(name.as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
+            h.update(name.as_posix().encode() + b"\0")
+            with open(path, "rb") as fh:  # in blocks: a file linked here may be of any size
+                while block := fh.read(1 << 20):
+                    h.update(block)
+            h.update(b"\0")
     return h.hexdigest()
 
 

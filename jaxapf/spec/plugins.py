@@ -124,21 +124,31 @@ def plugin_digests() -> dict[str, str]:
 _REMOTE_FRAME = re.compile(r'File "(?P<file>[^"]+)", line (?P<line>\d+), in (?P<func>\S+)')
 
 
+def _remote_text(err: BaseException) -> str | None:
+    """The traceback another process formatted for ``err``: ``concurrent.futures``' remote traceback, or a Ray
+    task's error (its worker's traceback); None for an error raised here."""
+    if type(err).__name__ == "_RemoteTraceback":
+        return str(err)
+    ray_task = any(c.__name__ == "RayTaskError" for c in type(err).__mro__)  # its text: the worker's traceback
+    return str(err) if ray_task and isinstance(getattr(err, "cause", None), BaseException) else None
+
+
 def _frames(err: BaseException) -> list[tuple[str, int, str]]:
     """``(file, line, function)`` of each frame ``err`` was raised through, outermost first; a remote traceback's
     from its text."""
     import traceback
 
-    if type(err).__name__ == "_RemoteTraceback":
-        return [(m["file"], int(m["line"]), m["func"]) for m in _REMOTE_FRAME.finditer(str(err))]
+    text = _remote_text(err)
+    if text is not None:
+        return [(m["file"], int(m["line"]), m["func"]) for m in _REMOTE_FRAME.finditer(text)]
     return [(f.f_code.co_filename, line, f.f_code.co_name) for f, line in traceback.walk_tb(err.__traceback__)]
 
 
 def plugin_failure(err: BaseException) -> str | None:
     """``the plugin P failed at FILE:LINE in FUNC: TYPE: message`` where ``err`` (or the error it was raised from,
-    in this process or in a worker's) failed in a plugin's own code: the deepest of its frames in jaxapf or a plugin
-    this process imported is the plugin's. Else None: a failure of jaxapf's own (a plugin calling it included),
-    whose traceback is kept for a bug report."""
+    in this process or in a worker's, a Ray task's included) failed in a plugin's own code: the deepest of its
+    frames in jaxapf or a plugin this process imported is the plugin's. Else None: a failure of jaxapf's own (a
+    plugin calling it included), whose traceback is kept for a bug report."""
     package = os.path.dirname(os.path.dirname(os.path.realpath(__file__))) + os.sep
     files, folders = {}, {}
     for name, source in _sources():
@@ -151,6 +161,8 @@ def plugin_failure(err: BaseException) -> str | None:
     shown_err, cause, seen = err, err, set()
     while cause is not None and id(cause) not in seen:
         seen.add(id(cause))
+        if _remote_text(cause) is not None and type(cause).__name__ != "_RemoteTraceback":
+            shown_err = cause.cause  # a Ray task's error: the exception the worker raised
         deepest = None
         for file, line, func in _frames(cause):
             where = os.path.realpath(file)

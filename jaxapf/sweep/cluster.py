@@ -243,6 +243,7 @@ class RaySession:
         worker dies its chunks go back to the queue (each at most ``retries`` times) and it gets chunks
         again once Ray has restarted it. A chunk's own exception, or a chunk dead ``retries + 1``
         times, raises :class:`~jaxapf.sweep.execute.ChunkFailed`."""
+        from ..spec.plugins import plugin_failure
         from .execute import ChunkFailed
 
         ray = self.ray
@@ -287,8 +288,10 @@ class RaySession:
                 if worker not in self.starting.values():
                     self.starting[worker.probe.remote()] = worker  # chunks again once Ray has restarted it
                 continue
-            except ray.exceptions.RayError as err:
-                raise ChunkFailed(f"chunk {chunk.name} failed on the Ray cluster ({_reason(err)})") from None
+            except ray.exceptions.RayError as err:  # the chunk's own error; a plugin's says where it failed
+                said = plugin_failure(err)
+                raise ChunkFailed(f"chunk {chunk.name} failed on the Ray cluster"
+                                  + (f": {said}" if said else f" ({_reason(err)})")) from None
             free.append(worker)
             yield finished
 

@@ -136,6 +136,12 @@ def test_a_changed_engine_flies_a_sample_again_and_pairs_only_if_it_agrees(zoo, 
     said = check_drift(moved)
     assert said.startswith("engine changed (jax 0.0.elsewhere -> ") and "agree" in said
     assert check_drift(card) == "same engine"
+    # the identity a scored folder's claim recorded serves (its plugins aside: the zoo flew none)
+    from jaxapf.compare.scorecard import identity
+
+    assert check_drift(card, engine=identity() | {"plugins": {"/x/mine.py": "0" * 64}}) == "same engine"
+    said = check_drift(card, engine=identity() | {"jax": "0.0.elsewhere"})  # the engine as given
+    assert said.startswith("engine changed (jax ") and "-> 0.0.elsewhere)" in said and "agree" in said
     # stored episodes another engine made differently: the sample disagrees, one line says how to rescore
     from jaxapf.sweep import read_sweep
     from jaxapf.sweep.output import write_rows

@@ -183,3 +183,29 @@ def test_every_file_the_package_reads_goes_through_jaxapf_io(repo_root):
         if (reads or opens) and not checked:
             found.append(f"{rel}:{node.lineno} {name}")
     assert found == [], "read through jaxapf.io.names.open_read or read_own: " + ", ".join(found)
+
+
+def test_the_source_digest_is_every_py_file_by_name_and_nothing_else(tmp_path):
+    """identity()'s source digest (jaxapf.io.versions.source_digest): sha256 over each ``.py`` file's relative path
+    and bytes in name order, a linked one read through; an editor's dot-file or a FIFO adds nothing (and never
+    blocks); an edit changes it."""
+    import hashlib
+
+    from jaxapf.io.versions import source_digest
+
+    pkg = tmp_path / "pkg"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "a.py").write_text("x = 1\n")
+    (pkg / "sub" / "b.py").write_text("y = 2\n")
+    big = tmp_path / "big.bin"
+    big.write_bytes(os.urandom(3 << 20))
+    (pkg / "sub" / "c.py").symlink_to(big)
+    expect = hashlib.sha256(b"a.py\0x = 1\n\0sub/b.py\0y = 2\n\0sub/c.py\0" + big.read_bytes() + b"\0").hexdigest()
+    assert source_digest(pkg) == expect
+    (pkg / ".#a.py").write_text("an editor's lock")
+    (pkg / ".hidden").mkdir()
+    (pkg / ".hidden" / "d.py").write_text("z = 3\n")
+    os.mkfifo(pkg / "f.py")
+    assert source_digest(pkg) == expect
+    (pkg / "a.py").write_text("x = 2\n")
+    assert source_digest(pkg) != expect

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import pathlib
+import re
 import signal
 import subprocess
 import sys
@@ -109,6 +110,24 @@ def test_the_cli_runs_on_a_cluster_at_its_address(cluster, reference, tmp_path):
     pd.testing.assert_frame_equal(read_sweep(out)[0], reference)
     again = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
     assert again.returncode == 0 and f"0 episodes ({len(reference)} already done)" in again.stdout
+
+
+@pytest.mark.slow
+def test_a_plugins_own_failure_on_a_worker_is_one_line_saying_where(cluster, tmp_path):
+    """A plugin planner whose own code fails while a worker traces it: the driver's line names the plugin, its
+    file, line and function (the worker's traceback, which Ray sends as text), and what was kept."""
+    from test_extending import BROKEN, MISTAKES
+
+    spec = tmp_path / "broken.toml"
+    spec.write_text(f'name = "m"\nplugins = ["{MISTAKES}"]\n[scenario]\nfamilies = ["trap"]\nfields = 2\n'
+                    '[sim]\nt_max = 0.5\nhorizon = 3\niters = 2\nmethod = "broken"\n')
+    cmd = [sys.executable, "-m", "jaxapf", "sweep", str(spec), "--out", str(tmp_path / "out"), "--quiet",
+           "--cache-dir", str(tmp_path / "xla"), "--ray", cluster]
+    run = subprocess.run(cmd, env={**os.environ, "JAX_PLATFORMS": "cpu"}, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 2 and run.stderr.count("\n") == 1 and "Traceback" not in run.stderr, run.stderr
+    assert re.search(rf"chunk part-\S+ failed on the Ray cluster: the plugin {MISTAKES.name} failed at "
+                     rf"{MISTAKES.name}:{BROKEN} in __call__: AttributeError: .*; 0 finished part\(s\) are kept",
+                     run.stderr), run.stderr
 
 
 @pytest.mark.parametrize("flags, message", [

@@ -603,11 +603,12 @@ def test_a_signal_stops_a_run_at_once_not_after_its_chunk(sig, status, tmp_path)
                                                 "--quiet", "--chunk-fields", "12"],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                            env={**os.environ, "JAX_PLATFORMS": "cpu"})
-    for moment in (1.5, 4.0):  # compiling, then computing
-        time.sleep(moment)
-        if moment == 4.0:
-            sent = time.monotonic()
-            run.send_signal(sig)
+    lock, deadline = tmp_path / "o" / ".lock", time.monotonic() + 120
+    while not lock.exists() and run.poll() is None and time.monotonic() < deadline:  # started on any machine
+        time.sleep(0.05)
+    time.sleep(2.5)  # the chunk compiling or computing: the main thread waits inside XLA
+    sent = time.monotonic()
+    run.send_signal(sig)
     _, err = run.communicate(timeout=120)
     assert run.returncode == status, err
     assert time.monotonic() - sent < 2.0
