@@ -124,13 +124,17 @@ def plugin_digests() -> dict[str, str]:
 _REMOTE_FRAME = re.compile(r'File "(?P<file>[^"]+)", line (?P<line>\d+), in (?P<func>\S+)')
 
 
+def _ray_cause(err: BaseException) -> BaseException | None:
+    """The exception a Ray worker raised where ``err`` is its task's error (whose text is the worker's traceback)."""
+    cause = getattr(err, "cause", None)
+    ray_task = any(c.__name__ == "RayTaskError" for c in type(err).__mro__)
+    return cause if ray_task and isinstance(cause, BaseException) else None
+
+
 def _remote_text(err: BaseException) -> str | None:
     """The traceback another process formatted for ``err``: ``concurrent.futures``' remote traceback, or a Ray
     task's error (its worker's traceback); None for an error raised here."""
-    if type(err).__name__ == "_RemoteTraceback":
-        return str(err)
-    ray_task = any(c.__name__ == "RayTaskError" for c in type(err).__mro__)  # its text: the worker's traceback
-    return str(err) if ray_task and isinstance(getattr(err, "cause", None), BaseException) else None
+    return str(err) if type(err).__name__ == "_RemoteTraceback" or _ray_cause(err) is not None else None
 
 
 def _frames(err: BaseException) -> list[tuple[str, int, str]]:
@@ -161,8 +165,7 @@ def plugin_failure(err: BaseException) -> str | None:
     shown_err, cause, seen = err, err, set()
     while cause is not None and id(cause) not in seen:
         seen.add(id(cause))
-        if _remote_text(cause) is not None and type(cause).__name__ != "_RemoteTraceback":
-            shown_err = cause.cause  # a Ray task's error: the exception the worker raised
+        shown_err = _ray_cause(cause) or shown_err  # a Ray task's error: the exception the worker raised
         deepest = None
         for file, line, func in _frames(cause):
             where = os.path.realpath(file)
