@@ -531,11 +531,7 @@ def _scorecard(args: argparse.Namespace) -> int:
     if args.rescore and args.method:
         raise ConfigError("--rescore scores the zoo; --method scores one method against it: give one of them")
     if not (args.rescore or args.method):
-        board = card.folder / "leaderboard.md"
-        if not board.is_file():
-            raise ConfigError(f"scorecard {card.version}: no stored leaderboard at {board}; score the zoo first "
-                              "(--rescore)")
-        print(read_own(board).decode("utf-8"), end="")
+        print(read_own(card.stored("leaderboard.md")).decode("utf-8"), end="")
         return 0
     configure_jax(cache_dir=None if args.no_cache else default_cache_dir())
     label = args.name or args.method or "zoo"

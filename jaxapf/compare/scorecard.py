@@ -90,6 +90,14 @@ class Scorecard:
         """What to do where the stored zoo cannot be used: the command that scores it again."""
         return f"score the zoo again (jaxapf scorecard {self.option} --rescore)"
 
+    def stored(self, name: str) -> pathlib.Path:
+        """The stored zoo's file ``name`` beside the card, refused in one line where it is missing."""
+        path = self.folder / name
+        if not path.is_file():
+            raise ConfigError(f"scorecard {self.version}: no {name} beside the card ({self.folder}): its zoo is not "
+                              f"stored; {self.again}")
+        return path
+
     def for_method(self, method: str) -> CompareSpec:
         """The scorecard's protocol with ``method`` beside the zoo: the same selection (families, seeds, budget,
         candidates, the zoo's default search) and test, the gains it reads searched (the card's frozen
@@ -140,9 +148,7 @@ def identity() -> dict[str, str]:
 def stored_identity(card: Scorecard) -> dict[str, str]:
     """The engine that made the stored zoo (``identity.json``), refused in one line where it is missing or
     damaged, or where the zoo was scored under another digest than the card's (its protocol changed since)."""
-    path = card.folder / "identity.json"
-    if not path.is_file():
-        raise ConfigError(f"scorecard {card.version}: no {path.name} beside its stored episodes; {card.again}")
+    path = card.stored("identity.json")
     kept = _read_record(path, f"scorecard {card.version}: ", card.again)
     if kept.get("digest") != card.digest:
         raise ConfigError(f"scorecard {card.version}: the stored zoo was scored under digest "
@@ -155,10 +161,7 @@ def stored_episodes(card: Scorecard) -> pd.DataFrame:
     """The zoo's stored episodes, verified (a part edited by hand is refused in one line: its content hash)."""
     from ..sweep import read_sweep
 
-    path = card.folder / "episodes.parquet"
-    if not path.is_file():
-        raise ConfigError(f"scorecard {card.version}: no stored episodes at {path}; score the zoo first "
-                          f"(jaxapf scorecard {card.option} --rescore)")
+    path = card.stored("episodes.parquet")
     try:
         df, _ = read_sweep(path)
     except ConfigError as err:
@@ -232,9 +235,7 @@ def _read_record(path: pathlib.Path, who: str, advice: str) -> dict[str, Any]:
 def stored_selections(card: Scorecard) -> list[Any]:
     """The zoo's selections (``selection.csv`` beside the card), refused in one line where it is missing or
     unreadable."""
-    stored = card.folder / "selection.csv"
-    if not stored.is_file():
-        raise ConfigError(f"scorecard {card.version}: no {stored.name} beside its stored episodes; {card.again}")
+    stored = card.stored("selection.csv")
     try:
         return read_selections(card.spec, stored)
     except (OSError, ValueError, KeyError, TypeError) as err:

@@ -18,6 +18,7 @@ from conftest import ROOT
 from jaxapf import stats
 from jaxapf.cli import main
 from jaxapf.compare.scorecard import DriftError, check_drift, load_scorecard, score_method, score_zoo
+from jaxapf.validation import ConfigError
 
 pytestmark = pytest.mark.slow  # the module fixture scores a zoo (tens of seconds)
 
@@ -161,6 +162,22 @@ def test_a_name_of_the_zoo_and_a_missing_card_are_one_line(zoo, tmp_path, capsys
     assert "no scorecard at" in capsys.readouterr().err
     assert main(["scorecard", "--card", str(card.folder)]) == 0
     assert "| rank | method |" in capsys.readouterr().out
+
+
+def test_a_card_whose_zoo_is_not_stored_is_one_line_naming_the_file(tmp_path, capsys):
+    """A card without its stored zoo: showing its leaderboard, or reading its episodes, selections or identity,
+    is one line naming the missing file and the command that scores the zoo."""
+    from jaxapf.compare.scorecard import stored_episodes, stored_identity, stored_selections
+
+    shutil.copy(ROOT / "tests" / "data" / "scorecard-tiny" / "scorecard.toml", tmp_path / "scorecard.toml")
+    card = load_scorecard(folder=tmp_path)
+    assert main(["scorecard", "--card", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no leaderboard.md beside the card" in err[0] and "--rescore" in err[0]
+    for read, name in ((stored_episodes, "episodes.parquet"), (stored_identity, "identity.json"),
+                       (stored_selections, "selection.csv")):
+        with pytest.raises(ConfigError, match=f"no {re.escape(name)} beside the card .* --rescore"):
+            read(card)
 
 
 def test_the_tutorial_ranks_its_plugin_as_the_page_says(zoo, tmp_path, capsys):
