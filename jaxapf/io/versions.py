@@ -6,6 +6,7 @@ import hashlib
 import os
 import pathlib
 import platform
+import stat
 from importlib import metadata
 
 import jax
@@ -45,11 +46,19 @@ def source_digest(root: pathlib.Path | None = None) -> str:
     h = hashlib.sha256()
     for path in sorted(root.rglob("*.py")):
         name = path.relative_to(root)
-        if path.is_file() and not any(part.startswith(".") for part in name.parts):  # not an editor's lock or backup
+        if any(part.startswith(".") for part in name.parts):  # an editor's lock or backup
+            continue
+        try:  # a link is read through; a FIFO opened without waiting, then passed over like a folder
+            fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+        except FileNotFoundError:  # a dangling link, or a file removed since the listing
+            continue
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            os.close(fd)
+            continue
+        with open(fd, "rb") as fh:
             h.update(name.as_posix().encode() + b"\0")
-            with open(path, "rb") as fh:  # in blocks: a file linked here may be of any size
-                while block := fh.read(1 << 20):
-                    h.update(block)
+            while block := fh.read(1 << 20):  # in blocks: a file linked here may be of any size
+                h.update(block)
             h.update(b"\0")
     return h.hexdigest()
 

@@ -185,11 +185,12 @@ def test_every_file_the_package_reads_goes_through_jaxapf_io(repo_root):
     assert found == [], "read through jaxapf.io.names.open_read or read_own: " + ", ".join(found)
 
 
-def test_the_source_digest_is_every_py_file_by_name_and_nothing_else(tmp_path):
+def test_the_source_digest_is_every_py_file_by_name_and_nothing_else(tmp_path, monkeypatch):
     """identity()'s source digest (jaxapf.io.versions.source_digest): sha256 over each ``.py`` file's relative path
-    and bytes in name order, a linked one read through; an editor's dot-file or a FIFO adds nothing (and never
-    blocks); an edit changes it."""
+    and bytes in name order, a linked one read through; an editor's dot-file, a dangling link, a folder or a FIFO
+    adds nothing, and a FIFO is never waited on, even one planted after the listing; an edit changes it."""
     import hashlib
+    import threading
 
     from jaxapf.io.versions import source_digest
 
@@ -206,6 +207,16 @@ def test_the_source_digest_is_every_py_file_by_name_and_nothing_else(tmp_path):
     (pkg / ".hidden").mkdir()
     (pkg / ".hidden" / "d.py").write_text("z = 3\n")
     os.mkfifo(pkg / "f.py")
+    (pkg / "d.py").symlink_to(tmp_path / "gone.py")
+    (pkg / "e.py").mkdir()
     assert source_digest(pkg) == expect
+    # a FIFO planted after the listing looked (every name taken for a file) is still never waited on
+    monkeypatch.setattr(pathlib.Path, "is_file", lambda self: True)
+    found = []
+    worker = threading.Thread(target=lambda: found.append(source_digest(pkg)), daemon=True)
+    worker.start()
+    worker.join(20)
+    assert found == [expect]
+    monkeypatch.undo()
     (pkg / "a.py").write_text("x = 2\n")
     assert source_digest(pkg) != expect
