@@ -1,5 +1,5 @@
 """The code in the docs runs: docs/extending.md's Python blocks are one plugin module, used as the
-page says (a spec naming it, the CLI with --plugin), in a fresh process."""
+page says (its spec, verbatim, beside the plugin; the CLI with --plugin), in a fresh process."""
 
 from __future__ import annotations
 
@@ -18,6 +18,10 @@ CHECK = textwrap.dedent("""
     from jaxapf.cli import main
 
     root, plugin = pathlib.Path(sys.argv[1]), sys.argv[2]
+    # "Using them": the page's spec, verbatim, beside the plugin, names it as the page says
+    from jaxapf.sweep import load_spec
+    (root / "my-study.toml").write_text(sys.argv[3])
+    study = load_spec(root / "my-study.toml")
     listing = io.StringIO()
     with contextlib.redirect_stdout(listing):
         assert main(["--plugin", plugin, "list", "planners"]) == 0
@@ -70,6 +74,7 @@ CHECK = textwrap.dedent("""
         "finite": bool(rows[["mean_speed", "final_distance"]].notna().all().all()),
         "methods": sorted(set(rows["method"])), "lag_matters": bool(lag.loc[0.05] != lag.loc[0.2]),
         "report": [reported, "could not re-simulate" in page, "## " in page],
+        "study": [study.name, sorted(dict(study.grid)["method"])],
     }))
 """)
 
@@ -81,9 +86,11 @@ def test_extending_examples_run_as_documented(tmp_path, repo_root):
     assert len(blocks) >= 8
     plugin = tmp_path / "my_components.py"
     plugin.write_text("\n\n".join(blocks), encoding="utf-8")
+    (study,) = [b for b in re.findall(r"```toml\n(.*?)```", page, flags=re.S) if "[scenario]" in b]
+    commands = re.findall(r"```bash\n(.*?)```", page, flags=re.S)
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"} | {"JAX_PLATFORMS": "cpu"}
-    proc = subprocess.run([sys.executable, "-c", CHECK, str(tmp_path), str(plugin)], env=env, capture_output=True,
-                          text=True, timeout=540)
+    proc = subprocess.run([sys.executable, "-c", CHECK, str(tmp_path), str(plugin), study], env=env,
+                          capture_output=True, text=True, timeout=540)
     assert proc.returncode == 0, proc.stderr[-3000:]
     out = json.loads(next(line for line in proc.stdout.splitlines() if line.startswith("RESULT "))[7:])
     assert {"closing", "closing_damped", "smoothed_dv", "closing_goal", "closing_goal_normalised", "flicker",
@@ -99,6 +106,10 @@ def test_extending_examples_run_as_documented(tmp_path, repo_root):
     assert out["lag_matters"]  # the plant's traced time constant reaches the episodes
     reported, failed, written = out["report"]
     assert reported == 0 and written and not failed
+    assert out["study"] == ["my-study", ["basic", "closing", "closing_damped", "smoothed_dv"]]
+    # the commands run the spec from the folder it lies in, and name the plugin where the spec does not
+    (lines,) = commands
+    assert "jaxapf sweep my-study.toml" in lines and "runs/my-study.parquet" in lines
 
 
 def test_spec_examples_in_the_docs_parse(repo_root):

@@ -142,8 +142,9 @@ class Family:
 
     Attributes:
       params: its :class:`FamilyParams` subclass (``params.family`` is the name).
-      build: ``build(draws, params, length) -> Layout``: the obstacles in the local frame (start at
-        the origin, goal at ``(length, 0)``), from the field's :class:`~jaxapf.scenarios.layout.Draws`.
+      build: ``build(draws, params, length) -> (Layout, kind)``: the obstacles in the local frame (start at
+        the origin, goal at ``(length, 0)``) and the index of the kind drawn, from the field's
+        :class:`~jaxapf.scenarios.layout.Draws`.
       kinds: the kinds of field it draws (one name if it draws one kind).
       description: one line for ``jaxapf list families``.
       defining: the kind that shows what the family is about, which ``jaxapf simulate --family`` flies

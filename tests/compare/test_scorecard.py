@@ -226,7 +226,7 @@ def test_the_pages_numbers_are_the_shipped_cards():
     assert drawn == ["swarm_study.py"]
     swarms = re.search(r"^FAMILIES = \((.*)\)$", (ROOT / "analysis" / "swarm_study.py").read_text(), re.M)
     assert swarms and not set(re.findall(r'"(\w+)"', swarms.group(1))) & {*sel.families, *spec.test.families}
-    assert "study 16 draws its swarms, another kind, from it" in page.replace("\n", " ")
+    assert "study 16 draws its swarms, another family, from it" in page.replace("\n", " ")
 
 
 def test_the_searched_gains_are_frozen_and_a_new_methods_own_are_added():
