@@ -331,12 +331,17 @@ def facts(card: Scorecard, board: Board, spent: Sequence[Any] = ()) -> dict[str,
     """The zoo's leaderboard as named facts (``facts.json`` beside the card, which the README binds): per member
     its rank, success, collision and median clearance with their intervals over the seeds, test episodes,
     selection episodes and seconds, and per-family success and collision; the identical members, the selection
-    ties and the hours every selection (``spent``) took together."""
+    ties and the hours every selection (``spent``) took together; and the card's protocol in numbers (what a page
+    describing the zoo quotes)."""
     table = board.table.set_index("method")
     numbers = ("success", "success_lo", "success_hi", "collision", "collision_lo", "collision_hi",
                "clearance_median", "clearance_median_lo", "clearance_median_hi", "selection_episodes",
                "selection_seconds")
-    return {"version": card.version, "digest": card.digest, "members": len(table),
+    spec = card.spec
+    protocol = {"seeds": len(spec.selection.seeds), "budget": spec.selection.budget,
+                "candidates": spec.selection.candidates, "families": len(spec.test.families),
+                "test_fields": spec.test.fields, "test_seed": spec.test.seed}
+    return {"version": card.version, "digest": card.digest, "members": len(table), "protocol": protocol,
             "rank": {m: int(v) for m, v in table["rank"].items()},
             "episodes": {m: int(v) for m, v in table["episodes"].items()},
             **{c: {m: _finite(v) for m, v in table[c].items()} for c in numbers},

@@ -63,6 +63,8 @@ def test_the_zoos_facts_are_its_leaderboard(zoo, again):
     found = json.loads((card.folder / "facts.json").read_text())
     table = pd.read_csv(card.folder / "leaderboard.csv").set_index("method")
     assert found["digest"] == card.digest and found["members"] == len(card.spec.methods) == len(table)
+    assert found["protocol"] == {"seeds": 3, "budget": 12, "candidates": 3, "families": 1, "test_fields": 128,
+                                 "test_seed": 300}  # tests/data/scorecard-tiny/scorecard.toml
     for m in card.spec.methods:
         assert found["rank"][m] == table.loc[m, "rank"]
         for key in ("success", "success_lo", "success_hi", "collision", "clearance_median", "clearance_median_lo",
