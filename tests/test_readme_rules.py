@@ -12,7 +12,7 @@ from jaxapf.cli import build_parser
 #: figures and intervals are not counted), as the README says above the table.
 ANSWER_WORDS = 30
 #: Where tracked binary files may live: the README's images, test data and the studies' committed results.
-BINARY_FOLDERS = ("docs/img/", "tests/data/", "analysis/results/")
+BINARY_FOLDERS = ("docs/img/", "tests/data/", "analysis/results/", "jaxapf/compare/scorecards/")
 
 
 def _section(readme: str, title: str) -> str:
